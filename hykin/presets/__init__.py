@@ -1,0 +1,1 @@
+"""Robot presets shipped with hykin (TOML robot files, DESIGN.md §3)."""
