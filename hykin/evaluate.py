@@ -1,0 +1,106 @@
+"""Evaluation of a model on a measured dataset: nominal vs calibrated vs hybrid error tables and plots."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .dataset import Dataset
+from .fk import fk
+from .metrics import ErrorStats, error_stats, format_table
+from .robot import Robot
+from .se3 import pose_error
+
+__all__ = ["EvalResult", "evaluate_model", "evaluation_report"]
+
+
+@dataclass
+class EvalResult:
+    """Per-model error statistics on one dataset, plus the per-sample errors for plots.
+
+    ``stats``: ordered mapping row name -> :class:`ErrorStats` (e.g. nominal, calibrated, hybrid).
+    ``errors``: row name -> ``(pos_mm (N,), ang_deg (N,) or None)``.
+    ``support_distance``: ``(N,)`` distance of each sample from the training region (hybrid models).
+    """
+
+    dataset: str
+    n: int
+    position_only: bool
+    stats: dict[str, ErrorStats]
+    errors: dict[str, tuple[np.ndarray, np.ndarray | None]] = field(repr=False, default_factory=dict)
+    support_distance: np.ndarray | None = field(repr=False, default=None)
+
+    def to_dict(self) -> dict:
+        d = {
+            "dataset": self.dataset,
+            "n": self.n,
+            "position_only": self.position_only,
+            "stats": {k: v.to_dict() for k, v in self.stats.items()},
+        }
+        if self.support_distance is not None:
+            d["outside_training_region"] = int(np.sum(self.support_distance > 0))
+        return d
+
+    def table(self) -> str:
+        t = format_table(self.stats)
+        if self.support_distance is not None:
+            n_out = int(np.sum(self.support_distance > 0))
+            t += f"\n{n_out} of {self.n} samples lie outside the training region (network correction faded there)."
+        return t
+
+    def json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2)
+
+
+def evaluate_model(model, data: Dataset) -> EvalResult:
+    """Errors of the nominal, calibrated and hybrid predictions of ``model`` against ``data``.
+
+    ``model`` is a :class:`hykin.hybrid.HybridModel` or a plain :class:`Robot` (nominal FK only).
+    """
+    T_meas = data.poses()
+    pos_only = not data.has_orientation
+    preds: dict[str, np.ndarray] = {}
+    dist = None
+    if isinstance(model, Robot):
+        preds["nominal"] = fk(model, data.q)
+    else:
+        nominal = getattr(model, "nominal", None)
+        if nominal is not None:
+            preds["nominal"] = fk(nominal, data.q)
+        if getattr(model, "calibration", None) is not None or getattr(model, "calibrate", False):
+            preds["calibrated"] = model.predict_classical(data.q)
+        preds["hybrid"] = model.predict(data.q)
+        if hasattr(model, "support_distance"):
+            dist = np.asarray(model.support_distance(data.q))
+    stats, errors = {}, {}
+    for name, T in preds.items():
+        stats[name] = error_stats(T, T_meas, position_only=pos_only)
+        p, a = pose_error(T, T_meas)
+        errors[name] = (p, None if pos_only else a)
+    return EvalResult(
+        dataset=data.source, n=len(data), position_only=pos_only, stats=stats, errors=errors, support_distance=dist
+    )
+
+
+def evaluation_report(res: EvalResult, out_dir: str | Path, title: str = "hykin evaluation") -> Path:
+    """Write ``out_dir/report.html`` with the table and before/after error distributions."""
+    from .report import Report, error_histograms
+
+    out_dir = Path(out_dir)
+    rep = Report(title)
+    rep.text(f"Dataset: {res.dataset} ({res.n} samples{', position only' if res.position_only else ''}).")
+    rep.heading("Errors")
+    rep.pre(res.table())
+    names = list(res.errors)
+    first, last = names[0], names[-1]
+    b, a = res.errors[first], res.errors[last]
+    rep.figure(
+        error_histograms(b[0], a[0], b[1], a[1], labels=(first, last)),
+        caption=f"Error distributions, {first} vs {last}.",
+    )
+    (out_dir).mkdir(parents=True, exist_ok=True)
+    (out_dir / "evaluation.json").write_text(res.json(), encoding="utf-8")
+    return rep.write(out_dir / "report.html")

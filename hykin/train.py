@@ -1,0 +1,244 @@
+"""Training recipes for the residual networks (DESIGN.md §1.1).
+
+Loss: mean Euclidean norm of the remaining residual, ``mean_i ||y_i - net(q_i)||`` (position in m,
+orientation as a rotation vector in rad). Early stopping on a validation set restores the best
+weights. Training is deterministic for a given seed, device and thread count.
+
+Recipes (:func:`get_recipe`):
+
+* ``"paper"`` — Ojer et al. 2024: Adagrad, lr 0.005, batch 128, <= 300 epochs, early stopping on
+  validation (patience 20 epochs), float32.
+* ``"default"`` (ours) — AdamW (lr 3e-3, weight decay 0), batch 256, one-cycle schedule over the
+  epoch budget (no early stop; the best validation epoch is kept), then an L-BFGS polish of the
+  last weights in full batch, float64. Chosen by measurement: accuracy per CPU-minute
+  (benchmarks/bench_hybrid.py).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from dataclasses import asdict, dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+import torch
+
+from .nets import ResidualNet
+
+__all__ = ["Recipe", "RECIPES", "get_recipe", "TrainResult", "train_net", "norm_loss"]
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A training recipe. ``dtype`` is "float32" or "float64"; ``schedule`` "none", "onecycle" or
+    "cosine"; ``patience`` in epochs (0 = no early stopping, still keeps the best epoch);
+    ``lbfgs_steps``: full-batch L-BFGS iterations after the first-order phase (0 = none)."""
+
+    name: str
+    optimizer: str = "adamw"
+    lr: float = 3e-3
+    weight_decay: float = 0.0
+    batch_size: int = 256
+    max_epochs: int = 300
+    patience: int = 0
+    schedule: str = "onecycle"
+    dtype: str = "float64"
+    lbfgs_steps: int = 0
+    val_fraction: float = 0.1
+    normalise: str = "data"
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+RECIPES: dict[str, Recipe] = {
+    "paper": Recipe(
+        "paper", optimizer="adagrad", lr=0.005, batch_size=128, max_epochs=300, patience=20, schedule="none",
+        dtype="float32",
+    ),
+    "default": Recipe(
+        "default", optimizer="adamw", lr=3e-3, batch_size=256, max_epochs=200, patience=0, schedule="onecycle",
+        dtype="float64", lbfgs_steps=0,
+    ),
+}
+
+
+def get_recipe(recipe: str | Recipe | dict, **overrides) -> Recipe:
+    """Recipe by name (``"paper"``, ``"default"``), or a Recipe / dict, with field overrides."""
+    if isinstance(recipe, Recipe):
+        r = recipe
+    elif isinstance(recipe, dict):
+        r = Recipe(**recipe)
+    else:
+        if recipe not in RECIPES:
+            raise ValueError(f"unknown recipe {recipe!r}; choose from {', '.join(RECIPES)}")
+        r = RECIPES[recipe]
+    bad = set(overrides) - set(Recipe.__dataclass_fields__)
+    if bad:
+        raise ValueError(f"unknown recipe field(s) {sorted(bad)}")
+    return replace(r, **overrides) if overrides else r
+
+
+@dataclass
+class TrainResult:
+    """What happened in :func:`train_net`. Losses are mean residual norms in SI units."""
+
+    epochs: int
+    best_epoch: int
+    best_val: float
+    final_train: float
+    seconds: float
+    stopped: str
+    history: list = field(default_factory=list)  # (epoch, train_loss, val_loss)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["history"] = [list(h) for h in self.history]
+        return d
+
+
+def norm_loss(pred, target):
+    """Mean Euclidean norm of ``target - pred`` over rows."""
+    return torch.linalg.vector_norm(target - pred, dim=-1).mean()
+
+
+def _dtype(name: str) -> torch.dtype:
+    return {"float32": torch.float32, "float64": torch.float64}[name]
+
+
+@torch.no_grad()
+def _eval(net: ResidualNet, X, Y, batch: int = 65536) -> float:
+    tot = 0.0
+    for i in range(0, X.shape[0], batch):
+        tot += float(torch.linalg.vector_norm(Y[i : i + batch] - net(X[i : i + batch]), dim=-1).sum())
+    return tot / max(X.shape[0], 1)
+
+
+def train_net(
+    net: ResidualNet,
+    q_train: np.ndarray,
+    y_train: np.ndarray,
+    q_val: np.ndarray | None,
+    y_val: np.ndarray | None,
+    recipe: Recipe,
+    seed: int = 0,
+    device: str = "cpu",
+    max_seconds: float | None = None,
+    callback: Callable[[int, int, float, float], None] | None = None,
+) -> TrainResult:
+    """Train ``net`` in place to map ``q`` ``(N, n)`` to residuals ``y`` ``(N, k)`` (SI units).
+
+    Sets the net's output scaling from ``y_train`` (mean, RMS norm). The weights of the epoch with
+    the lowest validation loss (training loss without validation data) are restored at the end.
+    ``max_seconds`` stops training early (the best weights so far are kept).
+    ``callback(epoch, max_epochs, train_loss, val_loss)`` is called after each epoch.
+    """
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError("device 'cuda' requested but torch.cuda.is_available() is False")
+    t0 = time.perf_counter()
+    dt = _dtype(recipe.dtype)
+    torch.manual_seed(seed)
+    gen = torch.Generator(device="cpu").manual_seed(seed)
+    prev_det = torch.are_deterministic_algorithms_enabled()
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    try:
+        net.to(device=device, dtype=dt)
+        X = torch.as_tensor(np.asarray(q_train), dtype=torch.float64, device=device)
+        Y = torch.as_tensor(np.asarray(y_train), dtype=dt, device=device)
+        if not torch.isfinite(X).all() or not torch.isfinite(Y).all():
+            raise ValueError("train_net: training joints or residuals contain NaN/inf")
+        bias = Y.mean(0)
+        scale = torch.linalg.vector_norm(Y - bias, dim=-1).pow(2).mean().sqrt().clamp_min(1e-12)
+        net.set_output_scale(bias, scale)
+        has_val = q_val is not None and len(q_val) > 0
+        if has_val:
+            Xv = torch.as_tensor(np.asarray(q_val), dtype=torch.float64, device=device)
+            Yv = torch.as_tensor(np.asarray(y_val), dtype=dt, device=device)
+        # Losses are computed on the scaled output: (y - bias)/scale vs body(q).
+        Ys = (Y - bias) / scale
+        N = X.shape[0]
+        bs = min(recipe.batch_size, N)
+        steps_per_epoch = math.ceil(N / bs)
+        params = list(net.parameters())
+        if recipe.optimizer == "adagrad":
+            opt = torch.optim.Adagrad(params, lr=recipe.lr, weight_decay=recipe.weight_decay)
+        elif recipe.optimizer == "adamw":
+            opt = torch.optim.AdamW(params, lr=recipe.lr, weight_decay=recipe.weight_decay)
+        elif recipe.optimizer == "adam":
+            opt = torch.optim.Adam(params, lr=recipe.lr, weight_decay=recipe.weight_decay)
+        else:
+            raise ValueError(f"unknown optimizer {recipe.optimizer!r}")
+        total = recipe.max_epochs * steps_per_epoch
+        if recipe.schedule == "onecycle":
+            sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=recipe.lr, total_steps=total, pct_start=0.15)
+        elif recipe.schedule == "cosine":
+            sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=total, eta_min=recipe.lr * 1e-3)
+        elif recipe.schedule == "none":
+            sched = None
+        else:
+            raise ValueError(f"unknown schedule {recipe.schedule!r}")
+
+        best_val, best_epoch, best_state = math.inf, -1, None
+        history, stopped, bad = [], "max_epochs", 0
+        epoch = 0
+        for epoch in range(1, recipe.max_epochs + 1):
+            net.train()
+            perm = torch.randperm(N, generator=gen).to(device)
+            tot = 0.0
+            for k in range(steps_per_epoch):
+                idx = perm[k * bs : (k + 1) * bs]
+                if idx.numel() < 2 and any(isinstance(m, torch.nn.BatchNorm1d) for m in net.modules()):
+                    continue  # BatchNorm cannot train on a batch of one
+                loss = torch.linalg.vector_norm(Ys[idx] - net.body_forward(X[idx]), dim=-1).mean()
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                if sched is not None:
+                    sched.step()
+                tot += float(loss.detach()) * idx.numel()
+            net.eval()
+            train_loss = tot / N * float(scale)
+            val_loss = _eval(net, Xv, Yv) if has_val else train_loss
+            history.append((epoch, train_loss, val_loss))
+            if callback is not None:
+                callback(epoch, recipe.max_epochs, train_loss, val_loss)
+            if val_loss < best_val:
+                best_val, best_epoch, bad = val_loss, epoch, 0
+                best_state = copy.deepcopy(net.state_dict())
+            else:
+                bad += 1
+            if recipe.patience and bad >= recipe.patience:
+                stopped = "early_stopping"
+                break
+            if max_seconds is not None and time.perf_counter() - t0 > max_seconds:
+                stopped = "max_seconds"
+                break
+        if recipe.lbfgs_steps > 0:
+            net.eval()  # full-batch polish; BatchNorm statistics frozen
+            lb = torch.optim.LBFGS(params, lr=1.0, max_iter=recipe.lbfgs_steps, history_size=50,
+                                   line_search_fn="strong_wolfe", tolerance_grad=1e-12, tolerance_change=1e-15)
+
+            def closure():
+                lb.zero_grad(set_to_none=True)
+                ls = torch.linalg.vector_norm(Ys - net.body_forward(X), dim=-1).mean()
+                ls.backward()
+                return ls
+
+            lb.step(closure)
+            val_loss = _eval(net, Xv, Yv) if has_val else _eval(net, X, Y)
+            history.append((epoch + 1, _eval(net, X, Y), val_loss))
+            if val_loss < best_val:
+                best_val, best_epoch = val_loss, epoch + 1
+                best_state = copy.deepcopy(net.state_dict())
+        if best_state is not None:
+            net.load_state_dict(best_state)
+        net.eval()
+        final_train = _eval(net, X, Y)
+    finally:
+        torch.use_deterministic_algorithms(prev_det)
+    return TrainResult(
+        epochs=epoch, best_epoch=best_epoch, best_val=float(best_val), final_train=final_train,
+        seconds=time.perf_counter() - t0, stopped=stopped, history=history,
+    )
