@@ -1,0 +1,133 @@
+"""Registration of a new measurement series to an existing hybrid model.
+
+When the tracker is moved or the tool is changed, the robot's own error model (calibrated joints,
+compliance, residual networks) stays valid; only the rigid frames around it change. A new series
+is registered by fitting two rigid transforms, ``T_meas ≈ B · T_model(q) · E`` (B: measurement
+frame -> old world frame, E: old TCP -> new TCP), from a few of its poses, without retraining.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .dataset import Dataset
+from .se3 import make_transform, pose_error, rotation_difference_rotvec, rotvec_to_matrix
+
+__all__ = ["RegistrationInfo", "fit_frames", "select_spread", "register_model"]
+
+
+@dataclass
+class RegistrationInfo:
+    """What a registration did and how well: errors on the poses used and on the rest of the series."""
+
+    n_used: int
+    n_total: int
+    frame_pre: np.ndarray
+    frame_post: np.ndarray
+    used_pos_mean_mm: float
+    used_ang_mean_deg: float | None
+    rest_pos_mean_mm: float | None
+    rest_ang_mean_deg: float | None
+    used_index: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, int))
+
+    def summary(self) -> str:
+        ang = lambda v: "" if v is None else f", {v:.4f} deg"  # noqa: E731
+        s = (
+            f"registered from {self.n_used} of {self.n_total} poses: "
+            f"{self.used_pos_mean_mm:.4f} mm{ang(self.used_ang_mean_deg)} mean on those poses"
+        )
+        if self.rest_pos_mean_mm is not None:
+            s += f"; {self.rest_pos_mean_mm:.4f} mm{ang(self.rest_ang_mean_deg)} mean on the other {self.n_total - self.n_used}"
+        return s
+
+
+def select_spread(q: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
+    """Indices of ``n`` rows of ``q`` spread over joint space (greedy farthest-point sampling)."""
+    q = np.asarray(q, dtype=np.float64)
+    N = len(q)
+    if n >= N:
+        return np.arange(N)
+    z = (q - q.mean(0)) / np.maximum(q.std(0), 1e-12)
+    rng = np.random.default_rng(seed)
+    idx = [int(rng.integers(N))]
+    d = np.linalg.norm(z - z[idx[0]], axis=1)
+    for _ in range(n - 1):
+        k = int(np.argmax(d))
+        idx.append(k)
+        d = np.minimum(d, np.linalg.norm(z - z[k], axis=1))
+    return np.array(sorted(idx))
+
+
+def _pose6(x: np.ndarray) -> np.ndarray:
+    return make_transform(rotvec_to_matrix(x[:3]), x[3:6])
+
+
+def fit_frames(
+    T_model: np.ndarray, T_meas: np.ndarray, position_only: bool = False, orientation_weight_m_per_rad: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares ``B, E`` with ``T_meas ≈ B · T_model · E``; returns ``(B (4,4), E (4,4))``.
+
+    Initialised with a Kabsch fit of the positions. With ``position_only`` only E's translation is
+    fitted (its rotation is not observable from positions).
+    """
+    from .referencing import kabsch
+
+    R0, t0 = kabsch(T_model[:, :3, 3], T_meas[:, :3, 3])[:2]
+    x0 = np.concatenate([rotation_difference_rotvec(R0, np.eye(3)), t0, np.zeros(6)])
+    w = orientation_weight_m_per_rad
+
+    def resid(x):
+        B = _pose6(x[:6])
+        E = _pose6(np.concatenate([np.zeros(3) if position_only else x[6:9], x[9:12]]))
+        T = B @ T_model @ E
+        r = [(T[:, :3, 3] - T_meas[:, :3, 3]).ravel()]
+        if not position_only:
+            r.append(w * rotation_difference_rotvec(T[:, :3, :3], T_meas[:, :3, :3]).ravel())
+        return np.concatenate(r)
+
+    sol = least_squares(resid, x0, method="lm" if len(T_model) * 3 >= 12 else "trf", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    x = sol.x
+    B = _pose6(x[:6])
+    E = _pose6(np.concatenate([np.zeros(3) if position_only else x[6:9], x[9:12]]))
+    return B, E
+
+
+def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0):
+    """Register ``series`` to ``model`` from ``n_poses`` spread poses; returns ``(new_model, info)``.
+
+    The returned model is a copy whose ``frame_pre``/``frame_post`` carry the new frames; the
+    networks and calibrated parameters are untouched. ``info`` reports the error on the poses used
+    and on the rest of the series (an honest check of the registration).
+    """
+    if n_poses < 3:
+        raise ValueError(f"register: need at least 3 poses, got {n_poses}")
+    if len(series) < 3:
+        raise ValueError(f"{series.source}: a series needs at least 3 poses to register, got {len(series)}")
+    pos_only = not series.has_orientation
+    idx = select_spread(series.q, n_poses, seed)
+    new = copy.deepcopy(model)
+    new.frame_pre = np.eye(4)
+    new.frame_post = np.eye(4)
+    T_model = new.predict(series.q)
+    T_meas = series.poses()
+    B, E = fit_frames(T_model[idx], T_meas[idx], position_only=pos_only)
+    new.frame_pre, new.frame_post = B, E
+    T_reg = B @ T_model @ E
+    p, a = pose_error(T_reg, T_meas)
+    rest = np.setdiff1d(np.arange(len(series)), idx)
+    info = RegistrationInfo(
+        n_used=len(idx),
+        n_total=len(series),
+        frame_pre=B,
+        frame_post=E,
+        used_pos_mean_mm=float(p[idx].mean()),
+        used_ang_mean_deg=None if pos_only else float(a[idx].mean()),
+        rest_pos_mean_mm=float(p[rest].mean()) if len(rest) else None,
+        rest_ang_mean_deg=None if pos_only or not len(rest) else float(a[rest].mean()),
+        used_index=idx,
+    )
+    return new, info
