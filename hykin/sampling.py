@@ -186,7 +186,21 @@ def _reach(robot: Robot) -> float:
     return float(np.sum(np.abs(robot.a_m)) + np.sum(np.abs(robot.d_m)) + np.linalg.norm(robot.tool[:3, 3]))
 
 
-def _pose_ik(robot: Robot, T_target: np.ndarray, seeds: np.ndarray, tol_m: float = 1e-9):
+def _shoulder_and_reach(robot: Robot) -> tuple[np.ndarray, float]:
+    """Joint-2 axis origin at zero joints (robot base frame) and the 95th percentile of the TCP's
+    distance from it over random joints (a robust working reach)."""
+    from .fk import fk_frames
+
+    q0 = np.clip(np.zeros((1, robot.dof)), robot.lower, robot.upper)
+    inv_base = np.linalg.inv(robot.base)
+    j = min(1, robot.dof - 1)
+    shoulder = (inv_base @ fk_frames(robot, q0).joint[0, j])[:3, 3]
+    q = robot.random_joints(2000, np.random.default_rng(12345))
+    p = (inv_base[None] @ fk(robot, q))[:, :3, 3]
+    return shoulder, float(np.percentile(np.linalg.norm(p - shoulder, axis=1), 95))
+
+
+def _pose_ik(robot: Robot, T_target: np.ndarray, seeds: np.ndarray, tol_m: float = 1e-9, ref=None):
     """Numerical IK (damped least squares on fk, scipy) from several seeds; best solution or None."""
     from scipy.optimize import least_squares
 
@@ -211,10 +225,23 @@ def _pose_ik(robot: Robot, T_target: np.ndarray, seeds: np.ndarray, tol_m: float
         sol = least_squares(res, s, jac=jac, bounds=(lo, hi), method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15)
         err = np.linalg.norm(sol.fun)
         if best is None or err < best[1]:
-            best = (sol.x, err)
+            best = (_wrap_towards(robot, sol.x, ref), err)
         if err < tol_m:
             break
     return best
+
+
+def _wrap_towards(robot: Robot, q: np.ndarray, ref=None) -> np.ndarray:
+    """Shift revolute joints by multiples of 2π towards ``ref`` (default: mid-range); same pose."""
+    q = q.copy()
+    mid = 0.5 * (robot.lower + robot.upper) if ref is None else ref
+    for i, t in enumerate(robot.joint_type):
+        if t == "revolute":
+            k = np.round((q[i] - mid[i]) / (2 * np.pi))
+            cand = q[i] - k * 2 * np.pi
+            if robot.lower[i] <= cand <= robot.upper[i]:
+                q[i] = cand
+    return q
 
 
 def iso_cube(
@@ -232,18 +259,18 @@ def iso_cube(
 
     The diagonal plane contains two opposite vertical cube edges: it is spanned by ``(1, 1, 0)/√2``
     and ``z`` (world frame) through the centre, normal ``(1, -1, 0)/√2``; its corners are cube corners,
-    its diagonals are cube space diagonals. Defaults: centre 0.55 x reach in front of the base at
-    the height of joint 2, edge 0.25 x reach, tool z pointing down. Joints come from numerical IK
+    its diagonals are cube space diagonals. Defaults: centre half the working reach R (95th
+    percentile of the TCP distance from the joint-2 axis origin) in front of that origin along
+    base x, edge 0.25 R, tool z pointing down. Joints come from numerical IK
     (scipy least_squares, random seeds from ``rng``), P2..P5 seeded from P1 to stay on one branch.
     Raises :class:`PlanError` when a pose is not reachable to 1e-6 m.
     """
     cycles = _check_n(cycles)
     rng = _rng(rng)
-    reach = _reach(robot)
     base_R, base_p = robot.base[:3, :3], robot.base[:3, 3]
+    shoulder, reach = _shoulder_and_reach(robot)
     if center_m is None:
-        h = robot.d_m[0] if robot.convention != "urdf" else robot.origin_xyz_m[0, 2]
-        center_m = base_p + base_R @ np.array([0.55 * reach, 0.0, h])
+        center_m = base_p + base_R @ (shoulder + np.array([0.5 * reach, 0.0, 0.0]))
     c = np.asarray(center_m, dtype=np.float64).reshape(3)
     side = 0.25 * reach if side_m is None else float(side_m)
     if not side > 0:
@@ -261,7 +288,7 @@ def iso_cube(
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = R, p
         s = seeds if k == 0 else np.vstack([q_pts[0], seeds[:5]])
-        best = _pose_ik(robot, T, s)
+        best = _pose_ik(robot, T, s, ref=None if k == 0 else q_pts[0])
         if best is None or best[1] > 1e-6:
             raise PlanError(
                 f"iso_cube: pose P{k + 1} at {np.round(p, 4).tolist()} m is not reachable "
