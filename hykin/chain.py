@@ -19,6 +19,8 @@ differentiate the chain with respect to geometric parameters (:func:`geometry_of
 
 from __future__ import annotations
 
+import operator
+import weakref
 from dataclasses import dataclass
 from typing import Any
 
@@ -154,18 +156,60 @@ def _as(xp, mask: np.ndarray, like):
     return xp.as_tensor(mask, dtype=like.dtype, device=like.device)
 
 
+# Fields whose *objects* key the chain cache (see :func:`chain_of`).
+_GEOMETRY_FIELDS = (
+    "convention", "joint_type", "a_m", "alpha_rad", "d_m", "theta_rad", "beta_rad", "origin_xyz_m",
+    "origin_rpy_rad", "axis", "base", "tool",
+)
+_get_geometry = operator.itemgetter(*_GEOMETRY_FIELDS)  # applied to robot.__dict__ (C-level lookups)
+
+
 def chain_of(robot: Robot) -> Chain:
-    """Cached numpy :class:`Chain` of ``robot`` (rebuilt when the robot's geometry changes)."""
-    key = _geometry_key(robot)
-    cached = getattr(robot, "_chain_cache", None)
-    if cached is not None and cached[0] == key:
-        return cached[1]
+    """Cached numpy :class:`Chain` of ``robot`` (rebuilt when the robot's geometry changes).
+
+    Cache rule: the cache is keyed on the *identity* of the robot's geometry fields (``convention``,
+    ``joint_type``, ``a_m``, ``alpha_rad``, ``d_m``, ``theta_rad``, ``beta_rad``, ``origin_xyz_m``,
+    ``origin_rpy_rad``, ``axis``, ``base``, ``tool``), which makes a cache hit cost well under a
+    microsecond. Assigning a new array to a field (``robot.d_m = d2``) or ``robot.copy(...)`` gives a new
+    chain. So that a stale chain can never be returned, the cached robot's geometry arrays are made
+    read-only: in-place edits (``robot.d_m[0] += 1e-3``) raise ``ValueError`` instead of being missed;
+    assign a new array or use ``robot.copy(d_m=...)`` to change geometry.
+    """
+    fields = _get_geometry(robot.__dict__)
+    cached = _CACHE.get(id(robot))
+    if cached is not None and cached[0]() is robot:
+        # ``tuple ==`` checks identity first, so identical fields cost a pointer compare each. A field
+        # replaced by another array raises (ambiguous truth value) -> rebuild; only 1-element arrays
+        # (1-DOF robots) could compare equal without being identical, so those use ``is`` throughout.
+        try:
+            hit = all(map(operator.is_, fields, cached[1])) if cached[3] else fields == cached[1]
+        except ValueError:
+            hit = False
+        if hit:
+            return cached[2]
     ch = build_chain(robot)
-    object.__setattr__(robot, "_chain_cache", (key, ch))
+    for arr in fields[2:]:
+        if isinstance(arr, np.ndarray):
+            arr.flags.writeable = False
+    key = id(robot)
+
+    def _drop(ref, key=key):  # robot garbage-collected: forget its chain
+        entry = _CACHE.get(key)
+        if entry is not None and entry[0] is ref:
+            del _CACHE[key]
+
+    strict = any(isinstance(f, np.ndarray) and f.size == 1 for f in fields)
+    _CACHE[key] = (weakref.ref(robot, _drop), fields, ch, strict)
     return ch
 
 
+# id(robot) -> (weakref to robot, geometry field objects, Chain, strict identity check). Kept outside the robot so that
+# copy.deepcopy / pickle of a robot never carry a chain keyed on the original's arrays.
+_CACHE: dict[int, tuple] = {}
+
+
 def _geometry_key(robot: Robot) -> bytes:
+    """Content key of the robot's geometry (bytes); for caches that must see in-place edits too."""
     parts = [
         robot.a_m, robot.alpha_rad, robot.d_m, robot.theta_rad, robot.beta_rad, robot.origin_xyz_m,
         robot.origin_rpy_rad, robot.axis, robot.base, robot.tool,
