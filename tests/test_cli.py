@@ -1,0 +1,133 @@
+"""Command line: commands work end to end and bad input gives one line and a non-zero exit."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from hykin.cli import main
+from hykin.dataset import Dataset, read_dataset, write_dataset
+from hykin.fk import fk
+from hykin.robot import load_robot
+from hykin.se3 import pose_error
+
+
+def run(argv, capsys):
+    """Run the CLI in-process; returns (exit code, stdout, stderr)."""
+    try:
+        main(argv)
+        code = 0
+    except SystemExit as e:
+        code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def write_joints(path, q, header=None):
+    header = header or [f"q{i + 1}" for i in range(q.shape[1])]
+    with open(path, "w") as f:
+        f.write(",".join(header) + "\n")
+        for row in q:
+            f.write(",".join(repr(float(v)) for v in row) + "\n")
+
+
+def test_help_for_every_command(capsys):
+    for cmd in ("simulate", "fit", "fk", "ik", "evaluate", "register", "demo", "import", "calibrate", "export"):
+        code, out, _ = run([cmd, "--help"], capsys)
+        assert code == 0 and "Usage" in out, cmd
+
+
+def test_fk_nominal_matches_library(tmp_path, capsys):
+    robot = load_robot("rx160")
+    q = robot.random_joints(50, 1)
+    write_joints(tmp_path / "j.csv", q)
+    code, out, err = run(["fk", "rx160", str(tmp_path / "j.csv"), "-o", str(tmp_path / "p.csv")], capsys)
+    assert code == 0, err
+    ds = read_dataset(tmp_path / "p.csv")
+    p, a = pose_error(ds.poses(), fk(robot, q))
+    assert p.max() < 1e-9 and a.max() < 1e-9
+
+
+def test_fk_degrees_declared(tmp_path, capsys):
+    robot = load_robot("ur5")
+    q = robot.random_joints(20, 2) * 0.5
+    write_joints(tmp_path / "j.csv", np.degrees(q))
+    code, _, err = run(["fk", "ur5", str(tmp_path / "j.csv"), "-o", str(tmp_path / "p.csv"), "--angle-unit", "deg"], capsys)
+    assert code == 0, err
+    ds = read_dataset(tmp_path / "p.csv")
+    assert np.allclose(ds.xyz_m, fk(robot, q)[:, :3, 3], atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "content, expect",
+    [
+        ("q1,q2,q3,q4,q5,q6\n0,0,0,0,nan,0\n", "row"),  # NaN names the row
+        ("q1,q2,q3,q4,q5,q6\n0,0,90,0,45,0\n", "deg"),  # degrees passed as radians
+        ("q1,q2,q3\n0,0,0\n", "q4"),  # missing columns
+    ],
+)
+def test_bad_joint_files_one_line_errors(tmp_path, capsys, content, expect):
+    f = tmp_path / "bad.csv"
+    f.write_text(content)
+    code, out, err = run(["fk", "rx160", str(f), "-o", str(tmp_path / "p.csv")], capsys)
+    assert code != 0
+    lines = [ln for ln in err.strip().splitlines() if ln]
+    assert len(lines) == 1 and lines[0].startswith("hykin: error:"), err
+    assert str(f) in lines[0] and expect in lines[0], lines[0]
+    assert "Traceback" not in err
+
+
+def test_unknown_robot_one_line(tmp_path, capsys):
+    write_joints(tmp_path / "j.csv", np.zeros((1, 6)))
+    code, _, err = run(["fk", "no-such-robot", str(tmp_path / "j.csv"), "-o", str(tmp_path / "p.csv")], capsys)
+    assert code != 0 and "no-such-robot" in err and len(err.strip().splitlines()) == 1
+
+
+def test_simulate_writes_data_and_truth(tmp_path, capsys):
+    out = tmp_path / "sim.csv"
+    code, _, err = run(["simulate", "rx160-virtual", "-n", "300", "-o", str(out), "--seed", "3", "--plan", "random"], capsys)
+    assert code == 0, err
+    ds = read_dataset(out)
+    assert len(ds) == 300 and ds.has_orientation
+    assert (tmp_path / "sim.truth.json").exists()
+    # the simulated robot differs from the nominal one by about the paper's 1.8 mm
+    p, _ = pose_error(fk(load_robot("rx160"), ds.q), ds.poses())
+    assert 0.5 < p.mean() < 5.0
+
+
+def test_calibrate_command_recovers_truth(tmp_path, capsys):
+    out = tmp_path / "sim.csv"
+    assert run(["simulate", "rx160-virtual", "-n", "1500", "-o", str(out), "--no-noise"], capsys)[0] == 0
+    from hykin.simulate import load_truth, simulate
+
+    vr = load_truth(tmp_path / "sim.truth.json")
+    code, stdout, err = run(["calibrate", _nominal_file(vr, tmp_path), str(out), "-o", str(tmp_path / "cal.toml")], capsys)
+    assert code == 0, err
+    cal = load_robot(tmp_path / "cal.toml")
+    q = vr.nominal.random_joints(300, 9)
+    test = simulate(vr, q, noise=False)
+    from hykin.compliance import compliant_fk
+
+    p, a = pose_error(compliant_fk(cal, q), test.poses())
+    assert p.mean() < 1e-3 and a.mean() < 1e-4  # below 1 µm and 1e-4 deg
+
+
+def _nominal_file(vr, tmp_path):
+    from hykin.robot import save_robot_toml
+
+    path = tmp_path / "nominal.toml"
+    save_robot_toml(vr.nominal, path)
+    return str(path)
+
+
+def test_console_script_entry_point(tmp_path):
+    """The installed module entry point exits non-zero with one line on a missing file."""
+    proc = subprocess.run(
+        [sys.executable, "-c", "from hykin.cli import main; main()", "fk", "rx160", str(tmp_path / "missing.csv"), "-o", str(tmp_path / "o.csv")],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode != 0
+    assert proc.stderr.strip().count("\n") == 0 and "missing.csv" in proc.stderr
