@@ -239,7 +239,6 @@ def ik_cmd(
 ) -> None:
     """Inverse kinematics: every branch (or the one nearest the seed joints), failures reported."""
     from .dataset import read_joints, read_poses
-    from .hybrid_ik import classical_ik_rows, hybrid_ik, ik_result_to_rows
 
     mdl, rob = _load_model_or_robot(model)
     T, has_rot = read_poses(poses, length_unit=length_unit)
@@ -252,16 +251,59 @@ def ik_cmd(
         elif len(q_cur) != len(T):
             raise CLIError(f"{seed_joints}: {len(q_cur)} rows, expected 1 or {len(T)} (one per target)")
     nearest = not all_branches
+    if nearest and q_cur is None:
+        q_cur = np.zeros((len(T), rob.dof))  # nearest to the zero pose when no seed is given
     if mdl is None:
-        rows = classical_ik_rows(rob, T, q_current=q_cur, nearest=nearest, position_only=position_only)
+        rows = _classical_ik_rows(rob, T, q_cur if nearest else None, position_only)
     else:
-        res = hybrid_ik(mdl, T, all_branches=True, q_current=q_cur, nearest=nearest, position_only=position_only)
+        from .hybrid_ik import hybrid_ik, ik_result_to_rows
+
+        target = T[:, :3, 3] if position_only else T
+        res = hybrid_ik(mdl, target, all_branches=True, q_current=q_cur, nearest=nearest, position_only=position_only)
         rows = ik_result_to_rows(res)
     _write_rows(rows, out)
     ok = np.asarray(rows["success"], dtype=bool)
     n_targets = len(T)
     solved = len(set(np.asarray(rows["target"])[ok].tolist()))
     typer.echo(f"wrote {len(ok)} solution rows for {n_targets} targets to {out} ({solved} solved, {n_targets - solved} failed)")
+
+
+def _classical_ik_rows(robot, T, q_current, position_only: bool) -> dict:
+    """Rows for classical IK on a robot: every branch, or the one nearest ``q_current``."""
+    from .ik import ik
+
+    br = ik(robot, T, all_branches=True, position_only=position_only)
+    if q_current is not None:
+        r = br.nearest_to(q_current, robot.lower, robot.upper)
+        q, ok, pe, ae, lab = r.q[:, None], r.success[:, None], r.pos_err_m[:, None], r.ang_err_rad[:, None], np.asarray(r.label)[:, None]
+    else:
+        q, ok, pe, ae, lab = br.q, br.success, br.pos_err_m, br.ang_err_rad, br.label
+    N, K, n = q.shape
+    rows: dict = {"target": [], "branch": []}
+    rows.update({f"q{j + 1}": [] for j in range(n)})
+    rows.update({"success": [], "pos_err_mm": [], "ang_err_deg": [], "reason": []})
+    for i in range(N):
+        ks = [k for k in range(K) if ok[i, k]]
+        if not ks:  # unreachable: one row saying so, no made-up joints
+            rows["target"].append(i)
+            rows["branch"].append("")
+            for j in range(n):
+                rows[f"q{j + 1}"].append(float("nan"))
+            rows["success"].append(False)
+            rows["pos_err_mm"].append(float(np.nanmin(pe[i]) * 1e3) if np.isfinite(pe[i]).any() else float("nan"))
+            rows["ang_err_deg"].append(float(np.degrees(np.nanmin(ae[i]))) if np.isfinite(ae[i]).any() else float("nan"))
+            rows["reason"].append("unreachable: no solution within joint limits")
+            continue
+        for k in ks:
+            rows["target"].append(i)
+            rows["branch"].append(str(lab[i, k]))
+            for j in range(n):
+                rows[f"q{j + 1}"].append(float(q[i, k, j]))
+            rows["success"].append(True)
+            rows["pos_err_mm"].append(float(pe[i, k] * 1e3))
+            rows["ang_err_deg"].append(float(np.degrees(ae[i, k])))
+            rows["reason"].append("")
+    return rows
 
 
 def _write_rows(rows: dict, out: Path) -> None:

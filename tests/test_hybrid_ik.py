@@ -1,0 +1,255 @@
+"""Hybrid IK (DESIGN.md §1.3) against a stand-in hybrid model whose correction is a known function.
+
+The stand-in: a perturbed ("calibrated") RX160 as the classical robot plus a smooth residual of
+~2 mm / ~0.1° (sums of sines of the joints). Checks are independent of the solver: FK of the returned
+joints against the target, closed-form branch counts on the nominal robot, joint limits, and finite
+differences for the Jacobian.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from hykin import se3
+from hykin.fk import fk, fk_torch, jacobian
+from hykin.hybrid_ik import (
+    HybridIKError,
+    _Problem,
+    hybrid_ik,
+    hybrid_ik_from_seeds,
+    ik_result_to_rows,
+    wang_ik,
+)
+from hykin.ik_analytic import ik_closed_form
+from hykin.robot import load_robot
+
+
+class StandInHybrid:
+    """Classical robot ``robot`` (perturbed RX160) + residual ``Δp = A0 sin(W0 q + φ0)``, ``Δr = A1 sin(W1 q + φ1)``."""
+
+    def __init__(self, seed: int = 0, pos_mm: float = 2.0, rot_deg: float = 0.1, support=None, robot=None):
+        rng = np.random.default_rng(seed)
+        nom = load_robot("rx160")
+        self.nominal = nom
+        self.robot = robot if robot is not None else nom.copy(
+            a_m=nom.a_m + rng.normal(0, 3e-4, 6), d_m=nom.d_m + rng.normal(0, 3e-4, 6),
+            alpha_rad=nom.alpha_rad + rng.normal(0, 3e-4, 6), theta_rad=nom.theta_rad + rng.normal(0, 3e-4, 6),
+            beta_rad=rng.normal(0, 2e-4, 6),
+        )
+        self.W = rng.normal(0, 1.0, (2, 6, 6))
+        self.ph = rng.uniform(0, 2 * np.pi, (2, 6))
+        self.A = rng.normal(0, 1, (2, 3, 6))
+        self.A[0] *= pos_mm * 1e-3 / np.sqrt(6)
+        self.A[1] *= np.radians(rot_deg) / np.sqrt(6)
+        self.support = support
+
+    def _corr(self, q, xp):
+        cv = (lambda a: a) if xp is np else torch.as_tensor
+        dp = xp.sin(q @ cv(self.W[0].T) + cv(self.ph[0])) @ cv(self.A[0].T)
+        dr = xp.sin(q @ cv(self.W[1].T) + cv(self.ph[1])) @ cv(self.A[1].T)
+        return dp, dr
+
+    def predict_classical(self, q):
+        return fk(self.robot, q)
+
+    def predict(self, q):
+        q = np.asarray(q, dtype=np.float64)
+        T = fk(self.robot, q).copy()
+        dp, dr = self._corr(q, np)
+        T[:, :3, 3] += dp
+        T[:, :3, :3] = se3.rotvec_to_matrix(dr) @ T[:, :3, :3]
+        return T
+
+    def predict_torch(self, q):
+        T = fk_torch(self.robot, q)
+        dp, dr = self._corr(q, torch)
+        R = se3.so3_exp_torch(dr) @ T[:, :3, :3]
+        top = torch.cat([R, (T[:, :3, 3] + dp)[:, :, None]], 2)
+        bot = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=q.dtype).expand(q.shape[0], 1, 4)
+        return torch.cat([top, bot], 1)
+
+    def support_distance(self, q):
+        if self.support is None:
+            return np.zeros(len(q))
+        lo, hi = self.support
+        return np.maximum(np.maximum(lo - q, q - hi), 0.0).max(1)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return StandInHybrid()
+
+
+def well_conditioned(robot, n, rng, min_sv=0.1):
+    """Random joints away from singularities (smallest singular value of the Jacobian >= min_sv) with
+    joints 4 and 6 in (-170°, 170°), the representation the closed form returns (nearest zero)."""
+    q = robot.random_joints(20 * n, rng, margin=0.05)
+    q[:, [3, 5]] = rng.uniform(-np.radians(170), np.radians(170), (len(q), 2))
+    sv = np.linalg.svd(jacobian(robot, q), compute_uv=False)[:, -1]
+    return q[sv >= min_sv][:n]
+
+
+@pytest.fixture(scope="module")
+def sample(model):
+    q = well_conditioned(model.robot, 40, np.random.default_rng(7))
+    T = model.predict(q)
+    return q, T
+
+
+@pytest.fixture(scope="module")
+def solved(model, sample):
+    return hybrid_ik(model, sample[1], all_branches=True)
+
+
+def test_round_trip_accuracy(model, sample, solved):
+    q_true, T = sample
+    res = solved
+    assert res.solved_targets.all()
+    ok = res.success
+    # independent check: hybrid FK of the returned joints against the targets
+    pe, ae = se3.pose_error(model.predict(res.q[ok]), T[res.target[ok]])
+    assert pe.max() <= 1e-6 and ae.max() <= 1e-5
+    assert np.allclose(pe, res.pos_err_mm[ok], atol=1e-9)
+    # the joints the targets were made from are among the solutions
+    for t in range(len(T)):
+        qs = res.q[ok & (res.target == t)]
+        assert np.abs(qs - q_true[t]).max(1).min() < 1e-7
+
+
+def test_all_branches_match_closed_form_count(model, sample, solved):
+    _, T = sample
+    n_nominal = ik_closed_form(model.nominal, T).n_solutions
+    n_found = np.bincount(solved.target[solved.success], minlength=len(T))
+    assert n_found.sum() == n_nominal.sum()
+    assert n_found.sum() > 2 * len(T)  # several branches per target, not one
+    # distinct: no two solutions of one target within 1e-6 rad
+    for t in range(len(T)):
+        qs = solved.q[solved.success & (solved.target == t)]
+        d = np.abs(qs[:, None] - qs[None]).max(-1) + np.eye(len(qs))
+        assert d.min() > 1e-6
+
+
+def test_joint_limits_respected(model, sample, solved):
+    ok = solved.success
+    assert model.robot.within_limits(solved.q[ok]).all()
+
+
+def test_solution_beyond_a_joint_limit_fails(model):
+    # Limit joint 2 just below the hybrid solution: the classical seed lies inside, the answer does not.
+    q_true = np.radians([[20.0, 30.0, 40.0, 10.0, 50.0, 30.0]])
+    T = model.predict(q_true)
+    upper = model.robot.upper.copy()
+    upper[1] = q_true[0, 1] - np.radians(0.01)
+    seed = q_true - 0.0  # classical start at/near the true joints, clipped into the limits by the solver
+    m2 = StandInHybrid(robot=model.robot.copy(upper=upper))
+    m2.W, m2.ph, m2.A = model.W, model.ph, model.A
+    res = hybrid_ik_from_seeds(m2, T, seed[:, None], keep_failed=True)
+    assert not res.success.any()
+    assert "joint limit" in res.reason[0]
+    assert res.q[0, 1] <= upper[1] + 1e-12
+
+
+def test_unreachable_target_is_reported(model, sample):
+    T = sample[1][:2].copy()
+    T[1, :3, 3] = [5.0, 0.0, 0.5]  # 5 m away, arm reach ~2 m
+    res = hybrid_ik(model, T)
+    assert res.solved_targets.tolist() == [True, False]
+    bad = res.target == 1
+    assert bad.sum() == 1 and not res.success[bad].any()
+    assert res.reason[bad][0] != ""
+
+
+def test_position_only(model, sample):
+    q_true, T = sample
+    rng = np.random.default_rng(3)
+    q_cur = q_true[:10] + rng.normal(0, 0.05, (10, 6))
+    res = hybrid_ik(model, T[:10, :3, 3], q_current=q_cur, all_branches=False)
+    assert res.position_only and res.success.all() and len(res) == 10
+    P = model.predict(res.q)[:, :3, 3]
+    assert np.linalg.norm(P - T[res.target, :3, 3], axis=1).max() * 1e3 <= 1e-6
+    assert model.robot.within_limits(res.q).all()
+
+
+def test_nearest_solution(model, sample, solved):
+    q_true, T = sample
+    rng = np.random.default_rng(5)
+    q_cur = q_true + rng.normal(0, 0.01, q_true.shape)
+    res = hybrid_ik(model, T, nearest=True, q_current=q_cur)
+    assert len(res) == len(T) and (res.target == np.arange(len(T))).all()
+    assert np.abs(res.q - q_true).max() < 1e-7
+    # with a training support that excludes the true joints of target 0, another branch is preferred
+    lo, hi = model.robot.lower.copy(), model.robot.upper.copy()
+    j = 0
+    alt = solved.q[solved.success & (solved.target == 0)]
+    alt = alt[np.abs(alt - q_true[0]).max(1) > 1e-3]
+    assert len(alt) > 0
+    # support: joint 1 within a small window around an alternative solution only
+    lo[j], hi[j] = alt[0, j] - 1e-3, alt[0, j] + 1e-3
+    m2 = StandInHybrid(robot=model.robot, support=(lo, hi))
+    m2.W, m2.ph, m2.A = model.W, model.ph, model.A
+    res2 = hybrid_ik(m2, T[:1], nearest=True, q_current=q_cur[:1])
+    assert len(res2) == 1 and res2.in_support[0]
+    assert abs(res2.q[0, j] - alt[0, j]) < 1e-3
+
+
+def test_wang_is_worse(model, sample, solved):
+    _, T = sample
+    w = wang_ik(model, T)
+    fin = np.isfinite(w.pos_err_mm)
+    assert fin.sum() >= solved.success.sum() - 2
+    ours = solved.pos_err_mm[solved.success].mean()
+    theirs = w.pos_err_mm[fin].mean()
+    assert theirs > 1e-4  # Wang leaves the change of the correction between q1 and q2
+    assert theirs > 1e3 * max(ours, 1e-12)
+    assert w.ang_err_deg[fin].mean() > 1e2 * max(solved.ang_err_deg[solved.success].mean(), 1e-12)
+
+
+def test_jacobian_matches_finite_differences(model, sample):
+    q, T = sample
+    prob = _Problem(model, model.robot, T[:5] @ se3.trans(0.001, 0.0, 0.0), False, 1.0)
+    rows = np.arange(5)
+    Ja = prob.exact_jac(q[:5], rows)
+    Jn = prob._fd_jac(q[:5], rows, h=1e-6)
+    assert np.abs(Ja - Jn).max() < 1e-7
+
+
+def test_rows_for_csv(model, sample, solved):
+    cols = ik_result_to_rows(solved)
+    names = list(cols)
+    assert names[:8] == ["target", "branch", "q1", "q2", "q3", "q4", "q5", "q6"]
+    for c in ("success", "pos_err_mm", "ang_err_deg", "reason"):
+        assert c in cols and len(cols[c]) == len(solved)
+
+
+def test_bad_input(model):
+    with pytest.raises(HybridIKError):
+        hybrid_ik(model, np.zeros((3, 5)))
+    with pytest.raises(HybridIKError):
+        hybrid_ik(model, np.full((1, 4, 4), np.nan))
+    with pytest.raises(HybridIKError):
+        hybrid_ik(object(), np.eye(4)[None])
+
+
+@pytest.mark.slow
+def test_round_trip_with_a_trained_hybrid_model():
+    """rx160-virtual: a small HybridModel (calibration + nets), hybrid FK -> hybrid IK -> hybrid FK."""
+    from hykin.hybrid import HybridModel
+    from hykin.simulate import simulate, virtual_preset
+
+    vr = virtual_preset("rx160-virtual")
+    rng = np.random.default_rng(0)
+    ds = simulate(vr, vr.nominal.random_joints(3000, rng), noise=False)
+    model = HybridModel(vr.nominal, max_seconds=30).fit(ds, progress=False)
+    q = well_conditioned(model.robot_, 50, rng)
+    T = model.predict(q)
+    res = hybrid_ik(model, T)
+    assert res.solved_targets.all()
+    ok = res.success
+    pe, ae = se3.pose_error(model.predict(res.q[ok]), T[res.target[ok]])
+    assert pe.max() <= 1e-6 and ae.max() <= 1e-5
+    n_nominal = ik_closed_form(vr.nominal, T).n_solutions
+    assert np.bincount(res.target[ok], minlength=len(T)).sum() == n_nominal.sum()
+    w = wang_ik(model, T)
+    assert np.nanmean(w.pos_err_mm) > 1e3 * pe.mean()
