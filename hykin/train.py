@@ -9,9 +9,9 @@ Recipes (:func:`get_recipe`):
 * ``"paper"`` — Ojer et al. 2024: Adagrad, lr 0.005, batch 128, <= 300 epochs, early stopping on
   validation (patience 20 epochs), float32.
 * ``"default"`` (ours) — AdamW (lr 3e-3, weight decay 0), batch 256, one-cycle schedule over the
-  epoch budget (no early stop; the best validation epoch is kept), then an L-BFGS polish of the
-  last weights in full batch, float64. Chosen by measurement: accuracy per CPU-minute
-  (benchmarks/bench_hybrid.py).
+  epoch budget of 200 (no early stop; the best validation epoch is kept), float32 (2-4x faster than
+  float64 on CPU at no loss: residuals are stored scaled to O(1)). Optional full-batch L-BFGS polish
+  (``lbfgs_steps``). Chosen by measurement: accuracy per CPU-minute (benchmarks/bench_hybrid.py).
 """
 
 from __future__ import annotations
@@ -34,7 +34,10 @@ __all__ = ["Recipe", "RECIPES", "get_recipe", "TrainResult", "train_net", "norm_
 class Recipe:
     """A training recipe. ``dtype`` is "float32" or "float64"; ``schedule`` "none", "onecycle" or
     "cosine"; ``patience`` in epochs (0 = no early stopping, still keeps the best epoch);
-    ``lbfgs_steps``: full-batch L-BFGS iterations after the first-order phase (0 = none)."""
+    ``lbfgs_steps``: full-batch L-BFGS iterations after the first-order phase (0 = none);
+    ``threads``: torch CPU threads while training (0 = auto: 1 for nets under 1 M parameters, where
+    per-operation overhead dominates and a second thread mostly adds synchronisation (3-5x slower
+    on a busy 2-core machine, measured), else ``torch.get_num_threads()``)."""
 
     name: str
     optimizer: str = "adamw"
@@ -48,6 +51,7 @@ class Recipe:
     lbfgs_steps: int = 0
     val_fraction: float = 0.1
     normalise: str = "data"
+    threads: int = 0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -60,7 +64,7 @@ RECIPES: dict[str, Recipe] = {
     ),
     "default": Recipe(
         "default", optimizer="adamw", lr=3e-3, batch_size=256, max_epochs=200, patience=0, schedule="onecycle",
-        dtype="float64", lbfgs_steps=0,
+        dtype="float32", lbfgs_steps=0,
     ),
 }
 
@@ -134,6 +138,8 @@ def train_net(
     the lowest validation loss (training loss without validation data) are restored at the end.
     ``max_seconds`` stops training early (the best weights so far are kept).
     ``callback(epoch, max_epochs, train_loss, val_loss)`` is called after each epoch.
+    Initial weights are the caller's: seed torch before :func:`hykin.nets.make_net` for full
+    reproducibility (:class:`hykin.hybrid.HybridModel` does).
     """
     if device.startswith("cuda") and not torch.cuda.is_available():
         raise ValueError("device 'cuda' requested but torch.cuda.is_available() is False")
@@ -142,6 +148,10 @@ def train_net(
     torch.manual_seed(seed)
     gen = torch.Generator(device="cpu").manual_seed(seed)
     prev_det = torch.are_deterministic_algorithms_enabled()
+    prev_threads = torch.get_num_threads()
+    n_params = sum(p.numel() for p in net.parameters())
+    threads = recipe.threads or (1 if (n_params < 1_000_000 and device == "cpu") else prev_threads)
+    torch.set_num_threads(threads)
     torch.use_deterministic_algorithms(True, warn_only=True)
     try:
         net.to(device=device, dtype=dt)
@@ -238,6 +248,7 @@ def train_net(
         final_train = _eval(net, X, Y)
     finally:
         torch.use_deterministic_algorithms(prev_det)
+        torch.set_num_threads(prev_threads)
     return TrainResult(
         epochs=epoch, best_epoch=best_epoch, best_val=float(best_val), final_train=final_train,
         seconds=time.perf_counter() - t0, stopped=stopped, history=history,
