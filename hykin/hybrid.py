@@ -174,6 +174,31 @@ class HybridModel:
         self.net_pos_: ResidualNet | None = None
         self.net_rot_: ResidualNet | None = None
         self.meta_: dict = {}
+        self.calibration_ = None  # CalibrationResult of the last fit (not saved; its summary is in meta_)
+        # Rigid frames around the model, set by hykin.register for a new measurement series:
+        # pose = frame_pre · T_model(q) · frame_post (identity for the series the model was trained on).
+        self.frame_pre = np.eye(4)
+        self.frame_post = np.eye(4)
+
+    @property
+    def nominal(self) -> Robot:
+        """The nominal (uncalibrated) robot the model was built on."""
+        return self.robot
+
+    @property
+    def calibration(self):
+        """The :class:`hykin.calibrate.CalibrationResult` of the last ``fit`` (None after ``load``)."""
+        return self.calibration_
+
+    @property
+    def metadata(self) -> dict:
+        """Training metadata: data hash, sizes, timings, versions, metrics."""
+        return self.meta_
+
+    def _framed(self, T: np.ndarray) -> np.ndarray:
+        if np.array_equal(self.frame_pre, np.eye(4)) and np.array_equal(self.frame_post, np.eye(4)):
+            return T
+        return self.frame_pre @ T @ self.frame_post
 
     # ------------------------------------------------------------------ fitting
 
@@ -208,6 +233,7 @@ class HybridModel:
 
             res = _calibrate(self.robot, train, **self.calibrate_kw)
             self.robot_ = res.robot
+            self.calibration_ = res
             try:
                 calib = _json_safe(res.to_dict())
             except Exception:  # noqa: BLE001 - keep fitting; metadata is informative only
@@ -404,6 +430,7 @@ class HybridModel:
             if w is not None:
                 dr *= w[:, None]
             T[:, :3, :3] = _rodrigues(dr) @ T[:, :3, :3]
+        T = self._framed(T)
         return T[0] if single else T
 
     def predict_torch(self, q):
@@ -438,7 +465,12 @@ class HybridModel:
             R = se3.so3_exp_torch(dr) @ R
         bottom = T_hat[:, 3:4, :]
         top = torch.cat([R, p[:, :, None]], dim=2)
-        return torch.cat([top, bottom], dim=1)
+        T = torch.cat([top, bottom], dim=1)
+        if not (np.array_equal(self.frame_pre, np.eye(4)) and np.array_equal(self.frame_post, np.eye(4))):
+            pre = torch.as_tensor(self.frame_pre, dtype=T.dtype, device=T.device)
+            post = torch.as_tensor(self.frame_post, dtype=T.dtype, device=T.device)
+            T = pre @ T @ post
+        return T
 
     # ------------------------------------------------------------------ files
 
@@ -463,6 +495,7 @@ class HybridModel:
             "support": {"lower": self.support_lower_.tolist(), "upper": self.support_upper_.tolist(),
                         "spacing": self.support_spacing_, "gap_factor": _GAP_FACTOR},
             "has_rot_net": self.net_rot_ is not None,
+            "frames": {"pre": self.frame_pre.tolist(), "post": self.frame_post.tolist()},
             "training": _json_safe(self.meta_),
         }
         write_model_file(path, tensors, meta)
@@ -493,6 +526,10 @@ class HybridModel:
             m.support_points_ = tensors["support.points"].numpy().astype(np.float64)
             m._build_support_tree()
             m.meta_ = meta.get("training", {})
+            fr = meta.get("frames")
+            if fr is not None:
+                m.frame_pre = np.array(fr["pre"], dtype=np.float64).reshape(4, 4)
+                m.frame_post = np.array(fr["post"], dtype=np.float64).reshape(4, 4)
         except ModelFileError:
             raise
         except (KeyError, TypeError, ValueError, RuntimeError) as e:
