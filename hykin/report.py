@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-__all__ = ["Report"]
+__all__ = ["Report", "error_histograms"]
 
 _CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}
@@ -109,7 +109,7 @@ def error_histograms(before_mm, after_mm, before_deg=None, after_deg=None, label
     ):
         b, a = np.asarray(b), np.asarray(a)
         # Log-spaced bins: before and after differ by orders of magnitude.
-        lo = max(min(b.min(), a.min()), 1e-9)
+        lo = max(min(b.min(), a.min()), 1e-15)
         hi = max(b.max(), a.max())
         bins = np.geomspace(lo, hi * 1.01, 50)
         ax.hist(b, bins=bins, alpha=0.6, label=labels[0])
