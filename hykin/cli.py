@@ -153,6 +153,28 @@ def import_cmd(
         typer.echo(f"wrote the matching nominal robot to {robot_out}")
 
 
+@app.command("split")
+def split_cmd(
+    data: Path = typer.Argument(..., help="Dataset to split (.csv/.parquet)."),
+    out_prefix: Path = typer.Option(..., "-o", "--out", help="Output prefix: writes PREFIX_train.csv and PREFIX_test.csv."),
+    test: float = typer.Option(0.2, "--test", help="Fraction held out for testing.", min=0.01, max=0.99),
+    seed: int = typer.Option(0, "--seed"),
+    group: Optional[str] = typer.Option(None, "--group", help="Keep rows with the same value of this column together."),
+    length_unit: str = LengthUnit,
+    angle_unit: str = AngleUnit,
+) -> None:
+    """Random train/test split of a dataset (disjoint, reproducible)."""
+    from .dataset import read_dataset, split, write_dataset
+
+    ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit)
+    tr, te = split(ds, (1.0 - test, test), seed=seed, group=group)
+    suffix = data.suffix if data.suffix in (".csv", ".parquet") else ".csv"
+    paths = [Path(f"{out_prefix}_train{suffix}"), Path(f"{out_prefix}_test{suffix}")]
+    write_dataset(tr, paths[0])
+    write_dataset(te, paths[1])
+    typer.echo(f"wrote {len(tr)} training rows to {paths[0]} and {len(te)} test rows to {paths[1]}")
+
+
 @app.command("fit")
 def fit_cmd(
     robot: str = typer.Argument(..., help="Robot file (.toml), URDF, or preset name."),

@@ -69,7 +69,10 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
     else:
         nominal = getattr(model, "nominal", None)
         if nominal is not None:
-            preds["nominal"] = fk(nominal, data.q)
+            # A registered model carries the frames of its measurement series; the nominal row uses them too.
+            pre = getattr(model, "frame_pre", np.eye(4))
+            post = getattr(model, "frame_post", np.eye(4))
+            preds["nominal"] = pre @ fk(nominal, data.q) @ post
         if getattr(model, "calibration", None) is not None or getattr(model, "calibrate", False):
             preds["calibrated"] = model.predict_classical(data.q)
         preds["hybrid"] = model.predict(data.q)
