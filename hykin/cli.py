@@ -216,9 +216,16 @@ def fit_cmd(
 
 
 def _print_metrics(model) -> None:
-    m = getattr(model, "metadata", {}).get("metrics") if hasattr(model, "metadata") else None
-    if m:
-        typer.echo(json.dumps(m, indent=2))
+    """One line per evaluated set: calibrated vs hybrid mean errors (mm, deg)."""
+    metrics = (getattr(model, "metadata", None) or {}).get("metrics") or {}
+    for name, m in metrics.items():
+        line = f"{name}: calibrated {m.get('classical_pos_mean_mm', float('nan')):.4f} mm"
+        if "classical_rot_mean_deg" in m:
+            line += f" / {m['classical_rot_mean_deg']:.4f} deg"
+        line += f" -> hybrid {m.get('hybrid_pos_mean_mm', float('nan')):.4f} mm"
+        if "hybrid_rot_mean_deg" in m:
+            line += f" / {m['hybrid_rot_mean_deg']:.4f} deg"
+        typer.echo(line + " (mean)")
 
 
 @app.command("fk")
