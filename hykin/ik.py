@@ -123,34 +123,20 @@ def nearest_representation(q, q_ref, lower, upper):
 if HAVE_NUMBA:
     import numba
 
+    from .fk import _first, _sincos, _step
+
     @numba.njit(cache=True, nogil=True)
     def _frames(fixed, prismatic, q, z, o, T):  # pragma: no cover - compiled
-        """Joint axes z (n,3), origins o (n,3) and TCP T (3,4) of one configuration."""
-        n = q.shape[0]
+        """Joint axes z (n,3), origins o (n,3) and TCP T (3,4) of one configuration (FK's kernel steps)."""
+        st = _first(fixed[0])
+        for i in range(q.shape[0]):
+            z[i, 0], z[i, 1], z[i, 2] = st[2], st[6], st[10]
+            o[i, 0], o[i, 1], o[i, 2] = st[3], st[7], st[11]
+            sq, cq = _sincos(q[i])
+            st = _step(st, fixed[i + 1], prismatic[i], q[i], sq, cq)
         for r in range(3):
             for c in range(4):
-                T[r, c] = fixed[0, r, c]
-        for i in range(n):
-            for r in range(3):
-                z[i, r] = T[r, 2]
-                o[i, r] = T[r, 3]
-            if prismatic[i]:
-                for r in range(3):
-                    T[r, 3] += T[r, 2] * q[i]
-            else:
-                cq, sq = np.cos(q[i]), np.sin(q[i])
-                for r in range(3):
-                    x, y = T[r, 0], T[r, 1]
-                    T[r, 0] = cq * x + sq * y
-                    T[r, 1] = cq * y - sq * x
-            F = fixed[i + 1]
-            for r in range(3):
-                t0, t1, t2, t3 = T[r, 0], T[r, 1], T[r, 2], T[r, 3]
-                for c in range(4):
-                    v = t0 * F[0, c] + t1 * F[1, c] + t2 * F[2, c]
-                    if c == 3:
-                        v += t3
-                    T[r, c] = v
+                T[r, c] = st[4 * r + c]
 
     @numba.njit(cache=True, nogil=True)
     def _residual(T, Tt, pos_only, e):  # pragma: no cover - compiled
