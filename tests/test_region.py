@@ -1,0 +1,217 @@
+"""Training-region awareness of HybridModel (issue 8): periodic inputs, joint-1 frame, fade to the
+calibrated model outside the trained range, uncertainty bands and their coverage, save/load."""
+
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from hykin.dataset import Dataset
+from hykin.fk import fk
+from hykin.hybrid import HybridError, HybridModel, OutOfRangeWarning, support_report
+from hykin.robot import load_robot
+from hykin.sampling import restricted
+from hykin.se3 import pose_error, rotvec_to_matrix
+from hykin.simulate import simulate, virtual_preset
+
+FAST = {"max_epochs": 40, "batch_size": 64, "lr": 1e-2}
+
+
+def _q1_invariant_residual(robot, q):
+    """Residual that turns with joint 1 (a function of q2..q6 in the joint-1 frame), like compliance."""
+    f = 3e-4 * np.stack([np.sin(q[:, 1]), np.cos(q[:, 2] + q[:, 1]), np.sin(q[:, 4])], 1)
+    g = 2e-4 * np.stack([np.cos(q[:, 1]), np.sin(q[:, 3]), 0.5 * np.sin(q[:, 2])], 1)
+    c, s = np.cos(q[:, 0]), np.sin(q[:, 0])
+
+    def rot(v):  # joint 1 of the rx160 turns about the base z axis
+        return np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1], v[:, 2]], 1)
+
+    return rot(f), rot(g)
+
+
+def _data(robot, q):
+    T = fk(robot, q)
+    dp, dr = _q1_invariant_residual(robot, q)
+    T[:, :3, 3] += dp
+    T[:, :3, :3] = rotvec_to_matrix(dr) @ T[:, :3, :3]
+    return Dataset.from_poses(q, T)
+
+
+@pytest.fixture(scope="module")
+def rx160():
+    return load_robot("rx160")
+
+
+@pytest.fixture(scope="module")
+def frame_model(rx160):
+    # q1 only in [-60, 0] deg during training
+    q = restricted(rx160, 800, 1, ranges=np.c_[np.r_[np.radians(-60), rx160.lower[1:] * 0.8],
+                                             np.r_[0.0, rx160.upper[1:] * 0.8]], method="random")
+    m = HybridModel(rx160, calibrate=False, joint1="frame", recipe_kw=FAST, seed=0)
+    return m.fit(_data(rx160, q), progress=False)
+
+
+def test_wrap_makes_revolute_joints_periodic(frame_model, rx160):
+    m = frame_model
+    q = rx160.random_joints(20, 3, margin=0.25)
+    q2 = q.copy()
+    q2[:, 3] += 2 * np.pi  # another turn of joint 4 (inside its ±270 deg limits for some rows)
+    q2[:, 5] -= 2 * np.pi
+    T, T2 = m.predict(q), m.predict(q2)
+    assert np.abs(T - T2).max() < 1e-9  # same configuration, same pose
+    assert np.allclose(m.range_excess(q), m.range_excess(q2), atol=1e-12)
+    # the "none" representation sees a different input there (no guarantee): only check it runs
+    assert HybridModel(rx160, periodic="none").periodic == "none"
+    with pytest.raises(HybridError, match="periodic"):
+        HybridModel(rx160, periodic="sometimes")
+    with pytest.raises(HybridError, match="joint1"):
+        HybridModel(rx160, joint1="maybe")
+
+
+def test_joint1_frame_generalises_over_q1(frame_model, rx160):
+    m = frame_model
+    # q1 far outside the trained [-60, 0] deg: not an input, so no fade and full correction
+    q = restricted(rx160, 300, 5, ranges=np.c_[np.r_[np.radians(60), rx160.lower[1:] * 0.7],
+                                             np.r_[np.radians(150), rx160.upper[1:] * 0.7]], method="random")
+    ds = _data(rx160, q)
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        T = m.predict(q)
+    assert not any("q1:" in str(r.message) for r in rec)  # q1 is not a network input: never "outside"
+    assert np.all(m.range_excess(q)[:, 0] == 0)
+    pc, ac = pose_error(m.predict_classical(q), ds.poses())
+    ph, ah = pose_error(T, ds.poses())
+    assert ph.mean() < pc.mean() / 4 and ah.mean() < ac.mean() / 3, (ph.mean(), pc.mean(), ah.mean(), ac.mean())
+
+
+def test_predict_torch_matches_predict_with_wrap_and_joint1_frame(frame_model, rx160):
+    m = frame_model
+    q = rx160.random_joints(6, 7, margin=0.2)
+    q[:3, 3] += 2 * np.pi
+    T = m.predict_torch(torch.tensor(q))
+    assert np.allclose(T.detach().numpy(), m.predict(q), atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def restricted_virtual():
+    vr = virtual_preset("rx160-nongeo")
+    rob = vr.nominal
+    q_tr = restricted(rob, 1500, 0, fraction=0.4, method="random")
+    m = HybridModel(rob, seed=0, recipe_kw={"max_epochs": 60, "lr": 1e-2}).fit(simulate(vr, q_tr, rng=0), progress=False)
+    return vr, m
+
+
+def test_restricted_range_never_worse_than_calibration(restricted_virtual):
+    vr, m = restricted_virtual
+    rob = vr.nominal
+    q = rob.random_joints(2000, 2)
+    ds = simulate(vr, q, rng=2)
+    with pytest.warns(OutOfRangeWarning, match="outside the joint range"):
+        T = m.predict(q)
+    pc, _ = pose_error(m.predict_classical(q), ds.poses())
+    ph, _ = pose_error(T, ds.poses())
+    d = m.support_distance(q)
+    far = m.range_excess(q).max(1) >= m.fade_width
+    assert far.sum() > 200
+    assert np.allclose(ph[far], pc[far], atol=1e-9)  # faded out completely: the calibrated model
+    out = d > 0
+    assert ph[out].mean() <= 1.05 * pc[out].mean(), (ph[out].mean(), pc[out].mean())
+    q_in = restricted(rob, 500, 3, fraction=0.4, method="random")
+    ds_in = simulate(vr, q_in, rng=3)
+    pc_in, _ = pose_error(m.predict_classical(q_in), ds_in.poses())
+    ph_in, _ = pose_error(m.predict(q_in), ds_in.poses())
+    assert ph_in.mean() < 0.7 * pc_in.mean(), (ph_in.mean(), pc_in.mean())
+
+
+def test_uncertainty_band_coverage_and_fade(restricted_virtual):
+    vr, m = restricted_virtual
+    rob = vr.nominal
+    q_in = restricted(rob, 1500, 4, fraction=0.4, method="random")
+    ds = simulate(vr, q_in, rng=4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        p, a = pose_error(m.predict(q_in), ds.poses())
+        bp, ba = m.predict_uncertainty(q_in, 0.95)
+    assert bp.shape == (len(q_in),) and ba.shape == (len(q_in),)
+    cov_p, cov_a = np.mean(p <= bp), np.mean(a <= ba)
+    assert 0.88 <= cov_p <= 0.995 and 0.88 <= cov_a <= 0.995, (cov_p, cov_a)
+    # far outside: the band of the calibrated model (wider than the hybrid's here)
+    q_out = q_in[:5].copy()
+    q_out[:, 1] = rob.lower[1] + 0.01
+    q_out[:, 2] = rob.upper[2] - 0.01
+    bo, _ = m.predict_uncertainty(q_out, 0.95)
+    assert np.allclose(bo, np.interp(0.95, m.unc_["levels"], m.unc_["classical_pos_mm"]))
+    assert bo.min() > bp.max()
+    b50, _ = m.predict_uncertainty(q_in[:5], 0.5)
+    assert np.all(b50 < bp[:5])
+    with pytest.raises(HybridError, match="level"):
+        m.predict_uncertainty(q_in[:2], 0.999)
+
+
+def test_save_load_round_trip_new_fields(frame_model, restricted_virtual, tmp_path, rx160):
+    for m, rob in ((frame_model, rx160), (restricted_virtual[1], restricted_virtual[0].nominal)):
+        path = tmp_path / "m.hykin"
+        m.save(path)
+        m2 = HybridModel.load(path)
+        assert m2.periodic == m.periodic and m2.joint1 == m.joint1
+        assert np.array_equal(m2.wrap_centre_, m.wrap_centre_)
+        assert (m2.j1_axis_ is None) == (m.j1_axis_ is None)
+        assert np.array_equal(m2.pair_gap_, m.pair_gap_) and np.array_equal(m2.pair_index_, m.pair_index_)
+        assert m2.unc_["source"] == m.unc_["source"] and np.array_equal(m2.unc_["hybrid_pos_mm"], m.unc_["hybrid_pos_mm"])
+        q = rob.random_joints(50, 8)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", OutOfRangeWarning)
+            assert np.array_equal(m2.predict(q), m.predict(q))
+            for a, b in zip(m2.predict_uncertainty(q), m.predict_uncertainty(q)):
+                assert np.array_equal(a, b)
+            assert np.array_equal(m2.support_distance(q), m.support_distance(q))
+
+
+def test_support_report_counts(restricted_virtual):
+    _, m = restricted_virtual
+    lo, hi = m.support_lower_, m.support_upper_
+    q = np.tile((lo + hi) / 2, (4, 1))
+    q[0, 1] = hi[1] + 0.3 * (hi[1] - lo[1])
+    q[1, 1] = hi[1] + 0.3 * (hi[1] - lo[1])
+    q[1, 4] = lo[4] - 0.3 * (hi[4] - lo[4])
+    r = support_report(m, q)
+    assert r["n"] == 4 and r["outside"] == 2 and r["per_joint"] == {2: 2, 5: 1}
+    assert "2 of 4 queries" in r["message"] and "q2: 2" in r["message"]
+    assert support_report(m, q[2:])["message"] == ""
+
+
+def test_holes_inside_the_joint_box_fade_to_calibrated(rx160):
+    # training data with a hole: no sample where q2 and q3 are both in the upper 40 % of their range
+    rng = np.random.default_rng(11)
+    q = rx160.random_joints(3000, rng, margin=0.1)
+    u = (q - rx160.lower) / (rx160.upper - rx160.lower)
+    q = q[~((u[:, 1] > 0.6) & (u[:, 2] > 0.6))][:700]
+    m = HybridModel(rx160, calibrate=False, recipe_kw={"max_epochs": 5}, seed=0).fit(_data(rx160, q), progress=False)
+    lo, hi = m.support_lower_, m.support_upper_
+    q_hole = np.tile((lo + hi) / 2, (3, 1))
+    q_hole[:, 1] = lo[1] + 0.85 * (hi[1] - lo[1])
+    q_hole[:, 2] = lo[2] + 0.85 * (hi[2] - lo[2])
+    q_in = np.tile((lo + hi) / 2, (3, 1))
+    assert np.all(m.range_excess(q_hole) == 0)  # inside every joint's range ...
+    assert np.all(m.pair_gap(q_hole) > m.fade_width)  # ... but in a hole of the (q2, q3) projection
+    assert np.all(m.pair_gap(q_in) == 0) and np.all(m.support_distance(q_hole) > 0)
+    with pytest.warns(OutOfRangeWarning, match="3 of 3 queries lie in holes"):
+        T = m.predict(q_hole)
+    assert np.abs(T - m.predict_classical(q_hole)).max() < 1e-12  # faded out: the calibrated model
+    assert np.abs(m.predict(q_in) - m.predict_classical(q_in)).max() > 1e-6
+    # range-only fade ignores the hole; the differentiable twin agrees with predict in both modes
+    qq = np.vstack([q_hole, q_in, lo + (hi - lo) * np.array([0.5, 0.5, 0.62, 0.5, 0.5, 0.5])])
+    for fade in (True, "range"):
+        m.fade = fade
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", OutOfRangeWarning)
+            assert np.allclose(m.predict_torch(torch.tensor(qq)).detach().numpy(), m.predict(qq), atol=1e-12)
+    m.fade = True
+    # the pairwise gap is continuous: a small step in q moves it by little
+    t = np.linspace(0.5, 0.9, 81)
+    qs = np.tile((lo + hi) / 2, (len(t), 1))
+    qs[:, 1] = lo[1] + t * (hi[1] - lo[1])
+    qs[:, 2] = lo[2] + t * (hi[2] - lo[2])
+    g = m.pair_gap(qs)
+    assert np.abs(np.diff(g)).max() < 0.02 and g[0] == 0 and g[-1] > 0.1
