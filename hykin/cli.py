@@ -248,9 +248,12 @@ def fk_cmd(
         if no_fade:
             mdl.fade = False
         T = mdl.predict(q)
-        if hasattr(mdl, "support_distance"):
-            extra = dict(extra)
-            extra["support_distance"] = mdl.support_distance(q)
+        extra = dict(extra)
+        extra["support_distance"] = mdl.support_distance(q)
+        band_mm, band_deg = mdl.predict_uncertainty(q)
+        extra["pos_band95_mm"] = band_mm
+        if band_deg is not None:
+            extra["ang_band95_deg"] = band_deg
     write_dataset(Dataset.from_poses(q, T, extra=extra, source=str(joints)), out)
     typer.echo(f"wrote {len(q)} poses to {out}")
 
@@ -290,6 +293,12 @@ def ik_cmd(
         target = T[:, :3, 3] if position_only else T
         res = hybrid_ik(mdl, target, all_branches=True, q_current=q_cur, nearest=nearest, position_only=position_only)
         rows = ik_result_to_rows(res)
+        from .hybrid import support_report
+
+        has_q = np.isfinite(res.q).all(axis=1)
+        msg = support_report(mdl, res.q[has_q])["message"] if has_q.any() else ""
+        if msg:
+            _console().print(f"[yellow]warning:[/] {msg} (see the in_support column)")
     _write_rows(rows, out)
     ok = np.asarray(rows["success"], dtype=bool)
     n_targets = len(T)
@@ -458,6 +467,10 @@ def demo_cmd(
 
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry point: one-line errors, non-zero exit status."""
+    import warnings
+
+    # Warnings (e.g. queries outside the training region) as one readable line, no source echo.
+    warnings.formatwarning = lambda message, category, *a, **k: f"hykin: warning: {message}\n"
     try:
         app(args=argv, prog_name="hykin")
     except SystemExit:
