@@ -137,3 +137,16 @@ def test_bad_training_input():
     y[3, 1] = np.nan
     with pytest.raises(ValueError, match="NaN"):
         train_net(make_net("B3", 3), q, y, None, None, get_recipe("default", max_epochs=1))
+
+
+def test_default_recipe_small_data_batch_and_epochs():
+    """Small data sets get >= 16 batches per epoch (batch >= 32) and >= 6000 steps; large ones keep
+    batch 256 x 200 epochs; explicit batch_size / max_epochs overrides are taken literally."""
+    from hykin.train import batch_and_epochs
+
+    r = get_recipe("default")
+    assert batch_and_epochs(r, 900) == (57, 375)  # ceil(900/16) = 57 -> 16 steps/epoch, ceil(6000/16)
+    assert batch_and_epochs(r, 9000) == (256, 200)  # 36 steps x 200 = 7200 >= 6000: unchanged
+    assert batch_and_epochs(r, 300) == (32, 600)  # batch floor 32 -> 10 steps/epoch
+    assert batch_and_epochs(get_recipe("default", batch_size=64, max_epochs=8), 900) == (64, 8)
+    assert batch_and_epochs(get_recipe("paper"), 900) == (128, 300)
