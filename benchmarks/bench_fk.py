@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -26,16 +25,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from hykin.chain import chain_of  # noqa: E402
 from hykin.fk import fk, fk_torch  # noqa: E402
 from hykin.robot import load_robot  # noqa: E402
+from _timing import best_of  # noqa: E402
 
 
-def best_of(fn, repeat: int = 3) -> float:
+def best_time(fn, repeat: int = 3) -> float:
     """Best wall time of ``repeat`` calls, seconds."""
-    best = float("inf")
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
+    return best_of(fn, repeat)[0]
 
 
 def pin_model(robot):
@@ -86,14 +81,14 @@ def main() -> None:
     # ---- hykin
     fk(robot, Q[:50_000])  # compile + warm caches
     fk(robot, q1)
-    t = best_of(lambda: fk(robot, Q))
+    t = best_time(lambda: fk(robot, Q))
     rows_b.append(("hykin `fk` (numba)", t / args.n, f"{args.n:,} poses"))
     ns = args.single
     def hykin_single():
         for _ in range(ns):
             fk(robot, q1)
 
-    t = best_of(hykin_single)
+    t = best_time(hykin_single)
     rows_s.append(("hykin `fk(robot, q)`", t / ns, ""))
     T_ref = fk(robot, Q[:1000])
 
@@ -105,7 +100,7 @@ def main() -> None:
         with torch.no_grad():
             Tt = fk_torch(robot, Qt[:1000]).numpy()
             assert np.abs(Tt - T_ref).max() < 1e-12
-            t = best_of(lambda: fk_torch(robot, Qt))
+            t = best_time(lambda: fk_torch(robot, Qt))
         rows_b.append((f"hykin `fk_torch` (CPU float64, {torch.get_num_threads()} threads)", t / args.n, f"{args.n:,} poses"))
     except ImportError:
         pass
@@ -129,8 +124,8 @@ def main() -> None:
             for _ in range(ns):
                 pin.forwardKinematics(model, data, q1)
 
-        rows_s.append(("Pinocchio `forwardKinematics` + `updateFramePlacement`", best_of(pin_single) / ns, ""))
-        rows_s.append(("Pinocchio `forwardKinematics` only (joint placements)", best_of(pin_fk_only) / ns, ""))
+        rows_s.append(("Pinocchio `forwardKinematics` + `updateFramePlacement`", best_time(pin_single) / ns, ""))
+        rows_s.append(("Pinocchio `forwardKinematics` only (joint placements)", best_time(pin_fk_only) / ns, ""))
         nl = min(args.n, 100_000)
         Ql = Q[:nl]
 
@@ -141,7 +136,7 @@ def main() -> None:
                 out[k] = pin.updateFramePlacement(model, data, fid).homogeneous
             return out
 
-        rows_b.append(("Pinocchio, Python loop", best_of(pin_loop, 2) / nl, f"{nl:,} poses"))
+        rows_b.append(("Pinocchio, Python loop", best_time(pin_loop, 2) / nl, f"{nl:,} poses"))
     except ImportError:
         rows_s.append(("Pinocchio", float("nan"), "not installed"))
 
@@ -151,12 +146,12 @@ def main() -> None:
         assert np.abs(ets.eval(q1) - fk(robot, q1)).max() < 1e-12
         nr = min(args.n, 100_000)
         Qr = Q[:nr]
-        rows_b.append(("roboticstoolbox `ets.eval` (batched)", best_of(lambda: ets.eval(Qr), 2) / nr, f"{nr:,} poses"))
+        rows_b.append(("roboticstoolbox `ets.eval` (batched)", best_time(lambda: ets.eval(Qr), 2) / nr, f"{nr:,} poses"))
         def rtb_single():
             for _ in range(ns):
                 ets.eval(q1)
 
-        rows_s.append(("roboticstoolbox `ets.eval(q)`", best_of(rtb_single) / ns, ""))
+        rows_s.append(("roboticstoolbox `ets.eval(q)`", best_time(rtb_single) / ns, ""))
     else:
         rows_b.append(("roboticstoolbox", float("nan"), "not installed (or not a plain DH robot)"))
 

@@ -21,15 +21,7 @@ import time
 
 import numpy as np
 
-
-def _best(fn, repeat=3):
-    best = np.inf
-    out = None
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
+from _timing import best_of
 
 
 def _mod2pi(a, b):
@@ -56,7 +48,7 @@ def bench_closed_form(name, n, n_peer, rows):
     q = r.random_joints(n, rng)
     T = fk(r, q)
     ik_closed_form(r, T[:10])  # compile
-    dt, sol = _best(lambda: ik_closed_form(r, T))
+    dt, sol = best_of(lambda: ik_closed_form(r, T))
     ours = dt / n * 1e6
     qs = [s.q[i][s.valid[i]] for s in [sol] for i in range(n)]
     rows.append((f"closed form all branches, {name}", "hykin", f"{ours:.2f} µs", f"{_contains(qs, q):.4f}",
@@ -84,7 +76,7 @@ def bench_closed_form(name, n, n_peer, rows):
             return [rob.get_ik(R, t) for R, t in zip(Rl, tl)]
 
         rob.get_ik(Rl[0], tl[0])
-        dt, out = _best(run)
+        dt, out = best_of(run)
         us = dt / len(Tp) * 1e6
         qs = [[s[0] for s in o if not s[1]] for o in out]  # exact (not least-squares) solutions
         nsol = np.mean([len(x) for x in qs])
@@ -102,7 +94,7 @@ def bench_closed_form(name, n, n_peer, rows):
             def run():
                 return [mod.inverse_kinematics(Ti) for Ti in Tc]
 
-            dt, out = _best(run)
+            dt, out = best_of(run)
             us = dt / len(Tp) * 1e6
             nsol = np.mean([len(x) for x in out])
             rows.append((f"closed form all branches, {name}", "ur-analytic-ik (C++, per call)", f"{us:.2f} µs",

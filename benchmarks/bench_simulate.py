@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import tempfile
-import time
 from pathlib import Path
 
 import sys
@@ -24,16 +23,11 @@ from hykin.compliance import deflected_joints, gravity_torques
 from hykin.fk import fk
 from hykin.sampling import sample
 from hykin.simulate import simulate, simulate_to_file, virtual_preset
+from _timing import best_of
 
 
 def timed(fn, repeat: int = 1):
-    best = float("inf")
-    out = None
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
+    return best_of(fn, repeat)
 
 
 def main() -> None:

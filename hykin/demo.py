@@ -49,7 +49,6 @@ def _run_demo(out_dir, n_train: int, quick: bool, seed: int) -> Path:
     from .evaluate import evaluate_model
     from .hybrid import HybridModel
     from .hybrid_ik import hybrid_ik, wang_ik
-    from .metrics import format_table
     from .report import Report, error_histograms
     from .sampling import sample
     from .se3 import pose_error

@@ -59,7 +59,6 @@ on the :meth:`predict` path. Measured coverage of the 95 % band: UR10 series A h
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import time
 import warnings
