@@ -679,11 +679,13 @@ def write_dataset(ds: Dataset, path: str | Path, *, length_unit: str = "m", angl
     if suffix not in (".csv", ".txt"):
         raise DatasetError(f"{where}: unknown dataset file type {suffix!r}; expected .csv or .parquet", file=where)
     names = list(cols)
-    if all(np.asarray(v).dtype.kind in "iuf" for v in cols.values()):
-        # Arrow's writer prints the shortest round-trip repr of each float64, 4-5x faster than Python.
+    try:
         import pyarrow as pa
         import pyarrow.csv as pacsv
-
+    except ImportError:  # optional dependency: fall back to Python's csv writer (same values, slower)
+        pa = None
+    if pa is not None and all(np.asarray(v).dtype.kind in "iuf" for v in cols.values()):
+        # Arrow's writer prints the shortest round-trip repr of each float64, 4-5x faster than Python.
         table = pa.table({k: pa.array(np.asarray(v, dtype=np.float64)) for k, v in cols.items()})
         with open(path, "wb") as fh:
             fh.write((",".join(names) + "\n").encode("utf-8"))
