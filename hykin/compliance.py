@@ -66,16 +66,12 @@ def _is_torch(x) -> bool:
 if HAVE_NUMBA:
 
     @numba.njit(cache=True, nogil=True)
-    def _tau_one(pre, post, base, tool, prism, com, mass, payload, g, q, out):  # pragma: no cover
+    def _tau_ws(pre, post, base, tool, prism, com, mass, payload, g, q, out, T, A, z, o, cm):  # pragma: no cover
+        """Gravity torques of one sample into ``out``; ``T``, ``A`` (4, 4), ``z``, ``o``, ``cm`` (n, 3) scratch."""
         n = q.shape[0]
-        T = np.empty((4, 4))
-        A = np.empty((4, 4))
         for r in range(4):
             for c in range(4):
                 T[r, c] = base[r, c]
-        z = np.empty((n, 3))
-        o = np.empty((n, 3))
-        cm = np.empty((n, 3))
         for i in range(n):
             # A = T @ pre[i]
             for r in range(3):
@@ -133,6 +129,12 @@ if HAVE_NUMBA:
                 out[i] = z[i, 0] * m0 + z[i, 1] * m1 + z[i, 2] * m2
 
     @numba.njit(cache=True, nogil=True)
+    def _tau_one(pre, post, base, tool, prism, com, mass, payload, g, q, out):  # pragma: no cover
+        n = q.shape[0]
+        _tau_ws(pre, post, base, tool, prism, com, mass, payload, g, q, out,
+                np.empty((4, 4)), np.empty((4, 4)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)))
+
+    @numba.njit(cache=True, nogil=True)
     def _tau_serial(pre, post, base, tool, prism, com, mass, payload, g, q, out):  # pragma: no cover
         for k in range(q.shape[0]):
             _tau_one(pre, post, base, tool, prism, com, mass, payload, g, q[k], out[k])
@@ -143,15 +145,16 @@ if HAVE_NUMBA:
             _tau_one(pre, post, base, tool, prism, com, mass, payload, g, q[k], out[k])
 
     @numba.njit(cache=True, nogil=True)
-    def _deflect_one(pre, post, base, tool, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out):  # pragma: no cover
-        """Fixed point q_eff = q + C tau(q_eff) of one sample into ``out``; returns the last update."""
+    def _deflect_one(pre, post, base, tool, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out,
+                     tau, T, A, z, o, cm):  # pragma: no cover
+        """Fixed point q_eff = q + C tau(q_eff) of one sample into ``out``; returns the last update.
+        ``tau`` (n,), ``T``, ``A`` (4, 4), ``z``, ``o``, ``cm`` (n, 3): scratch (no allocation per sample)."""
         n = q.shape[0]
-        tau = np.empty(n)
         for i in range(n):
             out[i] = q[i]
         step = np.inf
         for it in range(max_it):
-            _tau_one(pre, post, base, tool, prism, com, mass, payload, g, out, tau)
+            _tau_ws(pre, post, base, tool, prism, com, mass, payload, g, out, tau, T, A, z, o, cm)
             step = 0.0
             for i in range(n):
                 new = q[i] + C[i] * tau[i]
@@ -164,14 +167,32 @@ if HAVE_NUMBA:
         return step
 
     @numba.njit(cache=True, nogil=True)
+    def _deflect_range(pre, post, base, tool, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
+                       lo, hi):  # pragma: no cover
+        """Samples ``lo:hi`` of :func:`_deflect_one`, sharing one set of scratch arrays."""
+        n = q.shape[1]
+        tau = np.empty(n)
+        T = np.empty((4, 4))
+        A = np.empty((4, 4))
+        z = np.empty((n, 3))
+        o = np.empty((n, 3))
+        cm = np.empty((n, 3))
+        for k in range(lo, hi):
+            steps[k] = _deflect_one(pre, post, base, tool, prism, com, mass, payload, g, C, q[k], min_it, max_it, tol,
+                                    out[k], tau, T, A, z, o, cm)
+
+    @numba.njit(cache=True, nogil=True)
     def _deflect_serial(pre, post, base, tool, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps):  # pragma: no cover
-        for k in range(q.shape[0]):
-            steps[k] = _deflect_one(pre, post, base, tool, prism, com, mass, payload, g, C, q[k], min_it, max_it, tol, out[k])
+        _deflect_range(pre, post, base, tool, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
+                       0, q.shape[0])
 
     @numba.njit(cache=True, nogil=True, parallel=True)
     def _deflect_parallel(pre, post, base, tool, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps):  # pragma: no cover
-        for k in numba.prange(q.shape[0]):
-            steps[k] = _deflect_one(pre, post, base, tool, prism, com, mass, payload, g, C, q[k], min_it, max_it, tol, out[k])
+        N = q.shape[0]
+        chunk = 1024
+        for b in numba.prange((N + chunk - 1) // chunk):
+            _deflect_range(pre, post, base, tool, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
+                           b * chunk, min(N, (b + 1) * chunk))
 
 
 _PARALLEL_MIN = 5_000  # below this, starting threads costs more than it saves

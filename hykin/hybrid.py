@@ -68,7 +68,7 @@ import numpy as np
 import torch
 
 from . import se3
-from .fk import fk, fk_torch
+from .fk import HAVE_NUMBA, fk, fk_torch
 from .modelfile import ModelFileError, read_model_file, robot_from_json_dict, robot_to_dict, write_model_file
 from .nets import ResidualNet, count_parameters, make_net
 from .robot import Robot, load_robot, robot_to_toml_string
@@ -128,6 +128,63 @@ def _rodrigues(rv: np.ndarray) -> np.ndarray:
 def _fade_np(d: np.ndarray, width: float) -> np.ndarray:
     t = np.clip(d / width, 0.0, 1.0)
     return 0.5 * (1.0 + np.cos(np.pi * t))
+
+
+if HAVE_NUMBA:
+    import numba
+
+    @numba.njit(cache=True, nogil=True, parallel=True)
+    def _pair_gap_kernel(qn, lower, span, field, I, J, out):  # pragma: no cover
+        """Numpy-path :meth:`HybridModel.pair_gap` on network coordinates ``qn`` (same operations, same numbers)."""
+        G = field.shape[1]
+        top = G - 1.0
+        for k in numba.prange(qn.shape[0]):
+            best = -np.inf
+            for p in range(I.shape[0]):
+                i, j = I[p], J[p]
+                ui = min(max((qn[k, i] - lower[i]) / span[i], 0.0), 1.0) * top
+                uj = min(max((qn[k, j] - lower[j]) / span[j], 0.0), 1.0) * top
+                i0 = min(max(np.floor(ui), 0.0), G - 2.0)
+                j0 = min(max(np.floor(uj), 0.0), G - 2.0)
+                fi, fj = ui - i0, uj - j0
+                a, b = int(i0), int(j0)
+                v = (field[p, a, b] * (1 - fi) * (1 - fj) + field[p, a + 1, b] * fi * (1 - fj)
+                     + field[p, a, b + 1] * (1 - fi) * fj + field[p, a + 1, b + 1] * fi * fj)
+                if v > best:
+                    best = v
+            out[k] = best
+
+
+if HAVE_NUMBA:
+
+    @numba.njit(cache=True, nogil=True, parallel=True)
+    def _rotate_poses_kernel(rv, T):  # pragma: no cover
+        """In place ``T[:, :3, :3] = exp(rv) @ T[:, :3, :3]`` (same formula as :func:`_rodrigues`)."""
+        for k in numba.prange(rv.shape[0]):
+            x, y, z = rv[k, 0], rv[k, 1], rv[k, 2]
+            th2 = x * x + y * y + z * z
+            if th2 < 1e-8:
+                A = 1 - th2 / 6
+                B = 0.5 - th2 / 24
+            else:
+                th = np.sqrt(th2)
+                A = np.sin(th) / th
+                B = (1 - np.cos(th)) / th2
+            # R = I + A K + B K^2, K = [[0, -z, y], [z, 0, -x], [-y, x, 0]]
+            r00 = 1 + B * (-z * z - y * y)
+            r01 = -A * z + B * (x * y)
+            r02 = A * y + B * (x * z)
+            r10 = A * z + B * (x * y)
+            r11 = 1 + B * (-z * z - x * x)
+            r12 = -A * x + B * (y * z)
+            r20 = -A * y + B * (x * z)
+            r21 = A * x + B * (y * z)
+            r22 = 1 + B * (-y * y - x * x)
+            for c in range(3):
+                t0, t1, t2 = T[k, 0, c], T[k, 1, c], T[k, 2, c]
+                T[k, 0, c] = r00 * t0 + r01 * t1 + r02 * t2
+                T[k, 1, c] = r10 * t0 + r11 * t1 + r12 * t2
+                T[k, 2, c] = r20 * t0 + r21 * t1 + r22 * t2
 
 
 def _seam_centres(q: np.ndarray, revolute: np.ndarray) -> np.ndarray:
@@ -584,36 +641,48 @@ class HybridModel:
         n_rows = q.shape[0]
         if len(self.pair_index_) == 0:
             return torch.zeros(n_rows, dtype=q.dtype, device=q.device) if torch_in else np.zeros(n_rows)
+        if not torch_in:
+            return self._pair_gap_qn(self._netq(np.asarray(q, dtype=np.float64)))
         G = self.pair_gap_.shape[1]
         I, J = self.pair_index_[:, 0], self.pair_index_[:, 1]
         span = np.maximum(self.support_upper_ - self.support_lower_, 1e-6)
-        if torch_in:
-            xp = torch
-            qn = self._netq(q)
-            lo = torch.as_tensor(self.support_lower_, dtype=q.dtype, device=q.device)
-            u = torch.clamp((qn - lo) / torch.as_tensor(span, dtype=q.dtype, device=q.device), 0.0, 1.0) * (G - 1)
-            field = torch.as_tensor(self.pair_gap_, dtype=q.dtype, device=q.device).reshape(-1)
-        else:
-            xp = np
-            u = np.clip((self._netq(q) - self.support_lower_) / span, 0.0, 1.0) * (G - 1)
-            field = self.pair_gap_.reshape(-1)
+        qn = self._netq(q)
+        lo = torch.as_tensor(self.support_lower_, dtype=q.dtype, device=q.device)
+        u = torch.clamp((qn - lo) / torch.as_tensor(span, dtype=q.dtype, device=q.device), 0.0, 1.0) * (G - 1)
+        field = torch.as_tensor(self.pair_gap_, dtype=q.dtype, device=q.device).reshape(-1)
         ui, uj = u[:, I], u[:, J]
-        i0 = xp.clip(xp.floor(ui), 0, G - 2) if not torch_in else torch.clamp(torch.floor(ui), 0, G - 2)
-        j0 = xp.clip(xp.floor(uj), 0, G - 2) if not torch_in else torch.clamp(torch.floor(uj), 0, G - 2)
+        i0 = torch.clamp(torch.floor(ui), 0, G - 2)
+        j0 = torch.clamp(torch.floor(uj), 0, G - 2)
         fi, fj = ui - i0, uj - j0
-        base = np.arange(len(I)) * G * G
-        if torch_in:
-            i0l, j0l = i0.long(), j0.long()
-            b = torch.as_tensor(base, device=q.device)
-            k00 = b + i0l * G + j0l
-            g = lambda k: field[k]  # noqa: E731
-        else:
-            i0l, j0l = i0.astype(np.int64), j0.astype(np.int64)
-            k00 = base + i0l * G + j0l
-            g = lambda k: field[k]  # noqa: E731
-        v = (g(k00) * (1 - fi) * (1 - fj) + g(k00 + G) * fi * (1 - fj) + g(k00 + 1) * (1 - fi) * fj
-             + g(k00 + G + 1) * fi * fj)
-        return v.max(1).values if torch_in else v.max(1)
+        k00 = torch.as_tensor(np.arange(len(I)) * G * G, device=q.device) + i0.long() * G + j0.long()
+        v = (field[k00] * (1 - fi) * (1 - fj) + field[k00 + G] * fi * (1 - fj) + field[k00 + 1] * (1 - fi) * fj
+             + field[k00 + G + 1] * fi * fj)
+        return v.max(1).values
+
+    def _pair_gap_qn(self, qn: np.ndarray) -> np.ndarray:
+        """:meth:`pair_gap` (numpy) of queries already in network coordinates ``qn`` ``(N, n)``."""
+        n_rows = qn.shape[0]
+        if len(self.pair_index_) == 0:
+            return np.zeros(n_rows)
+        G = self.pair_gap_.shape[1]
+        I, J = self.pair_index_[:, 0], self.pair_index_[:, 1]
+        span = np.maximum(self.support_upper_ - self.support_lower_, 1e-6)
+        if HAVE_NUMBA:
+            out = np.empty(n_rows)
+            _pair_gap_kernel(np.ascontiguousarray(qn, dtype=np.float64), np.ascontiguousarray(self.support_lower_),
+                             np.ascontiguousarray(span), np.ascontiguousarray(self.pair_gap_, dtype=np.float64),
+                             np.ascontiguousarray(I), np.ascontiguousarray(J), out)
+            return out
+        u = np.clip((qn - self.support_lower_) / span, 0.0, 1.0) * (G - 1)
+        field = self.pair_gap_.reshape(-1)
+        ui, uj = u[:, I], u[:, J]
+        i0 = np.clip(np.floor(ui), 0, G - 2)
+        j0 = np.clip(np.floor(uj), 0, G - 2)
+        fi, fj = ui - i0, uj - j0
+        k00 = np.arange(len(I)) * G * G + i0.astype(np.int64) * G + j0.astype(np.int64)
+        v = (field[k00] * (1 - fi) * (1 - fj) + field[k00 + G] * fi * (1 - fj) + field[k00 + 1] * (1 - fi) * fj
+             + field[k00 + G + 1] * fi * fj)
+        return v.max(1)
 
     def _build_support_tree(self) -> None:
         from scipy.spatial import cKDTree
@@ -642,9 +711,12 @@ class HybridModel:
         In the networks' coordinates: wrapped revolute joints (``periodic="wrap"``); the column of
         ``q1`` is 0 with ``joint1="frame"`` (not a network input)."""
         self._check_fitted()
-        q2 = self._netq(self._q(q)[0])
+        return self._range_excess_qn(self._netq(self._q(q)[0]))
+
+    def _range_excess_qn(self, qn: np.ndarray) -> np.ndarray:
+        """:meth:`range_excess` of queries already in network coordinates ``qn`` ``(N, n)``."""
         span = np.maximum(self.support_upper_ - self.support_lower_, 1e-6)
-        return np.maximum(0.0, np.maximum(self.support_lower_ - q2, q2 - self.support_upper_)) / span
+        return np.maximum(0.0, np.maximum(self.support_lower_ - qn, qn - self.support_upper_)) / span
 
     def support_distance(self, q) -> np.ndarray:
         """``(N,)`` distance outside the training data in units of the trained joint range (0 inside):
@@ -701,9 +773,10 @@ class HybridModel:
         self._check_fitted()
         q2, single = self._q(q)
         T = classical_fk(self.robot_, q2)
-        ex = self.range_excess(q2)
+        qn = self._netq(q2)
+        ex = self._range_excess_qn(qn)
         exm = ex.max(1)
-        gap = self.pair_gap(q2)
+        gap = self._pair_gap_qn(qn)
         out_rows = exm > 0
         holes = (gap > 0) & ~out_rows
         if out_rows.any() or holes.any():
@@ -724,7 +797,6 @@ class HybridModel:
             w = _fade_np(d, self.fade_width)
             if np.all(w == 1.0):
                 w = None
-        qn = self._netq(q2)
         dp = self._from_net_frame(q2, self._net_np(self.net_pos_, qn))
         if w is not None:
             dp *= w[:, None]
@@ -733,7 +805,10 @@ class HybridModel:
             dr = self._from_net_frame(q2, self._net_np(self.net_rot_, qn))
             if w is not None:
                 dr *= w[:, None]
-            T[:, :3, :3] = _rodrigues(dr) @ T[:, :3, :3]
+            if HAVE_NUMBA and T.flags.c_contiguous:
+                _rotate_poses_kernel(np.ascontiguousarray(dr), T)
+            else:
+                T[:, :3, :3] = _rodrigues(dr) @ T[:, :3, :3]
         T = self._framed(T)
         return T[0] if single else T
 
