@@ -15,6 +15,8 @@ until a torch-backed part is used::
 from __future__ import annotations
 
 import importlib
+import sys
+import types
 
 __version__ = "0.1.0"
 
@@ -104,6 +106,23 @@ _EXPORTS = {
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]
+
+# Functions named like their modules (hykin.fk, hykin.ik, hykin.simulate, hykin.calibrate,
+# hykin.hybrid_ik): the public name is the function. Python's import system sets the package
+# attribute to the submodule when the submodule is first imported; this package type ignores that
+# assignment, so `hykin.fk` stays the function. Submodules remain importable by their full name
+# (`from hykin.fk import jacobian`, `importlib.import_module("hykin.fk")`).
+_SHADOWED = frozenset(name for name, mod in _EXPORTS.items() if name == mod)
+
+
+class _Package(types.ModuleType):
+    def __setattr__(self, name, value):
+        if name in _SHADOWED and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
 
 
 def __getattr__(name: str):
