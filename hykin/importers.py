@@ -17,11 +17,10 @@ import math
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from . import se3
-from .referencing import kabsch, pose_from_three_points
+from .referencing import pose_from_three_points
 from .dataset import (
     Dataset,
     DatasetError,
@@ -52,13 +51,6 @@ __all__ = [
 # --------------------------------------------------------------------------- small geometry
 
 
-def _pose6(x: np.ndarray) -> np.ndarray:
-    return se3.make_transform(se3.rotvec_to_matrix(x[:3]), x[3:6])
-
-
-# --------------------------------------------------------------------------- rigid registration
-
-
 def register_rigid(
     T_model: np.ndarray,
     T_meas: np.ndarray,
@@ -72,11 +64,11 @@ def register_rigid(
     ``T_meas``: ``(N, 4, 4)`` measured poses in the measurement (tracker) frame, m.
     ``T_base`` maps robot base -> measurement frame; ``T_tool`` maps model TCP -> measured TCP.
 
-    Non-linear least squares (scipy ``least_squares``, Levenberg–Marquardt) on the position error
-    (m) and, with ``use_orientation``, ``rot_weight_m_per_rad × log(R_meas R̂ᵀ)``. Initialised with
-    Kabsch on the positions (base) and the chordal mean of the remaining rotations (tool), so any
-    tool rotation (e.g. 180°) converges. Position-only data (``use_orientation=False``) fit the base
-    and the tool translation; the tool rotation (unobservable) stays identity.
+    Delegates to :func:`hykin.register.fit_frames` (initial guess by Kabsch, rotation mean and
+    linear least squares for the translations, then non-linear least squares on the position error
+    (m) and, with ``use_orientation``, ``rot_weight_m_per_rad × log(R_meas R̂ᵀ)``), so any tool rotation
+    (e.g. 180°) converges. Position-only data (``use_orientation=False``) fit the base and the tool
+    translation; the tool rotation (unobservable) stays identity.
     """
     T_model = np.asarray(T_model, dtype=np.float64).reshape(-1, 4, 4)
     T_meas = np.asarray(T_meas, dtype=np.float64).reshape(-1, 4, 4)
@@ -86,34 +78,9 @@ def register_rigid(
     need = 3 if use_orientation else 4
     if n < need:
         raise ValueError(f"register_rigid: need at least {need} poses, got {n}")
-    B0 = se3.make_transform(*kabsch(T_model[:, :3, 3], T_meas[:, :3, 3]))
-    if use_orientation:
-        Rrel = np.swapaxes((B0 @ T_model)[:, :3, :3], -1, -2) @ T_meas[:, :3, :3]
-        E0 = se3.make_transform(Rotation.from_matrix(Rrel).mean().as_matrix(), np.zeros(3))
-    else:
-        E0 = np.eye(4)
-    w = float(rot_weight_m_per_rad)
-    p_meas = T_meas[:, :3, 3]
-    R_meas = T_meas[:, :3, :3]
+    from .register import fit_frames
 
-    def frames(x):
-        B = _pose6(x[:6]) @ B0
-        tool_rot = x[6:9] if use_orientation else np.zeros(3)
-        E = E0 @ _pose6(np.concatenate([tool_rot, x[9:12]]))
-        return B, E
-
-    def resid(x):
-        B, E = frames(x)
-        T = B @ T_model @ E
-        r = [(T[:, :3, 3] - p_meas).ravel()]
-        if use_orientation:
-            r.append(w * se3.rotation_difference_rotvec(R_meas, T[:, :3, :3]).ravel())
-        return np.concatenate(r)
-
-    x0 = np.zeros(12)
-    m = 3 * n * (2 if use_orientation else 1)
-    sol = least_squares(resid, x0, method="lm" if m >= 12 else "trf", x_scale=1.0, xtol=1e-12, ftol=1e-12)
-    return frames(sol.x)
+    return fit_frames(T_model, T_meas, position_only=not use_orientation, orientation_weight_m_per_rad=rot_weight_m_per_rad)
 
 
 def registration_errors(T_model, T_meas, T_base, T_tool) -> tuple[np.ndarray, np.ndarray]:
