@@ -187,6 +187,8 @@ def fit_cmd(
     device: str = typer.Option("cpu", "--device", help="cpu, cuda, or auto."),
     seed: int = typer.Option(0, "--seed"),
     max_minutes: Optional[float] = typer.Option(None, "--max-minutes", help="Time budget for network training."),
+    thermal: str = typer.Option("auto", "--thermal", help="Thermal expansion from a temperature_c column: auto, on, off."),
+    min_steps: Optional[int] = typer.Option(None, "--min-steps", help="Least number of optimiser steps per network (default recipe: 30000)."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
 ) -> None:
@@ -208,9 +210,19 @@ def fit_cmd(
     kw = {}
     if max_minutes is not None:
         kw["max_seconds"] = max_minutes * 60
-    model = HybridModel(rob, arch=arch, recipe=recipe, calibrate=calibrate, device=device, seed=seed, **kw)
+    if min_steps is not None:
+        if min_steps < 0:
+            raise CLIError(f"--min-steps must be >= 0, got {min_steps}")
+        kw["recipe_kw"] = {"min_steps": min_steps}
+    modes = {"auto": "auto", "on": True, "off": False}
+    if thermal not in modes:
+        raise CLIError(f"--thermal must be auto, on or off, got {thermal!r}")
+    model = HybridModel(rob, arch=arch, recipe=recipe, calibrate=calibrate, device=device, seed=seed,
+                        thermal=modes[thermal], **kw)
     model.fit(tr, va, progress=True)
     model.save(out)
+    if model.thermal_ is not None:
+        typer.echo(f"thermal expansion: {model.thermal_.note} (reference {model.thermal_.reference_c:.2f} °C)")
     _print_metrics(model)
     typer.echo(f"model written to {out}")
 
@@ -247,7 +259,8 @@ def fk_cmd(
     else:
         if no_fade:
             mdl.fade = False
-        T = mdl.predict(q)
+        temp = _temperature(mdl, extra, joints)
+        T = mdl.predict(q, temperature_c=temp)
         extra = dict(extra)
         extra["support_distance"] = mdl.support_distance(q)
         band_mm, band_deg = mdl.predict_uncertainty(q)
@@ -273,7 +286,7 @@ def ik_cmd(
     from .dataset import read_joints, read_poses
 
     mdl, rob = _load_model_or_robot(model)
-    T, has_rot = read_poses(poses, length_unit=length_unit)
+    T, has_rot, pose_extra = read_poses(poses, length_unit=length_unit, extras=True)
     position_only = position_only or not has_rot
     q_cur = None
     if seed_joints is not None:
@@ -291,7 +304,8 @@ def ik_cmd(
         from .hybrid_ik import hybrid_ik, ik_result_to_rows
 
         target = T[:, :3, 3] if position_only else T
-        res = hybrid_ik(mdl, target, all_branches=True, q_current=q_cur, nearest=nearest, position_only=position_only)
+        res = hybrid_ik(mdl, target, all_branches=True, q_current=q_cur, nearest=nearest, position_only=position_only,
+                        temperature_c=_temperature(mdl, pose_extra, poses))
         rows = ik_result_to_rows(res)
         from .hybrid import support_report
 
@@ -304,6 +318,20 @@ def ik_cmd(
     n_targets = len(T)
     solved = len(set(np.asarray(rows["target"])[ok].tolist()))
     typer.echo(f"wrote {len(ok)} solution rows for {n_targets} targets to {out} ({solved} solved, {n_targets - solved} failed)")
+
+
+def _temperature(mdl, extra: dict, path) -> np.ndarray | None:
+    """The file's temperature column for a model with a thermal coefficient (note when it is missing)."""
+    from .thermal import temperature_from
+
+    th = getattr(mdl, "thermal_", None)
+    if th is None or th.coefficient_per_k == 0.0:
+        return None
+    t = temperature_from(extra, str(path))
+    if t is None:
+        _console().print(f"[yellow]note:[/] the model compensates thermal expansion ({th.coefficient_per_k * 1e6:.2f} µm/m/K) "
+                         f"but {path} has no temperature_c column: results at the reference {th.reference_c:.2f} °C")
+    return t
 
 
 def _classical_ik_rows(robot, T, q_current, position_only: bool) -> dict:
@@ -446,6 +474,10 @@ def export_cmd(
     mdl = HybridModel.load(model)
     info = export_onnx(mdl, out)
     typer.echo(f"wrote {out}; ONNX Runtime vs hykin max difference {info['max_pos_diff_mm']:.2e} mm, {info['max_ang_diff_deg']:.2e} deg")
+    if "thermal_coefficient_per_k" in info:
+        typer.echo(f"note: poses at the reference {info['thermal_reference_c']:.2f} °C; thermal expansion on the controller: "
+                   f"p = b + (1 + {info['thermal_coefficient_per_k']:.4g} (t - {info['thermal_reference_c']:.2f})) (p - b), "
+                   f"b = {[round(v, 6) for v in info['thermal_origin_m']]} m")
 
 
 @app.command("demo")

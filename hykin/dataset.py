@@ -615,10 +615,11 @@ def read_joints(
     return q, t.extras(_standard_columns(t))
 
 
-def read_poses(path: str | Path, *, length_unit: str = "m") -> tuple[np.ndarray, bool]:
+def read_poses(path: str | Path, *, length_unit: str = "m", extras: bool = False):
     """Read target poses ``x,y,z[,qw,qx,qy,qz]`` from a CSV/Parquet file: ``(T (N, 4, 4) m, has_orientation)``.
 
-    Joint and other columns are ignored. Without orientation columns the rotations are identity.
+    Joint and other columns are ignored (returned as a third item ``{name: (N,)}`` with
+    ``extras=True``). Without orientation columns the rotations are identity.
     """
     where = str(path)
     _check_units(where, length_unit, "rad")
@@ -632,8 +633,11 @@ def read_poses(path: str | Path, *, length_unit: str = "m") -> tuple[np.ndarray,
     if quat is None:
         T = np.tile(np.eye(4), (len(xyz), 1, 1))
         T[:, :3, 3] = xyz
-        return T, False
-    return se3.pose_to_transform(xyz, quat), True
+    else:
+        T = se3.pose_to_transform(xyz, quat)
+    if extras:
+        return T, quat is not None, t.extras(_standard_columns(t))
+    return T, quat is not None
 
 
 # --------------------------------------------------------------------------- writing

@@ -73,9 +73,12 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
             pre = getattr(model, "frame_pre", np.eye(4))
             post = getattr(model, "frame_post", np.eye(4))
             preds["nominal"] = pre @ fk(nominal, data.q) @ post
+        from .thermal import temperature_of
+
+        temp = temperature_of(data)  # used by models that identified thermal expansion
         if getattr(model, "calibration", None) is not None or getattr(model, "calibrate", False):
-            preds["calibrated"] = model.predict_classical(data.q)
-        preds["hybrid"] = model.predict(data.q)
+            preds["calibrated"] = model.predict_classical(data.q, temperature_c=temp)
+        preds["hybrid"] = model.predict(data.q, temperature_c=temp)
         if hasattr(model, "support_distance"):
             dist = np.asarray(model.support_distance(data.q))
     stats, errors = {}, {}

@@ -3,7 +3,9 @@
 The exported graph maps joints ``q`` ``(N, dof)`` float64 (rad) to TCP poses ``(N, 4, 4)`` float64
 (m): the calibrated classical chain (with joint compliance), the position and orientation networks
 and the smooth joint-range fade, exactly as :meth:`HybridModel.predict_torch`. The export is checked
-against hykin with ONNX Runtime before it is reported done.
+against hykin with ONNX Runtime before it is reported done. A model with a thermal coefficient
+(:mod:`hykin.thermal`) is exported at its reference temperature; the returned info carries what the
+controller needs to apply the expansion: ``p = b + (1 + alpha (t - t_ref)) (p - b)``.
 """
 
 from __future__ import annotations
@@ -64,6 +66,11 @@ def export_onnx(model, path: str | Path, n_check: int = 2000, opset: int = 17, s
         T_ref = model.predict(q)
     p, a = pose_error(T_onnx, T_ref)
     info = {"max_pos_diff_mm": float(p.max()), "max_ang_diff_deg": float(a.max()), "n_check": n_check}
+    th = getattr(model, "thermal_", None)
+    if th is not None and th.coefficient_per_k != 0.0:
+        b = model.frame_pre @ np.r_[model.robot_.base[:3, 3], 1.0]
+        info.update(thermal_coefficient_per_k=th.coefficient_per_k, thermal_reference_c=th.reference_c,
+                    thermal_origin_m=b[:3].tolist())
     if info["max_pos_diff_mm"] > 1e-6 or info["max_ang_diff_deg"] > 1e-6:
         raise RuntimeError(
             f"ONNX export of {path} differs from hykin by {info['max_pos_diff_mm']:.2e} mm / "

@@ -2,7 +2,11 @@
 
 ``T*(q)``: ``p* = p̂(q) + w(q) Δp(q)``, ``R* = exp(w(q) Δr(q)) · R̂(q)``, where ``T̂`` is the
 calibrated classical model (geometry + joint compliance), ``Δp``/``Δr`` the position and orientation
-networks (base frame) and ``w`` the support fade (below).
+networks (base frame) and ``w`` the support fade (below). When the training data carry a temperature
+column, ``T̂`` also expands with temperature (one linear coefficient identified with the calibration,
+:mod:`hykin.thermal`): ``predict(q, temperature_c=...)``; the networks learn at the reference
+temperature. On rx160-nongeo (simulated 11.5e-6 /K) the coefficient is recovered to 0.3 % and the
+hybrid error against noisy measurements drops from 1.67x to 1.44x the noise floor.
 
 Input representation (``periodic``, ``joint1``; chosen by measurement, benchmarks/bench_region.py):
 
@@ -50,10 +54,16 @@ wrapped angles, and ``q1`` left out with ``joint1="frame"`` (it is not an input 
 Uncertainty (:meth:`HybridModel.predict_uncertainty`): radii of the ``level`` band (e.g. 95 %) of the
 position (mm) and orientation (deg) error per query, split-conformal: empirical quantiles of the
 error norms of the hybrid and of the calibrated model on held-out validation samples, blended by
-``w`` = the fade of :meth:`support_distance` (``w r_hybrid + (1 - w) max(r_classical, r_hybrid)``):
-outside the training data the band becomes that of the calibrated model. Cheap (no ensemble), never
-on the :meth:`predict` path. Measured coverage of the 95 % band: UR10 series A held-out 95.1 %
-(position) / 95.5 % (orientation); series B (new series, registered from 30 poses) 89.4 % / 91.5 %.
+``w`` = the fade of :meth:`support_distance` (``w r_hybrid + (1 - w) max(g r_classical, r_hybrid)``):
+outside the training data the band becomes that of the calibrated model, widened by
+``g = 1 + max_j a_j + sum_j k_j e_j`` over the joints beyond their trained range (``e_j`` the
+range excess): the calibration extrapolates too. The step ``a_j`` and slope ``k_j`` are measured
+in ``fit`` by refitting the calibration on the middle of each joint's range and evaluating on its
+ends (:mod:`hykin.uncertainty`; a few seconds). Cheap at query time (no ensemble), never on the
+:meth:`predict` path. Coverage of the 95 % band on a virtual RX160 (rx160-nongeo) trained on the
+middle half of every joint range, queried on the full range: outside the range 54 % (position)
+with the in-range band alone, 93 % with the growth (orientation 72 % -> 92 %). UR10 series A held-out
+95.1 % (position) / 95.5 % (orientation); series B (new series, registered from 30 poses) 89.4 % / 91.5 %.
 """
 
 from __future__ import annotations
@@ -72,6 +82,8 @@ from .fk import HAVE_NUMBA, fk, fk_torch
 from .modelfile import ModelFileError, read_model_file, robot_from_json_dict, robot_to_dict, write_model_file
 from .nets import ResidualNet, count_parameters, make_net
 from .robot import Robot, load_robot, robot_to_toml_string
+from .thermal import (MAX_PLAUSIBLE_PER_K, MIN_EFFECT_M, TEMPERATURE_COLUMNS, ThermalFit, fit_coefficient, scale_about,
+                      temperature_of, to_reference)
 from .train import Recipe, get_recipe, train_net
 
 __all__ = ["HybridModel", "OutOfRangeWarning", "HybridError", "classical_fk", "classical_fk_torch", "support_report"]
@@ -295,13 +307,16 @@ class HybridModel:
     device: "cpu" or "cuda". seed: training seed. max_seconds: training time budget per network.
     val_fraction: share of the training set held out for validation when ``fit`` gets no ``val``.
     recipe_kw: overrides of recipe fields (e.g. ``{"max_epochs": 50}``).
+    thermal: identify a linear thermal expansion coefficient from the training data's temperature
+    column (:mod:`hykin.thermal`): ``"auto"`` (when there is one; kept only if significant and
+    plausible), True (required), False (ignore temperatures). Fitted: ``thermal_``.
     """
 
     def __init__(self, robot, arch: str = "default", recipe: str | Recipe = "default", calibrate: bool = True,
                  calibrate_kw: dict | None = None, normalise: str = "data", fade: bool | str = True,
                  fade_width: float = 0.1, device: str = "cpu", seed: int = 0, max_seconds: float | None = None,
                  val_fraction: float | None = None, recipe_kw: dict | None = None, periodic: str = "wrap",
-                 joint1: str = "input", input_joints=None):
+                 joint1: str = "input", input_joints=None, thermal: bool | str = "auto"):
         self.robot = load_robot(robot)
         self.arch = arch
         self.recipe = get_recipe(recipe, **(recipe_kw or {}))
@@ -322,6 +337,9 @@ class HybridModel:
             raise HybridError(f"joint1 must be 'input' or 'frame', got {joint1!r}")
         self.periodic = periodic
         self.joint1 = joint1
+        if thermal not in (True, False, "auto"):
+            raise HybridError(f"thermal must be True, False or 'auto', got {thermal!r}")
+        self.thermal = thermal
         n = self.robot.dof
         ij = tuple(range(1, n + 1)) if input_joints is None else tuple(int(j) for j in input_joints)
         if not ij or any(not 1 <= j <= n for j in ij) or len(set(ij)) != len(ij):
@@ -346,6 +364,7 @@ class HybridModel:
         self.wrap_centre_ = np.full(n, np.nan)  # per joint, NaN = not wrapped
         self.j1_axis_ = None  # unit joint-1 axis (world frame) when joint1 == "frame"
         self.unc_ = None  # validation error quantiles (predict_uncertainty)
+        self.thermal_ = None  # hykin.thermal.ThermalFit when the training data had a temperature column
         self.pair_index_ = np.zeros((0, 2), dtype=np.int64)  # joint pairs of the hole grids
         self.pair_gap_ = np.zeros((0, _PAIR_GRID, _PAIR_GRID))  # (P, G, G) gap at the grid nodes
 
@@ -427,19 +446,20 @@ class HybridModel:
         if not (np.isfinite(q).all() and np.isfinite(train.xyz_m).all()):
             raise HybridError("training data contain NaN/inf")
         timings = {}
+        train_in, val_in = train, val
+        self._calibrate_on(train)
+        self.thermal_ = None
+        temp = None if self.thermal is False else temperature_of(train)
+        if self.thermal is True and temp is None:
+            raise HybridError(f"thermal=True but the training data have no temperature column ({', '.join(TEMPERATURE_COLUMNS)})")
+        if temp is not None and np.ptp(temp) > 0:
+            train, val = self._fit_thermal(train, val, temp)
         calib = None
-        if self.calibrate:
-            from .calibrate import calibrate as _calibrate
-
-            res = _calibrate(self.robot, train, **self.calibrate_kw)
-            self.robot_ = res.robot
-            self.calibration_ = res
+        if self.calibration_ is not None:
             try:
-                calib = _json_safe(res.to_dict())
+                calib = _json_safe(self.calibration_.to_dict())
             except Exception:  # noqa: BLE001 - keep fitting; metadata is informative only
-                calib = {"report": str(res.report())}
-        else:
-            self.robot_ = self.robot.copy()
+                calib = {"report": str(self.calibration_.report())}
         timings["calibrate_s"] = time.perf_counter() - t0
 
         dp, dr, T_hat = self._targets(self.robot_, train)
@@ -514,8 +534,8 @@ class HybridModel:
             self.net_rot_ = None
         timings["fit_s"] = time.perf_counter() - t0
         self.meta_ = {
-            "data_hash": _hash(train),
-            "val_hash": _hash(val) if val is not None else None,
+            "data_hash": _hash(train_in),
+            "val_hash": _hash(val_in) if val_in is not None else None,
             "n_train": int(len(qt)), "n_val": int(len(qv)), "n_total": int(len(q)),
             "has_orientation": dr is not None,
             "seed": self.seed, "timings": timings, "versions": _versions(),
@@ -525,19 +545,104 @@ class HybridModel:
             "calibration": calib,
             "metrics": {},
             "inputs": {"periodic": self.periodic, "joint1": self.joint1},
+            "thermal": None if self.thermal_ is None else self.thermal_.to_dict(),
         }
         self._fit_uncertainty(train, val, iv if val is None else None)
-        self.meta_["metrics"]["train"] = self._metrics(train, progress_warn=False)
-        if val is not None:
-            self.meta_["metrics"]["val"] = self._metrics(val, progress_warn=False)
+        self.meta_["metrics"]["train"] = self._metrics(train_in, progress_warn=False)
+        if val_in is not None:
+            self.meta_["metrics"]["val"] = self._metrics(val_in, progress_warn=False)
         return self
+
+    def _calibrate_on(self, ds) -> None:
+        """Set ``robot_`` (and ``calibration_``) from ``ds``: calibrated, or the nominal robot."""
+        if self.calibrate:
+            from .calibrate import calibrate as _calibrate
+
+            res = _calibrate(self.robot, ds, **self.calibrate_kw)
+            self.robot_, self.calibration_ = res.robot, res
+        else:
+            self.robot_, self.calibration_ = self.robot.copy(), None
+
+    def _fit_thermal(self, train, val, temp: np.ndarray, rounds: int = 3):
+        """Identify the expansion coefficient with the calibration (:mod:`hykin.thermal`); returns
+        ``(train, val)`` mapped to the reference temperature (unchanged when it is not kept)."""
+        ref = float(temp.mean())
+        dt = temp - ref
+        q = np.asarray(train.q, dtype=np.float64)
+        first = (self.robot_, self.calibration_)
+        alpha, std = 0.0, float("inf")
+        for _ in range(rounds):
+            b = self.robot_.base[:3, 3]
+            alpha, std = fit_coefficient(train.xyz_m, classical_fk(self.robot_, q)[:, :3, 3], b, dt, alpha)
+            if not self.calibrate:
+                break
+            self._calibrate_on(to_reference(train, b, alpha, dt))
+        rng_c = (float(temp.min()), float(temp.max()))
+        # size of the effect in the data: alpha x temperature spread x reach (RMS), metres
+        reach = float(np.sqrt(np.mean(np.sum((train.xyz_m - self.robot_.base[:3, 3]) ** 2, axis=1))))
+        effect_m = abs(alpha) * float(np.std(dt)) * reach
+        why = None
+        if abs(alpha) < 3.0 * std:
+            why = "not significant (|alpha| < 3 std)"
+        elif abs(alpha) > MAX_PLAUSIBLE_PER_K:
+            why = f"implausible (|alpha| > {MAX_PLAUSIBLE_PER_K:g} /K)"
+        elif effect_m < MIN_EFFECT_M:
+            why = f"negligible ({effect_m * 1e6:.2g} µm RMS in these data, below {MIN_EFFECT_M * 1e6:g} µm)"
+        if why is not None:
+            self.robot_, self.calibration_ = first
+            self.thermal_ = ThermalFit(0.0, std, ref, rng_c, f"ignored: alpha = {alpha:.3g} +- {std:.2g} /K is {why}")
+            return train, val
+        self.thermal_ = ThermalFit(alpha, std, ref, rng_c, f"alpha = {alpha:.4g} +- {std:.2g} /K "
+                                   f"({effect_m * 1e6:.2g} µm RMS in the training data)")
+        b = self.robot_.base[:3, 3]
+        train = to_reference(train, b, alpha, dt)
+        tv = None if val is None else temperature_of(val)
+        if tv is not None:
+            val = to_reference(val, b, alpha, tv - ref)
+        return train, val
+
+    def _thermal_factor(self, temperature_c, n: int) -> np.ndarray | None:
+        """Scale factors ``(n,)`` for queries at ``temperature_c`` (None: no thermal correction)."""
+        if temperature_c is None or self.thermal_ is None or self.thermal_.coefficient_per_k == 0.0:
+            return None
+        t = np.broadcast_to(np.asarray(temperature_c, dtype=np.float64).reshape(-1) if np.ndim(temperature_c)
+                            else np.float64(temperature_c), (n,))
+        if not np.isfinite(t).all():
+            raise HybridError(f"temperature_c: non-finite value in row {int(np.argmax(~np.isfinite(t))) + 1}")
+        return 1.0 + self.thermal_.coefficient_per_k * (t - self.thermal_.reference_c)
+
+    def _apply_thermal(self, T: np.ndarray, temperature_c) -> np.ndarray:
+        f = self._thermal_factor(temperature_c, len(T))
+        return T if f is None else scale_about(T, self.robot_.base[:3, 3], f)
+
+    def targets_at_reference(self, T_target, temperature_c):
+        """Targets measured at ``temperature_c`` (°C) mapped to the reference temperature, where
+        :meth:`predict_torch` (and so hybrid IK) works: exact inverse of the thermal scaling of
+        :meth:`predict`. ``T_target`` ``(N, 4, 4)`` poses or ``(N, 3)`` positions (m); returned as
+        given when the model has no thermal coefficient or ``temperature_c`` is None. Registration
+        frames are honoured; for positions ``frame_post``'s offset is scaled with the arm (an error of
+        ``alpha dT |offset|``: 2 µm for a 2 cm offset at 9 K from the reference)."""
+        T_target = np.asarray(T_target, dtype=np.float64)
+        n = T_target.shape[0] if T_target.ndim > 1 else 1
+        f = self._thermal_factor(temperature_c, n)
+        if f is None:
+            return T_target
+        pos = T_target.ndim == 2 or T_target.shape[-2:] != (4, 4)
+        T = np.tile(np.eye(4), (n, 1, 1)) if pos else T_target.reshape(-1, 4, 4).copy()
+        if pos:
+            T[:, :3, 3] = T_target.reshape(-1, 3)
+        Tm = np.linalg.inv(self.frame_pre) @ T @ (np.eye(4) if pos else np.linalg.inv(self.frame_post))
+        Tm = scale_about(Tm, self.robot_.base[:3, 3], 1.0 / f)
+        out = self.frame_pre @ Tm @ (np.eye(4) if pos else self.frame_post)
+        return out[:, :3, 3].reshape(T_target.shape) if pos else out.reshape(T_target.shape)
 
     def _metrics(self, ds, progress_warn: bool = True) -> dict:
         """Mean/max position (mm) and orientation (deg) errors of classical and hybrid on ``ds``."""
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", OutOfRangeWarning)
-            T_c = self.predict_classical(ds.q)
-            T_h = self.predict(ds.q)
+            t = temperature_of(ds)
+            T_c = self.predict_classical(ds.q, temperature_c=t)
+            T_h = self.predict(ds.q, temperature_c=t)
         out = {}
         for name, T in (("classical", T_c), ("hybrid", T_h)):
             pe = np.linalg.norm(T[:, :3, 3] - ds.xyz_m, axis=1) * 1e3
@@ -578,6 +683,16 @@ class HybridModel:
             if ds.has_orientation and self.net_rot_ is not None:
                 _, ae = se3.pose_error(ds.poses(), T)
                 unc[f"{name}_ang_deg"] = np.quantile(ae, _UNC_LEVELS)
+        # how the calibrated model's band widens beyond the trained ranges (emulated extrapolation)
+        from .uncertainty import extrapolation_growth
+
+        g = extrapolation_growth(self.robot, train, self._netq(np.asarray(train.q, dtype=np.float64)), self._mask,
+                                 _UNC_LEVELS, calibrate_kw=self.calibrate_kw if self.calibrate else None,
+                                 with_rot="classical_ang_deg" in unc, seed=self.seed)
+        for key in ("pos_mm", "ang_deg"):
+            if g[key] is not None:
+                unc[f"growth_{key}"], unc[f"step_{key}"] = g[key], g[key + "_step"]
+        unc["growth_splits"], unc["growth_points"] = g["n_splits"], g["n_points"]
         self.unc_ = unc
 
     def predict_uncertainty(self, q, level: float = 0.95) -> tuple[np.ndarray, np.ndarray | None]:
@@ -587,7 +702,8 @@ class HybridModel:
         ``level`` (likewise orientation, degrees; None for position-only models). Split-conformal:
         validation-error quantiles of the hybrid and the calibrated model, blended by the fade weight
         of :meth:`support_distance` (holes included): inside the training data the hybrid's band,
-        outside the calibrated model's. ``level`` in [0.5, 0.995].
+        outside the calibrated model's, widened with the joint-range excess at the rate measured in
+        ``fit`` (module docstring). ``level`` in [0.5, 0.995].
         """
         self._check_fitted()
         if self.unc_ is None:
@@ -598,6 +714,9 @@ class HybridModel:
         # support-based whatever the fade mode: without fade, an extrapolating network has no
         # validated band, and the calibrated model's is the best stated guess there
         w = _fade_np(self.support_distance(q2), self.fade_width)
+        # the calibrated model extrapolates too: beyond a joint's trained range its band steps up and
+        # grows with the excess (in units of that range) as measured in fit (hykin.uncertainty)
+        ex = self.range_excess(q2)
         lv = self.unc_["levels"]
 
         def band(key):
@@ -605,7 +724,13 @@ class HybridModel:
                 return None
             rh = float(np.interp(level, lv, self.unc_[f"hybrid_{key}"]))
             rc = float(np.interp(level, lv, self.unc_[f"classical_{key}"]))
-            r = w * rh + (1 - w) * max(rc, rh)
+            g = 1.0
+            if f"growth_{key}" in self.unc_:
+                k, a = (np.array([np.interp(level, lv, c) for c in
+                                  np.asarray(self.unc_[f"{name}_{key}"], dtype=np.float64).reshape(len(lv), -1).T])
+                        for name in ("growth", "step"))
+                g = 1.0 + np.max(np.where(ex > 0, a, 0.0), axis=1) + ex @ k
+            r = w * rh + (1 - w) * np.maximum(rc * g, rh)
             return r[0] if single else r
 
         return band("pos_mm"), band("ang_deg")
@@ -747,11 +872,12 @@ class HybridModel:
 
     # ------------------------------------------------------------------ prediction
 
-    def predict_classical(self, q) -> np.ndarray:
-        """Calibrated classical poses ``(N, 4, 4)`` (or ``(4, 4)`` for one ``(n,)`` query)."""
+    def predict_classical(self, q, temperature_c=None) -> np.ndarray:
+        """Calibrated classical poses ``(N, 4, 4)`` (or ``(4, 4)`` for one ``(n,)`` query).
+        ``temperature_c``: as in :meth:`predict`."""
         self._check_fitted()
         q2, single = self._q(q)
-        T = self._framed(classical_fk(self.robot_, q2))
+        T = self._framed(self._apply_thermal(classical_fk(self.robot_, q2), temperature_c))
         return T[0] if single else T
 
     @torch.inference_mode()
@@ -764,9 +890,12 @@ class HybridModel:
             out[i : i + B] = net(x[i : i + B]).to(torch.float64).cpu().numpy()
         return out
 
-    def predict(self, q) -> np.ndarray:
+    def predict(self, q, temperature_c=None) -> np.ndarray:
         """Hybrid poses ``(N, 4, 4)`` float64 (``(4, 4)`` for one ``(n,)`` query), world frame, m.
 
+        ``temperature_c``: arm temperature (°C, scalar or ``(N,)``) for a model that identified thermal
+        expansion (``thermal_``, :mod:`hykin.thermal`); ``None`` gives the poses at the training
+        reference temperature (also for models without a thermal coefficient, which ignore it).
         Warns once (:class:`OutOfRangeWarning`) with counts when queries leave the trained joint range
         or fall in holes of the training data (pairwise hole grids).
         """
@@ -809,7 +938,7 @@ class HybridModel:
                 _rotate_poses_kernel(np.ascontiguousarray(dr), T)
             else:
                 T[:, :3, :3] = _rodrigues(dr) @ T[:, :3, :3]
-        T = self._framed(T)
+        T = self._framed(self._apply_thermal(T, temperature_c))
         return T[0] if single else T
 
     def predict_torch(self, q):
@@ -862,7 +991,7 @@ class HybridModel:
                 "calibrate_kw": _json_safe(self.calibrate_kw), "normalise": self.normalise, "fade": self.fade,
                 "fade_width": self.fade_width, "device": self.device, "seed": self.seed,
                 "max_seconds": self.max_seconds, "val_fraction": self.val_fraction, "periodic": self.periodic,
-                "joint1": self.joint1, "input_joints": list(self.input_joints)}
+                "joint1": self.joint1, "input_joints": list(self.input_joints), "thermal": self.thermal}
 
     def save(self, path: str | Path) -> None:
         """Write the model to ONE safetensors file (no pickle); see :mod:`hykin.modelfile`."""
@@ -885,6 +1014,7 @@ class HybridModel:
             "inputs": {"wrap_centre": _json_safe(self.wrap_centre_),
                        "j1_axis": None if self.j1_axis_ is None else self.j1_axis_.tolist()},
             "uncertainty": _json_safe(self.unc_),
+            "thermal": None if self.thermal_ is None else _json_safe(self.thermal_.to_dict()),
             "training": _json_safe(self.meta_),
         }
         write_model_file(path, tensors, meta)
@@ -900,7 +1030,8 @@ class HybridModel:
                     calibrate_kw=cfg.get("calibrate_kw"), normalise=cfg["normalise"], fade=cfg["fade"],
                     fade_width=cfg["fade_width"], device=device, seed=cfg["seed"], max_seconds=cfg.get("max_seconds"),
                     val_fraction=cfg.get("val_fraction"), periodic=cfg.get("periodic", "none"),
-                    joint1=cfg.get("joint1", "input"), input_joints=cfg.get("input_joints"))
+                    joint1=cfg.get("joint1", "input"), input_joints=cfg.get("input_joints"),
+                    thermal=cfg.get("thermal", "auto"))
             m.robot_ = robot_from_json_dict(meta["robot"], f"{path}: robot")
             dt = torch.float64 if m.recipe.dtype == "float64" else torch.float32
             for key in ("pos", "rot") if meta["has_rot_net"] else ("pos",):
@@ -927,6 +1058,10 @@ class HybridModel:
             unc = meta.get("uncertainty")
             if unc is not None:
                 m.unc_ = {k: (np.array(v, dtype=np.float64) if isinstance(v, list) else v) for k, v in unc.items()}
+            th = meta.get("thermal")
+            if th is not None:
+                m.thermal_ = ThermalFit(float(th["coefficient_per_k"]), float(th["std_per_k"]), float(th["reference_c"]),
+                                        tuple(float(v) for v in th["range_c"]), str(th["note"]))
             fr = meta.get("frames")
             if fr is not None:
                 m.frame_pre = np.array(fr["pre"], dtype=np.float64).reshape(4, 4)

@@ -21,7 +21,16 @@ Method (Ojer et al. 2024, §1.3), batched over every target × branch:
    that ends on the box boundary above tolerance is re-solved once in a box ``widen`` times larger,
    and otherwise reported as failed.
 
-Solutions of one target closer than ``dedupe_rad`` (max joint difference) are merged. Failed rows
+4. Near singularities the hybrid correction can move a solution far from its classical seed, or
+   move a fold (two branches that meet, e.g. a nearly stretched elbow) so that both seeds find the
+   same root. Rows that stalled under 1 mm are polished with the Jacobian re-taken every iteration;
+   failed rows whose seed is near a singularity restart along its singular direction; rows that
+   converged onto another branch's root restart from the other root of the local quadratic model
+   (``more_roots``). A restart counts only when it is a new, distinct solution.
+
+Solutions of one target closer than ``dedupe_rad`` (max joint difference) are merged.
+:func:`branch_count_report` compares the distinct solutions per target with the closed form of the
+nominal robot and explains each difference (joint limit, singularity / workspace edge, or unexplained). Failed rows
 carry a reason and are never marked successful. :func:`wang_ik` is the comparison method of
 Wang et al. (2019): classical IK → hybrid FK → compensated target → classical IK again.
 
@@ -54,6 +63,8 @@ __all__ = [
     "classical_seeds",
     "closed_form_proxy",
     "classical_robot",
+    "BranchCountReport",
+    "branch_count_report",
 ]
 
 DEFAULT_DELTA_RAD = float(np.radians(3.0))
@@ -459,6 +470,25 @@ def _run_rows(prob: _Problem, q0: np.ndarray, rows: np.ndarray, delta: float, wi
     return q, pe, ae, ok, at_box.any(1), at_lim.any(1), it
 
 
+def _run_polished(prob: _Problem, q0: np.ndarray, rows: np.ndarray, delta: float, widen: float, *,
+                  polish_iter: int = 15, **kw):
+    """:func:`_run_rows`, then rows that stalled close to the target (under 1 mm, not on the box or a
+    limit: the frozen correction of the Jacobian is too coarse where the networks bend strongly, e.g.
+    near singularities) get up to ``polish_iter`` more iterations with the Jacobian re-taken every
+    iteration (``"exact"``), in a box around where they stalled."""
+    out = _run_rows(prob, q0, rows, delta, widen, **kw)
+    q, pe, ae, ok, box, lim, it = out
+    stalled = np.flatnonzero(~ok & ~box & ~lim & (pe < 1e-3))
+    if stalled.size and kw.get("jac_mode") != "exact":
+        kw2 = dict(kw, jac_mode="exact", max_iter=polish_iter)
+        q2, p2, a2, o2, b2, l2, i2 = _run_rows(prob, q[stalled], rows[stalled], delta, widen, **kw2)
+        better = o2 | (p2 < pe[stalled])
+        sel, src = stalled[better], np.flatnonzero(better)
+        q[sel], pe[sel], ae[sel], ok[sel], box[sel], lim[sel] = q2[src], p2[src], a2[src], o2[src], b2[src], l2[src]
+        it[stalled] += i2
+    return q, pe, ae, ok, box, lim, it
+
+
 def _errs(prob: _Problem, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     pe = np.linalg.norm(r[:, :3], axis=1)
     ae = np.zeros_like(pe) if prob.pos_only else np.linalg.norm(r[:, 3:], axis=1) / prob.w
@@ -493,6 +523,148 @@ def _support(model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return dist, ~(dist > 0)
 
 
+def _wrapped_diff(a: np.ndarray, b: np.ndarray, rev: np.ndarray) -> np.ndarray:
+    """``a - b`` with revolute joints wrapped to ``[-π, π)`` (q and q + 2π are one configuration)."""
+    d = a - b
+    return np.where(rev, (d + np.pi) % (2 * np.pi) - np.pi, d)
+
+
+def _duplicates(qm: np.ndarray, okm: np.ndarray, order: np.ndarray, rev: np.ndarray, tol: float):
+    """Successful rows equal (max joint difference ``<= tol``, modulo 2π) to a better row of the same target.
+
+    ``qm`` ``(N, B, n)``, ``okm`` ``(N, B)``, ``order`` ``(N, B)`` score (lower is kept first).
+    Returns ``dup`` ``(N, B)`` bool and ``of`` ``(N, B)`` int: the column of the row each duplicate equals.
+    """
+    N, B = okm.shape
+    perm = np.argsort(np.where(okm, order, np.inf), axis=1, kind="stable")
+    qs = np.take_along_axis(qm, perm[..., None], 1)
+    oks = np.take_along_axis(okm, perm, 1)
+    close = np.abs(_wrapped_diff(qs[:, :, None], qs[:, None], rev)).max(-1) <= tol  # (N, B, B)
+    close &= oks[:, :, None] & oks[:, None]
+    close &= np.tril(np.ones((B, B), dtype=bool), -1)[None]  # [j, i]: i < j
+    dup_s = close.any(2)
+    first = np.take_along_axis(perm, np.argmax(close, axis=2), 1)  # original column of the kept row
+    dup = np.zeros((N, B), dtype=bool)
+    of = np.full((N, B), -1)
+    np.put_along_axis(dup, perm, dup_s, 1)
+    np.put_along_axis(of, perm, np.where(dup_s, first, -1), 1)
+    return dup, of
+
+
+def _second_root_steps(prob: "_Problem", q1: np.ndarray, rows: np.ndarray, t_max: float) -> np.ndarray:
+    """Steps ``(k, n)`` from solutions ``q1`` towards the other root of a fold (a pair of solutions that
+    merge at a singularity, e.g. elbow- and shoulder-boundary pairs of the closed form).
+
+    Along the right singular vector ``v`` of the smallest singular value ``σ`` of the hybrid residual
+    Jacobian, the residual is ``r(q1 + t v) ≈ σ u t + ½ c t²`` (``c`` by a central second difference),
+    whose second root is ``t* = -2σ / (u·c)``, clipped to ``|t*| <= t_max``.
+    """
+    J = prob._fd_jac(q1, rows, h=1e-6)
+    _, S, Vt = np.linalg.svd(J)
+    v = Vt[:, -1]
+    sig = S[:, -1]
+    u = np.einsum("kij,kj->ki", J, v) / np.maximum(sig, 1e-300)[:, None]
+    h = 1e-4
+    rp, _ = prob.residual(q1 + h * v, rows)
+    rm, _ = prob.residual(q1 - h * v, rows)
+    r0, _ = prob.residual(q1, rows)
+    c = (rp + rm - 2 * r0) / h**2
+    uc = np.einsum("ki,ki->k", u, c)
+    t = np.where(np.abs(uc) > 1e-300, -2 * sig / np.where(uc == 0, 1.0, uc), t_max)
+    t = np.clip(t, -t_max, t_max)
+    return t[:, None] * v
+
+
+def _null_directions(prob: "_Problem", q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit direction ``(k, n)`` of the smallest singular value of the classical Jacobian at ``q`` and
+    that value relative to the largest ``(k,)`` (small near a singularity)."""
+    J = prob.classical_jac(q)
+    _, S, Vt = np.linalg.svd(J)
+    return Vt[:, -1], S[:, -1] / np.maximum(S[:, 0], 1e-300)
+
+
+def _pick_new(cand_q: np.ndarray, cand_ok: np.ndarray, have: list, rev: np.ndarray, tol: float) -> int:
+    """Index of the first successful candidate farther than ``tol`` from every joint vector in ``have``, or -1."""
+    for k in np.flatnonzero(cand_ok):
+        if all(np.abs(_wrapped_diff(cand_q[k], h, rev)).max() > tol for h in have):
+            return int(k)
+    return -1
+
+
+def _more_roots(prob: "_Problem", q0u: np.ndarray, labels_u: np.ndarray, st: list, rows: np.ndarray,
+                cols: np.ndarray, N: int, B: int, rev: np.ndarray, dedupe_rad: float, sing_rel: float, run) -> None:
+    """In place on ``st = [q, pe, ae, ok, box, lim, it]`` (rows ``ui`` of the solve): two searches for
+    solutions the box around the classical seed cannot reach, both near singularities.
+
+    1. Failed rows that ended within 1 mm of the target and whose seed is near a singularity
+       (smallest / largest singular value of the classical Jacobian ``< sing_rel``): there the hybrid
+       correction moves the joints far along the singular direction ``v`` (e.g. joints 4 and 6 at a
+       wrist singularity), so restart from ``q0 + t v`` for ``t`` in ±π/8 … π.
+    2. Rows that converged onto another row's solution although their seeds (or branch labels
+       ``labels_u``) differ: near a fold (two
+       closed-form branches close together, e.g. elbow nearly stretched) the hybrid model moves the
+       fold, both seeds fall on one side and find the same root. Restart from the other root of the
+       local quadratic model (:func:`_second_root_steps`).
+
+    A restart is accepted only when it succeeds and differs (``> dedupe_rad``) from every solution of
+    its target, so neither search can add a duplicate; ``run(q0, rows)`` is the box solve.
+    """
+    q, pe, ae, ok, box, lim, it = st
+    n = q.shape[1]
+    lo, hi = prob.robot.lower, prob.robot.upper
+
+    def sols_of(t):
+        return [q[i] for i in np.flatnonzero(ok & (rows == t))]
+
+    def accept(owner, res, n_per):  # few rows (near singularities only): a plain loop
+        q2, p2, a2, o2, b2, l2, i2 = res
+        for j, r0 in enumerate(owner):
+            sl = slice(j * n_per, (j + 1) * n_per)
+            it[r0] += int(i2[sl].sum())
+            k = _pick_new(q2[sl], o2[sl], sols_of(rows[r0]), rev, dedupe_rad)
+            if k >= 0:
+                g = j * n_per + k
+                q[r0], pe[r0], ae[r0], ok[r0], box[r0], lim[r0] = q2[g], p2[g], a2[g], True, False, False
+
+    # 1. failed rows near a singularity: restarts along the singular direction
+    fi = np.flatnonzero(~ok & np.all(np.isfinite(q0u), axis=1) & (pe < 1e-3))
+    if fi.size:
+        v, rel = _null_directions(prob, np.clip(q0u[fi], lo, hi))
+        near = rel < sing_rel
+        fi, v = fi[near], v[near]
+        if fi.size:
+            v = v / np.abs(v).max(1, keepdims=True)
+            ts = np.pi * np.array([0.125, 0.25, 0.5, 0.75, 1.0, -0.125, -0.25, -0.5, -0.75])
+            seeds = np.clip(q0u[fi][:, None] + ts[None, :, None] * v[:, None], lo, hi).reshape(-1, n)
+            accept(fi, run(seeds, np.repeat(rows[fi], len(ts))), len(ts))
+    # 2. duplicates with distinct seeds: the other root of a fold
+    qm = np.full((N * B, n), np.nan)
+    okm = np.zeros(N * B, dtype=bool)
+    pem = np.full(N * B, np.inf)
+    flat = rows * B + cols
+    qm[flat], okm[flat], pem[flat] = q, ok, pe
+    dup, of = _duplicates(qm.reshape(N, B, n), okm.reshape(N, B), pem.reshape(N, B), rev, dedupe_rad)
+    pos = np.full(N * B, -1)
+    pos[flat] = np.arange(flat.size)
+    d_rows = np.flatnonzero(dup.reshape(-1)[flat])  # indices into the solve rows
+    if d_rows.size:
+        src = pos[rows[d_rows] * B + of.reshape(-1)[flat[d_rows]]]
+        # distinct seeds, or seeds of different closed-form branches (equal when both were clamped at a
+        # workspace edge the hybrid model reaches); not user seeds repeated on purpose
+        distinct = (np.abs(_wrapped_diff(q0u[d_rows], q0u[src], rev)).max(1) > dedupe_rad) | (
+            labels_u[d_rows] != labels_u[src])
+        d_rows, src = d_rows[distinct], src[distinct]
+    if d_rows.size:
+        t_max = 0.5
+        step = _second_root_steps(prob, q[src], rows[src], t_max)
+        mult = np.array([1.0, 1.5, 2.5, -1.0])
+        seeds = np.clip(q[src][:, None] + mult[None, :, None] * step[:, None], lo, hi).reshape(-1, n)
+        ok[d_rows] = False  # a duplicate: only a new, distinct root makes it a success again
+        accept(d_rows, run(seeds, np.repeat(rows[d_rows], len(mult))), len(mult))
+        lost = ~ok[d_rows]
+        ok[d_rows[lost]] = True  # no other root: stays the duplicate it was (merged at the end)
+
+
 def hybrid_ik_from_seeds(
     model,
     T_target,
@@ -515,6 +687,8 @@ def hybrid_ik_from_seeds(
     nearest: bool = False,
     torch_threads: int | None = 1,
     restarts: int = 16,
+    more_roots: bool = True,
+    sing_rel: float = 0.02,
 ) -> HybridIKResult:
     """Hybrid refinement of given classical solutions ``q0`` ``(N, dof)`` or ``(N, B, dof)``.
 
@@ -575,16 +749,17 @@ def hybrid_ik_from_seeds(
         prob = _Problem(model, robot, T, pos_only, float(orientation_weight_m))
         rows = tgt[ui]
         with _torch_threads(torch_threads):
-            qq, p_, a_, o_, box, lim, itr = _run_rows(
+            qq, p_, a_, o_, box, lim, itr = _run_polished(
                 prob, np.clip(flat_q0[ui], robot.lower, robot.upper), rows, float(delta_rad), float(widen),
                 tol_m=tol_m, tol_rad=tol_rad, success_m=success_mm * 1e-3, success_rad=np.radians(success_deg),
                 max_iter=max_iter, jac_mode=jacobian_mode,
             )
-            # Targets with no solution yet whose rows stalled close to the target (a local minimum of
-            # the flat cost near a singularity): multi-start inside the widened box, best row kept.
+            # Rows that stalled close to the target (a local minimum of the flat cost near a
+            # singularity): multi-start inside the widened box. A target with no solution yet keeps the
+            # best restart; one with solutions only a restart that is a new, distinct solution.
             solved_t = np.zeros(N, dtype=bool)
             solved_t[rows[o_]] = True
-            retry = ~o_ & ~box & ~lim & ~solved_t[rows] & (p_ < 1e-3)
+            retry = ~o_ & ~box & ~lim & (p_ < 1e-3)
             if restarts > 0 and retry.any():
                 ri = np.flatnonzero(retry)
                 rng = np.random.default_rng(0)
@@ -599,7 +774,13 @@ def hybrid_ik_from_seeds(
                 score = np.where(o2, 0.0, p2 + np.where(np.isfinite(a2), a2, 0.0)).reshape(ri.size, restarts)
                 best = np.argmin(score, axis=1)
                 pick = np.arange(ri.size) * restarts + best
-                better = o2[pick] | (p2[pick] < p_[ri])
+                better = (o2[pick] | (p2[pick] < p_[ri])) & ~solved_t[rows[ri]]
+                for k in np.flatnonzero(solved_t[rows[ri]]):  # few rows: plain loop
+                    sl = slice(k * restarts, (k + 1) * restarts)
+                    have = [qq[i] for i in np.flatnonzero(o_ & (rows == rows[ri[k]]))]
+                    j = _pick_new(q2[sl], o2[sl], have, rev, dedupe_rad)
+                    if j >= 0:
+                        pick[k], better[k] = k * restarts + j, True
                 sel, src = ri[better], pick[better]
                 qq[sel], p_[sel], a_[sel], o_[sel], box[sel], lim[sel] = q2[src], p2[src], a2[src], o2[src], b2[src], l2[src]
                 itr[ri] += i2.reshape(ri.size, restarts).sum(1)
@@ -630,6 +811,14 @@ def hybrid_ik_from_seeds(
                             if not o_[r0]:
                                 qq[r0], p_[r0], a_[r0], o_[r0], box[r0], lim[r0] = q2[k], p2[k], a2[k], True, False, False
                         np.add.at(itr, rep, i2)
+            if more_roots and not pos_only and prob.m >= n:
+                st = [qq, p_, a_, o_, box, lim, itr]
+                run = lambda q0_, rows_: _run_polished(  # noqa: E731
+                    prob, q0_, rows_, float(delta_rad), float(widen), tol_m=tol_m, tol_rad=tol_rad,
+                    success_m=success_mm * 1e-3, success_rad=np.radians(success_deg), max_iter=max_iter,
+                    jac_mode=jacobian_mode)
+                _more_roots(prob, flat_q0[ui], labels.reshape(-1)[ui], st, rows, ui % B, N, B, rev, dedupe_rad,
+                            sing_rel, run)
         q[ui], pe[ui], ae[ui], ok[ui], it[ui] = qq, p_, a_, o_, itr
         rs = np.where(
             box, f"needs more than ±{np.degrees(widen * delta_rad):.3g}° from the classical solution",
@@ -640,21 +829,10 @@ def hybrid_ik_from_seeds(
         reason[ui] = np.where(o_, "", msg)
     dist, ins = _support(model, q)
 
-    # de-duplicate: drop a success that equals an earlier success of the same target
+    # de-duplicate: drop a success that equals a better success of the same target (modulo 2π)
     okm = ok.reshape(N, B)
     qm = q.reshape(N, B, n)
-    order_err = np.where(okm, pe.reshape(N, B), np.inf)
-    perm = np.argsort(order_err, axis=1, kind="stable")
-    qs = np.take_along_axis(qm, perm[..., None], 1)
-    oks = np.take_along_axis(okm, perm, 1)
-    diff = qs[:, :, None] - qs[:, None]
-    diff = np.where(rev, (diff + np.pi) % (2 * np.pi) - np.pi, diff)  # q and q + 2π are one solution
-    close = np.abs(diff).max(-1) <= dedupe_rad  # (N, B, B)
-    close &= oks[:, :, None] & oks[:, None]
-    earlier = np.tril(np.ones((B, B), dtype=bool), -1)  # [j, i]: i < j
-    dup_sorted = (close & earlier[None]).any(2)
-    dup = np.zeros((N, B), dtype=bool)
-    np.put_along_axis(dup, perm, dup_sorted, 1)
+    dup, _ = _duplicates(qm, okm, pe.reshape(N, B), rev, dedupe_rad)
     keep = okm & ~dup
     has = okm.any(1)
     if keep_failed:
@@ -695,6 +873,7 @@ def hybrid_ik(
     position_only: bool = False,
     tol_m: float = 1e-12,
     seed_robot: Robot | None = None,
+    temperature_c=None,
     **kwargs,
 ) -> HybridIKResult:
     """Joints reaching ``T_target`` with the hybrid model: all branches by default.
@@ -709,17 +888,23 @@ def hybrid_ik(
     ``seed_robot``: robot whose closed form seeds the branches (default: the calibrated robot if it has
     one, else the nominal robot — ``model.nominal`` or a HybridModel's ``model.robot`` — else
     :func:`closed_form_proxy` of the calibrated robot). ``tol_m``: stopping tolerance (and 1e-12 rad).
+    ``temperature_c``: arm temperature (°C, scalar or ``(N,)``) at which the targets are to be reached,
+    for a model with a thermal coefficient (:meth:`HybridModel.targets_at_reference`); errors are
+    then reported at the reference temperature (they differ by ``alpha dT`` relative, ~1e-5).
     Success needs ``pos_err_mm <= success_mm`` (1e-4) and ``ang_err_deg <= success_deg`` (1e-4) and
     joints within limits. Other keywords go to :func:`hybrid_ik_from_seeds` (``widen`` = 5,
     ``orientation_weight_m`` = 1, ``success_mm``, ``success_deg``, ``max_iter`` = 60,
     ``jacobian_mode``, ``keep_failed``, ``dedupe_rad``, ``torch_threads`` = 1: torch threads while solving,
-    ``restarts`` = 16: random starts in the widened box for targets whose every branch stalled near
-    the target — local minima near singularities).
+    ``restarts`` = 16: random starts in the widened box for rows that stalled near the target — local
+    minima near singularities; ``more_roots`` = True, ``sing_rel`` = 0.02: the searches near
+    singularities of step 4 of the module docstring).
     Returns a :class:`HybridIKResult`: per target its distinct successful solutions (one per branch;
     joints with a range over 2π in the closed form's representation, nearest zero — or nearest
     ``q_current`` with ``nearest=True``: the hybrid model is not 2π-periodic), or one failed row.
     """
     robot = _check_model(model)
+    if temperature_c is not None and hasattr(model, "targets_at_reference"):
+        T_target = model.targets_at_reference(T_target, temperature_c)
     T, pos_only_in = _targets(T_target)
     pos_only = bool(position_only or pos_only_in)
     N = T.shape[0]
@@ -837,3 +1022,161 @@ def ik_result_to_rows(result: HybridIKResult) -> dict[str, np.ndarray]:
     cols["in_support"] = result.in_support.astype(int)
     cols["support_distance"] = result.support_distance
     return cols
+
+
+# --------------------------------------------------------------------------- branch counts vs the closed form
+
+
+@dataclass
+class BranchCountReport:
+    """Distinct hybrid IK solutions per target against the closed form of a (nominal) robot.
+
+    n_found, n_closed_form: ``(N,)`` int counts; differ: ``(N,)`` bool; near_limit: ``(N,)`` bool, some
+    closed-form solution (with the limits widened by ``margin_deg``) or hybrid solution lies within
+    ``margin_deg`` of a joint limit — there the counts may truly differ, because a sub-degree correction
+    moves a solution across the limit. reasons: ``{target: [str, ...]}`` for differing targets, one line per
+    unmatched solution; kind: ``{target: "joint limit" | "singularity / workspace edge" | "unexplained"}``
+    (the worst over its lines: unexplained > singularity > joint limit).
+    """
+
+    n_found: np.ndarray
+    n_closed_form: np.ndarray
+    differ: np.ndarray
+    near_limit: np.ndarray
+    reasons: dict
+    kind: dict
+    margin_deg: float
+
+    def summary(self) -> str:
+        """One line: totals, differing targets, and the totals over targets away from joint limits."""
+        away = ~self.near_limit
+        kinds = {k: sum(v == k for v in self.kind.values()) for k in ("joint limit", "singularity / workspace edge",
+                                                                       "unexplained")}
+        return (f"{len(self.n_found)} targets: hybrid IK {int(self.n_found.sum())} distinct solutions, closed form "
+                f"{int(self.n_closed_form.sum())}; targets differing {int(self.differ.sum())} "
+                f"(joint limit {kinds['joint limit']}, singularity / workspace edge "
+                f"{kinds['singularity / workspace edge']}, unexplained {kinds['unexplained']}); on the "
+                f"{int(away.sum())} targets with no solution within {self.margin_deg:g}° of a joint limit: "
+                f"{int(self.n_found[away].sum())} vs {int(self.n_closed_form[away].sum())}, differing "
+                f"{int((self.differ & away).sum())}")
+
+
+def branch_count_report(model, T_target, result: HybridIKResult, robot: Robot | None = None, *,
+                        margin_deg: float = 0.5, match_deg: float = 10.0, sing_rel: float = 0.02) -> BranchCountReport:
+    """Compare the distinct successful solutions of ``result`` (from ``hybrid_ik(model, T_target)``, all
+    branches) per target with the closed-form solutions of ``robot`` (default: the nominal robot,
+    ``model.nominal`` or a HybridModel's ``model.robot``), and explain each difference.
+
+    Solutions of one target are matched greedily (max joint difference, modulo 2π, under ``match_deg``).
+    An unmatched solution is explained as *joint limit* when it lies within ``margin_deg`` of a limit, or
+    its counterpart exists just beyond one (closed form with limits widened by ``margin_deg``); as
+    *singularity / workspace edge* when the counterpart has no closed-form solution (out of reach) or
+    the closed-form solution is near a singularity (smallest / largest singular value of its Jacobian
+    ``< sing_rel``: a fold whose pair of solutions the correction removes); otherwise *unexplained*
+    (a solver miss). Targets ``(N, 4, 4)``; a robot without a closed form raises ``HybridIKError``.
+    """
+    from .ik_analytic import has_closed_form, ik_closed_form
+
+    T, pos_only = _targets(T_target)
+    if pos_only:
+        raise HybridIKError("branch_count_report: needs (N, 4, 4) target poses")
+    if robot is None:  # the nominal robot: `model.nominal`, else a HybridModel's `model.robot`
+        robot = getattr(model, "nominal", None)
+        if not isinstance(robot, Robot):
+            robot = getattr(model, "robot", None)
+        if not isinstance(robot, Robot):
+            robot = classical_robot(model)
+    if robot.dof != 6 or not has_closed_form(robot):
+        raise HybridIKError(f"branch_count_report: robot {robot.name!r} has no closed-form IK")
+    N = T.shape[0]
+    rev = np.array([t == "revolute" for t in robot.joint_type])
+    lo, hi = robot.lower, robot.upper
+    m = np.radians(margin_deg)
+    cf = ik_closed_form(robot, T)
+    wide = ik_closed_form(robot.copy(lower=lo - np.where(rev, m, 0.0), upper=hi + np.where(rev, m, 0.0)), T)
+    raw = ik_closed_form(robot, T, tol_m=np.inf, tol_rad=np.inf)
+    ok = result.success & (result.target < N)
+    n_found = np.bincount(result.target[ok], minlength=N)[:N]
+    n_cf = cf.n_solutions
+
+    def margin(q):  # (k, n) -> (k,) signed distance to the nearest limit (rad, < 0 outside), joint index
+        d = np.minimum(q - lo, hi - q)
+        return d.min(1), d.argmin(1)
+
+    near = np.zeros(N, dtype=bool)
+    wq = wide.q[wide.valid]
+    wt = np.nonzero(wide.valid)[0]
+    if wq.size:
+        near[wt[margin(wq)[0] < m]] = True
+    if ok.any():
+        near[result.target[ok][margin(result.q[ok])[0] < m]] = True
+    differ = n_found != n_cf
+    reasons, kind = {}, {}
+    rank = {"joint limit": 0, "singularity / workspace edge": 1, "unexplained": 2}
+    for t in np.flatnonzero(differ):  # few targets: plain loop
+        hq, hb = result.q[ok & (result.target == t)], result.branch[ok & (result.target == t)]
+        nq, nb = cf.q[t][cf.valid[t]], np.array(cf.labels)[cf.valid[t]]
+        if len(hq) and len(nq):
+            D = np.abs(_wrapped_diff(nq[:, None], hq[None], rev)).max(-1)
+        else:
+            D = np.full((len(nq), len(hq)), np.inf)
+        mn, mh = np.zeros(len(nq), bool), np.zeros(len(hq), bool)
+        for _ in range(min(len(nq), len(hq))):
+            Dm = np.where(mn[:, None] | mh[None], np.inf, D)
+            i, j = np.unravel_index(np.argmin(Dm), Dm.shape)
+            if Dm[i, j] > np.radians(match_deg):
+                break
+            mn[i], mh[j] = True, True
+        lines, kinds = [], []
+        for q_, lab in zip(nq[~mn], nb[~mn]):
+            d, j = margin(q_[None])
+            J = jacobian(robot, q_[None])[0]
+            sv = np.linalg.svd(J, compute_uv=False)
+            rel = sv[-1] / sv[0]
+            if d[0] < m:
+                kinds.append("joint limit")
+                lines.append(f"closed-form solution {lab} lies {np.degrees(d[0]):.3g}° inside the limit of joint "
+                             f"{j[0] + 1}; the hybrid one lies beyond it")
+            elif rel < sing_rel:
+                kinds.append("singularity / workspace edge")
+                lines.append(f"closed-form solution {lab} is near a singularity (σmin/σmax {rel:.2g}): the hybrid "
+                             f"model has no solution of this branch nearby (fold moved by the correction)")
+            else:
+                kinds.append("unexplained")
+                lines.append(f"closed-form solution {lab} not found by hybrid IK (limit margin "
+                             f"{np.degrees(d[0]):.3g}°, σmin/σmax {rel:.2g})")
+        labels = list(cf.labels)
+        for q_, lab in zip(hq[~mh], hb[~mh]):
+            d, j = margin(q_[None])
+            b = labels.index(lab) if lab in labels else -1
+            wv = wide.valid[t] & ~cf.valid[t]
+            beyond = wv.any() and np.abs(_wrapped_diff(wide.q[t][wv], q_, rev)).max(-1).min() < np.radians(match_deg)
+            if d[0] < m or beyond:
+                kinds.append("joint limit")
+                lines.append(f"hybrid solution {lab} lies {np.degrees(d[0]):.3g}° inside the limit of joint {j[0] + 1}"
+                             f"; the closed-form one lies beyond it")
+            elif b < 0 or not np.all(np.isfinite(raw.q[t, b])):
+                kinds.append("singularity / workspace edge")
+                lines.append(f"hybrid solution {lab}: the closed form has no solution of this branch (out of reach)")
+            elif margin(raw.q[t, b][None])[0][0] > 1e-9 and raw.pos_err_m[t, b] > 1e-6:
+                # the closed form's candidate is inside the limits but misses the target: the nominal arm
+                # falls short (a clamped stretched elbow / wrist), the hybrid one reaches
+                kinds.append("singularity / workspace edge")
+                lines.append(f"hybrid solution {lab} ({np.degrees(d[0]):.3g}° from the limits): the nominal robot "
+                             f"falls short of the target by {raw.pos_err_m[t, b] * 1e3:.3g} mm in this branch "
+                             f"(workspace edge)")
+            elif margin(raw.q[t, b][None])[0][0] <= 1e-9:
+                kinds.append("joint limit")
+                lines.append(f"hybrid solution {lab} ({np.degrees(d[0]):.3g}° inside the limits): the closed-form "
+                             f"solution of this branch lies beyond a limit (joint "
+                             f"{margin(raw.q[t, b][None])[1][0] + 1})")
+            else:
+                kinds.append("unexplained")
+                lines.append(f"hybrid solution {lab} has no closed-form counterpart (limit margin {np.degrees(d[0]):.3g}°)")
+        if not lines:
+            kinds.append("unexplained")
+            lines.append("counts differ but every solution matched (duplicates within the match tolerance?)")
+        reasons[int(t)] = lines
+        kind[int(t)] = max(kinds, key=rank.get)
+    return BranchCountReport(n_found=n_found, n_closed_form=n_cf, differ=differ, near_limit=near, reasons=reasons,
+                             kind=kind, margin_deg=float(margin_deg))

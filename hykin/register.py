@@ -183,7 +183,9 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
     new = copy.deepcopy(model)
     new.frame_pre = np.eye(4)
     new.frame_post = np.eye(4)
-    T_model = new.predict(series.q)
+    from .thermal import temperature_of
+
+    T_model = new.predict(series.q, temperature_c=temperature_of(series))
     T_meas = series.poses()
     B, E, sol = _fit_frames(T_model[idx], T_meas[idx], position_only=pos_only)
     new.frame_pre, new.frame_post = B, E

@@ -14,12 +14,18 @@ Recipes (:func:`get_recipe`):
   (``lbfgs_steps``). Chosen by measurement: accuracy per CPU-minute (benchmarks/bench_hybrid.py).
   Small data sets (real robots: ~1000 measured poses) get smaller batches and more epochs:
   at least ``min_batches_per_epoch = 16`` batches per epoch (batch ``clip(ceil(N/16), 32, 256)``)
-  and at least ``min_steps = 6000`` optimiser steps. With 256 x 200 epochs only 800 steps are taken
+  and at least ``min_steps = 30000`` optimiser steps. With 256 x 200 epochs only 800 steps are taken
   on 900 samples, which underfits: 5-fold cross-validation on the UR5 grid (1000 real poses,
   benchmarks/bench_real.py) gives 0.0877 mm with batch 256 / 200 epochs, 0.0805 mm with batch 57 /
-  200 epochs, 0.0796 mm with batch 57 / 400 epochs (calibration alone 0.0964 mm). From ~8000
-  samples on, both rules are inactive (the recipe is unchanged there). An explicit ``batch_size`` /
-  ``max_epochs`` override in :func:`get_recipe` switches the corresponding rule off.
+  200 epochs, 0.0796 mm with batch 57 / 400 epochs (calibration alone 0.0964 mm). Medium data sets
+  underfit too: UR10 series A (9.5k real poses, held-out 20 %) gives 0.120 mm / 0.0247° with 6000
+  steps (fit 34 s), 0.103 / 0.0189 with 14000, 0.090 / 0.0154 with 28000 (79 s), 0.080 / 0.0143
+  with 56000 (158 s); rx160-nongeo (10k noisy) 1.44x the noise floor at 7200 steps, 1.30x at 14000,
+  1.28x at 28000; the UR5 test error is unchanged (0.074-0.075 mm). 30000 is the default (about
+  1.5 min for 10k samples on 2 cores); raise it (``recipe_kw={"min_steps": ...}``, ``hykin fit
+  --min-steps``) when more CPU time is available. From ~100k samples on the 200 epochs exceed it.
+  An explicit ``batch_size`` / ``max_epochs`` override in :func:`get_recipe` switches the
+  corresponding rule off.
 """
 
 from __future__ import annotations
@@ -76,7 +82,7 @@ RECIPES: dict[str, Recipe] = {
     ),
     "default": Recipe(
         "default", optimizer="adamw", lr=3e-3, batch_size=256, max_epochs=200, patience=0, schedule="onecycle",
-        dtype="float32", lbfgs_steps=0, min_batches_per_epoch=16, min_steps=6000,
+        dtype="float32", lbfgs_steps=0, min_batches_per_epoch=16, min_steps=30000,
     ),
 }
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hykin.cli import main
-from hykin.dataset import Dataset, read_dataset, write_dataset
+from hykin.dataset import read_dataset
 from hykin.fk import fk
 from hykin.robot import load_robot
 from hykin.se3 import pose_error

@@ -17,6 +17,7 @@ from hykin.fk import fk, fk_torch, jacobian
 from hykin.hybrid_ik import (
     HybridIKError,
     _Problem,
+    branch_count_report,
     hybrid_ik,
     hybrid_ik_from_seeds,
     ik_result_to_rows,
@@ -253,3 +254,86 @@ def test_round_trip_with_a_trained_hybrid_model():
     assert np.bincount(res.target[ok], minlength=len(T)).sum() == n_nominal.sum()
     w = wang_ik(model, T)
     assert np.nanmean(w.pos_err_mm) > 1e3 * pe.mean()
+
+
+def _scipy_roots(model, T, seeds, tol_deg=1e-4):
+    """Independent reference: distinct solutions of hybrid FK = T found by scipy's bounded
+    least_squares (trust region reflective, finite-difference Jacobian) from ``seeds`` ``(S, 6)``."""
+    from scipy.optimize import least_squares
+
+    lo, hi = model.robot.lower, model.robot.upper
+
+    def res(q):
+        P = model.predict(q[None])[0]
+        return np.concatenate([P[:3, 3] - T[:3, 3], se3.rotation_difference_rotvec(P[None, :3, :3], T[None, :3, :3])[0]])
+
+    out = []
+    for s in seeds:
+        r = least_squares(res, np.clip(s, lo, hi), bounds=(lo, hi), xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
+        pe, ae = se3.pose_error(model.predict(r.x[None]), T[None])
+        if pe[0] <= 1e-6 and ae[0] <= 1e-5 and all(np.abs(r.x - o).max() > np.radians(tol_deg) for o in out):
+            out.append(r.x)
+    return np.array(out)
+
+
+@pytest.fixture(scope="module")
+def singular_sample(model):
+    """Targets from joints near the two singularities where the hybrid correction moves solutions far
+    from the classical ones: the wrist (joint 5 ≈ 0: joints 4 and 6 move along q4 - q6 by tens of
+    degrees) and the stretched elbow (joint 3 ≈ 0: a fold whose pair of solutions the correction shifts)."""
+    rng = np.random.default_rng(11)
+    q = well_conditioned(model.robot, 6, rng, min_sv=0.0)
+    q[:3, 4] = np.radians([0.02, -0.01, 0.05])  # wrist
+    q[3:, 2] = np.radians([0.05, -0.08, 0.03])  # elbow
+    return q, model.predict(q)
+
+
+def test_solutions_near_singularities(model, singular_sample):
+    """Near the elbow fold the solver finds the generating joints and both roots of the fold (checked
+    against scipy). Near the wrist singularity the correction can create extra roots (here up to 3 for
+    a closed-form pair: the map is no longer 2-to-1 there); hybrid IK returns one per closed-form branch,
+    so the count still equals the closed form's."""
+    q_true, T = singular_sample
+    res = hybrid_ik(model, T)
+    ok = res.success
+    assert res.solved_targets.all()
+    pe, ae = se3.pose_error(model.predict(res.q[ok]), T[res.target[ok]])
+    assert pe.max() <= 1e-6 and ae.max() <= 1e-5
+    rep = branch_count_report(model, T, res, model.nominal)
+    assert "unexplained" not in rep.kind.values(), rep.reasons
+    n_nom = ik_closed_form(model.nominal, T).n_solutions
+    for t in range(len(T)):
+        qs = res.q[ok & (res.target == t)]
+        d = np.abs((qs[:, None] - qs[None] + np.pi) % (2 * np.pi) - np.pi).max(-1) + np.eye(len(qs))
+        assert d.min() > 1e-6  # distinct solutions only
+        if t < 3:  # wrist
+            assert len(qs) == n_nom[t] or rep.near_limit[t]
+            continue
+        # elbow: the generating joints and every root scipy finds across the fold
+        assert np.abs(qs - q_true[t]).max(1).min() < 1e-6
+        seeds = np.repeat(q_true[t][None], 13, 0)
+        seeds[:, 2] += np.radians(np.linspace(-1.5, 1.5, 13))  # across the fold
+        ref = _scipy_roots(model, T[t], seeds)
+        assert len(ref) >= 1
+        for r in ref:
+            assert np.abs((qs - r + np.pi) % (2 * np.pi) - np.pi).max(1).min() < 1e-6, (t, np.degrees(r))
+
+
+def test_branch_count_report_explains_every_difference(model):
+    """Random joints (limits and singularities included): every count difference against the nominal
+    closed form is a joint limit or a singularity / workspace edge, and away from the limits the
+    counts agree except at a workspace edge."""
+    q = model.robot.random_joints(120, np.random.default_rng(21))
+    T = model.predict(q)
+    res = hybrid_ik(model, T)
+    rep = branch_count_report(model, T, res, model.nominal)
+    n_nom = ik_closed_form(model.nominal, T).n_solutions
+    assert np.array_equal(rep.n_closed_form, n_nom)
+    assert np.array_equal(rep.n_found, np.bincount(res.target[res.success], minlength=len(T)))
+    assert "unexplained" not in rep.kind.values(), rep.reasons
+    edge = np.array([rep.kind.get(t) == "singularity / workspace edge" for t in range(len(T))])
+    away = ~rep.near_limit & ~edge
+    assert away.sum() >= 0.8 * len(T)
+    assert np.array_equal(rep.n_found[away], n_nom[away])
+    for t, why in rep.reasons.items():
+        assert rep.differ[t] and len(why) >= 1

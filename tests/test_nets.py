@@ -140,13 +140,14 @@ def test_bad_training_input():
 
 
 def test_default_recipe_small_data_batch_and_epochs():
-    """Small data sets get >= 16 batches per epoch (batch >= 32) and >= 6000 steps; large ones keep
+    """Small data sets get >= 16 batches per epoch (batch >= 32) and >= 30000 steps; large ones keep
     batch 256 x 200 epochs; explicit batch_size / max_epochs overrides are taken literally."""
     from hykin.train import batch_and_epochs
 
     r = get_recipe("default")
-    assert batch_and_epochs(r, 900) == (57, 375)  # ceil(900/16) = 57 -> 16 steps/epoch, ceil(6000/16)
-    assert batch_and_epochs(r, 9000) == (256, 200)  # 36 steps x 200 = 7200 >= 6000: unchanged
-    assert batch_and_epochs(r, 300) == (32, 600)  # batch floor 32 -> 10 steps/epoch
+    assert batch_and_epochs(r, 900) == (57, 1875)  # ceil(900/16) = 57 -> 16 steps/epoch, ceil(30000/16)
+    assert batch_and_epochs(r, 9000) == (256, 834)  # 36 steps/epoch -> ceil(30000/36)
+    assert batch_and_epochs(r, 100_000) == (256, 200)  # 391 steps x 200 = 78200 >= 30000: unchanged
+    assert batch_and_epochs(r, 300) == (32, 3000)  # batch floor 32 -> 10 steps/epoch
     assert batch_and_epochs(get_recipe("default", batch_size=64, max_epochs=8), 900) == (64, 8)
     assert batch_and_epochs(get_recipe("paper"), 900) == (128, 300)

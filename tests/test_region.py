@@ -136,13 +136,18 @@ def test_uncertainty_band_coverage_and_fade(restricted_virtual):
     assert bp.shape == (len(q_in),) and ba.shape == (len(q_in),)
     cov_p, cov_a = np.mean(p <= bp), np.mean(a <= ba)
     assert 0.88 <= cov_p <= 0.995 and 0.88 <= cov_a <= 0.995, (cov_p, cov_a)
-    # far outside: the band of the calibrated model (wider than the hybrid's here)
+    # far outside: the band of the calibrated model (wider than the hybrid's here), grown with the
+    # range excess at the per-joint rate measured in fit
     q_out = q_in[:5].copy()
     q_out[:, 1] = rob.lower[1] + 0.01
     q_out[:, 2] = rob.upper[2] - 0.01
     bo, _ = m.predict_uncertainty(q_out, 0.95)
-    assert np.allclose(bo, np.interp(0.95, m.unc_["levels"], m.unc_["classical_pos_mm"]))
-    assert bo.min() > bp.max()
+    rc = np.interp(0.95, m.unc_["levels"], m.unc_["classical_pos_mm"])
+    k, a = (np.array([np.interp(0.95, m.unc_["levels"], g) for g in m.unc_[f"{n}_pos_mm"].T]) for n in ("growth", "step"))
+    assert np.all(k >= 0) and np.all(a >= 0) and k.shape == (rob.dof,)
+    ex = m.range_excess(q_out)
+    assert np.allclose(bo, rc * (1.0 + np.max(np.where(ex > 0, a, 0), axis=1) + ex @ k))
+    assert bo.min() >= rc and bo.min() > bp.max()
     b50, _ = m.predict_uncertainty(q_in[:5], 0.5)
     assert np.all(b50 < bp[:5])
     with pytest.raises(HybridError, match="level"):
@@ -215,3 +220,51 @@ def test_holes_inside_the_joint_box_fade_to_calibrated(rx160):
     qs[:, 2] = lo[2] + t * (hi[2] - lo[2])
     g = m.pair_gap(qs)
     assert np.abs(np.diff(g)).max() < 0.02 and g[0] == 0 and g[-1] > 0.1
+
+
+def test_fit_growth_recovers_a_linear_band():
+    from hykin.uncertainty import _fit_growth
+
+    rng = np.random.default_rng(0)
+    d = rng.uniform(0, 0.4, 20000)
+    u = np.abs(rng.standard_normal(20000)) / 1.959964  # 95 % quantile of |N(0,1)| -> 1
+    z = ((1 + 2.5 * d) * u)[None]
+    a, k = _fit_growth(d, z, np.array([0.95]), 8)
+    assert abs(k[0] - 2.5) < 0.15 and a[0] < 0.05, (a, k)
+    a, k = _fit_growth(d, (1.3 + 2.5 * d) * u[None], np.array([0.95]), 8)
+    assert abs(k[0] - 2.5) < 0.15 and abs(a[0] - 0.3) < 0.05, (a, k)
+    a, k = _fit_growth(d, u[None], np.array([0.95]), 8)
+    assert k[0] < 0.1 and a[0] < 0.05  # no growth -> about 0
+
+
+def test_band_grows_where_the_error_grows_outside_the_range(rx160):
+    """Error magnitude growing linearly in q2 (random direction: no network can learn it): trained on
+    the middle of q2's range, the band must cover the larger errors beyond it."""
+    rng = np.random.default_rng(5)
+
+    def data(q):
+        T = fk(rx160, q)
+        c = 0.5 * (rx160.lower[1] + rx160.upper[1])
+        mag = 1e-4 * (1.0 + 8.0 * np.abs(q[:, 1] - c) / (rx160.upper[1] - rx160.lower[1]))
+        v = rng.standard_normal((len(q), 3))
+        T[:, :3, 3] += v / np.linalg.norm(v, axis=1, keepdims=True) * mag[:, None] * np.abs(rng.standard_normal(len(q)))[:, None]
+        return Dataset.from_poses(q, T)
+
+    lo, hi = rx160.lower * 0.9, rx160.upper * 0.9
+    mid = 0.5 * (rx160.lower[1] + rx160.upper[1])
+    half = 0.2 * (rx160.upper[1] - rx160.lower[1])
+    ranges = np.c_[lo, hi]
+    ranges[1] = (mid - half, mid + half)
+    tr = data(restricted(rx160, 3000, 1, ranges=ranges, method="random"))
+    m = HybridModel(rx160, calibrate=False, recipe_kw={"max_epochs": 3}, seed=0).fit(tr, progress=False)
+    k = np.array([np.interp(0.95, m.unc_["levels"], g) for g in m.unc_["growth_pos_mm"].T])
+    assert k[1] > 0.5 and np.all(np.delete(k, 1) < 0.3), k
+    ranges[1] = (mid + 1.1 * half, mid + 2.0 * half)  # beyond the trained q2 range only
+    te = data(restricted(rx160, 3000, 2, ranges=ranges, method="random"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        p, _ = pose_error(m.predict(te.q), te.poses())
+        b, _ = m.predict_uncertainty(te.q, 0.95)
+    rc = np.interp(0.95, m.unc_["levels"], m.unc_["classical_pos_mm"])
+    assert np.mean(p <= rc) < 0.85  # the in-range band alone under-covers here
+    assert 0.9 <= np.mean(p <= b) <= 0.995, np.mean(p <= b)
