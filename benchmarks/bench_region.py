@@ -59,6 +59,18 @@ def _overlap_series(m, A_te, n_reg, seed):
     Tm = F @ A_te.poses()
     S = dataclasses.replace(A_te, xyz_m=Tm[:, :3, 3], quat_wxyz=se3.matrix_to_quat(Tm[:, :3, :3]),
                             source="A held-out, moved tracker")
+    mr, info, rest, St, (pc, ph, ac, ah) = _registered_errors(m, S, n_reg)
+    print(f"-- overlap case: series A held-out as a new series (tracker moved, unknown frame), {info.summary()}")
+    print(HEAD)
+    print(_row("all (rest of it)", np.ones(len(St), bool), pc, ph, ac, ah, mr.predict_uncertainty(St.q, 0.95)))
+    ratios = _quartile_ratios(St.q, ph, pc)
+    print(f"   hybrid/calib ratio over the quartiles of every joint (24 regions): best {min(ratios):.3f}, "
+          f"worst {max(ratios):.3f}")
+
+
+def _registered_errors(m, S, n_reg):
+    """Register ``m`` to series ``S`` from ``n_reg`` poses, and the calibrated model alone on the same
+    poses; errors of both on the other poses: ``(model, info, rest, S_rest, (pc, ph, ac, ah))``."""
     mr, info = register_model(m, S, n_poses=n_reg)
     rest = np.setdiff1d(np.arange(len(S)), info.used_index)
     St = S.subset(rest)
@@ -66,18 +78,18 @@ def _overlap_series(m, A_te, n_reg, seed):
     Bc, Ec = fit_frames(Tc_all[info.used_index], S.poses()[info.used_index])
     pc, ac = _err(Bc @ Tc_all[rest] @ Ec, St)
     ph, ah = _err(mr.predict(St.q), St)
-    bands = mr.predict_uncertainty(St.q, 0.95)
-    print(f"-- overlap case: series A held-out as a new series (tracker moved, unknown frame), {info.summary()}")
-    print(HEAD)
-    print(_row("all (rest of it)", np.ones(len(St), bool), pc, ph, ac, ah, bands))
+    return mr, info, rest, St, (pc, ph, ac, ah)
+
+
+def _quartile_ratios(q, ph, pc) -> list[float]:
+    """Hybrid / calibrated mean error in each quartile of every joint (6 x 4 regions)."""
     ratios = []
-    for j in range(6):
-        edges = np.quantile(St.q[:, j], [0, 0.25, 0.5, 0.75, 1])
+    for j in range(q.shape[1]):
+        edges = np.quantile(q[:, j], [0, 0.25, 0.5, 0.75, 1])
         for k in range(4):
-            msk = (St.q[:, j] >= edges[k]) & (St.q[:, j] <= edges[k + 1])
+            msk = (q[:, j] >= edges[k]) & (q[:, j] <= edges[k + 1])
             ratios.append(ph[msk].mean() / pc[msk].mean())
-    print(f"   hybrid/calib ratio over the quartiles of every joint (24 regions): best {min(ratios):.3f}, "
-          f"worst {max(ratios):.3f}")
+    return ratios
 
 
 def ur10(variants, n_reg=30, fades=(True, "range", False), seed=0):
@@ -109,14 +121,8 @@ def ur10(variants, n_reg=30, fades=(True, "range", False), seed=0):
             _overlap_series(m, A_te, n_reg, seed)
             for fade in fades:
                 m.fade = fade
-                mr, info = register_model(m, B, n_poses=n_reg)  # registered with this fade
-                rest = np.setdiff1d(np.arange(len(B)), info.used_index)
-                Bt = B.subset(rest)
-                # calibration alone, registered on the same poses
-                Tc_all = m.predict_classical(B.q)
-                Bc, Ec = fit_frames(Tc_all[info.used_index], B.poses()[info.used_index])
-                pc, ac = _err(Bc @ Tc_all[rest] @ Ec, Bt)
-                ph, ah = _err(mr.predict(Bt.q), Bt)
+                # registered with this fade; calibration alone registered on the same poses
+                mr, info, rest, Bt, (pc, ph, ac, ah) = _registered_errors(m, B, n_reg)
                 bands = mr.predict_uncertainty(Bt.q, 0.95)
                 d = mr.support_distance(Bt.q)
                 w = mr.fade_weight(Bt.q)
@@ -135,12 +141,7 @@ def ur10(variants, n_reg=30, fades=(True, "range", False), seed=0):
                 print(_row("fade weight w = 1", w == 1, pc, ph, ac, ah, bands))
                 print(_row("0 < w < 1", (w > 0) & (w < 1), pc, ph, ac, ah, bands))
                 print(_row("w = 0 (calibrated model)", w == 0, pc, ph, ac, ah, bands))
-                worst = 0.0
-                for j in range(6):
-                    edges = np.quantile(Bt.q[:, j], [0, 0.25, 0.5, 0.75, 1])
-                    for k in range(4):
-                        msk = (Bt.q[:, j] >= edges[k]) & (Bt.q[:, j] <= edges[k + 1])
-                        worst = max(worst, ph[msk].mean() / pc[msk].mean())
+                worst = max(_quartile_ratios(Bt.q, ph, pc))
                 print(f"   worst hybrid/calib ratio over the quartiles of every joint (24 regions): {worst:.3f}")
         m.fade = True
 

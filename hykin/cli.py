@@ -263,7 +263,7 @@ def fk_cmd(
         T = mdl.predict(q, temperature_c=temp)
         extra = dict(extra)
         extra["support_distance"] = mdl.support_distance(q)
-        band_mm, band_deg = mdl.predict_uncertainty(q)
+        band_mm, band_deg = mdl.predict_uncertainty(q, temperature_c=temp)
         extra["pos_band95_mm"] = band_mm
         if band_deg is not None:
             extra["ang_band95_deg"] = band_deg

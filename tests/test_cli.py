@@ -131,3 +131,40 @@ def test_console_script_entry_point(tmp_path):
     )
     assert proc.returncode != 0
     assert proc.stderr.strip().count("\n") == 0 and "missing.csv" in proc.stderr
+
+
+def test_fit_then_fk_evaluate_ik_end_to_end(tmp_path, capsys):
+    """simulate -> fit (short) -> fk / evaluate / ik on the model file; numbers agree with the API."""
+    from hykin.hybrid import HybridModel
+
+    data, model = tmp_path / "d.csv", tmp_path / "m.hykin"
+    code, _, err = run(["simulate", "rx160-nongeo", "-n", "800", "-o", str(data), "--seed", "2", "--noise"], capsys)
+    assert code == 0, err
+    code, out, err = run(["fit", "rx160", str(data), "-o", str(model), "--min-steps", "300", "--seed", "1"], capsys)
+    assert code == 0, err
+    assert "thermal expansion:" in out and "hybrid" in out  # the data carry temperature_c
+    m = HybridModel.load(model)
+    assert m.recipe.min_steps == 300 and m.thermal_ is not None
+    ds = read_dataset(data)
+    code, _, err = run(["fk", str(model), str(data), "-o", str(tmp_path / "p.csv")], capsys)
+    assert code == 0, err
+    got = read_dataset(tmp_path / "p.csv")
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        T = m.predict(ds.q, temperature_c=ds.extra["temperature_c"])
+    assert np.abs(got.xyz_m - T[:, :3, 3]).max() < 1e-9
+    assert {"support_distance", "pos_band95_mm", "ang_band95_deg"} <= set(got.extra)
+    code, out, err = run(["evaluate", str(model), str(data), "--json"], capsys)
+    assert code == 0, err
+    import json
+
+    res = json.loads(out[out.index("{"):])
+    assert res["stats"]["hybrid"]["pos_mean_mm"] < res["stats"]["nominal"]["pos_mean_mm"] / 5
+    code, out, err = run(["ik", str(model), str(tmp_path / "p.csv"), "-o", str(tmp_path / "j.csv"),
+                          "--seed-joints", str(data)], capsys)
+    assert code == 0, err
+    assert "800 targets" in out
+    code, _, err = run(["fit", "rx160", str(data), "-o", str(model), "--thermal", "maybe"], capsys)
+    assert code != 0 and "--thermal" in err and "\n" not in err.strip()

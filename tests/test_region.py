@@ -268,3 +268,46 @@ def test_band_grows_where_the_error_grows_outside_the_range(rx160):
     rc = np.interp(0.95, m.unc_["levels"], m.unc_["classical_pos_mm"])
     assert np.mean(p <= rc) < 0.85  # the in-range band alone under-covers here
     assert 0.9 <= np.mean(p <= b) <= 0.995, np.mean(p <= b)
+
+
+def test_full_fade_torch_matches_numpy_and_is_differentiable(restricted_virtual):
+    import copy
+
+    vr, m0 = restricted_virtual
+    m = copy.deepcopy(m0)
+    m.fade = "full"
+    rng = np.random.default_rng(9)
+    q_in = restricted(vr.nominal, 300, 9, fraction=0.5, method="random")
+    q = np.concatenate([q_in, vr.nominal.random_joints(300, 10), q_in + rng.normal(0, 0.05, q_in.shape)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        T = m.predict(q)
+        w = m.fade_weight(q)
+    assert ((w > 0) & (w < 1)).sum() > 5 and (w == 1).sum() > 5  # the fade zone is exercised
+    qt = torch.from_numpy(q).requires_grad_(True)
+    Tt = m.predict_torch(qt)
+    assert np.abs(Tt.detach().numpy() - T).max() < 1e-12
+    Tt[:, :3, 3].sum().backward()
+    assert torch.isfinite(qt.grad).all()
+
+
+def test_registration_avoids_the_fade_zone():
+    from hykin.register import _avoid_fade_zone
+
+    class Fake:
+        fade = True
+
+        def __init__(self, w):
+            self.w = w
+
+        def fade_weight(self, q):
+            return self.w
+
+    q = np.arange(10, dtype=float)[:, None] * np.ones((1, 6))
+    w = np.array([1, 1, 0.5, 1, 0, 0, 0.3, 1, 1, 1.0])
+    idx, n = _avoid_fade_zone(Fake(w), q, np.array([0, 2, 6]))
+    assert n == 2 and len(idx) == 3 and np.all((w[idx] == 0) | (w[idx] == 1))
+    assert set(idx.tolist()) == {0, 1, 5}  # nearest validated neighbours (ties: the first)
+    fk_off = Fake(w)
+    fk_off.fade = False
+    assert _avoid_fade_zone(fk_off, q, np.array([0, 2]))[1] == 0

@@ -104,3 +104,14 @@ def test_register_rejects_bad_input(rx160):
         register_model(_model(rx160), ds, n_poses=2)
     with pytest.raises(ValueError):
         register_model(_model(rx160), ds, select="nope")
+
+
+def test_registered_model_fades_with_the_nearest_neighbour_gap(rx160):
+    import copy
+
+    m = copy.deepcopy(_model(rx160))
+    m.fade = True
+    new, _ = register_model(m, _series(rx160, 100), n_poses=30)
+    assert new.fade == "full" and m.fade is True  # the original model is untouched
+    m.fade = "range"
+    assert register_model(m, _series(rx160, 100), n_poses=30)[0].fade == "range"

@@ -175,3 +175,21 @@ def test_hybrid_ik_reaches_targets_at_temperature(model, session):
         p, a = se3.pose_error(model.predict(res.q, temperature_c=t[res.target]), T_hot[res.target])
     assert p.max() < 1e-6 and a.max() < 1e-6
     assert np.abs(res.q - q0[res.target]).max() < 1e-6
+
+
+def test_bands_with_and_without_temperature_cover(session, model):
+    vr, q, ds = session
+    assert "notemp_hybrid_pos_mm" in model.unc_
+    th = model.thermal_
+    q2 = vr.nominal.random_joints(1500, np.random.default_rng(8))
+    t2 = np.random.default_rng(9).uniform(*th.range_c, len(q2))
+    meas = simulate(vr, q2, noise=True, rng=8, temperature=t2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        for t in (t2, None):
+            p, _ = se3.pose_error(model.predict(q2, temperature_c=t), meas.poses())
+            b, _ = model.predict_uncertainty(q2, 0.95, temperature_c=t)
+            assert 0.88 <= np.mean(p <= b) <= 0.995, (t is None, np.mean(p <= b))
+        b_t, _ = model.predict_uncertainty(q2, 0.95, temperature_c=t2)
+        b_n, _ = model.predict_uncertainty(q2, 0.95)
+    assert b_n.mean() >= b_t.mean()  # without the temperature the drift is part of the band
