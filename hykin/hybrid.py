@@ -683,6 +683,18 @@ class HybridModel:
 
     # ------------------------------------------------------------------ uncertainty
 
+    def _predict_unframed(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """Calibrated and hybrid poses of ``q`` in the training series' frame (no registration
+        frames, reference temperature, no range warnings)."""
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", OutOfRangeWarning)
+            fr = (self.frame_pre, self.frame_post)
+            self.frame_pre, self.frame_post = np.eye(4), np.eye(4)
+            try:
+                return self.predict_classical(q), self.predict(q)
+            finally:
+                self.frame_pre, self.frame_post = fr
+
     def _fit_uncertainty(self, train, val, held_out_index) -> None:
         """Quantiles of the hybrid and classical error norms on held-out samples (split conformal)."""
         if val is not None:
@@ -691,14 +703,7 @@ class HybridModel:
             ds, src = train.subset(np.asarray(held_out_index)), "held-out"
         else:
             ds, src = train, "train (in-sample: too few samples to hold out)"
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", OutOfRangeWarning)
-            fr = (self.frame_pre, self.frame_post)
-            self.frame_pre, self.frame_post = np.eye(4), np.eye(4)
-            try:
-                T_c, T_h = self.predict_classical(ds.q), self.predict(ds.q)
-            finally:
-                self.frame_pre, self.frame_post = fr
+        T_c, T_h = self._predict_unframed(ds.q)
         unc = {"levels": _UNC_LEVELS, "n": int(len(ds)), "source": src}
         for name, T in (("classical", T_c), ("hybrid", T_h)):
             pe = np.linalg.norm(T[:, :3, 3] - ds.xyz_m, axis=1) * 1e3
@@ -721,14 +726,7 @@ class HybridModel:
     def _fit_uncertainty_without_temperature(self, ds_raw) -> None:
         """Quantiles for queries without a temperature (model with a thermal coefficient): the
         predictions at the reference temperature against the raw measurements, drift included."""
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", OutOfRangeWarning)
-            fr = (self.frame_pre, self.frame_post)
-            self.frame_pre, self.frame_post = np.eye(4), np.eye(4)
-            try:
-                T_c, T_h = self.predict_classical(ds_raw.q), self.predict(ds_raw.q)
-            finally:
-                self.frame_pre, self.frame_post = fr
+        T_c, T_h = self._predict_unframed(ds_raw.q)
         for name, T in (("classical", T_c), ("hybrid", T_h)):
             pe = np.linalg.norm(T[:, :3, 3] - ds_raw.xyz_m, axis=1) * 1e3
             self.unc_[f"notemp_{name}_pos_mm"] = np.quantile(pe, _UNC_LEVELS)
