@@ -64,9 +64,9 @@ in ``fit`` by refitting the calibration on the middle of each joint's range and 
 ends (:mod:`hykin.uncertainty`; a few seconds). Cheap at query time (no ensemble), never on the
 :meth:`predict` path. Coverage of the 95 % band on a virtual RX160 (rx160-nongeo) trained on the
 middle half of every joint range, queried on the full range: outside the range 54 % (position)
-with the in-range band alone, 92-93 % with the growth (orientation 72 % -> 92 %). UR10 series A
-held-out 95.0 % (position) / 95.8 % (orientation); series B (new series, registered from 30 poses)
-94.0 % / 94.8 % (benchmarks/bench_region.py).
+with the in-range band alone, 90-93 % with the growth (orientation 72 % -> 90-92 %). UR10 series A
+held-out 94.8 % (position) / 95.5 % (orientation); series B (new series, registered from 30 poses)
+92.8 % / 94.8 %; virtual in range 94.4 % / 94.9 % (benchmarks/bench_region.py).
 """
 
 from __future__ import annotations
