@@ -628,8 +628,7 @@ class HybridModel:
         """Scale factors ``(n,)`` for queries at ``temperature_c`` (None: no thermal correction)."""
         if temperature_c is None or self.thermal_ is None or self.thermal_.coefficient_per_k == 0.0:
             return None
-        t = np.broadcast_to(np.asarray(temperature_c, dtype=np.float64).reshape(-1) if np.ndim(temperature_c)
-                            else np.float64(temperature_c), (n,))
+        t = np.broadcast_to(np.asarray(temperature_c, dtype=np.float64).reshape(-1), (n,))
         if not np.isfinite(t).all():
             raise HybridError(f"temperature_c: non-finite value in row {int(np.argmax(~np.isfinite(t))) + 1}")
         return 1.0 + self.thermal_.coefficient_per_k * (t - self.thermal_.reference_c)
@@ -646,11 +645,11 @@ class HybridModel:
         frames are honoured; for positions ``frame_post``'s offset is scaled with the arm (an error of
         ``alpha dT |offset|``: 2 µm for a 2 cm offset at 9 K from the reference)."""
         T_target = np.asarray(T_target, dtype=np.float64)
-        n = T_target.shape[0] if T_target.ndim > 1 else 1
+        pos = T_target.shape[-2:] != (4, 4)  # positions (N, 3) / (3,), else poses (N, 4, 4) / (4, 4)
+        n = T_target.size // (3 if pos else 16)
         f = self._thermal_factor(temperature_c, n)
         if f is None:
             return T_target
-        pos = T_target.ndim == 2 or T_target.shape[-2:] != (4, 4)
         T = np.tile(np.eye(4), (n, 1, 1)) if pos else T_target.reshape(-1, 4, 4).copy()
         if pos:
             T[:, :3, 3] = T_target.reshape(-1, 3)

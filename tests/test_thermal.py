@@ -104,6 +104,9 @@ def test_targets_at_reference_inverts_predict(session, model):
     p_back = reg.targets_at_reference(T_hot[:, :3, 3], t)
     assert np.abs(p_back - T_ref[:, :3, 3]).max() < 3e-6  # alpha dT |frame_post offset| = 1e-4 * 2 cm
     assert reg.targets_at_reference(T_hot, None) is not None and np.array_equal(reg.targets_at_reference(T_hot, None), T_hot)
+    # one pose (4, 4) / one position (3,): the same as the first row of the batch
+    assert np.abs(reg.targets_at_reference(T_hot[0], t[0]) - back[0]).max() < 1e-15
+    assert np.abs(reg.targets_at_reference(T_hot[0, :3, 3], t[0]) - p_back[0]).max() < 1e-15
 
 
 def test_save_load_keeps_thermal(model, session, tmp_path):
