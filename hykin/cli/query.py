@@ -1,0 +1,128 @@
+"""Query commands: fk and ik on a model file or a robot."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import typer
+
+from .common import AngleUnit, CLIError, LengthUnit, app, console, load_model_or_robot, temperature_of, write_rows
+
+@app.command("fk")
+def fk_cmd(
+    model: str = typer.Argument(..., help="Model file, robot file, URDF or preset (nominal FK)."),
+    joints: Path = typer.Argument(..., help="CSV/Parquet with columns q1..qN."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output poses (dataset columns q…, x,y,z,qw,qx,qy,qz)."),
+    angle_unit: str = AngleUnit,
+    no_fade: bool = typer.Option(False, "--no-fade", help="Apply the network correction even outside the training region."),
+) -> None:
+    """Forward kinematics: full hybrid model for a model file, classical FK for a robot."""
+    from ..dataset import Dataset, read_joints, write_dataset
+    from ..fk import fk
+
+    mdl, rob = load_model_or_robot(model)
+    q, extra = read_joints(joints, dof=rob.dof, angle_unit=angle_unit, robot=rob)
+    if mdl is None:
+        T = fk(rob, q)
+    else:
+        if no_fade:
+            mdl.fade = False
+        temp = temperature_of(mdl, extra, joints)
+        T = mdl.predict(q, temperature_c=temp)
+        extra = dict(extra)
+        extra["support_distance"] = mdl.support_distance(q)
+        band_mm, band_deg = mdl.predict_uncertainty(q, temperature_c=temp)
+        extra["pos_band95_mm"] = band_mm
+        if band_deg is not None:
+            extra["ang_band95_deg"] = band_deg
+    write_dataset(Dataset.from_poses(q, T, extra=extra, source=str(joints)), out)
+    typer.echo(f"wrote {len(q)} poses to {out}")
+
+
+@app.command("ik")
+def ik_cmd(
+    model: str = typer.Argument(..., help="Model file (hybrid IK) or robot file / preset (classical IK)."),
+    poses: Path = typer.Argument(..., help="Target poses: x,y,z[,qw,qx,qy,qz] (m)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output joints CSV: target, branch, q…, errors."),
+    all_branches: bool = typer.Option(False, "--all-branches", help="Every solution branch, not only the nearest one."),
+    seed_joints: Optional[Path] = typer.Option(None, "--seed-joints", help="CSV of current joints (one row per target, or one row)."),
+    position_only: bool = typer.Option(False, "--position-only", help="Solve for position only."),
+    length_unit: str = LengthUnit,
+    angle_unit: str = AngleUnit,
+) -> None:
+    """Inverse kinematics: every branch (or the one nearest the seed joints), failures reported."""
+    from ..dataset import read_joints, read_poses
+
+    mdl, rob = load_model_or_robot(model)
+    T, has_rot, pose_extra = read_poses(poses, length_unit=length_unit, extras=True)
+    position_only = position_only or not has_rot
+    q_cur = None
+    if seed_joints is not None:
+        q_cur, _ = read_joints(seed_joints, dof=rob.dof, angle_unit=angle_unit, robot=rob)
+        if len(q_cur) == 1:
+            q_cur = np.repeat(q_cur, len(T), axis=0)
+        elif len(q_cur) != len(T):
+            raise CLIError(f"{seed_joints}: {len(q_cur)} rows, expected 1 or {len(T)} (one per target)")
+    nearest = not all_branches
+    if nearest and q_cur is None:
+        q_cur = np.zeros((len(T), rob.dof))  # nearest to the zero pose when no seed is given
+    if mdl is None:
+        rows = _classical_ik_rows(rob, T, q_cur if nearest else None, position_only)
+    else:
+        from ..hybrid_ik import hybrid_ik, ik_result_to_rows
+
+        target = T[:, :3, 3] if position_only else T
+        res = hybrid_ik(mdl, target, all_branches=True, q_current=q_cur, nearest=nearest, position_only=position_only,
+                        temperature_c=temperature_of(mdl, pose_extra, poses))
+        rows = ik_result_to_rows(res)
+        from ..hybrid import support_report
+
+        has_q = np.isfinite(res.q).all(axis=1)
+        msg = support_report(mdl, res.q[has_q])["message"] if has_q.any() else ""
+        if msg:
+            console().print(f"[yellow]warning:[/] {msg} (see the in_support column)")
+    write_rows(rows, out)
+    ok = np.asarray(rows["success"], dtype=bool)
+    n_targets = len(T)
+    solved = len(set(np.asarray(rows["target"])[ok].tolist()))
+    typer.echo(f"wrote {len(ok)} solution rows for {n_targets} targets to {out} ({solved} solved, {n_targets - solved} failed)")
+
+
+def _classical_ik_rows(robot, T, q_current, position_only: bool) -> dict:
+    """Rows for classical IK on a robot: every branch, or the one nearest ``q_current``."""
+    from ..ik import ik
+
+    br = ik(robot, T, all_branches=True, position_only=position_only)
+    if q_current is not None:
+        r = br.nearest_to(q_current, robot.lower, robot.upper)
+        q, ok, pe, ae, lab = r.q[:, None], r.success[:, None], r.pos_err_m[:, None], r.ang_err_rad[:, None], np.asarray(r.label)[:, None]
+    else:
+        q, ok, pe, ae, lab = br.q, br.success, br.pos_err_m, br.ang_err_rad, br.label
+    N, K, n = q.shape
+    rows: dict = {"target": [], "branch": []}
+    rows.update({f"q{j + 1}": [] for j in range(n)})
+    rows.update({"success": [], "pos_err_mm": [], "ang_err_deg": [], "reason": []})
+    for i in range(N):
+        ks = [k for k in range(K) if ok[i, k]]
+        if not ks:  # unreachable: one row saying so, no made-up joints
+            rows["target"].append(i)
+            rows["branch"].append("")
+            for j in range(n):
+                rows[f"q{j + 1}"].append(float("nan"))
+            rows["success"].append(False)
+            rows["pos_err_mm"].append(float(np.nanmin(pe[i]) * 1e3) if np.isfinite(pe[i]).any() else float("nan"))
+            rows["ang_err_deg"].append(float(np.degrees(np.nanmin(ae[i]))) if np.isfinite(ae[i]).any() else float("nan"))
+            rows["reason"].append("unreachable: no solution within joint limits")
+            continue
+        for k in ks:
+            rows["target"].append(i)
+            rows["branch"].append(str(lab[i, k]))
+            for j in range(n):
+                rows[f"q{j + 1}"].append(float(q[i, k, j]))
+            rows["success"].append(True)
+            rows["pos_err_mm"].append(float(pe[i, k] * 1e3))
+            rows["ang_err_deg"].append(float(np.degrees(ae[i, k])))
+            rows["reason"].append("")
+    return rows
