@@ -314,7 +314,7 @@ def expand_joint_spec(spec, header: list[str], where: str = "<table>") -> list[s
 
 # --------------------------------------------------------------------------- suggestion
 
-_JOINT_RX = re.compile(r"(?i)^(q|joint|jnt|j|a|axis|theta|ax)[ _\-]?(\d+)(?:[ _\-]?[\[(]?(deg|rad)[\])]?)?$")
+_JOINT_RX = re.compile(r"(?i)^(q|joint|jnt|j|a|axis|achse|axe|gelenk|theta|ax)[ _\-]?(\d+)(?:[ _\-]?[\[(]?(deg|rad)[\])]?)?$")
 _AXES = "xyz"
 
 

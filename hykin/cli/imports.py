@@ -54,6 +54,7 @@ def import_ur5_cmd(
     from ..importers import import_ur5, ur5_robot_for_dataset
     from ..robot import save_robot_toml
 
+    _refuse_overwriting_inputs(out, path)
     ds = import_ur5(path)
     _write(ds, out, [path])
     if robot_out is not None:
@@ -75,6 +76,7 @@ def import_ipa_cmd(
     from ..importers import import_ipa_series, ipa_nominal_robot
     from ..robot import save_robot_toml
 
+    _refuse_overwriting_inputs(out, path)
     ds = import_ipa_series(path, register_to=ipa_nominal_robot() if register else None)
     _write(ds, out, [path])
     if robot_out is not None:
@@ -187,6 +189,7 @@ def import_table_cmd(
                        "suggested mapping to check and pass with --map")
     from ..table_import import import_table
 
+    _refuse_overwriting_inputs(out, path, map_path)
     m = _build_map(map_path, opts)
     ds = import_table(path, m, _robot(robot))
     _write(ds, out, [path, map_path], f", orientation from {m.orientation}" if m.orientation else "")
@@ -257,6 +260,7 @@ def import_three_smr_cmd(
     """
     from ..table_import import import_table
 
+    _refuse_overwriting_inputs(out, path, map_path)
     opts = dict(joints=_joint_spec(joints), angle_unit=angle_unit, position=_csv_names(position), length_unit=length_unit,
                 points=[_csv_names(p) for p in point or []], delimiter=delimiter, decimal=decimal, skip_rows=skip_rows,
                 comment=comment, dof=dof, nest_unit=nest_unit, max_fit_rms_mm=max_fit_rms_mm)
@@ -296,7 +300,8 @@ def import_stream_cmd(
     position: Optional[str] = typer.Option(None, "--position", help="Position columns of the tracker stream (default x,y,z)."),
     quaternion: Optional[str] = typer.Option(None, "--quaternion", help="Quaternion columns (wxyz) of the tracker stream, if any."),
     length_unit: Optional[str] = LengthOpt,
-    time_unit: Optional[str] = typer.Option(None, "--time-unit", help="Unit of both time columns: s, ms, us, ns (default s)."),
+    robot_time_unit: Optional[str] = typer.Option(None, "--robot-time-unit", help="Unit of the robot log's time: s, ms, us, ns (default s)."),
+    tracker_time_unit: Optional[str] = typer.Option(None, "--tracker-time-unit", help="Unit of the tracker's time: s, ms, us, ns (default s)."),
     offset: Optional[float] = typer.Option(None, "--offset", help="Known clock offset t_tracker - t_robot (s); default: estimated."),
     fit_drift: bool = typer.Option(False, "--fit-drift", help="Also estimate a clock drift (needs a log of >= 2 windows)."),
     method: str = typer.Option("speed", "--method", help="Offset estimate: speed (frame-free) or positions (accurate model)."),
@@ -312,9 +317,10 @@ def import_stream_cmd(
     if frame not in ("tracker", "fit"):
         raise CLIError(f"import stream: --frame must be tracker or fit, got {frame!r}")
     rob = _robot(robot)
-    r_opts = dict(time=robot_time, joints=_joint_spec(joints), angle_unit=angle_unit, time_unit=time_unit)
+    _refuse_overwriting_inputs(out, robot_log, tracker_stream, robot_map, tracker_map)
+    r_opts = dict(time=robot_time, joints=_joint_spec(joints), angle_unit=angle_unit, time_unit=robot_time_unit)
     t_opts = dict(time=tracker_time, position=_csv_names(position), quaternion=_csv_names(quaternion),
-                  length_unit=length_unit, time_unit=time_unit)
+                  length_unit=length_unit, time_unit=tracker_time_unit)
     if robot_map is None:
         r_opts = {"time": "t", "joints": "q*", **{k: v for k, v in r_opts.items() if v is not None}}
     if tracker_map is None:
