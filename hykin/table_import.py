@@ -33,6 +33,8 @@ from .table_map import (
     did_you_mean,
     euler_sequence,
     expand_joint_spec,
+    load_table_map,
+    table_map_from_dict,
 )
 
 __all__ = ["MappedTable", "TextTable", "import_table", "numeric_column", "read_mapped", "read_text_table"]
@@ -229,6 +231,8 @@ def numeric_column(t: TextTable, name: str, decimal: str = ".", allow_missing: b
                     cause = f"{raw!r} has a decimal point but decimal = \",\" was declared"
                 else:
                     cause = f"{raw!r} is not a number"
+                    if r == 0 and re.search(r"[A-Za-z°µ\[\]]", raw):
+                        cause += f" (a units line under the header? drop it with drop_rows = [{int(t.lines[0])}])"
                 raise t.error(r, name, cause)
     if not allow_missing:
         bad = ~np.isfinite(arr)
@@ -378,7 +382,7 @@ def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool 
             r, k, c = np.argwhere(big)[0]
             raise t.error(int(r), m.points[k][c], f"position {P[r, k, c]:.6g} declared m looks like millimetres: "
                           "declare length_unit = \"mm\"")
-    time_s = numeric_column(t, m.time, d) * TIME_UNITS_S[m.time_unit] if m.time else None
+    time_s = _time_column(t, m) if m.time else None
     extra: dict[str, np.ndarray] = {}
     if m.temperature:
         tc = numeric_column(t, m.temperature, d)
@@ -390,6 +394,21 @@ def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool 
     for c, new in keep.items():
         extra[new] = _lenient(t.col(c), d)
     return MappedTable(t, q, jn, xyz, quat, P, time_s, extra)
+
+
+def _time_column(t: TextTable, m: TableMap) -> np.ndarray:
+    """Time column in seconds: numbers in ``time_unit``, or ISO 8601 date-times (s since 1970, as UTC)."""
+    try:
+        return numeric_column(t, m.time, m.decimal) * TIME_UNITS_S[m.time_unit]
+    except DatasetError as e:
+        cells = [c.replace(" ", "T", 1) for c in t.col(m.time)]
+        try:
+            stamps = np.array(cells, dtype="datetime64[ns]")
+        except ValueError:
+            raise e from None
+        if np.isnat(stamps).any():
+            raise t.error(int(np.argmax(np.isnat(stamps))), m.time, "empty time stamp") from None
+        return (stamps - np.datetime64(0, "ns")).astype(np.int64) * 1e-9
 
 
 def _lenient(cells: list[str], decimal: str) -> np.ndarray:
@@ -446,15 +465,20 @@ def _nest_pose(mt: MappedTable, m: TableMap) -> tuple[np.ndarray, np.ndarray]:
     return T, rms
 
 
-def import_table(path: str | Path, m: TableMap, robot=None, *, dof: int | None = None) -> Dataset:
+def import_table(path: str | Path, m: TableMap | dict | str | Path, robot=None, *, dof: int | None = None) -> Dataset:
     """Import any table into a :class:`~hykin.dataset.Dataset` (SI) with mapping ``m``.
 
     Output columns: ``q1..qN`` (the mapped joints in order), ``x,y,z`` (position), ``qw..qz`` (from
     the quaternion, Euler angles or rotation vector, if mapped), ``x2,y2,z2, ...`` (further points),
     ``time_s``, ``temperature_c``, ``payload_kg`` and the kept columns. With ``m.nest`` the pose is
     the rigid fit of the nest onto position + two points (extra ``smr_fit_rms_m``). Validated as any
-    dataset (with ``robot``: joint count, limits).
+    dataset (with ``robot``: joint count, limits). ``m`` may also be a dict of mapping keys or the
+    path of a mapping TOML file.
     """
+    if isinstance(m, dict):
+        m = table_map_from_dict(m)
+    elif not isinstance(m, TableMap):
+        m = load_table_map(m)
     mt = read_mapped(path, m, robot, dof=dof)
     t = mt.table
     extra = {}

@@ -347,6 +347,17 @@ def _quads(header: list[str]) -> list[tuple[str, str, str, str]]:
 _NOT_MEASURED = re.compile(r"(?i)goal|target|cmd|command|nominal|std|sigma|dif|err|_t$|(^|_)t_|set|desired|flange|vel|speed")
 
 
+def _unit_in_name(name: str, units: dict) -> str | None:
+    """A unit written into a column name: ``X [mm]``, ``x_mm``, ``A1 (deg)``, ``A1 [°]``."""
+    if "°" in name:
+        return "deg" if "deg" in units else None
+    toks = re.findall(r"[A-Za-z]+", name)
+    for tok in re.findall(r"[\[(]\s*([A-Za-z]+)\s*[\])]", name) + toks[-1:] * (len(toks) > 1):
+        if tok.lower() in units:
+            return tok.lower()
+    return None
+
+
 def suggest_map(header: list[str], sample_rows: list[list[str]] | None = None, *, delimiter: str | None = None,
                 decimal: str = ".", skip_rows: int = 0) -> str:
     """A suggested mapping (TOML text with comments) for ``header``; every guess is marked CHECK.
@@ -390,6 +401,7 @@ def suggest_map(header: list[str], sample_rows: list[list[str]] | None = None, *
     if joints:
         lines.append(f"joints = [{', '.join(repr(j).replace(chr(39), chr(34)) for j in joints)}]  # CHECK order base to tip")
         big = max((v for j in joints for v in values(j)), default=0.0)
+        unit_hint = unit_hint or _unit_in_name(joints[0], ANGLE_UNITS_RAD)
         unit = unit_hint or ("deg" if big > 2 * math.pi * 1.2 else "rad")
         why = "from the column names" if unit_hint else (f"largest value {big:.4g}" if rows else "no data seen")
         lines.append(f'angle_unit = "{unit}"  # CHECK ({why})')
@@ -402,7 +414,9 @@ def suggest_map(header: list[str], sample_rows: list[list[str]] | None = None, *
         pos, rest = meas[0], [t for t in meas[1:]]
         lines.append(f"position = [{', '.join(chr(34) + c + chr(34) for c in pos)}]  # CHECK")
         big = max((math.sqrt(sum(v * v for v in r)) for r in zip(*(values(c) for c in pos))), default=0.0)
-        lines.append(f'length_unit = "{"mm" if big > 50 else "m"}"  # CHECK ({f"largest distance {big:.4g}" if rows else "no data seen"})')
+        named = _unit_in_name(pos[0], LENGTH_UNITS_M)
+        why = "from the column names" if named else (f"largest distance {big:.4g}" if rows else "no data seen")
+        lines.append(f'length_unit = "{named or ("mm" if big > 50 else "m")}"  # CHECK ({why})')
         pts = [t for t in rest if not re.search(r"(?i)r[xyz]|rot|angle", t[0]) and not _NOT_MEASURED.search(t[0])]
         if pts:
             lines.append("points = [" + ", ".join("[" + ", ".join(f'"{c}"' for c in t) + "]" for t in pts) + "]  # CHECK further reflectors")

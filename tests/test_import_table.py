@@ -418,3 +418,28 @@ def test_import_stream_cli(tmp_path, capsys):
     # the time column missing: one line
     _refused(capsys, ["import", "stream", rlog, trk, "-o", tmp_path / "x.csv", "--robot", "rx160", "--length-unit", "mm",
                       "--position", "X,Y,Z"], tmp_path / "x.csv", "column 't'", "mapped as time")
+
+
+def test_headerless_iso_time_and_units_line(tmp_path, capsys):
+    """No header (columns 1, 2, ...), ISO 8601 time stamps; a units line is named as the likely cause."""
+    rob = load_robot("ur10e")
+    q = rob.random_joints(8, 9) * 0.5
+    T = fk(rob, q)
+    stamps = [f"2026-11-23 04:33:{10 + i:02d}.250" for i in range(8)]
+    body = ["|".join([stamps[i], *(repr(float(v)) for v in [*q[i], *T[i, :3, 3]])]) for i in range(8)]
+    path = tmp_path / "nohead.txt"
+    path.write_text("\n".join(body) + "\n")
+    m = {"header_row": 0, "delimiter": "|", "time": "1", "joints": "2..7", "position": ["8", "9", "10"]}
+    ds = import_table(path, m, rob)
+    _check_against(ds, q, T)
+    t0 = float(np.datetime64("2026-11-23T04:33:10.250", "ms").astype(np.int64)) * 1e-3
+    np.testing.assert_allclose(ds.extra["time_s"], t0 + np.arange(8), rtol=0, atol=1e-6)
+    # the same with a header and a units line under it
+    path.write_text("t|a|b|c|d|e|f|x|y|z\ns|rad|rad|rad|rad|rad|rad|m|m|m\n" + "\n".join(body) + "\n")
+    out = tmp_path / "o.csv"
+    _refused(capsys, ["import", "table", path, "-o", out, "--joints", "a,b,c,d,e,f", "--position", "x,y,z"], out,
+             "row 1 (line 2 of the file), column 'a'", "drop_rows = [2]")
+    code, _, err = run(["import", "table", path, "-o", out, "--joints", "a,b,c,d,e,f", "--position", "x,y,z", "--drop-rows", "2",
+                        "--time", "t"], capsys)
+    assert code == 0, err
+    _check_against(read_dataset(out), q, T)
