@@ -397,7 +397,18 @@ def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool 
 
 
 def _time_column(t: TextTable, m: TableMap) -> np.ndarray:
-    """Time column in seconds: numbers in ``time_unit``, or ISO 8601 date-times (s since 1970, as UTC)."""
+    """Time column in seconds: numbers in ``time_unit``, ISO 8601 date-times or ``time_format`` text
+    (date-times as seconds since 1970, clock taken as UTC)."""
+    if m.time_format:
+        from datetime import datetime, timezone
+
+        out = np.empty(len(t.rows))
+        for r, c in enumerate(t.col(m.time)):
+            try:
+                out[r] = datetime.strptime(c, m.time_format).replace(tzinfo=timezone.utc).timestamp()
+            except ValueError:
+                raise t.error(r, m.time, f"{c!r} does not match time_format {m.time_format!r}") from None
+        return out
     try:
         return numeric_column(t, m.time, m.decimal) * TIME_UNITS_S[m.time_unit]
     except DatasetError as e:
@@ -501,7 +512,7 @@ def import_table(path: str | Path, m: TableMap | dict | str | Path, robot=None, 
         c = min(clash)
         raise TableMapError(f"{t.where}, column '{c}': a kept column has the name of a dataset column; rename it "
                             f"(keep = {{ {c} = \"{c}_raw\" }})", file=t.where, column=c)
-    ds.meta = {"frame": "as measured", "imported_from": t.where, "joint_columns": mt.joint_columns}
+    ds.meta = {"frame": "file's", "imported_from": t.where, "joint_columns": mt.joint_columns}
     try:
         validate(ds, robot, where=t.where, angle_unit=m.angle_unit, line_offset=None)
     except DatasetError as e:

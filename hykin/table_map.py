@@ -79,7 +79,8 @@ class TableMap:
     points: further reflectors ``[[x2, y2, z2], ...]`` -> dataset columns ``x2,y2,z2, x3,...`` (m).
     nest: ``(3, 3)`` reflector positions in the tool frame (nest_unit) -> full pose from position +
         two points (three SMRs); max_fit_rms_mm bounds each row's fit residual.
-    time (-> ``time_s``, time_unit), temperature (-> ``temperature_c``, temperature_unit C/K/F),
+    time (-> ``time_s``: numbers in time_unit, ISO 8601 date-times, or text in time_format, a
+        ``strptime`` format such as ``"%Y%m%d%H%M%S"``; date-times as UTC seconds), temperature (-> ``temperature_c``, temperature_unit C/K/F),
         payload (-> ``payload_kg``); keep: further columns carried as they are (list, ``["*"]`` =
         every unmapped column, or a table ``{column = "new_name"}``); ignore: columns the
         further-joint check should not complain about.
@@ -109,6 +110,7 @@ class TableMap:
     max_fit_rms_mm: float = 1.0
     time: str | None = None
     time_unit: str = "s"
+    time_format: str | None = None
     temperature: str | None = None
     temperature_unit: str = "C"
     payload: str | None = None
@@ -230,7 +232,7 @@ def table_map_from_dict(d: dict, where: str = "<mapping>") -> TableMap:
         if k in _CHOICES and v not in _CHOICES[k]:
             raise TableMapError(f"{where}: {k} must be one of {', '.join(map(repr, _CHOICES[k]))}, got {v!r}"
                                 f"{did_you_mean(str(v), _CHOICES[k])}", file=where, column=k)
-        if k in ("time", "temperature", "payload", "comment", "encoding", "euler_convention") and not isinstance(v, str):
+        if k in ("time", "time_format", "temperature", "payload", "comment", "encoding", "euler_convention") and not isinstance(v, str):
             raise TableMapError(f"{where}: {k} must be a string, got {v!r}", file=where, column=k)
         kw[k] = v
     m = TableMap(**kw)

@@ -200,3 +200,23 @@ def test_ipa_importer_refuses_unknown_columns(tmp_path):
     f.write_text(";".join(head + ["wrist_4_joint"]) + "\n" + ";".join(row + ["0,2"]) + "\n")
     with pytest.raises(DatasetError, match=r"column 'wrist_4_joint': a further joint.*hykin import table"):
         import_ipa_series(d)
+
+
+@needs_ipa
+def test_ipa_series_b_through_the_generic_table_importer(tmp_path):
+    """The generic importer with a mapping reproduces the dedicated ipa importer on real data."""
+    from hykin.table_import import import_table
+
+    mp = tmp_path / "ipa.toml"
+    mp.write_text(
+        'delimiter = ";"\ndecimal = ","\n'
+        'joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]\n'
+        'position = ["measurement_x", "measurement_y", "measurement_z"]\nlength_unit = "mm"\n'
+        'euler = ["measurement_rx", "measurement_ry", "measurement_rz"]\neuler_convention = "XYZ"\neuler_unit = "deg"\n'
+        'temperature = "measurement_temperature"\n')
+    ref = import_ipa_series(IPA_DIR / "Series_B")
+    ds = import_table(IPA_DIR / "Series_B" / "measurements_joint_configurations.csv", mp)
+    np.testing.assert_array_equal(ds.q, ref.q)
+    np.testing.assert_allclose(ds.xyz_m, ref.xyz_m, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(ds.quat_wxyz, ref.quat_wxyz, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(ds.extra["temperature_c"], ref.extra["temperature_c"])
