@@ -443,3 +443,74 @@ def test_headerless_iso_time_and_units_line(tmp_path, capsys):
                         "--time", "t"], capsys)
     assert code == 0, err
     _check_against(read_dataset(out), q, T)
+
+
+_AX = {"x": _rx, "y": _ry, "z": _rz}
+
+
+def _compose(seq, ang):
+    """Rotation of Euler angles ``ang`` (N, 3) in scipy's sequence notation, composed here."""
+    Rs = [_AX[a.lower()](ang[:, k]) for k, a in enumerate(seq)]
+    return Rs[0] @ Rs[1] @ Rs[2] if seq.isupper() else Rs[2] @ Rs[1] @ Rs[0]
+
+
+@pytest.mark.parametrize("seed", range(16))
+def test_random_layouts_round_trip(tmp_path, seed):
+    """Random layouts (delimiter, decimal, units, orientation form and convention, column order, junk
+    columns, metadata and comment lines, joint count 3..9) written here and read back exactly."""
+    rng = np.random.default_rng(100 + seed)
+    n, dof = int(rng.integers(3, 12)), int(rng.integers(3, 10))
+    delim = [",", ";", "\t", " ", "|"][seed % 5]
+    decimal = "," if (delim != "," and rng.random() < 0.5) else "."
+    aunit, lunit = rng.choice(["rad", "deg"]), rng.choice(["m", "mm", "cm", "in"])
+    form = ["none", "wxyz", "xyzw", "euler", "rotvec"][seed % 5 if seed < 10 else int(rng.integers(0, 5))]
+    q = rng.uniform(-3.0, 3.0, (n, dof))
+    p = rng.uniform(-1.5, 1.5, (n, 3))
+    ang = rng.uniform(-3.0, 3.0, (n, 3))
+    ang[:, 1] = rng.uniform(0.2, 1.3, n)  # away from gimbal lock
+    seq = "".join(rng.choice(["xyz", "zyx", "zyz", "xzx", "yxz"]))[:3]
+    seq = seq.upper() if rng.random() < 0.5 else seq
+    R = _compose(seq, ang)
+    A, L = (180 / math.pi if aunit == "deg" else 1.0), {"m": 1.0, "mm": 1e3, "cm": 1e2, "in": 1 / 0.0254}[lunit]
+    cols = {f"Joint {j + 1}" if delim != " " else f"Joint_{j + 1}": q[:, j] * A for j in range(dof)}
+    cols.update({"PX": p[:, 0] * L, "PY": p[:, 1] * L, "PZ": p[:, 2] * L, "Note": np.array(["ok"] * n)})
+    m = {"joints": [c for c in cols if c.startswith("Joint")], "position": ["PX", "PY", "PZ"], "angle_unit": str(aunit),
+         "length_unit": str(lunit), "decimal": decimal, "delimiter": {"\t": "tab", " ": "whitespace"}.get(delim, delim)}
+    if form in ("wxyz", "xyzw"):
+        qw = se3.matrix_to_quat(R) * rng.choice([-1.0, 1.0], (n, 1))
+        order = [0, 1, 2, 3] if form == "wxyz" else [1, 2, 3, 0]
+        names = [f"Q{k}" for k in range(4)]
+        cols.update({nm: qw[:, o] for nm, o in zip(names, order)})
+        m.update(quaternion=names, quaternion_order=form)
+    elif form == "euler":
+        eu = "deg" if rng.random() < 0.5 else "rad"
+        cols.update({f"E{k}": ang[:, k] * (180 / math.pi if eu == "deg" else 1.0) for k in range(3)})
+        m.update(euler=["E0", "E1", "E2"], euler_convention=seq.lower(), euler_extrinsic=seq.islower(), euler_unit=eu)
+    elif form == "rotvec":
+        rv = _rotvec(R)
+        cols.update({f"R{k}": rv[:, k] for k in range(3)})
+        m.update(rotvec=["R0", "R1", "R2"])
+    names = list(cols)
+    order = rng.permutation(len(names))
+    names = [names[i] for i in order]
+
+    def cell(v):
+        s = v if isinstance(v, str) else f"{float(v):.17g}"
+        return s.replace(".", ",") if decimal == "," and not isinstance(v, str) else s
+
+    meta = int(rng.integers(0, 3))
+    lines = [f"meta line {k}" for k in range(meta)] + [delim.join(names)]
+    for i in range(n):
+        lines.append(delim.join(cell(cols[c][i]) for c in names))
+        if rng.random() < 0.2:
+            lines.append("// comment")
+    path = tmp_path / "t.txt"
+    path.write_text("\n".join(lines) + "\n")
+    m.update(skip_rows=meta, comment="//")
+    ds = import_table(path, m)
+    np.testing.assert_allclose(ds.q, q, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ds.xyz_m, p, rtol=0, atol=1e-12)
+    assert ds.has_orientation == (form != "none")
+    if form != "none":
+        assert _rot_err(ds.rotations(), R) < 1e-12
+    assert list(ds.extra) == []  # nothing kept unless asked
