@@ -244,8 +244,6 @@ def table_map_from_dict(d: dict, where: str = "<mapping>") -> TableMap:
     if m.header_row is not None and m.header_row > 0 and m.skip_rows and m.header_row != m.skip_rows + 1:
         raise TableMapError(f"{where}: header_row = {m.header_row} contradicts skip_rows = {m.skip_rows} "
                             f"(the header would be line {m.skip_rows + 1}); give one of them", file=where)
-    if m.delimiter == "," and m.decimal == ",":
-        raise TableMapError(f"{where}: delimiter and decimal are both ','", file=where)
     return m
 
 
