@@ -57,6 +57,10 @@ _EXPORTS = {
     "import_ur5": "importers",
     "import_ipa_series": "importers",
     "import_three_smr": "importers",
+    "import_table": "table_import",
+    "TableMap": "table_map",
+    "load_table_map": "table_map",
+    "suggest_map": "table_map",
     # physics, simulation
     "gravity_torques": "compliance",
     "deflected_joints": "compliance",

@@ -20,31 +20,27 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from . import se3
-from .referencing import pose_from_three_points
 from .dataset import (
     Dataset,
     DatasetError,
-    LENGTH_UNITS,
     _check_units,
-    _dof_from_header,
     _to_float_column,
     _try_float_column,
-    joint_columns,
     read_csv_table,
     validate,
 )
 
 __all__ = [
-    "import_ur5",
-    "ur5_robot_for_dataset",
-    "UR5_XT_D5_M",
-    "import_ipa_series",
-    "ipa_nominal_robot",
     "IPA_BASE_LINK_FROM_DH",
     "IPA_TCP_FROM_FLANGE",
+    "UR5_XT_D5_M",
+    "import_ipa_series",
+    "import_three_smr",
+    "import_ur5",
+    "ipa_nominal_robot",
     "register_rigid",
     "registration_errors",
-    "import_three_smr",
+    "ur5_robot_for_dataset",
 ]
 
 
@@ -129,13 +125,26 @@ def ur5_robot_for_dataset(match_xt: bool = True):
     return r.copy(d_m=d, tool=se3.trans(0.0, 0.0, 0.031), name="ur5-dataset" if match_xt else r.name)
 
 
+def _refuse_unknown_columns(where: str, header, known: set, layout: str, dof: int) -> None:
+    """A fixed-layout importer reads only files it fully understands: any other column (a 7th
+    joint, a second reflector, ...) is refused with a pointer to the generic importer."""
+    extra = [h for h in header if h not in known]
+    if extra:
+        c = extra[0]
+        what = f"a further joint: this importer reads exactly {dof} joints" if "joint" in c.lower() \
+            else f"not part of the {layout} layout"
+        raise DatasetError(f"{where}, column '{c}': {what}; refusing to drop it silently: map the file with "
+                           f"`hykin import table {where} --suggest`", file=where, column=c)
+
+
 def import_ur5(path: str | Path) -> Dataset:
     """Read a serial-robots-ur5 CSV (``UR5/3D_UR5_uncalibrated_*_cleaned.csv``) into a Dataset.
 
     ``q`` = ``joint_1..6`` converted from degrees; ``xyz_m`` = measured position
     ``(x_t + x_dif) / 1000`` in the robot base frame; position-only (``quat_wxyz=None``).
     Extras: ``x_t_m, y_t_m, z_t_m`` (nominal FK position of the commanded joints, m) and
-    ``step_order`` when present.
+    ``step_order`` when present. Any other column (e.g. a ``joint_7``) is refused, not dropped:
+    such files go through ``hykin import table``.
     """
     where = str(path)
     header, cols = read_csv_table(path, delimiter=",")
@@ -143,6 +152,7 @@ def import_ur5(path: str | Path) -> Dataset:
     if missing:
         raise DatasetError(f"{where}: not a serial-robots-ur5 file: missing column(s) {', '.join(missing)} "
                            f"(expected {', '.join(_UR5_COLUMNS)})", file=where, column=missing[0])
+    _refuse_unknown_columns(where, header, set(_UR5_COLUMNS) | {"step_order"}, "serial-robots-ur5", 6)
     num = {c: _to_float_column(where, c, cols[c]) for c in _UR5_COLUMNS}
     if num["x_t"].size == 0:
         raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
@@ -249,7 +259,8 @@ def import_ipa_series(
     ``temperature_c``, ``timestamp_s`` (POSIX seconds from ``YYYYMMDDhhmmss``, clock taken as UTC;
     **NaN for series B**, whose timestamps were mangled by a spreadsheet to ``2,02011E+13``; the raw
     text is kept in ``timestamp_raw``), and for series B the per-point standard deviations
-    ``std_x_mm, std_y_mm, std_z_mm, std_rx_deg, std_ry_deg, std_rz_deg``.
+    ``std_x_mm, std_y_mm, std_z_mm, std_rx_deg, std_ry_deg, std_rz_deg``. Any column outside
+    this layout (a further ``*_joint``, ...) is refused, not dropped: use ``hykin import table``.
     """
     path = _ipa_file(series)
     where = str(path)
@@ -259,6 +270,8 @@ def import_ipa_series(
     if missing:
         raise DatasetError(f"{where}: not an ipa-robot-accuracy series file: missing column(s) {', '.join(missing)}",
                            file=where, column=missing[0])
+    known = set(need) | {"Timestamp"} | {f"measurement_std_{c}" for c in ("x", "y", "z", "rx", "ry", "rz")}
+    _refuse_unknown_columns(where, header, known, "ipa-robot-accuracy", 6)
     num = {c: _to_float_column(where, c, cols[c], decimal=",") for c in need}
     if num[need[0]].size == 0:
         raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
@@ -304,7 +317,7 @@ def import_ipa_series(
     T_new = se3.invert(T_base) @ T_meas @ se3.invert(T_tool)
     out = Dataset.from_poses(ds.q, T_new, extra=ds.extra, source=where)
     out.meta = dict(ds.meta, frame="robot base", T_base=T_base, T_tool=T_tool,
-                    registered_to=getattr(register_to, "name", ""), registration_rows=int(len(idx)),
+                    registered_to=getattr(register_to, "name", ""), registration_rows=len(idx),
                     registration_pos_mean_mm=float(pos.mean()), registration_ang_mean_deg=float(angd.mean()))
     return out
 
@@ -330,42 +343,20 @@ def import_three_smr(
     (:func:`hykin.referencing.pose_from_three_points`). A row whose fit RMS exceeds
     ``max_fit_rms_m`` (wrong nest, swapped reflectors, a bad measurement) is an error naming the
     row; swapped reflectors are only detectable when the nest's three sides differ in length. Extras: ``smr_fit_rms_m`` plus every other column as read.
+
+    Other layouts (column names, delimiters, units): :func:`hykin.table_import.import_table` with a
+    :class:`~hykin.table_map.TableMap` holding ``position``, two ``points`` and ``nest``
+    (``hykin import three-smr``).
     """
+    from .table_import import import_table
+    from .table_map import TableMap
+
     where = str(path)
     _check_units(where, length_unit, angle_unit)
-    header, cols = read_csv_table(path, delimiter=",")
-    n_dof = _dof_from_header(where, header, robot, dof)
-    pcols = [f"p{k}{a}" for k in (1, 2, 3) for a in "xyz"]
-    missing = [c for c in pcols if c not in header]
-    if missing:
-        raise DatasetError(f"{where}: missing column(s) {', '.join(missing)}; expected {', '.join(joint_columns(n_dof))}, "
-                           f"{', '.join(pcols)} (found: {', '.join(header)})", file=where, column=missing[0])
-    qn = joint_columns(n_dof)
-    num = {c: _to_float_column(where, c, cols[c]) for c in qn + pcols}
-    if num[pcols[0]].size == 0:
-        raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
-    from .dataset import ANGLE_UNITS, _check_finite, _revolute_mask
-
-    L, A = LENGTH_UNITS[length_unit], ANGLE_UNITS[angle_unit]
-    q = np.stack([num[c] for c in qn], axis=1)
-    P = np.stack([num[c] for c in pcols], axis=1)
-    _check_finite(where, q, qn, 1)
-    _check_finite(where, P, pcols, 1)
-    q = q * np.where(_revolute_mask(n_dof, robot), A, L)
-    P = P.reshape(-1, 3, 3) * L
-    try:
-        T, rms = pose_from_three_points(P[:, 0], P[:, 1], P[:, 2], nest, return_residual=True)
-    except ValueError as e:  # collinear nest or measured points
-        raise DatasetError(f"{where}: {e}", file=where) from None
-    bad = rms > max_fit_rms_m
-    if bad.any():
-        r = int(np.argmax(bad))
-        raise DatasetError(
-            f"{where}, row {r + 1} (line {r + 2} of the file), columns 'p1x'..'p3z': the three points do not fit the "
-            f"nest (RMS {rms[r] * 1e3:.3f} mm > {max_fit_rms_m * 1e3:.3f} mm): wrong nest geometry, reflector order "
-            "or length unit?", file=where, row=r + 1, column="p1x")
-    extra = {c: _try_float_column(cols[c]) for c in header if c not in set(qn) | set(pcols)}
-    extra["smr_fit_rms_m"] = rms
-    ds = Dataset.from_poses(q, T, extra=extra, source=where)
-    validate(ds, robot, where=where, angle_unit=angle_unit)
-    return ds
+    nest = np.asarray(nest, dtype=np.float64)
+    if nest.shape != (3, 3) or not np.isfinite(nest).all():
+        raise DatasetError(f"{where}: nest must be a finite (3, 3) array (rows = SMRs, m), got shape {nest.shape}", file=where)
+    m = TableMap(joints="q*", position=["p1x", "p1y", "p1z"], points=[[f"p{k}{a}" for a in "xyz"] for k in (2, 3)],
+                 nest=nest.tolist(), max_fit_rms_mm=max_fit_rms_m * 1e3, length_unit=length_unit, angle_unit=angle_unit,
+                 delimiter=",", keep=["*"], dof=dof)
+    return import_table(path, m, robot)

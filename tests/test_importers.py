@@ -166,3 +166,57 @@ def test_ipa_series_a_import_goal_and_registration():
     reg = import_ipa_series(IPA_DIR / "Series_A", register_to=ipa_nominal_robot(), register_idx=idx)
     assert 0.65 < reg.meta["registration_pos_mean_mm"] < 0.85  # README: ≈ 0.75 mm
     assert 0.05 < reg.meta["registration_ang_mean_deg"] < 0.15  # README: ≈ 0.1 deg
+
+
+# --------------------------------------------------------------------------- fixed layouts refuse what they do not understand
+
+
+def test_ur5_importer_refuses_a_seventh_joint(tmp_path):
+    head = ["step_order", "x_t", "y_t", "z_t", "x_dif", "y_dif", "z_dif"] + [f"joint_{i}" for i in range(1, 8)]
+    p = tmp_path / "seven.csv"
+    p.write_text(",".join(head) + "\n" + ",".join(["0", "400", "10", "300", "1", "2", "3"] + ["10"] * 7) + "\n")
+    with pytest.raises(DatasetError, match=r"column 'joint_7': a further joint.*exactly 6 joints.*hykin import table") as e:
+        import_ur5(p)
+    assert e.value.column == "joint_7"
+    # the same file without joint_7 imports: the refusal is about the column, not the values
+    p.write_text(",".join(head[:-1]) + "\n" + ",".join(["0", "400", "10", "300", "1", "2", "3"] + ["10"] * 6) + "\n")
+    ds = import_ur5(p)
+    assert ds.dof == 6 and ds.xyz_m[0] == pytest.approx([0.401, 0.012, 0.303], abs=1e-12)
+    p.write_text(",".join(head[:-1] + ["x2"]) + "\n" + ",".join(["0", "400", "10", "300", "1", "2", "3"] + ["10"] * 6 + ["5"]) + "\n")
+    with pytest.raises(DatasetError, match=r"column 'x2': not part of the serial-robots-ur5 layout"):
+        import_ur5(p)
+
+
+def test_ipa_importer_refuses_unknown_columns(tmp_path):
+    head = (["Timestamp", "Goal x", "Goal y", "Goal z", "Goal roll", "Goal pitch", "Goal yaw"]
+            + ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
+            + ["measurement_temperature"] + [f"measurement_{c}" for c in ("x", "y", "z", "rx", "ry", "rz")])
+    row = ["20200714163904", "0,3", "0", "1,4", "1,5", "1,5", "1,5"] + ["0,1"] * 6 + ["23,5", "2361,9", "-1368,5", "119,3", "-90,4", "-59,8", "-90,8"]
+    d = tmp_path / "Series_X"
+    d.mkdir()
+    f = d / "measurements_x.csv"
+    f.write_text(";".join(head) + "\n" + ";".join(row) + "\n")
+    assert len(import_ipa_series(d)) == 1
+    f.write_text(";".join(head + ["wrist_4_joint"]) + "\n" + ";".join(row + ["0,2"]) + "\n")
+    with pytest.raises(DatasetError, match=r"column 'wrist_4_joint': a further joint.*hykin import table"):
+        import_ipa_series(d)
+
+
+@needs_ipa
+def test_ipa_series_b_through_the_generic_table_importer(tmp_path):
+    """The generic importer with a mapping reproduces the dedicated ipa importer on real data."""
+    from hykin.table_import import import_table
+
+    mp = tmp_path / "ipa.toml"
+    mp.write_text(
+        'delimiter = ";"\ndecimal = ","\n'
+        'joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]\n'
+        'position = ["measurement_x", "measurement_y", "measurement_z"]\nlength_unit = "mm"\n'
+        'euler = ["measurement_rx", "measurement_ry", "measurement_rz"]\neuler_convention = "XYZ"\neuler_unit = "deg"\n'
+        'temperature = "measurement_temperature"\n')
+    ref = import_ipa_series(IPA_DIR / "Series_B")
+    ds = import_table(IPA_DIR / "Series_B" / "measurements_joint_configurations.csv", mp)
+    np.testing.assert_array_equal(ds.q, ref.q)
+    np.testing.assert_allclose(ds.xyz_m, ref.xyz_m, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(ds.quat_wxyz, ref.quat_wxyz, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(ds.extra["temperature_c"], ref.extra["temperature_c"])

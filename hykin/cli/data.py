@@ -1,4 +1,4 @@
-"""Data commands: presets, simulate, import, split."""
+"""Data commands: presets, simulate, split (imports: :mod:`hykin.cli.imports`)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from .common import AngleUnit, CLIError, LengthUnit, app, progress
+from .common import AngleUnit, LengthUnit, app, progress
 
 @app.command("presets")
 def presets_cmd() -> None:
@@ -48,40 +48,6 @@ def simulate_cmd(
             progress=lambda done, total: prog.update(task, completed=done, total=total),
         )
     typer.echo(f"wrote {n} samples to {out}" + (f" (truth: {info})" if info else ""))
-
-
-@app.command("import")
-def import_cmd(
-    kind: str = typer.Argument(..., help="Source format: ur5 (serial-robots-ur5 CSV) or ipa (ipa-robot-accuracy Series_X folder)."),
-    path: Path = typer.Argument(..., help="File or folder to import."),
-    out: Path = typer.Option(..., "-o", "--out", help="Output dataset in the standard format (.csv/.parquet)."),
-    register: bool = typer.Option(
-        False, "--register/--tracker-frame",
-        help="ipa: express poses in the robot base by a rigid base+tool fit of the nominal UR10 (default: keep the tracker frame).",
-    ),
-    robot_out: Optional[Path] = typer.Option(
-        None, "--robot-out", help="Also write the nominal robot file matching this data (tool/TCP of the setup)."
-    ),
-) -> None:
-    """Import a real measurement series into the standard dataset format."""
-    from ..dataset import write_dataset
-    from ..importers import import_ipa_series, import_ur5, ipa_nominal_robot, ur5_robot_for_dataset
-    from ..robot import save_robot_toml
-
-    if kind == "ur5":
-        ds = import_ur5(path)
-        robot = ur5_robot_for_dataset()
-    elif kind == "ipa":
-        robot = ipa_nominal_robot()
-        ds = import_ipa_series(path, register_to=ipa_nominal_robot() if register else None)
-    else:
-        raise CLIError(f"import: unknown format {kind!r}; expected ur5 or ipa")
-    write_dataset(ds, out)
-    frame = ds.meta.get("frame", "robot base")
-    typer.echo(f"wrote {len(ds)} samples to {out} (poses in the {frame} frame)")
-    if robot_out is not None:
-        save_robot_toml(robot, robot_out)
-        typer.echo(f"wrote the matching nominal robot to {robot_out}")
 
 
 @app.command("split")

@@ -1,0 +1,344 @@
+"""``hykin import ...``: measured data into the standard dataset format (DESIGN.md §3-4).
+
+``ur5`` and ``ipa`` read the two public datasets (fixed layouts, refused when a file holds anything
+else); ``table`` reads any table through a column mapping (``--map`` TOML and/or options,
+``--suggest`` proposes one); ``three-smr`` fits the full pose from three reflectors; ``stream``
+aligns a robot joint log with a tracker stream.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from .common import CLIError, app
+
+import_app = typer.Typer(no_args_is_help=True, help="Import measured data into the standard dataset format.")
+app.add_typer(import_app, name="import")
+
+
+def _refuse_overwriting_inputs(out: Path, *inputs: Path | None) -> None:
+    """An output that is one of the inputs would destroy the measurement: refuse."""
+    o = Path(out).resolve()
+    for p in inputs:
+        if p is not None and Path(p).exists() and Path(p).resolve() == o:
+            raise CLIError(f"{out}: the output is the input file {p}; choose another output path")
+
+
+def _write(ds, out: Path, inputs, what: str = "") -> None:
+    from ..dataset import write_dataset
+
+    _refuse_overwriting_inputs(out, *inputs)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_dataset(ds, out)
+    frame = ds.meta.get("frame", "robot base")
+    typer.echo(f"wrote {len(ds)} samples ({ds.dof} joints{', with orientation' if ds.has_orientation else ', position only'}"
+               f"{what}) to {out} (poses in the {frame} frame)")
+
+
+# --------------------------------------------------------------------------- fixed layouts
+
+RobotOut = typer.Option(None, "--robot-out", help="Also write the nominal robot file matching this data (tool/TCP of the setup).")
+Out = typer.Option(..., "-o", "--out", help="Output dataset in the standard format (.csv/.parquet).")
+
+
+@import_app.command("ur5")
+def import_ur5_cmd(
+    path: Path = typer.Argument(..., help="serial-robots-ur5 CSV (joint_1..joint_6, x_t.., x_dif..)."),
+    out: Path = Out,
+    robot_out: Optional[Path] = RobotOut,
+) -> None:
+    """Import a serial-robots-ur5 CSV (exactly six joints; anything else: `hykin import table`)."""
+    from ..importers import import_ur5, ur5_robot_for_dataset
+    from ..robot import save_robot_toml
+
+    _refuse_overwriting_inputs(out, path)
+    ds = import_ur5(path)
+    _write(ds, out, [path])
+    if robot_out is not None:
+        save_robot_toml(ur5_robot_for_dataset(), robot_out)
+        typer.echo(f"wrote the matching nominal robot to {robot_out}")
+
+
+@import_app.command("ipa")
+def import_ipa_cmd(
+    path: Path = typer.Argument(..., help="ipa-robot-accuracy Series_X folder or its measurements_*.csv."),
+    out: Path = Out,
+    register: bool = typer.Option(
+        False, "--register/--tracker-frame",
+        help="Express poses in the robot base by a rigid base+tool fit of the nominal UR10 (default: keep the tracker frame).",
+    ),
+    robot_out: Optional[Path] = RobotOut,
+) -> None:
+    """Import an ipa-robot-accuracy series (UR10, laser tracker + T-Mac)."""
+    from ..importers import import_ipa_series, ipa_nominal_robot
+    from ..robot import save_robot_toml
+
+    _refuse_overwriting_inputs(out, path)
+    ds = import_ipa_series(path, register_to=ipa_nominal_robot() if register else None)
+    _write(ds, out, [path])
+    if robot_out is not None:
+        save_robot_toml(ipa_nominal_robot(), robot_out)
+        typer.echo(f"wrote the matching nominal robot to {robot_out}")
+
+
+# --------------------------------------------------------------------------- mapped tables
+
+MapOpt = typer.Option(None, "--map", help="Mapping TOML (docs/import-table.md); options below override its keys.")
+JointsOpt = typer.Option(None, "--joints", help="Joint columns base to tip: 'J1,J2,...', a pattern 'joint_*' or a range 'A1..A6'.")
+AngleOpt = typer.Option(None, "--angle-unit", help="Unit of the joint columns: rad or deg (default rad).")
+PositionOpt = typer.Option(None, "--position", help="Position columns 'X,Y,Z'.")
+LengthOpt = typer.Option(None, "--length-unit", help="Unit of positions: m, mm, cm, um, in, ft (default m).")
+PointOpt = typer.Option(None, "--point", help="Further reflector columns 'X2,Y2,Z2' (repeat for more) -> x2,y2,z2, ...")
+DelimOpt = typer.Option(None, "--delimiter", help="',', ';', 'tab', '|' or 'whitespace' (default: detected from the header line).")
+DecimalOpt = typer.Option(None, "--decimal", help="Decimal separator: '.' or ','.")
+SkipOpt = typer.Option(None, "--skip-rows", help="Lines above the header (metadata).")
+HeaderOpt = typer.Option(None, "--header-row", help="1-based line of the header (0: no header, columns named 1, 2, ...).")
+CommentOpt = typer.Option(None, "--comment", help="Lines starting with this are skipped.")
+DofOpt = typer.Option(None, "--dof", help="Expected number of joints (checked against the mapping).")
+RobotOpt = typer.Option(None, "--robot", help="Robot file/preset: joint count, prismatic joints, limits checked.")
+UnitCheckOpt = typer.Option(None, "--unit-check/--no-unit-check", help="Refuse values that look like another unit (default on).")
+
+
+def _csv_names(s: str | None):
+    return None if s is None else [c.strip() for c in s.split(",")]
+
+
+def _joint_spec(s: str | None):
+    if s is None:
+        return None
+    return s.strip() if ("*" in s or ".." in s) else _csv_names(s)
+
+
+def _build_map(map_path: Optional[Path], opts: dict):
+    from ..table_map import load_table_map, table_map_from_dict
+
+    opts = {k: v for k, v in opts.items() if v is not None and v != []}
+    if map_path is not None:
+        return load_table_map(map_path, opts)
+    return table_map_from_dict(opts, "command line")
+
+
+def _robot(spec: str | None):
+    if spec is None:
+        return None
+    from .common import load_model_or_robot
+
+    return load_model_or_robot(spec)[1]
+
+
+@import_app.command("table")
+def import_table_cmd(
+    path: Path = typer.Argument(..., help="Delimited text table (any tracker/robot export)."),
+    out: Optional[Path] = typer.Option(None, "-o", "--out", help="Output dataset (.csv/.parquet)."),
+    map_path: Optional[Path] = MapOpt,
+    suggest: bool = typer.Option(False, "--suggest", help="Print the header and a suggested mapping TOML; import nothing."),
+    joints: Optional[str] = JointsOpt,
+    angle_unit: Optional[str] = AngleOpt,
+    position: Optional[str] = PositionOpt,
+    length_unit: Optional[str] = LengthOpt,
+    quaternion: Optional[str] = typer.Option(None, "--quaternion", help="Quaternion columns, in quaternion-order."),
+    quaternion_order: Optional[str] = typer.Option(None, "--quaternion-order", help="wxyz (scalar first) or xyzw."),
+    euler: Optional[str] = typer.Option(None, "--euler", help="Euler angle columns, in the order of --euler-convention."),
+    euler_convention: Optional[str] = typer.Option(
+        None, "--euler-convention", help="Axis letters, e.g. xyz, zyx, zyz (case: scipy's, lowercase extrinsic), or kuka / rpy."),
+    euler_extrinsic: Optional[bool] = typer.Option(None, "--euler-extrinsic/--euler-intrinsic", help="Rotations about fixed / moving axes."),
+    euler_unit: Optional[str] = typer.Option(None, "--euler-unit", help="rad or deg (default rad)."),
+    rotvec: Optional[str] = typer.Option(None, "--rotvec", help="Rotation-vector (axis·angle) columns."),
+    rotvec_unit: Optional[str] = typer.Option(None, "--rotvec-unit", help="rad or deg (default rad)."),
+    point: Optional[List[str]] = PointOpt,
+    time: Optional[str] = typer.Option(None, "--time", help="Time column -> time_s."),
+    time_unit: Optional[str] = typer.Option(None, "--time-unit", help="s, ms, us or ns."),
+    temperature: Optional[str] = typer.Option(None, "--temperature", help="Temperature column -> temperature_c."),
+    temperature_unit: Optional[str] = typer.Option(None, "--temperature-unit", help="C, K or F."),
+    payload: Optional[str] = typer.Option(None, "--payload", help="Payload mass column (kg) -> payload_kg."),
+    keep: Optional[List[str]] = typer.Option(None, "--keep", help="Further columns to carry as they are ('*' = all unmapped)."),
+    ignore: Optional[str] = typer.Option(None, "--ignore", help="Columns that look like joints but are not (comma-separated)."),
+    delimiter: Optional[str] = DelimOpt,
+    decimal: Optional[str] = DecimalOpt,
+    skip_rows: Optional[int] = SkipOpt,
+    header_row: Optional[int] = HeaderOpt,
+    comment: Optional[str] = CommentOpt,
+    drop_rows: Optional[str] = typer.Option(None, "--drop-rows", help="1-based file lines to drop, comma-separated (e.g. a units line)."),
+    where: Optional[List[str]] = typer.Option(None, "--where", help="Row filter 'column op value' (== != < <= > >=); repeat to AND."),
+    encoding: Optional[str] = typer.Option(None, "--encoding", help="Text encoding (default UTF-8, falling back to cp1252)."),
+    dof: Optional[int] = DofOpt,
+    robot: Optional[str] = RobotOpt,
+    unit_check: Optional[bool] = UnitCheckOpt,
+) -> None:
+    """Import any table into the standard dataset through a column mapping (see docs/import-table.md)."""
+    opts = dict(
+        joints=_joint_spec(joints), angle_unit=angle_unit, position=_csv_names(position), length_unit=length_unit,
+        quaternion=_csv_names(quaternion), quaternion_order=quaternion_order, euler=_csv_names(euler),
+        euler_convention=euler_convention, euler_extrinsic=euler_extrinsic, euler_unit=euler_unit,
+        rotvec=_csv_names(rotvec), rotvec_unit=rotvec_unit, points=[_csv_names(p) for p in point or []],
+        time=time, time_unit=time_unit, temperature=temperature, temperature_unit=temperature_unit, payload=payload,
+        keep=[c for k in keep or [] for c in _csv_names(k)], ignore=_csv_names(ignore), delimiter=delimiter,
+        decimal=decimal, skip_rows=skip_rows, header_row=header_row, comment=comment,
+        drop_rows=_csv_names(drop_rows), where=list(where or []), encoding=encoding, dof=dof, check_units=unit_check,
+    )
+    if suggest:
+        _suggest(path, map_path, opts)
+        return
+    if out is None:
+        raise CLIError("import table: give -o OUT (or --suggest to see a suggested mapping)")
+    if map_path is None and opts["joints"] is None and opts["position"] is None:
+        raise CLIError(f"{path}: no column mapping given; `hykin import table {path} --suggest` prints the header and a "
+                       "suggested mapping to check and pass with --map")
+    from ..table_import import import_table
+
+    _refuse_overwriting_inputs(out, path, map_path)
+    m = _build_map(map_path, opts)
+    ds = import_table(path, m, _robot(robot))
+    _write(ds, out, [path, map_path], f", orientation from {m.orientation}" if m.orientation else "")
+
+
+def _suggest(path: Path, map_path: Optional[Path], opts: dict) -> None:
+    from ..table_import import guess_layout, read_text_table
+    from ..table_map import suggest_map
+
+    layout = {k: opts[k] for k in ("delimiter", "decimal", "skip_rows", "header_row", "comment", "encoding")}
+    m = _build_map(map_path, layout)
+    guessed = {}
+    if all(layout[k] is None for k in ("skip_rows", "header_row")) and map_path is None:
+        guessed = guess_layout(path, m)
+        m = _build_map(None, {**layout, **{k: v for k, v in guessed.items() if layout.get(k) is None}})
+    t = read_text_table(path, m)
+    typer.echo(suggest_map(t.header, t.rows[:50], delimiter=t.delimiter, decimal=m.decimal, skip_rows=m.skip_rows), nl=False)
+
+
+# --------------------------------------------------------------------------- three SMRs
+
+
+def _parse_nest(spec: str):
+    """``"x,y,z; x,y,z; x,y,z"`` or a TOML file with ``nest`` (and ``nest_unit``) -> (nest, unit or None)."""
+    p = Path(spec)
+    if p.suffix.lower() == ".toml" or p.is_file():
+        import tomllib
+
+        try:
+            doc = tomllib.loads(p.read_text(encoding="utf-8"))
+        except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+            raise CLIError(f"{spec}: cannot read the nest file ({e})") from None
+        if "nest" not in doc:
+            raise CLIError(f"{spec}: no 'nest = [[x, y, z], [x, y, z], [x, y, z]]' in the nest file")
+        return doc["nest"], doc.get("nest_unit")
+    try:
+        rows = [[float(v) for v in r.split(",")] for r in spec.split(";")]
+    except ValueError:
+        raise CLIError(f"--nest {spec!r}: give 'x1,y1,z1; x2,y2,z2; x3,y3,z3' (tool frame) or a TOML file") from None
+    return rows, None
+
+
+@import_app.command("three-smr")
+def import_three_smr_cmd(
+    path: Path = typer.Argument(..., help="Table with joints and three reflector positions per pose."),
+    out: Path = Out,
+    nest: Optional[str] = typer.Option(
+        None, "--nest", help="Reflector positions in the tool frame: 'x1,y1,z1; x2,y2,z2; x3,y3,z3' or a TOML file with nest = [...]."),
+    nest_unit: Optional[str] = typer.Option(None, "--nest-unit", help="Unit of the nest: m or mm, ... (default m)."),
+    max_fit_rms_mm: Optional[float] = typer.Option(None, "--max-fit-rms-mm", help="Largest accepted fit residual per pose (default 1 mm)."),
+    map_path: Optional[Path] = MapOpt,
+    joints: Optional[str] = JointsOpt,
+    angle_unit: Optional[str] = AngleOpt,
+    position: Optional[str] = typer.Option(None, "--position", help="Reflector 1 columns 'X1,Y1,Z1' (default p1x,p1y,p1z)."),
+    length_unit: Optional[str] = LengthOpt,
+    point: Optional[List[str]] = typer.Option(None, "--point", help="Reflector 2 and 3 columns (give twice; default p2x.., p3x..)."),
+    delimiter: Optional[str] = DelimOpt,
+    decimal: Optional[str] = DecimalOpt,
+    skip_rows: Optional[int] = SkipOpt,
+    comment: Optional[str] = CommentOpt,
+    dof: Optional[int] = DofOpt,
+    robot: Optional[str] = RobotOpt,
+) -> None:
+    """Full poses from three reflectors per pose (a rigid fit of the known nest onto the three points).
+
+    Without a mapping the columns are q1..qN and p1x,p1y,p1z, p2x,..., p3z (comma-separated) and every
+    other column is kept.
+    """
+    from ..table_import import import_table
+
+    _refuse_overwriting_inputs(out, path, map_path)
+    opts = dict(joints=_joint_spec(joints), angle_unit=angle_unit, position=_csv_names(position), length_unit=length_unit,
+                points=[_csv_names(p) for p in point or []], delimiter=delimiter, decimal=decimal, skip_rows=skip_rows,
+                comment=comment, dof=dof, nest_unit=nest_unit, max_fit_rms_mm=max_fit_rms_mm)
+    if nest is not None:
+        opts["nest"], unit = _parse_nest(nest)
+        if unit is not None and nest_unit is None:
+            opts["nest_unit"] = unit
+    if map_path is None:
+        opts.setdefault("joints", None)
+        opts["joints"] = opts["joints"] or "q*"
+        opts["position"] = opts["position"] or ["p1x", "p1y", "p1z"]
+        opts["points"] = opts["points"] or [[f"p{k}{a}" for a in "xyz"] for k in (2, 3)]
+        opts["keep"] = ["*"]
+    m = _build_map(map_path, opts)
+    if m.nest is None:
+        raise CLIError("import three-smr: give the reflector nest (--nest 'x1,y1,z1; x2,y2,z2; x3,y3,z3' or nest = [...] in --map)")
+    ds = import_table(path, m, _robot(robot))
+    rms = ds.extra["smr_fit_rms_m"]
+    _write(ds, out, [path, map_path], f", nest fit RMS mean {rms.mean() * 1e3:.4f} mm, max {rms.max() * 1e3:.4f} mm")
+
+
+# --------------------------------------------------------------------------- streams
+
+
+@import_app.command("stream")
+def import_stream_cmd(
+    robot_log: Path = typer.Argument(..., help="Robot joint log: a time column and the joints."),
+    tracker_stream: Path = typer.Argument(..., help="Tracker stream: a time column and positions (empty cells = beam lost)."),
+    out: Path = Out,
+    robot: str = typer.Option(..., "--robot", help="Robot file/preset (or model file): FK of the logged joints for the clock fit."),
+    robot_map: Optional[Path] = typer.Option(None, "--robot-map", help="Mapping TOML of the robot log (time, joints, angle_unit, layout)."),
+    tracker_map: Optional[Path] = typer.Option(None, "--tracker-map", help="Mapping TOML of the tracker stream (time, position, orientation, units, layout)."),
+    robot_time: Optional[str] = typer.Option(None, "--robot-time", help="Time column of the robot log (default t)."),
+    joints: Optional[str] = typer.Option(None, "--joints", help="Joint columns of the robot log (default q*)."),
+    angle_unit: Optional[str] = AngleOpt,
+    tracker_time: Optional[str] = typer.Option(None, "--tracker-time", help="Time column of the tracker stream (default t)."),
+    position: Optional[str] = typer.Option(None, "--position", help="Position columns of the tracker stream (default x,y,z)."),
+    quaternion: Optional[str] = typer.Option(None, "--quaternion", help="Quaternion columns (wxyz) of the tracker stream, if any."),
+    length_unit: Optional[str] = LengthOpt,
+    robot_time_unit: Optional[str] = typer.Option(None, "--robot-time-unit", help="Unit of the robot log's time: s, ms, us, ns (default s)."),
+    tracker_time_unit: Optional[str] = typer.Option(None, "--tracker-time-unit", help="Unit of the tracker's time: s, ms, us, ns (default s)."),
+    offset: Optional[float] = typer.Option(None, "--offset", help="Known clock offset t_tracker - t_robot (s); default: estimated."),
+    fit_drift: bool = typer.Option(False, "--fit-drift", help="Also estimate a clock drift (needs a log of >= 2 windows)."),
+    method: str = typer.Option("speed", "--method", help="Offset estimate: speed (frame-free) or positions (accurate model)."),
+    max_offset: float = typer.Option(1.0, "--max-offset", help="Search the offset within ± this (s).", min=0.0),
+    max_speed: float = typer.Option(0.1, "--max-speed", help="Drop samples where the TCP moves faster (m/s); 0 keeps all.", min=0.0),
+    max_gap: Optional[float] = typer.Option(None, "--max-gap", help="Longest tracker gap bridged (s; default 3 tracker periods)."),
+    frame: str = typer.Option("tracker", "--frame", help="tracker (keep the tracker frame) or fit (robot base by the rigid map of the clock fit)."),
+) -> None:
+    """Align a robot joint log with a tracker stream (clock offset, interpolation) into a dataset."""
+    from ..streams import align_streams
+    from ..table_import import read_mapped
+
+    if frame not in ("tracker", "fit"):
+        raise CLIError(f"import stream: --frame must be tracker or fit, got {frame!r}")
+    rob = _robot(robot)
+    _refuse_overwriting_inputs(out, robot_log, tracker_stream, robot_map, tracker_map)
+    r_opts = dict(time=robot_time, joints=_joint_spec(joints), angle_unit=angle_unit, time_unit=robot_time_unit)
+    t_opts = dict(time=tracker_time, position=_csv_names(position), quaternion=_csv_names(quaternion),
+                  length_unit=length_unit, time_unit=tracker_time_unit)
+    if robot_map is None:
+        r_opts = {"time": "t", "joints": "q*", **{k: v for k, v in r_opts.items() if v is not None}}
+    if tracker_map is None:
+        t_opts = {"time": "t", "position": ["x", "y", "z"], **{k: v for k, v in t_opts.items() if v is not None}}
+    rm = read_mapped(robot_log, _build_map(robot_map, r_opts), rob, need_position=False)
+    tm = read_mapped(tracker_stream, _build_map(tracker_map, t_opts), need_joints=False, allow_missing=True)
+    for mt, name in ((rm, robot_log), (tm, tracker_stream)):
+        if mt.time_s is None:
+            raise CLIError(f"{name}: no time column mapped (time = \"...\" in the map, or --robot-time / --tracker-time)")
+    a = align_streams(rm.time_s, rm.q, tm.time_s, tm.xyz_m, tm.quat_wxyz, rob, clock=offset,
+                      max_speed_m_s=max_speed or None, max_gap_s=max_gap, fit_drift=fit_drift,
+                      T_base_tracker="fit" if frame == "fit" else None,
+                      **({} if offset is not None else {"method": method, "max_offset_s": max_offset}))
+    ds = a.dataset
+    if len(ds) == 0:
+        raise CLIError(f"{tracker_stream}: no robot sample kept ({a.info['n_dropped_gap']} outside valid tracker data, "
+                       f"{a.info['n_dropped_speed']} faster than {max_speed} m/s)")
+    info = a.info
+    _write(ds, out, [robot_log, tracker_stream, robot_map, tracker_map],
+           f"; clock offset {info['offset_s'] * 1e3:.4f} ms, dropped {info['n_dropped_gap']} in tracker gaps and "
+           f"{info['n_dropped_speed']} above {max_speed} m/s")

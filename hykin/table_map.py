@@ -1,0 +1,453 @@
+"""Column mappings for ``hykin import table``: which columns of a tracker/robot table hold what.
+
+A :class:`TableMap` says, for any delimited text table, where the joints, the measured position, the
+orientation (quaternion, Euler angles with a stated convention, or rotation vector), further
+reflectors, time, temperature and payload are, in which units, and how the text is laid out
+(delimiter, decimal comma, metadata lines, comments, rows to drop or filter). It is written as a
+small TOML file (``--map``) and/or command-line options (options override the file); both go through
+:func:`table_map_from_dict`, which refuses unknown keys with a did-you-mean.
+
+:func:`suggest_map` guesses a mapping from a header by common column names, as TOML text for the
+user to check and pass back: nothing is imported from a guess. See ``docs/import-table.md``.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+from .dataset import DatasetError
+
+__all__ = [
+    "ANGLE_UNITS_RAD",
+    "LENGTH_UNITS_M",
+    "TIME_UNITS_S",
+    "TableMap",
+    "TableMapError",
+    "did_you_mean",
+    "euler_sequence",
+    "expand_joint_spec",
+    "load_table_map",
+    "suggest_map",
+    "table_map_from_dict",
+]
+
+#: metres per unit of the lengths a table may hold
+LENGTH_UNITS_M = {"m": 1.0, "mm": 1e-3, "cm": 1e-2, "um": 1e-6, "in": 0.0254, "ft": 0.3048}
+#: radians per unit
+ANGLE_UNITS_RAD = {"rad": 1.0, "deg": math.pi / 180.0}
+#: seconds per unit of a time column
+TIME_UNITS_S = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+TEMPERATURE_UNITS = ("C", "K", "F")
+DELIMITERS = {",": ",", ";": ";", "\t": "\t", "tab": "\t", "|": "|", " ": " ", "space": " ", "whitespace": " "}
+#: Euler conventions by name: KUKA A, B, C = intrinsic Z, Y', X''; roll-pitch-yaw = extrinsic x, y, z (URDF)
+EULER_ALIASES = {"kuka": "ZYX", "abc": "ZYX", "rpy": "xyz"}
+
+
+class TableMapError(DatasetError):
+    """A mapping that cannot be right (unknown key, wrong type, unknown unit, contradictory fields)."""
+
+
+def did_you_mean(name: str, options) -> str:
+    """``" (did you mean 'x'?)"`` for the closest of ``options`` (case-insensitive first), else ``""``."""
+    options = [str(o) for o in options]
+    low = {o.lower(): o for o in options}
+    if name.lower() in low:
+        return f" (did you mean {low[name.lower()]!r}?)"
+    near = difflib.get_close_matches(name, options, n=1, cutoff=0.6)
+    if not near:
+        near = [low[m] for m in difflib.get_close_matches(name.lower(), list(low), n=1, cutoff=0.6)]
+    return f" (did you mean {near[0]!r}?)" if near else ""
+
+
+@dataclass
+class TableMap:
+    """Where a table's quantities are and in which units (the keys of a ``--map`` TOML file).
+
+    joints: column names, base to tip, or a pattern: ``"joint_*"`` (``*`` = 1, 2, ... in numeric
+        order, gaps refused) or ``"A1..A6"``. angle_unit: of revolute joints (``rad``/``deg``);
+        prismatic joints (robot given) use length_unit.
+    position: ``[x, y, z]`` columns of the measured point/TCP; length_unit: ``m mm cm um in ft``.
+    Orientation, at most one of: quaternion (4 columns, quaternion_order ``wxyz``/``xyzw``);
+        euler (3 columns, angles in the order of euler_convention: three axis letters, with
+        euler_extrinsic true/false, or without it scipy's case rule (lowercase extrinsic, uppercase
+        intrinsic); aliases ``kuka``/``abc`` = intrinsic ZYX, ``rpy`` = extrinsic xyz; euler_unit);
+        rotvec (3 columns, axis·angle, rotvec_unit).
+    points: further reflectors ``[[x2, y2, z2], ...]`` -> dataset columns ``x2,y2,z2, x3,...`` (m).
+    nest: ``(3, 3)`` reflector positions in the tool frame (nest_unit) -> full pose from position +
+        two points (three SMRs); max_fit_rms_mm bounds each row's fit residual.
+    time (-> ``time_s``: numbers in time_unit, ISO 8601 date-times, or text in time_format, a
+        ``strptime`` format such as ``"%Y%m%d%H%M%S"``; date-times as UTC seconds), temperature (-> ``temperature_c``, temperature_unit C/K/F),
+        payload (-> ``payload_kg``); keep: further columns carried as they are (list, ``["*"]`` =
+        every unmapped column, or a table ``{column = "new_name"}``); ignore: columns the
+        further-joint check should not complain about.
+    Layout: delimiter (None = detect ``\\t ; , |`` else whitespace), decimal (``.``/``,``),
+        skip_rows (lines above the header), header_row (1-based line of the header; 0 = no header,
+        columns named ``"1", "2", ...``), comment (lines starting with it are skipped), drop_rows
+        (1-based file lines), where (row filters ``"col op value"``, op in ``== != < <= > >=``,
+        all must hold), encoding (None = UTF-8, else cp1252).
+    dof: expected joint count; check_units: refuse values that look like the wrong unit.
+    """
+
+    joints: list[str] | str | None = None
+    angle_unit: str = "rad"
+    position: list[str] | None = None
+    length_unit: str = "m"
+    quaternion: list[str] | None = None
+    quaternion_order: str = "wxyz"
+    euler: list[str] | None = None
+    euler_convention: str | None = None
+    euler_extrinsic: bool | None = None
+    euler_unit: str = "rad"
+    rotvec: list[str] | None = None
+    rotvec_unit: str = "rad"
+    points: list[list[str]] = field(default_factory=list)
+    nest: list[list[float]] | None = None
+    nest_unit: str = "m"
+    max_fit_rms_mm: float = 1.0
+    time: str | None = None
+    time_unit: str = "s"
+    time_format: str | None = None
+    temperature: str | None = None
+    temperature_unit: str = "C"
+    payload: str | None = None
+    keep: list[str] | dict[str, str] = field(default_factory=list)
+    ignore: list[str] = field(default_factory=list)
+    delimiter: str | None = None
+    decimal: str = "."
+    skip_rows: int = 0
+    header_row: int | None = None
+    comment: str | None = None
+    drop_rows: list[int] = field(default_factory=list)
+    where: list[str] = field(default_factory=list)
+    encoding: str | None = None
+    dof: int | None = None
+    check_units: bool = True
+
+    @property
+    def orientation(self) -> str | None:
+        """``"quaternion"``, ``"euler"``, ``"rotvec"`` or None."""
+        for k in ("quaternion", "euler", "rotvec"):
+            if getattr(self, k) is not None:
+                return k
+        return None
+
+    def keep_names(self) -> dict[str, str]:
+        """``{column: output name}`` of the kept columns (``"*"`` left to the reader)."""
+        return dict(self.keep) if isinstance(self.keep, dict) else {c: c for c in self.keep}
+
+
+KEYS = tuple(f.name for f in fields(TableMap))
+_STR_LISTS = {"position": 3, "quaternion": 4, "euler": 3, "rotvec": 3}
+_CHOICES = {
+    "angle_unit": tuple(ANGLE_UNITS_RAD), "euler_unit": tuple(ANGLE_UNITS_RAD), "rotvec_unit": tuple(ANGLE_UNITS_RAD),
+    "length_unit": tuple(LENGTH_UNITS_M), "nest_unit": tuple(LENGTH_UNITS_M), "time_unit": tuple(TIME_UNITS_S),
+    "temperature_unit": TEMPERATURE_UNITS, "quaternion_order": ("wxyz", "xyzw"), "decimal": (".", ","),
+}
+
+
+def _names(where: str, key: str, v, n: int | None = None) -> list[str]:
+    if isinstance(v, str):
+        v = [s.strip() for s in v.split(",")]
+    if not isinstance(v, (list, tuple)) or not all(isinstance(s, str) and s for s in v):
+        raise TableMapError(f"{where}: {key} must be a list of column names, got {v!r}", file=where, column=key)
+    if n is not None and len(v) != n:
+        raise TableMapError(f"{where}: {key} needs {n} column names, got {len(v)} ({', '.join(v)})", file=where, column=key)
+    return list(v)
+
+
+def table_map_from_dict(d: dict, where: str = "<mapping>") -> TableMap:
+    """Validate a mapping (TOML document or CLI options, same keys) into a :class:`TableMap`.
+
+    Unknown keys, wrong types, unknown units and contradictions raise :class:`TableMapError`.
+    """
+    unknown = [k for k in d if k not in KEYS]
+    if unknown:
+        k = unknown[0]
+        raise TableMapError(f"{where}: unknown mapping key {k!r}{did_you_mean(k, KEYS)}; known keys: {', '.join(KEYS)}",
+                            file=where, column=k)
+    kw = {}
+    for k, v in d.items():
+        if v is None:
+            continue
+        if k in _STR_LISTS:
+            v = _names(where, k, v, _STR_LISTS[k])
+        elif k == "joints":
+            v = v.strip() if isinstance(v, str) and ("*" in v or ".." in v) else _names(where, k, v)
+        elif k == "points":
+            if not isinstance(v, (list, tuple)):
+                raise TableMapError(f"{where}: points must be a list of [x, y, z] column triples", file=where, column=k)
+            v = [_names(where, f"points[{i}]", p, 3) for i, p in enumerate(v)]
+        elif k in ("keep", "ignore", "where"):
+            if isinstance(v, str):
+                v = [v] if k == "where" else [s.strip() for s in v.split(",") if s.strip()]
+            if k == "keep" and isinstance(v, dict):
+                if not all(isinstance(a, str) and isinstance(b, str) and b for a, b in v.items()):
+                    raise TableMapError(f"{where}: keep as a table maps column names to new names (strings)", file=where, column=k)
+            elif not isinstance(v, (list, tuple)) or not all(isinstance(s, str) for s in v):
+                raise TableMapError(f"{where}: {k} must be a list of strings, got {v!r}", file=where, column=k)
+            v = dict(v) if isinstance(v, dict) else list(v)
+        elif k == "drop_rows":
+            if isinstance(v, str):
+                v = [s.strip() for s in v.split(",") if s.strip()]
+            try:
+                v = [int(x) for x in v]
+            except (TypeError, ValueError):
+                raise TableMapError(f"{where}: drop_rows must be a list of 1-based line numbers, got {v!r}",
+                                    file=where, column=k) from None
+        elif k in ("skip_rows", "header_row", "dof"):
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0 or (k == "dof" and v < 1):
+                raise TableMapError(f"{where}: {k} must be a {'positive' if k == 'dof' else 'non-negative'} integer, got {v!r}",
+                                    file=where, column=k)
+        elif k in ("euler_extrinsic", "check_units"):
+            if not isinstance(v, bool):
+                raise TableMapError(f"{where}: {k} must be true or false, got {v!r}", file=where, column=k)
+        elif k == "max_fit_rms_mm":
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+                raise TableMapError(f"{where}: {k} must be a positive number, got {v!r}", file=where, column=k)
+            v = float(v)
+        elif k == "nest":
+            try:
+                import numpy as np
+
+                arr = np.asarray(v, dtype=np.float64)
+            except (TypeError, ValueError):
+                arr = None
+            if arr is None or arr.shape != (3, 3) or not np.isfinite(arr).all():
+                raise TableMapError(f"{where}: nest must be three [x, y, z] reflector positions in the tool frame, got {v!r}",
+                                    file=where, column=k)
+            v = arr.tolist()
+        elif k == "delimiter":
+            if v not in DELIMITERS:
+                raise TableMapError(f"{where}: delimiter must be one of ',', ';', 'tab', '|', 'whitespace', got {v!r}",
+                                    file=where, column=k)
+            v = DELIMITERS[v]
+        elif k == "temperature_unit" and isinstance(v, str):
+            v = v.upper().lstrip("°")
+        elif k in ("euler_convention",) and isinstance(v, str):
+            v = v.strip()
+        if k in _CHOICES and v not in _CHOICES[k]:
+            raise TableMapError(f"{where}: {k} must be one of {', '.join(map(repr, _CHOICES[k]))}, got {v!r}"
+                                f"{did_you_mean(str(v), _CHOICES[k])}", file=where, column=k)
+        if k in ("time", "time_format", "temperature", "payload", "comment", "encoding", "euler_convention") and not isinstance(v, str):
+            raise TableMapError(f"{where}: {k} must be a string, got {v!r}", file=where, column=k)
+        kw[k] = v
+    m = TableMap(**kw)
+    given = [k for k in ("quaternion", "euler", "rotvec") if getattr(m, k) is not None]
+    if len(given) > 1:
+        raise TableMapError(f"{where}: give one orientation (quaternion, euler or rotvec), not {' and '.join(given)}", file=where)
+    if m.euler is not None:
+        euler_sequence(m, where)  # fail early on a bad convention
+    if m.header_row is not None and m.header_row > 0 and m.skip_rows and m.header_row != m.skip_rows + 1:
+        raise TableMapError(f"{where}: header_row = {m.header_row} contradicts skip_rows = {m.skip_rows} "
+                            f"(the header would be line {m.skip_rows + 1}); give one of them", file=where)
+    return m
+
+
+def load_table_map(path: str | Path, overrides: dict | None = None) -> TableMap:
+    """Read a ``--map`` TOML file; ``overrides`` (CLI options, same keys) replace its values."""
+    import tomllib
+
+    where = str(path)
+    p = Path(path)
+    if not p.is_file():
+        raise TableMapError(f"{where}: mapping file not found", file=where)
+    try:
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise TableMapError(f"{where}: not a valid TOML file ({e})", file=where) from None
+    doc.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    return table_map_from_dict(doc, where)
+
+
+def euler_sequence(m: TableMap, where: str = "<mapping>") -> str:
+    """The scipy Euler sequence of ``m`` (uppercase = intrinsic, lowercase = extrinsic)."""
+    conv = m.euler_convention
+    if conv is None:
+        raise TableMapError(f"{where}: euler columns need euler_convention (e.g. \"xyz\" with euler_extrinsic = true, "
+                            "\"kuka\" for A,B,C = intrinsic Z,Y',X'', \"rpy\" = extrinsic x,y,z)", file=where,
+                            column="euler_convention")
+    if conv.lower() in EULER_ALIASES:
+        seq = EULER_ALIASES[conv.lower()]
+        if m.euler_extrinsic is not None and m.euler_extrinsic != seq.islower():
+            raise TableMapError(f"{where}: euler_convention {conv!r} is {'extrinsic' if seq.islower() else 'intrinsic'}; "
+                                "drop euler_extrinsic", file=where, column="euler_extrinsic")
+        return seq
+    if len(conv) != 3 or set(conv.lower()) - set("xyz") or conv[0].lower() == conv[1].lower() or conv[1].lower() == conv[2].lower():
+        raise TableMapError(f"{where}: euler_convention {conv!r} is not three axis letters like 'xyz' or 'zyz' "
+                            "(nor 'kuka' or 'rpy')", file=where, column="euler_convention")
+    if m.euler_extrinsic is not None:
+        return conv.lower() if m.euler_extrinsic else conv.upper()
+    if not (conv.islower() or conv.isupper()):
+        raise TableMapError(f"{where}: euler_convention {conv!r} mixes cases; state euler_extrinsic = true or false",
+                            file=where, column="euler_convention")
+    return conv
+
+
+def expand_joint_spec(spec, header: list[str], where: str = "<table>") -> list[str]:
+    """Joint column names from a list, a ``prefix*suffix`` pattern (``*`` = 1, 2, ... consecutive)
+    or an ``A1..A6`` range."""
+    if isinstance(spec, list):
+        return spec
+    if ".." in spec:
+        m = re.fullmatch(r"(.*?)(\d+)\.\.(.*?)(\d+)(.*)", spec)
+        if not m or m.group(1) != m.group(3) or int(m.group(2)) > int(m.group(4)):
+            raise TableMapError(f"{where}: joints range {spec!r} must look like 'A1..A6'", file=where, column="joints")
+        return [f"{m.group(1)}{k}{m.group(5)}" for k in range(int(m.group(2)), int(m.group(4)) + 1)]
+    if spec.count("*") != 1:
+        raise TableMapError(f"{where}: joints pattern {spec!r} needs exactly one '*'", file=where, column="joints")
+    pre, post = spec.split("*")
+    rx = re.compile(re.escape(pre) + r"(\d+)" + re.escape(post))
+    found = sorted((int(m.group(1)), h) for h in header if (m := rx.fullmatch(h)))
+    if not found:
+        raise TableMapError(f"{where}: no column matches the joints pattern {spec!r} (header: {', '.join(header)})",
+                            file=where, column="joints")
+    nums = [k for k, _ in found]
+    if nums != list(range(nums[0], nums[0] + len(nums))):
+        raise TableMapError(f"{where}: the columns matching {spec!r} are not consecutively numbered "
+                            f"({', '.join(h for _, h in found)}); list the joints explicitly", file=where, column="joints")
+    return [h for _, h in found]
+
+
+# --------------------------------------------------------------------------- suggestion
+
+_JOINT_RX = re.compile(r"(?i)^(q|joint|jnt|j|a|axis|achse|axe|gelenk|theta|ax)[ _\-]?(\d+)(?:[ _\-]?[\[(]?(deg|rad)[\])]?)?$")
+_AXES = "xyz"
+
+
+def _triples(header: list[str]) -> list[tuple[str, str, str]]:
+    """Column triples whose names differ only in one x/y/z letter (any case), in header order."""
+    out, seen = [], set()
+    for h in header:
+        for m in re.finditer(r"(?<![A-Za-z])[xX](?![A-Za-z])|[xX]$|^[xX]", h):
+            i = m.start()
+            trip = [h[:i] + (a.upper() if h[i].isupper() else a) + h[i + 1:] for a in _AXES]
+            if all(t in header for t in trip) and h not in seen:
+                out.append(tuple(trip))
+                seen.update(trip)
+                break
+    return out
+
+
+def _quads(header: list[str]) -> list[tuple[str, str, str, str]]:
+    out = []
+    for h in header:
+        for m in re.finditer(r"[wW]", h):
+            i = m.start()
+            cand = [h[:i] + (a.upper() if h[i].isupper() else a) + h[i + 1:] for a in "wxyz"]
+            if all(c in header for c in cand) and re.search(r"(?i)q|quat|rot|ori", h):
+                out.append(tuple(cand))
+                break
+    return out
+
+
+_NOT_MEASURED = re.compile(r"(?i)goal|target|cmd|command|nominal|std|sigma|dif|err|_t$|(^|_)t_|set|desired|flange|vel|speed")
+
+
+def _unit_in_name(name: str, units: dict) -> str | None:
+    """A unit written into a column name: ``X [mm]``, ``x_mm``, ``A1 (deg)``, ``A1 [°]``."""
+    if "°" in name:
+        return "deg" if "deg" in units else None
+    toks = re.findall(r"[A-Za-z]+", name)
+    for tok in re.findall(r"[\[(]\s*([A-Za-z]+)\s*[\])]", name) + toks[-1:] * (len(toks) > 1):
+        if tok.lower() in units:
+            return tok.lower()
+    return None
+
+
+def suggest_map(header: list[str], sample_rows: list[list[str]] | None = None, *, delimiter: str | None = None,
+                decimal: str = ".", skip_rows: int = 0) -> str:
+    """A suggested mapping (TOML text with comments) for ``header``; every guess is marked CHECK.
+
+    ``sample_rows`` (a few data rows as text) let it guess units from magnitudes.
+    """
+    rows = sample_rows or []
+
+    def values(col):
+        i = header.index(col)
+        out = []
+        for r in rows:
+            try:
+                out.append(abs(float(r[i].replace(decimal, "."))))
+            except (ValueError, IndexError):
+                pass
+        return out
+
+    lines = ["# hykin import table: suggested mapping. CHECK every line, then pass it with --map.",
+             f"# header: {', '.join(header)}"]
+    if delimiter is not None:
+        lines.append(f"delimiter = {({chr(9): 'tab', ' ': 'whitespace'}).get(delimiter, delimiter)!r}".replace("'", '"'))
+    if decimal != ".":
+        lines.append(f'decimal = "{decimal}"')
+    if skip_rows:
+        lines.append(f"skip_rows = {skip_rows}")
+    fams: dict[str, list[tuple[int, str, str | None]]] = {}
+    for h in header:
+        m = _JOINT_RX.match(h)
+        if m:
+            fams.setdefault(m.group(1).lower(), []).append((int(m.group(2)), h, m.group(3)))
+    ros = [h for h in header if re.search(r"(?i)_joint$", h)]
+    joints, unit_hint = [], None
+    if fams:
+        best = max(fams.values(), key=len)
+        best.sort()
+        joints = [h for _, h, _ in best]
+        unit_hint = next((u.lower() for _, _, u in best if u), None)
+    elif ros:
+        joints = ros
+    if joints:
+        lines.append(f"joints = [{', '.join(repr(j).replace(chr(39), chr(34)) for j in joints)}]  # CHECK order base to tip")
+        big = max((v for j in joints for v in values(j)), default=0.0)
+        unit_hint = unit_hint or _unit_in_name(joints[0], ANGLE_UNITS_RAD)
+        unit = unit_hint or ("deg" if big > 2 * math.pi * 1.2 else "rad")
+        why = "from the column names" if unit_hint else (f"largest value {big:.4g}" if rows else "no data seen")
+        lines.append(f'angle_unit = "{unit}"  # CHECK ({why})')
+    else:
+        lines.append('# joints = ["J1", "J2", ...]  # no joint columns recognised')
+    quads = _quads(header)
+    trips = _triples([h for h in header if h not in joints and not any(h in qd for qd in quads)])
+    meas = [t for t in trips if not _NOT_MEASURED.search(t[0])] or trips
+    if meas:
+        pos, rest = meas[0], [t for t in meas[1:]]
+        lines.append(f"position = [{', '.join(chr(34) + c + chr(34) for c in pos)}]  # CHECK")
+        big = max((math.sqrt(sum(v * v for v in r)) for r in zip(*(values(c) for c in pos))), default=0.0)
+        named = _unit_in_name(pos[0], LENGTH_UNITS_M)
+        why = "from the column names" if named else (f"largest distance {big:.4g}" if rows else "no data seen")
+        lines.append(f'length_unit = "{named or ("mm" if big > 50 else "m")}"  # CHECK ({why})')
+        pts = [t for t in rest if not re.search(r"(?i)r[xyz]|rot|angle", t[0]) and not _NOT_MEASURED.search(t[0])]
+        if pts:
+            lines.append("points = [" + ", ".join("[" + ", ".join(f'"{c}"' for c in t) + "]" for t in pts) + "]  # CHECK further reflectors")
+    else:
+        lines.append('# position = ["X", "Y", "Z"]  # no position columns recognised')
+    low = {h.lower(): h for h in header}
+    if quads:
+        lines.append(f"quaternion = [{', '.join(chr(34) + c + chr(34) for c in quads[0])}]  # CHECK")
+        lines.append('quaternion_order = "wxyz"  # order of the names above')
+    elif all(k in low for k in "abc"):
+        lines.append(f'euler = ["{low["a"]}", "{low["b"]}", "{low["c"]}"]  # CHECK: KUKA A, B, C')
+        lines.append('euler_convention = "kuka"  # intrinsic Z, Y\', X\'\'')
+        lines.append('euler_unit = "deg"  # CHECK')
+    elif all(k in low for k in ("roll", "pitch", "yaw")):
+        lines.append(f'euler = ["{low["roll"]}", "{low["pitch"]}", "{low["yaw"]}"]  # CHECK')
+        lines.append('euler_convention = "rpy"  # extrinsic x, y, z')
+        lines.append('euler_unit = "rad"  # CHECK')
+    else:
+        rot = [t for t in _triples(header) if re.search(r"(?i)r[xyz]|rot|angle", t[0]) and not _NOT_MEASURED.search(t[0])]
+        if rot:
+            lines.append(f"# orientation columns {', '.join(rot[0])}: the convention cannot be read from the names. Either")
+            lines.append(f"# euler = [{', '.join(chr(34) + c + chr(34) for c in rot[0])}]")
+            lines.append('# euler_convention = "XYZ"   # uppercase intrinsic, lowercase extrinsic; CHECK your tracker manual')
+            lines.append('# euler_unit = "deg"')
+            lines.append(f"# or rotvec = [{', '.join(chr(34) + c + chr(34) for c in rot[0])}]  # axis·angle (e.g. URScript)")
+    for h in header:
+        if re.search(r"(?i)temp", h):
+            lines.append(f'temperature = "{h}"  # -> temperature_c; temperature_unit = "C"')
+            break
+    for h in header:
+        if re.fullmatch(r"(?i)(time|timestamp|t|time_s|t_s)", h):
+            lines.append(f'# time = "{h}"  # -> time_s, for `hykin import stream`; time_unit = "s"')
+            break
+    return "\n".join(lines) + "\n"
