@@ -192,7 +192,7 @@ def part_urscript(tmp: Path, n: int) -> bool:
     (tmp / "job.script").write_text(text)
     mp = tmp / "ur.hykin"
     m.save(mp)
-    print("  " + hykin_cli("compensate", str(mp), str(tmp / "job.script"), "-o", str(tmp / "job_comp.script")).strip().splitlines()[-1])
+    print("  " + hykin_cli("compensate", str(mp), str(tmp / "job.script"), "-o", str(tmp / "job_comp.script")).strip().splitlines()[0])
     new = (tmp / "job_comp.script").read_text()
     found, _ = urscript.find_targets(text, nom)
     comp_t, _ = urscript.find_targets(new, nom)
@@ -223,10 +223,14 @@ def part_krl(tmp: Path, n: int) -> bool:
     vr = VirtualRobot("kr6-own", nom, deviate(nom, 77, 7e-4, np.radians(0.1), "kr6-truth"))
     m = fit(vr, 1000, 5)
     rng = np.random.default_rng(6)
-    q = nom.random_joints(n, 7, margin=0.15)
+    q = nom.random_joints(n + 20, 7, margin=0.15)
     q[:, 4] = np.where(np.abs(q[:, 4]) < 0.2, 0.4, q[:, 4])  # keep clear of the wrist singularity A5 = 0
     T = true_poses(vr, q)
-    S, Tt = kuka_status(nom, q)
+    # S/T as a teach pendant records them: from the nominal solution of the pose on that branch
+    q_nom = controller_nearest(nom, se3.invert(nom.base) @ T, q)
+    keep = np.isfinite(q_nom).all(1)
+    q, T, q_nom = q[keep][:n], T[keep][:n], q_nom[keep][:n]
+    S, Tt = kuka_status(nom, q_nom)
     src = ["&ACCESS RVP", "&REL 1", "DEF job( )", ";FOLD INI", "  BAS (#INITMOV,0 )", ";ENDFOLD (INI)",
            "PTP {A1 0, A2 -90, A3 90, A4 0, A5 45, A6 0}"]
     dat = ["&ACCESS RVP", "&REL 1", "DEFDAT  job", ";FOLD EXTERNAL DECLARATIONS", ";ENDFOLD"]
@@ -250,7 +254,7 @@ def part_krl(tmp: Path, n: int) -> bool:
     mp = tmp / "kr6.hykin"
     m.save(mp)
     for f in ("job.src", "job.dat"):
-        print("  " + hykin_cli("compensate", str(mp), str(tmp / f), "-o", str(tmp / f"comp_{f}")).strip().splitlines()[-1])
+        print("  " + hykin_cli("compensate", str(mp), str(tmp / f), "-o", str(tmp / f"comp_{f}")).strip().splitlines()[0])
     want, cmd, cfg = [], [], []
     ok_lines = True
     changed = 0
@@ -349,6 +353,11 @@ def main() -> None:
     ap.add_argument("--n-program", type=int, default=100, help="targets per program (parts 2, 3)")
     ap.add_argument("--requests", type=int, default=300, help="1-target requests (100-target: a tenth)")
     a = ap.parse_args()
+    import warnings
+
+    from hykin.hybrid import OutOfRangeWarning
+
+    warnings.simplefilter("ignore", OutOfRangeWarning)  # the model-error check queries a few joints past the data
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         ok1, mp, vr = part_csv(tmp, a.n)

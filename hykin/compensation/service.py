@@ -15,9 +15,10 @@ FastAPI app (:func:`create_app`); the model is loaded once. Endpoints (all batch
 Bad requests (malformed JSON, wrong shapes, NaN/inf, unknown fields, too many targets) get 400/422
 with ``{"detail": reason}`` and never stop the server; model calls are serialised by a lock (the
 model is not re-entrant). FastAPI is imported only here.
-"""
 
-from __future__ import annotations
+(No ``from __future__ import annotations``: FastAPI reads the endpoints' ``Request`` annotations at
+run time, and ``Request`` is imported inside :func:`create_app`.)
+"""
 
 import json
 import math
