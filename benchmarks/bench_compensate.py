@@ -43,10 +43,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from hykin import Robot, fk, load_robot, se3  # noqa: E402
-from hykin.hybrid import HybridModel  # noqa: E402
-from hykin.ik import ik  # noqa: E402
-from hykin.simulate import VirtualRobot, simulate, true_poses  # noqa: E402
+from hykin import Robot, load_robot, se3
+from hykin.hybrid import HybridModel
+from hykin.ik import ik
+from hykin.simulate import VirtualRobot, simulate, true_poses
 
 
 def deviate(rob: Robot, seed: int, sigma_m: float, sigma_rad: float, name: str) -> Robot:
@@ -156,7 +156,6 @@ def _unchanged(a: str, b: str, target_lines: set) -> tuple[bool, int]:
 
 def part_urscript(tmp: Path, n: int) -> bool:
     from hykin.compensation import urscript
-    from hykin.compensation.programs import compensate_program
     from hykin.simulate import virtual_preset
 
     print("2. URScript program, UR10-like (ur10-virtual, seed 16)")

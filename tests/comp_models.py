@@ -47,7 +47,7 @@ def exact(preset: str, seed: int) -> ExactModel:
     return ExactModel(nom, deviate(nom, seed))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def tiny_model_file() -> Path:
     """A real model file: UR10 with geometric deviations, 300 noise-free poses, 2 epochs (built once)."""
     from hykin.hybrid import HybridModel

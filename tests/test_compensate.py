@@ -14,7 +14,12 @@ from comp_models import ExactModel, deviate, exact, tiny_model_file
 
 from hykin import fk, load_robot, se3
 from hykin.compensation import compensate, resolve_frame
-from hykin.compensation.branches import abb_confdata, kuka_status, match_abb_confdata, match_kuka_status
+from hykin.compensation.branches import (
+    abb_confdata,
+    kuka_status,
+    match_abb_confdata,
+    match_kuka_status,
+)
 from hykin.ik import ik
 
 

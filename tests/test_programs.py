@@ -15,7 +15,12 @@ from scipy.spatial.transform import Rotation
 
 from hykin import fk, se3
 from hykin.compensation import krl, rapid, urscript
-from hykin.compensation.branches import abb_confdata, kuka_status, match_abb_confdata, match_kuka_status
+from hykin.compensation.branches import (
+    abb_confdata,
+    kuka_status,
+    match_abb_confdata,
+    match_kuka_status,
+)
 from hykin.compensation.programs import compensate_program
 from hykin.ik import ik
 

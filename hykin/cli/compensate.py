@@ -4,12 +4,19 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import typer
 
-from .common import AngleUnit, CLIError, LengthUnit, app, console, is_model_file, write_rows
+from .common import (
+    AngleUnit,
+    CLIError,
+    LengthUnit,
+    app,
+    console,
+    is_model_file,
+    write_rows,
+)
 
 _FORMATS = ("csv", "urscript", "krl", "rapid")
 
@@ -38,7 +45,7 @@ def _load_model(spec: str):
     return HybridModel.load(spec)
 
 
-def _format_of(path: Path, fmt: Optional[str]) -> str:
+def _format_of(path: Path, fmt: str | None) -> str:
     from ..compensation import krl, rapid, urscript
 
     if fmt is not None:
@@ -54,7 +61,7 @@ def _format_of(path: Path, fmt: Optional[str]) -> str:
     raise CLIError(f"{path}: unknown input type {suf!r}; give --format ({', '.join(_FORMATS)})")
 
 
-def _axis_signs(text: Optional[str], dof: int):
+def _axis_signs(text: str | None, dof: int):
     if text is None:
         return None
     try:
@@ -74,9 +81,9 @@ def compensate_cmd(
     joints: bool = typer.Option(False, "--joints", help="Write the joints the real robot needs (CSV: target, q1..qN, status) instead of poses."),
     frame: str = typer.Option("auto", "--frame", help="Frame of the targets: measurement (the model's data frame), base (controller base placed by the fitted base), auto (CSV: measurement; programs: base when the fitted base is far from the nominal one)."),
     skip_unreachable: bool = typer.Option(False, "--skip-unreachable", help="Programs: keep an unreachable target's original line and warn, instead of refusing to write."),
-    fmt: Optional[str] = typer.Option(None, "--format", help="Input format: csv, urscript, krl, rapid (default: by suffix)."),
-    context: Optional[Path] = typer.Option(None, "--context", help="KRL: the companion .src of a .dat (default: same name beside it)."),
-    axis_signs: Optional[str] = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the robot preset)."),
+    fmt: str | None = typer.Option(None, "--format", help="Input format: csv, urscript, krl, rapid (default: by suffix)."),
+    context: Path | None = typer.Option(None, "--context", help="KRL: the companion .src of a .dat (default: same name beside it)."),
+    axis_signs: str | None = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the robot preset)."),
     force: bool = typer.Option(False, "--force", help="Overwrite an existing output."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
@@ -138,7 +145,7 @@ def _summary(comp, out: Path, n: int) -> None:
 
 
 def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, frame: str, skip: bool,
-                        context: Optional[Path], signs) -> None:
+                        context: Path | None, signs) -> None:
     from ..compensation import krl, rapid, urscript
     from ..compensation.programs import compensate_program
 

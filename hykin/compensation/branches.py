@@ -34,13 +34,13 @@ import numpy as np
 from ..robot import Robot
 
 __all__ = [
-    "default_axis_signs",
-    "arm_geometry",
-    "kuka_status",
     "abb_confdata",
+    "arm_geometry",
     "candidate_solutions",
-    "match_kuka_status",
+    "default_axis_signs",
+    "kuka_status",
     "match_abb_confdata",
+    "match_kuka_status",
     "sequential_nearest",
 ]
 

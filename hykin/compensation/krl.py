@@ -26,7 +26,7 @@ import numpy as np
 from .. import se3
 from .programs import NUMBER, ProgramTarget, comment_mask, line_of, splice_numbers
 
-__all__ = ["find_targets", "format_target", "abc_from_matrix", "matrix_from_abc", "SUFFIXES"]
+__all__ = ["SUFFIXES", "abc_from_matrix", "find_targets", "format_target", "matrix_from_abc"]
 
 SUFFIXES = (".src", ".dat")
 _AGG = re.compile(r"\{([^{}]*)\}")

@@ -25,7 +25,7 @@ import numpy as np
 
 from .targets import Compensation, compensate
 
-__all__ = ["ProgramTarget", "ProgramResult", "compensate_program", "line_of", "comment_mask", "splice_numbers", "NUMBER"]
+__all__ = ["NUMBER", "ProgramResult", "ProgramTarget", "comment_mask", "compensate_program", "line_of", "splice_numbers"]
 
 NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 

@@ -19,7 +19,7 @@ import numpy as np
 from .. import se3
 from .programs import NUMBER, ProgramTarget, comment_mask, line_of, splice_numbers
 
-__all__ = ["find_targets", "format_target", "SUFFIXES"]
+__all__ = ["SUFFIXES", "find_targets", "format_target"]
 
 SUFFIXES = (".mod", ".prg", ".sys")
 _INT = r"[-+]?\d+"

@@ -26,7 +26,7 @@ import threading
 
 import numpy as np
 
-__all__ = ["create_app", "RequestError", "MAX_TARGETS"]
+__all__ = ["MAX_TARGETS", "RequestError", "create_app"]
 
 MAX_TARGETS = 10_000
 

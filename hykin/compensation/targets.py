@@ -36,7 +36,7 @@ import numpy as np
 from .. import se3
 from ..fk import fk
 
-__all__ = ["Compensation", "compensate", "resolve_frame", "fitted_base", "to_model_frame", "FRAMES"]
+__all__ = ["FRAMES", "Compensation", "compensate", "fitted_base", "resolve_frame", "to_model_frame"]
 
 FRAMES = ("measurement", "base", "auto")
 _AUTO_M, _AUTO_RAD = 0.05, np.radians(5.0)
