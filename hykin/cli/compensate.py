@@ -90,11 +90,17 @@ def compensate_cmd(
 ) -> None:
     """Compensated targets for a controller that runs the nominal model (DESIGN.md §6)."""
     kind = _format_of(inp, fmt)
+    if frame not in ("auto", "measurement", "base"):
+        raise CLIError(f"--frame must be auto, measurement or base, got {frame!r}")
     _check_output(out, [inp, model, context], force)
     if not inp.is_file():
         raise CLIError(f"{inp}: no such file")
     mdl = _load_model(model)
     signs = _axis_signs(axis_signs, mdl.nominal.dof)
+    th = getattr(mdl, "thermal_", None)
+    if th is not None and th.coefficient_per_k != 0.0:
+        console().print(f"note: the model has thermal expansion; targets are compensated at its reference "
+                        f"{th.reference_c:.2f} °C", highlight=False)
     if kind == "csv":
         _compensate_csv(mdl, inp, out, joints, "measurement" if frame == "auto" else frame, length_unit, angle_unit)
     else:
