@@ -9,7 +9,7 @@ controller that knows only the nominal model, on virtual robots of our own; and 
    commands. Stand-in controller: nominal closed-form IK of each command, the solution nearest the
    branch joints → joints → the TRUE robot's pose (``hykin.simulate.true_poses``) → error to the
    target. Baseline in the same run: the controller given the uncompensated target.
-2. URScript program on a UR-like robot (``ur10-virtual`` preset, seed 16, noise-free data): 100
+2. URScript program on a UR-like robot (``ur10-virtual`` preset, seed 16, noise-free data): 300
    ``movel``/``movep``/``movec``/variable targets along a path with comments and a ``def``/``end``
    block; controller = UR-style IK nearest the current joints, walking through the program in order.
 3. KRL program on a KUKA-like robot (nominal ``kuka-kr6-r900`` + our deviations): a ``.src`` with inline
@@ -349,7 +349,7 @@ def part_service(mp: Path, vr: VirtualRobot, n_req: int) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=300, help="targets in part 1")
-    ap.add_argument("--n-program", type=int, default=100, help="targets per program (parts 2, 3)")
+    ap.add_argument("--n-program", type=int, default=300, help="targets per program (parts 2, 3)")
     ap.add_argument("--requests", type=int, default=300, help="1-target requests (100-target: a tenth)")
     a = ap.parse_args()
     import warnings

@@ -152,7 +152,9 @@ def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs
 
     fr = resolve_frame(model, frame)
     # branch from the nominal solutions of the uncompensated target, in the nominal robot's world
-    qb = _branch_joints(model, targets, model.nominal.base @ T @ se3.invert(D), axis_signs, fmt)
+    # (= the measurement frame; the controller base sits at nominal.base in it)
+    T_nom = (T if fr == "measurement" else model.nominal.base @ T) @ se3.invert(D)
+    qb = _branch_joints(model, targets, T_nom, axis_signs, fmt)
     reason = "no nominal solution with the program's configuration data" if any(t.config for t in targets) else \
         "not reachable by the nominal robot"
     comp = compensate(model, T, q_branch=qb, frame=fr, tool_delta=D, branch_reason=reason, **ik_kw)
