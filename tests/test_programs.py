@@ -14,7 +14,7 @@ from comp_models import exact
 from scipy.spatial.transform import Rotation
 
 from hykin import fk, se3
-from hykin.compensation import krl, rapid, urscript
+from hykin.compensation import compensate, krl, rapid, urscript
 from hykin.compensation.branches import (
     abb_confdata,
     kuka_status,
@@ -194,3 +194,25 @@ def test_bad_rapid_quaternion_is_an_error():
     m = exact("abb-irb2400", 1)
     with pytest.raises(ValueError, match="line 1: robtarget quaternion"):
         compensate_program(m, "CONST robtarget p:=[[1,2,3],[2,0,0,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];", rapid)
+
+
+def test_program_of_a_tracker_frame_model_is_in_the_controller_frame():
+    from comp_models import ExactModel, deviate
+
+    from hykin import load_robot
+
+    nom = load_robot("ur10")
+    truth = deviate(nom, 15)
+    W = se3.make_transform(se3.rotz(-1.1)[:3, :3], np.array([3.0, 1.5, -0.4]))  # tracker 3 m away
+    m = ExactModel(nom, truth.copy(base=W @ truth.base))
+    q = np.array([0.2, -1.5, 1.6, -1.6, -1.5, 0.3]) + np.random.default_rng(2).normal(0, 0.1, (3, 6))
+    T_ctrl = se3.invert(m.robot_.base) @ fk(m.robot_, q)  # wanted poses in the controller (fitted base) frame
+    prog = f"movej([{', '.join(f'{v:.6f}' for v in q[0])}])\n" + "".join(f"movel({_p(Tk)}, a=1.2, v=0.25)\n" for Tk in T_ctrl)
+    res = compensate_program(m, prog, urscript)  # frame="auto": the fitted base is far -> "base"
+    assert res.comp.frame == "base" and not res.failed
+    assert compensate(m, T_ctrl, frame="auto").success.all()  # the default walk (from zero) in the right frame
+    cmd = np.stack([t.pose for t in urscript.find_targets(res.text, nom)[0]])
+    want = np.stack([t.pose for t in res.targets])
+    r = ik(nom, cmd, all_branches=True).nearest_to(q, nom.lower, nom.upper)
+    real = se3.invert(m.robot_.base) @ fk(m.robot_, r.q)
+    assert se3.pose_error(real, want)[0].max() < 2e-3

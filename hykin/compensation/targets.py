@@ -130,7 +130,8 @@ def compensate(model, T_target, *, q_branch=None, frame: str = "measurement", po
     Tm = to_model_frame(model, T, frame) @ se3.invert(D) if tool_delta is not None else to_model_frame(model, T, frame)
     if q_branch is None:
         branch_reason = "unreachable: the nominal robot has no solution to choose the branch from"
-        qb = sequential_nearest(nom, Tm, None) if not pos_only else np.tile(np.clip(np.zeros(n), nom.lower, nom.upper), (N, 1))
+        T_nom = (nom.base @ T if frame == "base" else T) @ se3.invert(D)  # the target in the nominal robot's world
+        qb = sequential_nearest(nom, T_nom, None) if not pos_only else np.tile(np.clip(np.zeros(n), nom.lower, nom.upper), (N, 1))
     else:
         qb = np.array(np.broadcast_to(np.asarray(q_branch, dtype=np.float64), (N, n)))
     has = np.isfinite(qb).all(1)
