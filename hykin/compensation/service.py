@@ -125,6 +125,7 @@ class Handlers:
 
     def ik(self, body) -> dict:
         from ..hybrid_ik import hybrid_ik
+        from .targets import first_row_per_target
 
         body = _check_keys(body, {"targets", "q_current"})
         a = _matrix(body, "targets", (3, 7))
@@ -143,12 +144,12 @@ class Handlers:
         q = np.full((N, self.dof), np.nan)
         ok = np.zeros(N, bool)
         pe, ae = np.full(N, np.nan), np.full(N, np.nan)
-        reason = ["unreachable"] * N
-        for k in np.argsort(res.success, kind="stable"):  # successes last so they win
-            t = int(res.target[k])
-            q[t], ok[t], pe[t], ae[t], reason[t] = res.q[k], res.success[k], res.pos_err_mm[k], res.ang_err_deg[k], str(res.reason[k])
+        reason = np.array(["unreachable"] * N, dtype=object)
+        k = first_row_per_target(res)
+        t = res.target[k]
+        q[t], ok[t], pe[t], ae[t], reason[t] = res.q[k], res.success[k], res.pos_err_mm[k], res.ang_err_deg[k], res.reason[k]
         return {"q": [r if k else None for r, k in zip(q.tolist(), ok.tolist())], "success": ok.tolist(),
-                "pos_err_mm": _floats(pe), "ang_err_deg": _floats(ae), "reason": ["" if k else r for r, k in zip(reason, ok)]}
+                "pos_err_mm": _floats(pe), "ang_err_deg": _floats(ae), "reason": ["" if k else str(r) for r, k in zip(reason.tolist(), ok.tolist())]}
 
     def compensate(self, body) -> dict:
         from .targets import FRAMES, compensate

@@ -108,6 +108,13 @@ def _targets(T_target) -> tuple[np.ndarray, bool]:
     return T, False
 
 
+def first_row_per_target(res) -> np.ndarray:
+    """Row indices of a :class:`hykin.hybrid_ik.HybridIKResult`: one per target that has rows, its
+    first successful row (else its first row), ordered by target."""
+    order = np.lexsort((~res.success, res.target))
+    return order[np.r_[True, res.target[order][1:] != res.target[order][:-1]]]
+
+
 def compensate(model, T_target, *, q_branch=None, frame: str = "measurement", position_only: bool = False,
                tool_delta=None, branch_reason: str = "no nominal solution on the requested branch",
                **ik_kw) -> Compensation:
@@ -147,9 +154,7 @@ def compensate(model, T_target, *, q_branch=None, frame: str = "measurement", po
             warnings.simplefilter("ignore")  # out-of-support is reported per row (in_support)
             res = hybrid_ik(model, Tm[idx, :3, 3] if pos_only else Tm[idx], all_branches=False, q_current=qb[idx],
                             nearest=True, position_only=pos_only, **ik_kw)
-        # one row per target with nearest=True; keep the first successful row of each target
-        order = np.lexsort((~res.success, res.target))
-        first = order[np.r_[True, res.target[order][1:] != res.target[order][:-1]]]
+        first = first_row_per_target(res)
         t = idx[res.target[first]]
         q[t], pe[t], ae[t] = res.q[first], res.pos_err_mm[first], res.ang_err_deg[first]
         ok[t], sup[t] = res.success[first], res.in_support[first]
