@@ -97,7 +97,7 @@ def test_krl_src_and_dat_rewrite():
         f"PTP {{E6POS: {agg(0)}, S {S[0]}, T {Tt[0]}, E1 0.0}} C_PTP\r\n"
         "LIN XP1\r\nLIN_REL {X 10}\r\nLIN {Z 400}\r\n"
         f"LIN {{{agg(1)}, S 'B{S[1]:03b}', T 'B{Tt[1]:06b}'}}\r\n"
-        "$BASE = BASE_DATA[1]\r\nCIRC XP2, XP3\r\nEND\r\n"
+        "$BASE = BASE_DATA[1]\r\n$TOOL = {X 0.0, Y 0.0, Z 100.0, A 0.0, B 0.0, C 0.0}\r\nCIRC XP2, XP3\r\nEND\r\n"
     )
     dat = (
         "&ACCESS RVP\r\nDEFDAT job\r\n"
@@ -112,7 +112,7 @@ def test_krl_src_and_dat_rewrite():
     assert len(rs.targets) == 2 and len(rd.targets) == 3 and not rs.failed and not rd.failed
     assert _diff_lines(src, rs.text) == {5, 9} and _diff_lines(dat, rd.text) == {3, 5, 6}
     assert "E1 0.0} C_PTP\r\n" in rs.text and "S 'B" in rs.text.split("\r\n")[8]
-    assert len(rs.notes) == 2  # LIN_REL and the partial aggregate are kept and noted
+    assert len(rs.notes) == 3  # LIN_REL, the partial aggregate and $TOOL are kept and noted
     assert any("TOOL_OFS" in n for n in rd.notes)
     new = krl.find_targets(rs.text, nom)[0] + krl.find_targets(rd.text, nom, context=src)[0]
     want = np.stack([t.pose for t in rs.targets + rd.targets])

@@ -11,7 +11,8 @@ and ``FRAME`` ones inline in a motion statement or declared under a name some mo
 this file or its companion (``.src`` for a ``.dat``) uses. Kept and noted: relative motions
 (``*_REL``), partial aggregates (KRL fills the missing components from the current pose, which we
 cannot know), ``FRAME`` data not used as a motion target (``$BASE``/``$TOOL``/``BASE_DATA``/
-``TOOL_DATA``). ``PTP {A1 .., A6 ..}`` joint moves restart the branch walk (axis angles, degrees,
+``TOOL_DATA``), assignments to system variables (``$TOOL = {...}``, ``$BASE``, ``BASE_DATA[i]``,
+``TOOL_DATA[i]``). ``PTP {A1 .., A6 ..}`` joint moves restart the branch walk (axis angles, degrees,
 controller signs). Targets are in the robot base frame: ``$BASE`` = ``$WORLD`` = robot root and the
 tool of the nominal robot file, i.e. ``BASE_DATA[0]``/``$TOOL`` as the robot file's tool (document
 your cell if it differs). Numbers are written with 4 decimals (mm) and 5 (deg).
@@ -112,6 +113,9 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
             continue
         if kind not in ("", "E6POS", "POS", "FRAME"):
             notes.append(f"line {line}: aggregate of type {kind}: kept")
+            continue
+        if not mot and (name.startswith("$") or name.upper().startswith(("BASE_DATA", "TOOL_DATA", "MACHINE_"))):
+            notes.append(f"line {line}: {name} is a system/frame variable, not a target: kept")
             continue
         if kind == "" and not mot and not name:
             notes.append(f"line {line}: untyped aggregate outside a motion statement: kept")
