@@ -95,6 +95,9 @@ _EXPORTS = {
     "extrapolation_growth": "uncertainty",
     "register_model": "register",
     "export_onnx": "export",
+    "calibrated_urdf": "urdf",
+    "compensate": "compensation",
+    "Compensation": "compensation",
     "evaluate_model": "evaluate",
     "Report": "report",
     # evaluation, measurement

@@ -28,7 +28,7 @@ import numpy as np
 from . import se3
 from .robot import Robot, RobotFileError
 
-__all__ = ["load_urdf", "load_urdf_string", "robot_to_urdf"]
+__all__ = ["load_urdf", "load_urdf_string", "robot_to_urdf", "calibrated_urdf"]
 
 _MOVABLE = ("revolute", "continuous", "prismatic")
 
@@ -293,3 +293,25 @@ def robot_to_urdf(robot: Robot) -> str:
     )
     out.append("</robot>\n")
     return "\n".join(out)
+
+
+def calibrated_urdf(model) -> tuple[str, str]:
+    """URDF of a fitted hybrid model's calibrated classical robot, and what a URDF cannot carry.
+
+    The calibrated geometry and joint offsets go into the joint origins (:func:`robot_to_urdf`), the
+    calibrated base (with the model's registration frame ``frame_pre``) into ``base_joint`` and the
+    tool (with ``frame_post``) into ``tool_joint``. Joint compliance, thermal expansion and the
+    residual networks are not representable; the second item names those the model has.
+    """
+    rob = model.robot_
+    rob = rob.copy(base=model.frame_pre @ rob.base, tool=rob.tool @ model.frame_post, name=f"{rob.name}-calibrated",
+                   stiffness_nm_per_rad=np.full(rob.dof, np.inf))
+    left = []
+    if model.robot_.has_compliance:
+        left.append("joint compliance")
+    th = getattr(model, "thermal_", None)
+    if th is not None and th.coefficient_per_k != 0.0:
+        left.append("thermal expansion")
+    if getattr(model, "net_pos_", None) is not None:
+        left.append("the residual networks")
+    return robot_to_urdf(rob), ", ".join(left) or "nothing"

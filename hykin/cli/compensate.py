@@ -1,0 +1,232 @@
+"""Compensation commands: compensate (targets and programs), serve (HTTP service), export-urdf."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import typer
+
+from .common import (
+    AngleUnit,
+    CLIError,
+    LengthUnit,
+    app,
+    console,
+    is_model_file,
+    write_rows,
+)
+
+_FORMATS = ("csv", "urscript", "krl", "rapid")
+
+
+def _check_output(out: Path, inputs: list, force: bool) -> None:
+    """Refuse to overwrite an input, or an existing output without ``--force``; the folder must be
+    writable. Checked before any work."""
+    ro = out.resolve()
+    for p in inputs:
+        if p is not None and Path(p).exists() and Path(p).resolve() == ro:
+            raise CLIError(f"{out}: the output would overwrite the input {p}; choose another -o")
+    if out.exists() and not force:
+        raise CLIError(f"{out}: exists; pass --force to overwrite")
+    parent = ro.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not os.access(parent, os.W_OK):
+        raise CLIError(f"{out}: folder {parent} is not writable")
+
+
+def _load_model(spec: str):
+    if not is_model_file(spec):
+        raise CLIError(f"{spec}: not a hykin model file (compensation needs a fitted model: hykin fit ...)")
+    from ..hybrid import HybridModel
+
+    return HybridModel.load(spec)
+
+
+def _format_of(path: Path, fmt: str | None) -> str:
+    from ..compensation import krl, rapid, urscript
+
+    if fmt is not None:
+        if fmt not in _FORMATS:
+            raise CLIError(f"--format must be one of {', '.join(_FORMATS)}, got {fmt!r}")
+        return fmt
+    suf = path.suffix.lower()
+    if suf in (".csv", ".parquet"):
+        return "csv"
+    for name, mod in (("urscript", urscript), ("krl", krl), ("rapid", rapid)):
+        if suf in mod.SUFFIXES:
+            return name
+    raise CLIError(f"{path}: unknown input type {suf!r}; give --format ({', '.join(_FORMATS)})")
+
+
+def _axis_signs(text: str | None, dof: int):
+    if text is None:
+        return None
+    try:
+        s = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        raise CLIError(f"--axis-signs: expected {dof} comma-separated values of 1 or -1, got {text!r}") from None
+    if s.shape != (dof,) or not np.all(np.abs(s) == 1):
+        raise CLIError(f"--axis-signs: expected {dof} comma-separated values of 1 or -1, got {text!r}")
+    return s
+
+
+@app.command("compensate")
+def compensate_cmd(
+    model: str = typer.Argument(..., help="Model file (hykin fit)."),
+    inp: Path = typer.Argument(..., metavar="INPUT", help="Targets CSV (x,y,z[,qw,qx,qy,qz][,q1..qN]) or a program: URScript (.script), KRL (.src/.dat), RAPID (.mod)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output: commands CSV, the rewritten program, or joints CSV (--joints)."),
+    joints: bool = typer.Option(False, "--joints", help="Write the joints the real robot needs (CSV: target, q1..qN, status) instead of poses."),
+    frame: str = typer.Option("auto", "--frame", help="Frame of the targets: measurement (the model's data frame), base (controller base placed by the fitted base), auto (CSV: measurement; programs: base when the fitted base is far from the nominal one)."),
+    skip_unreachable: bool = typer.Option(False, "--skip-unreachable", help="Programs: keep an unreachable target's original line and warn, instead of refusing to write."),
+    fmt: str | None = typer.Option(None, "--format", help="Input format: csv, urscript, krl, rapid (default: by suffix)."),
+    context: Path | None = typer.Option(None, "--context", help="KRL: the companion .src of a .dat (default: same name beside it)."),
+    axis_signs: str | None = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the robot preset)."),
+    force: bool = typer.Option(False, "--force", help="Overwrite an existing output."),
+    length_unit: str = LengthUnit,
+    angle_unit: str = AngleUnit,
+) -> None:
+    """Compensated targets for a controller that runs the nominal model (DESIGN.md §6)."""
+    kind = _format_of(inp, fmt)
+    if frame not in ("auto", "measurement", "base"):
+        raise CLIError(f"--frame must be auto, measurement or base, got {frame!r}")
+    _check_output(out, [inp, model, context], force)
+    if not inp.is_file():
+        raise CLIError(f"{inp}: no such file")
+    mdl = _load_model(model)
+    signs = _axis_signs(axis_signs, mdl.nominal.dof)
+    th = getattr(mdl, "thermal_", None)
+    if th is not None and th.coefficient_per_k != 0.0:
+        console().print(f"note: the model has thermal expansion; targets are compensated at its reference "
+                        f"{th.reference_c:.2f} °C", highlight=False)
+    if kind == "csv":
+        _compensate_csv(mdl, inp, out, joints, "measurement" if frame == "auto" else frame, length_unit, angle_unit)
+    else:
+        _compensate_program(mdl, inp, out, kind, joints, frame, skip_unreachable, context, signs)
+
+
+def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_unit: str, angle_unit: str) -> None:
+    from ..compensation.targets import command_rows, compensate
+    from ..dataset import read_joints, read_poses
+
+    T, has_rot = read_poses(inp, length_unit=length_unit)
+    n = mdl.nominal.dof
+    qb = None
+    if all(f"q{j + 1}" in _columns(inp) for j in range(n)):
+        qb, _ = read_joints(inp, dof=n, angle_unit=angle_unit, robot=mdl.nominal)
+    comp = compensate(mdl, T if has_rot else T[:, :3, 3], q_branch=qb, frame=frame)
+    write_rows(command_rows(comp, joints_only=joints), out)
+    _summary(comp, out, len(T))
+
+
+def _columns(path: Path) -> list:
+    """Column names of a CSV (first line that is not a ``#`` comment) or Parquet file."""
+    if path.suffix.lower() == ".parquet":
+        import pyarrow.parquet as pq
+
+        return list(pq.read_schema(path).names)
+    import csv
+
+    with open(path, newline="") as f:
+        for row in csv.reader(f):
+            if row and not row[0].lstrip().startswith("#"):
+                return [c.strip() for c in row]
+    return []
+
+
+def _summary(comp, out: Path, n: int) -> None:
+    ok = comp.success
+    line = f"wrote {out}: {int(ok.sum())} of {n} targets compensated"
+    if ok.any():
+        line += (f" (command shift mean {np.mean(comp.shift_mm[ok]):.3f} mm, max {np.max(comp.shift_mm[ok]):.3f} mm; "
+                 f"model error max {np.max(comp.pos_err_mm[ok]):.2e} mm)")
+    if (~ok).any():
+        line += f"; {int((~ok).sum())} unreachable (status column)"
+    typer.echo(line)
+    if ok.any() and not comp.in_support[ok].all():
+        console().print(f"[yellow]warning:[/] {int((~comp.in_support[ok]).sum())} compensated targets need joints outside "
+                        "the model's training support: the correction fades to the calibrated model there")
+
+
+def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, frame: str, skip: bool,
+                        context: Path | None, signs) -> None:
+    from ..compensation import krl, rapid, urscript
+    from ..compensation.programs import compensate_program
+
+    fmt = {"urscript": urscript, "krl": krl, "rapid": rapid}[kind]
+    text = inp.read_bytes().decode("latin-1")  # one char per byte: unchanged bytes stay unchanged
+    ctx = ""
+    if kind == "krl":
+        if context is None and inp.suffix.lower() == ".dat":
+            sib = inp.with_suffix(".src")
+            context = sib if sib.is_file() else None
+        if context is not None:
+            if not Path(context).is_file():
+                raise CLIError(f"--context {context}: no such file")
+            ctx = Path(context).read_bytes().decode("latin-1")
+    try:
+        res = compensate_program(mdl, text, fmt, frame=frame, axis_signs=signs, context=ctx)
+    except ValueError as e:
+        raise CLIError(f"{inp}: {str(e).splitlines()[0]}") from None
+    con = console()
+    for note in res.notes:
+        con.print(f"note: {inp}:{note}", highlight=False)
+    if not res.targets:
+        raise CLIError(f"{inp}: no Cartesian targets found (format {kind}); nothing written")
+    for line, reason in res.failed:
+        con.print(f"{'warning' if skip else 'error'}: {inp}:{line}: target unreachable ({reason})", highlight=False)
+    if res.failed and not skip:
+        raise CLIError(f"{inp}: {len(res.failed)} of {len(res.targets)} targets unreachable; nothing written "
+                       "(--skip-unreachable keeps their original lines)")
+    if joints:
+        rows = {"target": np.arange(len(res.targets)), "line": [t.line for t in res.targets],
+                "name": [t.name for t in res.targets]}
+        for j in range(mdl.nominal.dof):
+            rows[f"q{j + 1}"] = res.comp.q[:, j]
+        rows["success"] = res.comp.success.astype(int)
+        rows["status"] = np.where(res.comp.success, "ok", res.comp.reason)
+        write_rows(rows, out)
+    else:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_bytes(res.text.encode("latin-1"))
+    if res.comp.frame == "base" and frame == "auto":
+        con.print("note: the model's fitted base is far from the nominal one (tracker-frame data): program poses "
+                  "taken in the controller's base frame (--frame base)", highlight=False)
+    _summary(res.comp, out, len(res.targets))
+
+
+@app.command("serve")
+def serve_cmd(
+    model: str = typer.Argument(..., help="Model file (hykin fit)."),
+    host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on (default: this machine only)."),
+    port: int = typer.Option(8000, "--port", help="TCP port."),
+) -> None:
+    """Serve fk / ik / compensate over HTTP (JSON batches; GET /health)."""
+    if not 0 < port < 65536:
+        raise CLIError(f"--port must be 1..65535, got {port}")
+    mdl = _load_model(model)
+    import uvicorn
+
+    from ..compensation.service import create_app
+
+    typer.echo(f"hykin serve: {mdl.nominal.name} on http://{host}:{port} (GET /health, POST /fk /ik /compensate)")
+    uvicorn.run(create_app(mdl), host=host, port=port, log_level="warning")
+
+
+@app.command("export-urdf")
+def export_urdf_cmd(
+    model: str = typer.Argument(..., help="Model file (hykin fit)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output .urdf file."),
+    force: bool = typer.Option(False, "--force", help="Overwrite an existing output."),
+) -> None:
+    """Calibrated URDF: geometry, joint offsets, base and tool of the calibrated model in the joint origins."""
+    from ..urdf import calibrated_urdf
+
+    _check_output(out, [Path(model)], force)
+    mdl = _load_model(model)
+    text, info = calibrated_urdf(mdl)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    typer.echo(f"wrote {out}; not in a URDF: {info} (use hykin compensate to get them to a controller)")

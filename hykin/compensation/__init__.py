@@ -1,0 +1,14 @@
+"""Getting accuracy into a controller that runs its nominal model (DESIGN.md §6).
+
+* :mod:`.targets` — :func:`compensate`: hybrid IK on the meant branch → nominal FK = the command.
+* :mod:`.branches` — KUKA ``S``/``T`` status, ABB ``confdata``, and the nominal solution they mean.
+* :mod:`.programs` — shared rewriting machinery: targets found in a program text, replaced in place.
+* :mod:`.urscript`, :mod:`.krl`, :mod:`.rapid` — the three program formats.
+* :mod:`.service` — the FastAPI app of ``hykin serve`` (imports FastAPI only when used).
+"""
+
+from __future__ import annotations
+
+from .targets import Compensation, compensate, resolve_frame
+
+__all__ = ["Compensation", "compensate", "resolve_frame"]

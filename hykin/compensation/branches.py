@@ -1,0 +1,190 @@
+"""Which joint solution a robot program means: KUKA ``S``/``T`` status, ABB ``confdata``, nearest joints.
+
+A Cartesian target has up to eight closed-form solutions (shoulder, elbow, wrist) and, for joints
+with a range over 360°, several 2π representations. Controllers pick one from extra data in the
+program; this module computes that data from joints and picks the joints that match it.
+
+Geometry used (hykin joint frames, :func:`hykin.fk.fk_frames`; controller axis angles
+``A = axis_signs * q``):
+
+* wrist centre ``pw``: the point of axis 4 nearest axis 5 (the wrist centre of a spherical wrist);
+* *overhead*: ``(pw - o1) · x1 < 0`` — wrist centre behind joint 1, ``x1`` the x axis of link
+  frame 1 (the direction the arm points at ``A1``), ``o1`` a point on axis 1;
+* *elbow*: ``c = ((o3 - o2) × (pw - o3)) · (s3 z3)``, the side of the line through axes 2 and 3 the
+  wrist centre lies on; ``c = 0`` is the stretched-elbow singularity and ``c`` grows with ``A3``
+  (rotating the forearm positively about ``s3 z3``), so ``c >= 0`` ⟺ ``A3 >= φ``.
+
+KUKA (KSS 8 manuals, "Status and Turn"; what we assumed — check one pose on the controller):
+``S`` bit 0 = overhead area, bit 1 = ``A3 >= φ`` (elbow), bit 2 = ``A5 <= 0``; ``T`` bit i = ``A(i+1) < 0``.
+
+ABB (RAPID reference, ``confdata``): ``cf1, cf4, cf6`` = quadrant ``floor(A / 90°)`` of axes 1, 4, 6;
+``cfx`` = 4·(wrist centre behind axis 1) + 2·(wrist centre backward of the lower arm) + (``A5 < 0``),
+"backward" being the side of the lower-arm line opposite to the wrist centre at the robot's zero
+pose (the ABB table's numbering of cfx 0..7 as we read it).
+
+Both assume the robot file's joints ARE the controller's axes up to a sign per joint
+(``axis_signs``: the preset ``kuka-kr6-r900`` has ``q = (-A1, A2, A3, -A4, A5, -A6)``,
+:func:`default_axis_signs`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..robot import Robot
+
+__all__ = [
+    "abb_confdata",
+    "arm_geometry",
+    "candidate_solutions",
+    "default_axis_signs",
+    "kuka_status",
+    "match_abb_confdata",
+    "match_kuka_status",
+    "sequential_nearest",
+]
+
+TWO_PI = 2.0 * np.pi
+
+
+def default_axis_signs(robot: Robot) -> np.ndarray:
+    """``(n,)`` controller axis sign per joint: ``A = sign * q``. The KUKA OPW presets (name
+    ``kuka-kr*``) turn joints 1, 4, 6 the other way; every other robot is taken as ``+1``."""
+    s = np.ones(robot.dof)
+    if robot.name.lower().startswith("kuka-kr") and robot.dof == 6:
+        s[[0, 3, 5]] = -1.0
+    return s
+
+
+def _closest_on_first(o1, z1, o2, z2):
+    """Point of line (o1, z1) nearest line (o2, z2), batched ``(M, 3)``; parallel lines give o1."""
+    w = o1 - o2
+    b = np.sum(z1 * z2, -1)
+    d, e = np.sum(z1 * w, -1), np.sum(z2 * w, -1)
+    den = 1.0 - b * b
+    t = np.where(den > 1e-12, (b * e - d) / np.where(den > 1e-12, den, 1.0), 0.0)
+    return o1 + t[:, None] * z1
+
+
+def arm_geometry(robot: Robot, q: np.ndarray, axis_signs=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(overhead (M,) bool, elbow (M,) float)`` for joints ``q`` ``(M, n)`` (module docstring)."""
+    from ..fk import fk_frames
+
+    if robot.dof < 5:
+        raise ValueError(f"robot {robot.name!r}: configuration flags need a 6-axis arm, it has {robot.dof} joints")
+    s = default_axis_signs(robot) if axis_signs is None else np.asarray(axis_signs, dtype=np.float64)
+    fr = fk_frames(robot, np.asarray(q, dtype=np.float64).reshape(-1, robot.dof))
+    o = fr.joint[:, :, :3, 3]
+    z = fr.joint[:, :, :3, 2]
+    pw = _closest_on_first(o[:, 3], z[:, 3], o[:, 4], z[:, 4])
+    x1 = fr.link[:, 0, :3, 0]
+    x1 = x1 - np.sum(x1 * z[:, 0], -1, keepdims=True) * z[:, 0]  # in the plane normal to axis 1
+    overhead = np.sum((pw - o[:, 0]) * x1, -1) < 0
+    elbow = np.sum(np.cross(o[:, 2] - o[:, 1], pw - o[:, 2]) * (s[2] * z[:, 2]), -1)
+    return overhead, elbow
+
+
+def kuka_status(robot: Robot, q, axis_signs=None) -> tuple[np.ndarray, np.ndarray]:
+    """KUKA ``(S (M,) int, T (M,) int)`` of joints ``q`` ``(M, 6)`` rad (module docstring)."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1, robot.dof)
+    s = default_axis_signs(robot) if axis_signs is None else np.asarray(axis_signs, dtype=np.float64)
+    A = q * s
+    overhead, elbow = arm_geometry(robot, q, s)
+    S = overhead.astype(int) + 2 * (elbow >= 0).astype(int) + 4 * (A[:, 4] <= 0).astype(int)
+    T = ((A < 0).astype(int) << np.arange(robot.dof)).sum(1)
+    return S, T
+
+
+def _abb_sigma(robot: Robot, s) -> float:
+    """Sign making "forward of the lower arm" the side the wrist centre has at the zero pose."""
+    _, e0 = arm_geometry(robot, np.clip(np.zeros((1, robot.dof)), robot.lower, robot.upper), s)
+    return 1.0 if e0[0] >= 0 else -1.0
+
+
+def abb_confdata(robot: Robot, q, axis_signs=None) -> np.ndarray:
+    """ABB ``confdata`` ``(M, 4)`` int ``[cf1, cf4, cf6, cfx]`` of joints ``q`` ``(M, 6)`` rad."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1, robot.dof)
+    s = np.ones(robot.dof) if axis_signs is None else np.asarray(axis_signs, dtype=np.float64)
+    A = q * s
+    overhead, elbow = arm_geometry(robot, q, s)
+    backward = elbow * _abb_sigma(robot, s) < 0
+    quad = np.floor(A[:, [0, 3, 5]] / (np.pi / 2) + 1e-12).astype(int)
+    cfx = 4 * overhead.astype(int) + 2 * backward.astype(int) + (A[:, 4] < 0).astype(int)
+    return np.concatenate([quad, cfx[:, None]], axis=1)
+
+
+def candidate_solutions(robot: Robot, T_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every nominal solution of each target, with every 2π representation within the limits.
+
+    ``T_world`` ``(N, 4, 4)`` (world frame of ``robot``). Returns ``(q (N, K, n), ok (N, K))``.
+    """
+    from ..ik import ik
+
+    br = ik(robot, T_world, all_branches=True)
+    q, ok = br.q, br.success.copy()
+    rev = np.array([t == "revolute" for t in robot.joint_type])
+    wide = np.flatnonzero(rev & (robot.upper - robot.lower > TWO_PI - 1e-9))
+    if wide.size:
+        # shifts of -2π, 0, +2π on each joint with a range over 360°: at most 3^k representations
+        grid = np.stack(np.meshgrid(*([np.array([-1.0, 0.0, 1.0])] * wide.size), indexing="ij"), -1).reshape(-1, wide.size)
+        shift = np.zeros((len(grid), robot.dof))
+        shift[:, wide] = grid * TWO_PI
+        q = (q[:, :, None, :] + shift[None, None]).reshape(len(q), -1, robot.dof)
+        ok = np.repeat(ok, len(grid), axis=1)
+    inside = np.all((q >= robot.lower - 1e-9) & (q <= robot.upper + 1e-9), axis=-1)
+    return q, ok & inside & np.isfinite(q).all(-1)
+
+
+def _pick(q: np.ndarray, ok: np.ndarray, cost: np.ndarray, allowed: np.ndarray) -> np.ndarray:
+    """Per target the candidate of least ``cost`` among ``ok & allowed``; NaN rows where none."""
+    c = np.where(ok & allowed, cost, np.inf)
+    k = np.argmin(c, axis=1)
+    out = q[np.arange(len(q)), k].copy()
+    out[~np.isfinite(c[np.arange(len(q)), k])] = np.nan
+    return out
+
+
+def match_kuka_status(robot: Robot, T_world, S, T=None, axis_signs=None) -> np.ndarray:
+    """Nominal joints ``(N, n)`` of each target with status ``S`` (exact) and turn ``T`` (fewest
+    differing bits; ``-1`` or ``None`` = not given: the representation nearest zero). NaN rows where no
+    nominal solution has that ``S``."""
+    q, ok = candidate_solutions(robot, np.asarray(T_world, dtype=np.float64))
+    N, K, n = q.shape
+    Sc, Tc = kuka_status(robot, np.nan_to_num(q.reshape(-1, n)), axis_signs)
+    Sc, Tc = Sc.reshape(N, K), Tc.reshape(N, K)
+    S = np.asarray(S, dtype=int).reshape(N, 1)
+    Tg = np.full((N, 1), -1) if T is None else np.asarray(T, dtype=int).reshape(N, 1)
+    diff = np.bitwise_xor(Tc, np.maximum(Tg, 0))
+    bits = np.zeros_like(diff, dtype=float)
+    for b in range(n):
+        bits += (diff >> b) & 1
+    cost = np.where(Tg >= 0, bits * 1e3, 0.0) + np.abs(np.nan_to_num(q)).sum(-1)
+    return _pick(q, ok, cost, Sc == S)
+
+
+def match_abb_confdata(robot: Robot, T_world, conf, axis_signs=None) -> np.ndarray:
+    """Nominal joints ``(N, n)`` with ``cfx`` equal and the quadrants ``cf1, cf4, cf6`` nearest the
+    given ``conf`` ``(N, 4)``; NaN rows where no nominal solution has that ``cfx``."""
+    q, ok = candidate_solutions(robot, np.asarray(T_world, dtype=np.float64))
+    N, K, n = q.shape
+    cc = abb_confdata(robot, np.nan_to_num(q.reshape(-1, n)), axis_signs).reshape(N, K, 4)
+    conf = np.asarray(conf, dtype=int).reshape(N, 1, 4)
+    cost = np.abs(cc[..., :3] - conf[..., :3]).sum(-1).astype(float)
+    return _pick(q, ok, cost, cc[..., 3] == conf[..., 3])
+
+
+def sequential_nearest(robot: Robot, T_world, q_start=None) -> np.ndarray:
+    """Joints ``(N, n)`` a controller moving through the targets in order would pick: each target's
+    nominal solution nearest the previous one (the first nearest ``q_start``, default zero clipped into
+    the limits). NaN rows for unreachable targets (the walk continues from the last reached joints)."""
+    q, ok = candidate_solutions(robot, np.asarray(T_world, dtype=np.float64))
+    cur = np.clip(np.zeros(robot.dof), robot.lower, robot.upper) if q_start is None else np.asarray(q_start, float)
+    out = np.full((len(q), robot.dof), np.nan)
+    # a walk: each choice depends on the previous one (N steps over K candidates each)
+    for i in range(len(q)):
+        if not ok[i].any():
+            continue
+        d = np.where(ok[i], np.linalg.norm(np.nan_to_num(q[i] - cur), axis=1), np.inf)
+        cur = q[i, int(np.argmin(d))]
+        out[i] = cur
+    return out

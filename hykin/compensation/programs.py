@@ -1,0 +1,183 @@
+"""Rewriting robot programs in place: the part shared by URScript, KRL and RAPID.
+
+A format module finds the Cartesian targets of a program (:class:`ProgramTarget`: the character span
+of the literal, the pose in the controller's base frame, the configuration data it carries) and
+formats a compensated literal; :func:`compensate_program` solves all targets in one batch and splices
+the new literals into the text. Every character outside the replaced literals is kept, so every line
+without a target is byte for byte the same (files are read and written as latin-1, which maps every
+byte to one character and back).
+
+Branches: a target with configuration data (KUKA ``S``/``T``, ABB ``confdata``) gets the nominal
+solution matching it; a target without gets the nominal solution nearest the previous target's
+(a controller moving through the program in text order), restarting from the joints of the last
+joint-space move before it when the format has those. Control flow (loops, branches, calls) is not
+followed: text order stands for execution order.
+
+Unreachable targets: :class:`ProgramResult` lists them (line, reason); the caller refuses to write
+the program (default) or keeps their original literal and warns (``skip_unreachable``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .targets import Compensation, compensate
+
+__all__ = ["NUMBER", "ProgramResult", "ProgramTarget", "comment_mask", "compensate_program", "line_of", "splice_numbers"]
+
+NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+
+
+@dataclass
+class ProgramTarget:
+    """One Cartesian target of a program.
+
+    start, end: character span of the literal to replace. line: 1-based line number.
+    pose: ``(4, 4)`` wanted TCP pose in the controller's base frame (m).
+    name: variable name (``""`` for an inline literal). kind: e.g. ``"p[]"``, ``"E6POS"``, ``"robtarget"``.
+    config: configuration data read from the program (``{"S": 6, "T": 27}``, ``{"conf": [0, 0, 0, 1]}``).
+    tool_delta: ``(4, 4)`` program TCP relative to the nominal tool (URScript ``set_tcp``) or None.
+    reset: joints ``(n,)`` of the last joint-space move before the target, or None.
+    parts: format-specific parse (number spans and texts) used to write the literal back.
+    """
+
+    start: int
+    end: int
+    line: int
+    pose: np.ndarray
+    name: str = ""
+    kind: str = ""
+    config: dict = field(default_factory=dict)
+    tool_delta: np.ndarray | None = None
+    reset: np.ndarray | None = None
+    parts: dict = field(default_factory=dict)
+
+
+@dataclass
+class ProgramResult:
+    """text: the rewritten program. targets: the targets found. comp: their :class:`Compensation`.
+    failed: ``[(line, reason)]`` of unreachable targets (their literal is kept). notes: literals seen but
+    not compensated, with why (relative moves, partial aggregates, tool/base frames ...)."""
+
+    text: str
+    targets: list
+    comp: Compensation | None
+    failed: list
+    notes: list
+
+    @property
+    def n_compensated(self) -> int:
+        return 0 if self.comp is None else int(self.comp.success.sum())
+
+
+def line_of(text: str, pos: int) -> int:
+    """1-based line number of character ``pos``."""
+    return text.count("\n", 0, pos) + 1
+
+
+def comment_mask(text: str, comment: str, quote: str = '"') -> np.ndarray:
+    """Bool per character: inside a comment (``comment`` to end of line) or a string literal."""
+    mask = np.zeros(len(text) + 1, dtype=bool)
+    i, n = 0, len(text)
+    while i < n:
+        c = text[i]
+        if c == comment:
+            j = text.find("\n", i)
+            j = n if j < 0 else j
+            mask[i:j] = True
+            i = j
+        elif c == quote:
+            j = text.find(quote, i + 1)
+            k = text.find("\n", i + 1)
+            j = n if j < 0 else j
+            j = min(j, k) if k >= 0 else j
+            mask[i : j + 1] = True
+            i = j + 1
+        else:
+            i += 1
+    return mask
+
+
+def _branch_joints(model, targets: list, Tm: np.ndarray, axis_signs, fmt: str) -> np.ndarray:
+    """Nominal joints ``(N, n)`` choosing each target's branch (module docstring)."""
+    from .branches import candidate_solutions, match_abb_confdata, match_kuka_status
+
+    nom = model.nominal
+    N, n = len(targets), nom.dof
+    qb = np.full((N, n), np.nan)
+    has_s = np.array(["S" in t.config for t in targets], dtype=bool)
+    has_c = np.array(["conf" in t.config for t in targets], dtype=bool)
+    if has_s.any():
+        i = np.flatnonzero(has_s)
+        S = [targets[k].config["S"] for k in i]
+        T = [targets[k].config.get("T", -1) for k in i]
+        qb[i] = match_kuka_status(nom, Tm[i], S, T, axis_signs)
+    if has_c.any():
+        i = np.flatnonzero(has_c)
+        qb[i] = match_abb_confdata(nom, Tm[i], np.array([targets[k].config["conf"] for k in i]), axis_signs)
+    free = np.flatnonzero(~has_s & ~has_c)
+    if free.size:
+        q, ok = candidate_solutions(nom, Tm[free])
+        cur = np.clip(np.zeros(n), nom.lower, nom.upper)
+        # a walk in program order: each choice depends on the joints the previous target left
+        for j, k in enumerate(free):
+            if targets[k].reset is not None:
+                cur = np.asarray(targets[k].reset, dtype=np.float64)
+            if k > 0 and np.isfinite(qb[k - 1]).all() and targets[k].reset is None:
+                cur = qb[k - 1]
+            if ok[j].any():
+                d = np.where(ok[j], np.linalg.norm(np.nan_to_num(q[j] - cur), axis=1), np.inf)
+                qb[k] = q[j, int(np.argmin(d))]
+    return qb
+
+
+def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs=None, context: str = "",
+                       **ik_kw) -> ProgramResult:
+    """Compensate every Cartesian target of ``text`` (a program in format module ``fmt``: one of
+    :mod:`.urscript`, :mod:`.krl`, :mod:`.rapid`). ``context``: text of a companion file (KRL: the
+    ``.src`` beside a ``.dat``) whose motion statements tell which variables are targets.
+    ``frame``: how program poses map into the model's measurement frame (:mod:`.targets`).
+    Returns a :class:`ProgramResult`; unreachable targets keep their literal and are listed in ``failed``.
+    """
+    from .. import se3
+
+    targets, notes = fmt.find_targets(text, model.nominal, context=context, axis_signs=axis_signs)
+    if not targets:
+        return ProgramResult(text=text, targets=[], comp=None, failed=[], notes=notes)
+    T = np.stack([t.pose for t in targets])
+    D = np.stack([np.eye(4) if t.tool_delta is None else t.tool_delta for t in targets])
+    from .targets import resolve_frame
+
+    fr = resolve_frame(model, frame)
+    # branch from the nominal solutions of the uncompensated target, in the nominal robot's world
+    # (= the measurement frame; the controller base sits at nominal.base in it)
+    T_nom = (T if fr == "measurement" else model.nominal.base @ T) @ se3.invert(D)
+    qb = _branch_joints(model, targets, T_nom, axis_signs, fmt)
+    reason = "no nominal solution with the program's configuration data" if any(t.config for t in targets) else \
+        "not reachable by the nominal robot"
+    comp = compensate(model, T, q_branch=qb, frame=fr, tool_delta=D, branch_reason=reason, **ik_kw)
+    pieces, last, failed = [], 0, []
+    for k, t in enumerate(targets):
+        if not comp.success[k]:
+            failed.append((t.line, f"{t.name or t.kind}: {comp.reason[k]}"))
+            continue
+        new = fmt.format_target(t, comp.command[k], comp.q[k], model.nominal, axis_signs)
+        pieces.append(text[last : t.start])
+        pieces.append(new)
+        last = t.end
+    pieces.append(text[last:])
+    return ProgramResult(text="".join(pieces), targets=targets, comp=comp, failed=failed, notes=notes)
+
+
+def splice_numbers(literal: str, spans: list, values: list) -> str:
+    """``literal`` with the number tokens at ``spans`` (``(start, end)`` relative to the literal, in
+    increasing order) replaced by the strings ``values``; every other character kept."""
+    out, last = [], 0
+    for (a, b), v in zip(spans, values):
+        out.append(literal[last:a])
+        out.append(v)
+        last = b
+    out.append(literal[last:])
+    return "".join(out)

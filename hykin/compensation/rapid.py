@@ -1,0 +1,73 @@
+"""ABB RAPID: ``robtarget`` literals ``[[x,y,z],[q1,q2,q3,q4],[cf1,cf4,cf6,cfx],[e1,...,e6]]``.
+
+``x, y, z`` in mm; ``q1..q4`` the orientation quaternion, scalar first; ``confdata`` as in
+:mod:`.branches` (it picks the nominal solution the program means and is rewritten from the
+compensated joints); external axes kept. Any literal of that shape is a robtarget (``CONST``/``PERS``/
+``VAR robtarget`` declarations and inline ``MoveL``/``MoveJ`` arguments; ``jointtarget``, ``tooldata``,
+``wobjdata`` and ``pose`` have other shapes). Comments (``!``) and strings are ignored. Targets are
+taken relative to ``wobj0`` with the robot file's tool (``tool0`` + the file's tool): a target used
+with another work object or tool needs that frame in the robot file. Numbers are written with 4
+decimals (mm) and 9 (quaternion, normalised).
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from .. import se3
+from .programs import NUMBER, ProgramTarget, comment_mask, line_of, splice_numbers
+
+__all__ = ["SUFFIXES", "find_targets", "format_target"]
+
+SUFFIXES = (".mod", ".prg", ".sys")
+_INT = r"[-+]?\d+"
+
+
+def _group(n: int, pat: str) -> str:
+    return r"\[\s*" + r"\s*,\s*".join([f"({pat})"] * n) + r"\s*\]"
+
+
+_ROBT = re.compile(
+    r"\[\s*" + _group(3, NUMBER) + r"\s*,\s*" + _group(4, NUMBER) + r"\s*,\s*" + _group(4, _INT)
+    + r"\s*,\s*\[[^\[\]]*\]\s*\]"
+)
+
+
+def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[list, list]:
+    """``(targets, notes)`` of a RAPID module text."""
+    mask = comment_mask(text, "!", '"')
+    clean = "".join(" " if m else c for c, m in zip(text, mask[: len(text)]))
+    targets = []
+    for m in _ROBT.finditer(clean):
+        g = [float(x) for x in m.groups()[:7]]
+        conf = [int(x) for x in m.groups()[7:11]]
+        quat = np.array(g[3:7])
+        nq = np.linalg.norm(quat)
+        if not 0.99 < nq < 1.01:
+            raise ValueError(f"line {line_of(text, m.start())}: robtarget quaternion has norm {nq:.4f} (must be 1)")
+        pose = se3.pose_to_transform(np.array(g[:3]) * 1e-3, quat / nq)
+        decl = re.search(r"\b(?:CONST|PERS|VAR|LOCAL|TASK)?\s*robtarget\s+(\w+)\s*:=\s*$",
+                         clean[clean.rfind("\n", 0, m.start()) + 1 : m.start()], re.IGNORECASE)
+        spans = [(m.start(i) - m.start(), m.end(i) - m.start()) for i in range(1, 12)]
+        targets.append(ProgramTarget(
+            start=m.start(), end=m.end(), line=line_of(text, m.start()), pose=pose,
+            name=decl.group(1) if decl else "", kind="robtarget", config={"conf": conf},
+            parts={"spans": spans, "literal": text[m.start():m.end()], "quat": quat},
+        ))
+    return targets, []
+
+
+def format_target(t: ProgramTarget, command: np.ndarray, q, robot, axis_signs=None) -> str:
+    """The literal of ``t`` with the command's position, quaternion (sign nearest the original's)
+    and the compensated joints' confdata."""
+    from .branches import abb_confdata
+
+    xyz, quat = se3.transform_to_pose(command[None])
+    quat = quat[0] / np.linalg.norm(quat[0])
+    if np.dot(quat, t.parts["quat"]) < 0:
+        quat = -quat
+    conf = abb_confdata(robot, np.asarray(q)[None], axis_signs)[0]
+    vals = [f"{v:.4f}" for v in xyz[0] * 1e3] + [f"{v:.9f}" for v in quat] + [str(int(c)) for c in conf]
+    return splice_numbers(t.parts["literal"], t.parts["spans"], vals)

@@ -1,0 +1,62 @@
+"""Models shared by the compensation tests (not a test module).
+
+* :class:`ExactModel`: a "perfect" hybrid model whose prediction is the true robot's FK (so tests of
+  compensation check against the truth, independent of any training);
+* :func:`tiny_model_file`: a real fitted HybridModel file (few steps), built once per test session.
+"""
+
+from __future__ import annotations
+
+import functools
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from hykin import Robot, fk, load_robot, se3
+
+
+def deviate(rob: Robot, seed: int, sigma_m: float = 5e-4, sigma_rad: float = np.radians(0.08)) -> Robot:
+    """Robot with random geometric deviations (a, d, alpha, theta, base, tool): a few mm of pose error."""
+    rng = np.random.default_rng(seed)
+    n = rob.dof
+
+    def frame():
+        return se3.make_transform(se3.rotvec_to_matrix(rng.normal(0, sigma_rad, 3)), rng.normal(0, sigma_m, 3))
+
+    return rob.copy(a_m=rob.a_m + rng.normal(0, sigma_m, n), d_m=rob.d_m + rng.normal(0, sigma_m, n),
+                    alpha_rad=rob.alpha_rad + rng.normal(0, sigma_rad, n), theta_rad=rob.theta_rad + rng.normal(0, sigma_rad, n),
+                    base=rob.base @ frame(), tool=rob.tool @ frame(), name=rob.name + "-truth")
+
+
+class ExactModel:
+    """Model interface of :class:`hykin.hybrid.HybridModel` used by compensation, predicting the truth."""
+
+    def __init__(self, nominal: Robot, truth: Robot, frame_pre=None):
+        self.robot = self.nominal = nominal
+        self.robot_ = truth
+        self.frame_pre = np.eye(4) if frame_pre is None else frame_pre
+        self.frame_post = np.eye(4)
+
+    def predict(self, q):
+        return self.frame_pre @ fk(self.robot_, q)
+
+
+def exact(preset: str, seed: int) -> ExactModel:
+    nom = load_robot(preset)
+    return ExactModel(nom, deviate(nom, seed))
+
+
+@functools.cache
+def tiny_model_file() -> Path:
+    """A real model file: UR10 with geometric deviations, 300 noise-free poses, 2 epochs (built once)."""
+    from hykin.hybrid import HybridModel
+    from hykin.simulate import VirtualRobot, simulate
+
+    nom = load_robot("ur10")
+    vr = VirtualRobot("ur10-test", nom, deviate(nom, 3))
+    ds = simulate(vr, nom.random_joints(300, 1, margin=0.1), noise=False)
+    m = HybridModel(nom, recipe_kw={"max_epochs": 2, "min_steps": 0}, seed=0).fit(ds, progress=False)
+    path = Path(tempfile.mkdtemp(prefix="hykin-comp-")) / "tiny.hykin"
+    m.save(path)
+    return path

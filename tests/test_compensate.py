@@ -1,0 +1,194 @@
+"""Compensated targets (hykin.compensation.targets, .branches), the compensate CLI on CSV, export-urdf.
+
+References: the true robot's FK (an exact model predicts it), a stand-in controller = classical IK of
+the nominal robot, closed-form quadrant / sign formulas written here, scipy-free transforms.
+"""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+from comp_models import ExactModel, deviate, exact, tiny_model_file
+
+from hykin import fk, load_robot, se3
+from hykin.compensation import compensate, resolve_frame
+from hykin.compensation.branches import (
+    abb_confdata,
+    kuka_status,
+    match_abb_confdata,
+    match_kuka_status,
+)
+from hykin.ik import ik
+
+
+def _controller(nom, T_cmd, q_ref):
+    """Stand-in controller: nominal IK of base-frame commands, solution nearest ``q_ref``."""
+    r = ik(nom, nom.base @ T_cmd, all_branches=True).nearest_to(q_ref, nom.lower, nom.upper)
+    return np.where(r.success[:, None], r.q, np.nan)
+
+
+@pytest.mark.parametrize("preset", ["ur10", "kuka-kr6-r900"])
+def test_compensated_commands_land_on_the_real_robot(preset):
+    m = exact(preset, 1)
+    nom = m.nominal
+    q = nom.random_joints(40, 2, margin=0.15)
+    T = fk(m.robot_, q)  # wanted poses the real robot can reach
+    c = compensate(m, T, q_branch=q)
+    assert c.success.all() and c.pos_err_mm.max() < 1e-6
+    q_ctrl = _controller(nom, c.command, q)
+    err = se3.pose_error(fk(m.robot_, q_ctrl), T)
+    assert err[0].max() < 1e-6 and err[1].max() < 1e-6
+    # without compensation the controller misses by the nominal error (several mm)
+    q_unc = _controller(nom, T, q)
+    ok = np.isfinite(q_unc).all(1)
+    assert ok.sum() > 30 and se3.pose_error(fk(m.robot_, q_unc[ok]), T[ok])[0].mean() > 1.0
+    # the command is the nominal FK of the joints, and the shift is its distance to the target
+    assert np.allclose(c.command, fk(nom, c.q), atol=1e-12)
+    assert np.allclose(c.shift_mm, np.linalg.norm(c.command[:, :3, 3] - T[:, :3, 3], axis=1) * 1e3)
+
+
+def test_default_branch_is_the_nominal_walk_and_position_only():
+    m = exact("ur10", 4)
+    q = np.array([0.3, -1.6, 1.7, -1.7, -1.5, 0.4]) + np.random.default_rng(0).normal(0, 0.05, (10, 6))
+    T = fk(m.robot_, q)
+    c = compensate(m, T)
+    assert c.success.all()
+    q_ctrl = _controller(m.nominal, c.command, c.q)
+    assert se3.pose_error(fk(m.robot_, q_ctrl), T)[0].max() < 1e-6
+    cp = compensate(m, T[:, :3, 3], q_branch=q)
+    assert cp.success.all()
+    assert np.linalg.norm(fk(m.robot_, _controller(m.nominal, cp.command, cp.q))[:, :3, 3] - T[:, :3, 3], axis=1).max() < 1e-9
+
+
+def test_base_frame_for_tracker_data_and_tool_delta():
+    nom = load_robot("ur10")
+    truth = deviate(nom, 5)
+    W = se3.make_transform(se3.rotz(0.7)[:3, :3], np.array([2.0, -1.0, 0.3]))  # tracker frame: robot 2 m away
+    m = ExactModel(nom, truth.copy(base=W @ truth.base))
+    assert resolve_frame(m, "auto") == "base"
+    q = nom.random_joints(20, 6, margin=0.15)
+    T_ctrl = se3.invert(m.robot_.base) @ fk(m.robot_, q)  # wanted poses in the controller (fitted base) frame
+    c = compensate(m, T_ctrl, q_branch=q, frame="auto")
+    assert c.frame == "base" and c.success.all()
+    real = se3.invert(m.robot_.base) @ fk(m.robot_, _controller(nom, c.command, q))
+    assert se3.pose_error(real, T_ctrl)[0].max() < 1e-6
+    # a TCP set in the program (URScript set_tcp): wanted poses are of that TCP
+    D = se3.make_transform(se3.rotx(0.2)[:3, :3], np.array([0.0, 0.01, 0.05]))
+    m2 = exact("ur10", 7)
+    Tw = fk(m2.robot_, q) @ D
+    c2 = compensate(m2, Tw, q_branch=q, tool_delta=D)
+    q_ctrl = _controller(nom, c2.command @ se3.invert(D), q)  # controller strips its TCP before IK
+    assert se3.pose_error(fk(m2.robot_, q_ctrl) @ D, Tw)[0].max() < 1e-6
+
+
+def test_unreachable_targets_get_no_command():
+    m = exact("ur10", 1)
+    q = m.nominal.random_joints(3, 1, margin=0.2)
+    T = fk(m.robot_, q)
+    T[1, :3, 3] = [5.0, 0.0, 0.0]  # 5 m away
+    c = compensate(m, T, q_branch=q)
+    assert list(c.success) == [True, False, True]
+    assert np.isnan(c.command[1]).all() and np.isnan(c.q[1]).all() and c.reason[1]
+    qb = q.copy()
+    qb[2] = np.nan  # no branch (a program's configuration data matched nothing)
+    c = compensate(m, T, q_branch=qb, branch_reason="no match")
+    assert not c.success[2] and c.reason[2] == "no match"
+    with pytest.raises(ValueError, match="NaN"):
+        compensate(m, np.full((1, 4, 4), np.nan))
+
+
+def test_kuka_status_and_abb_confdata_definitions():
+    kr = load_robot("kuka-kr6-r900")  # q = (-A1, A2, A3, -A4, A5, -A6)
+    home = np.radians([[0.0, -90, 90, 0, 0, 0]])  # KUKA HOME {A1 0, A2 -90, A3 90, A4 0, A5 0, A6 0}
+    S, T = kuka_status(kr, home)
+    assert S[0] == 6 and T[0] == 2  # in front, A3 >= phi, A5 <= 0; only A2 < 0
+    q = kr.random_joints(200, 3, margin=0.05)
+    S, T = kuka_status(kr, q)
+    A = q * np.array([-1, 1, 1, -1, 1, -1])
+    assert np.array_equal((S >> 2) & 1, (A[:, 4] <= 0).astype(int))
+    assert np.array_equal(T, sum(((A[:, j] < 0).astype(int) << j) for j in range(6)))
+    # overhead: wrist centre behind axis 1 (reach over the top) flips bit 0 only
+    over = np.radians([[0.0, -90, -60, 0, 30, 0]])
+    assert kuka_status(kr, over)[0][0] & 1 == 1
+    # every (S, T) picks back its own joints among all nominal solutions
+    qm = match_kuka_status(kr, fk(kr, q), S, T)
+    assert np.nanmax(np.abs(qm - q)) < 1e-8 and not np.isnan(qm).any()
+    abb = load_robot("abb-irb2400")
+    qa = abb.random_joints(200, 4, margin=0.05)
+    cf = abb_confdata(abb, qa)
+    assert np.array_equal(cf[:, :3], np.floor(np.degrees(qa[:, [0, 3, 5]]) / 90).astype(int))
+    assert np.array_equal(cf[:, 3] & 1, (qa[:, 4] < 0).astype(int))
+    assert abb_confdata(abb, np.zeros((1, 6)))[0, 3] == 0  # zero pose: in front, forward, axis 5 = 0
+    qm = match_abb_confdata(abb, fk(abb, qa), cf)
+    assert np.nanmax(np.abs(qm - qa)) < 1e-8
+
+
+# ---------------------------------------------------------------------------------------------- CLI
+
+
+def _write_csv(path, cols: dict):
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(list(cols))
+        w.writerows(np.column_stack(list(cols.values())).tolist())
+
+
+def _read_csv(path) -> list:
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def test_cli_compensate_csv_programs_and_urdf(tmp_path):
+    from typer.testing import CliRunner
+
+    from hykin.cli import app
+    from hykin.hybrid import HybridModel
+    from hykin.urdf import load_urdf
+
+    mp = tiny_model_file()
+    m = HybridModel.load(mp)
+    nom = m.nominal
+    q = nom.random_joints(6, 9, margin=0.2)
+    T = m.predict(q)
+    xyz, quat = se3.transform_to_pose(T)
+    xyz[5] = [4.0, 0, 0]  # unreachable
+    cols = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "qw": quat[:, 0], "qx": quat[:, 1], "qy": quat[:, 2], "qz": quat[:, 3]}
+    cols.update({f"q{j + 1}": q[:, j] for j in range(6)})
+    _write_csv(tmp_path / "t.csv", cols)
+    run = CliRunner().invoke
+    r = run(app, ["compensate", str(mp), str(tmp_path / "t.csv"), "-o", str(tmp_path / "c.csv")])
+    assert r.exit_code == 0, r.output
+    rows = _read_csv(tmp_path / "c.csv")
+    assert [row["status"] == "ok" for row in rows] == [True] * 5 + [False]
+    assert rows[5]["x"] == "nan" and rows[5]["q1"] == "nan"
+    cmd = np.array([[float(row[k]) for k in ("x", "y", "z")] for row in rows[:5]])
+    qo = np.array([[float(row[f"q{j + 1}"]) for j in range(6)] for row in rows[:5]])
+    assert np.allclose(cmd, fk(nom, qo)[:, :3, 3], atol=1e-12)
+    assert se3.pose_error(m.predict(qo), T[:5])[0].max() < 1e-6  # the model reaches the targets at those joints
+    # output safety: existing output, output = input
+    r = run(app, ["compensate", str(mp), str(tmp_path / "t.csv"), "-o", str(tmp_path / "c.csv")])
+    assert r.exit_code != 0 and "--force" in str(r.exception or r.output)
+    r = run(app, ["compensate", str(mp), str(tmp_path / "t.csv"), "-o", str(tmp_path / "t.csv"), "--force"])
+    assert r.exit_code != 0
+    r = run(app, ["compensate", str(mp), str(tmp_path / "t.csv"), "-o", str(tmp_path / "j.csv"), "--joints"])
+    assert r.exit_code == 0 and list(_read_csv(tmp_path / "j.csv")[0])[:7] == ["target"] + [f"q{j + 1}" for j in range(6)]
+    # a program with an unreachable target: refused (nothing written), or kept with --skip-unreachable
+    rv = se3.matrix_to_rotvec(T[:, :3, :3])
+    lines = [f"movel(p[{xyz[k, 0]:.6f}, {xyz[k, 1]:.6f}, {xyz[k, 2]:.6f}, {rv[k, 0]:.6f}, {rv[k, 1]:.6f}, {rv[k, 2]:.6f}], a=1.2, v=0.25)"
+             for k in range(6)]
+    (tmp_path / "p.script").write_text("def p():\n" + "\n".join(lines) + "\nend\n")
+    r = run(app, ["compensate", str(mp), str(tmp_path / "p.script"), "-o", str(tmp_path / "o.script")])
+    assert r.exit_code != 0 and not (tmp_path / "o.script").exists()
+    r = run(app, ["compensate", str(mp), str(tmp_path / "p.script"), "-o", str(tmp_path / "o.script"), "--skip-unreachable"])
+    assert r.exit_code == 0, r.output
+    out = (tmp_path / "o.script").read_text().splitlines()
+    assert out[6] == lines[5] and all(out[k + 1] != lines[k] for k in range(5))
+    # calibrated URDF: same FK as the calibrated classical model (compliance/networks cannot be carried)
+    r = run(app, ["export-urdf", str(mp), "-o", str(tmp_path / "r.urdf")])
+    assert r.exit_code == 0, r.output
+    u = load_urdf(tmp_path / "r.urdf")
+    ref = m.frame_pre @ fk(m.robot_.copy(stiffness_nm_per_rad=np.full(6, np.inf)), q) @ m.frame_post
+    assert np.abs(fk(u, q) - ref).max() < 1e-12
+    assert np.abs(fk(u, q) - fk(nom, q)).max() > 1e-4  # the calibration is in it
