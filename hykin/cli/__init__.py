@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 
-from . import data, model, query  # noqa: F401  (register the commands)
+from . import data, model, plan, query  # noqa: F401  (register the commands)
 from .common import CLIError, app
 
 __all__ = ["app", "main", "CLIError"]
