@@ -16,7 +16,7 @@ from hykin.planning.constraints import segment_hits_box
 from hykin.planning.criteria import identification_model, scaled_rows
 from hykin.planning.forecast import forecast_accuracy
 from hykin.planning.order import order_path, path_travel, travel_matrix
-from hykin.planning.select import d_optimal
+from hykin.planning.select import d_optimal, i_optimal
 from hykin.robot import Robot, load_robot
 
 DEG = math.pi / 180
@@ -129,6 +129,22 @@ def test_d_optimal_matches_naive_greedy():
             v = np.linalg.slogdet(M + J[i].T @ J[i])[1]
             if v > best:
                 best, bi = v, i
+        ref.append(bi)
+        M = M + J[bi].T @ J[bi]
+    assert got.tolist() == ref
+
+
+def test_i_optimal_matches_naive_greedy():
+    rng = np.random.default_rng(1)
+    J = rng.normal(size=(50, 3, 6))
+    B = rng.normal(size=(6, 6))
+    W = B @ B.T / 6
+    got = i_optimal(J, 10, W, prior=1e-2)
+    M = 1e-2 * np.eye(6)
+    ref = []
+    for _ in range(10):
+        vals = [np.inf if i in ref else np.trace(W @ np.linalg.inv(M + J[i].T @ J[i])) for i in range(50)]
+        bi = int(np.argmin(vals))
         ref.append(bi)
         M = M + J[bi].T @ J[bi]
     assert got.tolist() == ref
