@@ -16,7 +16,7 @@ from hykin.planning.constraints import segment_hits_box
 from hykin.planning.criteria import identification_model, scaled_rows
 from hykin.planning.forecast import forecast_accuracy
 from hykin.planning.order import order_path, path_travel, travel_matrix
-from hykin.planning.select import d_optimal, i_optimal
+from hykin.planning.select import active_poses, d_optimal, i_optimal
 from hykin.robot import Robot, load_robot
 
 DEG = math.pi / 180
@@ -268,3 +268,32 @@ def test_cli_plan_report_prints_table(tmp_path, capsys):
     rows = [ln.split() for ln in so.splitlines() if ln.strip()[:1].isdigit()]
     cal = [float(r[2]) for r in rows]
     assert len(rows) >= 3 and all(a >= b - 1e-9 for a, b in zip(cal, cal[1:]))  # more poses, no worse
+
+
+def test_active_poses_go_where_the_model_is_uncertain(tmp_path, capsys):
+    from hykin.hybrid import HybridModel
+    from hykin.simulate import simulate, virtual_preset
+
+    vr = virtual_preset("ur10-virtual")
+    rob = vr.nominal
+    lo, hi = rob.lower.copy(), rob.upper.copy()
+    lo[0], hi[0] = -0.5, 0.5  # trained on a narrow band of joint 1 only
+    q = rob.random_joints(300, np.random.default_rng(0))
+    q[:, 0] = np.random.default_rng(1).uniform(-0.5, 0.5, 300)
+    m = HybridModel(rob, recipe_kw={"max_epochs": 5, "batch_size": 64}, seed=0).fit(simulate(vr, q, rng=0), progress=False)
+    p = active_poses(m, 12, Constraints(lower=np.maximum(rob.lower, -2.0), upper=np.minimum(rob.upper, 2.0)),
+                     pool=2048)
+    outside = np.abs(p.q[:, 0]) > 0.5
+    assert outside.mean() >= 0.75  # the uncertainty is largest outside the trained band
+    # batch diversity: no two picks closer than half the greedy spacing rho
+    X = embed(rob, p.q, np.maximum(rob.lower, -2.0), np.minimum(rob.upper, 2.0))
+    d = np.linalg.norm(X[:, None] - X[None], axis=2) + np.eye(12) * 1e9
+    assert d.min() > 0.25 * p.info["rho"]
+    path = tmp_path / "m.hykin"
+    m.save(path)
+    out = tmp_path / "next.csv"
+    code, _, se = _run(["plan", "--for-model", str(path), "-n", "8", "-o", str(out), "--pool", "1024"], capsys)
+    assert code == 0, se
+    from hykin.dataset import read_joints
+
+    assert read_joints(out)[0].shape == (8, 6)
