@@ -35,7 +35,6 @@ from hykin.planning import Constraints, plan_poses
 from hykin.planning.forecast import forecast_accuracy
 from hykin.robot import Robot
 from hykin.sampling import random as random_joints
-from hykin.sampling import uniform
 from hykin.simulate import PeriodicError, VirtualRobot, simulate, true_poses
 
 DEG = np.pi / 180
@@ -182,7 +181,7 @@ def main() -> None:
     ap.add_argument("--no-main", action="store_true", help="skip the planned-vs-random comparison")
     a = ap.parse_args()
     lo, hi = REGION_DEG[:, 0] * DEG, REGION_DEG[:, 1] * DEG
-    log = lambda s: print(s, flush=True)  # noqa: E731
+    log = lambda s: print(s, flush=True)
     log(f"bench_plan: robot bench-6r (own DH, compliance, transmission errors), region {REGION_DEG.tolist()} deg, "
         f"recipe default{'' if a.min_steps is None else f' with min_steps={a.min_steps}'}")
     if a.curve:

@@ -3,6 +3,7 @@ selection against naive reference implementations, ordering, forecast properties
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -235,7 +236,7 @@ def _run(argv, capsys):
 
 def test_cli_plan_writes_ordered_joints_with_line_of_sight(tmp_path, capsys):
     out = tmp_path / "plan.csv"
-    code, so, se = _run(["plan", "ur5", "-n", "20", "-o", str(out), "--seed", "3", "--tracker", "1200,-300,400",
+    code, _, se = _run(["plan", "ur5", "-n", "20", "-o", str(out), "--seed", "3", "--tracker", "1200,-300,400",
                          "--length-unit", "mm", "--max-incidence", "40", "--pool", "2048",
                          "--region", "-90:90,:,:,:,:,:"], capsys)
     assert code == 0, se
@@ -267,7 +268,7 @@ def test_cli_plan_report_prints_table(tmp_path, capsys):
     assert "calibrated mm" in so and "hybrid mm" in so
     rows = [ln.split() for ln in so.splitlines() if ln.strip()[:1].isdigit()]
     cal = [float(r[2]) for r in rows]
-    assert len(rows) >= 3 and all(a >= b - 1e-9 for a, b in zip(cal, cal[1:]))  # more poses, no worse
+    assert len(rows) >= 3 and all(a >= b - 1e-9 for a, b in itertools.pairwise(cal))  # more poses, no worse
 
 
 def test_active_poses_go_where_the_model_is_uncertain(tmp_path, capsys):

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional
 
 import numpy as np
 import typer
@@ -25,18 +24,18 @@ def _vec3(text: str | None, what: str, factor: float = 1.0) -> np.ndarray | None
 
 @app.command("plan")
 def plan_cmd(
-    robot: Optional[str] = typer.Argument(None, help="Robot file, URDF or preset name (not with --for-model)."),
+    robot: str | None = typer.Argument(None, help="Robot file, URDF or preset name (not with --for-model)."),
     n: int = typer.Option(..., "-n", help="Number of poses to plan.", min=1),
-    out: Optional[Path] = typer.Option(None, "-o", "--out", help="Output joints CSV (q1..qN rad, step, core, incidence_deg)."),
-    for_model: Optional[str] = typer.Option(None, "--for-model", help="Fitted model file: plan the next poses where it is least certain."),
+    out: Path | None = typer.Option(None, "-o", "--out", help="Output joints CSV (q1..qN rad, step, core, incidence_deg)."),
+    for_model: str | None = typer.Option(None, "--for-model", help="Fitted model file: plan the next poses where it is least certain."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the candidate pool."),
-    region: Optional[str] = typer.Option(None, "--region", help="Joint ranges lo:hi per joint, comma-separated (deg; ':' keeps a limit)."),
-    box: Optional[str] = typer.Option(None, "--box", help="Cartesian box for the reflector: xmin,ymin,zmin,xmax,ymax,zmax (world frame)."),
-    tracker: Optional[str] = typer.Option(None, "--tracker", help="Tracker position X,Y,Z (world frame): enables the line-of-sight test."),
+    region: str | None = typer.Option(None, "--region", help="Joint ranges lo:hi per joint, comma-separated (deg; ':' keeps a limit)."),
+    box: str | None = typer.Option(None, "--box", help="Cartesian box for the reflector: xmin,ymin,zmin,xmax,ymax,zmax (world frame)."),
+    tracker: str | None = typer.Option(None, "--tracker", help="Tracker position X,Y,Z (world frame): enables the line-of-sight test."),
     max_incidence: float = typer.Option(30.0, "--max-incidence", help="Max angle (deg) between reflector axis and tracker direction (SMR ~30, 6-D probe ~45)."),
     reflector_offset: str = typer.Option("0,0,0", "--reflector-offset", help="Reflector point in the tool frame X,Y,Z."),
     reflector_axis: str = typer.Option("0,0,1", "--reflector-axis", help="Reflector normal in the tool frame."),
-    keep_out: Optional[List[str]] = typer.Option(None, "--keep-out", help="Keep-out box xmin,ymin,zmin,xmax,ymax,zmax (repeatable): no reflector inside, no beam through."),
+    keep_out: list[str] | None = typer.Option(None, "--keep-out", help="Keep-out box xmin,ymin,zmin,xmax,ymax,zmax (repeatable): no reflector inside, no beam through."),
     length_unit: str = typer.Option("m", "--length-unit", help="Unit of --box, --tracker, --keep-out, --reflector-offset: m or mm."),
     measure: str = typer.Option("position", "--measure", help="What the tracker measures: position (SMR) or pose (6-D probe)."),
     speed: float = typer.Option(30.0, "--speed", help="Joint speed for ordering and the time estimate (deg/s, every joint).", min=1e-6),
@@ -44,8 +43,8 @@ def plan_cmd(
     pool: int = typer.Option(20_000, "--pool", help="Candidate poses drawn (scrambled Sobol) before the constraints.", min=100),
     report: bool = typer.Option(False, "--report", help="Print predicted accuracy against the number of poses."),
     noise_mm: float = typer.Option(0.01, "--noise-mm", help="Report: tracker noise per axis (mm).", min=0.0),
-    unmodelled_mm: Optional[float] = typer.Option(None, "--unmodelled-mm", help="Report: RMS error a calibration cannot model (mm; default 0.15, or the model's own)."),
-    plot: Optional[Path] = typer.Option(None, "--plot", help="Report: write the accuracy-vs-N curve as a PNG."),
+    unmodelled_mm: float | None = typer.Option(None, "--unmodelled-mm", help="Report: RMS error a calibration cannot model (mm; default 0.15, or the model's own)."),
+    plot: Path | None = typer.Option(None, "--plot", help="Report: write the accuracy-vs-N curve as a PNG."),
     report_max: int = typer.Option(2000, "--report-max", help="Report: largest N in the table.", min=10),
 ) -> None:
     """Plan which joint configurations to measure (D-optimal calibration core + space-filling for the

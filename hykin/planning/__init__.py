@@ -7,15 +7,41 @@ selection for a fitted model), :mod:`.order` (short measuring path), :mod:`.fore
 against the number of poses). The method is described in ``docs/planning.md``.
 """
 
-from .constraints import Constraints, PlanningError, feasible, incidence_deg, parse_box, parse_region, region_bounds
-from .criteria import identification_model, observability, scaled_rows
+from .constraints import (
+    Constraints,
+    PlanningError,
+    feasible,
+    incidence_deg,
+    parse_box,
+    parse_region,
+    region_bounds,
+)
 from .coverage import embed, farthest_point, fill_distance
+from .criteria import identification_model, observability, scaled_rows
 from .forecast import Forecast, forecast_accuracy
 from .order import order_path, path_travel
 from .select import Plan, active_poses, d_optimal, plan_poses
 
 __all__ = [
-    "Constraints", "PlanningError", "feasible", "incidence_deg", "parse_box", "parse_region", "region_bounds",
-    "identification_model", "observability", "scaled_rows", "embed", "farthest_point", "fill_distance",
-    "Forecast", "forecast_accuracy", "order_path", "path_travel", "Plan", "active_poses", "d_optimal", "plan_poses",
+    "Constraints",
+    "Forecast",
+    "Plan",
+    "PlanningError",
+    "active_poses",
+    "d_optimal",
+    "embed",
+    "farthest_point",
+    "feasible",
+    "fill_distance",
+    "forecast_accuracy",
+    "identification_model",
+    "incidence_deg",
+    "observability",
+    "order_path",
+    "parse_box",
+    "parse_region",
+    "path_travel",
+    "plan_poses",
+    "region_bounds",
+    "scaled_rows",
 ]

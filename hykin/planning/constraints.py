@@ -30,8 +30,17 @@ import numpy as np
 from ..fk import fk
 from ..robot import Robot
 
-__all__ = ["PlanningError", "Constraints", "region_bounds", "reflector_pose", "incidence_deg",
-           "segment_hits_box", "feasible", "parse_box", "parse_region"]
+__all__ = [
+    "Constraints",
+    "PlanningError",
+    "feasible",
+    "incidence_deg",
+    "parse_box",
+    "parse_region",
+    "reflector_pose",
+    "region_bounds",
+    "segment_hits_box",
+]
 
 
 class PlanningError(ValueError):
@@ -59,7 +68,7 @@ class Constraints:
     keep_out_m: list = field(default_factory=list)
     min_range_m: float = 0.0
 
-    def check(self, robot: Robot) -> "Constraints":
+    def check(self, robot: Robot) -> Constraints:
         """Validated copy with the region resolved against ``robot`` (raises :class:`PlanningError`)."""
         lo, hi = region_bounds(robot, self.lower, self.upper)
         box = None if self.box_m is None else _box(self.box_m, "box")

@@ -24,7 +24,7 @@ import numpy as np
 from ..calibrate import identifiable_columns, identification_jacobian, parameter_scales
 from ..robot import Robot
 
-__all__ = ["IdentificationModel", "identification_model", "scaled_rows", "observability", "information"]
+__all__ = ["IdentificationModel", "identification_model", "information", "observability", "scaled_rows"]
 
 _MM_PER_M = 1e3
 _ID_SAMPLES = 600  # spread samples for the identifiability test (as calibrate does)

@@ -30,7 +30,7 @@ import numpy as np
 
 from .criteria import IdentificationModel, scaled_rows
 
-__all__ = ["Forecast", "forecast_accuracy", "LEARNING_A", "LEARNING_B", "MEAN_OVER_RMS"]
+__all__ = ["LEARNING_A", "LEARNING_B", "MEAN_OVER_RMS", "Forecast", "forecast_accuracy"]
 
 # Learning curve ratio(N) = LEARNING_A * N ** -LEARNING_B, fitted by benchmarks/bench_plan.py --curve
 # on its virtual robot (see docs/planning.md for the measured points).

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["travel_matrix", "order_path", "path_travel"]
+__all__ = ["order_path", "path_travel", "travel_matrix"]
 
 
 def travel_matrix(q: np.ndarray, speeds) -> np.ndarray:

@@ -52,10 +52,15 @@ from ..robot import Robot
 from ..sampling import uniform
 from .constraints import Constraints, PlanningError, feasible, region_bounds
 from .coverage import embed, farthest_point, min_spacing
-from .criteria import IdentificationModel, identification_model, observability, scaled_rows
+from .criteria import (
+    IdentificationModel,
+    identification_model,
+    observability,
+    scaled_rows,
+)
 from .order import order_path, path_travel
 
-__all__ = ["Plan", "d_optimal", "i_optimal", "usage_weight", "candidate_pool", "plan_poses", "active_poses", "DEFAULT_SPEEDS_RAD_S"]
+__all__ = ["DEFAULT_SPEEDS_RAD_S", "Plan", "active_poses", "candidate_pool", "d_optimal", "i_optimal", "plan_poses", "usage_weight"]
 
 DEFAULT_SPEEDS_RAD_S = 0.5  # conservative joint speed for a measuring campaign (rad/s, every joint)
 _CORE_POOL = 5000  # candidates searched for the optimal core
