@@ -146,10 +146,12 @@ def run(seed: int, min_steps, lo, hi, log) -> dict:
         hy[name + "_s"] = time.perf_counter() - t1
     out["hybrid"] = hy
     out["hybrid_ratio"] = hy["planned"] / hy["random"]
+    out["hybrid_forecast_mm"] = float(forecast_accuracy(plan.id_model, nested, q_test[:2000], [1000], noise_mm=0.01,
+                                                        unmodelled_mm=cal["random10k"] / 0.921).hybrid_mm[0])
     log(f"[seed {seed}] hybrid mean position error on test: planned {hy['planned']:.4f} mm (calibrated part "
         f"{hy['planned_calibrated']:.4f}, faded {hy['planned_faded_pct']:.1f} %), random {hy['random']:.4f} mm "
         f"(calibrated part {hy['random_calibrated']:.4f}, faded {hy['random_faded_pct']:.1f} %); ratio {out['hybrid_ratio']:.3f}"
-        f"  [fits {hy['planned_s']:.0f} s / {hy['random_s']:.0f} s]")
+        f"  [fits {hy['planned_s']:.0f} s / {hy['random_s']:.0f} s]; forecast for 1000 planned {out['hybrid_forecast_mm']:.4f} mm")
     return out
 
 
@@ -160,16 +162,19 @@ def learning_curve(min_steps, lo, hi, log, seed: int = 100, ns=(250, 500, 1000, 
     T_test = true_poses(vr, q_test)
     plan = plan_poses(rob, max(ns), Constraints(lower=lo, upper=hi), seed=seed, position_only=False)
     nested = plan.nested()
-    ratios = []
+    ratios, errs = [], []
     for n in ns:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             m = fit_hybrid(vr, nested[:n], np.random.default_rng([seed, 6, n]), min_steps, 0)
             h, cl = pos_err_mm(m.predict(q_test), T_test), pos_err_mm(m.predict_classical(q_test), T_test)
         ratios.append(h / cl)
+        errs.append(h)
         log(f"[curve seed {seed}] N={n}: hybrid {h:.4f} mm, calibrated {cl:.4f} mm, ratio {h / cl:.3f}")
     b, loga = np.polyfit(np.log(ns), np.log(ratios), 1)
     log(f"[curve] power law ratio = {np.exp(loga):.3f} * N^{b:.3f}")
+    b, loga = np.polyfit(np.log(ns), np.log(errs), 1)
+    log(f"[curve] power law hybrid error = {np.exp(loga):.4f} mm * N^{b:.3f} (hykin.planning.forecast.LEARNING_A/B)")
     return float(np.exp(loga)), float(-b)
 
 

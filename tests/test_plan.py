@@ -293,8 +293,10 @@ def test_active_poses_go_where_the_model_is_uncertain(tmp_path, capsys):
     path = tmp_path / "m.hykin"
     m.save(path)
     out = tmp_path / "next.csv"
-    code, _, se = _run(["plan", "--for-model", str(path), "-n", "8", "-o", str(out), "--pool", "1024"], capsys)
+    code, so, se = _run(["plan", "--for-model", str(path), "-n", "8", "-o", str(out), "--pool", "1024", "--report",
+                         "--report-max", "100"], capsys)
     assert code == 0, se
+    assert "hybrid mm" in so
     from hykin.dataset import read_joints
 
     assert read_joints(out)[0].shape == (8, 6)

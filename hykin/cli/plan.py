@@ -47,7 +47,7 @@ def plan_cmd(
     plot: Path | None = typer.Option(None, "--plot", help="Report: write the accuracy-vs-N curve as a PNG."),
     report_max: int = typer.Option(2000, "--report-max", help="Report: largest N in the table.", min=10),
 ) -> None:
-    """Plan which joint configurations to measure (D-optimal calibration core + space-filling for the
+    """Plan which joint configurations to measure (I-optimal calibration core + space-filling for the
     networks, within the region and the tracker's line of sight), ordered for a short path."""
     from ..planning import Constraints, PlanningError, parse_box, parse_region
     from ..planning.constraints import incidence_deg, reflector_pose
@@ -131,10 +131,9 @@ def _report(rob, model, p, c, n, noise_mm, unmodelled_mm, plot, measure, seed, p
         ntr = int(meta.get("n_total", 0) or 0)
         hyb = ((meta.get("metrics") or {}).get("val") or (meta.get("metrics") or {}).get("train") or {})
         learning = (LEARNING_A, LEARNING_B)
-        h_mm, c_mm = hyb.get("hybrid_pos_mean_mm"), hyb.get("classical_pos_mean_mm")
-        if ntr > 0 and h_mm and c_mm:
-            ratio = float(h_mm) / float(c_mm)
-            learning = (min(max(ratio, 1e-3), 1.0) * ntr**LEARNING_B, LEARNING_B)
+        h_mm = hyb.get("hybrid_pos_mean_mm")
+        if ntr > 0 and h_mm:  # anchor the curve's level on the model's own error at its size
+            learning = (float(h_mm) * ntr**LEARNING_B, LEARNING_B)
         base = plan_poses(rob, max(n, report_max), c, seed=seed, pool=pool, position_only=True, speeds=speeds, dwell_s=dwell)
     else:
         u = 0.15 if unmodelled_mm is None else unmodelled_mm
