@@ -89,9 +89,13 @@ def plan_cmd(
     con = _console()
     tr = p.travel
     con.print(f"planned {n} poses from {p.n_feasible} feasible of {p.n_pool} candidates"
-              + (f"; D-optimal core {p.info['core_size']} of {p.info['n_params']} identifiable parameters" if model is None else ""))
+              + (f"; {p.info['criterion']}-optimal core of {p.info['core_size']} poses for {p.info['n_params']} identifiable "
+                 f"parameters" if model is None else ""))
     con.print(f"measuring path: joint travel {tr['joint_rad']:.1f} rad, moves {tr['move_s'] / 60:.1f} min at {speed:g} deg/s, "
               f"total {tr['total_s'] / 3600:.2f} h with {dwell:g} s per pose")
+    if model is None and n * p.id_model.rows_per_pose < p.info["n_params"]:
+        con.print(f"[yellow]note:[/] {n} poses give {n * p.id_model.rows_per_pose} equations for {p.info['n_params']} "
+                  f"parameters: a calibration needs at least {-(-p.info['n_params'] // p.id_model.rows_per_pose)} poses")
     if model is None:
         cr = p.criteria
         con.print(f"identifiability: log det M {cr['logdet']:.2f}, O1 {cr['O1']:.4g}, O3 {cr['O3']:.4g}, "

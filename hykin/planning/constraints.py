@@ -93,7 +93,7 @@ class Constraints:
 def _box(b, what: str) -> np.ndarray:
     a = np.asarray(b, dtype=np.float64)
     if a.size != 6 or not np.isfinite(a).all():
-        raise PlanningError(f"{what}: expected 6 finite numbers xmin,ymin,zmin,xmax,ymax,zmax (m), got {b!r}")
+        raise PlanningError(f"{what}: expected 6 finite numbers xmin,ymin,zmin,xmax,ymax,zmax (m), got {np.ravel(a).tolist()}")
     a = a.reshape(2, 3)
     if np.any(a[0] >= a[1]):
         raise PlanningError(f"{what}: min must be below max on every axis, got {a.tolist()}")
@@ -179,6 +179,8 @@ def parse_box(text: str, what: str = "box", length_unit: str = "m") -> np.ndarra
         v = np.array([float(x) for x in str(text).replace(";", ",").split(",")])
     except ValueError:
         raise PlanningError(f"{what}: expected 6 numbers xmin,ymin,zmin,xmax,ymax,zmax, got {text!r}") from None
+    if v.size != 6:
+        raise PlanningError(f"{what}: expected 6 numbers xmin,ymin,zmin,xmax,ymax,zmax, got {v.size} in {text!r}")
     return _box(v * _length_factor(length_unit), what)
 
 
