@@ -38,7 +38,7 @@ def plan_cmd(
     keep_out: list[str] | None = typer.Option(None, "--keep-out", help="Keep-out box xmin,ymin,zmin,xmax,ymax,zmax (repeatable): no reflector inside, no beam through."),
     length_unit: str = typer.Option("m", "--length-unit", help="Unit of --box, --tracker, --keep-out, --reflector-offset: m or mm."),
     measure: str = typer.Option("position", "--measure", help="What the tracker measures: position (SMR) or pose (6-D probe)."),
-    speed: float = typer.Option(30.0, "--speed", help="Joint speed for ordering and the time estimate (deg/s, every joint).", min=1e-6),
+    speed: float = typer.Option(30.0, "--speed", help="Joint speed for ordering and the time estimate (deg/s; mm/s for prismatic joints).", min=1e-6),
     dwell: float = typer.Option(5.0, "--dwell", help="Settle + measure time per pose (s) for the time estimate.", min=0.0),
     pool: int = typer.Option(20_000, "--pool", help="Candidate poses drawn (scrambled Sobol) before the constraints.", min=100),
     report: bool = typer.Option(False, "--report", help="Print predicted accuracy against the number of poses."),
