@@ -114,6 +114,12 @@ _EXPORTS = {
     "estimate_time_offset": "streams",
     "align_streams": "streams",
     "iso9283_pose": "iso9283",
+    # measurement planning
+    "plan_poses": "planning",
+    "active_poses": "planning",
+    "Plan": "planning",
+    "PlanningError": "planning",
+    "forecast_accuracy": "planning",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]

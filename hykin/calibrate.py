@@ -56,6 +56,8 @@ __all__ = [
     "parameter_names",
     "apply_deviations",
     "identification_jacobian",
+    "parameter_scales",
+    "identifiable_columns",
 ]
 
 SCALE_LENGTH_M = 1e-3  # typical deviation used to scale lengths (1 mm)
@@ -474,6 +476,18 @@ def _identifiable(J_s: np.ndarray, rank_tol: float, negligible_tol: float) -> tu
     ratio = np.where(norms > 0, rkk / np.where(norms > 0, norms, 1.0), 0.0)
     mask = (ratio > rank_tol) & (norms > negligible_tol * norms.max())
     return mask, ratio
+
+
+def parameter_scales(robot: Robot, *, base: bool = True, tool: bool = True, compliance: bool = True) -> np.ndarray:
+    """``(P,)`` typical deviation of each candidate parameter (:func:`parameter_names` order): the
+    scaling :func:`calibrate` applies to the identification Jacobian (1 mm, 1 mrad, 1e-6 rad/N·m)."""
+    return np.array([_scale_of(s) for s in _candidate_specs(robot, base=base, tool=tool, compliance=compliance)])
+
+
+def identifiable_columns(J_scaled: np.ndarray, rank_tol: float = 1e-6, negligible_tol: float = 1e-9):
+    """Identifiability test of :func:`calibrate` on a scaled Jacobian ``(rows, P)`` whose columns are
+    in priority order: ``(mask (P,) bool, ratio |R_kk| / ‖column‖ (P,))``."""
+    return _identifiable(np.asarray(J_scaled, dtype=np.float64), rank_tol, negligible_tol)
 
 
 # --------------------------------------------------------------------------- LM step

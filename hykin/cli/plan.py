@@ -1,0 +1,171 @@
+"""Planning command: which joint configurations to measure, in which order, and how many (``hykin plan``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import typer
+
+from .common import CLIError, app, load_model_or_robot, write_rows
+
+
+def _vec3(text: str | None, what: str, factor: float = 1.0) -> np.ndarray | None:
+    if text is None:
+        return None
+    try:
+        v = np.array([float(x) for x in str(text).replace(";", ",").split(",")])
+    except ValueError:
+        raise CLIError(f"{what}: expected three numbers X,Y,Z, got {text!r}") from None
+    if v.shape != (3,) or not np.isfinite(v).all():
+        raise CLIError(f"{what}: expected three finite numbers X,Y,Z, got {text!r}")
+    return v * factor
+
+
+@app.command("plan")
+def plan_cmd(
+    robot: str | None = typer.Argument(None, help="Robot file, URDF or preset name (not with --for-model)."),
+    n: int = typer.Option(..., "-n", help="Number of poses to plan.", min=1),
+    out: Path | None = typer.Option(None, "-o", "--out", help="Output joints CSV (q1..qN rad, step, core, incidence_deg)."),
+    for_model: str | None = typer.Option(None, "--for-model", help="Fitted model file: plan the next poses where it is least certain."),
+    seed: int = typer.Option(0, "--seed", help="Random seed of the candidate pool."),
+    region: str | None = typer.Option(None, "--region", help="Joint ranges lo:hi per joint, comma-separated (deg; ':' keeps a limit)."),
+    box: str | None = typer.Option(None, "--box", help="Cartesian box for the reflector: xmin,ymin,zmin,xmax,ymax,zmax (world frame)."),
+    tracker: str | None = typer.Option(None, "--tracker", help="Tracker position X,Y,Z (world frame): enables the line-of-sight test."),
+    max_incidence: float = typer.Option(30.0, "--max-incidence", help="Max angle (deg) between reflector axis and tracker direction (SMR ~30, 6-D probe ~45)."),
+    reflector_offset: str = typer.Option("0,0,0", "--reflector-offset", help="Reflector point in the tool frame X,Y,Z."),
+    reflector_axis: str = typer.Option("0,0,1", "--reflector-axis", help="Reflector normal in the tool frame."),
+    keep_out: list[str] | None = typer.Option(None, "--keep-out", help="Keep-out box xmin,ymin,zmin,xmax,ymax,zmax (repeatable): no reflector inside, no beam through."),
+    length_unit: str = typer.Option("m", "--length-unit", help="Unit of --box, --tracker, --keep-out, --reflector-offset: m or mm."),
+    measure: str = typer.Option("position", "--measure", help="What the tracker measures: position (SMR) or pose (6-D probe)."),
+    speed: float = typer.Option(30.0, "--speed", help="Joint speed for ordering and the time estimate (deg/s; mm/s for prismatic joints).", min=1e-6),
+    dwell: float = typer.Option(5.0, "--dwell", help="Settle + measure time per pose (s) for the time estimate.", min=0.0),
+    pool: int = typer.Option(20_000, "--pool", help="Candidate poses drawn (scrambled Sobol) before the constraints.", min=100),
+    report: bool = typer.Option(False, "--report", help="Print predicted accuracy against the number of poses."),
+    noise_mm: float = typer.Option(0.01, "--noise-mm", help="Report: tracker noise per axis (mm).", min=0.0),
+    unmodelled_mm: float | None = typer.Option(None, "--unmodelled-mm", help="Report: RMS error a calibration cannot model (mm; default 0.15, or the model's own)."),
+    plot: Path | None = typer.Option(None, "--plot", help="Report: write the accuracy-vs-N curve as a PNG."),
+    report_max: int = typer.Option(2000, "--report-max", help="Report: largest N in the table.", min=10),
+) -> None:
+    """Plan which joint configurations to measure (I-optimal calibration core + space-filling for the
+    networks, within the region and the tracker's line of sight), ordered for a short path."""
+    from ..planning import Constraints, PlanningError, parse_box, parse_region
+    from ..planning.constraints import incidence_deg, reflector_pose
+    from ..planning.select import active_poses, plan_poses
+
+    if (robot is None) == (for_model is None):
+        raise CLIError("plan: give either ROBOT or --for-model MODEL (exactly one)")
+    if out is None and not report:
+        raise CLIError("plan: give -o JOINTS.csv (and/or --report)")
+    if length_unit not in ("m", "mm"):
+        raise CLIError(f"--length-unit must be m or mm, got {length_unit!r}")
+    if measure not in ("position", "pose"):
+        raise CLIError(f"--measure must be position or pose, got {measure!r}")
+    f = 1e-3 if length_unit == "mm" else 1.0
+    model = None
+    if for_model is not None:
+        model, rob = load_model_or_robot(for_model)
+        if model is None:
+            raise CLIError(f"--for-model {for_model}: not a hykin model file")
+    else:
+        _, rob = load_model_or_robot(robot)
+    try:
+        lo, hi = parse_region(rob, region) if region else (None, None)
+        c = Constraints(
+            lower=lo, upper=hi, box_m=parse_box(box, "--box", length_unit) if box else None,
+            tracker_m=_vec3(tracker, "--tracker", f), max_incidence_deg=max_incidence,
+            reflector_offset_m=_vec3(reflector_offset, "--reflector-offset", f),
+            reflector_axis=_vec3(reflector_axis, "--reflector-axis"),
+            keep_out_m=[parse_box(b, f"--keep-out {k + 1}", length_unit) for k, b in enumerate(keep_out or [])],
+        ).check(rob)
+        speeds = np.where(np.array([t == "revolute" for t in rob.joint_type]), np.radians(speed), speed * 1e-3)
+        if model is not None:
+            p = active_poses(model, n, c, seed=seed, pool=pool, speeds=speeds, dwell_s=dwell)
+        else:
+            p = plan_poses(rob, n, c, seed=seed, pool=pool, position_only=measure == "position", speeds=speeds,
+                           dwell_s=dwell)
+    except PlanningError as e:
+        raise CLIError(str(e)) from None
+    con = _console()
+    tr = p.travel
+    con.print(f"planned {n} poses from {p.n_feasible} feasible of {p.n_pool} candidates"
+              + (f"; {p.info['criterion']}-optimal core of {p.info['core_size']} poses for {p.info['n_params']} identifiable "
+                 f"parameters" if model is None else ""))
+    con.print(f"measuring path: joint travel {tr['joint_rad']:.1f} rad, moves {tr['move_s'] / 60:.1f} min at {speed:g} deg/s, "
+              f"total {tr['total_s'] / 3600:.2f} h with {dwell:g} s per pose")
+    if model is None and n * p.id_model.rows_per_pose < p.info["n_params"]:
+        con.print(f"[yellow]note:[/] {n} poses give {n * p.id_model.rows_per_pose} equations for {p.info['n_params']} "
+                  f"parameters: a calibration needs at least {-(-p.info['n_params'] // p.id_model.rows_per_pose)} poses")
+    if model is None:
+        cr = p.criteria
+        con.print(f"identifiability: log det M {cr['logdet']:.2f}, O1 {cr['O1']:.4g}, O3 {cr['O3']:.4g}, "
+                  f"condition {cr['condition']:.4g}; coverage min spacing {cr['min_spacing']:.4f}")
+    if out is not None:
+        rows = {f"q{j + 1}": p.q[:, j] for j in range(rob.dof)}
+        rows["step"] = np.arange(1, n + 1)
+        rows["core"] = p.core
+        if c.tracker_m is not None:
+            pp, nn = reflector_pose(rob, p.q, c)
+            rows["incidence_deg"] = incidence_deg(pp, nn, c.tracker_m)
+        if p.score is not None:
+            rows["score_mm"] = p.score
+        write_rows(rows, out)
+        typer.echo(f"wrote {n} poses to {out}")
+    if report:
+        _report(rob, model, p, c, n, noise_mm, unmodelled_mm, plot, measure, seed, pool, speeds, dwell, report_max)
+
+
+def _console():
+    from .common import console
+
+    return console()
+
+
+def _report(rob, model, p, c, n, noise_mm, unmodelled_mm, plot, measure, seed, pool, speeds, dwell, report_max) -> None:
+    from ..planning.forecast import LEARNING_A, LEARNING_B, forecast_accuracy
+    from ..planning.select import plan_poses
+    from ..sampling import uniform
+
+    if model is not None:
+        # the forecast is for a plan of that size for the model's robot; anchor the learning curve on the model
+        meta = model.meta_ or {}
+        cal = meta.get("calibration") or {}
+        after = (cal.get("after") or {}).get("pos_rms_mm")
+        u = float(after) if unmodelled_mm is None and after is not None else (0.15 if unmodelled_mm is None else unmodelled_mm)
+        ntr = int(meta.get("n_total", 0) or 0)
+        hyb = ((meta.get("metrics") or {}).get("val") or (meta.get("metrics") or {}).get("train") or {})
+        learning = (LEARNING_A, LEARNING_B)
+        h_mm = hyb.get("hybrid_pos_mean_mm")
+        if ntr > 0 and h_mm:  # anchor the curve's level on the model's own error at its size
+            learning = (float(h_mm) * ntr**LEARNING_B, LEARNING_B)
+        base = plan_poses(rob, max(n, report_max), c, seed=seed, pool=pool, position_only=True, speeds=speeds, dwell_s=dwell)
+    else:
+        u = 0.15 if unmodelled_mm is None else unmodelled_mm
+        learning = (LEARNING_A, LEARNING_B)
+        base = p if n >= report_max else plan_poses(rob, report_max, c, seed=seed, pool=pool, position_only=measure == "position",
+                                              speeds=speeds, dwell_s=dwell)
+    q_test = uniform(rob, 2048, np.random.default_rng([seed, 29]), lower=c.lower, upper=c.upper)
+    per_pose = base.travel["move_s"] / max(len(base.q), 1) + dwell
+    ns = [m for m in (15, 30, 60, 100, 250, 500, 1000, 2000, 5000, 10000, n) if m <= len(base.q)]
+    fc = forecast_accuracy(base.id_model, base.nested(), q_test, ns, noise_mm=noise_mm, unmodelled_mm=u,
+                           learning=learning, seconds_per_pose=per_pose)
+    typer.echo("predicted mean position error over the region (planned poses):")
+    typer.echo(fc.table())
+    if plot is not None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(6, 4))
+        ax.loglog(fc.n, fc.calibrated_mm, "o-", label="calibrated model")
+        ax.loglog(fc.n, fc.hybrid_mm, "s-", label="hybrid")
+        ax.set_xlabel("planned poses N")
+        ax.set_ylabel("predicted mean position error (mm)")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+        fig.tight_layout()
+        plot.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(plot, dpi=120)
+        plt.close(fig)
+        typer.echo(f"wrote {plot}")

@@ -1,0 +1,215 @@
+"""Where a pose may be measured: joint region, Cartesian box, tracker line of sight, keep-out boxes.
+
+A pose ``q`` is *feasible* for a :class:`Constraints` when
+
+* every joint lies in the working region ``[lower, upper]`` (within the joint limits);
+* the reflector point ``p`` (TCP, or a point ``reflector_offset_m`` in the tool frame) lies in the
+  Cartesian ``box_m`` (world frame = the frame of :func:`hykin.fk.fk`, ``robot.base`` applied);
+* line of sight, when a tracker position is given: the angle between the reflector's axis ``n``
+  (tool-frame ``reflector_axis``, default tool z) and the direction to the tracker ``t - p`` is at
+  most ``max_incidence_deg`` (a 1.5" SMR accepts about ±30°, a 6-D probe such as a T-Mac ±45°),
+  the reflector is at least ``min_range_m`` from the tracker, and the segment from the tracker to
+  ``p`` crosses no keep-out box;
+* the reflector point is inside no keep-out box.
+
+The robot's own links are **not** checked as obstacles of the beam (no link geometry in a robot
+file); a user who needs it adds keep-out boxes around fixed obstacles, and the incidence cone
+already removes most self-occlusion by the wrist.
+
+Boxes are axis-aligned in the world frame, ``(2, 3)`` arrays ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``
+(m). All tests are vectorised over ``(N, dof)`` joints; FK is :func:`hykin.fk.fk` (the rigid model:
+joint deflection moves the TCP by millimetres, far below what changes an incidence angle).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..fk import fk
+from ..robot import Robot
+
+__all__ = [
+    "Constraints",
+    "PlanningError",
+    "feasible",
+    "incidence_deg",
+    "parse_box",
+    "parse_region",
+    "reflector_pose",
+    "region_bounds",
+    "segment_hits_box",
+]
+
+
+class PlanningError(ValueError):
+    """Bad planning request (region, box, tracker, sizes) or no feasible pose."""
+
+
+@dataclass
+class Constraints:
+    """Measurement constraints of a plan (module docstring). Lengths m, angles rad unless named _deg.
+
+    lower/upper: ``(dof,)`` working region (None: the joint limits). box_m: ``(2, 3)`` Cartesian box
+    for the reflector point or None. tracker_m: ``(3,)`` tracker position (world frame) or None (no
+    line-of-sight test). max_incidence_deg: cone half-angle of the reflector. reflector_offset_m:
+    ``(3,)`` reflector point in the tool frame (0 = TCP). reflector_axis: ``(3,)`` reflector normal
+    in the tool frame. keep_out_m: list of ``(2, 3)`` boxes. min_range_m: closest tracker distance.
+    """
+
+    lower: np.ndarray | None = None
+    upper: np.ndarray | None = None
+    box_m: np.ndarray | None = None
+    tracker_m: np.ndarray | None = None
+    max_incidence_deg: float = 30.0
+    reflector_offset_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    reflector_axis: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    keep_out_m: list = field(default_factory=list)
+    min_range_m: float = 0.0
+
+    def check(self, robot: Robot) -> Constraints:
+        """Validated copy with the region resolved against ``robot`` (raises :class:`PlanningError`)."""
+        lo, hi = region_bounds(robot, self.lower, self.upper)
+        box = None if self.box_m is None else _box(self.box_m, "box")
+        tr = None
+        if self.tracker_m is not None:
+            tr = np.asarray(self.tracker_m, dtype=np.float64).reshape(-1)
+            if tr.shape != (3,) or not np.isfinite(tr).all():
+                raise PlanningError(f"tracker position must be 3 finite numbers (m), got {self.tracker_m!r}")
+        if not (0.0 < float(self.max_incidence_deg) <= 90.0):
+            raise PlanningError(f"max incidence must be in (0, 90] deg, got {self.max_incidence_deg}")
+        ax = np.asarray(self.reflector_axis, dtype=np.float64).reshape(-1)
+        if ax.shape != (3,) or not np.linalg.norm(ax) > 0:
+            raise PlanningError(f"reflector axis must be a non-zero 3-vector, got {self.reflector_axis!r}")
+        off = np.asarray(self.reflector_offset_m, dtype=np.float64).reshape(-1)
+        if off.shape != (3,) or not np.isfinite(off).all():
+            raise PlanningError(f"reflector offset must be 3 finite numbers (m), got {self.reflector_offset_m!r}")
+        ko = [_box(b, f"keep-out box {k + 1}") for k, b in enumerate(self.keep_out_m)]
+        return Constraints(lo, hi, box, tr, float(self.max_incidence_deg), off, ax / np.linalg.norm(ax), ko,
+                           float(self.min_range_m))
+
+
+def _box(b, what: str) -> np.ndarray:
+    a = np.asarray(b, dtype=np.float64)
+    if a.size != 6 or not np.isfinite(a).all():
+        raise PlanningError(f"{what}: expected 6 finite numbers xmin,ymin,zmin,xmax,ymax,zmax (m), got {np.ravel(a).tolist()}")
+    a = a.reshape(2, 3)
+    if np.any(a[0] >= a[1]):
+        raise PlanningError(f"{what}: min must be below max on every axis, got {a.tolist()}")
+    return a
+
+
+def region_bounds(robot: Robot, lower=None, upper=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(lower, upper)`` ``(dof,)`` of the working region, checked to lie within the joint limits."""
+    lo = robot.lower.copy() if lower is None else np.asarray(lower, dtype=np.float64).reshape(-1)
+    hi = robot.upper.copy() if upper is None else np.asarray(upper, dtype=np.float64).reshape(-1)
+    if lo.shape != (robot.dof,) or hi.shape != (robot.dof,):
+        raise PlanningError(f"region: expected {robot.dof} joint ranges, got {lo.size}")
+    for j in range(robot.dof):
+        if not (np.isfinite(lo[j]) and np.isfinite(hi[j]) and lo[j] < hi[j]):
+            raise PlanningError(f"region: joint {j + 1} range [{lo[j]:.6g}, {hi[j]:.6g}] is empty or not finite")
+        if lo[j] < robot.lower[j] - 1e-9 or hi[j] > robot.upper[j] + 1e-9:
+            raise PlanningError(f"region: joint {j + 1} range [{lo[j]:.6g}, {hi[j]:.6g}] exceeds the joint limits "
+                                f"[{robot.lower[j]:.6g}, {robot.upper[j]:.6g}]")
+    return np.maximum(lo, robot.lower), np.minimum(hi, robot.upper)
+
+
+def reflector_pose(robot: Robot, q, c: Constraints) -> tuple[np.ndarray, np.ndarray]:
+    """Reflector points ``(N, 3)`` (m) and unit normals ``(N, 3)``, world frame."""
+    T = fk(robot, np.asarray(q, dtype=np.float64).reshape(-1, robot.dof))
+    R = T[:, :3, :3]
+    p = T[:, :3, 3] + R @ np.asarray(c.reflector_offset_m, dtype=np.float64)
+    n = R @ (np.asarray(c.reflector_axis, dtype=np.float64) / np.linalg.norm(c.reflector_axis))
+    return p, n
+
+
+def incidence_deg(p: np.ndarray, n: np.ndarray, tracker_m: np.ndarray) -> np.ndarray:
+    """``(N,)`` angle (deg) between the reflector normals ``n`` and the directions to the tracker."""
+    v = np.asarray(tracker_m, dtype=np.float64)[None] - p
+    d = np.linalg.norm(v, axis=1)
+    cosang = np.einsum("ij,ij->i", v, n) / np.maximum(d, 1e-300)
+    return np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
+
+
+def segment_hits_box(a: np.ndarray, b: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """``(N,)`` whether the segments ``a -> b`` (``(N, 3)`` or ``(3,)`` each) meet the box (slab test)."""
+    a, b = np.broadcast_arrays(np.atleast_2d(a).astype(np.float64), np.atleast_2d(b).astype(np.float64))
+    d = b - a
+    t0 = np.zeros(len(a))
+    t1 = np.ones(len(a))
+    for k in range(3):
+        dk = d[:, k]
+        par = np.abs(dk) < 1e-15
+        inside = (a[:, k] >= box[0, k]) & (a[:, k] <= box[1, k])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ta = (box[0, k] - a[:, k]) / dk
+            tb = (box[1, k] - a[:, k]) / dk
+        lo = np.where(par, np.where(inside, -np.inf, np.inf), np.minimum(ta, tb))
+        hi = np.where(par, np.where(inside, np.inf, -np.inf), np.maximum(ta, tb))
+        t0 = np.maximum(t0, lo)
+        t1 = np.minimum(t1, hi)
+    return t0 <= t1
+
+
+def feasible(robot: Robot, q, c: Constraints) -> np.ndarray:
+    """``(N,)`` bool: which joints ``q`` ``(N, dof)`` satisfy every constraint of ``c`` (module docstring)."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1, robot.dof)
+    lo = robot.lower if c.lower is None else c.lower
+    hi = robot.upper if c.upper is None else c.upper
+    ok = np.all((q >= lo - 1e-12) & (q <= hi + 1e-12), axis=1)
+    if c.box_m is None and c.tracker_m is None and not c.keep_out_m:
+        return ok
+    p, n = reflector_pose(robot, q, c)
+    if c.box_m is not None:
+        ok &= np.all((p >= c.box_m[0]) & (p <= c.box_m[1]), axis=1)
+    for b in c.keep_out_m:
+        ok &= ~np.all((p >= b[0]) & (p <= b[1]), axis=1)
+    if c.tracker_m is not None:
+        ok &= incidence_deg(p, n, c.tracker_m) <= c.max_incidence_deg
+        ok &= np.linalg.norm(p - c.tracker_m, axis=1) >= c.min_range_m
+        for b in c.keep_out_m:
+            ok &= ~segment_hits_box(np.broadcast_to(c.tracker_m, p.shape), p, b)
+    return ok
+
+
+def parse_box(text: str, what: str = "box", length_unit: str = "m") -> np.ndarray:
+    """``"xmin,ymin,zmin,xmax,ymax,zmax"`` -> ``(2, 3)`` m (``length_unit`` m or mm)."""
+    try:
+        v = np.array([float(x) for x in str(text).replace(";", ",").split(",")])
+    except ValueError:
+        raise PlanningError(f"{what}: expected 6 numbers xmin,ymin,zmin,xmax,ymax,zmax, got {text!r}") from None
+    if v.size != 6:
+        raise PlanningError(f"{what}: expected 6 numbers xmin,ymin,zmin,xmax,ymax,zmax, got {v.size} in {text!r}")
+    return _box(v * _length_factor(length_unit), what)
+
+
+def _length_factor(unit: str) -> float:
+    if unit not in ("m", "mm"):
+        raise PlanningError(f"length unit must be m or mm, got {unit!r}")
+    return 1e-3 if unit == "mm" else 1.0
+
+
+def parse_region(robot: Robot, text: str, angle_unit: str = "deg") -> tuple[np.ndarray, np.ndarray]:
+    """``"lo1:hi1,lo2:hi2,..."`` (one range per joint; ``:`` alone keeps the limits) -> ``(lower, upper)``.
+
+    Revolute ranges in ``angle_unit`` (deg or rad), prismatic in m."""
+    if angle_unit not in ("deg", "rad"):
+        raise PlanningError(f"angle unit must be deg or rad, got {angle_unit!r}")
+    parts = [s.strip() for s in str(text).split(",")]
+    if len(parts) != robot.dof:
+        raise PlanningError(f"region: expected {robot.dof} comma-separated ranges lo:hi (one per joint), got {len(parts)}")
+    lo, hi = robot.lower.copy(), robot.upper.copy()
+    for j, s in enumerate(parts):
+        if ":" not in s:
+            raise PlanningError(f"region: joint {j + 1}: expected lo:hi, got {s!r}")
+        a, b = s.split(":", 1)
+        f = np.pi / 180 if angle_unit == "deg" and robot.joint_type[j] == "revolute" else 1.0
+        try:
+            if a.strip():
+                lo[j] = float(a) * f
+            if b.strip():
+                hi[j] = float(b) * f
+        except ValueError:
+            raise PlanningError(f"region: joint {j + 1}: not a number in {s!r}") from None
+    return region_bounds(robot, lo, hi)
