@@ -78,6 +78,7 @@ _EXPORTS = {
     "HybridModel": "hybrid",
     "OutOfRangeWarning": "hybrid",
     "ModelFileError": "modelfile",
+    "UnverifiedModelWarning": "modelfile",
     "make_net": "nets",
     "list_architectures": "nets",
     "get_recipe": "train",

@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from .common import AngleUnit, CLIError, LengthUnit, app, progress
+from .common import AngleUnit, CLIError, Force, LengthUnit, app, check_output, progress
 
 @app.command("presets")
 def presets_cmd() -> None:
@@ -37,9 +37,12 @@ def simulate_cmd(
     seed: int = typer.Option(0, "--seed", help="Random seed (reproducible)."),
     plan: str = typer.Option("uniform", "--plan", help="Sampling plan: uniform, random, zigzag, iso-cube, restricted."),
     noise: bool = typer.Option(True, "--noise/--no-noise", help="Add tracker-like measurement noise."),
+    force: bool = Force,
 ) -> None:
     """Simulate a measured dataset from a virtual robot whose truth is known."""
     from ..simulate import simulate_to_file
+
+    check_output(out, (preset,), force)
 
     with progress() as prog:
         task = prog.add_task(f"simulating {preset}", total=n)
@@ -62,11 +65,16 @@ def import_cmd(
     robot_out: Optional[Path] = typer.Option(
         None, "--robot-out", help="Also write the nominal robot file matching this data (tool/TCP of the setup)."
     ),
+    force: bool = Force,
 ) -> None:
     """Import a real measurement series into the standard dataset format."""
     from ..dataset import write_dataset
     from ..importers import import_ipa_series, import_ur5, ipa_nominal_robot, ur5_robot_for_dataset
     from ..robot import save_robot_toml
+
+    check_output(out, (path,), force)
+    if robot_out is not None:
+        check_output(robot_out, (path, out), force)
 
     if kind == "ur5":
         ds = import_ur5(path)
@@ -93,14 +101,17 @@ def split_cmd(
     group: Optional[str] = typer.Option(None, "--group", help="Keep rows with the same value of this column together."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    force: bool = Force,
 ) -> None:
     """Random train/test split of a dataset (disjoint, reproducible)."""
     from ..dataset import read_dataset, split, write_dataset
 
-    ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit)
-    tr, te = split(ds, (1.0 - test, test), seed=seed, group=group)
     suffix = data.suffix if data.suffix in (".csv", ".parquet") else ".csv"
     paths = [Path(f"{out_prefix}_train{suffix}"), Path(f"{out_prefix}_test{suffix}")]
+    for p in paths:
+        check_output(p, (data,), force)
+    ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit)
+    tr, te = split(ds, (1.0 - test, test), seed=seed, group=group)
     write_dataset(tr, paths[0])
     write_dataset(te, paths[1])
     typer.echo(f"wrote {len(tr)} training rows to {paths[0]} and {len(te)} test rows to {paths[1]}")
