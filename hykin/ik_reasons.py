@@ -50,11 +50,17 @@ def _wide(robot: Robot) -> Robot:
     return robot.copy(lower=np.where(rev, -2 * np.pi, robot.lower), upper=np.where(rev, 2 * np.pi, robot.upper))
 
 
-def failure_reasons(robot: Robot, T_target, position_only: bool = False, q_best=None) -> np.ndarray:
-    """Reasons ``(N,)`` (str) for targets ``(N, 4, 4)`` (m; positions ``(N, 3)`` for position-only)
-    that classical IK on ``robot`` did not solve. ``q_best`` ``(N, dof)``: the solver's best attempts
-    (NaN rows when none), used for the singularity test."""
+def failure_reasons(robot: Robot, T_target, position_only: bool = False, q_best=None,
+                    classical_failed=None) -> np.ndarray:
+    """Categorised reasons ``(N,)`` (str) for unsolved targets ``(N, 4, 4)`` (m; positions ``(N, 3)``
+    for position-only). ``q_best`` ``(N, dof)``: the solver's best attempts (NaN rows when none), for
+    the singularity test. ``classical_failed`` ``(N,)`` bool: classical IK within the limits found no
+    solution (default: all) — only those are tested for "joint limits" (classical IK with the revolute
+    limits opened to ±2π); the others failed later (hybrid refinement) and are out of reach, singular
+    or not converged."""
     from .ik import ik
+    from .ik_analytic import has_closed_form
+    from .plausibility import robot_reach_m
 
     T = np.asarray(T_target, dtype=np.float64)
     if T.ndim == 2:  # positions only
@@ -66,19 +72,21 @@ def failure_reasons(robot: Robot, T_target, position_only: bool = False, q_best=
     out = np.full(N, "", dtype=object)
     if N == 0:
         return out.astype(str)
-    wide = ik(_wide(robot), T, all_branches=True, position_only=position_only)
-    lim = wide.success.any(axis=1)
-    sing = np.zeros(N, dtype=bool) if q_best is None else is_singular(robot, q_best, position_only)
-    out[lim] = "joint limits: the pose is reachable only with joints outside their limits"
-    rest = ~lim
-    out[rest & sing] = "singular: the solver stalled at a singular configuration"
-    from .ik_analytic import has_closed_form
-    from .plausibility import robot_reach_m
-
+    cf = np.ones(N, dtype=bool) if classical_failed is None else np.asarray(classical_failed, dtype=bool)
     far = np.linalg.norm(T[:, :3, 3] - robot.base[:3, 3], axis=1) > robot_reach_m(robot)
-    proven = far | (has_closed_form(robot) and not position_only)  # a closed form finds every solution
-    out[rest & ~sing & proven] = "out of reach: no joint configuration of the robot reaches this pose"
-    out[rest & ~sing & ~proven] = "not converged: numerical IK found no solution (the pose may be out of reach)"
+    lim = np.zeros(N, dtype=bool)
+    test = cf & ~far
+    if test.any():
+        wide = ik(_wide(robot), T[test], all_branches=True, position_only=position_only)
+        lim[test] = wide.success.any(axis=1)
+    sing = np.zeros(N, dtype=bool) if q_best is None else is_singular(robot, q_best, position_only)
+    closed = bool(has_closed_form(robot)) and not position_only  # a closed form finds every solution
+    out[:] = "not converged: the solver did not reach the target"
+    out[cf] = ("out of reach: no joint configuration of the robot reaches this pose" if closed
+               else "not converged: numerical IK found no solution (the pose may be out of reach)")
+    out[~lim & sing] = "singular: the solver stalled at a singular configuration"
+    out[lim] = "joint limits: the pose is reachable only with joints outside their limits"
+    out[far] = f"out of reach: farther from the base than the robot reaches ({robot_reach_m(robot):.3g} m)"
     return out.astype(str)
 
 

@@ -40,9 +40,14 @@ def simulate_cmd(
     force: bool = Force,
 ) -> None:
     """Simulate a measured dataset from a virtual robot whose truth is known."""
-    from ..simulate import simulate_to_file
+    from ..simulate import load_truth, simulate_to_file, truth_path_for, virtual_preset
 
     check_output(out, (preset,), force)
+    check_output(truth_path_for(out), (preset,), force)  # the truth file written beside it
+    if preset.lower().endswith(".json"):
+        load_truth(preset)
+    else:
+        virtual_preset(preset)  # an unknown name fails here, before the progress bar starts
 
     with progress() as prog:
         task = prog.add_task(f"simulating {preset}", total=n)

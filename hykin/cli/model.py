@@ -24,6 +24,7 @@ def fit_cmd(
     max_minutes: Optional[float] = typer.Option(None, "--max-minutes", help="Time budget for network training."),
     thermal: str = typer.Option("auto", "--thermal", help="Thermal expansion from a temperature_c column: auto, on, off."),
     min_steps: Optional[int] = typer.Option(None, "--min-steps", help="Least number of optimiser steps per network (default recipe: 30000)."),
+    max_epochs: Optional[int] = typer.Option(None, "--max-epochs", help="Most training epochs per network (default: the recipe's)."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     force: bool = Force,
@@ -37,7 +38,21 @@ def fit_cmd(
     from ..plausibility import check_fit_size
     from ..robot import load_robot
 
-    check_output(out, (robot, train, val), force)
+    kw = {}
+    if max_minutes is not None:
+        kw["max_seconds"] = max_minutes * 60
+    if min_steps is not None:
+        if min_steps < 0:
+            raise CLIError(f"--min-steps must be >= 0, got {min_steps}")
+        kw.setdefault("recipe_kw", {})["min_steps"] = min_steps
+    if max_epochs is not None:
+        if max_epochs < 1:
+            raise CLIError(f"--max-epochs must be >= 1, got {max_epochs}")
+        kw.setdefault("recipe_kw", {})["max_epochs"] = max_epochs
+    modes = {"auto": "auto", "on": True, "off": False}
+    if thermal not in modes:
+        raise CLIError(f"--thermal must be auto, on or off, got {thermal!r}")
+    check_output(out, (robot, train, val), force)  # before any long work
     rob = load_robot(robot)
     tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
     check_fit_size(rob, tr)
@@ -48,16 +63,6 @@ def fit_cmd(
         import torch
 
         device = "cuda" if torch.cuda.is_available() else "cpu"
-    kw = {}
-    if max_minutes is not None:
-        kw["max_seconds"] = max_minutes * 60
-    if min_steps is not None:
-        if min_steps < 0:
-            raise CLIError(f"--min-steps must be >= 0, got {min_steps}")
-        kw["recipe_kw"] = {"min_steps": min_steps}
-    modes = {"auto": "auto", "on": True, "off": False}
-    if thermal not in modes:
-        raise CLIError(f"--thermal must be auto, on or off, got {thermal!r}")
     model = HybridModel(rob, arch=arch, recipe=recipe, calibrate=calibrate, device=device, seed=seed,
                         thermal=modes[thermal], **kw)
     model.fit(tr, va, progress=True)

@@ -89,7 +89,7 @@ def ik_cmd(
         target = T[:, :3, 3] if position_only else T
         res = hybrid_ik(mdl, target, all_branches=True, q_current=q_cur, nearest=nearest, position_only=position_only,
                         temperature_c=temperature_of(mdl, pose_extra, poses))
-        rows = ik_result_to_rows(res, robot=mdl.robot_)
+        rows = ik_result_to_rows(res, robot=mdl.robot_, targets=target)
         from ..hybrid import support_report
 
         has_q = np.asarray(res.success, dtype=bool) & np.isfinite(res.q).all(axis=1)
@@ -120,7 +120,7 @@ def _classical_ik_rows(robot, T, q_current, position_only: bool) -> dict:
     failed = ~ok.any(axis=1)
     reasons = np.full(N, "", dtype=object)
     if failed.any():
-        reasons[failed] = failure_reasons(robot, T[failed], position_only=position_only)
+        reasons[failed] = failure_reasons(robot, T[failed], position_only=position_only)  # classical: all failed
     rows: dict = {"target": [], "branch": []}
     rows.update({f"q{j + 1}": [] for j in range(n)})
     rows.update({"success": [], "pos_err_mm": [], "ang_err_deg": [], "reason": []})
