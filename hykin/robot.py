@@ -277,6 +277,14 @@ def robot_from_dict(doc: dict, where: str = "<robot>") -> Robot:
         if k_ <= 0:
             raise RobotFileError(f"{w}.stiffness: must be > 0 (N·m/rad)")
         cols["stiffness"].append(k_)
+    # Link lengths in the wrong unit make a robot 1000x too large or small: no arm spans 30 m or 1 cm.
+    tool_tbl = doc.get("tool") if isinstance(doc.get("tool"), dict) else {}
+    tool_len = float(np.linalg.norm(_vec3(tool_tbl.get("xyz", [0, 0, 0]), f"{where}: [tool].xyz"))) * L
+    size_m = float(np.sum(np.hypot(cols["a"], cols["d"]))) + tool_len
+    if size_m > 30.0 or 0.0 < size_m < 0.01:
+        other = "mm" if lu == "m" else "m"
+        raise RobotFileError(f"{where}: link lengths and tool add up to {size_m:.6g} m, implausible for a robot arm: "
+                             f"the values look like {other} under length_unit = '{lu}' (set length_unit = '{other}')")
     payload = _number(doc.get("payload", 0.0), f"{where}: payload")
     gravity = _vec3(doc["gravity"], f"{where}: gravity") if "gravity" in doc else np.array([0.0, 0.0, -9.81])
     return Robot(

@@ -319,6 +319,9 @@ def _cases():
           ["joints[1]", "'d'"]),
         c("robot-joint-key-typo", lambda f, t, o: ["calibrate", _robot_text(f, t, "alpha = -90", "alhpa = -90"), f[D],
                                                    "-o", o], ["alhpa", "did you mean 'alpha'"], "r.toml"),
+        c("robot-mm-values-declared-m", lambda f, t, o: ["fk", _robot_text(f, t, 'length_unit = "mm"',
+                                                                      'length_unit = "m"'), f[J], "-o", o],
+          ["length_unit = 'mm'"]),
         c("robot-tool-key-typo", lambda f, t, o: ["fk", _robot_text(f, t, "xyz = [0, 0, 60]", "xzy = [0, 0, 60]"),
                                                   f[J], "-o", o], ["xzy", "xyz"]),
         # --- model files
