@@ -79,6 +79,8 @@ _EXPORTS = {
     "OutOfRangeWarning": "hybrid",
     "ModelFileError": "modelfile",
     "UnverifiedModelWarning": "modelfile",
+    "PlausibilityError": "plausibility",
+    "check_dataset": "plausibility",
     "make_net": "nets",
     "list_architectures": "nets",
     "get_recipe": "train",

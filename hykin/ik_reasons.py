@@ -15,7 +15,7 @@ import numpy as np
 
 from .robot import Robot
 
-__all__ = ["CATEGORIES", "failure_reasons", "categorise", "is_singular"]
+__all__ = ["CATEGORIES", "categorise", "failure_reasons", "is_singular"]
 
 CATEGORIES = ("out of reach", "joint limits", "singular", "not converged")
 # Smallest / largest singular value of the scaled Jacobian below which a configuration counts as

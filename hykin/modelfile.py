@@ -66,7 +66,7 @@ def content_hash(tensors: dict, md: dict) -> str:
         h.update(k.encode() + b"\0" + len(v).to_bytes(8, "little") + v)
     for name in sorted(tensors):
         t = tensors[name].detach().contiguous().cpu()
-        head = f"{name}\0{t.dtype}\0{tuple(t.shape)}\0".encode("utf-8")
+        head = f"{name}\0{t.dtype}\0{tuple(t.shape)}\0".encode()
         h.update(len(head).to_bytes(8, "little") + head)
         h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b"")
     return h.hexdigest()

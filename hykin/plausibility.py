@@ -29,18 +29,18 @@ import numpy as np
 from .robot import Robot
 
 __all__ = [
-    "PlausibilityError",
     "MAX_ROWS",
-    "check_dataset",
-    "check_position_scale",
-    "check_orientation_order",
-    "check_joint_unit",
-    "check_target_reach",
-    "robot_reach_m",
     "MIN_FIT_ROWS",
-    "minimum_fit_rows",
-    "check_fit_size",
+    "PlausibilityError",
     "check_calibration_size",
+    "check_dataset",
+    "check_fit_size",
+    "check_joint_unit",
+    "check_orientation_order",
+    "check_position_scale",
+    "check_target_reach",
+    "minimum_fit_rows",
+    "robot_reach_m",
 ]
 
 MAX_ROWS = 500

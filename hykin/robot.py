@@ -281,7 +281,7 @@ def robot_from_dict(doc: dict, where: str = "<robot>") -> Robot:
     tool_tbl = doc.get("tool") if isinstance(doc.get("tool"), dict) else {}
     tool_len = float(np.linalg.norm(_vec3(tool_tbl.get("xyz", [0, 0, 0]), f"{where}: [tool].xyz"))) * L
     size_m = float(np.sum(np.hypot(cols["a"], cols["d"]))) + tool_len
-    if size_m > 30.0 or 0.0 < size_m < 0.01:
+    if (lu == "m" and size_m > 30.0) or (lu == "mm" and 0.0 < size_m < 0.01):
         other = "mm" if lu == "m" else "m"
         raise RobotFileError(f"{where}: link lengths and tool add up to {size_m:.6g} m, implausible for a robot arm: "
                              f"the values look like {other} under length_unit = '{lu}' (set length_unit = '{other}')")

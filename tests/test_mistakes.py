@@ -281,6 +281,17 @@ def _cases():
         c("import-missing-input", lambda f, t, o: ["import", "ur5", t / "nope.csv", "-o", o], ["nope.csv"]),
         c("demo-out-folder-missing", lambda f, t, o: ["demo", "--quick", "-o", t / "no" / "demo"], ["does not exist"],
           "no/demo"),
+        c("fit-out-is-directory", lambda f, t, o: ["fit", f[R], f[D], "-o", _mkdir(t / "adir"), *FAST],
+          ["directory"], None),
+        c("fit-missing-val", lambda f, t, o: ["fit", f[R], f[D], "--val", t / "nope.csv", "-o", o, *FAST],
+          ["nope.csv"], "m.hykin"),
+        c("export-out-is-model", lambda f, t, o: ["export", f[M], "-o", f[M]], ["input"], None),
+        c("ik-seed-joints-wrong-rows", lambda f, t, o: ["ik", f[M], f[P], "--seed-joints", _three_rows(f, t), "-o",
+                                                        o], ["expected 1 or 8"]),
+        c("fit-unknown-length-unit", lambda f, t, o: ["fit", f[R], f[D], "-o", o, "--length-unit", "cm", *FAST],
+          ["length_unit"], "m.hykin"),
+        c("fk-joints-beyond-limits", lambda f, t, o: ["fk", f[R], _scaled(f[J], t / "lim.csv", ["q1"], 3.0), "-o", o],
+          ["limits"]),
         # --- units and conventions
         c("fit-metres-declared-mm", lambda f, t, o: ["fit", f[R], f[D], "-o", o, "--length-unit", "mm", *FAST],
           ["length-unit"], "m.hykin"),
@@ -332,6 +343,11 @@ def _cases():
         c("fk-csv-as-model", lambda f, t, o: ["fk", f[D], f[J], "-o", o], ["not a hykin model"]),
         c("fk-model-as-joints", lambda f, t, o: ["fk", f[M], f[M], "-o", o], ["model.hykin"]),
     ]
+
+
+def _mkdir(p: Path) -> Path:
+    p.mkdir()
+    return p
 
 
 def _copy(src: Path, dst: Path) -> Path:
@@ -451,7 +467,7 @@ def test_model_hash_detects_edits_and_bit_flips(files, tmp_path):
 
     with safe_open(str(files["model"]), framework="pt") as f:
         md = f.metadata()
-        tensors = {k: f.get_tensor(k) for k in f.keys()}
+        tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118 - safe_open is not a dict
     # independent recomputation of the documented hash: sorted tensors, then the three metadata entries
     assert len(md["content_sha256"]) == 64 and content_hash(tensors, md) == md["content_sha256"]
     h = hashlib.sha256()
