@@ -444,9 +444,9 @@ class HybridModel:
         n = self.robot.dof
         if q.ndim != 2 or q.shape[1] != n:
             raise HybridError(f"training joints must be (N, {n}), got {q.shape}")
-        from .plausibility import check_fit_size
+        from .plausibility import check_fit_data
 
-        check_fit_size(self.robot, train)  # minimum poses: calibration + validation hold-out
+        check_fit_data(self.robot, train)  # minimum poses; units and quaternion order vs the robot
         if not (np.isfinite(q).all() and np.isfinite(train.xyz_m).all()):
             raise HybridError("training data contain NaN/inf")
         timings = {}

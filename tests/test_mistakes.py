@@ -520,3 +520,13 @@ def test_minimum_fit_size_is_stated(files):
     ds = read_dataset(files["data"], robot=robot).subset(np.arange(29))
     with pytest.raises(PlausibilityError, match="at least 30"):
         hykin.HybridModel(robot).fit(ds, progress=False)
+
+
+def test_api_fit_refuses_scalar_last_quaternions(files):
+    """The Python API path checks too (HybridModel.fit on in-memory data)."""
+    from hykin.plausibility import PlausibilityError
+
+    ds = read_dataset(files["data"], robot=files["robot_obj"])
+    bad = Dataset(q=ds.q, xyz_m=ds.xyz_m, quat_wxyz=ds.quat_wxyz[:, [1, 2, 3, 0]].copy())
+    with pytest.raises(PlausibilityError, match="scalar-last"):
+        hykin.HybridModel(files["robot_obj"]).fit(bad, progress=False)
