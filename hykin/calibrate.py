@@ -686,6 +686,9 @@ def calibrate(
     scale = np.array([_scale_of(s) for s in specs])
     state0 = _State(robot=robot.copy(), c=compliance_of(robot))
     rows_per = 3 if R_meas is None else 6
+    from .plausibility import check_calibration_size
+
+    check_calibration_size(N, P, rows_per)  # fewer equations than unknowns would fit the noise exactly
     is_comp = np.array([sp.group == "comp" for sp in specs])
     comp_joint = np.array([sp.joint for sp in specs])
 

@@ -566,13 +566,16 @@ def read_dataset(
     angle_unit: str = "rad",
     robot=None,
     dof: int | None = None,
+    plausibility: bool = True,
 ) -> Dataset:
     """Read a dataset file (``.csv`` or ``.parquet``, DESIGN.md §3) into SI units and validate it.
 
     ``length_unit`` (``"m"``/``"mm"``) and ``angle_unit`` (``"rad"``/``"deg"``) are the units *in the
     file*. ``robot`` (optional) fixes the number of joints, which joints are prismatic, and enables
-    the joint-limit check; ``dof`` fixes the number of joints without a robot. Without either the
-    joints are the contiguous ``q1, q2, ...`` columns of the header.
+    the joint-limit check and (``plausibility``) the unit and quaternion-order checks of
+    :func:`hykin.plausibility.check_dataset` (positions vs the robot's motion, orientations vs its
+    rotations); ``dof`` fixes the number of joints without a robot. Without either the joints are the
+    contiguous ``q1, q2, ...`` columns of the header.
     """
     where = str(path)
     _check_units(where, length_unit, angle_unit)
@@ -588,6 +591,10 @@ def read_dataset(
     ds = Dataset(q=q, xyz_m=xyz, quat_wxyz=quat, extra=t.extras(_standard_columns(t)), source=where,
                  meta={"length_unit_read": length_unit, "angle_unit_read": angle_unit})
     validate(ds, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset)
+    if robot is not None and plausibility:
+        from .plausibility import check_dataset
+
+        check_dataset(robot, ds, where=where, length_unit=length_unit, angle_unit=angle_unit)
     return ds
 
 

@@ -444,8 +444,9 @@ class HybridModel:
         n = self.robot.dof
         if q.ndim != 2 or q.shape[1] != n:
             raise HybridError(f"training joints must be (N, {n}), got {q.shape}")
-        if len(q) < 2:
-            raise HybridError("training set needs at least 2 samples")
+        from .plausibility import check_fit_data
+
+        check_fit_data(self.robot, train)  # minimum poses; units and quaternion order vs the robot
         if not (np.isfinite(q).all() and np.isfinite(train.xyz_m).all()):
             raise HybridError("training data contain NaN/inf")
         timings = {}
@@ -574,6 +575,9 @@ class HybridModel:
         self.meta_["metrics"]["train"] = self._metrics(train_in, progress_warn=False)
         if val_in is not None:
             self.meta_["metrics"]["val"] = self._metrics(val_in, progress_warn=False)
+        elif len(iv):  # the rows held out from network training (the calibration saw them)
+            held = np.sort(np.concatenate([iv, iv_cal if iv_cal is not None else iv[:0]]))
+            self.meta_["metrics"]["held_out"] = self._metrics(train_in.subset(held), progress_warn=False)
         return self
 
     def _calibrate_on(self, ds) -> None:

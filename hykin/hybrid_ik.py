@@ -1006,19 +1006,41 @@ def _predict(model, q: np.ndarray) -> np.ndarray:
         return np.asarray(model.predict(q), dtype=np.float64).reshape(-1, 4, 4)
 
 
-def ik_result_to_rows(result: HybridIKResult) -> dict[str, np.ndarray]:
+def ik_result_to_rows(result: HybridIKResult, robot: Robot | None = None, targets=None) -> dict[str, np.ndarray]:
     """Columns for a CSV: ``target, branch, q1..qn, success, pos_err_mm, ang_err_deg, reason``.
 
-    Joints are rad (NaN where the target has no joints at all); ``success`` is 0/1 int;
-    ``in_support`` (0/1) and ``support_distance`` follow ``reason``.
+    Joints are rad; a row that is not a solution (``success`` 0) has **no joint values** (NaN: never
+    made-up joints, whatever the path: all branches, nearest, position only) and a ``reason`` that
+    starts with its category (:data:`hykin.ik_reasons.CATEGORIES`: out of reach, joint limits,
+    singular, not converged). With ``robot`` (the model's calibrated robot) and ``targets`` (the
+    ``(N, 4, 4)`` or ``(N, 3)`` targets given to :func:`hybrid_ik`) the category is established by
+    :func:`hykin.ik_reasons.failure_reasons` (reach, IK with opened joint limits, Jacobian at the best
+    attempt); otherwise it is read from the solver's reason. ``success`` is 0/1 int; ``in_support``
+    (0/1) and ``support_distance`` follow ``reason``.
     """
+    from .ik_reasons import categorise, failure_reasons
+
+    ok = np.asarray(result.success, dtype=bool)
+    q = np.array(result.q, dtype=np.float64, copy=True)
+    reason = result.reason.astype(object).copy()
+    bad = np.flatnonzero(~ok)
+    if bad.size:
+        if robot is not None and targets is not None:
+            tg = np.asarray(targets, dtype=np.float64)[result.target[bad]]
+            cls = np.array(["no classical solution" in str(reason[i]) or "classical solution outside" in str(reason[i])
+                            for i in bad])
+            cat = failure_reasons(robot, tg, bool(result.position_only), q_best=q[bad], classical_failed=cls)
+            reason[bad] = [f"{c}; {r}" if r else c for c, r in zip(cat, reason[bad])]
+        else:
+            reason[bad] = [categorise(str(reason[i])) for i in bad]
+        q[bad] = np.nan
     cols: dict[str, np.ndarray] = {"target": result.target.astype(int), "branch": result.branch.astype(str)}
-    for j in range(result.q.shape[1]):
-        cols[f"q{j + 1}"] = result.q[:, j]
-    cols["success"] = result.success.astype(int)
+    for j in range(q.shape[1]):
+        cols[f"q{j + 1}"] = q[:, j]
+    cols["success"] = ok.astype(int)
     cols["pos_err_mm"] = result.pos_err_mm
     cols["ang_err_deg"] = result.ang_err_deg
-    cols["reason"] = result.reason.astype(str)
+    cols["reason"] = reason.astype(str)
     cols["in_support"] = result.in_support.astype(int)
     cols["support_distance"] = result.support_distance
     return cols

@@ -4,8 +4,16 @@ Layout:
 
 * tensors: network state dicts, keys prefixed ``pos.`` / ``rot.`` (weights and buffers, including
   normalisation ranges and output scaling), plus any extra arrays under ``extra.``;
-* metadata (str -> str): ``format`` = ``"hykin-model"``, ``format_version``, and ``hykin`` = one
-  JSON document with the robots (:func:`robot_to_dict`), configuration and training metadata.
+* metadata (str -> str): ``format`` = ``"hykin-model"``, ``format_version``, ``hykin`` = one
+  JSON document with the robots (:func:`robot_to_dict`), configuration and training metadata, and
+  ``content_sha256`` = :func:`content_hash` over every tensor (name, dtype, shape, bytes) and the
+  three entries above.
+
+Integrity: the hash is written at save and checked at load; a file whose content does not match it
+(a flipped bit in the weights, an edited number in the metadata, a truncated copy) is refused.
+It detects corruption and edits, it does not authenticate: anyone can recompute the hash after an
+edit. Files written by hykin 0.1.0 carry no hash; they load with a one-line note
+(:class:`UnverifiedModelWarning`).
 
 :func:`write_model_file` / :func:`read_model_file` do the I/O and validation; the model object
 itself lives in :mod:`hykin.hybrid`.
@@ -25,6 +33,8 @@ __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
     "ModelFileError",
+    "UnverifiedModelWarning",
+    "content_hash",
     "robot_to_dict",
     "robot_from_json_dict",
     "write_model_file",
@@ -37,6 +47,29 @@ FORMAT_VERSION = 1
 
 class ModelFileError(ValueError):
     """A model file is not a hykin model, is corrupt, or has an unsupported format version."""
+
+
+class UnverifiedModelWarning(UserWarning):
+    """A model file without an integrity hash (written by hykin 0.1.0) was loaded unchecked."""
+
+
+def content_hash(tensors: dict, md: dict) -> str:
+    """sha256 (hex) over the tensors (sorted by name: name, dtype, shape, raw bytes) and the metadata
+    entries ``format``, ``format_version`` and ``hykin`` (the JSON text as stored)."""
+    import hashlib
+
+    import torch
+
+    h = hashlib.sha256()
+    for k in ("format", "format_version", "hykin"):
+        v = str(md.get(k, "")).encode("utf-8")
+        h.update(k.encode() + b"\0" + len(v).to_bytes(8, "little") + v)
+    for name in sorted(tensors):
+        t = tensors[name].detach().contiguous().cpu()
+        head = f"{name}\0{t.dtype}\0{tuple(t.shape)}\0".encode()
+        h.update(len(head).to_bytes(8, "little") + head)
+        h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+    return h.hexdigest()
 
 
 _ARRAYS = (
@@ -88,6 +121,7 @@ def write_model_file(path: str | Path, tensors: dict, meta: dict) -> None:
 
     t = {k: v.detach().contiguous().cpu() for k, v in tensors.items()}
     md = {"format": FORMAT, "format_version": str(FORMAT_VERSION), "hykin": json.dumps(meta, allow_nan=False)}
+    md["content_sha256"] = content_hash(t, md)
     save_file(t, str(path), metadata=md)
 
 
@@ -114,6 +148,15 @@ def read_model_file(path: str | Path) -> tuple[dict, dict]:
         raise ModelFileError(
             f"{path}: model format version {ver} is not supported by this hykin (supports 1..{FORMAT_VERSION})"
         )
+    stored = md.get("content_sha256")
+    if stored is None:
+        import warnings
+
+        warnings.warn(f"{path}: model file carries no integrity hash (written by hykin 0.1.0); loaded unchecked",
+                      UnverifiedModelWarning, stacklevel=2)
+    elif content_hash(tensors, md) != stored:
+        raise ModelFileError(f"{path}: model file is corrupt or was edited (content hash mismatch: weights or "
+                             "metadata differ from what was saved); refit or restore the file")
     try:
         meta = json.loads(md["hykin"])
     except (KeyError, json.JSONDecodeError) as e:

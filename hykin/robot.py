@@ -44,6 +44,7 @@ __all__ = [
     "load_robot_toml",
     "save_robot_toml",
     "robot_to_toml_string",
+    "check_keys",
     "list_presets",
     "dh_to_mdh",
     "mdh_to_dh",
@@ -195,19 +196,42 @@ def _vec3(val, where: str) -> np.ndarray:
 def _frame(tbl: dict | None, where: str, L: float, A: float) -> np.ndarray:
     if tbl is None:
         return np.eye(4)
-    unknown = set(tbl) - {"xyz", "rpy"}
-    if unknown:
-        raise RobotFileError(f"{where}: unknown field(s) {sorted(unknown)}; expected xyz, rpy")
+    if not isinstance(tbl, dict):
+        raise RobotFileError(f"{where}: expected a table with xyz, rpy, got {tbl!r}")
+    check_keys(tbl, ("xyz", "rpy"), where)
     xyz = _vec3(tbl.get("xyz", [0, 0, 0]), f"{where}.xyz") * L
     rpy = _vec3(tbl.get("rpy", [0, 0, 0]), f"{where}.rpy") * A
     return se3.xyzrpy_to_transform(xyz, rpy)
 
 
-_JOINT_KEYS = {"a", "alpha", "d", "theta", "beta", "min", "max", "mass", "com", "stiffness", "type", "name"}
+_JOINT_KEYS = ("a", "alpha", "d", "theta", "beta", "min", "max", "mass", "com", "stiffness", "type", "name")
+_TOP_KEYS = ("name", "convention", "length_unit", "angle_unit", "joints", "tool", "base", "payload", "gravity", "source")
+# Geometry a user must write for every joint: a silently defaulted link length or twist is a wrong
+# robot. ``theta`` (the joint offset) and ``beta`` default to 0, the usual reading of a DH table
+# without an offset column.
+_REQUIRED_JOINT_KEYS = ("a", "alpha", "d", "min", "max")
+
+
+def check_keys(tbl: dict, allowed, where: str) -> None:
+    """Raise :class:`RobotFileError` for the first key of ``tbl`` not in ``allowed``, with a
+    "did you mean" suggestion (closest allowed key, :mod:`difflib`)."""
+    import difflib
+
+    for k in tbl:
+        if k not in allowed:
+            close = difflib.get_close_matches(str(k), list(allowed), n=1, cutoff=0.6)
+            hint = f" (did you mean '{close[0]}'?)" if close else f" (expected one of: {', '.join(allowed)})"
+            raise RobotFileError(f"{where}: unknown key '{k}'{hint}")
 
 
 def robot_from_dict(doc: dict, where: str = "<robot>") -> Robot:
-    """Build a :class:`Robot` from a parsed robot-file dictionary (DESIGN.md §3)."""
+    """Build a :class:`Robot` from a parsed robot-file dictionary (DESIGN.md §3).
+
+    Strict: an unknown key at any level is an error with a "did you mean" suggestion (a typo such as
+    ``lenght_unit`` must not silently fall back to metres); every joint needs ``a``, ``alpha``, ``d``,
+    ``min`` and ``max``; ``theta`` (joint offset), ``beta``, mass properties and stiffness are optional.
+    """
+    check_keys(doc, _TOP_KEYS, f"{where}: top level")
     name = str(_get(doc, "name", where, default=Path(where).stem))
     convention = str(_get(doc, "convention", where, required=True)).lower()
     if convention not in ("dh", "mdh"):
@@ -227,9 +251,13 @@ def robot_from_dict(doc: dict, where: str = "<robot>") -> Robot:
     com, types = [], []
     for i, j in enumerate(joints):
         w = f"{where}: joints[{i + 1}]"
-        unknown = set(j) - _JOINT_KEYS
-        if unknown:
-            raise RobotFileError(f"{w}: unknown field(s) {sorted(unknown)}")
+        if not isinstance(j, dict):
+            raise RobotFileError(f"{w}: expected a table ([[joints]]), got {j!r}")
+        check_keys(j, _JOINT_KEYS, w)
+        missing = [k for k in _REQUIRED_JOINT_KEYS if k not in j]
+        if missing:
+            raise RobotFileError(f"{w}: missing required field(s) {', '.join(repr(k) for k in missing)}"
+                                 " (a, alpha, d, min, max are required; theta defaults to 0)")
         jt = str(j.get("type", "revolute"))
         if jt not in ("revolute", "prismatic"):
             raise RobotFileError(f"{w}.type: expected 'revolute' or 'prismatic', got {jt!r}")
@@ -249,6 +277,14 @@ def robot_from_dict(doc: dict, where: str = "<robot>") -> Robot:
         if k_ <= 0:
             raise RobotFileError(f"{w}.stiffness: must be > 0 (N·m/rad)")
         cols["stiffness"].append(k_)
+    # Link lengths in the wrong unit make a robot 1000x too large or small: no arm spans 30 m or 1 cm.
+    tool_tbl = doc.get("tool") if isinstance(doc.get("tool"), dict) else {}
+    tool_len = float(np.linalg.norm(_vec3(tool_tbl.get("xyz", [0, 0, 0]), f"{where}: [tool].xyz"))) * L
+    size_m = float(np.sum(np.hypot(cols["a"], cols["d"]))) + tool_len
+    if (lu == "m" and size_m > 30.0) or (lu == "mm" and 0.0 < size_m < 0.01):
+        other = "mm" if lu == "m" else "m"
+        raise RobotFileError(f"{where}: link lengths and tool add up to {size_m:.6g} m, implausible for a robot arm: "
+                             f"the values look like {other} under length_unit = '{lu}' (set length_unit = '{other}')")
     payload = _number(doc.get("payload", 0.0), f"{where}: payload")
     gravity = _vec3(doc["gravity"], f"{where}: gravity") if "gravity" in doc else np.array([0.0, 0.0, -9.81])
     return Robot(

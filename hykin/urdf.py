@@ -61,11 +61,23 @@ def _float_attr(el: ET.Element, key: str, where: str, required: bool = True, def
     return v
 
 
+def _check_attrs(el: ET.Element, allowed, where: str) -> None:
+    """An attribute outside ``allowed`` is a typo that would silently read as the default: refuse it."""
+    import difflib
+
+    for k in el.attrib:
+        if k not in allowed:
+            close = difflib.get_close_matches(k, list(allowed), n=1, cutoff=0.6)
+            hint = f" (did you mean '{close[0]}'?)" if close else f" (expected {', '.join(allowed)})"
+            raise RobotFileError(f"{where}: unknown attribute '{k}'{hint}")
+
+
 def _origin(el: ET.Element | None, where: str) -> np.ndarray:
     """``<origin xyz rpy>`` of an element -> (4, 4) (identity when absent)."""
     o = None if el is None else el.find("origin")
     if o is None:
         return np.eye(4)
+    _check_attrs(o, ("xyz", "rpy"), f"{where} <origin>")
     xyz = _floats(o.get("xyz"), 3, f"{where} <origin xyz>", (0.0, 0.0, 0.0))
     rpy = _floats(o.get("rpy"), 3, f"{where} <origin rpy>", (0.0, 0.0, 0.0))
     return se3.xyzrpy_to_transform(xyz, rpy)
@@ -125,6 +137,8 @@ def load_urdf_string(
         info = {"name": jn, "type": jt, "parent": parent, "child": child, "origin": _origin(el, w)}
         if jt in _MOVABLE:
             ax = el.find("axis")
+            if ax is not None:
+                _check_attrs(ax, ("xyz",), f"{w} <axis>")
             axis = _floats(None if ax is None else ax.get("xyz"), 3, f"{w} <axis xyz>", (1.0, 0.0, 0.0))
             nrm = float(np.linalg.norm(axis))
             if nrm < 1e-12:
@@ -136,6 +150,9 @@ def load_urdf_string(
             else:
                 if lim is None:
                     raise RobotFileError(f"{w}: missing <limit lower=... upper=...> (required for {jt} joints)")
+                _check_attrs(lim, ("lower", "upper", "effort", "velocity"), f"{w} <limit>")
+                if lim.get("lower") is None and lim.get("upper") is None:
+                    raise RobotFileError(f"{w} <limit>: neither lower nor upper given (the joint would be locked at 0)")
                 lo = _float_attr(lim, "lower", f"{w} <limit>", required=False, default=0.0)
                 hi = _float_attr(lim, "upper", f"{w} <limit>", required=False, default=0.0)
                 if lo > hi:

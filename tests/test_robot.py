@@ -112,6 +112,7 @@ com = [10, 20, 30]
 [[joints]]
 type = "prismatic"
 a = 825
+alpha = 0
 d = 100
 min = -50
 max = 250
@@ -140,6 +141,7 @@ com = [0.01, 0.02, 0.03]
 [[joints]]
 type = "prismatic"
 a = 0.825
+alpha = 0
 d = 0.1
 min = -0.05
 max = 0.25

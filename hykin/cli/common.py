@@ -37,8 +37,49 @@ LengthUnit = typer.Option("m", "--length-unit", help="Unit of x,y,z in the input
 AngleUnit = typer.Option("rad", "--angle-unit", help="Unit of joint columns in the input files: rad or deg.")
 
 
+Force = typer.Option(False, "--force", help="Overwrite the output file if it exists.")
+
+
 class CLIError(Exception):
     """A user-facing error: printed as one line, exit status 2."""
+
+
+def check_output(out, inputs=(), force: bool = False, directory: bool = False) -> Path:
+    """Refuse a bad output path before any work is done; returns ``out`` as a Path.
+
+    Refused: ``out`` naming any of ``inputs`` (symlinks and ``..`` resolved; a preset name or other
+    non-path input is skipped), an existing output without ``force``, an output folder that does not
+    exist or is not writable, and (``directory=False``) an existing directory as output file. Every
+    command calls this first, so a typo in ``-o`` costs nothing and never overwrites measured data.
+    """
+    import os
+
+    out = Path(out)
+    target = out.resolve()
+    for spec in inputs:
+        if spec is None:
+            continue
+        p = Path(spec)
+        if not p.exists():
+            continue
+        same = p.resolve() == target
+        if not same and out.exists():
+            try:
+                same = os.path.samefile(p, out)
+            except OSError:
+                same = False
+        if same:
+            raise CLIError(f"{out}: refusing to write the output over the input file {spec} (choose another -o)")
+    if out.is_dir() and not directory:
+        raise CLIError(f"{out}: is a directory; expected an output file name")
+    if out.exists() and not force and not (directory and out.is_dir() and not any(out.iterdir())):
+        raise CLIError(f"{out}: output exists; pass --force to overwrite it")
+    folder = target.parent
+    if not folder.is_dir():
+        raise CLIError(f"{out}: output folder {folder} does not exist (create it first)")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise CLIError(f"{out}: output folder {folder} is not writable")
+    return out
 
 
 def console():
@@ -84,7 +125,20 @@ def load_model_or_robot(spec: str):
 
         model = HybridModel.load(spec)
         return model, model.robot
+    p = Path(spec)
+    if p.is_file() and p.suffix.lower() not in (".toml", ".urdf"):
+        raise CLIError(f"{spec}: not a hykin model file, robot file (.toml/.urdf) or preset name")
     return None, load_robot(spec)
+
+
+def load_model(spec) -> "object":
+    """A hykin model file (commands that need the networks: register, export)."""
+    p = Path(spec)
+    if p.is_file() and p.suffix.lower() in (".csv", ".parquet", ".toml", ".urdf"):
+        raise CLIError(f"{spec}: expected a hykin model file (written by `hykin fit`), got a {p.suffix} file")
+    from ..hybrid import HybridModel
+
+    return HybridModel.load(spec)
 
 
 # --------------------------------------------------------------------------- commands

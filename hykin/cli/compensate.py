@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -11,30 +10,16 @@ import typer
 from .common import (
     AngleUnit,
     CLIError,
+    Force,
     LengthUnit,
     app,
+    check_output,
     console,
     is_model_file,
     write_rows,
 )
 
 _FORMATS = ("csv", "urscript", "krl", "rapid")
-
-
-def _check_output(out: Path, inputs: list, force: bool) -> None:
-    """Refuse to overwrite an input, or an existing output without ``--force``; the folder must be
-    writable. Checked before any work."""
-    ro = out.resolve()
-    for p in inputs:
-        if p is not None and Path(p).exists() and Path(p).resolve() == ro:
-            raise CLIError(f"{out}: the output would overwrite the input {p}; choose another -o")
-    if out.exists() and not force:
-        raise CLIError(f"{out}: exists; pass --force to overwrite")
-    parent = ro.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not os.access(parent, os.W_OK):
-        raise CLIError(f"{out}: folder {parent} is not writable")
 
 
 def _load_model(spec: str):
@@ -84,7 +69,7 @@ def compensate_cmd(
     fmt: str | None = typer.Option(None, "--format", help="Input format: csv, urscript, krl, rapid (default: by suffix)."),
     context: Path | None = typer.Option(None, "--context", help="KRL: the companion .src of a .dat (default: same name beside it)."),
     axis_signs: str | None = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the robot preset)."),
-    force: bool = typer.Option(False, "--force", help="Overwrite an existing output."),
+    force: bool = Force,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
 ) -> None:
@@ -92,7 +77,7 @@ def compensate_cmd(
     kind = _format_of(inp, fmt)
     if frame not in ("auto", "measurement", "base"):
         raise CLIError(f"--frame must be auto, measurement or base, got {frame!r}")
-    _check_output(out, [inp, model, context], force)
+    check_output(out, [inp, model, context], force)
     if not inp.is_file():
         raise CLIError(f"{inp}: no such file")
     mdl = _load_model(model)
@@ -219,12 +204,12 @@ def serve_cmd(
 def export_urdf_cmd(
     model: str = typer.Argument(..., help="Model file (hykin fit)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output .urdf file."),
-    force: bool = typer.Option(False, "--force", help="Overwrite an existing output."),
+    force: bool = Force,
 ) -> None:
     """Calibrated URDF: geometry, joint offsets, base and tool of the calibrated model in the joint origins."""
     from ..urdf import calibrated_urdf
 
-    _check_output(out, [Path(model)], force)
+    check_output(out, [Path(model)], force)
     mdl = _load_model(model)
     text, info = calibrated_urdf(mdl)
     out.parent.mkdir(parents=True, exist_ok=True)

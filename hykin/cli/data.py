@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from .common import AngleUnit, LengthUnit, app, progress
+from .common import AngleUnit, Force, LengthUnit, app, check_output, progress
 
 @app.command("presets")
 def presets_cmd() -> None:
@@ -37,9 +37,17 @@ def simulate_cmd(
     seed: int = typer.Option(0, "--seed", help="Random seed (reproducible)."),
     plan: str = typer.Option("uniform", "--plan", help="Sampling plan: uniform, random, zigzag, iso-cube, restricted."),
     noise: bool = typer.Option(True, "--noise/--no-noise", help="Add tracker-like measurement noise."),
+    force: bool = Force,
 ) -> None:
     """Simulate a measured dataset from a virtual robot whose truth is known."""
-    from ..simulate import simulate_to_file
+    from ..simulate import load_truth, simulate_to_file, truth_path_for, virtual_preset
+
+    check_output(out, (preset,), force)
+    check_output(truth_path_for(out), (preset,), force)  # the truth file written beside it
+    if preset.lower().endswith(".json"):
+        load_truth(preset)
+    else:
+        virtual_preset(preset)  # an unknown name fails here, before the progress bar starts
 
     with progress() as prog:
         task = prog.add_task(f"simulating {preset}", total=n)
@@ -59,14 +67,17 @@ def split_cmd(
     group: Optional[str] = typer.Option(None, "--group", help="Keep rows with the same value of this column together."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    force: bool = Force,
 ) -> None:
     """Random train/test split of a dataset (disjoint, reproducible)."""
     from ..dataset import read_dataset, split, write_dataset
 
-    ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit)
-    tr, te = split(ds, (1.0 - test, test), seed=seed, group=group)
     suffix = data.suffix if data.suffix in (".csv", ".parquet") else ".csv"
     paths = [Path(f"{out_prefix}_train{suffix}"), Path(f"{out_prefix}_test{suffix}")]
+    for p in paths:
+        check_output(p, (data,), force)
+    ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit)
+    tr, te = split(ds, (1.0 - test, test), seed=seed, group=group)
     write_dataset(tr, paths[0])
     write_dataset(te, paths[1])
     typer.echo(f"wrote {len(tr)} training rows to {paths[0]} and {len(te)} test rows to {paths[1]}")

@@ -13,25 +13,15 @@ from typing import List, Optional
 
 import typer
 
-from .common import CLIError, app
+from .common import CLIError, Force, app, check_output
 
 import_app = typer.Typer(no_args_is_help=True, help="Import measured data into the standard dataset format.")
 app.add_typer(import_app, name="import")
 
 
-def _refuse_overwriting_inputs(out: Path, *inputs: Path | None) -> None:
-    """An output that is one of the inputs would destroy the measurement: refuse."""
-    o = Path(out).resolve()
-    for p in inputs:
-        if p is not None and Path(p).exists() and Path(p).resolve() == o:
-            raise CLIError(f"{out}: the output is the input file {p}; choose another output path")
-
-
 def _write(ds, out: Path, inputs, what: str = "") -> None:
     from ..dataset import write_dataset
 
-    _refuse_overwriting_inputs(out, *inputs)
-    out.parent.mkdir(parents=True, exist_ok=True)
     write_dataset(ds, out)
     frame = ds.meta.get("frame", "robot base")
     typer.echo(f"wrote {len(ds)} samples ({ds.dof} joints{', with orientation' if ds.has_orientation else ', position only'}"
@@ -49,12 +39,15 @@ def import_ur5_cmd(
     path: Path = typer.Argument(..., help="serial-robots-ur5 CSV (joint_1..joint_6, x_t.., x_dif..)."),
     out: Path = Out,
     robot_out: Optional[Path] = RobotOut,
+    force: bool = Force,
 ) -> None:
     """Import a serial-robots-ur5 CSV (exactly six joints; anything else: `hykin import table`)."""
     from ..importers import import_ur5, ur5_robot_for_dataset
     from ..robot import save_robot_toml
 
-    _refuse_overwriting_inputs(out, path)
+    check_output(out, (path,), force)
+    if robot_out is not None:
+        check_output(robot_out, (path, out), force)
     ds = import_ur5(path)
     _write(ds, out, [path])
     if robot_out is not None:
@@ -71,12 +64,15 @@ def import_ipa_cmd(
         help="Express poses in the robot base by a rigid base+tool fit of the nominal UR10 (default: keep the tracker frame).",
     ),
     robot_out: Optional[Path] = RobotOut,
+    force: bool = Force,
 ) -> None:
     """Import an ipa-robot-accuracy series (UR10, laser tracker + T-Mac)."""
     from ..importers import import_ipa_series, ipa_nominal_robot
     from ..robot import save_robot_toml
 
-    _refuse_overwriting_inputs(out, path)
+    check_output(out, (path,), force)
+    if robot_out is not None:
+        check_output(robot_out, (path, out), force)
     ds = import_ipa_series(path, register_to=ipa_nominal_robot() if register else None)
     _write(ds, out, [path])
     if robot_out is not None:
@@ -167,6 +163,7 @@ def import_table_cmd(
     dof: Optional[int] = DofOpt,
     robot: Optional[str] = RobotOpt,
     unit_check: Optional[bool] = UnitCheckOpt,
+    force: bool = Force,
 ) -> None:
     """Import any table into the standard dataset through a column mapping (see docs/import-table.md)."""
     opts = dict(
@@ -189,7 +186,7 @@ def import_table_cmd(
                        "suggested mapping to check and pass with --map")
     from ..table_import import import_table
 
-    _refuse_overwriting_inputs(out, path, map_path)
+    check_output(out, (path, map_path), force)
     m = _build_map(map_path, opts)
     ds = import_table(path, m, _robot(robot))
     _write(ds, out, [path, map_path], f", orientation from {m.orientation}" if m.orientation else "")
@@ -252,6 +249,7 @@ def import_three_smr_cmd(
     comment: Optional[str] = CommentOpt,
     dof: Optional[int] = DofOpt,
     robot: Optional[str] = RobotOpt,
+    force: bool = Force,
 ) -> None:
     """Full poses from three reflectors per pose (a rigid fit of the known nest onto the three points).
 
@@ -260,7 +258,7 @@ def import_three_smr_cmd(
     """
     from ..table_import import import_table
 
-    _refuse_overwriting_inputs(out, path, map_path)
+    check_output(out, (path, map_path), force)
     opts = dict(joints=_joint_spec(joints), angle_unit=angle_unit, position=_csv_names(position), length_unit=length_unit,
                 points=[_csv_names(p) for p in point or []], delimiter=delimiter, decimal=decimal, skip_rows=skip_rows,
                 comment=comment, dof=dof, nest_unit=nest_unit, max_fit_rms_mm=max_fit_rms_mm)
@@ -309,6 +307,7 @@ def import_stream_cmd(
     max_speed: float = typer.Option(0.1, "--max-speed", help="Drop samples where the TCP moves faster (m/s); 0 keeps all.", min=0.0),
     max_gap: Optional[float] = typer.Option(None, "--max-gap", help="Longest tracker gap bridged (s; default 3 tracker periods)."),
     frame: str = typer.Option("tracker", "--frame", help="tracker (keep the tracker frame) or fit (robot base by the rigid map of the clock fit)."),
+    force: bool = Force,
 ) -> None:
     """Align a robot joint log with a tracker stream (clock offset, interpolation) into a dataset."""
     from ..streams import align_streams
@@ -317,7 +316,7 @@ def import_stream_cmd(
     if frame not in ("tracker", "fit"):
         raise CLIError(f"import stream: --frame must be tracker or fit, got {frame!r}")
     rob = _robot(robot)
-    _refuse_overwriting_inputs(out, robot_log, tracker_stream, robot_map, tracker_map)
+    check_output(out, (robot_log, tracker_stream, robot_map, tracker_map), force)
     r_opts = dict(time=robot_time, joints=_joint_spec(joints), angle_unit=angle_unit, time_unit=robot_time_unit)
     t_opts = dict(time=tracker_time, position=_csv_names(position), quaternion=_csv_names(quaternion),
                   length_unit=length_unit, time_unit=tracker_time_unit)

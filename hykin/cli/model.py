@@ -8,7 +8,7 @@ from typing import Optional
 
 import typer
 
-from .common import AngleUnit, CLIError, LengthUnit, app, load_model_or_robot
+from .common import AngleUnit, CLIError, Force, LengthUnit, app, check_output, load_model, load_model_or_robot
 
 @app.command("fit")
 def fit_cmd(
@@ -24,34 +24,45 @@ def fit_cmd(
     max_minutes: Optional[float] = typer.Option(None, "--max-minutes", help="Time budget for network training."),
     thermal: str = typer.Option("auto", "--thermal", help="Thermal expansion from a temperature_c column: auto, on, off."),
     min_steps: Optional[int] = typer.Option(None, "--min-steps", help="Least number of optimiser steps per network (default recipe: 30000)."),
+    max_epochs: Optional[int] = typer.Option(None, "--max-epochs", help="Most training epochs per network (default: the recipe's)."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    force: bool = Force,
 ) -> None:
-    """Fit a hybrid model: calibrate the classical model, then train the residual networks."""
-    from ..dataset import read_dataset, split
+    """Fit a hybrid model: calibrate the classical model, then train the residual networks.
+
+    Exactly the API path: ``HybridModel(robot, ...).fit(train, val)``; without ``--val`` the model
+    holds out its validation rows itself, so the same data, options and seed give the same model."""
+    from ..dataset import read_dataset
     from ..hybrid import HybridModel
+    from ..plausibility import check_fit_size
     from ..robot import load_robot
 
-    rob = load_robot(robot)
-    tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
-    if val is not None:
-        va = read_dataset(val, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
-    else:
-        tr, va = split(tr, (0.9, 0.1), seed=seed)
-    if device == "auto":
-        import torch
-
-        device = "cuda" if torch.cuda.is_available() else "cpu"
     kw = {}
     if max_minutes is not None:
         kw["max_seconds"] = max_minutes * 60
     if min_steps is not None:
         if min_steps < 0:
             raise CLIError(f"--min-steps must be >= 0, got {min_steps}")
-        kw["recipe_kw"] = {"min_steps": min_steps}
+        kw.setdefault("recipe_kw", {})["min_steps"] = min_steps
+    if max_epochs is not None:
+        if max_epochs < 1:
+            raise CLIError(f"--max-epochs must be >= 1, got {max_epochs}")
+        kw.setdefault("recipe_kw", {})["max_epochs"] = max_epochs
     modes = {"auto": "auto", "on": True, "off": False}
     if thermal not in modes:
         raise CLIError(f"--thermal must be auto, on or off, got {thermal!r}")
+    check_output(out, (robot, train, val), force)  # before any long work
+    rob = load_robot(robot)
+    tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+    check_fit_size(rob, tr)
+    va = None
+    if val is not None:
+        va = read_dataset(val, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+    if device == "auto":
+        import torch
+
+        device = "cuda" if torch.cuda.is_available() else "cpu"
     model = HybridModel(rob, arch=arch, recipe=recipe, calibrate=calibrate, device=device, seed=seed,
                         thermal=modes[thermal], **kw)
     model.fit(tr, va, progress=True)
@@ -88,6 +99,10 @@ def evaluate_cmd(
     from ..dataset import read_dataset
     from ..evaluate import evaluate_model, evaluation_report
 
+    if report is not None and report.exists() and not report.is_dir():
+        raise CLIError(f"{report}: --report must name a directory, got an existing file")
+    if report is not None:
+        check_output(report, (model, test), force=True, directory=True)
     mdl, rob = load_model_or_robot(model)
     ds = read_dataset(test, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
     res = evaluate_model(mdl if mdl is not None else rob, ds)
@@ -108,12 +123,14 @@ def calibrate_cmd(
     compliance: bool = typer.Option(True, "--compliance/--no-compliance", help="Identify joint compliance under gravity."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    force: bool = Force,
 ) -> None:
     """Parametric calibration only (geometry, base, tool, joint compliance); writes a robot file."""
     from ..calibrate import calibrate
     from ..dataset import read_dataset
     from ..robot import load_robot, save_robot_toml
 
+    check_output(out, (robot, data), force)
     rob = load_robot(robot)
     ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
     res = calibrate(rob, ds, compliance=compliance)
@@ -130,13 +147,14 @@ def register_cmd(
     poses: int = typer.Option(30, "--poses", help="Number of poses of the series used to register (spread over it)."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    force: bool = Force,
 ) -> None:
     """Re-fit base and tool frames for a new series (tracker moved, tool changed); keep the learned errors."""
     from ..dataset import read_dataset
-    from ..hybrid import HybridModel
     from ..register import register_model
 
-    mdl = HybridModel.load(str(model))
+    check_output(out, (model, series), force)
+    mdl = load_model(model)
     ds = read_dataset(series, length_unit=length_unit, angle_unit=angle_unit, robot=mdl.robot)
     new, info = register_model(mdl, ds, n_poses=poses)
     new.save(out)
@@ -148,12 +166,13 @@ def register_cmd(
 def export_cmd(
     model: str = typer.Argument(..., help="Model file."),
     out: Path = typer.Option(..., "-o", "--out", help="Output .onnx file."),
+    force: bool = Force,
 ) -> None:
     """Export a hybrid model to ONNX (joints in, 4x4 poses out) and check it against PyTorch."""
     from ..export import export_onnx
-    from ..hybrid import HybridModel
 
-    mdl = HybridModel.load(model)
+    check_output(out, (model,), force)
+    mdl = load_model(model)
     info = export_onnx(mdl, out)
     typer.echo(f"wrote {out}; ONNX Runtime vs hykin max difference {info['max_pos_diff_mm']:.2e} mm, {info['max_ang_diff_deg']:.2e} deg")
     if "thermal_coefficient_per_k" in info:
@@ -171,6 +190,11 @@ def demo_cmd(
 ) -> None:
     """The main job on the embedded default: virtual RX160, calibrate, train, evaluate, IK, report."""
     from ..demo import run_demo
+
+    if out.exists() and not out.is_dir():
+        raise CLIError(f"{out}: the demo writes a directory, but this is an existing file")
+    if not out.resolve().parent.is_dir():
+        raise CLIError(f"{out}: output folder {out.resolve().parent} does not exist (create it first)")
 
     path = run_demo(out, n_train=n_train, quick=quick, seed=seed)
     typer.echo(f"report: {path}")

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from .common import CLIError, app, load_model_or_robot, write_rows
+from .common import CLIError, Force, app, check_output, load_model_or_robot, write_rows
 
 
 def _vec3(text: str | None, what: str, factor: float = 1.0) -> np.ndarray | None:
@@ -46,6 +46,7 @@ def plan_cmd(
     unmodelled_mm: float | None = typer.Option(None, "--unmodelled-mm", help="Report: RMS error a calibration cannot model (mm; default 0.15, or the model's own)."),
     plot: Path | None = typer.Option(None, "--plot", help="Report: write the accuracy-vs-N curve as a PNG."),
     report_max: int = typer.Option(2000, "--report-max", help="Report: largest N in the table.", min=10),
+    force: bool = Force,
 ) -> None:
     """Plan which joint configurations to measure (I-optimal calibration core + space-filling for the
     networks, within the region and the tracker's line of sight), ordered for a short path."""
@@ -57,6 +58,10 @@ def plan_cmd(
         raise CLIError("plan: give either ROBOT or --for-model MODEL (exactly one)")
     if out is None and not report:
         raise CLIError("plan: give -o JOINTS.csv (and/or --report)")
+    if out is not None:
+        check_output(out, (robot, for_model), force)
+    if plot is not None:
+        check_output(plot, (robot, for_model, out), force)
     if length_unit not in ("m", "mm"):
         raise CLIError(f"--length-unit must be m or mm, got {length_unit!r}")
     if measure not in ("position", "pose"):

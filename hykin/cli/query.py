@@ -8,7 +8,8 @@ from typing import Optional
 import numpy as np
 import typer
 
-from .common import AngleUnit, CLIError, LengthUnit, app, console, load_model_or_robot, temperature_of, write_rows
+from .common import (AngleUnit, CLIError, Force, LengthUnit, app, check_output, console, load_model_or_robot,
+                     temperature_of, write_rows)
 
 @app.command("fk")
 def fk_cmd(
@@ -17,13 +18,17 @@ def fk_cmd(
     out: Path = typer.Option(..., "-o", "--out", help="Output poses (dataset columns q…, x,y,z,qw,qx,qy,qz)."),
     angle_unit: str = AngleUnit,
     no_fade: bool = typer.Option(False, "--no-fade", help="Apply the network correction even outside the training region."),
+    force: bool = Force,
 ) -> None:
     """Forward kinematics: full hybrid model for a model file, classical FK for a robot."""
     from ..dataset import Dataset, read_joints, write_dataset
     from ..fk import fk
+    from ..plausibility import check_joint_unit
 
+    check_output(out, (model, joints), force)
     mdl, rob = load_model_or_robot(model)
     q, extra = read_joints(joints, dof=rob.dof, angle_unit=angle_unit, robot=rob)
+    check_joint_unit(rob, q, where=str(joints), angle_unit=angle_unit)
     if mdl is None:
         T = fk(rob, q)
     else:
@@ -51,12 +56,20 @@ def ik_cmd(
     position_only: bool = typer.Option(False, "--position-only", help="Solve for position only."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    force: bool = Force,
 ) -> None:
-    """Inverse kinematics: every branch (or the one nearest the seed joints), failures reported."""
-    from ..dataset import read_joints, read_poses
+    """Inverse kinematics: every branch (or the one nearest the seed joints), failures reported.
 
+    A target that is not solved gets one row with no joint values and a reason (out of reach, joint
+    limits, singular, not converged)."""
+    from ..dataset import read_joints, read_poses
+    from ..plausibility import check_target_reach
+
+    check_output(out, (model, poses, seed_joints), force)
     mdl, rob = load_model_or_robot(model)
     T, has_rot, pose_extra = read_poses(poses, length_unit=length_unit, extras=True)
+    check_target_reach(mdl.robot_ if mdl is not None else rob, T, where=str(poses), length_unit=length_unit,
+                       frame=None if mdl is None else mdl.frame_pre)
     position_only = position_only or not has_rot
     q_cur = None
     if seed_joints is not None:
@@ -76,10 +89,10 @@ def ik_cmd(
         target = T[:, :3, 3] if position_only else T
         res = hybrid_ik(mdl, target, all_branches=True, q_current=q_cur, nearest=nearest, position_only=position_only,
                         temperature_c=temperature_of(mdl, pose_extra, poses))
-        rows = ik_result_to_rows(res)
+        rows = ik_result_to_rows(res, robot=mdl.robot_, targets=target)
         from ..hybrid import support_report
 
-        has_q = np.isfinite(res.q).all(axis=1)
+        has_q = np.asarray(res.success, dtype=bool) & np.isfinite(res.q).all(axis=1)
         msg = support_report(mdl, res.q[has_q])["message"] if has_q.any() else ""
         if msg:
             console().print(f"[yellow]warning:[/] {msg} (see the in_support column)")
@@ -97,10 +110,17 @@ def _classical_ik_rows(robot, T, q_current, position_only: bool) -> dict:
     br = ik(robot, T, all_branches=True, position_only=position_only)
     if q_current is not None:
         r = br.nearest_to(q_current, robot.lower, robot.upper)
+        r.q[~r.success] = np.nan  # nearest_to may hand back a failed slot's joints
         q, ok, pe, ae, lab = r.q[:, None], r.success[:, None], r.pos_err_m[:, None], r.ang_err_rad[:, None], np.asarray(r.label)[:, None]
     else:
         q, ok, pe, ae, lab = br.q, br.success, br.pos_err_m, br.ang_err_rad, br.label
     N, K, n = q.shape
+    from ..ik_reasons import failure_reasons
+
+    failed = ~ok.any(axis=1)
+    reasons = np.full(N, "", dtype=object)
+    if failed.any():
+        reasons[failed] = failure_reasons(robot, T[failed], position_only=position_only)  # classical: all failed
     rows: dict = {"target": [], "branch": []}
     rows.update({f"q{j + 1}": [] for j in range(n)})
     rows.update({"success": [], "pos_err_mm": [], "ang_err_deg": [], "reason": []})
@@ -114,7 +134,7 @@ def _classical_ik_rows(robot, T, q_current, position_only: bool) -> dict:
             rows["success"].append(False)
             rows["pos_err_mm"].append(float(np.nanmin(pe[i]) * 1e3) if np.isfinite(pe[i]).any() else float("nan"))
             rows["ang_err_deg"].append(float(np.degrees(np.nanmin(ae[i]))) if np.isfinite(ae[i]).any() else float("nan"))
-            rows["reason"].append("unreachable: no solution within joint limits")
+            rows["reason"].append(reasons[i])
             continue
         for k in ks:
             rows["target"].append(i)
