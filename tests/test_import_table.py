@@ -336,7 +336,7 @@ def test_refusals(tmp_path, capsys):
     # no mapping at all: never import from a guess
     _refused(capsys, ["import", "table", path, "-o", out], out, "--suggest")
     # output = input
-    _refused(capsys, ["import", "table", path, "-o", path, "--map", mp], out, "output is the input")
+    _refused(capsys, ["import", "table", path, "-o", path, "--map", mp], out, "over the input file")
 
 
 def test_refuses_seventh_joint(tmp_path, capsys):
