@@ -594,6 +594,7 @@ class CalibrationResult:
                          ("rot_mean_deg", "rot mean deg"), ("rot_p95_deg", "rot p95 deg"), ("rot_max_deg", "rot max deg")):
             if key in self.before:
                 lines.append(f"{lab:<14} {self.before[key]:10.6f} {self.after[key]:12.6f}")
+        lines.append("identified at the solution: " + (", ".join(self.identified_names) or "none"))
         if self.strong_correlations:
             lines.append("strong correlations (|rho| > 0.9): " + ", ".join(
                 f"{a}~{b} {r:+.3f}" for a, b, r in self.strong_correlations))
@@ -629,45 +630,16 @@ class CalibrationResult:
 # --------------------------------------------------------------------------- main entry
 
 
-def calibrate(
-    robot: Robot,
-    data,
-    *,
-    params="auto",
-    compliance: bool = True,
-    base: bool = True,
-    tool: bool = True,
-    position_only: bool | None = None,
-    orientation_weight_m_per_rad: float = 1.0,
-    max_iter: int = 50,
-    tol: float = 1e-12,
-    rank_tol: float = 1e-6,
-    negligible_tol: float = 1e-9,
-    progress: Callable[[int, float], None] | None = None,
-) -> CalibrationResult:
-    """Identify geometry, base, tool and joint compliance of ``robot`` from measured poses.
+def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, max_iter: int, tol: float,
+                    rank_tol: float, negligible_tol: float, progress) -> tuple["CalibrationResult", float]:
+    """One identifiability selection at ``robot`` plus one LM run on the parameters ``specs``.
 
-    data: a :class:`hykin.dataset.Dataset` (or any object with ``q``, ``xyz_m``, ``quat_wxyz``), or a
-    tuple ``(q (N, n) rad, poses (N, 4, 4) m)`` / ``(q, positions (N, 3) m)``. Measured poses are in
-    the world/measurement frame (``robot.base`` maps it to the robot base).
-    params: ``"auto"`` (every candidate, see :func:`parameter_names`) or fnmatch patterns selecting
-    candidates (``["base.*", "tool.*"]`` re-registers a measurement series only).
-    compliance/base/tool: include those parameter groups. position_only: ignore orientations
-    (default: only when the data have none). orientation_weight_m_per_rad: length scale ``w`` that
-    weights orientation residuals (1 m/rad: 1 mrad counts like 1 mm). max_iter / tol: LM iterations
-    and relative cost decrease at which it stops. rank_tol: identifiability threshold on
-    ``|R_kk| / ‖column‖``; negligible_tol: columns smaller than this times the largest are fixed.
-    progress: called as ``progress(iteration, cost)``.
+    Returns the result (deviations relative to ``robot``) and the relative cost decrease of the
+    last accepted iteration (large when the iteration cap stopped a still-falling cost).
     """
     t0 = time.perf_counter()
-    if not (orientation_weight_m_per_rad > 0 and math.isfinite(orientation_weight_m_per_rad)):
-        raise CalibrationError(f"orientation_weight_m_per_rad must be a positive number, got {orientation_weight_m_per_rad}")
-    q, xyz, R_meas = _as_data(robot, data, position_only)
     N = q.shape[0]
-    if N == 0:
-        raise CalibrationError("data: no samples")
-    w = float(orientation_weight_m_per_rad)
-    specs = _select(_candidate_specs(robot, base=base, tool=tool, compliance=compliance), params)
+    last = {"rel": 0.0}
     P = len(specs)
     scale = np.array([_scale_of(s) for s in specs])
     state0 = _State(robot=robot.copy(), c=compliance_of(robot))
@@ -713,6 +685,7 @@ def calibrate(
                 converged, message = True, "no further decrease of the cost"
                 break
             rel = (cost - new_cost) / max(cost, 1e-300)
+            last["rel"] = rel
             state, cost, q_eff, rp, ro = trial, new_cost, new_q_eff, new_rp, new_ro
             if progress is not None:
                 progress(it, cost)
@@ -789,7 +762,133 @@ def calibrate(
         position_only=R_meas is None, orientation_weight_m_per_rad=w, sigma_pos_m=math.sqrt(sig2_p),
         sigma_rot_rad=math.sqrt(sig2_o) / w if R_meas is not None else float("nan"),
         seconds=time.perf_counter() - t0,
-    )
+    ), last["rel"]
+
+
+def calibrate(
+    robot: Robot,
+    data,
+    *,
+    params="auto",
+    compliance: bool = True,
+    base: bool = True,
+    tool: bool = True,
+    position_only: bool | None = None,
+    orientation_weight_m_per_rad: float | str = "auto",
+    max_iter: int = 50,
+    tol: float = 1e-12,
+    rank_tol: float = 1e-6,
+    negligible_tol: float = 1e-9,
+    progress: Callable[[int, float], None] | None = None,
+    initial: bool | str = "auto",
+    restarts: int = 2,
+    max_deviation: dict | None = None,
+    checks: bool = True,
+) -> CalibrationResult:
+    """Identify geometry, base, tool and joint compliance of ``robot`` from measured poses.
+
+    data: a :class:`hykin.dataset.Dataset` (or any object with ``q``, ``xyz_m``, ``quat_wxyz``), or a
+    tuple ``(q (N, n) rad, poses (N, 4, 4) m)`` / ``(q, positions (N, 3) m)``. Measured poses may be
+    in any frame (a tracker's, metres away and turned): base and tool are found first
+    (:mod:`hykin.initial_registration`), then refined with everything else.
+    params: ``"auto"`` (every candidate, see :func:`parameter_names`) or fnmatch patterns selecting
+    candidates (``["base.*", "tool.*"]`` re-registers a measurement series only).
+    compliance/base/tool: include those parameter groups. position_only: ignore orientations
+    (default: only when the data have none). orientation_weight_m_per_rad: length scale ``w`` that
+    weights orientation residuals (``w = 1``: 1 mrad counts like 1 mm); ``"auto"`` (default) takes
+    ``w = σ_pos / σ_rot`` from the residuals of a first fit, so that each kind counts by its noise.
+    max_iter / tol: LM iterations per pass and relative cost decrease at which it stops.
+    rank_tol: identifiability threshold on ``|R_kk| / ‖column‖``; negligible_tol: columns smaller
+    than this times the largest are fixed. progress: called as ``progress(iteration, cost)``.
+    initial: ``"auto"``/True: closed-form base + tool start when base and tool are calibrated
+    (kept only where it explains the data better than the robot file's frames); False: start at
+    the robot file. restarts: further LM passes when the iteration cap stopped a still-falling cost,
+    and starts tried (robot file's frames) when the fit is implausible.
+    max_deviation: overrides of :data:`hykin.calibration_checks.DEFAULT_MAX_DEVIATION`
+    (``{"length_mm": 30}``). checks: refuse (raise :class:`CalibrationError`) a calibration that did
+    not converge, a parameter beyond its plausible bound, or an implausible residual
+    (:mod:`hykin.calibration_checks`); False returns whatever the fit gave.
+
+    Identifiability is decided at the current estimate: after base and tool are found, and again at
+    the solution (a further pass runs when the identified set changed there).
+    """
+    from .calibration_checks import check_calibration, resolve_max_deviation
+    from .initial_registration import initial_registration
+
+    t0 = time.perf_counter()
+    auto_w = isinstance(orientation_weight_m_per_rad, str)
+    if auto_w and orientation_weight_m_per_rad != "auto":
+        raise CalibrationError(f"orientation_weight_m_per_rad must be a positive number or 'auto', got {orientation_weight_m_per_rad!r}")
+    if not auto_w and not (orientation_weight_m_per_rad > 0 and math.isfinite(orientation_weight_m_per_rad)):
+        raise CalibrationError(f"orientation_weight_m_per_rad must be a positive number, got {orientation_weight_m_per_rad}")
+    try:
+        lim = resolve_max_deviation(max_deviation)
+    except ValueError as e:
+        raise CalibrationError(str(e)) from None
+    q, xyz, R_meas = _as_data(robot, data, position_only)
+    if q.shape[0] == 0:
+        raise CalibrationError("data: no samples")
+    w = 1.0 if auto_w else float(orientation_weight_m_per_rad)
+    specs = _select(_candidate_specs(robot, base=base, tool=tool, compliance=compliance), params)
+    names = {s.name for s in specs}
+    frames = [s for s in specs if s.group in ("base", "tool")]
+    run = lambda rob, sp, ww, it: _calibrate_pass(rob, q, xyz, R_meas, sp, ww, it, tol, rank_tol,  # noqa: E731
+                                                  negligible_tol, progress)
+    starts = [robot]
+    reg = None
+    full_frames = all(f"base.{f}" in names for f in _TWIST) and all(f"tool.{f}" in names for f in ("x", "y", "z"))
+    if initial and full_frames:
+        reg = initial_registration(robot, q, xyz, R_meas)
+        if reg.rms_m < reg.rms_before_m:
+            starts.insert(0, robot.copy(base=reg.base, tool=reg.tool))
+
+    def chain(start: Robot):
+        """frames, then everything (identifiability at the estimate), then again at the solution."""
+        iters, ww = 0, w
+        cur = start
+        if frames and len(frames) < len(specs):
+            r, _ = run(cur, frames, ww, max_iter)
+            cur, iters = r.robot, iters + r.iterations
+        res, rel = run(cur, specs, ww, max_iter)
+        iters += res.iterations
+        if auto_w and R_meas is not None and res.sigma_rot_rad > 0 and math.isfinite(res.sigma_rot_rad):
+            ww = float(np.clip(res.sigma_pos_m / res.sigma_rot_rad, 1e-3, 1e3))
+        for _ in range(max(int(restarts), 0) + 1):
+            again = ww != res.orientation_weight_m_per_rad or "unidentifiable" in res.message or (
+                not res.converged and rel > 1e-6)
+            if not again:
+                break
+            res, rel = run(res.robot, specs, ww, max_iter)
+            iters += res.iterations
+        return res, rel, iters
+
+    best = None
+    for k, start in enumerate(starts[: 1 + max(int(restarts), 0)]):
+        res, rel, iters = chain(start)
+        cost = res.after["pos_rms_mm"] ** 2 + (res.after.get("rot_rms_deg", 0.0) * 0.0)
+        if best is None or cost < best[3]:
+            best = (res, rel, iters, cost)
+        plausible = res.after["pos_rms_mm"] <= lim["residual_mm"] and (res.converged or rel <= 1e-6)
+        if plausible:
+            break
+    res, rel, iters, _ = best
+    if not res.converged and rel <= 1e-6:  # the cap stopped a cost that no longer moves
+        res.converged = True
+        res.message += f"; iteration cap reached with the cost changing by {rel:.2g} (relative) per iteration"
+    state0 = _State(robot=robot.copy(), c=compliance_of(robot))
+    state1 = _State(robot=res.robot, c=compliance_of(res.robot))
+    res.values = _deviations(state0, state1, specs)
+    res.before = _stats(*_residual(_model_poses(state0, q), xyz, R_meas, res.orientation_weight_m_per_rad),
+                        res.orientation_weight_m_per_rad)
+    res.iterations = iters
+    res.seconds = time.perf_counter() - t0
+    if reg is not None:
+        res.message += (f"; start: base and tool from the nominal kinematics ({reg.rms_m * 1e3:.3g} mm RMS, robot "
+                        f"file frames {reg.rms_before_m * 1e3:.3g} mm)" if reg.rms_m < reg.rms_before_m
+                        else "; start: the robot file's base and tool")
+    if checks:
+        check_calibration(res, specs, lim, still_falling=(not res.converged and rel > 1e-6))
+    return res
 
 
 def _deviations(s0: _State, s1: _State, specs: Sequence[_Spec]) -> np.ndarray:
