@@ -631,9 +631,12 @@ class CalibrationResult:
 
 
 def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, max_iter: int, tol: float,
-                    rank_tol: float, negligible_tol: float, progress) -> tuple["CalibrationResult", float]:
+                    rank_tol: float, negligible_tol: float, progress,
+                    prefer: np.ndarray | None = None) -> tuple["CalibrationResult", float]:
     """One identifiability selection at ``robot`` plus one LM run on the parameters ``specs``.
 
+    prefer: bool mask of parameters put first in the QR order (an identified set chosen earlier
+    stays chosen where it is still identifiable; others are added where they became so).
     Returns the result (deviations relative to ``robot``) and the relative cost decrease of the
     last accepted iteration (large when the iteration cap stopped a still-falling cost).
     """
@@ -701,7 +704,9 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
     sub = lambda a, idx: None if a is None else a[idx]  # noqa: E731
     _, rp0, ro0, lin0, _, _, _ = run_lm(state0, q[id_rows], xyz[id_rows], sub(R_meas, id_rows), None, 0,
                                         id_rows=np.arange(id_rows.size))
-    mask, _ = _identifiable(lin0["J_id"], rank_tol, negligible_tol)
+    order = np.arange(P) if prefer is None else np.concatenate([np.flatnonzero(prefer), np.flatnonzero(~prefer)])
+    mask = np.zeros(P, bool)
+    mask[order] = _identifiable(lin0["J_id"][:, order], rank_tol, negligible_tol)[0]
     if N * rows_per < mask.sum():
         raise CalibrationError(f"data: {N} samples give {N * rows_per} equations for {int(mask.sum())} parameters")
     act = np.flatnonzero(mask)
@@ -717,7 +722,8 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
     # recheck at the solution: the identified set must still have full rank there
     final = mask.copy()
     if act.size:
-        keep_end, _ = _identifiable(lin["J_id"][:, act], rank_tol, negligible_tol)
+        keep_end, _ = _identifiable(lin["J_id"][:, act[np.argsort(np.argsort(order)[act])]], rank_tol, negligible_tol)
+        keep_end = keep_end[np.argsort(np.argsort(np.argsort(order)[act]))]
         lost = [specs[k].name for k in act[~keep_end]]
         if lost:
             message += f"; at the solution {', '.join(lost)} became unidentifiable (no std reported)"
@@ -832,8 +838,8 @@ def calibrate(
     specs = _select(_candidate_specs(robot, base=base, tool=tool, compliance=compliance), params)
     names = {s.name for s in specs}
     frames = [s for s in specs if s.group in ("base", "tool")]
-    run = lambda rob, sp, ww, it: _calibrate_pass(rob, q, xyz, R_meas, sp, ww, it, tol, rank_tol,  # noqa: E731
-                                                  negligible_tol, progress)
+    run = lambda rob, sp, ww, it, pref=None: _calibrate_pass(  # noqa: E731
+        rob, q, xyz, R_meas, sp, ww, it, tol, rank_tol, negligible_tol, progress, prefer=pref)
     starts = [robot]
     reg = None
     full_frames = all(f"base.{f}" in names for f in _TWIST) and all(f"tool.{f}" in names for f in ("x", "y", "z"))
@@ -842,14 +848,17 @@ def calibrate(
         if reg.rms_m < reg.rms_before_m:
             starts.insert(0, robot.copy(base=reg.base, tool=reg.tool))
 
+    # the set identifiable at the robot file (kept first in the QR order at later estimates)
+    nominal_set = run(robot, specs, w, 0)[0].identifiable if len(starts) > 1 else None
+
     def chain(start: Robot):
         """frames, then everything (identifiability at the estimate), then again at the solution."""
         iters, ww = 0, w
         cur = start
-        if frames and len(frames) < len(specs):
+        if nominal_set is not None and frames and len(frames) < len(specs):
             r, _ = run(cur, frames, ww, max_iter)
             cur, iters = r.robot, iters + r.iterations
-        res, rel = run(cur, specs, ww, max_iter)
+        res, rel = run(cur, specs, ww, max_iter, nominal_set)
         iters += res.iterations
         if auto_w and R_meas is not None and res.sigma_rot_rad > 0 and math.isfinite(res.sigma_rot_rad):
             ww = float(np.clip(res.sigma_pos_m / res.sigma_rot_rad, 1e-3, 1e3))
@@ -858,7 +867,7 @@ def calibrate(
                 not res.converged and rel > 1e-6)
             if not again:
                 break
-            res, rel = run(res.robot, specs, ww, max_iter)
+            res, rel = run(res.robot, specs, ww, max_iter, res.identifiable | (nominal_set if nominal_set is not None else False))
             iters += res.iterations
         return res, rel, iters
 

@@ -120,6 +120,8 @@ def check_calibration(res, specs, lim: dict, *, still_falling: bool) -> None:
         if lb is None:
             continue
         bound, f, un = lb
+        if s.unit == "rad":  # an angle 360° away is the same angle
+            v = (v + math.pi) % (2 * math.pi) - math.pi
         if abs(v) > bound and (worst is None or abs(v) / bound > worst[0]):
             worst = (abs(v) / bound, s.name, v * f, bound * f, un)
     if worst is not None:

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .compliance import compliance_of, deflected_joints
 from .fk import fk
 from .referencing import kabsch
 from .robot import Robot
@@ -121,7 +122,9 @@ def initial_registration(robot: Robot, q, points, rotations=None, *, tool_guesse
     if P.ndim == 2:
         P = P[:, None, :]
     N, K, _ = P.shape
-    flange = fk(robot.copy(base=np.eye(4), tool=np.eye(4)), q)
+    # the deflected joints under gravity (the robot file's compliance, if any): the nominal model
+    q_eff = deflected_joints(robot, q) if np.any(compliance_of(robot)) else q
+    flange = fk(robot.copy(base=np.eye(4), tool=np.eye(4)), q_eff)
     F, f = flange[:, :3, :3], flange[:, :3, 3]
     t_file = robot.tool[:3, 3]
     guesses = [t_file, np.zeros(3), -t_file, np.array([0.0, 0.0, 0.1]), np.array([0.0, 0.0, -0.1])]
@@ -138,7 +141,7 @@ def initial_registration(robot: Robot, q, points, rotations=None, *, tool_guesse
         if best is None or cand[3] < best[3]:
             best = cand
     # the robot file's own frames, as a candidate too (already registered data)
-    T0 = fk(robot, q)
+    T0 = fk(robot, q_eff)
     rms_file = float(np.sqrt(np.mean(np.sum((P[:, 0] - T0[:, :3, 3]) ** 2, -1))))
     if best is None or rms_file <= best[3]:
         off = np.tile(t_file, (K, 1))
