@@ -44,7 +44,7 @@ import scipy.linalg
 
 from . import se3
 from .chain import build_chain
-from .compliance import compliance_of, compliant_fk, deflected_joints, gravity_torques
+from .compliance import ComplianceError, compliance_of, compliant_fk, deflected_joints, gravity_torques
 from .fk import fk
 from .robot import Robot
 
@@ -872,14 +872,24 @@ def calibrate(
         return res, rel, iters
 
     best = None
+    diverged = None
     for k, start in enumerate(starts[: 1 + max(int(restarts), 0)]):
-        res, rel, iters = chain(start)
+        try:
+            res, rel, iters = chain(start)
+        except ComplianceError as e:  # the fit made joints too soft for an equilibrium: a bad start or file
+            diverged = e
+            continue
         cost = res.after["pos_rms_mm"] ** 2 + (res.after.get("rot_rms_deg", 0.0) * 0.0)
         if best is None or cost < best[3]:
             best = (res, rel, iters, cost)
         plausible = res.after["pos_rms_mm"] <= lim["residual_mm"] and (res.converged or rel <= 1e-6)
         if plausible:
             break
+    if best is None:
+        from .calibration_checks import ADVICE
+
+        raise CalibrationError(f"calibration of {robot.name!r} diverged ({str(diverged).splitlines()[0]}); the data do "
+                               f"not fit this robot file: {ADVICE}")
     res, rel, iters, _ = best
     if not res.converged and rel <= 1e-6:  # the cap stopped a cost that no longer moves
         res.converged = True

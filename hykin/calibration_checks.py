@@ -56,9 +56,7 @@ ADVICE = "check the robot file (right robot, DH table), units (--length-unit/--a
 def parse_max_deviation(text: str | None) -> dict[str, float]:
     """``"length_mm=30,angle_deg=3"`` -> ``{"length_mm": 30.0, "angle_deg": 3.0}`` (ValueError on bad keys)."""
     out: dict[str, float] = {}
-    if not text:
-        return out
-    for part in str(text).split(","):
+    for part in str(text or "").split(","):
         part = part.strip()
         if not part:
             continue

@@ -10,6 +10,37 @@ import typer
 
 from .common import AngleUnit, CLIError, LengthUnit, app, load_model_or_robot
 
+OrientationWeight = typer.Option(
+    "auto", "--orientation-weight",
+    help="Weight of orientation residuals in the calibration, m/rad (1 mrad counts like w·1 mrad of length), "
+         "or 'auto': sigma_pos / sigma_rot estimated from the data.")
+MaxDeviation = typer.Option(
+    None, "--max-deviation",
+    help="Plausible calibration bounds, KIND=VALUE[,...]: length_mm (20), angle_deg (2), joint_offset_deg (5), "
+         "compliance_urad_nm (1000), tool_m (2), residual_mm (3), residual_deg (1).")
+
+
+def _calibration_options(orientation_weight: str, max_deviation: Optional[str]) -> dict:
+    """``calibrate`` keyword arguments from the CLI options (CLIError on bad values)."""
+    from ..calibration_checks import parse_max_deviation
+
+    kw: dict = {}
+    if orientation_weight != "auto":
+        try:
+            w = float(orientation_weight)
+        except ValueError:
+            raise CLIError(f"--orientation-weight must be a number (m/rad) or 'auto', got {orientation_weight!r}") from None
+        if not (w > 0 and w < float("inf")):
+            raise CLIError(f"--orientation-weight must be > 0, got {orientation_weight!r}")
+        kw["orientation_weight_m_per_rad"] = w
+    if max_deviation:
+        try:
+            kw["max_deviation"] = parse_max_deviation(max_deviation)
+        except ValueError as e:
+            raise CLIError(str(e)) from None
+    return kw
+
+
 @app.command("fit")
 def fit_cmd(
     robot: str = typer.Argument(..., help="Robot file (.toml), URDF, or preset name."),
@@ -24,20 +55,22 @@ def fit_cmd(
     max_minutes: Optional[float] = typer.Option(None, "--max-minutes", help="Time budget for network training."),
     thermal: str = typer.Option("auto", "--thermal", help="Thermal expansion from a temperature_c column: auto, on, off."),
     min_steps: Optional[int] = typer.Option(None, "--min-steps", help="Least number of optimiser steps per network (default recipe: 30000)."),
+    orientation_weight: str = OrientationWeight,
+    max_deviation: Optional[str] = MaxDeviation,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
 ) -> None:
     """Fit a hybrid model: calibrate the classical model, then train the residual networks."""
-    from ..dataset import read_dataset, split
+    from ..dataset import read_dataset
     from ..hybrid import HybridModel
     from ..robot import load_robot
 
     rob = load_robot(robot)
+    cal_kw = _calibration_options(orientation_weight, max_deviation)
     tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
-    if val is not None:
-        va = read_dataset(val, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
-    else:
-        tr, va = split(tr, (0.9, 0.1), seed=seed)
+    # without --val the model holds out its own validation share for the networks; the calibration
+    # uses all of TRAIN (the networks' split must not change the calibrated robot)
+    va = read_dataset(val, length_unit=length_unit, angle_unit=angle_unit, robot=rob) if val is not None else None
     if device == "auto":
         import torch
 
@@ -53,7 +86,7 @@ def fit_cmd(
     if thermal not in modes:
         raise CLIError(f"--thermal must be auto, on or off, got {thermal!r}")
     model = HybridModel(rob, arch=arch, recipe=recipe, calibrate=calibrate, device=device, seed=seed,
-                        thermal=modes[thermal], **kw)
+                        thermal=modes[thermal], calibrate_kw=cal_kw, **kw)
     model.fit(tr, va, progress=True)
     model.save(out)
     if model.thermal_ is not None:
@@ -106,17 +139,23 @@ def calibrate_cmd(
     data: Path = typer.Argument(..., help="Measured dataset (.csv/.parquet)."),
     out: Path = typer.Option(..., "-o", "--out", help="Calibrated robot file (.toml)."),
     compliance: bool = typer.Option(True, "--compliance/--no-compliance", help="Identify joint compliance under gravity."),
+    orientation_weight: str = OrientationWeight,
+    max_deviation: Optional[str] = MaxDeviation,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
 ) -> None:
-    """Parametric calibration only (geometry, base, tool, joint compliance); writes a robot file."""
+    """Parametric calibration only (geometry, base, tool, joint compliance); writes a robot file.
+
+    The data may be in any frame (a tracker's) with an unknown tool offset: base and tool are found
+    first. A calibration that does not converge, bends a parameter beyond its plausible bound
+    (--max-deviation) or leaves an implausible residual is refused (exit 2, nothing written)."""
     from ..calibrate import calibrate
     from ..dataset import read_dataset
     from ..robot import load_robot, save_robot_toml
 
     rob = load_robot(robot)
     ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
-    res = calibrate(rob, ds, compliance=compliance)
+    res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation))
     typer.echo(res.report())
     save_robot_toml(res.robot, out)
     typer.echo(f"calibrated robot written to {out}")
