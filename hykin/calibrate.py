@@ -36,26 +36,33 @@ from __future__ import annotations
 import fnmatch
 import math
 import time
-from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
 
 from . import se3
+from .calibration_result import CalibrationResult, residual_stats
 from .chain import build_chain
-from .compliance import ComplianceError, compliance_of, compliant_fk, deflected_joints, gravity_torques
+from .compliance import (
+    ComplianceError,
+    compliance_of,
+    compliant_fk,
+    deflected_joints,
+    gravity_torques,
+)
 from .fk import fk
 from .robot import Robot
 
 __all__ = [
     "CalibrationError",
     "CalibrationResult",
+    "apply_deviations",
     "calibrate",
     "calibrated_fk",
-    "parameter_names",
-    "apply_deviations",
     "identification_jacobian",
+    "parameter_names",
 ]
 
 SCALE_LENGTH_M = 1e-3  # typical deviation used to scale lengths (1 mm)
@@ -99,7 +106,7 @@ _TWIST = ("x", "y", "z", "rx", "ry", "rz")
 def _candidate_specs(robot: Robot, *, base: bool, tool: bool, compliance: bool) -> list[_Spec]:
     """All candidate parameters in priority order (base, tool, joints, compliance)."""
     out: list[_Spec] = []
-    tw = lambda g, j, prefix: [  # noqa: E731
+    tw = lambda g, j, prefix: [
         _Spec(f"{prefix}.{f}", g, j, f, "m" if f in ("x", "y", "z") else "rad") for f in _TWIST
     ]
     if base:
@@ -503,136 +510,12 @@ def _lm_step(lin: dict, act: np.ndarray, lam: float, is_comp: np.ndarray, c: np.
     return free, None
 
 
-# --------------------------------------------------------------------------- result
-
-
-def _stats(rp: np.ndarray, ro: np.ndarray | None, w: float) -> dict:
-    e = np.linalg.norm(rp, axis=1) * 1e3
-    d = {
-        "pos_mean_mm": float(e.mean()), "pos_rms_mm": float(np.sqrt(np.mean(e * e))),
-        "pos_p95_mm": float(np.percentile(e, 95)), "pos_max_mm": float(e.max()),
-    }
-    if ro is not None:
-        a = np.degrees(np.linalg.norm(ro, axis=1) / w)
-        d.update({
-            "rot_mean_deg": float(a.mean()), "rot_rms_deg": float(np.sqrt(np.mean(a * a))),
-            "rot_p95_deg": float(np.percentile(a, 95)), "rot_max_deg": float(a.max()),
-        })
-    return d
-
-
-@dataclass
-class CalibrationResult:
-    """Outcome of :func:`calibrate`.
-
-    robot: the calibrated robot (geometry, base, tool, ``stiffness_nm_per_rad = 1 / c``).
-    names: parameter names (priority order); values: identified deviations from the input robot
-    (SI: m, rad, rad/N·m; base/tool/URDF-origin deviations as ``(x, y, z, rx, ry, rz)`` of
-    ``T0⁻¹ T``); std: standard deviations (nan where not identified); identifiable: bool mask.
-    correlation: ``(k, k)`` among the estimated parameters, ``correlation_names`` order (identifiable
-    ones that did not end at a bound: a compliance at 0 has no std).
-    strong_correlations: ``(name_i, name_j, rho)`` with ``|rho| > 0.9``.
-    before / after: residual statistics on the calibration data (``pos_mean_mm``, ``pos_rms_mm``,
-    ``pos_p95_mm``, ``pos_max_mm`` and the ``rot_*_deg`` twins for full-pose data).
-    sigma_pos_m / sigma_rot_rad: residual standard deviations per coordinate after calibration.
-    """
-
-    robot: Robot
-    names: list[str]
-    values: np.ndarray
-    std: np.ndarray
-    identifiable: np.ndarray
-    correlation: np.ndarray
-    strong_correlations: list[tuple[str, str, float]]
-    before: dict
-    after: dict
-    iterations: int
-    converged: bool
-    message: str
-    units: list[str] = field(default_factory=list)
-    correlation_names: list[str] = field(default_factory=list)
-    n_samples: int = 0
-    position_only: bool = False
-    orientation_weight_m_per_rad: float = 1.0
-    sigma_pos_m: float = float("nan")
-    sigma_rot_rad: float = float("nan")
-    seconds: float = 0.0
-
-    @property
-    def identified_names(self) -> list[str]:
-        return [n for n, m in zip(self.names, self.identifiable) if m]
-
-    @property
-    def rms_before_mm(self) -> float:
-        return self.before["pos_rms_mm"]
-
-    @property
-    def rms_after_mm(self) -> float:
-        return self.after["pos_rms_mm"]
-
-    def value(self, name: str) -> float:
-        """Identified deviation of parameter ``name`` (SI)."""
-        return float(self.values[self.names.index(name)])
-
-    def report(self) -> str:
-        """Human-readable table (lengths in mm, angles in deg, compliance in µrad/(N·m))."""
-        lines = [
-            f"Calibration of {self.robot.name!r}: {self.n_samples} samples, "
-            f"{'position only' if self.position_only else f'full pose (w = {self.orientation_weight_m_per_rad:g} m/rad)'}, "
-            f"{int(self.identifiable.sum())}/{len(self.names)} parameters identified, "
-            f"{self.iterations} iterations, {'converged' if self.converged else 'NOT converged'} ({self.message}), "
-            f"{self.seconds:.2f} s",
-            f"{'parameter':<10} {'deviation':>14} {'std':>12}  unit",
-        ]
-        for n, v, s, u, m in zip(self.names, self.values, self.std, self.units, self.identifiable):
-            f, un = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg"), "c": (1e6, "µrad/N·m")}[u]
-            vs = f"{v * f:14.6f}" if m else f"{'fixed':>14}"
-            ss = f"{s * f:12.6f}" if m and np.isfinite(s) else f"{'-':>12}"
-            lines.append(f"{n:<10} {vs} {ss}  {un}")
-        lines.append(f"{'':<10} {'before':>14} {'after':>12}")
-        for key, lab in (("pos_mean_mm", "pos mean mm"), ("pos_p95_mm", "pos p95 mm"), ("pos_max_mm", "pos max mm"),
-                         ("rot_mean_deg", "rot mean deg"), ("rot_p95_deg", "rot p95 deg"), ("rot_max_deg", "rot max deg")):
-            if key in self.before:
-                lines.append(f"{lab:<14} {self.before[key]:10.6f} {self.after[key]:12.6f}")
-        lines.append("identified at the solution: " + (", ".join(self.identified_names) or "none"))
-        if self.strong_correlations:
-            lines.append("strong correlations (|rho| > 0.9): " + ", ".join(
-                f"{a}~{b} {r:+.3f}" for a, b, r in self.strong_correlations))
-        return "\n".join(lines)
-
-    def to_dict(self) -> dict:
-        """JSON-able summary (SI units)."""
-        f = lambda x: None if not np.isfinite(x) else float(x)  # noqa: E731
-        return {
-            "robot": self.robot.name,
-            "n_samples": self.n_samples,
-            "position_only": self.position_only,
-            "orientation_weight_m_per_rad": self.orientation_weight_m_per_rad,
-            "parameters": [
-                {"name": n, "unit": u, "value": float(v), "std": f(s), "identifiable": bool(m)}
-                for n, u, v, s, m in zip(self.names, self.units, self.values, self.std, self.identifiable)
-            ],
-            "identified_names": self.identified_names,
-            "correlation_names": self.correlation_names,
-            "correlation": self.correlation.tolist(),
-            "strong_correlations": [[a, b, float(r)] for a, b, r in self.strong_correlations],
-            "before": self.before,
-            "after": self.after,
-            "sigma_pos_m": f(self.sigma_pos_m),
-            "sigma_rot_rad": f(self.sigma_rot_rad),
-            "iterations": self.iterations,
-            "converged": self.converged,
-            "message": self.message,
-            "seconds": self.seconds,
-        }
-
-
 # --------------------------------------------------------------------------- main entry
 
 
 def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, max_iter: int, tol: float,
                     rank_tol: float, negligible_tol: float, progress,
-                    prefer: np.ndarray | None = None) -> tuple["CalibrationResult", float]:
+                    prefer: np.ndarray | None = None) -> tuple[CalibrationResult, float]:
     """One identifiability selection at ``robot`` plus one LM run on the parameters ``specs``.
 
     prefer: bool mask of parameters put first in the QR order (an identified set chosen earlier
@@ -701,7 +584,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
     # identifiability at the input robot, on evenly spread samples
     state = state0
     id_rows = np.unique(np.linspace(0, N - 1, min(N, _ID_SAMPLES)).astype(np.int64))
-    sub = lambda a, idx: None if a is None else a[idx]  # noqa: E731
+    sub = lambda a, idx: None if a is None else a[idx]
     _, rp0, ro0, lin0, _, _, _ = run_lm(state0, q[id_rows], xyz[id_rows], sub(R_meas, id_rows), None, 0,
                                         id_rows=np.arange(id_rows.size))
     order = np.arange(P) if prefer is None else np.concatenate([np.flatnonzero(prefer), np.flatnonzero(~prefer)])
@@ -718,7 +601,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
         state, q, xyz, R_meas, act, max(max_iter - it_sub, 1), id_rows=id_rows
     )
     it += it_sub
-    before = _stats(*_residual(_model_poses(state0, q), xyz, R_meas, w), w)
+    before = residual_stats(*_residual(_model_poses(state0, q), xyz, R_meas, w), w)
     # recheck at the solution: the identified set must still have full rank there
     final = mask.copy()
     if act.size:
@@ -733,7 +616,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
         message += "; " + ", ".join(specs[k].name for k in np.flatnonzero(at_bound)) + " at the bound 0 (rigid; no std)"
     fa = np.flatnonzero(final & ~at_bound)
     rp, ro = rp0, ro0  # residuals of the accepted state
-    after = _stats(rp, ro, w)
+    after = residual_stats(rp, ro, w)
     m_p = rp.size
     m_o = 0 if ro is None else ro.size
     m = m_p + m_o
@@ -838,7 +721,7 @@ def calibrate(
     specs = _select(_candidate_specs(robot, base=base, tool=tool, compliance=compliance), params)
     names = {s.name for s in specs}
     frames = [s for s in specs if s.group in ("base", "tool")]
-    run = lambda rob, sp, ww, it, pref=None: _calibrate_pass(  # noqa: E731
+    run = lambda rob, sp, ww, it, pref=None: _calibrate_pass(
         rob, q, xyz, R_meas, sp, ww, it, tol, rank_tol, negligible_tol, progress, prefer=pref)
     starts = [robot]
     reg = None
@@ -897,7 +780,7 @@ def calibrate(
     state0 = _State(robot=robot.copy(), c=compliance_of(robot))
     state1 = _State(robot=res.robot, c=compliance_of(res.robot))
     res.values = _deviations(state0, state1, specs)
-    res.before = _stats(*_residual(_model_poses(state0, q), xyz, R_meas, res.orientation_weight_m_per_rad),
+    res.before = residual_stats(*_residual(_model_poses(state0, q), xyz, R_meas, res.orientation_weight_m_per_rad),
                         res.orientation_weight_m_per_rad)
     res.iterations = iters
     res.seconds = time.perf_counter() - t0

@@ -33,11 +33,11 @@ tracker's frame.
 from __future__ import annotations
 
 import math
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 
-__all__ = ["DEFAULT_MAX_DEVIATION", "parse_max_deviation", "resolve_max_deviation", "check_calibration"]
+__all__ = ["DEFAULT_MAX_DEVIATION", "check_calibration", "parse_max_deviation", "resolve_max_deviation"]
 
 DEFAULT_MAX_DEVIATION: dict[str, float] = {
     "length_mm": 20.0,

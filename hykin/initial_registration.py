@@ -165,7 +165,7 @@ def initial_registration(robot: Robot, q, points, rotations=None, *, tool_guesse
     P = np.asarray(points, dtype=np.float64)
     if P.ndim == 2:
         P = P[:, None, :]
-    N, K, _ = P.shape
+    K = P.shape[1]
     # the deflected joints under gravity (the robot file's compliance, if any): the nominal model
     q_eff = deflected_joints(robot, q) if np.any(compliance_of(robot)) else q
     flange = fk(robot.copy(base=np.eye(4), tool=np.eye(4)), q_eff)
