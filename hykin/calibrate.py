@@ -37,7 +37,7 @@ import fnmatch
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
@@ -103,8 +103,9 @@ class _Spec:
 _TWIST = ("x", "y", "z", "rx", "ry", "rz")
 
 
-def _candidate_specs(robot: Robot, *, base: bool, tool: bool, compliance: bool) -> list[_Spec]:
-    """All candidate parameters in priority order (base, tool, joints, compliance)."""
+def _candidate_specs(robot: Robot, *, base: bool, tool: bool, compliance: bool, n_points: int = 1) -> list[_Spec]:
+    """All candidate parameters in priority order (base, tool, joints, compliance, further reflectors'
+    offsets ``p2.x`` ... in the TCP frame when ``n_points > 1``)."""
     out: list[_Spec] = []
     tw = lambda g, j, prefix: [
         _Spec(f"{prefix}.{f}", g, j, f, "m" if f in ("x", "y", "z") else "rad") for f in _TWIST
@@ -127,6 +128,8 @@ def _candidate_specs(robot: Robot, *, base: bool, tool: bool, compliance: bool) 
     if compliance:
         for i in range(n):
             out.append(_Spec(f"c{i + 1}", "comp", i, "c", "c"))
+    for k in range(1, n_points):
+        out += [_Spec(f"p{k + 1}.{f}", "point", k, f, "m") for f in ("x", "y", "z")]
     return out
 
 
@@ -158,7 +161,14 @@ def _select(specs: list[_Spec], params) -> list[_Spec]:
 def _as_data(robot: Robot, data, position_only):
     """-> q (N,n), xyz (N,3), R (N,3,3) or None."""
     if hasattr(data, "q") and hasattr(data, "xyz_m"):
-        q, xyz = np.asarray(data.q, dtype=np.float64), np.asarray(data.xyz_m, dtype=np.float64)
+        from .reflectors import reflector_points
+
+        q = np.asarray(data.q, dtype=np.float64)
+        try:
+            xyz = reflector_points(data)
+        except ValueError as e:
+            raise CalibrationError(str(e)) from None
+        xyz = xyz[:, 0] if xyz.shape[1] == 1 else xyz
         quat = getattr(data, "quat_wxyz", None)
         R = None if quat is None else se3.quat_to_matrix(np.asarray(quat, dtype=np.float64))
     elif isinstance(data, (tuple, list)) and len(data) == 2:
@@ -166,7 +176,7 @@ def _as_data(robot: Robot, data, position_only):
         P = np.asarray(data[1], dtype=np.float64)
         if P.ndim == 3 and P.shape[1:] == (4, 4):
             xyz, R = P[:, :3, 3].copy(), P[:, :3, :3].copy()
-        elif P.ndim == 2 and P.shape[1] == 3:
+        elif P.ndim == 2 and P.shape[1] == 3 or P.ndim == 3 and P.shape[2] == 3 and P.shape[1] != 4:
             xyz, R = P, None
         else:
             raise CalibrationError(f"data: measured poses must be (N, 4, 4) or positions (N, 3), got {P.shape}")
@@ -174,8 +184,8 @@ def _as_data(robot: Robot, data, position_only):
         raise CalibrationError("data: expected a Dataset or a tuple (q (N, n), poses (N, 4, 4) | positions (N, 3))")
     if q.ndim != 2 or q.shape[1] != robot.dof:
         raise CalibrationError(f"data: joints must be (N, {robot.dof}) for robot {robot.name!r}, got {q.shape}")
-    if xyz.shape != (q.shape[0], 3):
-        raise CalibrationError(f"data: positions must be ({q.shape[0]}, 3), got {xyz.shape}")
+    if xyz.shape[0] != q.shape[0] or xyz.shape[-1] != 3:
+        raise CalibrationError(f"data: positions must be ({q.shape[0]}, 3) or ({q.shape[0]}, K, 3), got {xyz.shape}")
     for nm, arr in (("joints", q), ("positions", xyz)) + ((("orientations", R),) if R is not None else ()):
         bad = ~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1)
         if bad.any():
@@ -198,6 +208,7 @@ class _State:
 
     robot: Robot
     c: np.ndarray  # (n,) compliance, rad/N·m
+    pts: np.ndarray = field(default_factory=lambda: np.zeros((1, 3)))  # (K, 3) reflector offsets, TCP frame; row 0 = 0
 
 
 def _robot_with_c(robot: Robot, c: np.ndarray) -> Robot:
@@ -224,8 +235,11 @@ def _apply(state: _State, specs: list[_Spec], delta: np.ndarray) -> _State:
     base6, tool6 = np.zeros(6), np.zeros(6)
     orig6 = np.zeros((r.dof, 6))
     c = state.c.copy()
+    pts = state.pts.copy()
     for s, v in zip(specs, delta):
-        if s.group == "geom":
+        if s.group == "point":
+            pts[s.joint, _TWIST.index(s.field)] += v
+        elif s.group == "geom":
             geom[s.field][s.joint] += v
         elif s.group == "base":
             base6[_TWIST.index(s.field)] = v
@@ -244,7 +258,7 @@ def _apply(state: _State, specs: list[_Spec], delta: np.ndarray) -> _State:
         xyz, rpy = se3.transform_to_xyzrpy(O)
         changes.update(origin_xyz_m=xyz, origin_rpy_rad=rpy)
     new = _robot_with_c(r.copy(**changes), c)
-    return _State(robot=new, c=c)
+    return _State(robot=new, c=c, pts=pts)
 
 
 def apply_deviations(robot: Robot, deviations: dict[str, float]) -> Robot:
@@ -323,9 +337,20 @@ def _rotation_residual(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
     return out
 
 
-def _residual(T_model: np.ndarray, xyz: np.ndarray, R_meas: np.ndarray | None, w: float):
-    """(N, 3) position residual (m) and (N, 3) weighted rotation residual or None."""
-    rp = xyz - T_model[:, :3, 3]
+def _points_of(T_model: np.ndarray, pts: np.ndarray | None) -> np.ndarray:
+    """Modelled reflector positions ``(N, K, 3)``: TCP ``T_model`` plus offsets ``pts`` ``(K, 3)`` (TCP frame)."""
+    if pts is None or len(pts) == 1 and not np.any(pts):
+        return T_model[:, None, :3, 3]
+    return T_model[:, None, :3, 3] + np.einsum("nij,kj->nki", T_model[:, :3, :3], pts)
+
+
+def _residual(T_model: np.ndarray, xyz: np.ndarray, R_meas: np.ndarray | None, w: float, pts: np.ndarray | None = None):
+    """Position residual (m) ``(N·K, 3)`` (sample-major, ``K`` reflectors; ``(N, 3)`` for ``xyz``
+    ``(N, 3)``) and ``(N, 3)`` weighted rotation residual or None."""
+    if xyz.ndim == 3:
+        rp = (xyz - _points_of(T_model, pts)).reshape(-1, 3)
+    else:
+        rp = xyz - T_model[:, :3, 3]
     ro = None if R_meas is None else w * _rotation_residual(R_meas, T_model[:, :3, :3])
     return rp, ro
 
@@ -367,15 +392,18 @@ def _jacobian_chunk(state: _State, specs: list[_Spec], q_eff: np.ndarray, tau, w
     robot = state.robot
     chain = build_chain(robot)
     prev, joint, tcp = _frames(chain, q_eff)
-    p_tcp = tcp[:, :3, 3]
-    N, P = q_eff.shape[0], len(specs)
-    Jp = np.zeros((P, N, 3))
+    p_tcp = _points_of(tcp, state.pts)  # (N, K, 3)
+    N, P, K = q_eff.shape[0], len(specs), p_tcp.shape[1]
+    Jp = np.zeros((P, N, K, 3))
     Jo = np.zeros((P, N, 3)) if with_rot else None
     origin = None
     if robot.convention == "urdf" and any(s.group == "origin" for s in specs):
         O = se3.xyzrpy_to_transform(robot.origin_xyz_m, robot.origin_rpy_rad)
         origin = [_rmul(prev[:, i], O[i]) for i in range(robot.dof)]
     for k, s in enumerate(specs):
+        if s.group == "point":  # a further reflector's offset along a TCP axis: moves that point only
+            Jp[k, :, s.joint] = -tcp[:, :3, _TWIST.index(s.field)]
+            continue
         frame, kind, u, pt = _local_axes(robot, s)
         if frame == "base":
             F = np.asarray(chain.base)[None]
@@ -392,15 +420,15 @@ def _jacobian_chunk(state: _State, specs: list[_Spec], q_eff: np.ndarray, tau, w
         t = None if s.group != "comp" else -tau[:, s.joint : s.joint + 1]
         if kind == "rot":
             p0 = R[:, :, 0] * pt[0] + R[:, :, 1] * pt[1] + R[:, :, 2] * pt[2] + F[:, :3, 3]
-            r = p_tcp - p0
-            ux, uy, uz = uw[:, 0:1], uw[:, 1:2], uw[:, 2:3]
-            dp = np.concatenate([uy * r[:, 2:3] - uz * r[:, 1:2], uz * r[:, 0:1] - ux * r[:, 2:3],
-                                 ux * r[:, 1:2] - uy * r[:, 0:1]], 1)
-            Jp[k] = -dp if t is None else dp * t
+            r = p_tcp - p0[:, None, :]  # (N, K, 3)
+            ux, uy, uz = uw[:, None, 0:1], uw[:, None, 1:2], uw[:, None, 2:3]
+            dp = np.concatenate([uy * r[..., 2:3] - uz * r[..., 1:2], uz * r[..., 0:1] - ux * r[..., 2:3],
+                                 ux * r[..., 1:2] - uy * r[..., 0:1]], -1)
+            Jp[k] = -dp if t is None else dp * t[:, :, None]
             if with_rot:
                 Jo[k] = -w * uw if t is None else w * uw * t
         else:
-            Jp[k] = -uw if t is None else uw * t
+            Jp[k] = -uw[:, None, :] if t is None else uw[:, None, :] * t[:, :, None]
     return Jp, Jo, tcp
 
 
@@ -421,8 +449,8 @@ def _linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=_CHUNK, kee
         q_eff = np.ascontiguousarray(q_eff_all[sl])
         tau = gravity_torques(state.robot, q_eff) if need_tau else None
         Jp, Jo, tcp = _jacobian_chunk(state, specs, q_eff, tau, w, with_rot)
-        rp, ro = _residual(tcp, xyz[sl], None if R_meas is None else R_meas[sl], w)
-        Jp *= sc
+        rp, ro = _residual(tcp, xyz[sl], None if R_meas is None else R_meas[sl], w, state.pts)
+        Jp *= sc[..., None]
         Jp2 = Jp.reshape(P, -1)
         out["JtJ_p"] += _gram(Jp2.T)
         out["Jtr"] += Jp2 @ rp.reshape(-1)
@@ -460,6 +488,7 @@ def identification_jacobian(robot: Robot, q, *, position_only: bool = False, ori
     tau = gravity_torques(robot, np.ascontiguousarray(q_eff)) if compliance else None
     w = orientation_weight_m_per_rad
     Jp, Jo, _ = _jacobian_chunk(state, specs, np.ascontiguousarray(q_eff), tau, w, not position_only)
+    Jp = Jp[:, :, 0]
     J = -Jp if position_only else -np.concatenate([Jp, Jo], 2)
     return [s.name for s in specs], np.ascontiguousarray(J.transpose(1, 2, 0))
 
@@ -515,7 +544,7 @@ def _lm_step(lin: dict, act: np.ndarray, lam: float, is_comp: np.ndarray, c: np.
 
 def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, max_iter: int, tol: float,
                     rank_tol: float, negligible_tol: float, progress,
-                    prefer: np.ndarray | None = None) -> tuple[CalibrationResult, float]:
+                    prefer: np.ndarray | None = None, pts0: np.ndarray | None = None) -> tuple[CalibrationResult, float]:
     """One identifiability selection at ``robot`` plus one LM run on the parameters ``specs``.
 
     prefer: bool mask of parameters put first in the QR order (an identified set chosen earlier
@@ -528,14 +557,14 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
     last = {"rel": 0.0}
     P = len(specs)
     scale = np.array([_scale_of(s) for s in specs])
-    state0 = _State(robot=robot.copy(), c=compliance_of(robot))
-    rows_per = 3 if R_meas is None else 6
+    state0 = _State(robot=robot.copy(), c=compliance_of(robot), pts=np.zeros((xyz.shape[1], 3)) if pts0 is None else pts0)
+    rows_per = 3 * xyz.shape[1] + (0 if R_meas is None else 3)
     is_comp = np.array([sp.group == "comp" for sp in specs])
     comp_joint = np.array([sp.joint for sp in specs])
 
     def cost_of(st: _State, qd, xyzd, Rd):
         q_eff = _effective_joints(st, qd)
-        rp, ro = _residual(fk(st.robot, q_eff), xyzd, Rd, w)
+        rp, ro = _residual(fk(st.robot, q_eff), xyzd, Rd, w, st.pts)
         cost = 0.5 * (float(np.sum(rp * rp)) + (0.0 if ro is None else float(np.sum(ro * ro))))
         return cost, rp, ro, q_eff
 
@@ -601,7 +630,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
         state, q, xyz, R_meas, act, max(max_iter - it_sub, 1), id_rows=id_rows
     )
     it += it_sub
-    before = residual_stats(*_residual(_model_poses(state0, q), xyz, R_meas, w), w)
+    before = residual_stats(*_residual(_model_poses(state0, q), xyz, R_meas, w, state0.pts), w)
     # recheck at the solution: the identified set must still have full rank there
     final = mask.copy()
     if act.size:
@@ -650,7 +679,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
         correlation_names=[specs[k].name for k in fa],
         position_only=R_meas is None, orientation_weight_m_per_rad=w, sigma_pos_m=math.sqrt(sig2_p),
         sigma_rot_rad=math.sqrt(sig2_o) / w if R_meas is not None else float("nan"),
-        seconds=time.perf_counter() - t0,
+        seconds=time.perf_counter() - t0, point_offsets_m=state.pts.copy(),
     ), last["rel"]
 
 
@@ -718,30 +747,34 @@ def calibrate(
     if q.shape[0] == 0:
         raise CalibrationError("data: no samples")
     w = 1.0 if auto_w else float(orientation_weight_m_per_rad)
-    specs = _select(_candidate_specs(robot, base=base, tool=tool, compliance=compliance), params)
+    K = 1 if xyz.ndim == 2 else xyz.shape[1]
+    specs = _select(_candidate_specs(robot, base=base, tool=tool, compliance=compliance, n_points=K), params)
     names = {s.name for s in specs}
-    frames = [s for s in specs if s.group in ("base", "tool")]
-    run = lambda rob, sp, ww, it, pref=None: _calibrate_pass(
-        rob, q, xyz, R_meas, sp, ww, it, tol, rank_tol, negligible_tol, progress, prefer=pref)
-    starts = [robot]
+    frames = [s for s in specs if s.group in ("base", "tool", "point")]
+    run = lambda rob, sp, ww, it, pref=None, pts=None: _calibrate_pass(  # noqa: E731
+        rob, q, xyz, R_meas, sp, ww, it, tol, rank_tol, negligible_tol, progress, prefer=pref, pts0=pts)
+    pts_zero = np.zeros((K, 3))
+    starts = [(robot, pts_zero)]
     reg = None
     full_frames = all(f"base.{f}" in names for f in _TWIST) and all(f"tool.{f}" in names for f in ("x", "y", "z"))
     if initial and full_frames:
         reg = initial_registration(robot, q, xyz, R_meas)
         if reg.rms_m < reg.rms_before_m:
-            starts.insert(0, robot.copy(base=reg.base, tool=reg.tool))
+            # further reflectors: offsets from reflector 1 in the TCP frame
+            pts = (reg.offsets_m - reg.offsets_m[0]) @ reg.tool[:3, :3]
+            starts.insert(0, (robot.copy(base=reg.base, tool=reg.tool), pts))
 
     # the set identifiable at the robot file (kept first in the QR order at later estimates)
-    nominal_set = run(robot, specs, w, 0)[0].identifiable if len(starts) > 1 else None
+    nominal_set = run(robot, specs, w, 0, pts=starts[0][1])[0].identifiable if len(starts) > 1 else None
 
-    def chain(start: Robot):
+    def chain(start):
         """frames, then everything (identifiability at the estimate), then again at the solution."""
         iters, ww = 0, w
-        cur = start
+        cur, pts = start
         if nominal_set is not None and frames and len(frames) < len(specs):
-            r, _ = run(cur, frames, ww, max_iter)
-            cur, iters = r.robot, iters + r.iterations
-        res, rel = run(cur, specs, ww, max_iter, nominal_set)
+            r, _ = run(cur, frames, ww, max_iter, pts=pts)
+            cur, pts, iters = r.robot, r.point_offsets_m, iters + r.iterations
+        res, rel = run(cur, specs, ww, max_iter, nominal_set, pts=pts)
         iters += res.iterations
         if auto_w and R_meas is not None and res.sigma_rot_rad > 0 and math.isfinite(res.sigma_rot_rad):
             ww = float(np.clip(res.sigma_pos_m / res.sigma_rot_rad, 1e-3, 1e3))
@@ -750,7 +783,8 @@ def calibrate(
                 not res.converged and rel > 1e-6)
             if not again:
                 break
-            res, rel = run(res.robot, specs, ww, max_iter, res.identifiable | (nominal_set if nominal_set is not None else False))
+            res, rel = run(res.robot, specs, ww, max_iter, res.identifiable | (nominal_set if nominal_set is not None else False),
+                           pts=res.point_offsets_m)
             iters += res.iterations
         return res, rel, iters
 
@@ -777,11 +811,12 @@ def calibrate(
     if not res.converged and rel <= 1e-6:  # the cap stopped a cost that no longer moves
         res.converged = True
         res.message += f"; iteration cap reached with the cost changing by {rel:.2g} (relative) per iteration"
-    state0 = _State(robot=robot.copy(), c=compliance_of(robot))
-    state1 = _State(robot=res.robot, c=compliance_of(res.robot))
+    state0 = _State(robot=robot.copy(), c=compliance_of(robot), pts=pts_zero)
+    state1 = _State(robot=res.robot, c=compliance_of(res.robot), pts=res.point_offsets_m)
     res.values = _deviations(state0, state1, specs)
-    res.before = residual_stats(*_residual(_model_poses(state0, q), xyz, R_meas, res.orientation_weight_m_per_rad),
-                        res.orientation_weight_m_per_rad)
+    # before: the robot file as given (further reflectors at its TCP: their offsets are unknown)
+    res.before = residual_stats(*_residual(_model_poses(state0, q), xyz, R_meas, res.orientation_weight_m_per_rad,
+                                           pts_zero), res.orientation_weight_m_per_rad)
     res.iterations = iters
     res.seconds = time.perf_counter() - t0
     if reg is not None:
@@ -810,6 +845,8 @@ def _deviations(s0: _State, s1: _State, specs: Sequence[_Spec]) -> np.ndarray:
             out[k] = t[_TWIST.index(s.field)]
         elif s.group == "origin":
             out[k] = _log6(np.linalg.inv(O0[s.joint]) @ O1[s.joint])[_TWIST.index(s.field)]
+        elif s.group == "point":
+            out[k] = s1.pts[s.joint, _TWIST.index(s.field)] - s0.pts[s.joint, _TWIST.index(s.field)]
         else:
             out[k] = s1.c[s.joint] - s0.c[s.joint]
     return out

@@ -20,8 +20,8 @@ key                 default  applies to
 length_mm           20       DH/MDH ``a``, ``d``; URDF origin ``x, y, z``
 angle_deg           2        DH/MDH ``alpha``, ``beta``; URDF origin ``rx, ry, rz``
 joint_offset_deg    5        DH/MDH ``theta`` (joint zero offsets)
-compliance_urad_nm  1000     joint compliance ``1/k`` in µrad/(N·m) (stiffness ≥ 1e3 N·m/rad)
-tool_m              2        length of the tool offset (the TCP is on the arm, not metres away)
+compliance_urad_nm  10000    joint compliance ``1/k`` in µrad/(N·m) (stiffness ≥ 100 N·m/rad)
+tool_m              2        distance of the TCP (and every reflector) from the flange
 residual_mm         3        RMS position residual after the calibration
 residual_deg        1        RMS orientation residual after the calibration
 ==================  =======  ==========================================================
@@ -43,7 +43,7 @@ DEFAULT_MAX_DEVIATION: dict[str, float] = {
     "length_mm": 20.0,
     "angle_deg": 2.0,
     "joint_offset_deg": 5.0,
-    "compliance_urad_nm": 1000.0,
+    "compliance_urad_nm": 10000.0,
     "tool_m": 2.0,
     "residual_mm": 3.0,
     "residual_deg": 1.0,
@@ -85,7 +85,7 @@ def resolve_max_deviation(overrides: Mapping[str, float] | None) -> dict[str, fl
 
 def _limit_of(name: str, unit: str, group: str, field: str, lim: dict) -> tuple[float, float, str] | None:
     """(bound in SI, display factor, display unit) for one parameter, None when unbounded."""
-    if group in ("base", "tool"):
+    if group in ("base", "tool", "point"):  # frames and reflector offsets: unknown, found by the fit
         return None
     if group == "comp":
         return lim["compliance_urad_nm"] * 1e-6, 1e6, "µrad/N·m"
@@ -128,6 +128,9 @@ def check_calibration(res, specs, lim: dict, *, still_falling: bool) -> None:
             f"calibration of {name!r}: {nm} deviates {v:+.4g} {un} from the robot file (plausible: ±{b:.4g} {un}); "
             f"the data do not fit this robot file: {ADVICE} (or widen --max-deviation)")
     tool_len = float(np.linalg.norm(res.robot.tool[:3, 3]))
+    if getattr(res, "point_offsets_m", None) is not None:  # further reflectors: as far from the flange
+        pts = res.robot.tool[:3, :3] @ np.asarray(res.point_offsets_m).T + res.robot.tool[:3, 3:4]
+        tool_len = max(tool_len, float(np.linalg.norm(pts, axis=0).max()))
     if tool_len > lim["tool_m"]:
         raise CalibrationError(
             f"calibration of {name!r}: the tool offset came out {tool_len:.3g} m from the flange (plausible: "

@@ -44,6 +44,8 @@ class CalibrationResult:
     before / after: residual statistics on the calibration data (``pos_mean_mm``, ``pos_rms_mm``,
     ``pos_p95_mm``, ``pos_max_mm`` and the ``rot_*_deg`` twins for full-pose data).
     sigma_pos_m / sigma_rot_rad: residual standard deviations per coordinate after calibration.
+    point_offsets_m: ``(K, 3)`` offsets of every reflector from the TCP (= reflector 1), TCP frame
+    (``p_k = T_tcp · point_offsets_m[k]``); one zero row for one point per pose.
     """
 
     robot: Robot
@@ -66,6 +68,7 @@ class CalibrationResult:
     sigma_pos_m: float = float("nan")
     sigma_rot_rad: float = float("nan")
     seconds: float = 0.0
+    point_offsets_m: np.ndarray | None = None
 
     @property
     def identified_names(self) -> list[str]:
@@ -133,6 +136,7 @@ class CalibrationResult:
             "converged": self.converged,
             "message": self.message,
             "seconds": self.seconds,
+            "point_offsets_m": None if self.point_offsets_m is None else np.asarray(self.point_offsets_m).tolist(),
         }
 
 

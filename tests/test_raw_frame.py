@@ -176,3 +176,37 @@ def test_fit_calibrates_on_all_of_train(setup):
     meta = m.meta_
     assert meta["calibration"]["n_samples"] == len(q) == meta["n_total"]
     assert meta["n_train"] + meta["n_val"] <= len(q) and meta["n_val"] > 0 and meta["n_train"] < len(q)
+
+
+def _three_reflectors(nom, truth, q, rng, noise_m=2e-5):
+    """Points of three reflectors on the tool (truth offsets in the flange frame), tracker frame, noisy."""
+    offs = np.array([[0.02, 0.01, 0.12], [0.11, -0.02, 0.09], [-0.06, 0.08, 0.1]])
+    F = compliant_fk(truth.copy(tool=np.eye(4)), q)
+    P = np.stack([(F[:, :3, :3] @ o + F[:, :3, 3]) @ TRACKER[:3, :3].T + TRACKER[:3, 3] for o in offs], 1)
+    return P + rng.normal(0, noise_m, P.shape), offs
+
+
+def test_several_reflectors_fit_as_one_tool_body(setup):
+    """Three reflectors per pose (x,y,z, x2..z3 columns): one fit of all points predicts every
+    reflector at least as well as a fit of that reflector alone (held-out poses)."""
+    from hykin.reflectors import reflector_points
+
+    nom, truth, q, _, _, wrong_tool = setup
+    rng = np.random.default_rng(21)
+    P, offs = _three_reflectors(nom, truth, q, rng)
+    ds = Dataset(q=q, xyz_m=P[:, 0], extra={f"{c}{k + 1}": P[:, k, i] for k in (1, 2) for i, c in enumerate("xyz")})
+    np.testing.assert_array_equal(reflector_points(ds), P)
+    joint = calibrate(wrong_tool, ds)
+    assert joint.point_offsets_m.shape == (3, 3) and "p2.x" in joint.names
+    qt = nom.random_joints(300, np.random.default_rng(22))
+    Pt, _ = _three_reflectors(nom, truth, qt, np.random.default_rng(23), noise_m=0.0)
+    T = compliant_fk(joint.robot, qt)
+    for k in range(3):
+        single = calibrate(wrong_tool, (q, P[:, k]))
+        e_single = np.linalg.norm(compliant_fk(single.robot, qt)[:, :3, 3] - Pt[:, k], axis=1).mean()
+        pk = T[:, :3, 3] + T[:, :3, :3] @ joint.point_offsets_m[k]
+        e_joint = np.linalg.norm(pk - Pt[:, k], axis=1).mean()
+        assert e_joint <= 1.02 * e_single, (k, e_joint, e_single)
+    # the reflectors' geometry on the tool body is recovered (distances between them, truth offsets)
+    d_fit = np.linalg.norm(joint.point_offsets_m[1:] - joint.point_offsets_m[0], axis=1)
+    np.testing.assert_allclose(d_fit, np.linalg.norm(offs[1:] - offs[0], axis=1), atol=1e-4)

@@ -16,7 +16,7 @@ OrientationWeight = typer.Option(
 MaxDeviation = typer.Option(
     None, "--max-deviation",
     help="Plausible calibration bounds, KIND=VALUE[,...]: length_mm (20), angle_deg (2), joint_offset_deg (5), "
-         "compliance_urad_nm (1000), tool_m (2), residual_mm (3), residual_deg (1).")
+         "compliance_urad_nm (10000), tool_m (2), residual_mm (3), residual_deg (1).")
 
 
 def _calibration_options(orientation_weight: str, max_deviation: str | None) -> dict:
