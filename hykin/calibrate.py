@@ -72,6 +72,10 @@ BETA_SIN_ALPHA = 0.2  # beta is added for joints whose |sin(alpha)| is below thi
 _CHUNK = 20_000  # samples per Jacobian chunk (memory: ~6·P·chunk doubles)
 _ID_SAMPLES = 600  # samples (evenly spread) used for the identifiability QR
 _COARSE_SAMPLES = 20_000  # larger data sets first converge on this many evenly spread samples
+#: relative cost decrease per iteration below which an LM stopped by its iteration cap counts as
+#: converged (a flat valley, e.g. compliances creeping to their bound 0: 1e-5 of the cost is
+#: ~5e-6 of the RMS residual, far below anything that matters); above it the cost is still falling
+_STALLED_REL = 1e-5
 
 
 def _gram(A: np.ndarray, B: np.ndarray | None = None) -> np.ndarray:
@@ -588,7 +592,10 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
                 delta = np.zeros(P)
                 delta[free] = step_s * scale[free]
                 trial = _apply(state, specs, delta)
-                new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd)
+                try:
+                    new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd)
+                except ComplianceError:  # the step made the joints too soft for an equilibrium: reject it
+                    new_cost = math.inf
                 if new_cost < cost:
                     accepted = True
                     lam = max(lam / 10, 1e-12)
@@ -780,7 +787,7 @@ def calibrate(
             ww = float(np.clip(res.sigma_pos_m / res.sigma_rot_rad, 1e-3, 1e3))
         for _ in range(max(int(restarts), 0) + 1):
             again = ww != res.orientation_weight_m_per_rad or "unidentifiable" in res.message or (
-                not res.converged and rel > 1e-6)
+                not res.converged and rel > _STALLED_REL)
             if not again:
                 break
             res, rel = run(res.robot, specs, ww, max_iter, res.identifiable | (nominal_set if nominal_set is not None else False),
@@ -799,7 +806,7 @@ def calibrate(
         cost = res.after["pos_rms_mm"] ** 2 + (res.after.get("rot_rms_deg", 0.0) * 0.0)
         if best is None or cost < best[3]:
             best = (res, rel, iters, cost)
-        plausible = res.after["pos_rms_mm"] <= lim["residual_mm"] and (res.converged or rel <= 1e-6)
+        plausible = res.after["pos_rms_mm"] <= lim["residual_mm"] and (res.converged or rel <= _STALLED_REL)
         if plausible:
             break
     if best is None:
@@ -808,7 +815,7 @@ def calibrate(
         raise CalibrationError(f"calibration of {robot.name!r} diverged ({str(diverged).splitlines()[0]}); the data do "
                                f"not fit this robot file: {ADVICE}")
     res, rel, iters, _ = best
-    if not res.converged and rel <= 1e-6:  # the cap stopped a cost that no longer moves
+    if not res.converged and rel <= _STALLED_REL:  # the cap stopped a cost that no longer moves
         res.converged = True
         res.message += f"; iteration cap reached with the cost changing by {rel:.2g} (relative) per iteration"
     state0 = _State(robot=robot.copy(), c=compliance_of(robot), pts=pts_zero)
@@ -824,7 +831,7 @@ def calibrate(
                         f"file frames {reg.rms_before_m * 1e3:.3g} mm)" if reg.rms_m < reg.rms_before_m
                         else "; start: the robot file's base and tool")
     if checks:
-        check_calibration(res, specs, lim, still_falling=(not res.converged and rel > 1e-6))
+        check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL))
     return res
 
 

@@ -4,7 +4,7 @@
 :class:`hykin.calibrate.CalibrationError` with one line saying what is wrong and what to check when
 
 * the Levenberg–Marquardt did not converge (iteration cap reached while the cost still fell by
-  more than ``1e-6`` relative per iteration, after the restarts);
+  more than ``1e-5`` relative per iteration, after the restarts);
 * an identified parameter deviates from the robot file beyond a physically plausible bound
   (:data:`DEFAULT_MAX_DEVIATION`, per kind, overridable): a wrong robot file, units or joint order
   make the fit bend the geometry by centimetres or degrees to absorb the mismatch;
