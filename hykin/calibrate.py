@@ -18,8 +18,31 @@ a compliance column is the joint's own column times its gravity torque (the smal
 Each iteration relinearises at the current estimate (the deviations are composed into the robot),
 so the Jacobian is always the exact derivative at zero deviation.
 
-Residual per sample: ``p_meas - p_model`` (m) and, for full-pose data,
-``w · log(R_meas R_model^T)`` (rad × ``w`` m/rad, the orientation weight).
+Residual per sample: ``p_meas - p_model`` (m) for every measured point and, for full-pose data,
+``w · log(R_meas R_model^T)`` (rad × ``w`` m/rad, the orientation weight). Data with several
+reflectors per pose (``x2,y2,z2`` ... columns, :mod:`hykin.reflectors`) are fitted as what they are:
+points on one tool body, the first at the TCP, each further one with its own unknown offset
+``p2.x, p2.y, p2.z`` ... (TCP frame) identified with everything else. The orientation weight is
+chosen from the data by default (``"auto"``): a first fit at ``w = 1 m/rad`` gives the residual
+standard deviations per coordinate, and the fit is repeated at ``w = σ_pos / σ_rot`` so that each
+kind of row counts by its noise (a fixed 1 m/rad over-weights orientations that come from reflectors
+0.1 m apart by 10×: measured, the held-out error of every reflector doubled, benchmarks/bench_reflectors.py).
+
+Raw data (a tracker's frame, unknown tool, robot file without ``[base]``) run in stages:
+
+1. closed-form base and tool offset(s) from the nominal kinematics
+   (:func:`hykin.initial_registration.initial_registration`: linear in the offsets for a fixed base
+   rotation, Kabsch for the rotation, a few alternations, joint Gauss–Newton; several tool
+   guesses), kept where it explains the data better than the robot file's own frames;
+2. LM on base and tool (and reflector offsets) only, from that start;
+3. identifiability decided at this estimate (the set identifiable at the robot file first in the
+   QR order, so a choice between redundant parameters does not flip), LM on everything;
+4. identifiability re-checked at the solution; a further pass when the set changed, when the
+   orientation weight was re-estimated, or when the iteration cap stopped a still-falling cost;
+5. if the fit is still implausible, a restart from the robot file's own frames; the best is kept;
+6. refusals (:mod:`hykin.calibration_checks`): not converged, a parameter beyond its plausible
+   bound, or a residual no correct robot file leaves -> :class:`CalibrationError`, one line that says
+   what to check (robot file, units, tool, joint order).
 
 Identifiability: the identification Jacobian is scaled by physical units (1 mm, 1 mrad,
 1e-6 rad/N·m) and factorised by Householder QR in a fixed priority order (base, tool, joints
@@ -831,7 +854,11 @@ def calibrate(
                         f"file frames {reg.rms_before_m * 1e3:.3g} mm)" if reg.rms_m < reg.rms_before_m
                         else "; start: the robot file's base and tool")
     if checks:
-        check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL))
+        defl = None
+        if np.any(state1.c):
+            q_eff = _effective_joints(state1, q)
+            defl = np.max(np.abs(state1.c * gravity_torques(state1.robot, np.ascontiguousarray(q_eff))), axis=0)
+        check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl)
     return res
 
 

@@ -20,7 +20,9 @@ key                 default  applies to
 length_mm           20       DH/MDH ``a``, ``d``; URDF origin ``x, y, z``
 angle_deg           2        DH/MDH ``alpha``, ``beta``; URDF origin ``rx, ry, rz``
 joint_offset_deg    5        DH/MDH ``theta`` (joint zero offsets)
-compliance_urad_nm  10000    joint compliance ``1/k`` in µrad/(N·m) (stiffness ≥ 100 N·m/rad)
+deflection_deg      1        largest joint deflection under gravity ``c_i · tau_i`` over the data
+                             (the compliance itself is not bounded: a joint with little gravity torque
+                             in a robot file without payload mass gets a large, harmless ``c``)
 tool_m              2        distance of the TCP (and every reflector) from the flange
 residual_mm         3        RMS position residual after the calibration
 residual_deg        1        RMS orientation residual after the calibration
@@ -43,7 +45,7 @@ DEFAULT_MAX_DEVIATION: dict[str, float] = {
     "length_mm": 20.0,
     "angle_deg": 2.0,
     "joint_offset_deg": 5.0,
-    "compliance_urad_nm": 10000.0,
+    "deflection_deg": 1.0,
     "tool_m": 2.0,
     "residual_mm": 3.0,
     "residual_deg": 1.0,
@@ -87,8 +89,8 @@ def _limit_of(name: str, unit: str, group: str, field: str, lim: dict) -> tuple[
     """(bound in SI, display factor, display unit) for one parameter, None when unbounded."""
     if group in ("base", "tool", "point"):  # frames and reflector offsets: unknown, found by the fit
         return None
-    if group == "comp":
-        return lim["compliance_urad_nm"] * 1e-6, 1e6, "µrad/N·m"
+    if group == "comp":  # bounded through the deflection it causes (check_calibration)
+        return None
     if unit == "m":
         return lim["length_mm"] * 1e-3, 1e3, "mm"
     if group == "geom" and field == "theta":
@@ -96,12 +98,13 @@ def _limit_of(name: str, unit: str, group: str, field: str, lim: dict) -> tuple[
     return math.radians(lim["angle_deg"]), 180 / math.pi, "deg"
 
 
-def check_calibration(res, specs, lim: dict, *, still_falling: bool) -> None:
+def check_calibration(res, specs, lim: dict, *, still_falling: bool, deflection_rad=None) -> None:
     """Raise :class:`~hykin.calibrate.CalibrationError` when ``res`` cannot be a correct calibration.
 
     res: the :class:`~hykin.calibrate.CalibrationResult` (values relative to the robot file);
     specs: its parameter specs (``name, group, field, unit``); lim: resolved bounds;
-    still_falling: the cost still fell materially in the last iteration (not converged).
+    still_falling: the cost still fell materially in the last iteration (not converged);
+    deflection_rad: ``(n,)`` largest gravity deflection of each joint over the data (or None).
     """
     from .calibrate import CalibrationError
 
@@ -127,6 +130,12 @@ def check_calibration(res, specs, lim: dict, *, still_falling: bool) -> None:
         raise CalibrationError(
             f"calibration of {name!r}: {nm} deviates {v:+.4g} {un} from the robot file (plausible: ±{b:.4g} {un}); "
             f"the data do not fit this robot file: {ADVICE} (or widen --max-deviation)")
+    if deflection_rad is not None and np.max(deflection_rad) > math.radians(lim["deflection_deg"]):
+        j = int(np.argmax(deflection_rad))
+        raise CalibrationError(
+            f"calibration of {name!r}: joint {j + 1} deflects up to {math.degrees(deflection_rad[j]):.3g} deg under gravity "
+            f"(compliance c{j + 1} = {1e6 * (1.0 / res.robot.stiffness_nm_per_rad[j]):.4g} µrad/N·m; plausible: "
+            f"<= {lim['deflection_deg']:g} deg); the data do not fit this robot file: {ADVICE} (masses, payload)")
     tool_len = float(np.linalg.norm(res.robot.tool[:3, 3]))
     if getattr(res, "point_offsets_m", None) is not None:  # further reflectors: as far from the flange
         pts = res.robot.tool[:3, :3] @ np.asarray(res.point_offsets_m).T + res.robot.tool[:3, 3:4]

@@ -116,6 +116,9 @@ def test_parameter_beyond_its_bound_is_refused_and_overridable(setup):
         calibrate(bent, (q, Tt[:, :3, 3]), compliance=False)
     res = calibrate(bent, (q, Tt[:, :3, 3]), compliance=False, max_deviation={"length_mm": 40})
     assert abs(res.value("a2") + 0.03) < 2e-3
+    # joint compliance is bounded through the deflection it causes under gravity
+    with pytest.raises(CalibrationError, match=r"joint \d deflects up to .* deg under gravity"):
+        calibrate(nom, (q, T[:, :3, 3]), max_deviation={"deflection_deg": 1e-3})
 
 
 def test_non_convergence_is_refused(setup):

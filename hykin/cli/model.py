@@ -16,7 +16,7 @@ OrientationWeight = typer.Option(
 MaxDeviation = typer.Option(
     None, "--max-deviation",
     help="Plausible calibration bounds, KIND=VALUE[,...]: length_mm (20), angle_deg (2), joint_offset_deg (5), "
-         "compliance_urad_nm (10000), tool_m (2), residual_mm (3), residual_deg (1).")
+         "deflection_deg (1), tool_m (2), residual_mm (3), residual_deg (1).")
 
 
 def _calibration_options(orientation_weight: str, max_deviation: str | None) -> dict:
@@ -62,11 +62,12 @@ def fit_cmd(
     """Fit a hybrid model: calibrate the classical model, then train the residual networks."""
     from ..dataset import read_dataset
     from ..hybrid import HybridModel
+    from ..reflectors import with_reflector_unit
     from ..robot import load_robot
 
     rob = load_robot(robot)
     cal_kw = _calibration_options(orientation_weight, max_deviation)
-    tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+    tr = with_reflector_unit(read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob), length_unit)
     # without --val the model holds out its own validation share for the networks; the calibration
     # uses all of TRAIN (the networks' split must not change the calibrated robot)
     va = read_dataset(val, length_unit=length_unit, angle_unit=angle_unit, robot=rob) if val is not None else None
@@ -150,10 +151,11 @@ def calibrate_cmd(
     (--max-deviation) or leaves an implausible residual is refused (exit 2, nothing written)."""
     from ..calibrate import calibrate
     from ..dataset import read_dataset
+    from ..reflectors import with_reflector_unit
     from ..robot import load_robot, save_robot_toml
 
     rob = load_robot(robot)
-    ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+    ds = with_reflector_unit(read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob), length_unit)
     res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation))
     typer.echo(res.report())
     save_robot_toml(res.robot, out)
