@@ -99,6 +99,10 @@ _COARSE_SAMPLES = 20_000  # larger data sets first converge on this many evenly 
 #: converged (a flat valley, e.g. compliances creeping to their bound 0: 1e-5 of the cost is
 #: ~5e-6 of the RMS residual, far below anything that matters); above it the cost is still falling
 _STALLED_REL = 1e-5
+#: |R_kk| / ‖column‖ a parameter outside the set identifiable at the robot file needs to join it at
+#: a later estimate (rank_tol admits near-redundant ones, e.g. wrist offsets made "identifiable" by a
+#: tool 0.1 mm off the last axis, with correlations of ±1.000)
+_ADD_TOL = 1e-3
 
 
 def _gram(A: np.ndarray, B: np.ndarray | None = None) -> np.ndarray:
@@ -648,7 +652,12 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
                                         id_rows=np.arange(id_rows.size))
     order = np.arange(P) if prefer is None else np.concatenate([np.flatnonzero(prefer), np.flatnonzero(~prefer)])
     mask = np.zeros(P, bool)
-    mask[order] = _identifiable(lin0["J_id"][:, order], rank_tol, negligible_tol)[0]
+    m_o, ratio_o = _identifiable(lin0["J_id"][:, order], rank_tol, negligible_tol)
+    mask[order] = m_o
+    if prefer is not None:  # a parameter joins the earlier set only when clearly identifiable here
+        ratio = np.zeros(P)
+        ratio[order] = ratio_o
+        mask &= prefer | (ratio > _ADD_TOL)
     if N * rows_per < mask.sum():
         raise CalibrationError(f"data: {N} samples give {N * rows_per} equations for {int(mask.sum())} parameters")
     act = np.flatnonzero(mask)
