@@ -2,13 +2,18 @@
 poses from three SMRs (auto weight and a fixed 1 m/rad). Held-out mean error of every reflector, mm.
 
 Usage: ``python benchmarks/bench_reflectors.py`` (about a minute on a loaded 2-core machine)."""
-import numpy as np, sys
+import sys
+
+import numpy as np
+
 sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1] / "tests"))
 import test_raw_frame as t
+
 from hykin.calibrate import calibrate
 from hykin.compliance import compliant_fk
 from hykin.dataset import Dataset
 from hykin.referencing import pose_from_three_points
+
 rng = np.random.default_rng(3)
 nom = t._arm(); truth = t._truth(nom, rng)
 q = nom.random_joints(1500, rng)
@@ -33,6 +38,6 @@ T3 = pose_from_three_points(P[:, 0], P[:, 1], P[:, 2], nest)
 for w in ("auto", 1.0):
     r = calibrate(wrong, (q, T3), orientation_weight_m_per_rad=w)
     rows[f"full pose from 3 SMRs, w={w if w == 'auto' else '1 m/rad'}" + (f" ({r.orientation_weight_m_per_rad:.3g} m/rad)" if w == "auto" else "")] = err_points(compliant_fk(r.robot, qt), nest)
-print(f"held-out mean error per reflector (mm), noise 0.05 mm/axis, 1500 train / 1000 test poses, tracker frame, file tool 5.8 cm off")
+print("held-out mean error per reflector (mm), noise 0.05 mm/axis, 1500 train / 1000 test poses, tracker frame, file tool 5.8 cm off")
 for k, v in rows.items():
     print(f"  {k:<48} " + "  ".join(f"R{i + 1} {e:.4f}" for i, e in enumerate(v)))

@@ -790,7 +790,7 @@ def calibrate(
     specs = _select(_candidate_specs(robot, base=base, tool=tool, compliance=compliance, n_points=K), params)
     names = {s.name for s in specs}
     frames = [s for s in specs if s.group in ("base", "tool", "point")]
-    run = lambda rob, sp, ww, it, pref=None, pts=None: _calibrate_pass(  # noqa: E731
+    run = lambda rob, sp, ww, it, pref=None, pts=None: _calibrate_pass(
         rob, q, xyz, R_meas, sp, ww, it, tol, rank_tol, negligible_tol, progress, prefer=pref, pts0=pts)
     pts_zero = np.zeros((K, 3))
     starts = [(robot, pts_zero)]
