@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Optional
 
 import typer
 
@@ -45,17 +46,17 @@ def fit_cmd(
     robot: str = typer.Argument(..., help="Robot file (.toml), URDF, or preset name."),
     train: Path = typer.Argument(..., help="Training dataset (.csv/.parquet)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output model file (one safetensors file)."),
-    val: Path | None = typer.Option(None, "--val", help="Validation dataset (default: 10% of TRAIN held out)."),
+    val: Optional[Path] = typer.Option(None, "--val", help="Validation dataset (default: 10% of TRAIN held out)."),
     arch: str = typer.Option("default", "--arch", help="Network architecture: default, D1, D4, D4w, D4W, Rw, Rd, B1..B4."),
     recipe: str = typer.Option("default", "--recipe", help="Training recipe: default or paper."),
     calibrate: bool = typer.Option(True, "--calibrate/--no-calibrate", help="Parametric calibration before the networks."),
     device: str = typer.Option("cpu", "--device", help="cpu, cuda, or auto."),
     seed: int = typer.Option(0, "--seed"),
-    max_minutes: float | None = typer.Option(None, "--max-minutes", help="Time budget for network training."),
+    max_minutes: Optional[float] = typer.Option(None, "--max-minutes", help="Time budget for network training."),
     thermal: str = typer.Option("auto", "--thermal", help="Thermal expansion from a temperature_c column: auto, on, off."),
-    min_steps: int | None = typer.Option(None, "--min-steps", help="Least number of optimiser steps per network (default recipe: 30000)."),
+    min_steps: Optional[int] = typer.Option(None, "--min-steps", help="Least number of optimiser steps per network (default recipe: 30000)."),
     orientation_weight: str = OrientationWeight,
-    max_deviation: str | None = MaxDeviation,
+    max_deviation: Optional[str] = MaxDeviation,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
 ) -> None:
@@ -113,7 +114,7 @@ def evaluate_cmd(
     model: str = typer.Argument(..., help="Model file (or a robot: classical only)."),
     test: Path = typer.Argument(..., help="Test dataset (.csv/.parquet)."),
     as_json: bool = typer.Option(False, "--json", help="Print the table as JSON."),
-    report: Path | None = typer.Option(None, "--report", help="Write an HTML report with plots to this directory."),
+    report: Optional[Path] = typer.Option(None, "--report", help="Write an HTML report with plots to this directory."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
 ) -> None:
@@ -140,7 +141,7 @@ def calibrate_cmd(
     out: Path = typer.Option(..., "-o", "--out", help="Calibrated robot file (.toml)."),
     compliance: bool = typer.Option(True, "--compliance/--no-compliance", help="Identify joint compliance under gravity."),
     orientation_weight: str = OrientationWeight,
-    max_deviation: str | None = MaxDeviation,
+    max_deviation: Optional[str] = MaxDeviation,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
 ) -> None:
