@@ -18,8 +18,31 @@ a compliance column is the joint's own column times its gravity torque (the smal
 Each iteration relinearises at the current estimate (the deviations are composed into the robot),
 so the Jacobian is always the exact derivative at zero deviation.
 
-Residual per sample: ``p_meas - p_model`` (m) and, for full-pose data,
-``w · log(R_meas R_model^T)`` (rad × ``w`` m/rad, the orientation weight).
+Residual per sample: ``p_meas - p_model`` (m) for every measured point and, for full-pose data,
+``w · log(R_meas R_model^T)`` (rad × ``w`` m/rad, the orientation weight). Data with several
+reflectors per pose (``x2,y2,z2`` ... columns, :mod:`hykin.reflectors`) are fitted as what they are:
+points on one tool body, the first at the TCP, each further one with its own unknown offset
+``p2.x, p2.y, p2.z`` ... (TCP frame) identified with everything else. The orientation weight is
+chosen from the data by default (``"auto"``): a first fit at ``w = 1 m/rad`` gives the residual
+standard deviations per coordinate, and the fit is repeated at ``w = σ_pos / σ_rot`` so that each
+kind of row counts by its noise (a fixed 1 m/rad over-weights orientations that come from reflectors
+0.1 m apart by 10×: measured, the held-out error of every reflector doubled, benchmarks/bench_reflectors.py).
+
+Raw data (a tracker's frame, unknown tool, robot file without ``[base]``) run in stages:
+
+1. closed-form base and tool offset(s) from the nominal kinematics
+   (:func:`hykin.initial_registration.initial_registration`: linear in the offsets for a fixed base
+   rotation, Kabsch for the rotation, a few alternations, joint Gauss–Newton; several tool
+   guesses), kept where it explains the data better than the robot file's own frames;
+2. LM on base and tool (and reflector offsets) only, from that start;
+3. identifiability decided at this estimate (the set identifiable at the robot file first in the
+   QR order, so a choice between redundant parameters does not flip), LM on everything;
+4. identifiability re-checked at the solution; a further pass when the set changed, when the
+   orientation weight was re-estimated, or when the iteration cap stopped a still-falling cost;
+5. if the fit is still implausible, a restart from the robot file's own frames; the best is kept;
+6. refusals (:mod:`hykin.calibration_checks`): not converged, a parameter beyond its plausible
+   bound, or a residual no correct robot file leaves -> :class:`CalibrationError`, one line that says
+   what to check (robot file, units, tool, joint order).
 
 Identifiability: the identification Jacobian is scaled by physical units (1 mm, 1 mrad,
 1e-6 rad/N·m) and factorised by Householder QR in a fixed priority order (base, tool, joints
@@ -36,28 +59,35 @@ from __future__ import annotations
 import fnmatch
 import math
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
 
 import numpy as np
 import scipy.linalg
 
 from . import se3
+from .calibration_result import CalibrationResult, residual_stats
 from .chain import build_chain
-from .compliance import compliance_of, compliant_fk, deflected_joints, gravity_torques
+from .compliance import (
+    ComplianceError,
+    compliance_of,
+    compliant_fk,
+    deflected_joints,
+    gravity_torques,
+)
 from .fk import fk
 from .robot import Robot
 
 __all__ = [
     "CalibrationError",
     "CalibrationResult",
+    "apply_deviations",
     "calibrate",
     "calibrated_fk",
-    "parameter_names",
-    "apply_deviations",
     "identification_jacobian",
-    "parameter_scales",
     "identifiable_columns",
+    "parameter_names",
+    "parameter_scales",
 ]
 
 SCALE_LENGTH_M = 1e-3  # typical deviation used to scale lengths (1 mm)
@@ -67,6 +97,14 @@ BETA_SIN_ALPHA = 0.2  # beta is added for joints whose |sin(alpha)| is below thi
 _CHUNK = 20_000  # samples per Jacobian chunk (memory: ~6·P·chunk doubles)
 _ID_SAMPLES = 600  # samples (evenly spread) used for the identifiability QR
 _COARSE_SAMPLES = 20_000  # larger data sets first converge on this many evenly spread samples
+#: relative cost decrease per iteration below which an LM stopped by its iteration cap counts as
+#: converged (a flat valley, e.g. compliances creeping to their bound 0: 1e-5 of the cost is
+#: ~5e-6 of the RMS residual, far below anything that matters); above it the cost is still falling
+_STALLED_REL = 1e-5
+#: |R_kk| / ‖column‖ a parameter outside the set identifiable at the robot file needs to join it at
+#: a later estimate (rank_tol admits near-redundant ones, e.g. wrist offsets made "identifiable" by a
+#: tool 0.1 mm off the last axis, with correlations of ±1.000)
+_ADD_TOL = 1e-3
 
 
 def _gram(A: np.ndarray, B: np.ndarray | None = None) -> np.ndarray:
@@ -98,10 +136,11 @@ class _Spec:
 _TWIST = ("x", "y", "z", "rx", "ry", "rz")
 
 
-def _candidate_specs(robot: Robot, *, base: bool, tool: bool, compliance: bool) -> list[_Spec]:
-    """All candidate parameters in priority order (base, tool, joints, compliance)."""
+def _candidate_specs(robot: Robot, *, base: bool, tool: bool, compliance: bool, n_points: int = 1) -> list[_Spec]:
+    """All candidate parameters in priority order (base, tool, joints, compliance, further reflectors'
+    offsets ``p2.x`` ... in the TCP frame when ``n_points > 1``)."""
     out: list[_Spec] = []
-    tw = lambda g, j, prefix: [  # noqa: E731
+    tw = lambda g, j, prefix: [
         _Spec(f"{prefix}.{f}", g, j, f, "m" if f in ("x", "y", "z") else "rad") for f in _TWIST
     ]
     if base:
@@ -122,6 +161,8 @@ def _candidate_specs(robot: Robot, *, base: bool, tool: bool, compliance: bool) 
     if compliance:
         for i in range(n):
             out.append(_Spec(f"c{i + 1}", "comp", i, "c", "c"))
+    for k in range(1, n_points):
+        out += [_Spec(f"p{k + 1}.{f}", "point", k, f, "m") for f in ("x", "y", "z")]
     return out
 
 
@@ -153,7 +194,14 @@ def _select(specs: list[_Spec], params) -> list[_Spec]:
 def _as_data(robot: Robot, data, position_only):
     """-> q (N,n), xyz (N,3), R (N,3,3) or None."""
     if hasattr(data, "q") and hasattr(data, "xyz_m"):
-        q, xyz = np.asarray(data.q, dtype=np.float64), np.asarray(data.xyz_m, dtype=np.float64)
+        from .reflectors import reflector_points
+
+        q = np.asarray(data.q, dtype=np.float64)
+        try:
+            xyz = reflector_points(data)
+        except ValueError as e:
+            raise CalibrationError(str(e)) from None
+        xyz = xyz[:, 0] if xyz.shape[1] == 1 else xyz
         quat = getattr(data, "quat_wxyz", None)
         R = None if quat is None else se3.quat_to_matrix(np.asarray(quat, dtype=np.float64))
     elif isinstance(data, (tuple, list)) and len(data) == 2:
@@ -161,7 +209,7 @@ def _as_data(robot: Robot, data, position_only):
         P = np.asarray(data[1], dtype=np.float64)
         if P.ndim == 3 and P.shape[1:] == (4, 4):
             xyz, R = P[:, :3, 3].copy(), P[:, :3, :3].copy()
-        elif P.ndim == 2 and P.shape[1] == 3:
+        elif P.ndim == 2 and P.shape[1] == 3 or P.ndim == 3 and P.shape[2] == 3 and P.shape[1] != 4:
             xyz, R = P, None
         else:
             raise CalibrationError(f"data: measured poses must be (N, 4, 4) or positions (N, 3), got {P.shape}")
@@ -169,8 +217,8 @@ def _as_data(robot: Robot, data, position_only):
         raise CalibrationError("data: expected a Dataset or a tuple (q (N, n), poses (N, 4, 4) | positions (N, 3))")
     if q.ndim != 2 or q.shape[1] != robot.dof:
         raise CalibrationError(f"data: joints must be (N, {robot.dof}) for robot {robot.name!r}, got {q.shape}")
-    if xyz.shape != (q.shape[0], 3):
-        raise CalibrationError(f"data: positions must be ({q.shape[0]}, 3), got {xyz.shape}")
+    if xyz.shape[0] != q.shape[0] or xyz.shape[-1] != 3:
+        raise CalibrationError(f"data: positions must be ({q.shape[0]}, 3) or ({q.shape[0]}, K, 3), got {xyz.shape}")
     for nm, arr in (("joints", q), ("positions", xyz)) + ((("orientations", R),) if R is not None else ()):
         bad = ~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1)
         if bad.any():
@@ -193,6 +241,7 @@ class _State:
 
     robot: Robot
     c: np.ndarray  # (n,) compliance, rad/N·m
+    pts: np.ndarray = field(default_factory=lambda: np.zeros((1, 3)))  # (K, 3) reflector offsets, TCP frame; row 0 = 0
 
 
 def _robot_with_c(robot: Robot, c: np.ndarray) -> Robot:
@@ -219,8 +268,11 @@ def _apply(state: _State, specs: list[_Spec], delta: np.ndarray) -> _State:
     base6, tool6 = np.zeros(6), np.zeros(6)
     orig6 = np.zeros((r.dof, 6))
     c = state.c.copy()
+    pts = state.pts.copy()
     for s, v in zip(specs, delta):
-        if s.group == "geom":
+        if s.group == "point":
+            pts[s.joint, _TWIST.index(s.field)] += v
+        elif s.group == "geom":
             geom[s.field][s.joint] += v
         elif s.group == "base":
             base6[_TWIST.index(s.field)] = v
@@ -239,7 +291,7 @@ def _apply(state: _State, specs: list[_Spec], delta: np.ndarray) -> _State:
         xyz, rpy = se3.transform_to_xyzrpy(O)
         changes.update(origin_xyz_m=xyz, origin_rpy_rad=rpy)
     new = _robot_with_c(r.copy(**changes), c)
-    return _State(robot=new, c=c)
+    return _State(robot=new, c=c, pts=pts)
 
 
 def apply_deviations(robot: Robot, deviations: dict[str, float]) -> Robot:
@@ -318,9 +370,20 @@ def _rotation_residual(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
     return out
 
 
-def _residual(T_model: np.ndarray, xyz: np.ndarray, R_meas: np.ndarray | None, w: float):
-    """(N, 3) position residual (m) and (N, 3) weighted rotation residual or None."""
-    rp = xyz - T_model[:, :3, 3]
+def _points_of(T_model: np.ndarray, pts: np.ndarray | None) -> np.ndarray:
+    """Modelled reflector positions ``(N, K, 3)``: TCP ``T_model`` plus offsets ``pts`` ``(K, 3)`` (TCP frame)."""
+    if pts is None or len(pts) == 1 and not np.any(pts):
+        return T_model[:, None, :3, 3]
+    return T_model[:, None, :3, 3] + np.einsum("nij,kj->nki", T_model[:, :3, :3], pts)
+
+
+def _residual(T_model: np.ndarray, xyz: np.ndarray, R_meas: np.ndarray | None, w: float, pts: np.ndarray | None = None):
+    """Position residual (m) ``(N·K, 3)`` (sample-major, ``K`` reflectors; ``(N, 3)`` for ``xyz``
+    ``(N, 3)``) and ``(N, 3)`` weighted rotation residual or None."""
+    if xyz.ndim == 3:
+        rp = (xyz - _points_of(T_model, pts)).reshape(-1, 3)
+    else:
+        rp = xyz - T_model[:, :3, 3]
     ro = None if R_meas is None else w * _rotation_residual(R_meas, T_model[:, :3, :3])
     return rp, ro
 
@@ -362,15 +425,18 @@ def _jacobian_chunk(state: _State, specs: list[_Spec], q_eff: np.ndarray, tau, w
     robot = state.robot
     chain = build_chain(robot)
     prev, joint, tcp = _frames(chain, q_eff)
-    p_tcp = tcp[:, :3, 3]
-    N, P = q_eff.shape[0], len(specs)
-    Jp = np.zeros((P, N, 3))
+    p_tcp = _points_of(tcp, state.pts)  # (N, K, 3)
+    N, P, K = q_eff.shape[0], len(specs), p_tcp.shape[1]
+    Jp = np.zeros((P, N, K, 3))
     Jo = np.zeros((P, N, 3)) if with_rot else None
     origin = None
     if robot.convention == "urdf" and any(s.group == "origin" for s in specs):
         O = se3.xyzrpy_to_transform(robot.origin_xyz_m, robot.origin_rpy_rad)
         origin = [_rmul(prev[:, i], O[i]) for i in range(robot.dof)]
     for k, s in enumerate(specs):
+        if s.group == "point":  # a further reflector's offset along a TCP axis: moves that point only
+            Jp[k, :, s.joint] = -tcp[:, :3, _TWIST.index(s.field)]
+            continue
         frame, kind, u, pt = _local_axes(robot, s)
         if frame == "base":
             F = np.asarray(chain.base)[None]
@@ -387,15 +453,15 @@ def _jacobian_chunk(state: _State, specs: list[_Spec], q_eff: np.ndarray, tau, w
         t = None if s.group != "comp" else -tau[:, s.joint : s.joint + 1]
         if kind == "rot":
             p0 = R[:, :, 0] * pt[0] + R[:, :, 1] * pt[1] + R[:, :, 2] * pt[2] + F[:, :3, 3]
-            r = p_tcp - p0
-            ux, uy, uz = uw[:, 0:1], uw[:, 1:2], uw[:, 2:3]
-            dp = np.concatenate([uy * r[:, 2:3] - uz * r[:, 1:2], uz * r[:, 0:1] - ux * r[:, 2:3],
-                                 ux * r[:, 1:2] - uy * r[:, 0:1]], 1)
-            Jp[k] = -dp if t is None else dp * t
+            r = p_tcp - p0[:, None, :]  # (N, K, 3)
+            ux, uy, uz = uw[:, None, 0:1], uw[:, None, 1:2], uw[:, None, 2:3]
+            dp = np.concatenate([uy * r[..., 2:3] - uz * r[..., 1:2], uz * r[..., 0:1] - ux * r[..., 2:3],
+                                 ux * r[..., 1:2] - uy * r[..., 0:1]], -1)
+            Jp[k] = -dp if t is None else dp * t[:, :, None]
             if with_rot:
                 Jo[k] = -w * uw if t is None else w * uw * t
         else:
-            Jp[k] = -uw if t is None else uw * t
+            Jp[k] = -uw[:, None, :] if t is None else uw[:, None, :] * t[:, :, None]
     return Jp, Jo, tcp
 
 
@@ -416,8 +482,8 @@ def _linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=_CHUNK, kee
         q_eff = np.ascontiguousarray(q_eff_all[sl])
         tau = gravity_torques(state.robot, q_eff) if need_tau else None
         Jp, Jo, tcp = _jacobian_chunk(state, specs, q_eff, tau, w, with_rot)
-        rp, ro = _residual(tcp, xyz[sl], None if R_meas is None else R_meas[sl], w)
-        Jp *= sc
+        rp, ro = _residual(tcp, xyz[sl], None if R_meas is None else R_meas[sl], w, state.pts)
+        Jp *= sc[..., None]
         Jp2 = Jp.reshape(P, -1)
         out["JtJ_p"] += _gram(Jp2.T)
         out["Jtr"] += Jp2 @ rp.reshape(-1)
@@ -455,6 +521,7 @@ def identification_jacobian(robot: Robot, q, *, position_only: bool = False, ori
     tau = gravity_torques(robot, np.ascontiguousarray(q_eff)) if compliance else None
     w = orientation_weight_m_per_rad
     Jp, Jo, _ = _jacobian_chunk(state, specs, np.ascontiguousarray(q_eff), tau, w, not position_only)
+    Jp = Jp[:, :, 0]
     J = -Jp if position_only else -np.concatenate([Jp, Jo], 2)
     return [s.name for s in specs], np.ascontiguousarray(J.transpose(1, 2, 0))
 
@@ -517,175 +584,26 @@ def _lm_step(lin: dict, act: np.ndarray, lam: float, is_comp: np.ndarray, c: np.
     return free, None
 
 
-# --------------------------------------------------------------------------- result
-
-
-def _stats(rp: np.ndarray, ro: np.ndarray | None, w: float) -> dict:
-    e = np.linalg.norm(rp, axis=1) * 1e3
-    d = {
-        "pos_mean_mm": float(e.mean()), "pos_rms_mm": float(np.sqrt(np.mean(e * e))),
-        "pos_p95_mm": float(np.percentile(e, 95)), "pos_max_mm": float(e.max()),
-    }
-    if ro is not None:
-        a = np.degrees(np.linalg.norm(ro, axis=1) / w)
-        d.update({
-            "rot_mean_deg": float(a.mean()), "rot_rms_deg": float(np.sqrt(np.mean(a * a))),
-            "rot_p95_deg": float(np.percentile(a, 95)), "rot_max_deg": float(a.max()),
-        })
-    return d
-
-
-@dataclass
-class CalibrationResult:
-    """Outcome of :func:`calibrate`.
-
-    robot: the calibrated robot (geometry, base, tool, ``stiffness_nm_per_rad = 1 / c``).
-    names: parameter names (priority order); values: identified deviations from the input robot
-    (SI: m, rad, rad/N·m; base/tool/URDF-origin deviations as ``(x, y, z, rx, ry, rz)`` of
-    ``T0⁻¹ T``); std: standard deviations (nan where not identified); identifiable: bool mask.
-    correlation: ``(k, k)`` among the estimated parameters, ``correlation_names`` order (identifiable
-    ones that did not end at a bound: a compliance at 0 has no std).
-    strong_correlations: ``(name_i, name_j, rho)`` with ``|rho| > 0.9``.
-    before / after: residual statistics on the calibration data (``pos_mean_mm``, ``pos_rms_mm``,
-    ``pos_p95_mm``, ``pos_max_mm`` and the ``rot_*_deg`` twins for full-pose data).
-    sigma_pos_m / sigma_rot_rad: residual standard deviations per coordinate after calibration.
-    """
-
-    robot: Robot
-    names: list[str]
-    values: np.ndarray
-    std: np.ndarray
-    identifiable: np.ndarray
-    correlation: np.ndarray
-    strong_correlations: list[tuple[str, str, float]]
-    before: dict
-    after: dict
-    iterations: int
-    converged: bool
-    message: str
-    units: list[str] = field(default_factory=list)
-    correlation_names: list[str] = field(default_factory=list)
-    n_samples: int = 0
-    position_only: bool = False
-    orientation_weight_m_per_rad: float = 1.0
-    sigma_pos_m: float = float("nan")
-    sigma_rot_rad: float = float("nan")
-    seconds: float = 0.0
-
-    @property
-    def identified_names(self) -> list[str]:
-        return [n for n, m in zip(self.names, self.identifiable) if m]
-
-    @property
-    def rms_before_mm(self) -> float:
-        return self.before["pos_rms_mm"]
-
-    @property
-    def rms_after_mm(self) -> float:
-        return self.after["pos_rms_mm"]
-
-    def value(self, name: str) -> float:
-        """Identified deviation of parameter ``name`` (SI)."""
-        return float(self.values[self.names.index(name)])
-
-    def report(self) -> str:
-        """Human-readable table (lengths in mm, angles in deg, compliance in µrad/(N·m))."""
-        lines = [
-            f"Calibration of {self.robot.name!r}: {self.n_samples} samples, "
-            f"{'position only' if self.position_only else f'full pose (w = {self.orientation_weight_m_per_rad:g} m/rad)'}, "
-            f"{int(self.identifiable.sum())}/{len(self.names)} parameters identified, "
-            f"{self.iterations} iterations, {'converged' if self.converged else 'NOT converged'} ({self.message}), "
-            f"{self.seconds:.2f} s",
-            f"{'parameter':<10} {'deviation':>14} {'std':>12}  unit",
-        ]
-        for n, v, s, u, m in zip(self.names, self.values, self.std, self.units, self.identifiable):
-            f, un = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg"), "c": (1e6, "µrad/N·m")}[u]
-            vs = f"{v * f:14.6f}" if m else f"{'fixed':>14}"
-            ss = f"{s * f:12.6f}" if m and np.isfinite(s) else f"{'-':>12}"
-            lines.append(f"{n:<10} {vs} {ss}  {un}")
-        lines.append(f"{'':<10} {'before':>14} {'after':>12}")
-        for key, lab in (("pos_mean_mm", "pos mean mm"), ("pos_p95_mm", "pos p95 mm"), ("pos_max_mm", "pos max mm"),
-                         ("rot_mean_deg", "rot mean deg"), ("rot_p95_deg", "rot p95 deg"), ("rot_max_deg", "rot max deg")):
-            if key in self.before:
-                lines.append(f"{lab:<14} {self.before[key]:10.6f} {self.after[key]:12.6f}")
-        if self.strong_correlations:
-            lines.append("strong correlations (|rho| > 0.9): " + ", ".join(
-                f"{a}~{b} {r:+.3f}" for a, b, r in self.strong_correlations))
-        return "\n".join(lines)
-
-    def to_dict(self) -> dict:
-        """JSON-able summary (SI units)."""
-        f = lambda x: None if not np.isfinite(x) else float(x)  # noqa: E731
-        return {
-            "robot": self.robot.name,
-            "n_samples": self.n_samples,
-            "position_only": self.position_only,
-            "orientation_weight_m_per_rad": self.orientation_weight_m_per_rad,
-            "parameters": [
-                {"name": n, "unit": u, "value": float(v), "std": f(s), "identifiable": bool(m)}
-                for n, u, v, s, m in zip(self.names, self.units, self.values, self.std, self.identifiable)
-            ],
-            "identified_names": self.identified_names,
-            "correlation_names": self.correlation_names,
-            "correlation": self.correlation.tolist(),
-            "strong_correlations": [[a, b, float(r)] for a, b, r in self.strong_correlations],
-            "before": self.before,
-            "after": self.after,
-            "sigma_pos_m": f(self.sigma_pos_m),
-            "sigma_rot_rad": f(self.sigma_rot_rad),
-            "iterations": self.iterations,
-            "converged": self.converged,
-            "message": self.message,
-            "seconds": self.seconds,
-        }
-
-
 # --------------------------------------------------------------------------- main entry
 
 
-def calibrate(
-    robot: Robot,
-    data,
-    *,
-    params="auto",
-    compliance: bool = True,
-    base: bool = True,
-    tool: bool = True,
-    position_only: bool | None = None,
-    orientation_weight_m_per_rad: float = 1.0,
-    max_iter: int = 50,
-    tol: float = 1e-12,
-    rank_tol: float = 1e-6,
-    negligible_tol: float = 1e-9,
-    progress: Callable[[int, float], None] | None = None,
-) -> CalibrationResult:
-    """Identify geometry, base, tool and joint compliance of ``robot`` from measured poses.
+def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, max_iter: int, tol: float,
+                    rank_tol: float, negligible_tol: float, progress,
+                    prefer: np.ndarray | None = None, pts0: np.ndarray | None = None) -> tuple[CalibrationResult, float]:
+    """One identifiability selection at ``robot`` plus one LM run on the parameters ``specs``.
 
-    data: a :class:`hykin.dataset.Dataset` (or any object with ``q``, ``xyz_m``, ``quat_wxyz``), or a
-    tuple ``(q (N, n) rad, poses (N, 4, 4) m)`` / ``(q, positions (N, 3) m)``. Measured poses are in
-    the world/measurement frame (``robot.base`` maps it to the robot base).
-    params: ``"auto"`` (every candidate, see :func:`parameter_names`) or fnmatch patterns selecting
-    candidates (``["base.*", "tool.*"]`` re-registers a measurement series only).
-    compliance/base/tool: include those parameter groups. position_only: ignore orientations
-    (default: only when the data have none). orientation_weight_m_per_rad: length scale ``w`` that
-    weights orientation residuals (1 m/rad: 1 mrad counts like 1 mm). max_iter / tol: LM iterations
-    and relative cost decrease at which it stops. rank_tol: identifiability threshold on
-    ``|R_kk| / ‖column‖``; negligible_tol: columns smaller than this times the largest are fixed.
-    progress: called as ``progress(iteration, cost)``.
+    prefer: bool mask of parameters put first in the QR order (an identified set chosen earlier
+    stays chosen where it is still identifiable; others are added where they became so).
+    Returns the result (deviations relative to ``robot``) and the relative cost decrease of the
+    last accepted iteration (large when the iteration cap stopped a still-falling cost).
     """
     t0 = time.perf_counter()
-    if not (orientation_weight_m_per_rad > 0 and math.isfinite(orientation_weight_m_per_rad)):
-        raise CalibrationError(f"orientation_weight_m_per_rad must be a positive number, got {orientation_weight_m_per_rad}")
-    q, xyz, R_meas = _as_data(robot, data, position_only)
     N = q.shape[0]
-    if N == 0:
-        raise CalibrationError("data: no samples")
-    w = float(orientation_weight_m_per_rad)
-    specs = _select(_candidate_specs(robot, base=base, tool=tool, compliance=compliance), params)
+    last = {"rel": 0.0}
     P = len(specs)
     scale = np.array([_scale_of(s) for s in specs])
-    state0 = _State(robot=robot.copy(), c=compliance_of(robot))
-    rows_per = 3 if R_meas is None else 6
+    state0 = _State(robot=robot.copy(), c=compliance_of(robot), pts=np.zeros((xyz.shape[1], 3)) if pts0 is None else pts0)
+    rows_per = 3 * xyz.shape[1] + (0 if R_meas is None else 3)
     from .plausibility import check_calibration_size
 
     check_calibration_size(N, P, rows_per)  # fewer equations than unknowns would fit the noise exactly
@@ -694,7 +612,7 @@ def calibrate(
 
     def cost_of(st: _State, qd, xyzd, Rd):
         q_eff = _effective_joints(st, qd)
-        rp, ro = _residual(fk(st.robot, q_eff), xyzd, Rd, w)
+        rp, ro = _residual(fk(st.robot, q_eff), xyzd, Rd, w, st.pts)
         cost = 0.5 * (float(np.sum(rp * rp)) + (0.0 if ro is None else float(np.sum(ro * ro))))
         return cost, rp, ro, q_eff
 
@@ -718,7 +636,10 @@ def calibrate(
                 delta = np.zeros(P)
                 delta[free] = step_s * scale[free]
                 trial = _apply(state, specs, delta)
-                new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd)
+                try:
+                    new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd)
+                except ComplianceError:  # the step made the joints too soft for an equilibrium: reject it
+                    new_cost = math.inf
                 if new_cost < cost:
                     accepted = True
                     lam = max(lam / 10, 1e-12)
@@ -730,6 +651,7 @@ def calibrate(
                 converged, message = True, "no further decrease of the cost"
                 break
             rel = (cost - new_cost) / max(cost, 1e-300)
+            last["rel"] = rel
             state, cost, q_eff, rp, ro = trial, new_cost, new_q_eff, new_rp, new_ro
             if progress is not None:
                 progress(it, cost)
@@ -742,10 +664,17 @@ def calibrate(
     # identifiability at the input robot, on evenly spread samples
     state = state0
     id_rows = np.unique(np.linspace(0, N - 1, min(N, _ID_SAMPLES)).astype(np.int64))
-    sub = lambda a, idx: None if a is None else a[idx]  # noqa: E731
+    sub = lambda a, idx: None if a is None else a[idx]
     _, rp0, ro0, lin0, _, _, _ = run_lm(state0, q[id_rows], xyz[id_rows], sub(R_meas, id_rows), None, 0,
                                         id_rows=np.arange(id_rows.size))
-    mask, _ = _identifiable(lin0["J_id"], rank_tol, negligible_tol)
+    order = np.arange(P) if prefer is None else np.concatenate([np.flatnonzero(prefer), np.flatnonzero(~prefer)])
+    mask = np.zeros(P, bool)
+    m_o, ratio_o = _identifiable(lin0["J_id"][:, order], rank_tol, negligible_tol)
+    mask[order] = m_o
+    if prefer is not None:  # a parameter joins the earlier set only when clearly identifiable here
+        ratio = np.zeros(P)
+        ratio[order] = ratio_o
+        mask &= prefer | (ratio > _ADD_TOL)
     if N * rows_per < mask.sum():
         raise CalibrationError(f"data: {N} samples give {N * rows_per} equations for {int(mask.sum())} parameters")
     act = np.flatnonzero(mask)
@@ -757,11 +686,12 @@ def calibrate(
         state, q, xyz, R_meas, act, max(max_iter - it_sub, 1), id_rows=id_rows
     )
     it += it_sub
-    before = _stats(*_residual(_model_poses(state0, q), xyz, R_meas, w), w)
+    before = residual_stats(*_residual(_model_poses(state0, q), xyz, R_meas, w, state0.pts), w)
     # recheck at the solution: the identified set must still have full rank there
     final = mask.copy()
     if act.size:
-        keep_end, _ = _identifiable(lin["J_id"][:, act], rank_tol, negligible_tol)
+        keep_end, _ = _identifiable(lin["J_id"][:, act[np.argsort(np.argsort(order)[act])]], rank_tol, negligible_tol)
+        keep_end = keep_end[np.argsort(np.argsort(np.argsort(order)[act]))]
         lost = [specs[k].name for k in act[~keep_end]]
         if lost:
             message += f"; at the solution {', '.join(lost)} became unidentifiable (no std reported)"
@@ -771,7 +701,7 @@ def calibrate(
         message += "; " + ", ".join(specs[k].name for k in np.flatnonzero(at_bound)) + " at the bound 0 (rigid; no std)"
     fa = np.flatnonzero(final & ~at_bound)
     rp, ro = rp0, ro0  # residuals of the accepted state
-    after = _stats(rp, ro, w)
+    after = residual_stats(rp, ro, w)
     m_p = rp.size
     m_o = 0 if ro is None else ro.size
     m = m_p + m_o
@@ -805,8 +735,157 @@ def calibrate(
         correlation_names=[specs[k].name for k in fa],
         position_only=R_meas is None, orientation_weight_m_per_rad=w, sigma_pos_m=math.sqrt(sig2_p),
         sigma_rot_rad=math.sqrt(sig2_o) / w if R_meas is not None else float("nan"),
-        seconds=time.perf_counter() - t0,
-    )
+        seconds=time.perf_counter() - t0, point_offsets_m=state.pts.copy(),
+    ), last["rel"]
+
+
+def calibrate(
+    robot: Robot,
+    data,
+    *,
+    params="auto",
+    compliance: bool = True,
+    base: bool = True,
+    tool: bool = True,
+    position_only: bool | None = None,
+    orientation_weight_m_per_rad: float | str = "auto",
+    max_iter: int = 50,
+    tol: float = 1e-12,
+    rank_tol: float = 1e-6,
+    negligible_tol: float = 1e-9,
+    progress: Callable[[int, float], None] | None = None,
+    initial: bool | str = "auto",
+    restarts: int = 2,
+    max_deviation: dict | None = None,
+    checks: bool = True,
+) -> CalibrationResult:
+    """Identify geometry, base, tool and joint compliance of ``robot`` from measured poses.
+
+    data: a :class:`hykin.dataset.Dataset` (or any object with ``q``, ``xyz_m``, ``quat_wxyz``), or a
+    tuple ``(q (N, n) rad, poses (N, 4, 4) m)`` / ``(q, positions (N, 3) m)``. Measured poses may be
+    in any frame (a tracker's, metres away and turned): base and tool are found first
+    (:mod:`hykin.initial_registration`), then refined with everything else.
+    params: ``"auto"`` (every candidate, see :func:`parameter_names`) or fnmatch patterns selecting
+    candidates (``["base.*", "tool.*"]`` re-registers a measurement series only).
+    compliance/base/tool: include those parameter groups. position_only: ignore orientations
+    (default: only when the data have none). orientation_weight_m_per_rad: length scale ``w`` that
+    weights orientation residuals (``w = 1``: 1 mrad counts like 1 mm); ``"auto"`` (default) takes
+    ``w = σ_pos / σ_rot`` from the residuals of a first fit, so that each kind counts by its noise.
+    max_iter / tol: LM iterations per pass and relative cost decrease at which it stops.
+    rank_tol: identifiability threshold on ``|R_kk| / ‖column‖``; negligible_tol: columns smaller
+    than this times the largest are fixed. progress: called as ``progress(iteration, cost)``.
+    initial: ``"auto"``/True: closed-form base + tool start when base and tool are calibrated
+    (kept only where it explains the data better than the robot file's frames); False: start at
+    the robot file. restarts: further LM passes when the iteration cap stopped a still-falling cost,
+    and starts tried (robot file's frames) when the fit is implausible.
+    max_deviation: overrides of :data:`hykin.calibration_checks.DEFAULT_MAX_DEVIATION`
+    (``{"length_mm": 30}``). checks: refuse (raise :class:`CalibrationError`) a calibration that did
+    not converge, a parameter beyond its plausible bound, or an implausible residual
+    (:mod:`hykin.calibration_checks`); False returns whatever the fit gave.
+
+    Identifiability is decided at the current estimate: after base and tool are found, and again at
+    the solution (a further pass runs when the identified set changed there).
+    """
+    from .calibration_checks import check_calibration, resolve_max_deviation
+    from .initial_registration import initial_registration
+
+    t0 = time.perf_counter()
+    auto_w = isinstance(orientation_weight_m_per_rad, str)
+    if auto_w and orientation_weight_m_per_rad != "auto":
+        raise CalibrationError(f"orientation_weight_m_per_rad must be a positive number or 'auto', got {orientation_weight_m_per_rad!r}")
+    if not auto_w and not (orientation_weight_m_per_rad > 0 and math.isfinite(orientation_weight_m_per_rad)):
+        raise CalibrationError(f"orientation_weight_m_per_rad must be a positive number, got {orientation_weight_m_per_rad}")
+    try:
+        lim = resolve_max_deviation(max_deviation)
+    except ValueError as e:
+        raise CalibrationError(str(e)) from None
+    q, xyz, R_meas = _as_data(robot, data, position_only)
+    if q.shape[0] == 0:
+        raise CalibrationError("data: no samples")
+    w = 1.0 if auto_w else float(orientation_weight_m_per_rad)
+    K = 1 if xyz.ndim == 2 else xyz.shape[1]
+    specs = _select(_candidate_specs(robot, base=base, tool=tool, compliance=compliance, n_points=K), params)
+    names = {s.name for s in specs}
+    frames = [s for s in specs if s.group in ("base", "tool", "point")]
+    run = lambda rob, sp, ww, it, pref=None, pts=None: _calibrate_pass(
+        rob, q, xyz, R_meas, sp, ww, it, tol, rank_tol, negligible_tol, progress, prefer=pref, pts0=pts)
+    pts_zero = np.zeros((K, 3))
+    starts = [(robot, pts_zero)]
+    reg = None
+    full_frames = all(f"base.{f}" in names for f in _TWIST) and all(f"tool.{f}" in names for f in ("x", "y", "z"))
+    if initial and full_frames:
+        reg = initial_registration(robot, q, xyz, R_meas)
+        if reg.rms_m < reg.rms_before_m:
+            # further reflectors: offsets from reflector 1 in the TCP frame
+            pts = (reg.offsets_m - reg.offsets_m[0]) @ reg.tool[:3, :3]
+            starts.insert(0, (robot.copy(base=reg.base, tool=reg.tool), pts))
+
+    # the set identifiable at the robot file (kept first in the QR order at later estimates)
+    nominal_set = run(robot, specs, w, 0, pts=starts[0][1])[0].identifiable if len(starts) > 1 else None
+
+    def chain(start):
+        """frames, then everything (identifiability at the estimate), then again at the solution."""
+        iters, ww = 0, w
+        cur, pts = start
+        if nominal_set is not None and frames and len(frames) < len(specs):
+            r, _ = run(cur, frames, ww, max_iter, pts=pts)
+            cur, pts, iters = r.robot, r.point_offsets_m, iters + r.iterations
+        res, rel = run(cur, specs, ww, max_iter, nominal_set, pts=pts)
+        iters += res.iterations
+        if auto_w and R_meas is not None and res.sigma_rot_rad > 0 and math.isfinite(res.sigma_rot_rad):
+            ww = float(np.clip(res.sigma_pos_m / res.sigma_rot_rad, 1e-3, 1e3))
+        for _ in range(max(int(restarts), 0) + 1):
+            again = ww != res.orientation_weight_m_per_rad or "unidentifiable" in res.message or (
+                not res.converged and rel > _STALLED_REL)
+            if not again:
+                break
+            res, rel = run(res.robot, specs, ww, max_iter, res.identifiable | (nominal_set if nominal_set is not None else False),
+                           pts=res.point_offsets_m)
+            iters += res.iterations
+        return res, rel, iters
+
+    best = None
+    diverged = None
+    for k, start in enumerate(starts[: 1 + max(int(restarts), 0)]):
+        try:
+            res, rel, iters = chain(start)
+        except ComplianceError as e:  # the fit made joints too soft for an equilibrium: a bad start or file
+            diverged = e
+            continue
+        cost = res.after["pos_rms_mm"] ** 2 + (res.after.get("rot_rms_deg", 0.0) * 0.0)
+        if best is None or cost < best[3]:
+            best = (res, rel, iters, cost)
+        plausible = res.after["pos_rms_mm"] <= lim["residual_mm"] and (res.converged or rel <= _STALLED_REL)
+        if plausible:
+            break
+    if best is None:
+        from .calibration_checks import ADVICE
+
+        raise CalibrationError(f"calibration of {robot.name!r} diverged ({str(diverged).splitlines()[0]}); the data do "
+                               f"not fit this robot file: {ADVICE}")
+    res, rel, iters, _ = best
+    if not res.converged and rel <= _STALLED_REL:  # the cap stopped a cost that no longer moves
+        res.converged = True
+        res.message += f"; iteration cap reached with the cost changing by {rel:.2g} (relative) per iteration"
+    state0 = _State(robot=robot.copy(), c=compliance_of(robot), pts=pts_zero)
+    state1 = _State(robot=res.robot, c=compliance_of(res.robot), pts=res.point_offsets_m)
+    res.values = _deviations(state0, state1, specs)
+    # before: the robot file as given (further reflectors at its TCP: their offsets are unknown)
+    res.before = residual_stats(*_residual(_model_poses(state0, q), xyz, R_meas, res.orientation_weight_m_per_rad,
+                                           pts_zero), res.orientation_weight_m_per_rad)
+    res.iterations = iters
+    res.seconds = time.perf_counter() - t0
+    if reg is not None:
+        res.message += (f"; start: base and tool from the nominal kinematics ({reg.rms_m * 1e3:.3g} mm RMS, robot "
+                        f"file frames {reg.rms_before_m * 1e3:.3g} mm)" if reg.rms_m < reg.rms_before_m
+                        else "; start: the robot file's base and tool")
+    if checks:
+        defl = None
+        if np.any(state1.c):
+            q_eff = _effective_joints(state1, q)
+            defl = np.max(np.abs(state1.c * gravity_torques(state1.robot, np.ascontiguousarray(q_eff))), axis=0)
+        check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl)
+    return res
 
 
 def _deviations(s0: _State, s1: _State, specs: Sequence[_Spec]) -> np.ndarray:
@@ -826,6 +905,8 @@ def _deviations(s0: _State, s1: _State, specs: Sequence[_Spec]) -> np.ndarray:
             out[k] = t[_TWIST.index(s.field)]
         elif s.group == "origin":
             out[k] = _log6(np.linalg.inv(O0[s.joint]) @ O1[s.joint])[_TWIST.index(s.field)]
+        elif s.group == "point":
+            out[k] = s1.pts[s.joint, _TWIST.index(s.field)] - s0.pts[s.joint, _TWIST.index(s.field)]
         else:
             out[k] = s1.c[s.joint] - s0.c[s.joint]
     return out

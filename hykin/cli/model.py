@@ -10,6 +10,37 @@ import typer
 
 from .common import AngleUnit, CLIError, Force, LengthUnit, app, check_output, load_model, load_model_or_robot
 
+OrientationWeight = typer.Option(
+    "auto", "--orientation-weight",
+    help="Weight of orientation residuals in the calibration, m/rad (1 mrad counts like w·1 mrad of length), "
+         "or 'auto': sigma_pos / sigma_rot estimated from the data.")
+MaxDeviation = typer.Option(
+    None, "--max-deviation",
+    help="Plausible calibration bounds, KIND=VALUE[,...]: length_mm (20), angle_deg (2), joint_offset_deg (5), "
+         "deflection_deg (1), tool_m (2), residual_mm (3), residual_deg (1).")
+
+
+def _calibration_options(orientation_weight: str, max_deviation: str | None) -> dict:
+    """``calibrate`` keyword arguments from the CLI options (CLIError on bad values)."""
+    from ..calibration_checks import parse_max_deviation
+
+    kw: dict = {}
+    if orientation_weight != "auto":
+        try:
+            w = float(orientation_weight)
+        except ValueError:
+            raise CLIError(f"--orientation-weight must be a number (m/rad) or 'auto', got {orientation_weight!r}") from None
+        if not (w > 0 and w < float("inf")):
+            raise CLIError(f"--orientation-weight must be > 0, got {orientation_weight!r}")
+        kw["orientation_weight_m_per_rad"] = w
+    if max_deviation:
+        try:
+            kw["max_deviation"] = parse_max_deviation(max_deviation)
+        except ValueError as e:
+            raise CLIError(str(e)) from None
+    return kw
+
+
 @app.command("fit")
 def fit_cmd(
     robot: str = typer.Argument(..., help="Robot file (.toml), URDF, or preset name."),
@@ -25,6 +56,8 @@ def fit_cmd(
     thermal: str = typer.Option("auto", "--thermal", help="Thermal expansion from a temperature_c column: auto, on, off."),
     min_steps: Optional[int] = typer.Option(None, "--min-steps", help="Least number of optimiser steps per network (default recipe: 30000)."),
     max_epochs: Optional[int] = typer.Option(None, "--max-epochs", help="Most training epochs per network (default: the recipe's)."),
+    orientation_weight: str = OrientationWeight,
+    max_deviation: Optional[str] = MaxDeviation,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     force: bool = Force,
@@ -32,10 +65,12 @@ def fit_cmd(
     """Fit a hybrid model: calibrate the classical model, then train the residual networks.
 
     Exactly the API path: ``HybridModel(robot, ...).fit(train, val)``; without ``--val`` the model
-    holds out its validation rows itself, so the same data, options and seed give the same model."""
+    holds out its validation rows itself, so the same data, options and seed give the same model; the
+    calibration uses all of TRAIN (the networks' split must not change the calibrated robot)."""
     from ..dataset import read_dataset
     from ..hybrid import HybridModel
     from ..plausibility import check_fit_size
+    from ..reflectors import with_reflector_unit
     from ..robot import load_robot
 
     kw = {}
@@ -53,8 +88,9 @@ def fit_cmd(
     if thermal not in modes:
         raise CLIError(f"--thermal must be auto, on or off, got {thermal!r}")
     check_output(out, (robot, train, val), force)  # before any long work
+    cal_kw = _calibration_options(orientation_weight, max_deviation)
     rob = load_robot(robot)
-    tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+    tr = with_reflector_unit(read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob), length_unit)
     check_fit_size(rob, tr)
     va = None
     if val is not None:
@@ -64,7 +100,7 @@ def fit_cmd(
 
         device = "cuda" if torch.cuda.is_available() else "cpu"
     model = HybridModel(rob, arch=arch, recipe=recipe, calibrate=calibrate, device=device, seed=seed,
-                        thermal=modes[thermal], **kw)
+                        thermal=modes[thermal], calibrate_kw=cal_kw, **kw)
     model.fit(tr, va, progress=True)
     model.save(out)
     if model.thermal_ is not None:
@@ -121,19 +157,26 @@ def calibrate_cmd(
     data: Path = typer.Argument(..., help="Measured dataset (.csv/.parquet)."),
     out: Path = typer.Option(..., "-o", "--out", help="Calibrated robot file (.toml)."),
     compliance: bool = typer.Option(True, "--compliance/--no-compliance", help="Identify joint compliance under gravity."),
+    orientation_weight: str = OrientationWeight,
+    max_deviation: Optional[str] = MaxDeviation,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     force: bool = Force,
 ) -> None:
-    """Parametric calibration only (geometry, base, tool, joint compliance); writes a robot file."""
+    """Parametric calibration only (geometry, base, tool, joint compliance); writes a robot file.
+
+    The data may be in any frame (a tracker's) with an unknown tool offset: base and tool are found
+    first. A calibration that does not converge, bends a parameter beyond its plausible bound
+    (--max-deviation) or leaves an implausible residual is refused (exit 2, nothing written)."""
     from ..calibrate import calibrate
     from ..dataset import read_dataset
+    from ..reflectors import with_reflector_unit
     from ..robot import load_robot, save_robot_toml
 
     check_output(out, (robot, data), force)
     rob = load_robot(robot)
-    ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
-    res = calibrate(rob, ds, compliance=compliance)
+    ds = with_reflector_unit(read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob), length_unit)
+    res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation))
     typer.echo(res.report())
     save_robot_toml(res.robot, out)
     typer.echo(f"calibrated robot written to {out}")
