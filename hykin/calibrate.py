@@ -288,15 +288,25 @@ def _frames(chain, q: np.ndarray):
     return prev, joint, _rmul(T, np.asarray(chain.tool))
 
 
-def _model_poses(state: _State, q: np.ndarray) -> np.ndarray:
-    return fk(state.robot, _effective_joints(state, q))
+def _model_poses(state: _State, q: np.ndarray, payload=None) -> np.ndarray:
+    return fk(state.robot, _effective_joints(state, q, payload))
 
 
-def _effective_joints(state: _State, q: np.ndarray) -> np.ndarray:
-    """Deflected (link-side) joints under gravity, ``(N, n)`` (``q`` itself when rigid)."""
+def _payload_kw(payload, sl=slice(None)) -> dict:
+    """Keyword arguments of the compliance functions for a per-row ``payload`` ``(kg, com | None)``
+    (rows ``sl``); empty for the robot's own payload."""
+    if payload is None:
+        return {}
+    kg, com = payload
+    return {"payload_kg": kg[sl], "payload_com_m": None if com is None else com[sl]}
+
+
+def _effective_joints(state: _State, q: np.ndarray, payload=None) -> np.ndarray:
+    """Deflected (link-side) joints under gravity, ``(N, n)`` (``q`` itself when rigid); ``payload``:
+    per-row ``(kg (N,), com (N, 3) | None)`` or None (the robot's payload)."""
     if not np.any(state.c):
         return q
-    return deflected_joints(state.robot, q, compliance=state.c)
+    return deflected_joints(state.robot, q, compliance=state.c, **_payload_kw(payload))
 
 
 def _rotation_residual(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
@@ -397,7 +407,7 @@ def _jacobian_chunk(state: _State, specs: list[_Spec], q_eff: np.ndarray, tau, w
     return Jp, Jo, tcp
 
 
-def _linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=_CHUNK, keep_rows=None):
+def _linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=_CHUNK, keep_rows=None, payload=None):
     """Accumulate scaled normal equations over chunks (``q_eff_all``: deflected joints of ``state``).
 
     Returns dict with JtJ_p, JtJ_o (P,P), Jtr (P,), sse_p, sse_o, and (if keep_rows) the scaled
@@ -412,7 +422,7 @@ def _linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=_CHUNK, kee
     for lo in range(0, q_eff_all.shape[0], chunk):
         sl = slice(lo, lo + chunk)
         q_eff = np.ascontiguousarray(q_eff_all[sl])
-        tau = gravity_torques(state.robot, q_eff) if need_tau else None
+        tau = gravity_torques(state.robot, q_eff, **_payload_kw(payload, sl)) if need_tau else None
         Jp, Jo, tcp = _jacobian_chunk(state, specs, q_eff, tau, w, with_rot)
         rp, ro = _residual(tcp, xyz[sl], None if R_meas is None else R_meas[sl], w)
         Jp *= sc
@@ -644,6 +654,8 @@ def calibrate(
     rank_tol: float = 1e-6,
     negligible_tol: float = 1e-9,
     progress: Callable[[int, float], None] | None = None,
+    payload_kg=None,
+    payload_com_m=None,
 ) -> CalibrationResult:
     """Identify geometry, base, tool and joint compliance of ``robot`` from measured poses.
 
@@ -658,6 +670,9 @@ def calibrate(
     and relative cost decrease at which it stops. rank_tol: identifiability threshold on
     ``|R_kk| / ‖column‖``; negligible_tol: columns smaller than this times the largest are fixed.
     progress: called as ``progress(iteration, cost)``.
+    payload_kg / payload_com_m: per-row payload (``(N,)`` kg, ``(N, 3)`` m in the tool frame) that
+    deflects the joints; by default read from the dataset's ``payload_kg``/``payload_com_*``
+    columns (:mod:`hykin.payload`), else the robot's payload.
     """
     t0 = time.perf_counter()
     if not (orientation_weight_m_per_rad > 0 and math.isfinite(orientation_weight_m_per_rad)):
@@ -666,6 +681,9 @@ def calibrate(
     N = q.shape[0]
     if N == 0:
         raise CalibrationError("data: no samples")
+    from .payload import payload_of
+
+    pl = payload_of(data, payload_kg, payload_com_m, n_rows=N)
     w = float(orientation_weight_m_per_rad)
     specs = _select(_candidate_specs(robot, base=base, tool=tool, compliance=compliance), params)
     P = len(specs)
@@ -675,16 +693,16 @@ def calibrate(
     is_comp = np.array([sp.group == "comp" for sp in specs])
     comp_joint = np.array([sp.joint for sp in specs])
 
-    def cost_of(st: _State, qd, xyzd, Rd):
-        q_eff = _effective_joints(st, qd)
+    def cost_of(st: _State, qd, xyzd, Rd, pld):
+        q_eff = _effective_joints(st, qd, pld)
         rp, ro = _residual(fk(st.robot, q_eff), xyzd, Rd, w)
         cost = 0.5 * (float(np.sum(rp * rp)) + (0.0 if ro is None else float(np.sum(ro * ro))))
         return cost, rp, ro, q_eff
 
-    def run_lm(state, qd, xyzd, Rd, act, max_it, id_rows=None):
+    def run_lm(state, qd, xyzd, Rd, act, max_it, id_rows=None, pld=None):
         """Relinearising LM on the samples ``qd``; returns (state, rp, ro, lin, it, converged, message)."""
-        cost, rp, ro, q_eff = cost_of(state, qd, xyzd, Rd)
-        lin = _linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows)
+        cost, rp, ro, q_eff = cost_of(state, qd, xyzd, Rd, pld)
+        lin = _linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows, payload=pld)
         if act is None:
             return state, rp, ro, lin, 0, False, ""
         lam = 1e-6
@@ -701,7 +719,7 @@ def calibrate(
                 delta = np.zeros(P)
                 delta[free] = step_s * scale[free]
                 trial = _apply(state, specs, delta)
-                new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd)
+                new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd, pld)
                 if new_cost < cost:
                     accepted = True
                     lam = max(lam / 10, 1e-12)
@@ -716,7 +734,7 @@ def calibrate(
             state, cost, q_eff, rp, ro = trial, new_cost, new_q_eff, new_rp, new_ro
             if progress is not None:
                 progress(it, cost)
-            lin = _linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows)
+            lin = _linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows, payload=pld)
             if rel <= tol:
                 converged, message = True, f"relative cost decrease {rel:.2g} <= tol"
                 break
@@ -726,8 +744,9 @@ def calibrate(
     state = state0
     id_rows = np.unique(np.linspace(0, N - 1, min(N, _ID_SAMPLES)).astype(np.int64))
     sub = lambda a, idx: None if a is None else a[idx]  # noqa: E731
+    sub_pl = lambda idx: None if pl is None else (pl[0][idx], sub(pl[1], idx))  # noqa: E731
     _, rp0, ro0, lin0, _, _, _ = run_lm(state0, q[id_rows], xyz[id_rows], sub(R_meas, id_rows), None, 0,
-                                        id_rows=np.arange(id_rows.size))
+                                        id_rows=np.arange(id_rows.size), pld=sub_pl(id_rows))
     mask, _ = _identifiable(lin0["J_id"], rank_tol, negligible_tol)
     if N * rows_per < mask.sum():
         raise CalibrationError(f"data: {N} samples give {N * rows_per} equations for {int(mask.sum())} parameters")
@@ -735,12 +754,12 @@ def calibrate(
     it_sub = 0
     if N > 2 * _COARSE_SAMPLES:  # coarse-to-fine: converge on a spread subset, finish on all samples
         sel = np.unique(np.linspace(0, N - 1, _COARSE_SAMPLES).astype(np.int64))
-        state, _, _, _, it_sub, _, _ = run_lm(state0, q[sel], xyz[sel], sub(R_meas, sel), act, max_iter)
+        state, _, _, _, it_sub, _, _ = run_lm(state0, q[sel], xyz[sel], sub(R_meas, sel), act, max_iter, pld=sub_pl(sel))
     state, rp0, ro0, lin, it, converged, message = run_lm(
-        state, q, xyz, R_meas, act, max(max_iter - it_sub, 1), id_rows=id_rows
+        state, q, xyz, R_meas, act, max(max_iter - it_sub, 1), id_rows=id_rows, pld=pl
     )
     it += it_sub
-    before = _stats(*_residual(_model_poses(state0, q), xyz, R_meas, w), w)
+    before = _stats(*_residual(_model_poses(state0, q, pl), xyz, R_meas, w), w)
     # recheck at the solution: the identified set must still have full rank there
     final = mask.copy()
     if act.size:

@@ -84,6 +84,7 @@ from . import se3
 from .fk import HAVE_NUMBA, fk, fk_torch
 from .modelfile import ModelFileError, read_model_file, robot_from_json_dict, robot_to_dict, write_model_file
 from .nets import ResidualNet, count_parameters, make_net
+from .payload import PayloadRange, payload_kwargs, payload_of, payload_range_of
 from .robot import Robot, load_robot, robot_to_toml_string
 from .thermal import (MAX_PLAUSIBLE_PER_K, MIN_EFFECT_M, TEMPERATURE_COLUMNS, ThermalFit, fit_coefficient, scale_about,
                       temperature_of, to_reference)
@@ -107,22 +108,23 @@ class OutOfRangeWarning(UserWarning):
     """Queries outside the joint range the networks were trained on."""
 
 
-def classical_fk(robot: Robot, q: np.ndarray) -> np.ndarray:
+def classical_fk(robot: Robot, q: np.ndarray, payload_kg=None, payload_com_m=None) -> np.ndarray:
     """Classical prediction ``(N, 4, 4)``: FK of the (calibrated) robot, with joint compliance when
-    the robot has finite stiffness."""
+    the robot has finite stiffness. ``payload_kg`` / ``payload_com_m``: per-row payload
+    (:func:`hykin.compliance.gravity_torques`); default the robot's."""
     if robot.has_compliance:
         from .compliance import compliant_fk
 
-        return compliant_fk(robot, q)
+        return compliant_fk(robot, q, payload_kg=payload_kg, payload_com_m=payload_com_m)
     return fk(robot, q)
 
 
-def classical_fk_torch(robot: Robot, q):
+def classical_fk_torch(robot: Robot, q, payload_kg=None, payload_com_m=None):
     """Differentiable twin of :func:`classical_fk` (float64 tensor ``(N, n)`` -> ``(N, 4, 4)``)."""
     if robot.has_compliance:
         from .compliance import compliant_fk_torch
 
-        return compliant_fk_torch(robot, q)
+        return compliant_fk_torch(robot, q, payload_kg=payload_kg, payload_com_m=payload_com_m)
     return fk_torch(robot, q)
 
 
@@ -370,6 +372,7 @@ class HybridModel:
         self.thermal_ = None  # hykin.thermal.ThermalFit when the training data had a temperature column
         self.pair_index_ = np.zeros((0, 2), dtype=np.int64)  # joint pairs of the hole grids
         self.pair_gap_ = np.zeros((0, _PAIR_GRID, _PAIR_GRID))  # (P, G, G) gap at the grid nodes
+        self.payload_range_: PayloadRange | None = None  # payloads of the training data (payload_kg column)
 
     # ------------------------------------------------------------------ input representation
 
@@ -425,7 +428,7 @@ class HybridModel:
     # ------------------------------------------------------------------ fitting
 
     def _targets(self, robot: Robot, ds) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-        T_hat = classical_fk(robot, ds.q)
+        T_hat = classical_fk(robot, ds.q, **payload_kwargs(payload_of(ds)))
         dp = ds.xyz_m - T_hat[:, :3, 3]
         dr = None
         if ds.has_orientation:
@@ -450,6 +453,10 @@ class HybridModel:
             raise HybridError("training data contain NaN/inf")
         timings = {}
         train_in, val_in = train, val
+        pl_train = payload_of(train)  # DatasetError naming row/column for bad payload values
+        self.payload_range_ = None if pl_train is None else payload_range_of(pl_train[0])
+        if val is not None:
+            payload_of(val)
         self._calibrate_on(train)
         self.thermal_ = None
         temp = None if self.thermal is False else temperature_of(train)
@@ -596,7 +603,8 @@ class HybridModel:
         alpha, std = 0.0, float("inf")
         for _ in range(rounds):
             b = self.robot_.base[:3, 3]
-            alpha, std = fit_coefficient(train.xyz_m, classical_fk(self.robot_, q)[:, :3, 3], b, dt, alpha)
+            alpha, std = fit_coefficient(train.xyz_m, classical_fk(self.robot_, q, **payload_kwargs(payload_of(train)))[:, :3, 3],
+                                         b, dt, alpha)
             if not self.calibrate:
                 break
             self._calibrate_on(to_reference(train, b, alpha, dt))
@@ -663,8 +671,9 @@ class HybridModel:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", OutOfRangeWarning)
             t = temperature_of(ds)
-            T_c = self.predict_classical(ds.q, temperature_c=t)
-            T_h = self.predict(ds.q, temperature_c=t)
+            pkw = payload_kwargs(payload_of(ds))
+            T_c = self.predict_classical(ds.q, temperature_c=t, **pkw)
+            T_h = self.predict(ds.q, temperature_c=t, **pkw)
         out = {}
         for name, T in (("classical", T_c), ("hybrid", T_h)):
             pe = np.linalg.norm(T[:, :3, 3] - ds.xyz_m, axis=1) * 1e3
@@ -682,7 +691,7 @@ class HybridModel:
 
     # ------------------------------------------------------------------ uncertainty
 
-    def _predict_unframed(self, q) -> tuple[np.ndarray, np.ndarray]:
+    def _predict_unframed(self, q, payload=None) -> tuple[np.ndarray, np.ndarray]:
         """Calibrated and hybrid poses of ``q`` in the training series' frame (no registration
         frames, reference temperature, no range warnings)."""
         with warnings.catch_warnings():
@@ -690,7 +699,8 @@ class HybridModel:
             fr = (self.frame_pre, self.frame_post)
             self.frame_pre, self.frame_post = np.eye(4), np.eye(4)
             try:
-                return self.predict_classical(q), self.predict(q)
+                pkw = payload_kwargs(payload)
+                return self.predict_classical(q, **pkw), self.predict(q, **pkw)
             finally:
                 self.frame_pre, self.frame_post = fr
 
@@ -702,7 +712,7 @@ class HybridModel:
             ds, src = train.subset(np.asarray(held_out_index)), "held-out"
         else:
             ds, src = train, "train (in-sample: too few samples to hold out)"
-        T_c, T_h = self._predict_unframed(ds.q)
+        T_c, T_h = self._predict_unframed(ds.q, payload_of(ds))
         unc = {"levels": _UNC_LEVELS, "n": int(len(ds)), "source": src}
         for name, T in (("classical", T_c), ("hybrid", T_h)):
             pe = np.linalg.norm(T[:, :3, 3] - ds.xyz_m, axis=1) * 1e3
@@ -725,7 +735,7 @@ class HybridModel:
     def _fit_uncertainty_without_temperature(self, ds_raw) -> None:
         """Quantiles for queries without a temperature (model with a thermal coefficient): the
         predictions at the reference temperature against the raw measurements, drift included."""
-        T_c, T_h = self._predict_unframed(ds_raw.q)
+        T_c, T_h = self._predict_unframed(ds_raw.q, payload_of(ds_raw))
         for name, T in (("classical", T_c), ("hybrid", T_h)):
             pe = np.linalg.norm(T[:, :3, 3] - ds_raw.xyz_m, axis=1) * 1e3
             self.unc_[f"notemp_{name}_pos_mm"] = np.quantile(pe, _UNC_LEVELS)
@@ -926,12 +936,12 @@ class HybridModel:
 
     # ------------------------------------------------------------------ prediction
 
-    def predict_classical(self, q, temperature_c=None) -> np.ndarray:
+    def predict_classical(self, q, temperature_c=None, payload_kg=None, payload_com_m=None) -> np.ndarray:
         """Calibrated classical poses ``(N, 4, 4)`` (or ``(4, 4)`` for one ``(n,)`` query).
-        ``temperature_c``: as in :meth:`predict`."""
+        ``temperature_c``, ``payload_kg``, ``payload_com_m``: as in :meth:`predict`."""
         self._check_fitted()
         q2, single = self._q(q)
-        T = self._framed(self._apply_thermal(classical_fk(self.robot_, q2), temperature_c))
+        T = self._framed(self._apply_thermal(classical_fk(self.robot_, q2, payload_kg, payload_com_m), temperature_c))
         return T[0] if single else T
 
     @torch.inference_mode()
@@ -944,7 +954,7 @@ class HybridModel:
             out[i : i + B] = net(x[i : i + B]).to(torch.float64).cpu().numpy()
         return out
 
-    def predict(self, q, temperature_c=None) -> np.ndarray:
+    def predict(self, q, temperature_c=None, payload_kg=None, payload_com_m=None) -> np.ndarray:
         """Hybrid poses ``(N, 4, 4)`` float64 (``(4, 4)`` for one ``(n,)`` query), world frame, m.
 
         ``temperature_c``: arm temperature (°C, scalar or ``(N,)``) for a model that identified thermal
@@ -952,10 +962,13 @@ class HybridModel:
         reference temperature (also for models without a thermal coefficient, which ignore it).
         Warns once (:class:`OutOfRangeWarning`) with counts when queries leave the trained joint range
         or fall in holes of the training data (pairwise hole grids).
+        ``payload_kg`` (scalar or ``(N,)`` kg) / ``payload_com_m`` (``(3,)`` or ``(N, 3)`` m, tool frame):
+        the payload carried (default: the robot file's); the calibrated compliance model deflects
+        the joints under it, the networks are payload-agnostic (module docstring, "Payload").
         """
         self._check_fitted()
         q2, single = self._q(q)
-        T = classical_fk(self.robot_, q2)
+        T = classical_fk(self.robot_, q2, payload_kg, payload_com_m)
         qn = self._netq(q2)
         ex = self._range_excess_qn(qn)
         exm = ex.max(1)
@@ -995,7 +1008,7 @@ class HybridModel:
         T = self._framed(self._apply_thermal(T, temperature_c))
         return T[0] if single else T
 
-    def predict_torch(self, q):
+    def predict_torch(self, q, payload_kg=None, payload_com_m=None):
         """Differentiable hybrid poses: float64 tensor ``(N, n)`` -> ``(N, 4, 4)`` (autograd w.r.t. q).
 
         Same numbers as :meth:`predict` (range excess, pairwise hole gap and nearest-neighbour gap are
@@ -1004,7 +1017,7 @@ class HybridModel:
         if q.ndim != 2 or q.shape[1] != self.robot.dof:
             raise HybridError(f"joints must have shape (N, {self.robot.dof}), got {tuple(q.shape)}")
         q = q.to(torch.float64)
-        T_hat = classical_fk_torch(self.robot_, q)
+        T_hat = classical_fk_torch(self.robot_, q, payload_kg, payload_com_m)
         dev = next(self.net_pos_.parameters()).device
         qn = self._netq(q)
         qd = qn.to(dev)
@@ -1071,6 +1084,7 @@ class HybridModel:
                        "j1_axis": None if self.j1_axis_ is None else self.j1_axis_.tolist()},
             "uncertainty": _json_safe(self.unc_),
             "thermal": None if self.thermal_ is None else _json_safe(self.thermal_.to_dict()),
+            "payload": None if self.payload_range_ is None else {"range": self.payload_range_.to_dict(), "input": False},
             "training": _json_safe(self.meta_),
         }
         write_model_file(path, tensors, meta)
@@ -1118,6 +1132,9 @@ class HybridModel:
             if th is not None:
                 m.thermal_ = ThermalFit(float(th["coefficient_per_k"]), float(th["std_per_k"]), float(th["reference_c"]),
                                         tuple(float(v) for v in th["range_c"]), str(th["note"]))
+            pl = meta.get("payload")  # absent in files before per-row payloads: behave as then
+            if pl is not None:
+                m.payload_range_ = PayloadRange.from_dict(pl["range"])
             fr = meta.get("frames")
             if fr is not None:
                 m.frame_pre = np.array(fr["pre"], dtype=np.float64).reshape(4, 4)
