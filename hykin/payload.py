@@ -28,6 +28,9 @@ __all__ = [
     "PayloadRange",
     "payload_of",
     "payload_kwargs",
+    "payload_from_columns",
+    "model_with_payload",
+    "format_payload_table",
     "with_payload",
     "robot_with_payload",
     "payload_range_of",
@@ -87,7 +90,7 @@ def payload_of(data, payload_kg=None, payload_com_m=None, n_rows: int | None = N
     bad = ~(np.isfinite(kg) & (kg >= 0))
     if bad.any():
         r = int(np.argmax(bad))
-        raise DatasetError(f"{where}, row {r + 1}, column 'payload_kg': {kg[r]!r} is not a mass >= 0 kg", file=where,
+        raise DatasetError(f"{where}, row {r + 1}, column 'payload_kg': {float(kg[r])!r} is not a mass >= 0 kg", file=where,
                            row=r + 1, column="payload_kg")
     if com is not None:
         com = np.asarray(com, dtype=np.float64)
@@ -102,6 +105,30 @@ def payload_of(data, payload_kg=None, payload_com_m=None, n_rows: int | None = N
         if not np.any(com):
             com = None  # all at the TCP: the same as no column
     return kg, com
+
+
+def payload_from_columns(extra: dict, n_rows: int, where: str, payload_kg=None):
+    """:func:`payload_of` for the extra columns ``extra`` of a file ``where`` (CLI inputs), with a
+    ``payload_kg`` option (one value for a file without the column; both at once is an error)."""
+    from types import SimpleNamespace
+
+    from .dataset import DatasetError
+
+    if payload_kg is not None and "payload_kg" in extra:
+        raise DatasetError(f"{where}: column 'payload_kg' and the option --payload-kg both give the payload; drop one",
+                           file=where, column="payload_kg")
+    return payload_of(SimpleNamespace(extra=extra, source=where), payload_kg, n_rows=n_rows)
+
+
+def model_with_payload(model, payload_kg: float, payload_com_m=None):
+    """Shallow copy of a fitted hybrid model whose calibrated robot carries one payload
+    (:func:`robot_with_payload`): for code that calls ``predict``/``predict_torch`` without payload
+    arguments (hybrid IK)."""
+    import copy
+
+    m = copy.copy(model)
+    m.robot_ = robot_with_payload(model.robot_, payload_kg, payload_com_m)
+    return m
 
 
 def payload_kwargs(payload, rows=slice(None)) -> dict:
@@ -143,9 +170,7 @@ def robot_with_payload(robot: Robot, payload_kg: float, payload_com_m=None) -> R
     com = np.asarray(payload_com_m, dtype=np.float64).reshape(3)
     ch = chain_of(robot)
     tool = np.asarray(ch.tool, dtype=np.float64)
-    p_flange = tool[:3, :3] @ com + tool[:3, 3]
-    post = np.asarray(ch.post[-1], dtype=np.float64)  # last link frame -> flange
-    p_link = np.linalg.solve(post, np.r_[p_flange, 1.0])[:3]
+    p_link = tool[:3, :3] @ com + tool[:3, 3]  # in the last link's frame (the flange; TCP = flange · tool)
     m, c = robot.mass_kg.copy(), robot.com_m.copy()
     total = m[-1] + kg
     if total > 0:
