@@ -6,8 +6,9 @@ joints at several payloads:
 * ``kr-payload-virtual`` (masses/COMs in the robot file, stiffness unknown, transmission errors,
   noise 10 µm): trained on rows at {0, 12} kg -> errors at 0, 6, 12, 20 kg, ratios 6 kg / trained
   and 20 kg / trained, % of the nominal error removed at 20 kg; trained at {12} kg only -> 0 kg / 12 kg.
-  Peer in the same run: the same recipe with the payload column dropped (the model before per-row
-  payloads: the robot file's payload for every row).
+  Peers in the same run: payload-agnostic networks (``payload_input=False``), and the same recipe
+  with the payload column dropped (the model before per-row payloads: the robot file's payload for
+  every row).
 * Held-out check on another robot (settings were decided on kr-payload-virtual): ``rx160-nongeo``
   (other geometry, masses, stiffness; thermal drift too), same two trainings.
 * ``rx160-virtual`` (the paper's Table I set-up): trained at its payload (20 kg, no column), queried
@@ -49,12 +50,12 @@ def errors_at(model, vr, q, payloads, use_payload=True):
     return out
 
 
-def fit(vr, q, payloads, steps, column=True):
+def fit(vr, q, payloads, steps, column=True, payload_input="auto"):
     kg = np.resize(np.asarray(payloads, dtype=np.float64), len(q))
     tr = simulate(vr, q, payload_kg=kg, rng=99)
     if not column:  # the model before per-row payloads: no column, the robot file's payload
         tr.extra.pop("payload_kg")
-    return HybridModel(vr.nominal, seed=0, recipe_kw={"min_steps": steps}).fit(tr, progress=False)
+    return HybridModel(vr.nominal, seed=0, recipe_kw={"min_steps": steps}, payload_input=payload_input).fit(tr, progress=False)
 
 
 def show(title, res):
@@ -70,11 +71,14 @@ def study(name, steps, n_train, n_test, peer: bool):
     grid = (0.0, 6.0, 12.0, 20.0)
     m = fit(vr, q_tr, (0.0, 12.0), steps)
     r2 = errors_at(m, vr, q_te, grid)
-    show(f"{name}: trained on rows at 0 and 12 kg", r2)
+    show(f"{name}: trained on rows at 0 and 12 kg (payload a network input: {m.payload_input_})", r2)
     trained = 0.5 * (r2[0.0][2] + r2[12.0][2])
     print(f"  ratio 6 kg / trained   {r2[6.0][2] / trained:.2f}   (must be <= 1.25)")
     print(f"  ratio 20 kg / trained  {r2[20.0][2] / trained:.2f}   (must be <= 3)")
     print(f"  nominal error removed at 20 kg  {100 * (1 - r2[20.0][2] / r2[20.0][0]):.2f} %   (must be >= 97 %)")
+    ma = fit(vr, q_tr, (0.0, 12.0), steps, payload_input=False)
+    ra = errors_at(ma, vr, q_te, grid)
+    show(f"{name}: same, payload-agnostic networks (payload_input=False)", ra)
     m1 = fit(vr, q_tr, (12.0,), steps)
     r1 = errors_at(m1, vr, q_te, grid)
     show(f"{name}: trained at 12 kg only", r1)

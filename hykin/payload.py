@@ -7,12 +7,13 @@ them. Without them every function behaves as before: the payload is the robot fi
 (``Robot.payload_kg``, at the TCP).
 
 The physics carries the payload (:mod:`hykin.compliance`: gravity torques of link masses and the
-per-row payload, deflection ``C tau``); a hybrid model's networks learn what remains. Payload enters
-the networks only through the physics (see :mod:`hykin.hybrid`, "Payload"): measured on the
-``kr-payload-virtual`` preset (benchmarks/bench_payload.py), the residual after the calibrated
-compliance model hardly depends on payload, so the networks stay payload-agnostic and extrapolate
-in payload exactly as the physics does. The trained payload range is kept in the model
-(:class:`PayloadRange`) and queries outside it are reported (:func:`payload_outside`).
+per-row payload, deflection ``C tau``, stiffness identified by :func:`hykin.calibrate.calibrate`
+from the per-row torques); a hybrid model's networks learn what remains. With several payloads in
+the training data the networks also take the payload as an input (:func:`payload_column`), clamped
+to the trained range (:class:`PayloadRange`), so outside it only the physics changes with payload
+(:mod:`hykin.hybrid`, "Payload"; figures in benchmarks/bench_payload.py). Lumped gravity
+parameters for robots whose masses are unknown are not identified: the robot file's masses and
+centres of mass are used as given (the identified stiffness absorbs a common scale error).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ __all__ = [
     "with_payload",
     "robot_with_payload",
     "payload_range_of",
+    "payload_column",
     "payload_outside",
     "errors_per_payload",
     "payload_virtual_robot",
@@ -128,6 +130,7 @@ def model_with_payload(model, payload_kg: float, payload_com_m=None):
 
     m = copy.copy(model)
     m.robot_ = robot_with_payload(model.robot_, payload_kg, payload_com_m)
+    m.payload_default_kg_ = float(payload_kg)  # what payload-input networks see
     return m
 
 
@@ -193,6 +196,22 @@ class PayloadRange:
     @classmethod
     def from_dict(cls, d: dict) -> "PayloadRange":
         return cls(float(d["lower_kg"]), float(d["upper_kg"]), [float(v) for v in d.get("values_kg", [])])
+
+
+def payload_column(qn, payload_kg, rng: PayloadRange):
+    """``qn`` ``(N, k)`` (numpy or torch) with the payload appended as column ``k``, clamped to the
+    trained range ``rng`` (a network with payload as input never sees a payload it was not trained on)."""
+    N = qn.shape[0]
+    lo, hi = rng.lower_kg, rng.upper_kg
+    if hasattr(qn, "detach"):  # torch
+        import torch
+
+        kg = torch.as_tensor(payload_kg, dtype=qn.dtype, device=qn.device).reshape(-1)
+        kg = torch.clamp(kg.expand(N) if kg.numel() == 1 else kg, lo, hi)
+        return torch.cat([qn, kg[:, None]], 1)
+    kg = np.asarray(payload_kg, dtype=np.float64).reshape(-1)
+    kg = np.clip(np.broadcast_to(kg, (N,)) if kg.size == 1 else kg, lo, hi)
+    return np.concatenate([qn, kg[:, None].astype(qn.dtype)], 1)
 
 
 def payload_range_of(kg: np.ndarray) -> PayloadRange:

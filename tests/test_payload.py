@@ -188,3 +188,28 @@ def test_cli_simulate_payloads_and_fk_payload_option(tmp_path, capsys, vr):
         ref = m.predict(ds.q, payload_kg=12.0)
     assert np.abs(out.xyz_m - ref[:, :3, 3]).max() < 1e-12
     assert set(PAYLOAD_COLUMNS[:1]) <= set(read_dataset(data).extra)
+
+
+def test_payload_input_networks_hold_their_payload_dependence_outside_the_range(vr, tmp_path):
+    """payload_input=True with rows at 0 and 12 kg: the networks take payload as an input, clamped to
+    the trained range, so beyond 12 kg only the physics changes with payload; save/load keeps it."""
+    q = vr.nominal.random_joints(300, 8)
+    tr = simulate(vr, q, payload_kg=np.resize([0.0, 12.0], 300), rng=1)
+    m = HybridModel(vr.nominal, seed=0, recipe_kw={"max_epochs": 2}, payload_input=True).fit(tr, progress=False)
+    assert m.payload_input_
+    qt = vr.nominal.random_joints(20, 9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        h = {kg: m.predict(qt, payload_kg=kg)[:, :3, 3] for kg in (3.0, 9.0, 15.0, 25.0)}
+        c = {kg: m.predict_classical(qt, payload_kg=kg)[:, :3, 3] for kg in (3.0, 9.0, 15.0, 25.0)}
+        assert np.abs((h[25.0] - h[15.0]) - (c[25.0] - c[15.0])).max() < 1e-12  # clamped: net part equal
+        assert np.abs((h[9.0] - h[3.0]) - (c[9.0] - c[3.0])).max() > 1e-9  # inside: the net sees payload
+        Tt = m.predict_torch(torch.tensor(qt), payload_kg=9.0).detach().numpy()
+        assert np.abs(Tt[:, :3, 3] - h[9.0]).max() < 1e-9
+        m.save(tmp_path / "m.hykin")
+        m2 = HybridModel.load(tmp_path / "m.hykin")
+        assert m2.payload_input_ and np.array_equal(m2.predict(qt, payload_kg=9.0)[:, :3, 3], h[9.0])
+        assert np.abs(model_with_payload(m, 9.0).predict(qt)[:, :3, 3] - h[9.0]).max() < 1e-12
+    single = HybridModel(vr.nominal, seed=0, recipe_kw={"max_epochs": 1}, payload_input=True)
+    single.fit(with_payload(tr, 12.0), progress=False)
+    assert not single.payload_input_  # one payload: nothing to condition on
