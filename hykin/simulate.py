@@ -42,7 +42,8 @@ pose error of ``nominal`` against the noise-free truth on 4096 Sobol-uniform joi
 
 * ``kr-payload-virtual`` — a 120 kg-class arm for payload studies (:mod:`hykin.payload`): masses
   and centres of mass in its robot file, stiffness unknown, geometric and transmission errors,
-  noise; draw it at several payloads (``simulate_to_file(..., payloads=[0, 12])``).
+  noise; draw it at several payloads (``simulate_to_file(..., payloads=[0, 12])``). Measured (seed
+  0, noise-free, payload 0 kg): **5.43 mm / 0.199°** (5.83 mm at 12 kg, 6.10 mm at 20 kg).
 
 The ``nominal`` robot of every preset carries the known masses and payload (they do not change its
 rigid FK), so calibration can model joint compliance; its stiffness is infinite.
