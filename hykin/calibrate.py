@@ -449,18 +449,23 @@ def _linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=_CHUNK, kee
 
 
 def identification_jacobian(robot: Robot, q, *, position_only: bool = False, orientation_weight_m_per_rad: float = 1.0,
-                            base: bool = True, tool: bool = True, compliance: bool = True):
+                            base: bool = True, tool: bool = True, compliance: bool = True, payload_kg=None,
+                            payload_com_m=None):
     """Analytic identification Jacobian at ``robot`` for joints ``q`` ``(N, n)``.
 
     Returns ``(names, J)`` with ``J`` ``(N, 3 or 6, P)``: derivative of the modelled TCP position (m)
     and, unless ``position_only``, of ``w ·`` its rotation vector (world frame) with respect to each
-    parameter deviation (SI units). Compliance columns are evaluated at the robot's own compliance.
+    parameter deviation (SI units). Compliance columns are evaluated at the robot's own compliance,
+    under the per-row payload ``payload_kg`` / ``payload_com_m`` when given (else the robot's).
     """
     specs = _candidate_specs(robot, base=base, tool=tool, compliance=compliance)
     q = np.ascontiguousarray(np.asarray(q, dtype=np.float64).reshape(-1, robot.dof))
     state = _State(robot=robot, c=compliance_of(robot))
-    q_eff = _effective_joints(state, q)
-    tau = gravity_torques(robot, np.ascontiguousarray(q_eff)) if compliance else None
+    from .payload import payload_of
+
+    pl = payload_of((), payload_kg, payload_com_m, n_rows=q.shape[0]) if payload_kg is not None else None
+    q_eff = _effective_joints(state, q, pl)
+    tau = gravity_torques(robot, np.ascontiguousarray(q_eff), **_payload_kw(pl)) if compliance else None
     w = orientation_weight_m_per_rad
     Jp, Jo, _ = _jacobian_chunk(state, specs, np.ascontiguousarray(q_eff), tau, w, not position_only)
     J = -Jp if position_only else -np.concatenate([Jp, Jo], 2)

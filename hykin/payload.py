@@ -263,96 +263,21 @@ def format_payload_table(per_payload: dict) -> str:
 
 # --------------------------------------------------------------------------- virtual preset
 
-#: Robot file of the ``kr-payload-virtual`` nominal model: a 2.7 m-reach, 120 kg-class industrial
-#: arm (standard DH; geometry of a KUKA KR 120 R2700-like arm, masses and centres of mass are
-#: engineering estimates, m / deg / kg) with an 8 kg gripper merged into link 6.
-KR_PAYLOAD_TOML = """
-name = "kr-payload"
-source = "hykin kr-payload-virtual: KR 120-class arm, DH from public data sheets; masses/COMs are estimates"
-convention = "dh"
-length_unit = "m"
-angle_unit = "deg"
-
-[[joints]]
-a = 0.35
-alpha = -90
-d = 0.675
-theta = 0
-min = -185
-max = 185
-mass = 240.0
-com = [-0.12, 0.2, 0.0]
-
-[[joints]]
-a = 1.15
-alpha = 0
-d = 0
-theta = -90
-min = -140
-max = -5
-mass = 110.0
-com = [-0.6, 0.0, 0.18]
-
-[[joints]]
-a = 0.041
-alpha = 90
-d = 0
-theta = 0
-min = -120
-max = 168
-mass = 95.0
-com = [-0.03, -0.05, 0.08]
-
-[[joints]]
-a = 0
-alpha = -90
-d = 1.2
-theta = 0
-min = -350
-max = 350
-mass = 25.0
-com = [0.0, 0.35, 0.0]
-
-[[joints]]
-a = 0
-alpha = 90
-d = 0
-theta = 0
-min = -125
-max = 125
-mass = 12.0
-com = [0.0, 0.0, 0.04]
-
-[[joints]]
-a = 0
-alpha = 0
-d = 0.215
-theta = 0
-min = -350
-max = 350
-mass = 9.5
-com = [0.02, 0.0, 0.06]
-
-[tool]
-xyz = [0.0, 0.0, 0.18]
-"""
-
 _KR_STIFFNESS = np.array([9e5, 1.1e6, 6e5, 9e4, 9e4, 6e4])  # N·m/rad, truth only (unknown to the user)
 
 
 def payload_virtual_robot(seed: int = 0):
     """The ``kr-payload-virtual`` preset (:func:`hykin.simulate.virtual_preset`): nominal = the robot
-    file :data:`KR_PAYLOAD_TOML` (masses and centres of mass given, rigid: stiffness unknown);
+    preset ``kr-payload`` (``hykin/presets/kr-payload.toml``: a 2.7 m-reach, 120 kg-class arm with
+    an 8 kg gripper in link 6; masses and centres of mass given, rigid: stiffness unknown);
     truth = geometric deviations (σ 0.3 mm, 0.03°), base/tool frame errors, joint springs, mass model
     off by 3 % / 5 mm, periodic transmission errors (orders 1-3 on joints 1-3, 1-2 on 4-6) and
     tracker noise 10 µm / 50 µrad. Simulate it at several payloads: ``hykin simulate
     kr-payload-virtual --payloads 0,12``."""
-    import tomllib
-
-    from .robot import robot_from_dict
+    from .robot import load_robot
     from .simulate import PeriodicError, VirtualRobot, geometric_deviation, mass_deviation
 
-    nominal = robot_from_dict(tomllib.loads(KR_PAYLOAD_TOML), "preset:kr-payload-virtual")
+    nominal = load_robot("kr-payload")
     rng = np.random.default_rng([seed, 120, 1])
     truth = geometric_deviation(nominal, rng, 3e-4, np.radians(0.03), 5e-4, np.radians(0.05))
     truth = mass_deviation(truth, rng, 0.03, 0.005).copy(stiffness_nm_per_rad=_KR_STIFFNESS, name="kr-payload-truth")

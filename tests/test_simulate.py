@@ -102,15 +102,7 @@ def test_preset_dataset_errors(name):
     assert ang == pytest.approx(deg, rel=ta)
     # the nominal model is rigid and has the classical geometry of its preset
     assert not vr.nominal.has_compliance
-    if name == "kr-payload-virtual":
-        import tomllib
-
-        from hykin.payload import KR_PAYLOAD_TOML
-        from hykin.robot import robot_from_dict
-
-        base = robot_from_dict(tomllib.loads(KR_PAYLOAD_TOML))
-    else:
-        base = load_robot(name.split("-")[0])
+    base = load_robot("kr-payload" if name == "kr-payload-virtual" else name.split("-")[0])
     np.testing.assert_array_equal(fk(vr.nominal, q[:10]), fk(base, q[:10]))
 
 
