@@ -97,7 +97,7 @@ from . import se3
 from .fk import HAVE_NUMBA, fk, fk_torch
 from .modelfile import ModelFileError, read_model_file, robot_from_json_dict, robot_to_dict, write_model_file
 from .nets import ResidualNet, count_parameters, make_net
-from .payload import PayloadRange, payload_column, payload_kwargs, payload_of, payload_range_of
+from .payload import PayloadRange, payload_column, payload_kwargs, payload_of, payload_outside, payload_range_of
 from .robot import Robot, load_robot, robot_to_toml_string
 from .thermal import (MAX_PLAUSIBLE_PER_K, MIN_EFFECT_M, TEMPERATURE_COLUMNS, ThermalFit, fit_coefficient, scale_about,
                       temperature_of, to_reference)
@@ -1027,6 +1027,14 @@ class HybridModel:
             else:
                 msg = f"{int(holes.sum())} of {len(q2)} queries lie in holes of the training data (inside its joint range)"
             warnings.warn(f"{msg}; {tail}", OutOfRangeWarning, stacklevel=2)
+        if payload_kg is not None and self.payload_range_ is not None:
+            out_pl = payload_outside(self.payload_range_, payload_kg)
+            if out_pl.any():
+                r = self.payload_range_
+                warnings.warn(f"{int(out_pl.sum())} of {out_pl.size} payloads lie outside the trained payloads "
+                              f"[{r.lower_kg:g}, {r.upper_kg:g}] kg; the calibrated compliance model carries the "
+                              "payload there (network payload dependence held at the nearest trained payload)",
+                              OutOfRangeWarning, stacklevel=2)
         if self.fade is False:
             w = None
         else:

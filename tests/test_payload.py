@@ -213,3 +213,13 @@ def test_payload_input_networks_hold_their_payload_dependence_outside_the_range(
     single = HybridModel(vr.nominal, seed=0, recipe_kw={"max_epochs": 1}, payload_input=True)
     single.fit(with_payload(tr, 12.0), progress=False)
     assert not single.payload_input_  # one payload: nothing to condition on
+
+
+def test_warns_for_payloads_outside_the_trained_payloads(vr):
+    q = vr.nominal.random_joints(200, 10)
+    m = HybridModel(vr.nominal, seed=0, recipe_kw={"max_epochs": 1}).fit(
+        simulate(vr, q, payload_kg=12.0, rng=1), progress=False)
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        m.predict(q[:5], payload_kg=[12.0, 12.0, 0.0, 12.0, 20.0])
+    assert any("2 of 5 payloads lie outside the trained payloads [12, 12] kg" in str(w.message) for w in rec)
