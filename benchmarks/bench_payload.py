@@ -61,7 +61,7 @@ def fit(vr, q, payloads, steps, column=True, payload_input="auto"):
 def show(title, res):
     print(title)
     for kg, (n, c, h, a) in res.items():
-        print(f"  {kg:5.1f} kg   nominal {n:7.3f} mm   calibrated {c:7.4f} mm   hybrid {h:7.4f} mm / {a:7.4f} deg")
+        print(f"  {kg:5.1f} kg   nominal {n:7.3f} mm   calibrated {c:9.3e} mm   hybrid {h:9.3e} mm / {a:9.3e} deg")
 
 
 def study(name, steps, n_train, n_test, peer: bool):
