@@ -107,6 +107,14 @@ _EXPORTS = {
     "compensate": "compensation",
     "Compensation": "compensation",
     "evaluate_model": "evaluate",
+    "evaluate_per_payload": "evaluate",
+    # payload per row
+    "PAYLOAD_COLUMNS": "payload",
+    "payload_of": "payload",
+    "with_payload": "payload",
+    "robot_with_payload": "payload",
+    "model_with_payload": "payload",
+    "errors_per_payload": "payload",
     "Report": "report",
     # evaluation, measurement
     "error_stats": "metrics",

@@ -342,15 +342,25 @@ def _frames(chain, q: np.ndarray):
     return prev, joint, _rmul(T, np.asarray(chain.tool))
 
 
-def _model_poses(state: _State, q: np.ndarray) -> np.ndarray:
-    return fk(state.robot, _effective_joints(state, q))
+def _model_poses(state: _State, q: np.ndarray, payload=None) -> np.ndarray:
+    return fk(state.robot, _effective_joints(state, q, payload))
 
 
-def _effective_joints(state: _State, q: np.ndarray) -> np.ndarray:
-    """Deflected (link-side) joints under gravity, ``(N, n)`` (``q`` itself when rigid)."""
+def _payload_kw(payload, sl=slice(None)) -> dict:
+    """Keyword arguments of the compliance functions for a per-row ``payload`` ``(kg, com | None)``
+    (rows ``sl``); empty for the robot's own payload."""
+    if payload is None:
+        return {}
+    kg, com = payload
+    return {"payload_kg": kg[sl], "payload_com_m": None if com is None else com[sl]}
+
+
+def _effective_joints(state: _State, q: np.ndarray, payload=None) -> np.ndarray:
+    """Deflected (link-side) joints under gravity, ``(N, n)`` (``q`` itself when rigid); ``payload``:
+    per-row ``(kg (N,), com (N, 3) | None)`` or None (the robot's payload)."""
     if not np.any(state.c):
         return q
-    return deflected_joints(state.robot, q, compliance=state.c)
+    return deflected_joints(state.robot, q, compliance=state.c, **_payload_kw(payload))
 
 
 def _rotation_residual(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
@@ -465,7 +475,7 @@ def _jacobian_chunk(state: _State, specs: list[_Spec], q_eff: np.ndarray, tau, w
     return Jp, Jo, tcp
 
 
-def _linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=_CHUNK, keep_rows=None):
+def _linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=_CHUNK, keep_rows=None, payload=None):
     """Accumulate scaled normal equations over chunks (``q_eff_all``: deflected joints of ``state``).
 
     Returns dict with JtJ_p, JtJ_o (P,P), Jtr (P,), sse_p, sse_o, and (if keep_rows) the scaled
@@ -480,7 +490,7 @@ def _linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=_CHUNK, kee
     for lo in range(0, q_eff_all.shape[0], chunk):
         sl = slice(lo, lo + chunk)
         q_eff = np.ascontiguousarray(q_eff_all[sl])
-        tau = gravity_torques(state.robot, q_eff) if need_tau else None
+        tau = gravity_torques(state.robot, q_eff, **_payload_kw(payload, sl)) if need_tau else None
         Jp, Jo, tcp = _jacobian_chunk(state, specs, q_eff, tau, w, with_rot)
         rp, ro = _residual(tcp, xyz[sl], None if R_meas is None else R_meas[sl], w, state.pts)
         Jp *= sc[..., None]
@@ -507,18 +517,23 @@ def _linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=_CHUNK, kee
 
 
 def identification_jacobian(robot: Robot, q, *, position_only: bool = False, orientation_weight_m_per_rad: float = 1.0,
-                            base: bool = True, tool: bool = True, compliance: bool = True):
+                            base: bool = True, tool: bool = True, compliance: bool = True, payload_kg=None,
+                            payload_com_m=None):
     """Analytic identification Jacobian at ``robot`` for joints ``q`` ``(N, n)``.
 
     Returns ``(names, J)`` with ``J`` ``(N, 3 or 6, P)``: derivative of the modelled TCP position (m)
     and, unless ``position_only``, of ``w ·`` its rotation vector (world frame) with respect to each
-    parameter deviation (SI units). Compliance columns are evaluated at the robot's own compliance.
+    parameter deviation (SI units). Compliance columns are evaluated at the robot's own compliance,
+    under the per-row payload ``payload_kg`` / ``payload_com_m`` when given (else the robot's).
     """
     specs = _candidate_specs(robot, base=base, tool=tool, compliance=compliance)
     q = np.ascontiguousarray(np.asarray(q, dtype=np.float64).reshape(-1, robot.dof))
     state = _State(robot=robot, c=compliance_of(robot))
-    q_eff = _effective_joints(state, q)
-    tau = gravity_torques(robot, np.ascontiguousarray(q_eff)) if compliance else None
+    from .payload import payload_of
+
+    pl = payload_of((), payload_kg, payload_com_m, n_rows=q.shape[0]) if payload_kg is not None else None
+    q_eff = _effective_joints(state, q, pl)
+    tau = gravity_torques(robot, np.ascontiguousarray(q_eff), **_payload_kw(pl)) if compliance else None
     w = orientation_weight_m_per_rad
     Jp, Jo, _ = _jacobian_chunk(state, specs, np.ascontiguousarray(q_eff), tau, w, not position_only)
     Jp = Jp[:, :, 0]
@@ -589,9 +604,11 @@ def _lm_step(lin: dict, act: np.ndarray, lam: float, is_comp: np.ndarray, c: np.
 
 def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, max_iter: int, tol: float,
                     rank_tol: float, negligible_tol: float, progress,
-                    prefer: np.ndarray | None = None, pts0: np.ndarray | None = None) -> tuple[CalibrationResult, float]:
+                    prefer: np.ndarray | None = None, pts0: np.ndarray | None = None,
+                    pl=None) -> tuple[CalibrationResult, float]:
     """One identifiability selection at ``robot`` plus one LM run on the parameters ``specs``.
 
+    pl: per-row payload ``(kg (N,), com (N, 3) | None)`` deflecting the joints, or None (the robot's).
     prefer: bool mask of parameters put first in the QR order (an identified set chosen earlier
     stays chosen where it is still identifiable; others are added where they became so).
     Returns the result (deviations relative to ``robot``) and the relative cost decrease of the
@@ -610,16 +627,16 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
     is_comp = np.array([sp.group == "comp" for sp in specs])
     comp_joint = np.array([sp.joint for sp in specs])
 
-    def cost_of(st: _State, qd, xyzd, Rd):
-        q_eff = _effective_joints(st, qd)
+    def cost_of(st: _State, qd, xyzd, Rd, pld):
+        q_eff = _effective_joints(st, qd, pld)
         rp, ro = _residual(fk(st.robot, q_eff), xyzd, Rd, w, st.pts)
         cost = 0.5 * (float(np.sum(rp * rp)) + (0.0 if ro is None else float(np.sum(ro * ro))))
         return cost, rp, ro, q_eff
 
-    def run_lm(state, qd, xyzd, Rd, act, max_it, id_rows=None):
+    def run_lm(state, qd, xyzd, Rd, act, max_it, id_rows=None, pld=None):
         """Relinearising LM on the samples ``qd``; returns (state, rp, ro, lin, it, converged, message)."""
-        cost, rp, ro, q_eff = cost_of(state, qd, xyzd, Rd)
-        lin = _linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows)
+        cost, rp, ro, q_eff = cost_of(state, qd, xyzd, Rd, pld)
+        lin = _linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows, payload=pld)
         if act is None:
             return state, rp, ro, lin, 0, False, ""
         lam = 1e-6
@@ -637,7 +654,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
                 delta[free] = step_s * scale[free]
                 trial = _apply(state, specs, delta)
                 try:
-                    new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd)
+                    new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd, pld)
                 except ComplianceError:  # the step made the joints too soft for an equilibrium: reject it
                     new_cost = math.inf
                 if new_cost < cost:
@@ -655,7 +672,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
             state, cost, q_eff, rp, ro = trial, new_cost, new_q_eff, new_rp, new_ro
             if progress is not None:
                 progress(it, cost)
-            lin = _linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows)
+            lin = _linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows, payload=pld)
             if rel <= tol:
                 converged, message = True, f"relative cost decrease {rel:.2g} <= tol"
                 break
@@ -664,9 +681,10 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
     # identifiability at the input robot, on evenly spread samples
     state = state0
     id_rows = np.unique(np.linspace(0, N - 1, min(N, _ID_SAMPLES)).astype(np.int64))
-    sub = lambda a, idx: None if a is None else a[idx]
+    sub = lambda a, idx: None if a is None else a[idx]  # noqa: E731
+    sub_pl = lambda idx: None if pl is None else (pl[0][idx], sub(pl[1], idx))  # noqa: E731
     _, rp0, ro0, lin0, _, _, _ = run_lm(state0, q[id_rows], xyz[id_rows], sub(R_meas, id_rows), None, 0,
-                                        id_rows=np.arange(id_rows.size))
+                                        id_rows=np.arange(id_rows.size), pld=sub_pl(id_rows))
     order = np.arange(P) if prefer is None else np.concatenate([np.flatnonzero(prefer), np.flatnonzero(~prefer)])
     mask = np.zeros(P, bool)
     m_o, ratio_o = _identifiable(lin0["J_id"][:, order], rank_tol, negligible_tol)
@@ -681,12 +699,12 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
     it_sub = 0
     if N > 2 * _COARSE_SAMPLES:  # coarse-to-fine: converge on a spread subset, finish on all samples
         sel = np.unique(np.linspace(0, N - 1, _COARSE_SAMPLES).astype(np.int64))
-        state, _, _, _, it_sub, _, _ = run_lm(state0, q[sel], xyz[sel], sub(R_meas, sel), act, max_iter)
+        state, _, _, _, it_sub, _, _ = run_lm(state0, q[sel], xyz[sel], sub(R_meas, sel), act, max_iter, pld=sub_pl(sel))
     state, rp0, ro0, lin, it, converged, message = run_lm(
-        state, q, xyz, R_meas, act, max(max_iter - it_sub, 1), id_rows=id_rows
+        state, q, xyz, R_meas, act, max(max_iter - it_sub, 1), id_rows=id_rows, pld=pl
     )
     it += it_sub
-    before = residual_stats(*_residual(_model_poses(state0, q), xyz, R_meas, w, state0.pts), w)
+    before = residual_stats(*_residual(_model_poses(state0, q, pl), xyz, R_meas, w, state0.pts), w)
     # recheck at the solution: the identified set must still have full rank there
     final = mask.copy()
     if act.size:
@@ -758,6 +776,8 @@ def calibrate(
     restarts: int = 2,
     max_deviation: dict | None = None,
     checks: bool = True,
+    payload_kg=None,
+    payload_com_m=None,
 ) -> CalibrationResult:
     """Identify geometry, base, tool and joint compliance of ``robot`` from measured poses.
 
@@ -783,6 +803,10 @@ def calibrate(
     not converge, a parameter beyond its plausible bound, or an implausible residual
     (:mod:`hykin.calibration_checks`); False returns whatever the fit gave.
 
+    payload_kg / payload_com_m: per-row payload (``(N,)`` kg, ``(N, 3)`` m in the tool frame) that
+    deflects the joints; by default read from the dataset's ``payload_kg``/``payload_com_*``
+    columns (:mod:`hykin.payload`), else the robot's payload.
+
     Identifiability is decided at the current estimate: after base and tool are found, and again at
     the solution (a further pass runs when the identified set changed there).
     """
@@ -802,13 +826,16 @@ def calibrate(
     q, xyz, R_meas = _as_data(robot, data, position_only)
     if q.shape[0] == 0:
         raise CalibrationError("data: no samples")
+    from .payload import payload_of
+
+    pl = payload_of(data, payload_kg, payload_com_m, n_rows=q.shape[0])
     w = 1.0 if auto_w else float(orientation_weight_m_per_rad)
     K = 1 if xyz.ndim == 2 else xyz.shape[1]
     specs = _select(_candidate_specs(robot, base=base, tool=tool, compliance=compliance, n_points=K), params)
     names = {s.name for s in specs}
     frames = [s for s in specs if s.group in ("base", "tool", "point")]
     run = lambda rob, sp, ww, it, pref=None, pts=None: _calibrate_pass(
-        rob, q, xyz, R_meas, sp, ww, it, tol, rank_tol, negligible_tol, progress, prefer=pref, pts0=pts)
+        rob, q, xyz, R_meas, sp, ww, it, tol, rank_tol, negligible_tol, progress, prefer=pref, pts0=pts, pl=pl)
     pts_zero = np.zeros((K, 3))
     starts = [(robot, pts_zero)]
     reg = None
@@ -871,7 +898,7 @@ def calibrate(
     state1 = _State(robot=res.robot, c=compliance_of(res.robot), pts=res.point_offsets_m)
     res.values = _deviations(state0, state1, specs)
     # before: the robot file as given (further reflectors at its TCP: their offsets are unknown)
-    res.before = residual_stats(*_residual(_model_poses(state0, q), xyz, R_meas, res.orientation_weight_m_per_rad,
+    res.before = residual_stats(*_residual(_model_poses(state0, q, pl), xyz, R_meas, res.orientation_weight_m_per_rad,
                                            pts_zero), res.orientation_weight_m_per_rad)
     res.iterations = iters
     res.seconds = time.perf_counter() - t0
@@ -882,8 +909,9 @@ def calibrate(
     if checks:
         defl = None
         if np.any(state1.c):
-            q_eff = _effective_joints(state1, q)
-            defl = np.max(np.abs(state1.c * gravity_torques(state1.robot, np.ascontiguousarray(q_eff))), axis=0)
+            q_eff = _effective_joints(state1, q, pl)
+            tau = gravity_torques(state1.robot, np.ascontiguousarray(q_eff), **_payload_kw(pl))
+            defl = np.max(np.abs(state1.c * tau), axis=0)
         check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl)
     return res
 

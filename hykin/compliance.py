@@ -46,6 +46,7 @@ __all__ = [
     "compliant_fk_torch",
     "compliance_of",
     "potential_energy",
+    "payload_rows",
 ]
 
 TOL_RAD = 1e-13
@@ -66,8 +67,9 @@ def _is_torch(x) -> bool:
 if HAVE_NUMBA:
 
     @numba.njit(cache=True, nogil=True)
-    def _tau_ws(pre, post, base, tool, prism, com, mass, payload, g, q, out, T, A, z, o, cm):  # pragma: no cover
-        """Gravity torques of one sample into ``out``; ``T``, ``A`` (4, 4), ``z``, ``o``, ``cm`` (n, 3) scratch."""
+    def _tau_ws(pre, post, base, ppt, prism, com, mass, payload, g, q, out, T, A, z, o, cm):  # pragma: no cover
+        """Gravity torques of one sample into ``out``; ``payload`` (kg) at ``ppt`` (3,) (flange frame);
+        ``T``, ``A`` (4, 4), ``z``, ``o``, ``cm`` (n, 3) scratch."""
         n = q.shape[0]
         for r in range(4):
             for c in range(4):
@@ -102,11 +104,11 @@ if HAVE_NUMBA:
                     T[r, c] = v
             for r in range(3):
                 cm[i, r] = T[r, 0] * com[i, 0] + T[r, 1] * com[i, 1] + T[r, 2] * com[i, 2] + T[r, 3]
-        # payload at the TCP
+        # payload at its point (the TCP by default: ppt = tool[:3, 3])
         Fs0, Fs1, Fs2 = payload * g[0], payload * g[1], payload * g[2]
-        p0 = T[0, 0] * tool[0, 3] + T[0, 1] * tool[1, 3] + T[0, 2] * tool[2, 3] + T[0, 3]
-        p1 = T[1, 0] * tool[0, 3] + T[1, 1] * tool[1, 3] + T[1, 2] * tool[2, 3] + T[1, 3]
-        p2 = T[2, 0] * tool[0, 3] + T[2, 1] * tool[1, 3] + T[2, 2] * tool[2, 3] + T[2, 3]
+        p0 = T[0, 0] * ppt[0] + T[0, 1] * ppt[1] + T[0, 2] * ppt[2] + T[0, 3]
+        p1 = T[1, 0] * ppt[0] + T[1, 1] * ppt[1] + T[1, 2] * ppt[2] + T[1, 3]
+        p2 = T[2, 0] * ppt[0] + T[2, 1] * ppt[1] + T[2, 2] * ppt[2] + T[2, 3]
         Ms0 = p1 * Fs2 - p2 * Fs1
         Ms1 = p2 * Fs0 - p0 * Fs2
         Ms2 = p0 * Fs1 - p1 * Fs0
@@ -128,24 +130,27 @@ if HAVE_NUMBA:
                 m2 = Ms2 - (o0 * Fs1 - o1 * Fs0)
                 out[i] = z[i, 0] * m0 + z[i, 1] * m1 + z[i, 2] * m2
 
+    # Per-row payload: ``payload`` (N,) kg and ``ppt`` (N, 3) its point in the flange frame (the
+    # robot's scalar payload at the TCP is the broadcast of one value: same operations, same numbers).
+
     @numba.njit(cache=True, nogil=True)
-    def _tau_one(pre, post, base, tool, prism, com, mass, payload, g, q, out):  # pragma: no cover
+    def _tau_one(pre, post, base, ppt, prism, com, mass, payload, g, q, out):  # pragma: no cover
         n = q.shape[0]
-        _tau_ws(pre, post, base, tool, prism, com, mass, payload, g, q, out,
+        _tau_ws(pre, post, base, ppt, prism, com, mass, payload, g, q, out,
                 np.empty((4, 4)), np.empty((4, 4)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)))
 
     @numba.njit(cache=True, nogil=True)
-    def _tau_serial(pre, post, base, tool, prism, com, mass, payload, g, q, out):  # pragma: no cover
+    def _tau_serial(pre, post, base, ppt, prism, com, mass, payload, g, q, out):  # pragma: no cover
         for k in range(q.shape[0]):
-            _tau_one(pre, post, base, tool, prism, com, mass, payload, g, q[k], out[k])
+            _tau_one(pre, post, base, ppt[k], prism, com, mass, payload[k], g, q[k], out[k])
 
     @numba.njit(cache=True, nogil=True, parallel=True)
-    def _tau_parallel(pre, post, base, tool, prism, com, mass, payload, g, q, out):  # pragma: no cover
+    def _tau_parallel(pre, post, base, ppt, prism, com, mass, payload, g, q, out):  # pragma: no cover
         for k in numba.prange(q.shape[0]):
-            _tau_one(pre, post, base, tool, prism, com, mass, payload, g, q[k], out[k])
+            _tau_one(pre, post, base, ppt[k], prism, com, mass, payload[k], g, q[k], out[k])
 
     @numba.njit(cache=True, nogil=True)
-    def _deflect_one(pre, post, base, tool, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out,
+    def _deflect_one(pre, post, base, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out,
                      tau, T, A, z, o, cm):  # pragma: no cover
         """Fixed point q_eff = q + C tau(q_eff) of one sample into ``out``; returns the last update.
         ``tau`` (n,), ``T``, ``A`` (4, 4), ``z``, ``o``, ``cm`` (n, 3): scratch (no allocation per sample)."""
@@ -154,7 +159,7 @@ if HAVE_NUMBA:
             out[i] = q[i]
         step = np.inf
         for it in range(max_it):
-            _tau_ws(pre, post, base, tool, prism, com, mass, payload, g, out, tau, T, A, z, o, cm)
+            _tau_ws(pre, post, base, ppt, prism, com, mass, payload, g, out, tau, T, A, z, o, cm)
             step = 0.0
             for i in range(n):
                 new = q[i] + C[i] * tau[i]
@@ -167,7 +172,7 @@ if HAVE_NUMBA:
         return step
 
     @numba.njit(cache=True, nogil=True)
-    def _deflect_range(pre, post, base, tool, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
+    def _deflect_range(pre, post, base, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
                        lo, hi):  # pragma: no cover
         """Samples ``lo:hi`` of :func:`_deflect_one`, sharing one set of scratch arrays."""
         n = q.shape[1]
@@ -178,34 +183,84 @@ if HAVE_NUMBA:
         o = np.empty((n, 3))
         cm = np.empty((n, 3))
         for k in range(lo, hi):
-            steps[k] = _deflect_one(pre, post, base, tool, prism, com, mass, payload, g, C, q[k], min_it, max_it, tol,
-                                    out[k], tau, T, A, z, o, cm)
+            steps[k] = _deflect_one(pre, post, base, ppt[k], prism, com, mass, payload[k], g, C, q[k], min_it, max_it,
+                                    tol, out[k], tau, T, A, z, o, cm)
 
     @numba.njit(cache=True, nogil=True)
-    def _deflect_serial(pre, post, base, tool, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps):  # pragma: no cover
-        _deflect_range(pre, post, base, tool, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
+    def _deflect_serial(pre, post, base, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps):  # pragma: no cover
+        _deflect_range(pre, post, base, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
                        0, q.shape[0])
 
     @numba.njit(cache=True, nogil=True, parallel=True)
-    def _deflect_parallel(pre, post, base, tool, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps):  # pragma: no cover
+    def _deflect_parallel(pre, post, base, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps):  # pragma: no cover
         N = q.shape[0]
         chunk = 1024
         for b in numba.prange((N + chunk - 1) // chunk):
-            _deflect_range(pre, post, base, tool, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
+            _deflect_range(pre, post, base, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
                            b * chunk, min(N, (b + 1) * chunk))
 
 
 _PARALLEL_MIN = 5_000  # below this, starting threads costs more than it saves
 
 
-def _kernel_args(robot: Robot, chain: Chain | None):
+def _kernel_args(robot: Robot, chain: Chain | None, N: int, payload=None):
+    """Arguments of the numba kernels; ``payload``: ``(kg (N,), com (N, 3) tool frame | None)`` or
+    None (the robot's scalar payload at the TCP)."""
     ch = chain_of(robot) if chain is None else chain
     c = lambda x: np.ascontiguousarray(x, dtype=np.float64)  # noqa: E731
     g = np.asarray(ch.base)[:3, :3] @ np.asarray(robot.gravity_base, dtype=np.float64)
+    tool = np.asarray(ch.tool, dtype=np.float64)
+    if payload is None:
+        kg = np.full(N, float(robot.payload_kg))
+        ppt = np.broadcast_to(tool[:3, 3], (N, 3))
+    else:
+        kg, com = payload
+        ppt = np.broadcast_to(tool[:3, 3], (N, 3)) if com is None else com @ tool[:3, :3].T + tool[:3, 3]
     return (
-        c(ch.pre), c(ch.post), c(ch.base), c(ch.tool), np.ascontiguousarray(ch.prismatic, dtype=np.bool_),
-        c(robot.com_m), c(robot.mass_kg), float(robot.payload_kg), c(g),
+        c(ch.pre), c(ch.post), c(ch.base), c(ppt), np.ascontiguousarray(ch.prismatic, dtype=np.bool_),
+        c(robot.com_m), c(robot.mass_kg), c(kg), c(g),
     )
+
+
+def payload_rows(N: int, payload_kg=None, payload_com_m=None, like=None):
+    """Validated per-row payload ``(kg (N,), com (N, 3) m in the tool frame or None)``, or None when
+    both are None (the robot's own payload). ``payload_kg``: scalar or ``(N,)`` kg >= 0;
+    ``payload_com_m``: ``(3,)`` or ``(N, 3)`` (default: the TCP). numpy, or torch tensors like ``like``."""
+    if payload_kg is None and payload_com_m is None:
+        return None
+    if payload_kg is None:
+        raise ComplianceError("payload_com_m given without payload_kg")
+    if _is_torch(like):
+        import torch
+
+        kg = torch.as_tensor(payload_kg, dtype=like.dtype, device=like.device).reshape(-1)
+        kg = kg.expand(N) if kg.numel() == 1 else kg
+        if kg.shape != (N,) or not bool(torch.isfinite(kg).all()) or bool((kg < 0).any()):
+            raise ComplianceError(f"payload_kg must be a finite value >= 0 or ({N},) such values")
+        com = None
+        if payload_com_m is not None:
+            com = torch.as_tensor(payload_com_m, dtype=like.dtype, device=like.device)
+            com = com.reshape(1, 3).expand(N, 3) if com.numel() == 3 else com
+            if com.shape != (N, 3) or not bool(torch.isfinite(com).all()):
+                raise ComplianceError(f"payload_com_m must be finite, (3,) or ({N}, 3)")
+        return kg, com
+    kg = np.asarray(payload_kg, dtype=np.float64).reshape(-1)
+    kg = np.full(N, float(kg[0])) if kg.size == 1 else kg
+    if kg.shape != (N,):
+        raise ComplianceError(f"payload_kg must be a scalar or ({N},), got shape {kg.shape}")
+    bad = ~(np.isfinite(kg) & (kg >= 0))
+    if bad.any():
+        raise ComplianceError(f"payload_kg: row {int(np.argmax(bad)) + 1}: {kg[bad][0]} is not a finite mass >= 0 kg")
+    com = None
+    if payload_com_m is not None:
+        com = np.asarray(payload_com_m, dtype=np.float64)
+        com = np.broadcast_to(com.reshape(1, 3), (N, 3)) if com.size == 3 else com
+        if com.shape != (N, 3):
+            raise ComplianceError(f"payload_com_m must be (3,) or ({N}, 3), got shape {com.shape}")
+        bad = ~np.isfinite(com).all(1)
+        if bad.any():
+            raise ComplianceError(f"payload_com_m: row {int(np.argmax(bad)) + 1}: non-finite centre of mass")
+    return kg, com
 
 
 def _frames(robot: Robot, q, chain: Chain | None, xp):
@@ -229,8 +284,9 @@ def _check_q(robot: Robot, q, xp):
     return q
 
 
-def _mass_terms(robot: Robot, links, tcp, base, xp, like):
-    """World COM positions (N, n+1, 3), masses (n+1,), world gravity (3,) (last entry = payload)."""
+def _mass_terms(robot: Robot, links, tcp, base, xp, like, payload=None):
+    """World COM positions (N, n+1, 3), masses (n+1,) — ``(N, n+1)`` with a per-row ``payload``
+    (:func:`payload_rows`) —, world gravity (3,) (last entry = payload)."""
     conv = (lambda x: np.asarray(x, dtype=np.float64)) if xp is np else (
         lambda x: xp.as_tensor(np.array(x, dtype=np.float64), dtype=like.dtype, device=like.device)
     )
@@ -238,50 +294,72 @@ def _mass_terms(robot: Robot, links, tcp, base, xp, like):
     c_links = links[..., :3, :3] @ com[None, :, :, None]
     c_links = c_links[..., 0] + links[..., :3, 3]  # (N, n, 3)
     cat = np.concatenate if xp is np else xp.cat
-    c = cat([c_links, tcp[:, None, :3, 3]], 1)
-    m = conv(np.append(robot.mass_kg, robot.payload_kg))
+    if payload is None:
+        c = cat([c_links, tcp[:, None, :3, 3]], 1)
+        m = conv(np.append(robot.mass_kg, robot.payload_kg))
+    else:
+        kg, com = payload
+        p = tcp[:, :3, 3] if com is None else (tcp[:, :3, :3] @ com[:, :, None])[..., 0] + tcp[:, :3, 3]
+        c = cat([c_links, p[:, None]], 1)
+        ml, N = conv(robot.mass_kg), kg.shape[0]
+        m = cat([np.broadcast_to(ml, (N, ml.shape[0])) if xp is np else ml.expand(N, -1), kg[:, None]], 1)
     g = base[:3, :3] @ conv(robot.gravity_base)
     return c, m, g
 
 
-def gravity_torques(robot: Robot, q, chain: Chain | None = None, xp=np):
+def gravity_torques(robot: Robot, q, chain: Chain | None = None, xp=np, payload_kg=None, payload_com_m=None):
     """Generalized gravity force on each joint ``tau = -dV/dq``, ``(N, n)`` (N·m; N for prismatic).
 
     ``q``: ``(N, n)`` joints (numpy array, or a float64 torch tensor with ``xp=torch``). ``chain``:
     a :class:`~hykin.chain.Chain` (numpy, or torch from ``build_chain(robot, geom, torch)`` to
     differentiate with respect to geometry); default: the robot's own chain. Masses, centres of
-    mass, payload and gravity come from ``robot``.
+    mass, payload and gravity come from ``robot``. ``payload_kg`` (scalar or ``(N,)`` kg) and
+    ``payload_com_m`` (``(3,)`` or ``(N, 3)`` m, tool frame; default the TCP) replace the robot's
+    payload row by row (:mod:`hykin.payload`).
     """
     if _is_torch(q):
         import torch
 
         xp = torch
     q = _check_q(robot, q, xp)
+    payload = payload_rows(q.shape[0], payload_kg, payload_com_m, like=q)
     if xp is np and HAVE_NUMBA:
         out = np.empty(q.shape)
         kernel = _tau_parallel if q.shape[0] >= _PARALLEL_MIN else _tau_serial
-        kernel(*_kernel_args(robot, chain), np.ascontiguousarray(q), out)
+        kernel(*_kernel_args(robot, chain, q.shape[0], payload), np.ascontiguousarray(q), out)
         return out
-    return _gravity_torques_xp(robot, q, chain, xp)
+    return _gravity_torques_xp(robot, q, chain, xp, payload)
 
 
-def _gravity_torques_xp(robot: Robot, q, chain: Chain | None, xp):
+def _gravity_torques_xp(robot: Robot, q, chain: Chain | None, xp, payload=None):
     """Array-namespace implementation of :func:`gravity_torques` (torch path, numpy fallback)."""
     joints, links, tcp, base = _frames(robot, q, chain, xp)
-    c, m, g = _mass_terms(robot, links, tcp, base, xp, q)
-    F = m[:, None] * g[None, :]  # (n+1, 3) forces
-    if xp is np:
-        M = np.cross(c, F[None])  # (N, n+1, 3) moments about the world origin
-        Fs = np.cumsum(F[::-1], 0)[::-1]  # sum_{j>=i} F_j, (n+1, 3)
-        Ms = np.cumsum(M[:, ::-1], 1)[:, ::-1]
+    c, m, g = _mass_terms(robot, links, tcp, base, xp, q, payload)
+    if payload is not None:  # per-row masses: forces (N, n+1, 3)
+        F = m[..., None] * g
+        if xp is np:
+            M = np.cross(c, F)
+            Fs = np.cumsum(F[:, ::-1], 1)[:, ::-1]
+            Ms = np.cumsum(M[:, ::-1], 1)[:, ::-1]
+        else:
+            M = xp.cross(c, F, dim=-1)
+            Fs = xp.flip(xp.cumsum(xp.flip(F, [1]), 1), [1])
+            Ms = xp.flip(xp.cumsum(xp.flip(M, [1]), 1), [1])
+        Fs_n = Fs[:, : robot.dof]
     else:
-        M = xp.cross(c, F[None].expand_as(c), dim=-1)
-        Fs = xp.flip(xp.cumsum(xp.flip(F, [0]), 0), [0])
-        Ms = xp.flip(xp.cumsum(xp.flip(M, [1]), 1), [1])
+        F = m[:, None] * g[None, :]  # (n+1, 3) forces
+        if xp is np:
+            M = np.cross(c, F[None])  # (N, n+1, 3) moments about the world origin
+            Fs = np.cumsum(F[::-1], 0)[::-1]  # sum_{j>=i} F_j, (n+1, 3)
+            Ms = np.cumsum(M[:, ::-1], 1)[:, ::-1]
+        else:
+            M = xp.cross(c, F[None].expand_as(c), dim=-1)
+            Fs = xp.flip(xp.cumsum(xp.flip(F, [0]), 0), [0])
+            Ms = xp.flip(xp.cumsum(xp.flip(M, [1]), 1), [1])
+        Fs_n = Fs[None, : robot.dof]  # (1, n, 3)
     n = robot.dof
     z = joints[..., :3, 2]  # (N, n, 3)
     o = joints[..., :3, 3]
-    Fs_n = Fs[None, :n]  # (1, n, 3)
     # moment about o_i of the forces beyond joint i: sum (c_j - o_i) x F_j = Ms_i - o_i x Fs_i
     if xp is np:
         mom = Ms[:, :n] - np.cross(o, Fs_n)
@@ -299,14 +377,17 @@ def _gravity_torques_xp(robot: Robot, q, chain: Chain | None, xp):
     return rev
 
 
-def potential_energy(robot: Robot, q) -> np.ndarray:
+def potential_energy(robot: Robot, q, payload_kg=None, payload_com_m=None) -> np.ndarray:
     """Gravitational potential energy ``V = -sum_j m_j g . c_j`` (J), ``(N,)``; numpy.
 
     Independent reference for tests: ``gravity_torques == -dV/dq``.
     """
     q = _check_q(robot, q, np)
     fr = _frames(robot, q, None, np)
-    c, m, g = _mass_terms(robot, fr[1], fr[2], fr[3], np, q)
+    payload = payload_rows(q.shape[0], payload_kg, payload_com_m)
+    c, m, g = _mass_terms(robot, fr[1], fr[2], fr[3], np, q, payload)
+    if payload is not None:
+        return -np.einsum("nji,nj,i->n", c, m, g)
     return -np.einsum("nji,j,i->n", c, m, g)
 
 
@@ -318,19 +399,22 @@ def compliance_of(robot: Robot) -> np.ndarray:
     return np.where(np.isinf(k), 0.0, 1.0 / k)
 
 
-def deflected_joints(robot: Robot, q, compliance=None, chain: Chain | None = None, xp=np, iterations: int = 4):
+def deflected_joints(robot: Robot, q, compliance=None, chain: Chain | None = None, xp=np, iterations: int = 4,
+                     payload_kg=None, payload_com_m=None):
     """Effective (link-side) joints at static equilibrium under gravity, ``(N, n)``.
 
     Solves ``q_eff = q + compliance * tau(q_eff)`` by fixed-point iteration: at least ``iterations``
     steps, then until the largest update is below 1e-13 rad (at most 12 steps; a robot so soft that
     it does not converge raises :class:`ComplianceError`). ``compliance``: ``(n,)`` rad/N·m (numpy or
     torch, differentiable), default ``compliance_of(robot)``. All-zero compliance returns ``q``.
+    ``payload_kg`` / ``payload_com_m``: per-row payload as in :func:`gravity_torques`.
     """
     if _is_torch(q):
         import torch
 
         xp = torch
     q = _check_q(robot, q, xp)
+    payload = payload_rows(q.shape[0], payload_kg, payload_com_m, like=q)
     if compliance is None:
         compliance = compliance_of(robot)
     if xp is np:
@@ -351,7 +435,7 @@ def deflected_joints(robot: Robot, q, compliance=None, chain: Chain | None = Non
         out, steps = np.empty(q.shape), np.empty(q.shape[0])
         kernel = _deflect_parallel if q.shape[0] >= _PARALLEL_MIN else _deflect_serial
         kernel(
-            *_kernel_args(robot, chain), np.ascontiguousarray(C), np.ascontiguousarray(q), int(iterations), MAX_ITER,
+            *_kernel_args(robot, chain, q.shape[0], payload), np.ascontiguousarray(C), np.ascontiguousarray(q), int(iterations), MAX_ITER,
             TOL_RAD, out, steps,
         )
         _check_converged(robot, float(steps.max()) if steps.size else 0.0)
@@ -359,7 +443,9 @@ def deflected_joints(robot: Robot, q, compliance=None, chain: Chain | None = Non
     q_eff = q
     step = float("inf")
     for it in range(MAX_ITER):
-        new = q + C * gravity_torques(robot, q_eff, chain=chain, xp=xp)
+        tau = gravity_torques(robot, q_eff, chain=chain, xp=xp) if payload is None else \
+            _gravity_torques_xp(robot, q_eff, chain, xp, payload)
+        new = q + C * tau
         diff = new - q_eff
         step = float(np.max(np.abs(diff))) if xp is np else float(diff.detach().abs().max())
         q_eff = new
@@ -378,25 +464,30 @@ def _check_converged(robot: Robot, step: float) -> None:
     )
 
 
-def compliant_fk(robot: Robot, q) -> np.ndarray:
+def compliant_fk(robot: Robot, q, payload_kg=None, payload_com_m=None) -> np.ndarray:
     """TCP poses ``(N, 4, 4)`` of a compliant robot: ``fk(robot, deflected_joints(robot, q))``.
 
     Plain :func:`hykin.fk.fk` when no joint has finite stiffness. ``q``: ``(N, n)`` or ``(n,)``.
+    ``payload_kg`` / ``payload_com_m``: per-row payload as in :func:`gravity_torques`.
     """
     q = np.asarray(q, dtype=np.float64)
     if not robot.has_compliance:
         return fk(robot, q)
     single = q.ndim == 1
     q2 = q.reshape(1, -1) if single else q
-    T = fk(robot, np.ascontiguousarray(deflected_joints(robot, q2)))
+    kw = {} if payload_kg is None and payload_com_m is None else {"payload_kg": payload_kg, "payload_com_m": payload_com_m}
+    T = fk(robot, np.ascontiguousarray(deflected_joints(robot, q2, **kw)))
     return T[0] if single else T
 
 
-def compliant_fk_torch(robot: Robot, q, chain: Chain | None = None, compliance=None):
+def compliant_fk_torch(robot: Robot, q, chain: Chain | None = None, compliance=None, payload_kg=None,
+                       payload_com_m=None):
     """Differentiable twin of :func:`compliant_fk`: ``q`` float64 tensor ``(N, n)`` -> ``(N, 4, 4)``.
 
     ``chain`` (torch, from ``build_chain(robot, geom, torch)``) and ``compliance`` (``(n,)`` tensor,
-    rad/N·m) may carry gradients; defaults are the robot's own.
+    rad/N·m) may carry gradients; defaults are the robot's own. ``payload_kg`` / ``payload_com_m``:
+    per-row payload as in :func:`gravity_torques`.
     """
-    q_eff = deflected_joints(robot, q, compliance=compliance, chain=chain)
+    q_eff = deflected_joints(robot, q, compliance=compliance, chain=chain, payload_kg=payload_kg,
+                             payload_com_m=payload_com_m)
     return fk_torch(robot, q_eff, chain=chain)

@@ -11,10 +11,11 @@ import numpy as np
 from .dataset import Dataset
 from .fk import fk
 from .metrics import ErrorStats, error_stats, format_table
+from .payload import errors_per_payload, payload_kwargs, payload_of
 from .robot import Robot
 from .se3 import pose_error
 
-__all__ = ["EvalResult", "evaluate_model", "evaluation_report"]
+__all__ = ["EvalResult", "evaluate_model", "evaluation_report", "evaluate_per_payload"]
 
 
 @dataclass
@@ -32,6 +33,7 @@ class EvalResult:
     stats: dict[str, ErrorStats]
     errors: dict[str, tuple[np.ndarray, np.ndarray | None]] = field(repr=False, default_factory=dict)
     support_distance: np.ndarray | None = field(repr=False, default=None)
+    per_payload: dict | None = None  # errors_per_payload(...) when the data carry a payload_kg column
 
     def to_dict(self) -> dict:
         d = {
@@ -42,6 +44,8 @@ class EvalResult:
         }
         if self.support_distance is not None:
             d["outside_training_region"] = int(np.sum(self.support_distance > 0))
+        if self.per_payload is not None:
+            d["per_payload"] = {f"{k:g}": v for k, v in self.per_payload.items()}
         return d
 
     def table(self) -> str:
@@ -49,6 +53,10 @@ class EvalResult:
         if self.support_distance is not None:
             n_out = int(np.sum(self.support_distance > 0))
             t += f"\n{n_out} of {self.n} samples lie outside the training region (network correction faded there)."
+        if self.per_payload is not None:
+            from .payload import format_payload_table
+
+            t += "\nError per payload:\n" + format_payload_table(self.per_payload)
         return t
 
     def json(self) -> str:
@@ -76,9 +84,10 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
         from .thermal import temperature_of
 
         temp = temperature_of(data)  # used by models that identified thermal expansion
+        pkw = payload_kwargs(payload_of(data))  # per-row payload deflects the calibrated model
         if getattr(model, "calibration", None) is not None or getattr(model, "calibrate", False):
-            preds["calibrated"] = model.predict_classical(data.q, temperature_c=temp)
-        preds["hybrid"] = model.predict(data.q, temperature_c=temp)
+            preds["calibrated"] = model.predict_classical(data.q, temperature_c=temp, **pkw)
+        preds["hybrid"] = model.predict(data.q, temperature_c=temp, **pkw)
         if hasattr(model, "support_distance"):
             dist = np.asarray(model.support_distance(data.q))
     stats, errors = {}, {}
@@ -87,8 +96,16 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
         p, a = pose_error(T, T_meas)
         errors[name] = (p, None if pos_only else a)
     return EvalResult(
-        dataset=data.source, n=len(data), position_only=pos_only, stats=stats, errors=errors, support_distance=dist
+        dataset=data.source, n=len(data), position_only=pos_only, stats=stats, errors=errors, support_distance=dist,
+        per_payload=evaluate_per_payload(errors, data),
     )
+
+
+def evaluate_per_payload(errors: dict, data: Dataset) -> dict | None:
+    """Error statistics per distinct payload of ``data`` (:func:`hykin.payload.errors_per_payload`)
+    for per-sample ``errors`` (name -> ``(pos_mm, ang_deg or None)``); None without a payload column."""
+    pl = payload_of(data)
+    return None if pl is None else errors_per_payload(pl[0], errors)
 
 
 def evaluation_report(res: EvalResult, out_dir: str | Path, title: str = "hykin evaluation") -> Path:

@@ -53,6 +53,24 @@ wrapped angles, and ``q1`` left out with ``joint1="frame"`` (it is not an input 
   new measurement series, which samples the joint box differently from the training data);
   ``fade=False`` never fades.
 
+Payload (:mod:`hykin.payload`). Training data may carry a ``payload_kg`` column (and
+``payload_com_x/y/z``, tool frame): the calibration deflects every row under its own payload (joint
+stiffness identified), the targets are taken against that physics, and ``predict(q, payload_kg=...,
+payload_com_m=...)`` evaluates the calibrated compliance at any payload (default: the robot file's).
+``payload_input`` ("auto" default): with several distinct payloads in the training data the
+networks also take the payload as an input, clamped to the trained ``[min, max]`` payload
+(``payload_range_``): beyond it the network's payload dependence is held at the nearest trained
+payload and only the physics changes with payload. Measured (benchmarks/bench_payload.py, 4000
+rows, 6000 steps; decided on kr-payload-virtual, rows at 0 and 12 kg): payload-agnostic networks
+0.0325 / 0.0289 / 0.0322 / 0.0439 mm at 0 / 6 / 12 / 20 kg, payload as input 0.0289 / 0.0284 /
+0.0290 / 0.0355 mm (holding beats fading to the payload-agnostic correction at 20 kg). Held-out
+robot (rx160-nongeo): 0.0279 / 0.0279 / 0.0280 / 0.0280 mm with payload as input vs 0.0282 /
+0.0278 / 0.0276 / 0.0276 mm agnostic (equal within seed noise: no harm where the physics leaves
+no payload dependence). With one payload the networks stay payload-agnostic and the physics
+carries every other payload. ``predict`` warns (:class:`OutOfRangeWarning`) for payloads outside
+the trained ones. Not payload-aware yet: :meth:`predict_uncertainty` (bands of the trained
+payloads) and the extrapolation growth of :mod:`hykin.uncertainty` (robot file's payload).
+
 Uncertainty (:meth:`HybridModel.predict_uncertainty`): radii of the ``level`` band (e.g. 95 %) of the
 position (mm) and orientation (deg) error per query, split-conformal: empirical quantiles of the
 error norms of the hybrid and of the calibrated model on held-out validation samples, blended by
@@ -84,6 +102,7 @@ from . import se3
 from .fk import HAVE_NUMBA, fk, fk_torch
 from .modelfile import ModelFileError, read_model_file, robot_from_json_dict, robot_to_dict, write_model_file
 from .nets import ResidualNet, count_parameters, make_net
+from .payload import PayloadRange, payload_column, payload_kwargs, payload_of, payload_outside, payload_range_of
 from .robot import Robot, load_robot, robot_to_toml_string
 from .thermal import (MAX_PLAUSIBLE_PER_K, MIN_EFFECT_M, TEMPERATURE_COLUMNS, ThermalFit, fit_coefficient, scale_about,
                       temperature_of, to_reference)
@@ -107,22 +126,23 @@ class OutOfRangeWarning(UserWarning):
     """Queries outside the joint range the networks were trained on."""
 
 
-def classical_fk(robot: Robot, q: np.ndarray) -> np.ndarray:
+def classical_fk(robot: Robot, q: np.ndarray, payload_kg=None, payload_com_m=None) -> np.ndarray:
     """Classical prediction ``(N, 4, 4)``: FK of the (calibrated) robot, with joint compliance when
-    the robot has finite stiffness."""
+    the robot has finite stiffness. ``payload_kg`` / ``payload_com_m``: per-row payload
+    (:func:`hykin.compliance.gravity_torques`); default the robot's."""
     if robot.has_compliance:
         from .compliance import compliant_fk
 
-        return compliant_fk(robot, q)
+        return compliant_fk(robot, q, payload_kg=payload_kg, payload_com_m=payload_com_m)
     return fk(robot, q)
 
 
-def classical_fk_torch(robot: Robot, q):
+def classical_fk_torch(robot: Robot, q, payload_kg=None, payload_com_m=None):
     """Differentiable twin of :func:`classical_fk` (float64 tensor ``(N, n)`` -> ``(N, 4, 4)``)."""
     if robot.has_compliance:
         from .compliance import compliant_fk_torch
 
-        return compliant_fk_torch(robot, q)
+        return compliant_fk_torch(robot, q, payload_kg=payload_kg, payload_com_m=payload_com_m)
     return fk_torch(robot, q)
 
 
@@ -313,13 +333,17 @@ class HybridModel:
     thermal: identify a linear thermal expansion coefficient from the training data's temperature
     column (:mod:`hykin.thermal`): ``"auto"`` (when there is one; kept only if significant and
     plausible), True (required), False (ignore temperatures). Fitted: ``thermal_``.
+    payload_input: "auto"/True: payload is a network input when the training data hold several
+    payloads (``payload_kg`` column); False: payload-agnostic networks. Fitted: ``payload_range_``
+    (None without a payload column), ``payload_input_`` (module docstring, "Payload").
     """
 
     def __init__(self, robot, arch: str = "default", recipe: str | Recipe = "default", calibrate: bool = True,
                  calibrate_kw: dict | None = None, normalise: str = "data", fade: bool | str = True,
                  fade_width: float = 0.1, device: str = "cpu", seed: int = 0, max_seconds: float | None = None,
                  val_fraction: float | None = None, recipe_kw: dict | None = None, periodic: str = "wrap",
-                 joint1: str = "input", input_joints=None, thermal: bool | str = "auto"):
+                 joint1: str = "input", input_joints=None, thermal: bool | str = "auto",
+                 payload_input: bool | str = "auto"):
         self.robot = load_robot(robot)
         self.arch = arch
         self.recipe = get_recipe(recipe, **(recipe_kw or {}))
@@ -343,6 +367,9 @@ class HybridModel:
         if thermal not in (True, False, "auto"):
             raise HybridError(f"thermal must be True, False or 'auto', got {thermal!r}")
         self.thermal = thermal
+        if payload_input not in (True, False, "auto"):
+            raise HybridError(f"payload_input must be True, False or 'auto', got {payload_input!r}")
+        self.payload_input = payload_input
         n = self.robot.dof
         ij = tuple(range(1, n + 1)) if input_joints is None else tuple(int(j) for j in input_joints)
         if not ij or any(not 1 <= j <= n for j in ij) or len(set(ij)) != len(ij):
@@ -370,6 +397,9 @@ class HybridModel:
         self.thermal_ = None  # hykin.thermal.ThermalFit when the training data had a temperature column
         self.pair_index_ = np.zeros((0, 2), dtype=np.int64)  # joint pairs of the hole grids
         self.pair_gap_ = np.zeros((0, _PAIR_GRID, _PAIR_GRID))  # (P, G, G) gap at the grid nodes
+        self.payload_range_: PayloadRange | None = None  # payloads of the training data (payload_kg column)
+        self.payload_input_ = False  # payload is a network input (training data with several payloads)
+        self.payload_default_kg_ = None  # payload the networks see when predict gets none (None: robot_'s)
 
     # ------------------------------------------------------------------ input representation
 
@@ -394,6 +424,15 @@ class HybridModel:
         if not self._mask.all():
             out = out * self._mask
         return out
+
+    def _net_in(self, qn, payload_kg=None):
+        """Network input: ``qn``, plus the payload column when payload is an input (clamped to the
+        trained range: beyond it the networks' payload dependence is held, the physics extrapolates)."""
+        if not self.payload_input_:
+            return qn
+        if payload_kg is None:
+            payload_kg = self.robot_.payload_kg if self.payload_default_kg_ is None else self.payload_default_kg_
+        return payload_column(qn, payload_kg, self.payload_range_)
 
     def _to_net_frame(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Base-frame residual vectors ``(N, 3)`` -> the frame the networks learn in."""
@@ -425,7 +464,7 @@ class HybridModel:
     # ------------------------------------------------------------------ fitting
 
     def _targets(self, robot: Robot, ds) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-        T_hat = classical_fk(robot, ds.q)
+        T_hat = classical_fk(robot, ds.q, **payload_kwargs(payload_of(ds)))
         dp = ds.xyz_m - T_hat[:, :3, 3]
         dr = None
         if ds.has_orientation:
@@ -451,6 +490,12 @@ class HybridModel:
             raise HybridError("training data contain NaN/inf")
         timings = {}
         train_in, val_in = train, val
+        pl_train = payload_of(train)  # DatasetError naming row/column for bad payload values
+        self.payload_range_ = None if pl_train is None else payload_range_of(pl_train[0])
+        self.payload_input_ = bool(self.payload_input) and pl_train is not None and len(self.payload_range_.values_kg) > 1
+        kg_all = np.full(len(q), self.robot.payload_kg) if pl_train is None else pl_train[0]
+        if val is not None:
+            payload_of(val)
         self._calibrate_on(train)
         self.thermal_ = None
         temp = None if self.thermal is False else temperature_of(train)
@@ -495,14 +540,17 @@ class HybridModel:
                 iv, iv_cal = iv[: nv // 2], iv[nv // 2 :]
             qv, dpv, drv = q[iv], dp[iv], None if dr is None else dr[iv]
             qt, dpt, drt = q[it], dp[it], None if dr is None else dr[it]
+            kv, kt = kg_all[iv], kg_all[it]
         else:
-            qt, dpt, drt = q, dp, dr
+            qt, dpt, drt, kt = q, dp, dr, kg_all
             val_sel = val
             if len(val) >= 40:
                 pv = rng.permutation(len(val))
                 cal_rows = np.sort(pv[len(val) // 2 :])
                 val_sel, val_cal = val.subset(np.sort(pv[: len(val) // 2])), val.subset(cal_rows)
             qv = np.asarray(val_sel.q, dtype=np.float64)
+            pl_v = payload_of(val_sel)
+            kv = np.full(len(qv), self.robot.payload_kg) if pl_v is None else pl_v[0]
             dpv, drv, _ = self._targets(self.robot_, val_sel)  # drv None for position-only val data
             dpv = self._to_net_frame(qv, dpv)
             drv = None if drv is None else self._to_net_frame(qv, drv)
@@ -536,11 +584,16 @@ class HybridModel:
                 if yt is None:
                     continue
                 torch.manual_seed(self.seed + (0 if key == "pos" else 1))
-                net = make_net(self.arch, n, 3, dtype=dt)
-                net.set_input_range(lo_n, hi_n)
+                net = make_net(self.arch, n + int(self.payload_input_), 3, dtype=dt)
+                if self.payload_input_:
+                    pr = self.payload_range_
+                    net.set_input_range(np.r_[lo_n, pr.lower_kg], np.r_[hi_n, pr.upper_kg])
+                else:
+                    net.set_input_range(lo_n, hi_n)
                 t1 = time.perf_counter()
                 use_val = len(qv) > 0 and yv is not None
-                r = train_net(net, self._netq(qt), yt, self._netq(qv) if use_val else None, yv if use_val else None, self.recipe,
+                r = train_net(net, self._net_in(self._netq(qt), kt), yt, self._net_in(self._netq(qv), kv) if use_val else None,
+                              yv if use_val else None, self.recipe,
                               seed=self.seed, device=self.device, max_seconds=self.max_seconds,
                               callback=cb_ctx.callback(key))
                 timings[f"train_{key}_s"] = time.perf_counter() - t1
@@ -600,7 +653,8 @@ class HybridModel:
         alpha, std = 0.0, float("inf")
         for _ in range(rounds):
             b = self.robot_.base[:3, 3]
-            alpha, std = fit_coefficient(train.xyz_m, classical_fk(self.robot_, q)[:, :3, 3], b, dt, alpha)
+            alpha, std = fit_coefficient(train.xyz_m, classical_fk(self.robot_, q, **payload_kwargs(payload_of(train)))[:, :3, 3],
+                                         b, dt, alpha)
             if not self.calibrate:
                 break
             self._calibrate_on(to_reference(train, b, alpha, dt))
@@ -667,8 +721,9 @@ class HybridModel:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", OutOfRangeWarning)
             t = temperature_of(ds)
-            T_c = self.predict_classical(ds.q, temperature_c=t)
-            T_h = self.predict(ds.q, temperature_c=t)
+            pkw = payload_kwargs(payload_of(ds))
+            T_c = self.predict_classical(ds.q, temperature_c=t, **pkw)
+            T_h = self.predict(ds.q, temperature_c=t, **pkw)
         out = {}
         for name, T in (("classical", T_c), ("hybrid", T_h)):
             pe = np.linalg.norm(T[:, :3, 3] - ds.xyz_m, axis=1) * 1e3
@@ -686,7 +741,7 @@ class HybridModel:
 
     # ------------------------------------------------------------------ uncertainty
 
-    def _predict_unframed(self, q) -> tuple[np.ndarray, np.ndarray]:
+    def _predict_unframed(self, q, payload=None) -> tuple[np.ndarray, np.ndarray]:
         """Calibrated and hybrid poses of ``q`` in the training series' frame (no registration
         frames, reference temperature, no range warnings)."""
         with warnings.catch_warnings():
@@ -694,7 +749,8 @@ class HybridModel:
             fr = (self.frame_pre, self.frame_post)
             self.frame_pre, self.frame_post = np.eye(4), np.eye(4)
             try:
-                return self.predict_classical(q), self.predict(q)
+                pkw = payload_kwargs(payload)
+                return self.predict_classical(q, **pkw), self.predict(q, **pkw)
             finally:
                 self.frame_pre, self.frame_post = fr
 
@@ -706,7 +762,7 @@ class HybridModel:
             ds, src = train.subset(np.asarray(held_out_index)), "held-out"
         else:
             ds, src = train, "train (in-sample: too few samples to hold out)"
-        T_c, T_h = self._predict_unframed(ds.q)
+        T_c, T_h = self._predict_unframed(ds.q, payload_of(ds))
         unc = {"levels": _UNC_LEVELS, "n": int(len(ds)), "source": src}
         for name, T in (("classical", T_c), ("hybrid", T_h)):
             pe = np.linalg.norm(T[:, :3, 3] - ds.xyz_m, axis=1) * 1e3
@@ -729,7 +785,7 @@ class HybridModel:
     def _fit_uncertainty_without_temperature(self, ds_raw) -> None:
         """Quantiles for queries without a temperature (model with a thermal coefficient): the
         predictions at the reference temperature against the raw measurements, drift included."""
-        T_c, T_h = self._predict_unframed(ds_raw.q)
+        T_c, T_h = self._predict_unframed(ds_raw.q, payload_of(ds_raw))
         for name, T in (("classical", T_c), ("hybrid", T_h)):
             pe = np.linalg.norm(T[:, :3, 3] - ds_raw.xyz_m, axis=1) * 1e3
             self.unc_[f"notemp_{name}_pos_mm"] = np.quantile(pe, _UNC_LEVELS)
@@ -930,12 +986,12 @@ class HybridModel:
 
     # ------------------------------------------------------------------ prediction
 
-    def predict_classical(self, q, temperature_c=None) -> np.ndarray:
+    def predict_classical(self, q, temperature_c=None, payload_kg=None, payload_com_m=None) -> np.ndarray:
         """Calibrated classical poses ``(N, 4, 4)`` (or ``(4, 4)`` for one ``(n,)`` query).
-        ``temperature_c``: as in :meth:`predict`."""
+        ``temperature_c``, ``payload_kg``, ``payload_com_m``: as in :meth:`predict`."""
         self._check_fitted()
         q2, single = self._q(q)
-        T = self._framed(self._apply_thermal(classical_fk(self.robot_, q2), temperature_c))
+        T = self._framed(self._apply_thermal(classical_fk(self.robot_, q2, payload_kg, payload_com_m), temperature_c))
         return T[0] if single else T
 
     @torch.inference_mode()
@@ -948,7 +1004,7 @@ class HybridModel:
             out[i : i + B] = net(x[i : i + B]).to(torch.float64).cpu().numpy()
         return out
 
-    def predict(self, q, temperature_c=None) -> np.ndarray:
+    def predict(self, q, temperature_c=None, payload_kg=None, payload_com_m=None) -> np.ndarray:
         """Hybrid poses ``(N, 4, 4)`` float64 (``(4, 4)`` for one ``(n,)`` query), world frame, m.
 
         ``temperature_c``: arm temperature (°C, scalar or ``(N,)``) for a model that identified thermal
@@ -956,10 +1012,13 @@ class HybridModel:
         reference temperature (also for models without a thermal coefficient, which ignore it).
         Warns once (:class:`OutOfRangeWarning`) with counts when queries leave the trained joint range
         or fall in holes of the training data (pairwise hole grids).
+        ``payload_kg`` (scalar or ``(N,)`` kg) / ``payload_com_m`` (``(3,)`` or ``(N, 3)`` m, tool frame):
+        the payload carried (default: the robot file's); the calibrated compliance model deflects
+        the joints under it, the networks are payload-agnostic (module docstring, "Payload").
         """
         self._check_fitted()
         q2, single = self._q(q)
-        T = classical_fk(self.robot_, q2)
+        T = classical_fk(self.robot_, q2, payload_kg, payload_com_m)
         qn = self._netq(q2)
         ex = self._range_excess_qn(qn)
         exm = ex.max(1)
@@ -977,6 +1036,14 @@ class HybridModel:
             else:
                 msg = f"{int(holes.sum())} of {len(q2)} queries lie in holes of the training data (inside its joint range)"
             warnings.warn(f"{msg}; {tail}", OutOfRangeWarning, stacklevel=2)
+        if payload_kg is not None and self.payload_range_ is not None:
+            out_pl = payload_outside(self.payload_range_, payload_kg)
+            if out_pl.any():
+                r = self.payload_range_
+                warnings.warn(f"{int(out_pl.sum())} of {out_pl.size} payloads lie outside the trained payloads "
+                              f"[{r.lower_kg:g}, {r.upper_kg:g}] kg; the calibrated compliance model carries the "
+                              "payload there (network payload dependence held at the nearest trained payload)",
+                              OutOfRangeWarning, stacklevel=2)
         if self.fade is False:
             w = None
         else:
@@ -984,12 +1051,13 @@ class HybridModel:
             w = _fade_np(d, self.fade_width)
             if np.all(w == 1.0):
                 w = None
-        dp = self._from_net_frame(q2, self._net_np(self.net_pos_, qn))
+        qin = self._net_in(qn, payload_kg)
+        dp = self._from_net_frame(q2, self._net_np(self.net_pos_, qin))
         if w is not None:
             dp *= w[:, None]
         T[:, :3, 3] += dp
         if self.net_rot_ is not None:
-            dr = self._from_net_frame(q2, self._net_np(self.net_rot_, qn))
+            dr = self._from_net_frame(q2, self._net_np(self.net_rot_, qin))
             if w is not None:
                 dr *= w[:, None]
             if HAVE_NUMBA and T.flags.c_contiguous:
@@ -999,7 +1067,7 @@ class HybridModel:
         T = self._framed(self._apply_thermal(T, temperature_c))
         return T[0] if single else T
 
-    def predict_torch(self, q):
+    def predict_torch(self, q, payload_kg=None, payload_com_m=None):
         """Differentiable hybrid poses: float64 tensor ``(N, n)`` -> ``(N, 4, 4)`` (autograd w.r.t. q).
 
         Same numbers as :meth:`predict` (range excess, pairwise hole gap and nearest-neighbour gap are
@@ -1008,10 +1076,10 @@ class HybridModel:
         if q.ndim != 2 or q.shape[1] != self.robot.dof:
             raise HybridError(f"joints must have shape (N, {self.robot.dof}), got {tuple(q.shape)}")
         q = q.to(torch.float64)
-        T_hat = classical_fk_torch(self.robot_, q)
+        T_hat = classical_fk_torch(self.robot_, q, payload_kg, payload_com_m)
         dev = next(self.net_pos_.parameters()).device
         qn = self._netq(q)
-        qd = qn.to(dev)
+        qd = self._net_in(qn, payload_kg).to(dev)
         w = None
         if self.fade is not False:
             lo = torch.as_tensor(self.support_lower_, dtype=torch.float64, device=q.device)
@@ -1051,7 +1119,8 @@ class HybridModel:
                 "calibrate_kw": _json_safe(self.calibrate_kw), "normalise": self.normalise, "fade": self.fade,
                 "fade_width": self.fade_width, "device": self.device, "seed": self.seed,
                 "max_seconds": self.max_seconds, "val_fraction": self.val_fraction, "periodic": self.periodic,
-                "joint1": self.joint1, "input_joints": list(self.input_joints), "thermal": self.thermal}
+                "joint1": self.joint1, "input_joints": list(self.input_joints), "thermal": self.thermal,
+                "payload_input": self.payload_input}
 
     def save(self, path: str | Path) -> None:
         """Write the model to ONE safetensors file (no pickle); see :mod:`hykin.modelfile`."""
@@ -1075,6 +1144,8 @@ class HybridModel:
                        "j1_axis": None if self.j1_axis_ is None else self.j1_axis_.tolist()},
             "uncertainty": _json_safe(self.unc_),
             "thermal": None if self.thermal_ is None else _json_safe(self.thermal_.to_dict()),
+            "payload": None if self.payload_range_ is None else {"range": self.payload_range_.to_dict(),
+                                                                 "input": bool(self.payload_input_)},
             "training": _json_safe(self.meta_),
         }
         write_model_file(path, tensors, meta)
@@ -1091,11 +1162,15 @@ class HybridModel:
                     fade_width=cfg["fade_width"], device=device, seed=cfg["seed"], max_seconds=cfg.get("max_seconds"),
                     val_fraction=cfg.get("val_fraction"), periodic=cfg.get("periodic", "none"),
                     joint1=cfg.get("joint1", "input"), input_joints=cfg.get("input_joints"),
-                    thermal=cfg.get("thermal", "auto"))
+                    thermal=cfg.get("thermal", "auto"), payload_input=cfg.get("payload_input", False))
             m.robot_ = robot_from_json_dict(meta["robot"], f"{path}: robot")
+            pl = meta.get("payload")  # absent in files before per-row payloads: behave as then
+            if pl is not None:
+                m.payload_range_ = PayloadRange.from_dict(pl["range"])
+                m.payload_input_ = bool(pl.get("input", False))
             dt = torch.float64 if m.recipe.dtype == "float64" else torch.float32
             for key in ("pos", "rot") if meta["has_rot_net"] else ("pos",):
-                net = make_net(m.arch, nominal.dof, 3, dtype=dt)
+                net = make_net(m.arch, nominal.dof + int(m.payload_input_), 3, dtype=dt)
                 sd = {k[len(key) + 1 :]: v for k, v in tensors.items() if k.startswith(key + ".")}
                 net.load_state_dict(sd, strict=True)
                 net.to(device).eval()

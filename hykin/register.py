@@ -223,7 +223,9 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
     idx, n_swapped = _avoid_fade_zone(new, series.q, idx)
     from .thermal import temperature_of
 
-    T_model = new.predict(series.q, temperature_c=temperature_of(series))
+    from .payload import payload_kwargs, payload_of
+
+    T_model = new.predict(series.q, temperature_c=temperature_of(series), **payload_kwargs(payload_of(series)))
     T_meas = series.poses()
     B, E, sol = _fit_frames(T_model[idx], T_meas[idx], position_only=pos_only)
     new.frame_pre, new.frame_post = B, E

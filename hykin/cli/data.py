@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from .common import AngleUnit, Force, LengthUnit, app, check_output, progress
+from .common import AngleUnit, CLIError, Force, LengthUnit, app, check_output, progress
 
 @app.command("presets")
 def presets_cmd() -> None:
@@ -37,6 +37,7 @@ def simulate_cmd(
     seed: int = typer.Option(0, "--seed", help="Random seed (reproducible)."),
     plan: str = typer.Option("uniform", "--plan", help="Sampling plan: uniform, random, zigzag, iso-cube, restricted."),
     noise: bool = typer.Option(True, "--noise/--no-noise", help="Add tracker-like measurement noise."),
+    payloads: Optional[str] = typer.Option(None, "--payloads", help="Payload masses in kg, e.g. 0,12: rows cycle through them (column payload_kg)."),
     force: bool = Force,
 ) -> None:
     """Simulate a measured dataset from a virtual robot whose truth is known."""
@@ -49,10 +50,19 @@ def simulate_cmd(
     else:
         virtual_preset(preset)  # an unknown name fails here, before the progress bar starts
 
+    pl = None
+    if payloads is not None:
+        try:
+            pl = [float(v) for v in payloads.split(",") if v.strip()]
+        except ValueError:
+            raise CLIError(f"--payloads: expected comma-separated masses in kg (e.g. 0,12), got {payloads!r}") from None
+        if not pl or any(not (v >= 0 and v < float("inf")) for v in pl):
+            raise CLIError(f"--payloads: masses must be finite and >= 0 kg, got {payloads!r}")
+
     with progress() as prog:
         task = prog.add_task(f"simulating {preset}", total=n)
         info = simulate_to_file(
-            preset, n, out, plan=plan.replace("-", "_"), seed=seed, noise=noise,
+            preset, n, out, plan=plan.replace("-", "_"), seed=seed, noise=noise, payloads=pl,
             progress=lambda done, total: prog.update(task, completed=done, total=total),
         )
     typer.echo(f"wrote {n} samples to {out}" + (f" (truth: {info})" if info else ""))

@@ -11,6 +11,9 @@ import typer
 from .common import (AngleUnit, CLIError, Force, LengthUnit, app, check_output, console, load_model_or_robot,
                      temperature_of, write_rows)
 
+PAYLOAD_HELP = ("Payload mass (kg, at the TCP) for a file without a payload_kg column; a model file deflects "
+                "the joints under it (default: the file's column, else the robot file's payload).")
+
 @app.command("fk")
 def fk_cmd(
     model: str = typer.Argument(..., help="Model file, robot file, URDF or preset (nominal FK)."),
@@ -18,6 +21,7 @@ def fk_cmd(
     out: Path = typer.Option(..., "-o", "--out", help="Output poses (dataset columns q…, x,y,z,qw,qx,qy,qz)."),
     angle_unit: str = AngleUnit,
     no_fade: bool = typer.Option(False, "--no-fade", help="Apply the network correction even outside the training region."),
+    payload_kg: Optional[float] = typer.Option(None, "--payload-kg", help=PAYLOAD_HELP),
     force: bool = Force,
 ) -> None:
     """Forward kinematics: full hybrid model for a model file, classical FK for a robot."""
@@ -35,7 +39,9 @@ def fk_cmd(
         if no_fade:
             mdl.fade = False
         temp = temperature_of(mdl, extra, joints)
-        T = mdl.predict(q, temperature_c=temp)
+        from ..payload import payload_from_columns, payload_kwargs
+
+        T = mdl.predict(q, temperature_c=temp, **payload_kwargs(payload_from_columns(extra, len(q), str(joints), payload_kg)))
         extra = dict(extra)
         extra["support_distance"] = mdl.support_distance(q)
         band_mm, band_deg = mdl.predict_uncertainty(q, temperature_c=temp)
@@ -56,6 +62,7 @@ def ik_cmd(
     position_only: bool = typer.Option(False, "--position-only", help="Solve for position only."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    payload_kg: Optional[float] = typer.Option(None, "--payload-kg", help=PAYLOAD_HELP),
     force: bool = Force,
 ) -> None:
     """Inverse kinematics: every branch (or the one nearest the seed joints), failures reported.
@@ -85,15 +92,23 @@ def ik_cmd(
         rows = _classical_ik_rows(rob, T, q_cur if nearest else None, position_only)
     else:
         from ..hybrid_ik import hybrid_ik, ik_result_to_rows
+        from ..payload import payload_from_columns
 
         target = T[:, :3, 3] if position_only else T
-        res = hybrid_ik(mdl, target, all_branches=True, q_current=q_cur, nearest=nearest, position_only=position_only,
-                        temperature_c=temperature_of(mdl, pose_extra, poses))
-        rows = ik_result_to_rows(res, robot=mdl.robot_, targets=target)
+        temp = temperature_of(mdl, pose_extra, poses)
+        pl = payload_from_columns(pose_extra, len(T), str(poses), payload_kg)
+        res = None
+        if pl is None:
+            res = hybrid_ik(mdl, target, all_branches=True, q_current=q_cur, nearest=nearest, position_only=position_only,
+                            temperature_c=temp)
+            rows = ik_result_to_rows(res, robot=mdl.robot_, targets=target)
+        else:  # one solve per distinct payload, rows back in target order
+            rows = _ik_rows_per_payload(mdl, target, pl, q_cur, nearest, position_only, temp)
         from ..hybrid import support_report
 
-        has_q = np.asarray(res.success, dtype=bool) & np.isfinite(res.q).all(axis=1)
-        msg = support_report(mdl, res.q[has_q])["message"] if has_q.any() else ""
+        qs = np.stack([np.asarray(rows[f"q{j + 1}"], dtype=np.float64) for j in range(rob.dof)], 1)
+        has_q = np.isfinite(qs).all(axis=1)
+        msg = support_report(mdl, qs[has_q])["message"] if has_q.any() else ""
         if msg:
             console().print(f"[yellow]warning:[/] {msg} (see the in_support column)")
     write_rows(rows, out)
@@ -101,6 +116,29 @@ def ik_cmd(
     n_targets = len(T)
     solved = len(set(np.asarray(rows["target"])[ok].tolist()))
     typer.echo(f"wrote {len(ok)} solution rows for {n_targets} targets to {out} ({solved} solved, {n_targets - solved} failed)")
+
+
+def _ik_rows_per_payload(mdl, target, pl, q_cur, nearest: bool, position_only: bool, temp) -> dict:
+    """Hybrid IK rows when targets carry payloads: one solve per distinct (mass, centre of mass),
+    on the model carrying that payload; ``target`` numbering of the whole file."""
+    from ..hybrid_ik import hybrid_ik, ik_result_to_rows
+    from ..payload import model_with_payload
+
+    kg, com = pl
+    key = np.column_stack([kg, np.zeros((len(kg), 3)) if com is None else com])
+    uniq, inv = np.unique(key, axis=0, return_inverse=True)
+    parts = []
+    for u in range(len(uniq)):
+        idx = np.flatnonzero(inv.reshape(-1) == u)
+        m = model_with_payload(mdl, float(uniq[u, 0]), None if com is None else uniq[u, 1:])
+        t = None if temp is None else np.asarray(temp)[idx]
+        res = hybrid_ik(m, target[idx], all_branches=True, q_current=None if q_cur is None else q_cur[idx],
+                        nearest=nearest, position_only=position_only, temperature_c=t)
+        r = ik_result_to_rows(res, robot=m.robot_, targets=target[idx])
+        r["target"] = idx[np.asarray(r["target"], dtype=int)]
+        parts.append(r)
+    order = np.argsort(np.concatenate([p["target"] for p in parts]), kind="stable")
+    return {k: np.concatenate([np.asarray(p[k]) for p in parts])[order] for k in parts[0]}
 
 
 def _classical_ik_rows(robot, T, q_current, position_only: bool) -> dict:
