@@ -66,7 +66,7 @@ import numpy as np
 import scipy.linalg
 
 from . import se3
-from .calibration_result import CalibrationResult, residual_stats
+from .calibration_result import CalibrationError, CalibrationResult, residual_stats
 from .chain import build_chain
 from .compliance import (
     ComplianceError,
@@ -115,10 +115,6 @@ def _gram(A: np.ndarray, B: np.ndarray | None = None) -> np.ndarray:
     a = torch.from_numpy(np.ascontiguousarray(A.T))  # (P, m)
     b = a if B is None else torch.from_numpy(np.ascontiguousarray(B.T))
     return (a @ b.T).numpy()
-
-
-class CalibrationError(ValueError):
-    """Bad input to :func:`calibrate` (shapes, non-finite values, unknown parameter names)."""
 
 
 # --------------------------------------------------------------------------- parameters

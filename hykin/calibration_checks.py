@@ -106,7 +106,7 @@ def check_calibration(res, specs, lim: dict, *, still_falling: bool, deflection_
     still_falling: the cost still fell materially in the last iteration (not converged);
     deflection_rad: ``(n,)`` largest gravity deflection of each joint over the data (or None).
     """
-    from .calibrate import CalibrationError
+    from .calibration_result import CalibrationError
 
     name = res.robot.name
     if not res.converged and still_falling:

@@ -30,6 +30,12 @@ def residual_stats(rp: np.ndarray, ro: np.ndarray | None, w: float) -> dict:
     return d
 
 
+
+class CalibrationError(ValueError):
+    """Bad input to :func:`hykin.calibrate.calibrate` (shapes, non-finite values, unknown parameter
+    names) or a calibration refused by :mod:`hykin.calibration_checks`."""
+
+
 @dataclass
 class CalibrationResult:
     """Outcome of :func:`calibrate`.
