@@ -476,6 +476,12 @@ def _identifiable(J_s: np.ndarray, rank_tol: float, negligible_tol: float) -> tu
     return mask, ratio
 
 
+def identifiable_columns(J_s: np.ndarray, rank_tol: float, negligible_tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Public form of the identifiability check (used by :mod:`hykin.register`): ``J_s`` ``(rows, P)``
+    scaled Jacobian with columns in priority order -> ``(mask (P,), |R_kk| / ‖col‖ (P,))``."""
+    return _identifiable(J_s, rank_tol, negligible_tol)
+
+
 # --------------------------------------------------------------------------- LM step
 
 

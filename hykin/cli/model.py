@@ -128,19 +128,22 @@ def register_cmd(
     series: Path = typer.Argument(..., help="New measurement series (.csv/.parquet)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output model file with re-fitted base and tool."),
     poses: int = typer.Option(30, "--poses", help="Number of poses of the series used to register (spread over it)."),
+    frames_only: bool = typer.Option(False, "--frames-only", help="Re-fit base and tool only (no joint zeros / thermal state)."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
 ) -> None:
-    """Re-fit base and tool frames for a new series (tracker moved, tool changed); keep the learned errors."""
+    """Re-fit base and tool frames for a new series (tracker moved, tool changed) and, where the poses
+    identify them and they are significant, joint zero offsets and a thermal state; keep the learned errors.
+    Refuses (exit 2, one line) when the residual shows the series does not fit the model."""
     from ..dataset import read_dataset
     from ..hybrid import HybridModel
     from ..register import register_model
 
     mdl = HybridModel.load(str(model))
     ds = read_dataset(series, length_unit=length_unit, angle_unit=angle_unit, robot=mdl.robot)
-    new, info = register_model(mdl, ds, n_poses=poses)
+    new, info = register_model(mdl, ds, n_poses=poses, refit="frames" if frames_only else "auto")
     new.save(out)
-    typer.echo(info.summary())
+    typer.echo(info.report())
     typer.echo(f"registered model written to {out}")
 
 
