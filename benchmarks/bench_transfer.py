@@ -75,12 +75,16 @@ def ref_resid(T: np.ndarray, P: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 
 def ref_calibrate(dh0, tool0, q, P, R):
-    """Plain geometric calibration: 24 DH deviations (a, alpha, d, theta of every joint; theta1/d1
-    and the tool's rz are kept out, redundant with the base / tool frames) + base + tool twists."""
+    """Plain geometric calibration: DH deviations (a, alpha, d, theta) + base + tool twists, with the
+    parameters a full base / tool frame explains left out (d1, theta1; all of joint n's) and, for
+    consecutive parallel axes (alpha = 0), the d of all but the last of them (only their sum acts)."""
     n = len(dh0)
     free = np.ones((n, 4), bool)
     free[0, 2] = free[0, 3] = False  # d1, theta1: redundant with the base frame
-    free[n - 1, 3] = False  # theta6: redundant with the tool frame
+    free[n - 1, :] = False  # a, alpha, d, theta of the last joint: redundant with the tool frame
+    for i in range(1, n - 1):
+        if abs(np.sin(dh0[i, 1])) < 1e-6:  # axis i+1 parallel to axis i: d_i and d_(i+1) act along one axis
+            free[i, 2] = False
     k = int(free.sum())
 
     def unpack(x):
@@ -89,7 +93,7 @@ def ref_calibrate(dh0, tool0, q, P, R):
         return dh, twist(x[k:k + 6]), tool0 @ twist(x[k + 6:k + 12])
 
     sol = least_squares(lambda x: ref_resid(ref_fk(*unpack(x)[:1], q, *unpack(x)[1:]), P, R), np.zeros(k + 12),
-                        method="lm", x_scale=1e-3)
+                        method="lm")
     return unpack(sol.x)
 
 
