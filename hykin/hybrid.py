@@ -301,7 +301,9 @@ class HybridModel:
 
     robot: nominal robot (Robot, preset name or file). arch: network name (:mod:`hykin.nets`).
     recipe: training recipe name or :class:`hykin.train.Recipe` (:mod:`hykin.train`).
-    calibrate: run :func:`hykin.calibrate.calibrate` first (``calibrate_kw`` passed on).
+    calibrate: run :func:`hykin.calibrate.calibrate` first (``calibrate_kw`` passed on; with
+    ``{"select": "region-cv"}`` the parameter set is chosen by region-blocked validation,
+    :func:`hykin.region_cv.select_calibration`, result in ``calibration_cv_``).
     normalise: ``"data"`` (min-max over the training joints) or ``"full"`` (joint limits).
     fade: True (= "support": joint ranges and pairwise holes), "range", "full" or False (module
     docstring); fade_width in units of the range. fade_cv: number of regions (>= 2) for a fade measured
@@ -365,6 +367,7 @@ class HybridModel:
         self.net_rot_: ResidualNet | None = None
         self.meta_: dict = {}
         self.calibration_ = None  # CalibrationResult of the last fit (not saved; its summary is in meta_)
+        self.calibration_cv_ = None  # hykin.region_cv.RegionCVResult when calibrate_kw selects by region CV
         # Rigid frames around the model, set by hykin.register for a new measurement series:
         # pose = frame_pre · T_model(q) · frame_post (identity for the series the model was trained on).
         self.frame_pre = np.eye(4)
@@ -564,6 +567,7 @@ class HybridModel:
                 "history": v.history[-50:]} for k, v in results.items()},
             "params": {k: count_parameters(getattr(self, f"net_{k}_")) for k in results},
             "calibration": calib,
+            "calibration_cv": None if self.calibration_cv_ is None else _json_safe(self.calibration_cv_.to_dict()),
             "metrics": {},
             "inputs": {"periodic": self.periodic, "joint1": self.joint1},
             "thermal": None if self.thermal_ is None else self.thermal_.to_dict(),
@@ -593,7 +597,13 @@ class HybridModel:
         if self.calibrate:
             from .calibrate import calibrate as _calibrate
 
-            res = _calibrate(self.robot, ds, **self.calibrate_kw)
+            kw = dict(self.calibrate_kw)
+            if kw.pop("select", None) == "region-cv":  # parameter set by region-blocked validation (hykin.region_cv)
+                from .region_cv import select_calibration
+
+                self.calibration_cv_ = select_calibration(self.robot, ds, base_kw=kw)
+                kw.update(self.calibration_cv_.kwargs)
+            res = _calibrate(self.robot, ds, **kw)
             self.robot_, self.calibration_ = res.robot, res
         else:
             self.robot_, self.calibration_ = self.robot.copy(), None

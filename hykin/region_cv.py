@@ -74,7 +74,7 @@ def joint_blocks(q: np.ndarray, n_blocks: int, seed: int = 0) -> np.ndarray:
 
 
 def select_calibration(robot, ds, candidates: dict[str, dict] | None = None, n_blocks: int = 4,
-                       n_register: int = 30, seed: int = 0, tie_tol: float = 0.01, base_kw: dict | None = None,
+                       n_register: int = 30, seed: int = 0, tie_tol: float = 0.0, base_kw: dict | None = None,
                        max_rows: int = 3000) -> RegionCVResult:
     """Choose the calibration parameter set by region-blocked validation (module docstring).
 
@@ -83,7 +83,7 @@ def select_calibration(robot, ds, candidates: dict[str, dict] | None = None, n_b
     ``base_kw``: keyword arguments common to all (e.g. ``position_only``); ``max_rows``: each
     calibration uses at most this many rows of the other regions (evenly spaced; cost)."""
     from .calibrate import calibrate
-    from .fk import fk
+    from .hybrid import classical_fk
     from .register import fit_frames, select_representative
     from .se3 import pose_error
 
@@ -102,7 +102,7 @@ def select_calibration(robot, ds, candidates: dict[str, dict] | None = None, n_b
             fit_rows = fit_rows[np.linspace(0, len(fit_rows) - 1, min(max_rows, len(fit_rows))).astype(int)]
             res = calibrate(robot, ds.subset(fit_rows), **(base_kw | _kwargs(robot, kw)))
             T_meas = ds.poses()[hold]
-            T_mod = fk(res.robot, ds.q[hold])
+            T_mod = classical_fk(res.robot, ds.q[hold])  # with joint compliance when identified
             reg = select_representative(T_meas, n_register, seed, position_only=pos_only)
             B, E = fit_frames(T_mod[reg], T_meas[reg], position_only=pos_only)
             rest = np.setdiff1d(np.arange(len(hold)), reg)

@@ -24,6 +24,7 @@ def fit_cmd(
     max_minutes: Optional[float] = typer.Option(None, "--max-minutes", help="Time budget for network training."),
     thermal: str = typer.Option("auto", "--thermal", help="Thermal expansion from a temperature_c column: auto, on, off."),
     min_steps: Optional[int] = typer.Option(None, "--min-steps", help="Least number of optimiser steps per network (default recipe: 30000)."),
+    region_cv: bool = typer.Option(False, "--region-cv", help="Choose the calibration's parameter set by region-blocked validation."),
     fade_cv: int = typer.Option(0, "--fade-cv", help="Measure the fade by leave-one-region-out over this many regions (>= 2; 0 = fixed fade)."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
@@ -55,6 +56,8 @@ def fit_cmd(
         raise CLIError(f"--thermal must be auto, on or off, got {thermal!r}")
     if fade_cv == 1 or fade_cv < 0:
         raise CLIError(f"--fade-cv must be 0 (off) or >= 2 regions, got {fade_cv}")
+    if region_cv:
+        kw["calibrate_kw"] = {"select": "region-cv"}
     model = HybridModel(rob, arch=arch, recipe=recipe, calibrate=calibrate, device=device, seed=seed,
                         thermal=modes[thermal], fade_cv=fade_cv, **kw)
     model.fit(tr, va, progress=True)
@@ -63,6 +66,8 @@ def fit_cmd(
         typer.echo(f"thermal expansion: {model.thermal_.note} (reference {model.thermal_.reference_c:.2f} °C)")
     if model.fade_calibration_ is not None:
         typer.echo(model.fade_calibration_.summary())
+    if model.calibration_cv_ is not None:
+        typer.echo(model.calibration_cv_.table())
     _print_metrics(model)
     typer.echo(f"model written to {out}")
 
