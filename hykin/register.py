@@ -222,6 +222,8 @@ _SCALE = {"frame_m": 1e-3, "frame_rad": 1e-3, "offset": 1e-3, "scale": 1e-3}
 _RANK_TOL = 0.05  # |R_kk| / ||column|| below this: redundant with the parameters before it
 _MIN_PRESS_GAIN = 0.03  # a parameter is kept only if it lowers the leave-one-pose-out error by >= 3 %
 _MIN_T = 3.0  # ... and its estimate is at least 3 standard deviations from zero
+MAX_THERMAL_SCALE = 2e-3  # |length scale| a thermal state can explain (aluminium, 23e-6 /K, over ~90 K)
+MAX_ZERO_RAD = np.radians(2.0)  # a joint zero that moved more than this is not a drift
 
 
 @dataclass
@@ -471,6 +473,7 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         sol = least_squares(lambda v: prob.resid(v).ravel(), np.concatenate([x0, np.zeros(len(extra))]),
                             jac=lambda v: prob.jac(v).reshape(-1, len(v)), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
         x = sol.x
+        _check_extra_plausible(series, extra, x[12:])
         new.robot_ = _robot_with(new.robot_, extra, x[12:])
         T_model = new.predict(series.q, temperature_c=temp)
         B = _pose6(x[:6])
@@ -517,6 +520,21 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
     )
     _check_plausible(model, info, series, max_residual_ratio)
     return new, info
+
+
+def _check_extra_plausible(series: Dataset, names: list[str], values: np.ndarray) -> None:
+    """Refuse joint zeros or a length scale no thermal state or zero drift can explain: a unit slip
+    (a scale of 1000) or joints in another convention would otherwise be absorbed by them."""
+    src = getattr(series, "source", "series")
+    for nm, v in zip(names, values):
+        if nm == "thermal.scale" and abs(v) > MAX_THERMAL_SCALE:
+            raise RegistrationError(
+                f"{src}: the series is {1 + v:.6g} times the model's size (a thermal state explains at most "
+                f"{MAX_THERMAL_SCALE * 1e6:g} ppm): length unit slip or another robot?")
+        if nm.endswith(".zero") and abs(v) > MAX_ZERO_RAD:
+            raise RegistrationError(
+                f"{src}: joint {nm[1:].split('.')[0]} zero would move by {np.degrees(v):.3f} deg (more than "
+                f"{np.degrees(MAX_ZERO_RAD):g} deg): joints in another convention, angle unit slip or another robot?")
 
 
 def _check_plausible(model, info: RegistrationInfo, series: Dataset, ratio: float) -> None:
