@@ -56,7 +56,7 @@ def _day2(robot, n=200, noise_mm=0.005, noise_deg=0.0005, seed=1, drift_deg=DRIF
 def test_register_recovers_joint_zero_drift(exact_model):
     ds = _day2(exact_model.robot)
     before = copy.deepcopy(exact_model.robot_), exact_model.frame_pre.copy()
-    new, info = register_model(exact_model, ds, n_poses=30)
+    _, info = register_model(exact_model, ds, n_poses=30)
     # the input model is untouched (scikit-learn contract: a new model is returned)
     np.testing.assert_array_equal(exact_model.robot_.theta_rad, before[0].theta_rad)
     np.testing.assert_array_equal(exact_model.frame_pre, before[1])
@@ -72,7 +72,7 @@ def test_register_recovers_joint_zero_drift(exact_model):
         p = fitted[f"q{j}.zero"]
         assert p.unit == "deg" and abs(p.value - DRIFT_DEG[j - 1]) < 4 * p.std + 1e-4, info.report()
     assert info.rest_pos_mean_mm < 0.02 and info.rest_ang_mean_deg < 0.002
-    frames, finfo = register_model(exact_model, ds, n_poses=30, refit="frames", max_residual_ratio=1e9)
+    _, finfo = register_model(exact_model, ds, n_poses=30, refit="frames", max_residual_ratio=1e9)
     assert finfo.rest_pos_mean_mm > 3 * info.rest_pos_mean_mm
     assert "joint zeros / thermal state re-fitted: q" in info.report()
 
