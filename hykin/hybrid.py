@@ -51,7 +51,9 @@ wrapped angles, and ``q1`` left out with ``joint1="frame"`` (it is not an input 
   ``fade="range"``: per-joint ranges only; ``fade="full"``: :meth:`support_distance` (adds the
   joint nearest-neighbour gap; 3-4x slower; :func:`hykin.register.register_model` sets it for a
   new measurement series, which samples the joint box differently from the training data);
-  ``fade=False`` never fades.
+  ``fade=False`` never fades. ``fade_cv=K`` (K >= 2) measures where the networks stop helping by
+  leave-one-region-out at the end of ``fit`` and sets ``fade_offset`` (full correction up to that
+  distance) and ``fade_width`` from it (:mod:`hykin.fade`).
 
 Uncertainty (:meth:`HybridModel.predict_uncertainty`): radii of the ``level`` band (e.g. 95 %) of the
 position (mm) and orientation (deg) error per query, split-conformal: empirical quantiles of the
