@@ -139,6 +139,14 @@ def read_toml_dh(path: Path):
 # --------------------------------------------------------------------------- UR10 A -> B
 
 
+def rcv_kwargs(robot, name):
+    """calibrate() keyword arguments of region_cv candidate ``name``."""
+    from hykin.region_cv import CANDIDATES, candidate_kwargs
+
+    return candidate_kwargs(robot, CANDIDATES[name])
+
+
+
 def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path) -> None:
     from hykin.importers import import_ipa_series, ipa_nominal_robot
     from hykin.robot import save_robot_toml
@@ -198,6 +206,24 @@ def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path)
     print("|---|---|---|---|---|")
     for nm, (p, a) in rows.items():
         print(f"| {nm} | {p.mean():.4f} | {np.percentile(p, 95):.4f} | {a.mean():.4f} | {p.mean() / peer:.3f} |")
+    # calibration parameter sets: region-blocked validation on A vs what transfers to B
+    from hykin.calibrate import calibrate
+    from hykin.hybrid import classical_fk
+    from hykin.region_cv import CANDIDATES, select_calibration
+    from hykin.register import fit_frames
+
+    t0 = time.perf_counter()
+    rcv = select_calibration(rob, tr, n_blocks=4)
+    print(f"\n{rcv.table()}\n({time.perf_counter() - t0:.0f} s)\n")
+    print("| calibration parameter set (on A) | region-CV on A: pos mm / ang deg | B rest, base + tool from the 30 poses: pos mm / ang deg |")
+    print("|---|---|---|")
+    for name in CANDIDATES:
+        res = calibrate(rob, tr, **rcv_kwargs(rob, name))
+        T = classical_fk(res.robot, B.q)
+        Bf, Ef = fit_frames(T[idx], B.poses()[idx])
+        p, a = errors(Bf @ T[rest] @ Ef, PB[rest], RB[rest])
+        print(f"| {name}{' (chosen)' if name == rcv.best else ''} | {np.mean(rcv.pos_mm[name]):.4f} / {np.mean(rcv.ang_deg[name]):.4f} | "
+              f"{p.mean():.4f} / {a.mean():.4f} |")
 
 
 # --------------------------------------------------------------------------- two days of a virtual robot

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["CANDIDATES", "RegionCVResult", "joint_blocks", "select_calibration"]
+__all__ = ["CANDIDATES", "RegionCVResult", "candidate_kwargs", "joint_blocks", "select_calibration"]
 
 #: candidate parameter sets (``hykin.calibrate.calibrate`` keyword arguments), richest first
 CANDIDATES: dict[str, dict] = {
@@ -28,7 +28,7 @@ CANDIDATES: dict[str, dict] = {
 }
 
 
-def _kwargs(robot, kw: dict) -> dict:
+def candidate_kwargs(robot, kw: dict) -> dict:
     """Candidate -> calibrate() keyword arguments (``exclude``: fnmatch pattern of names left out)."""
     import fnmatch
 
@@ -100,7 +100,7 @@ def select_calibration(robot, ds, candidates: dict[str, dict] | None = None, n_b
                 continue
             fit_rows = np.flatnonzero(lab != k)
             fit_rows = fit_rows[np.linspace(0, len(fit_rows) - 1, min(max_rows, len(fit_rows))).astype(int)]
-            res = calibrate(robot, ds.subset(fit_rows), **(base_kw | _kwargs(robot, kw)))
+            res = calibrate(robot, ds.subset(fit_rows), **(base_kw | candidate_kwargs(robot, kw)))
             T_meas = ds.poses()[hold]
             T_mod = classical_fk(res.robot, ds.q[hold])  # with joint compliance when identified
             reg = select_representative(T_meas, n_register, seed, position_only=pos_only)
@@ -115,4 +115,4 @@ def select_calibration(robot, ds, candidates: dict[str, dict] | None = None, n_b
             ang[name] = []
     best_score = min(scores.values())
     best = next(n for n in reversed(list(cands)) if scores[n] <= best_score * (1.0 + tie_tol))
-    return RegionCVResult(best=best, kwargs=_kwargs(robot, cands[best]), scores=scores, pos_mm=pos, ang_deg=ang)
+    return RegionCVResult(best=best, kwargs=candidate_kwargs(robot, cands[best]), scores=scores, pos_mm=pos, ang_deg=ang)
