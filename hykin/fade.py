@@ -18,6 +18,15 @@ measures where they stop helping instead:
 Far outside every region ``w`` still reaches 0 (the calibrated model), so the hybrid is never
 extrapolating without bound; the grid includes the default fade, so the chosen one is never worse
 on the held-out regions than the default. Cost: ``n_blocks`` extra trainings of ``min_steps`` steps.
+
+Measured (benchmarks/bench_transfer.py, own virtual robot trained on a Cartesian region and tested
+on the band beside it, same joint ranges, default recipe, 1,200 training poses): the held-out
+optimal weight falls from 0.65 at the data to 0.28 beyond 0.07 of the joint range; the fade chosen is
+the default one (offset 0, width 0.1); the hybrid is at or below the calibrated model in every test
+quartile (position and orientation) and keeps 101-117 % of the unfaded networks' position gain.
+With 4,800 training poses and 5,000 steps it chose width 0.2 (held-out RMS 0.246 vs 0.254 mm
+default) and kept 100-102 % of the gain. Not reproduced: a case where the default fade gives back a
+large share of the gain; the orientation is faded with the position's weight.
 """
 
 from __future__ import annotations
