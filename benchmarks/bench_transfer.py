@@ -16,6 +16,7 @@
   registered from 30 poses; its error on the rest of day 2 vs day 1's own held-out error.
 
 Usage: python benchmarks/bench_transfer.py [--data ../shared/data] [--model ur10.hykin] [--skip ur10 days beside] [--device cuda]
+       [--beside-n 2000]
        [--min-steps N]
 Prints markdown tables.
 """
@@ -362,6 +363,7 @@ def main() -> None:
     ap.add_argument("--min-steps", type=int, default=None)
     ap.add_argument("--skip", nargs="*", default=[], choices=["ur10", "days", "beside"])
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--beside-n", type=int, default=8000, help="joint samples of the beside-region case (60 %% train)")
     ap.add_argument("--work", default="/tmp")
     args = ap.parse_args()
     warnings.simplefilter("ignore", OutOfRangeWarning)
@@ -370,7 +372,7 @@ def main() -> None:
     if "days" not in args.skip:
         days(args.min_steps, device=args.device)
     if "beside" not in args.skip:
-        beside(args.min_steps, args.device)
+        beside(args.min_steps, args.device, n=args.beside_n)
 
 
 if __name__ == "__main__":
