@@ -51,7 +51,9 @@ wrapped angles, and ``q1`` left out with ``joint1="frame"`` (it is not an input 
   ``fade="range"``: per-joint ranges only; ``fade="full"``: :meth:`support_distance` (adds the
   joint nearest-neighbour gap; 3-4x slower; :func:`hykin.register.register_model` sets it for a
   new measurement series, which samples the joint box differently from the training data);
-  ``fade=False`` never fades.
+  ``fade=False`` never fades. ``fade_cv=K`` (K >= 2) measures where the networks stop helping by
+  leave-one-region-out at the end of ``fit`` and sets ``fade_offset`` (full correction up to that
+  distance) and ``fade_width`` from it (:mod:`hykin.fade`).
 
 Payload (:mod:`hykin.payload`). Training data may carry a ``payload_kg`` column (and
 ``payload_com_x/y/z``, tool frame): the calibration deflects every row under its own payload (joint
@@ -321,10 +323,13 @@ class HybridModel:
 
     robot: nominal robot (Robot, preset name or file). arch: network name (:mod:`hykin.nets`).
     recipe: training recipe name or :class:`hykin.train.Recipe` (:mod:`hykin.train`).
-    calibrate: run :func:`hykin.calibrate.calibrate` first (``calibrate_kw`` passed on).
+    calibrate: run :func:`hykin.calibrate.calibrate` first (``calibrate_kw`` passed on; with
+    ``{"select": "region-cv"}`` the parameter set is chosen by region-blocked validation,
+    :func:`hykin.region_cv.select_calibration`, result in ``calibration_cv_``).
     normalise: ``"data"`` (min-max over the training joints) or ``"full"`` (joint limits).
     fade: True (= "support": joint ranges and pairwise holes), "range", "full" or False (module
-    docstring); fade_width in units of the range.
+    docstring); fade_width in units of the range. fade_cv: number of regions (>= 2) for a fade measured
+    by leave-one-region-out at the end of fit (:mod:`hykin.fade`; sets fade_offset and fade_width; 0 = off).
     periodic: "wrap" (revolute joints on the circle) or "none"; joint1: "input" or "frame";
     input_joints: 1-based joints the networks see (default all; module docstring, "Input representation").
     device: "cpu" or "cuda". seed: training seed. max_seconds: training time budget per network.
@@ -343,7 +348,7 @@ class HybridModel:
                  fade_width: float = 0.1, device: str = "cpu", seed: int = 0, max_seconds: float | None = None,
                  val_fraction: float | None = None, recipe_kw: dict | None = None, periodic: str = "wrap",
                  joint1: str = "input", input_joints=None, thermal: bool | str = "auto",
-                 payload_input: bool | str = "auto"):
+                 payload_input: bool | str = "auto", fade_cv: int = 0):
         self.robot = load_robot(robot)
         self.arch = arch
         self.recipe = get_recipe(recipe, **(recipe_kw or {}))
@@ -358,6 +363,11 @@ class HybridModel:
         if not (fade_width > 0):
             raise HybridError(f"fade_width must be > 0, got {fade_width}")
         self.fade_width = float(fade_width)
+        # Support distance up to which the correction is fully applied (0: fade starts at the data);
+        # set with fade_width by hykin.fade.calibrate_fade when fade_cv >= 2 (leave-one-region-out).
+        self.fade_offset = 0.0
+        self.fade_cv = int(fade_cv)
+        self.fade_calibration_ = None
         if periodic not in ("wrap", "none"):
             raise HybridError(f"periodic must be 'wrap' or 'none', got {periodic!r}")
         if joint1 not in ("input", "frame"):
@@ -386,6 +396,7 @@ class HybridModel:
         self.net_rot_: ResidualNet | None = None
         self.meta_: dict = {}
         self.calibration_ = None  # CalibrationResult of the last fit (not saved; its summary is in meta_)
+        self.calibration_cv_ = None  # hykin.region_cv.RegionCVResult when calibrate_kw selects by region CV
         # Rigid frames around the model, set by hykin.register for a new measurement series:
         # pose = frame_pre · T_model(q) · frame_post (identity for the series the model was trained on).
         self.frame_pre = np.eye(4)
@@ -612,6 +623,7 @@ class HybridModel:
                 "history": v.history[-50:]} for k, v in results.items()},
             "params": {k: count_parameters(getattr(self, f"net_{k}_")) for k in results},
             "calibration": calib,
+            "calibration_cv": None if self.calibration_cv_ is None else _json_safe(self.calibration_cv_.to_dict()),
             "metrics": {},
             "inputs": {"periodic": self.periodic, "joint1": self.joint1},
             "thermal": None if self.thermal_ is None else self.thermal_.to_dict(),
@@ -625,6 +637,12 @@ class HybridModel:
             raw = val_in.subset(cal_rows) if cal_rows is not None else val_in
         if self.thermal_ is not None and self.thermal_.coefficient_per_k != 0.0:
             self._fit_uncertainty_without_temperature(raw)
+        if self.fade_cv >= 2 and self.fade is not False:  # hykin.fade: fade measured by leave-one-region-out
+            from .fade import calibrate_fade
+
+            self.fade_calibration_ = calibrate_fade(self, train, n_blocks=self.fade_cv, seed=self.seed)
+            self.fade_offset, self.fade_width = self.fade_calibration_.offset, self.fade_calibration_.width
+            self.meta_["fade_calibration"] = _json_safe(self.fade_calibration_.to_dict())
         self.meta_["metrics"]["train"] = self._metrics(train_in, progress_warn=False)
         if val_in is not None:
             self.meta_["metrics"]["val"] = self._metrics(val_in, progress_warn=False)
@@ -638,7 +656,13 @@ class HybridModel:
         if self.calibrate:
             from .calibrate import calibrate as _calibrate
 
-            res = _calibrate(self.robot, ds, **self.calibrate_kw)
+            kw = dict(self.calibrate_kw)
+            if kw.pop("select", None) == "region-cv":  # parameter set by region-blocked validation (hykin.region_cv)
+                from .region_cv import select_calibration
+
+                self.calibration_cv_ = select_calibration(self.robot, ds, base_kw=kw)
+                kw.update(self.calibration_cv_.kwargs)
+            res = _calibrate(self.robot, ds, **kw)
             self.robot_, self.calibration_ = res.robot, res
         else:
             self.robot_, self.calibration_ = self.robot.copy(), None
@@ -812,7 +836,7 @@ class HybridModel:
         q2, single = self._q(q)
         # support-based whatever the fade mode: without fade, an extrapolating network has no
         # validated band, and the calibrated model's is the best stated guess there
-        w = _fade_np(self.support_distance(q2), self.fade_width)
+        w = _fade_np(self.support_distance(q2) - self.fade_offset, self.fade_width)
         # the calibrated model extrapolates too: beyond a joint's trained range its band steps up and
         # grows with the excess (in units of that range) as measured in fit (hykin.uncertainty)
         ex = self.range_excess(q2)
@@ -974,7 +998,7 @@ class HybridModel:
         q2, _ = self._q(q)
         if self.fade is False:
             return np.ones(len(q2))
-        return _fade_np(self._fade_distance(q2), self.fade_width)
+        return _fade_np(self._fade_distance(q2) - self.fade_offset, self.fade_width)
 
     def _fade_distance(self, q2: np.ndarray, ex: np.ndarray | None = None) -> np.ndarray:
         ex = self.range_excess(q2) if ex is None else ex
@@ -1048,7 +1072,7 @@ class HybridModel:
             w = None
         else:
             d = exm if self.fade == "range" else (self.support_distance(q2) if self.fade == "full" else np.maximum(exm, gap))
-            w = _fade_np(d, self.fade_width)
+            w = _fade_np(d - self.fade_offset, self.fade_width)
             if np.all(w == 1.0):
                 w = None
         qin = self._net_in(qn, payload_kg)
@@ -1091,7 +1115,7 @@ class HybridModel:
                 dist = torch.maximum(dist, self.pair_gap(q))
             if self.fade == "full":
                 dist = torch.maximum(dist, self._nn_gap_torch((qn - lo) / span))
-            t = torch.clamp(dist / self.fade_width, 0.0, 1.0)
+            t = torch.clamp((dist - self.fade_offset) / self.fade_width, 0.0, 1.0)
             w = (0.5 * (1 + torch.cos(math.pi * t)))[:, None]
         dp = self._from_net_frame(q, self.net_pos_(qd).to(device=q.device, dtype=torch.float64))
         if w is not None:
@@ -1120,7 +1144,7 @@ class HybridModel:
                 "fade_width": self.fade_width, "device": self.device, "seed": self.seed,
                 "max_seconds": self.max_seconds, "val_fraction": self.val_fraction, "periodic": self.periodic,
                 "joint1": self.joint1, "input_joints": list(self.input_joints), "thermal": self.thermal,
-                "payload_input": self.payload_input}
+                "payload_input": self.payload_input, "fade_offset": self.fade_offset, "fade_cv": self.fade_cv}
 
     def save(self, path: str | Path) -> None:
         """Write the model to ONE safetensors file (no pickle); see :mod:`hykin.modelfile`."""
@@ -1193,6 +1217,8 @@ class HybridModel:
             unc = meta.get("uncertainty")
             if unc is not None:
                 m.unc_ = {k: (np.array(v, dtype=np.float64) if isinstance(v, list) else v) for k, v in unc.items()}
+            m.fade_offset = float(cfg.get("fade_offset", 0.0))
+            m.fade_cv = int(cfg.get("fade_cv", 0))
             th = meta.get("thermal")
             if th is not None:
                 m.thermal_ = ThermalFit(float(th["coefficient_per_k"]), float(th["std_per_k"]), float(th["reference_c"]),

@@ -58,6 +58,8 @@ def fit_cmd(
     max_epochs: Optional[int] = typer.Option(None, "--max-epochs", help="Most training epochs per network (default: the recipe's)."),
     orientation_weight: str = OrientationWeight,
     max_deviation: Optional[str] = MaxDeviation,
+    region_cv: bool = typer.Option(False, "--region-cv", help="Choose the calibration's parameter set by region-blocked validation."),
+    fade_cv: int = typer.Option(0, "--fade-cv", help="Measure the fade by leave-one-region-out over this many regions (>= 2; 0 = fixed fade)."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     force: bool = Force,
@@ -99,12 +101,20 @@ def fit_cmd(
         import torch
 
         device = "cuda" if torch.cuda.is_available() else "cpu"
+    if fade_cv == 1 or fade_cv < 0:
+        raise CLIError(f"--fade-cv must be 0 (off) or >= 2 regions, got {fade_cv}")
+    if region_cv:
+        cal_kw["select"] = "region-cv"
     model = HybridModel(rob, arch=arch, recipe=recipe, calibrate=calibrate, device=device, seed=seed,
-                        thermal=modes[thermal], calibrate_kw=cal_kw, **kw)
+                        thermal=modes[thermal], calibrate_kw=cal_kw, fade_cv=fade_cv, **kw)
     model.fit(tr, va, progress=True)
     model.save(out)
     if model.thermal_ is not None:
         typer.echo(f"thermal expansion: {model.thermal_.note} (reference {model.thermal_.reference_c:.2f} °C)")
+    if model.fade_calibration_ is not None:
+        typer.echo(model.fade_calibration_.summary())
+    if model.calibration_cv_ is not None:
+        typer.echo(model.calibration_cv_.table())
     _print_metrics(model)
     typer.echo(f"model written to {out}")
 
@@ -188,20 +198,23 @@ def register_cmd(
     series: Path = typer.Argument(..., help="New measurement series (.csv/.parquet)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output model file with re-fitted base and tool."),
     poses: int = typer.Option(30, "--poses", help="Number of poses of the series used to register (spread over it)."),
+    frames_only: bool = typer.Option(False, "--frames-only", help="Re-fit base and tool only (no joint zeros / thermal state)."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     force: bool = Force,
 ) -> None:
-    """Re-fit base and tool frames for a new series (tracker moved, tool changed); keep the learned errors."""
+    """Re-fit base and tool frames for a new series (tracker moved, tool changed) and, where the poses
+    identify them and they are significant, joint zero offsets and a thermal state; keep the learned errors.
+    Refuses (exit 2, one line) when the residual shows the series does not fit the model."""
     from ..dataset import read_dataset
     from ..register import register_model
 
     check_output(out, (model, series), force)
     mdl = load_model(model)
     ds = read_dataset(series, length_unit=length_unit, angle_unit=angle_unit, robot=mdl.robot)
-    new, info = register_model(mdl, ds, n_poses=poses)
+    new, info = register_model(mdl, ds, n_poses=poses, refit="frames" if frames_only else "auto")
     new.save(out)
-    typer.echo(info.summary())
+    typer.echo(info.report())
     typer.echo(f"registered model written to {out}")
 
 

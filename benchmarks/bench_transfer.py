@@ -1,0 +1,379 @@
+"""Transfer benchmark (issue 13): does accuracy carry over to a new day, set-up and region?
+
+* ``ur10``: UR10 series A -> series B (tracker moved, months later). A hykin model fitted on A
+  (``--model``, e.g. ``hykin fit ur10.toml ur10_A_train.csv -o ur10.hykin``) is registered to B from
+  30 of B's poses (``hykin.register.register_model``: frames, plus joint zeros / thermal state where
+  identifiable and significant), evaluated on the other 1,465. Peer, measured in the same run: a
+  plain geometric calibration of the same A rows written here independently of hykin (own numpy
+  DH FK, scipy least_squares over the 24 DH deviations + base + tool), registered to B on the SAME
+  30 poses the same way (base + tool; and base + tool + the joint zeros hykin chose).
+* ``beside``: the same virtual robot trained on a Cartesian region (y above a cut, full joint ranges)
+  and tested on the band beside it: calibrated vs unfaded networks vs the default fade vs the fade
+  measured by leave-one-region-out (``HybridModel(fade_cv=4)``, :mod:`hykin.fade`), per region.
+* ``days``: a virtual robot of this benchmark's own (scaled RX160 geometry, own seed, transmission
+  errors, thermal drift, noise) measured on two days: day 2 has the tracker moved, the tool
+  re-mounted (0.5 mm / 0.05 deg) and the joint zeros drifted (0.01 deg). Day-1 model; day 2
+  registered from 30 poses; its error on the rest of day 2 vs day 1's own held-out error.
+
+Usage: python benchmarks/bench_transfer.py [--data ../shared/data] [--model ur10.hykin] [--skip ur10 days beside] [--device cuda]
+       [--beside-n 2000]
+       [--min-steps N]
+Prints markdown tables.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import tomllib
+import warnings
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from hykin import se3  # noqa: E402
+from hykin.dataset import split  # noqa: E402
+from hykin.thermal import temperature_of  # noqa: E402
+from hykin.hybrid import HybridModel, OutOfRangeWarning  # noqa: E402
+from hykin.register import register_model  # noqa: E402
+
+
+# --------------------------------------------------------------------------- plain reference (independent of hykin)
+
+
+def ref_fk(dh: np.ndarray, q: np.ndarray, base: np.ndarray, tool: np.ndarray) -> np.ndarray:
+    """Standard DH FK written here (numpy): dh ``(n, 4)`` rows (a, alpha, d, theta), q ``(N, n)``."""
+    N = len(q)
+    T = np.broadcast_to(base, (N, 4, 4)).copy()
+    for i, (a, al, d, th) in enumerate(dh):
+        t = q[:, i] + th
+        ct, st, ca, sa = np.cos(t), np.sin(t), np.cos(al), np.sin(al)
+        A = np.zeros((N, 4, 4))
+        A[:, 0, 0], A[:, 0, 1], A[:, 0, 2], A[:, 0, 3] = ct, -st * ca, st * sa, a * ct
+        A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 1, 3] = st, ct * ca, -ct * sa, a * st
+        A[:, 2, 1], A[:, 2, 2], A[:, 2, 3] = sa, ca, d
+        A[:, 3, 3] = 1.0
+        T = T @ A
+    return T @ tool
+
+
+def twist(x: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
+    T[:3, 3] = x[3:6]
+    return T
+
+
+def ref_resid(T: np.ndarray, P: np.ndarray, R: np.ndarray) -> np.ndarray:
+    rp = T[:, :3, 3] - P
+    ro = Rotation.from_matrix(np.einsum("nij,nkj->nik", T[:, :3, :3], R)).as_rotvec()
+    return np.concatenate([rp, ro], 1).ravel()  # 1 m per rad, as hykin's registration
+
+
+def ref_calibrate(dh0, tool0, q, P, R):
+    """Plain geometric calibration: DH deviations (a, alpha, d, theta) + base + tool twists, with the
+    parameters a full base / tool frame explains left out (d1, theta1; all of joint n's) and, for
+    consecutive parallel axes (alpha = 0), the d of all but the last of them (only their sum acts)."""
+    n = len(dh0)
+    free = np.ones((n, 4), bool)
+    free[0, 2] = free[0, 3] = False  # d1, theta1: redundant with the base frame
+    free[n - 1, :] = False  # a, alpha, d, theta of the last joint: redundant with the tool frame
+    for i in range(1, n - 1):
+        if abs(np.sin(dh0[i, 1])) < 1e-6:  # axis i+1 parallel to axis i: d_i and d_(i+1) act along one axis
+            free[i, 2] = False
+    k = int(free.sum())
+
+    def unpack(x):
+        dh = dh0.copy()
+        dh[free] += x[:k]
+        return dh, twist(x[k:k + 6]), tool0 @ twist(x[k + 6:k + 12])
+
+    sol = least_squares(lambda x: ref_resid(ref_fk(*unpack(x)[:1], q, *unpack(x)[1:]), P, R), np.zeros(k + 12),
+                        method="lm")
+    return unpack(sol.x)
+
+
+def ref_register(dh, base, tool, q, P, R, zero_joints=()):
+    """Re-fit base + tool (and the joint zeros ``zero_joints``, 0-based) on new poses."""
+    z = list(zero_joints)
+
+    def unpack(x):
+        d = dh.copy()
+        d[z, 3] += x[12:]
+        return d, twist(x[:6]) @ base, tool @ twist(x[6:12])
+
+    x0 = np.zeros(12 + len(z))
+    # coarse start for a moved tracker: Kabsch on positions
+    Tm = ref_fk(dh, q, base, tool)
+    a, b = Tm[:, :3, 3], P
+    H = (a - a.mean(0)).T @ (b - b.mean(0))
+    U, _, Vt = np.linalg.svd(H)
+    D = np.diag([1, 1, np.sign(np.linalg.det(Vt.T @ U.T))])
+    Rb = Vt.T @ D @ U.T
+    x0[:3] = Rotation.from_matrix(Rb).as_rotvec()
+    x0[3:6] = b.mean(0) - Rb @ a.mean(0)
+    sol = least_squares(lambda x: ref_resid(ref_fk(*unpack(x)[:1], q, *unpack(x)[1:]), P, R), x0, method="lm")
+    return unpack(sol.x)
+
+
+def errors(T, P, R):
+    p = np.linalg.norm(T[:, :3, 3] - P, axis=1) * 1e3
+    a = np.degrees(np.linalg.norm(Rotation.from_matrix(np.einsum("nij,nkj->nik", T[:, :3, :3], R)).as_rotvec(), axis=1))
+    return p, a
+
+
+def read_toml_dh(path: Path):
+    d = tomllib.loads(path.read_text())
+    dh = np.array([[j["a"], np.radians(j["alpha"]), j["d"], np.radians(j["theta"])] for j in d["joints"]])
+    t = d.get("tool", {})
+    tool = np.eye(4)
+    tool[:3, :3] = Rotation.from_euler("xyz", np.radians(t.get("rpy", [0, 0, 0]))).as_matrix()
+    tool[:3, 3] = t.get("xyz", [0, 0, 0])
+    return dh, tool
+
+
+# --------------------------------------------------------------------------- UR10 A -> B
+
+
+def rcv_kwargs(robot, name):
+    """calibrate() keyword arguments of region_cv candidate ``name``."""
+    from hykin.region_cv import CANDIDATES, candidate_kwargs
+
+    return candidate_kwargs(robot, CANDIDATES[name])
+
+
+
+def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path) -> None:
+    from hykin.importers import import_ipa_series, ipa_nominal_robot
+    from hykin.robot import save_robot_toml
+
+    d = root / "ipa-robot-accuracy"
+    if not (d / "Series_B").is_dir():
+        print(f"(UR10 data not found under {d}: skipped)")
+        return
+    rob = ipa_nominal_robot()
+    A = import_ipa_series(d / "Series_A", register_to=rob)
+    tr, _ = split(A, (0.8, 0.2), seed=0)  # = hykin split ur10_A.csv --test 0.2 (the README's training rows)
+    if model_path is not None and model_path.exists():
+        m = HybridModel.load(model_path)
+        print(f"model: {model_path} (loaded)")
+    else:
+        t0 = time.perf_counter()
+        kw = {} if min_steps is None else {"recipe_kw": {"min_steps": min_steps}}
+        m = HybridModel(rob, seed=0, **kw).fit(tr, progress=False)
+        print(f"model: fitted on {len(tr)} rows of A in {time.perf_counter() - t0:.0f} s (min_steps {min_steps or 'default'})")
+        if model_path is not None:
+            m.save(model_path)
+    B = import_ipa_series(d / "Series_B")
+    PB, RB = B.xyz_m, B.poses()[:, :3, :3]
+    m2, info = register_model(m, B, n_poses=30)
+    idx = info.used_index
+    rest = np.setdiff1d(np.arange(len(B)), idx)
+    m2f, _ = register_model(m, B, n_poses=30, refit="frames")
+    m2all, info_all = register_model(m, B, n_poses=len(B))  # floor: every pose of B registers (and is evaluated)
+    print("\n### UR10: model from series A, series B registered from 30 poses, error on the other "
+          f"{len(rest)}\n")
+    print(info.report())
+    rows = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        for nm, mm in (("hykin hybrid, frames + chosen parameters", m2), ("hykin hybrid, frames only", m2f)):
+            rows[nm] = errors(mm.predict(B.q[rest]), PB[rest], RB[rest])
+        rows["hykin calibrated, frames + chosen parameters"] = errors(m2.predict_classical(B.q[rest]), PB[rest], RB[rest])
+        pa, aa = errors(m2all.predict(B.q), PB, RB)
+    print(f"\nfloor, registered from all {len(B)} poses (auto: {[p.name for p in info_all.parameters[12:]]}): "
+          f"{pa.mean():.4f} mm / {aa.mean():.4f} deg on all of B")
+    # plain reference calibration of the same A rows (A's model frame = the nominal robot's base)
+    tom = work / "ur10_nominal.toml"
+    save_robot_toml(rob, tom)
+    dh0, tool0 = read_toml_dh(tom)
+    t0 = time.perf_counter()
+    dh, base, tool = ref_calibrate(dh0, tool0, tr.q, tr.xyz_m, tr.poses()[:, :3, :3])
+    ts = time.perf_counter() - t0
+    zj = [int(p.name[1:].split(".")[0]) - 1 for p in info.parameters if p.name.endswith(".zero")]
+    zj = zj or list(range(1, len(dh0) - 1))  # hykin chose none: give the peer the zeros of joints 2..n-1 anyway
+    for nm, zz in (("plain reference calibration, base + tool", ()),
+                   (f"plain reference calibration, base + tool + joint zeros {[j + 1 for j in zj]}", zj)):
+        dhr, br, tl = ref_register(dh, base, tool, B.q[idx], PB[idx], RB[idx], zz)
+        rows[nm] = errors(ref_fk(dhr, B.q[rest], br, tl), PB[rest], RB[rest])
+    peer = rows["plain reference calibration, base + tool"][0].mean()
+    print(f"\n(plain reference calibration fitted in {ts:.0f} s; timings inflated by a shared machine)\n")
+    print("| model (B, 30 poses used, rest evaluated) | pos mean mm | pos p95 mm | ang mean deg | vs plain ref (base + tool) |")
+    print("|---|---|---|---|---|")
+    for nm, (p, a) in rows.items():
+        print(f"| {nm} | {p.mean():.4f} | {np.percentile(p, 95):.4f} | {a.mean():.4f} | {p.mean() / peer:.3f} |")
+    # calibration parameter sets: region-blocked validation on A vs what transfers to B
+    from hykin.calibrate import calibrate
+    from hykin.hybrid import classical_fk
+    from hykin.region_cv import CANDIDATES, select_calibration
+    from hykin.register import fit_frames
+
+    t0 = time.perf_counter()
+    rcv = select_calibration(rob, tr, n_blocks=4)
+    print(f"\n{rcv.table()}\n({time.perf_counter() - t0:.0f} s)\n")
+    print("| calibration parameter set (on A) | region-CV on A: pos mm / ang deg | B rest, base + tool from the 30 poses: pos mm / ang deg |")
+    print("|---|---|---|")
+    for name in CANDIDATES:
+        res = calibrate(rob, tr, **rcv_kwargs(rob, name))
+        T = classical_fk(res.robot, B.q)
+        Bf, Ef = fit_frames(T[idx], B.poses()[idx])
+        p, a = errors(Bf @ T[rest] @ Ef, PB[rest], RB[rest])
+        print(f"| {name}{' (chosen)' if name == rcv.best else ''} | {np.mean(rcv.pos_mm[name]):.4f} / {np.mean(rcv.ang_deg[name]):.4f} | "
+              f"{p.mean():.4f} / {a.mean():.4f} |")
+
+
+# --------------------------------------------------------------------------- two days of a virtual robot
+
+
+def two_day_robot(seed: int = 11):
+    """Own virtual robot: rx160-nongeo's error model on an RX160 scaled to 0.8 of its lengths,
+    drawn with another seed, and its day-2 variant (tracker moved, tool re-mounted by 0.5 mm /
+    0.05 deg, joint zeros drifted by 0.01 deg). Returns ``(vr_day1, vr_day2, tracker2 (4, 4), drift_rad)``."""
+    import dataclasses
+
+    from hykin.simulate import virtual_preset
+
+    vr = virtual_preset("rx160-nongeo", seed=seed)
+
+    def scaled(r):
+        b, t = r.base.copy(), r.tool.copy()
+        b[:3, 3] *= 0.8
+        t[:3, 3] *= 0.8
+        return r.copy(a_m=r.a_m * 0.8, d_m=r.d_m * 0.8, base=b, tool=t, com_m=r.com_m * 0.8, name=r.name + "-0.8")
+
+    vr1 = dataclasses.replace(vr, nominal=scaled(vr.nominal), truth=scaled(vr.truth), name="two-day-robot")
+    rng = np.random.default_rng(seed + 100)
+    drift = np.radians(0.01) * rng.choice([-1.0, 1.0], vr1.truth.dof)
+    u = rng.normal(size=3)
+    v = rng.normal(size=3)
+    remount = se3.make_transform(se3.rotvec_to_matrix(np.radians(0.05) * v / np.linalg.norm(v)), 0.5e-3 * u / np.linalg.norm(u))
+    truth2 = vr1.truth.copy(theta_rad=vr1.truth.theta_rad + drift, tool=vr1.truth.tool @ remount)
+    vr2 = dataclasses.replace(vr1, truth=truth2)
+    tracker2 = se3.make_transform(se3.rotvec_to_matrix(np.array([0.2, -0.4, 1.1])), np.array([1.8, -0.6, 0.4]))
+    return vr1, vr2, tracker2, drift
+
+
+def day_series(vr, q, tracker, seed, start_index=0):
+    """Simulated series in the tracker frame ``tracker`` (4, 4)."""
+    from hykin.simulate import simulate
+
+    ds = simulate(vr, q, rng=seed, start_index=start_index)
+    T = tracker @ ds.poses()
+    import dataclasses
+
+    return dataclasses.replace(ds, xyz_m=T[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T[:, :3, :3]))
+
+
+def days(min_steps: int | None, n_train: int = 6000, device: str = "cpu") -> None:
+    from hykin.sampling import sample
+
+    vr1, vr2, tracker2, drift = two_day_robot()
+    q1 = sample("uniform", vr1.nominal, n_train, 0)
+    qt = sample("random", vr1.nominal, 1500, 1)
+    q2 = sample("random", vr1.nominal, 1500, 2)
+    d1 = day_series(vr1, q1, np.eye(4), 3)
+    t1 = day_series(vr1, qt, np.eye(4), 4, start_index=n_train)
+    d2 = day_series(vr2, q2, tracker2, 5, start_index=3000)
+    t0 = time.perf_counter()
+    kw = {} if min_steps is None else {"recipe_kw": {"min_steps": min_steps}}
+    m = HybridModel(vr1.nominal, seed=0, device=device, **kw).fit(d1, progress=False)
+    print(f"\n### Virtual two-day robot (fit on {n_train} day-1 poses in {time.perf_counter() - t0:.0f} s, "
+          f"min_steps {min_steps or 'default'})\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        p1, a1 = errors(m.predict(t1.q, temperature_c=temperature_of(t1)), t1.xyz_m, t1.poses()[:, :3, :3])
+        print(f"true joint-zero drift (deg): {np.round(np.degrees(drift), 4).tolist()}")
+        print("| case | pos mean mm | ang mean deg | pos ratio vs day 1 | ang ratio vs day 1 |")
+        print("|---|---|---|---|---|")
+        print(f"| day 1 held-out ({len(t1)}) | {p1.mean():.4f} | {a1.mean():.4f} | 1.000 | 1.000 |")
+        for refit in ("auto", "frames"):
+            m2, info = register_model(m, d2, n_poses=30, refit=refit)
+            rest = np.setdiff1d(np.arange(len(d2)), info.used_index)
+            p2, a2 = errors(m2.predict(d2.q[rest], temperature_c=temperature_of(d2)[rest]), d2.xyz_m[rest],
+                            d2.poses()[rest][:, :3, :3])
+            print(f"| day 2 registered from 30 ({refit}), rest {len(rest)} | {p2.mean():.4f} | {a2.mean():.4f} | "
+                  f"{p2.mean() / p1.mean():.3f} | {a2.mean() / a1.mean():.3f} |")
+            if refit == "auto":
+                print("\n" + info.report() + "\n")
+
+
+# --------------------------------------------------------------------------- beside the training region
+
+
+def beside(min_steps: int | None, device: str, n: int = 8000, n_blocks: int = 4) -> None:
+    """Own virtual robot (the two-day robot of :func:`two_day_robot`, day 1), joints uniform over the
+    full ranges; trained where the TCP has y > y_cut, tested on the adjacent band below it (same joint
+    ranges, another Cartesian region). Per test region (quartiles of y): calibrated, unfaded
+    networks, default fade, fade measured by leave-one-region-out (``fade_cv``)."""
+    import copy
+
+    from hykin.sampling import sample
+
+    vr1, _, _, _ = two_day_robot()
+    q = sample("uniform", vr1.nominal, n, 7)
+    ds = day_series(vr1, q, np.eye(4), 8)
+    y = ds.xyz_m[:, 1]
+    y_cut = float(np.quantile(y, 0.4))
+    band = float(np.quantile(y, 0.1))
+    tr, te = ds.subset(y > y_cut), ds.subset((y <= y_cut) & (y > band))
+    kw = {} if min_steps is None else {"recipe_kw": {"min_steps": min_steps}}
+    t0 = time.perf_counter()
+    m = HybridModel(vr1.nominal, seed=0, device=device, fade_cv=n_blocks, **kw).fit(tr, progress=False)
+    fs = time.perf_counter() - t0
+    md = copy.deepcopy(m)
+    md.fade_offset, md.fade_width = 0.0, 0.1  # the fixed default fade
+    mu = copy.deepcopy(m)
+    mu.fade = False
+    print(f"\n### Beside the training region: train y > {y_cut:.3f} m ({len(tr)} poses), test {band:.3f} < y <= {y_cut:.3f} "
+          f"({len(te)} poses), same joint ranges (fit incl. fade calibration {fs:.0f} s, min_steps {min_steps or 'default'}, {device})\n")
+    print(m.fade_calibration_.summary())
+    print("evidence (support distance bin, n, optimal weight): " + "; ".join(
+        f"[{lo:.3f}, {hi:.3f}] {k} {w:.2f}" for lo, hi, k, w in m.fade_calibration_.bins))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        tt = temperature_of(te)
+        R = te.poses()[:, :3, :3]
+        res = {nm: errors(mm.predict(te.q, temperature_c=tt), te.xyz_m, R) for nm, mm in
+               (("unfaded", mu), ("default fade", md), ("calibrated fade", m))}
+        res["calibrated"] = errors(m.predict_classical(te.q, temperature_c=tt), te.xyz_m, R)
+        n_out = int(np.sum(md.fade_weight(te.q) < 1))
+    print(f"\n{n_out} of {len(te)} test poses have default fade weight < 1\n")
+    yq = np.quantile(te.xyz_m[:, 1], [0, 0.25, 0.5, 0.75, 1.0])
+    lab = np.clip(np.searchsorted(yq, te.xyz_m[:, 1], side="right") - 1, 0, 3)
+    print("| region (y quartile of test) | n | calibrated mm / deg | unfaded | default fade | calibrated fade | gain kept (pos) |")
+    print("|---|---|---|---|---|---|---|")
+    for k in list(range(4)) + ["all"]:
+        sel = np.ones(len(te), bool) if k == "all" else lab == k
+        c, u, d, f = (res[x] for x in ("calibrated", "unfaded", "default fade", "calibrated fade"))
+        g = (c[0][sel].mean() - f[0][sel].mean()) / max(c[0][sel].mean() - u[0][sel].mean(), 1e-12)
+        print(f"| {k} | {int(sel.sum())} | {c[0][sel].mean():.4f} / {c[1][sel].mean():.4f} | {u[0][sel].mean():.4f} / "
+              f"{u[1][sel].mean():.4f} | {d[0][sel].mean():.4f} / {d[1][sel].mean():.4f} | {f[0][sel].mean():.4f} / "
+              f"{f[1][sel].mean():.4f} | {g:.2f} |")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"))
+    ap.add_argument("--model", default=None, help="UR10 series-A model file (loaded if present, else fitted and saved)")
+    ap.add_argument("--min-steps", type=int, default=None)
+    ap.add_argument("--skip", nargs="*", default=[], choices=["ur10", "days", "beside"])
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--beside-n", type=int, default=8000, help="joint samples of the beside-region case (60 %% train)")
+    ap.add_argument("--work", default="/tmp")
+    args = ap.parse_args()
+    warnings.simplefilter("ignore", OutOfRangeWarning)
+    if "ur10" not in args.skip:
+        ur10(Path(args.data), None if args.model is None else Path(args.model), args.min_steps, Path(args.work))
+    if "days" not in args.skip:
+        days(args.min_steps, device=args.device)
+    if "beside" not in args.skip:
+        beside(args.min_steps, args.device, n=args.beside_n)
+
+
+if __name__ == "__main__":
+    main()
