@@ -183,7 +183,7 @@ def _run_demo(out_dir, n_train: int, quick: bool, seed: int) -> Path:
     rep.figure(fig, "Error vs training-set size: full pipeline (calibration + networks) and networks alone (the paper's set-up).")
     rep.table(
         ["training samples", "hybrid position [mm]", "hybrid orientation [deg]", "networks only position [mm]", "networks only orientation [deg]"],
-        [list(r) for r in curve],
+        [[v if v == v else "–" for v in r] for r in curve],  # "–": not refitted at that size
     )
     rep.heading("Inverse kinematics (paper Table IV)")
     rep.table(["method", "position mean [mm]", "orientation mean [deg]", "success"], ik_rows)
