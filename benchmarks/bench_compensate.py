@@ -46,20 +46,12 @@ sys.path.insert(0, str(ROOT))
 from hykin import Robot, load_robot, se3
 from hykin.hybrid import HybridModel
 from hykin.ik import ik
-from hykin.simulate import VirtualRobot, simulate, true_poses
+from hykin.simulate import VirtualRobot, geometric_deviation, simulate, true_poses
 
 
 def deviate(rob: Robot, seed: int, sigma_m: float, sigma_rad: float, name: str) -> Robot:
-    """Our own geometric deviations: a, d, alpha, theta of every joint, base and tool frames."""
-    rng = np.random.default_rng(seed)
-    n = rob.dof
-
-    def frame():
-        return se3.make_transform(se3.rotvec_to_matrix(rng.normal(0, sigma_rad, 3)), rng.normal(0, sigma_m, 3))
-
-    return rob.copy(a_m=rob.a_m + rng.normal(0, sigma_m, n), d_m=rob.d_m + rng.normal(0, sigma_m, n),
-                    alpha_rad=rob.alpha_rad + rng.normal(0, sigma_rad, n), theta_rad=rob.theta_rad + rng.normal(0, sigma_rad, n),
-                    base=rob.base @ frame(), tool=rob.tool @ frame(), name=name)
+    """Our own geometric deviations (a, d, alpha, theta, beta, base and tool frames) with ``seed``."""
+    return geometric_deviation(rob, np.random.default_rng(seed), sigma_m, sigma_rad, sigma_m, sigma_rad).copy(name=name)
 
 
 def arm_6r() -> VirtualRobot:

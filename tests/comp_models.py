@@ -13,20 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-from hykin import Robot, fk, load_robot, se3
+from hykin import Robot, fk, load_robot
+from hykin.simulate import geometric_deviation
 
 
 def deviate(rob: Robot, seed: int, sigma_m: float = 5e-4, sigma_rad: float = np.radians(0.08)) -> Robot:
-    """Robot with random geometric deviations (a, d, alpha, theta, base, tool): a few mm of pose error."""
-    rng = np.random.default_rng(seed)
-    n = rob.dof
-
-    def frame():
-        return se3.make_transform(se3.rotvec_to_matrix(rng.normal(0, sigma_rad, 3)), rng.normal(0, sigma_m, 3))
-
-    return rob.copy(a_m=rob.a_m + rng.normal(0, sigma_m, n), d_m=rob.d_m + rng.normal(0, sigma_m, n),
-                    alpha_rad=rob.alpha_rad + rng.normal(0, sigma_rad, n), theta_rad=rob.theta_rad + rng.normal(0, sigma_rad, n),
-                    base=rob.base @ frame(), tool=rob.tool @ frame(), name=rob.name + "-truth")
+    """Robot with random geometric deviations (a, d, alpha, theta, beta, base, tool): a few mm of pose error."""
+    return geometric_deviation(rob, np.random.default_rng(seed), sigma_m, sigma_rad, sigma_m, sigma_rad).copy(
+        name=rob.name + "-truth")
 
 
 class ExactModel:

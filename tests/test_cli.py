@@ -8,22 +8,13 @@ import sys
 import numpy as np
 import pytest
 
-from hykin.cli import main
 from hykin.dataset import read_dataset
 from hykin.fk import fk
 from hykin.robot import load_robot
 from hykin.se3 import pose_error
+from cli_run import run
 
 
-def run(argv, capsys):
-    """Run the CLI in-process; returns (exit code, stdout, stderr)."""
-    try:
-        main(argv)
-        code = 0
-    except SystemExit as e:
-        code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def write_joints(path, q, header=None):

@@ -13,23 +13,14 @@ import numpy as np
 import pytest
 
 from hykin import se3
-from hykin.cli import main
 from hykin.dataset import read_dataset
 from hykin.fk import fk
 from hykin.robot import load_robot
 from hykin.table_import import import_table
 from hykin.table_map import TableMap, TableMapError, load_table_map, table_map_from_dict
+from cli_run import run
 
 
-def run(argv, capsys):
-    """Run the CLI in-process; returns (exit code, stdout, stderr)."""
-    try:
-        main([str(a) for a in argv])
-        code = 0
-    except SystemExit as e:
-        code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def _rot_err(R1, R2):

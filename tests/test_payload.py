@@ -10,7 +10,6 @@ import pytest
 import torch
 
 from hykin.calibrate import calibrate
-from hykin.cli import main
 from hykin.compliance import compliant_fk, deflected_joints, gravity_torques
 from hykin.dataset import DatasetError, read_dataset, write_dataset
 from hykin.evaluate import evaluate_model
@@ -20,6 +19,7 @@ from hykin.payload import (PAYLOAD_COLUMNS, model_with_payload, payload_of, payl
                            with_payload)
 from hykin.se3 import pose_error
 from hykin.simulate import simulate, true_poses, virtual_preset
+from cli_run import run as _run
 
 
 @pytest.fixture(scope="module")
@@ -147,14 +147,6 @@ def test_hybrid_with_payload_column_save_load(vr, tmp_path):
     assert payload_range_of(np.array([3.0, 1.0])).values_kg == [1.0, 3.0]
 
 
-def _run(argv, capsys):
-    try:
-        main(argv)
-        code = 0
-    except SystemExit as e:
-        code = e.code if isinstance(e.code, int) else 1
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def test_cli_simulate_payloads_and_fk_payload_option(tmp_path, capsys, vr):

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from hykin.calibrate import calibrate, parameter_names
-from hykin.cli import main
 from hykin.fk import fk
 from hykin.planning import Constraints, PlanningError, embed, farthest_point, plan_poses
 from hykin.planning.constraints import segment_hits_box
@@ -19,6 +18,7 @@ from hykin.planning.forecast import forecast_accuracy
 from hykin.planning.order import order_path, path_travel, travel_matrix
 from hykin.planning.select import active_poses, d_optimal, i_optimal
 from hykin.robot import Robot, load_robot
+from cli_run import run as _run
 
 DEG = math.pi / 180
 
@@ -224,14 +224,6 @@ def test_d_optimal_core_beats_random_on_logdet():
     assert p.criteria["logdet"] > np.linalg.slogdet(A.T @ A)[1] + 5.0  # e^5 = 150x larger det
 
 
-def _run(argv, capsys):
-    try:
-        main(argv)
-        code = 0
-    except SystemExit as e:
-        code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def test_cli_plan_writes_ordered_joints_with_line_of_sight(tmp_path, capsys):
