@@ -342,6 +342,20 @@ def _cases():
         c("ik-truncated-model", lambda f, t, o: ["ik", _truncated_model(f, t), f[P], "-o", o], ["model"]),
         c("fk-csv-as-model", lambda f, t, o: ["fk", f[D], f[J], "-o", o], ["not a hykin model"]),
         c("fk-model-as-joints", lambda f, t, o: ["fk", f[M], f[M], "-o", o], ["model.hykin"]),
+        # --- commands added with compensation, planning and the generic importer
+        c("compensate-missing-input", lambda f, t, o: ["compensate", f[M], t / "nope.csv", "-o", o], ["nope.csv"]),
+        c("compensate-robot-not-model", lambda f, t, o: ["compensate", f[R], f[P], "-o", o], ["model"]),
+        c("compensate-out-is-input", lambda f, t, o: ["compensate", f[M], f[P], "-o", f[P]], ["input"], None),
+        c("compensate-existing-out", lambda f, t, o: ["compensate", f[M], f[P], "-o", o], ["--force"], "out.csv",
+          b"x\n"),
+        c("export-urdf-edited-model", lambda f, t, o: ["export-urdf", _edited_model(f, t), "-o", o], ["edited"],
+          "r.urdf"),
+        c("plan-out-folder-missing", lambda f, t, o: ["plan", f[R], "-n", "20", "-o", t / "no" / "p.csv"],
+          ["does not exist"], "no/p.csv"),
+        c("plan-out-is-robot", lambda f, t, o: ["plan", f[R], "-n", "20", "-o", f[R]], ["input"], None),
+        c("import-table-missing-column", lambda f, t, o: ["import", "table", f[D], "-o", o, "--joints", "j1,j2",
+                                                          "--position", "x,y,z"], ["j1"]),
+        c("serve-csv-as-model", lambda f, t, o: ["serve", f[D]], ["model"], None),
     ]
 
 
