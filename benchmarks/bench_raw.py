@@ -7,7 +7,7 @@ Measures (issue #12, "start from raw data, any robot"):
    file's tool off by 5 cm and no ``[base]``: ``hykin fit`` against the same data in the robot
    frame with the right tool (test-set mean errors, ratio; must be within 5 %);
 2. the same data calibrated with another robot's file (UR10): refused (exit 2, one line);
-3. UR5 (position only) and UR10 series A (full pose) from ``/work/shared/data`` expressed in
+3. UR5 (position only) and UR10 series A (full pose) from ``../shared/data`` expressed in
    tracker frames with nominal files without a base: the same figures as in the robot frame
    (UR10: the raw tracker frame of ``hykin import ipa``).
 
@@ -38,7 +38,7 @@ from hykin.hybrid import HybridModel
 from hykin.robot import Robot, load_robot, save_robot_toml
 from hykin.simulate import PeriodicError, VirtualRobot
 
-SHARED = Path("/work/shared/data")
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"  # ../shared/data beside the repository
 
 
 def bench_robot() -> VirtualRobot:

@@ -47,6 +47,9 @@ QUICK_ARGS = {
     "bench_real.py": ["--no-cv"],
     "bench_region.py": ["all"],
     "bench_hybrid_ik.py": ["-n", "2000"],
+    "bench_payload.py": ["--quick"],
+    "bench_plan.py": ["--seeds", "0", "--min-steps", "3000"],
+    "bench_transfer.py": ["--min-steps", "5000", "--beside-n", "2000"],
 }
 
 
