@@ -192,3 +192,50 @@ def test_cli_compensate_csv_programs_and_urdf(tmp_path):
     ref = m.frame_pre @ fk(m.robot_.copy(stiffness_nm_per_rad=np.full(6, np.inf)), q) @ m.frame_post
     assert np.abs(fk(u, q) - ref).max() < 1e-12
     assert np.abs(fk(u, q) - fk(nom, q)).max() > 1e-4  # the calibration is in it
+
+
+def test_cli_payload_kg_compensates_for_the_load_the_robot_carries(tmp_path, capsys):
+    """A model fitted at 0 and 12 kg (stiffness identified) compensates targets for the 12 kg the robot
+    carries: executed by the nominal controller on the true loaded robot they land far closer than the
+    same targets compensated for the robot file's payload (reference: the simulator's truth)."""
+    import warnings
+
+    from cli_run import run as run_cli
+
+    from hykin.hybrid import HybridModel, OutOfRangeWarning
+    from hykin.simulate import simulate, true_poses, virtual_preset
+
+    vr = virtual_preset("kr-payload-virtual", seed=2)
+    nom = vr.nominal
+    rng = np.random.default_rng(5)
+    q = nom.random_joints(600, rng, margin=0.2)
+    train = simulate(vr, q, noise=False, payload_kg=np.where(np.arange(600) % 2 == 0, 0.0, 12.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        m = HybridModel(nom, seed=0, recipe_kw={"max_epochs": 2, "min_steps": 0}).fit(train, progress=False)
+    mp = tmp_path / "m.hykin"
+    m.save(mp)
+    q_t = nom.random_joints(40, np.random.default_rng(6), margin=0.3)
+    T_t = true_poses(vr, q_t, payload_kg=np.full(40, 12.0))  # where the loaded robot should go
+    xyz, quat = se3.transform_to_pose(T_t)
+    tp = tmp_path / "targets.csv"
+    with open(tp, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["x", "y", "z", "qw", "qx", "qy", "qz"] + [f"q{j + 1}" for j in range(6)])
+        for i in range(40):
+            w.writerow([repr(float(v)) for v in (*xyz[i], *quat[i], *q_t[i])])
+    errs = {}
+    for name, extra in (("loaded", ["--payload-kg", "12"]), ("file", [])):
+        out = tmp_path / f"{name}.csv"
+        code, _, err = run_cli(["compensate", mp, tp, "-o", out, *extra], capsys)
+        assert code == 0, err
+        with open(out, newline="") as f:
+            rows = list(csv.DictReader(f))
+        ok = np.array([r["status"] == "ok" for r in rows])
+        assert ok.all(), [r["status"] for r in rows if r["status"] != "ok"][:3]
+        Tc = se3.pose_to_transform(np.array([[float(r[k]) for k in ("x", "y", "z")] for r in rows]),
+                                   np.array([[float(r[k]) for k in ("qw", "qx", "qy", "qz")] for r in rows]))
+        q_exec = _controller(nom, Tc, q_t)
+        p_err = np.linalg.norm(true_poses(vr, q_exec, payload_kg=np.full(40, 12.0))[:, :3, 3] - T_t[:, :3, 3], axis=1)
+        errs[name] = p_err.mean() * 1e3
+    assert errs["loaded"] < 0.3 and errs["loaded"] < errs["file"] / 3, errs

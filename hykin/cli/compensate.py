@@ -69,6 +69,7 @@ def compensate_cmd(
     fmt: str | None = typer.Option(None, "--format", help="Input format: csv, urscript, krl, rapid (default: by suffix)."),
     context: Path | None = typer.Option(None, "--context", help="KRL: the companion .src of a .dat (default: same name beside it)."),
     axis_signs: str | None = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the robot preset)."),
+    payload_kg: float | None = typer.Option(None, "--payload-kg", help="Payload (kg, at the TCP) the robot carries while executing these targets: the model deflects under it (default: the robot file's payload)."),
     force: bool = Force,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
@@ -81,6 +82,17 @@ def compensate_cmd(
     if not inp.is_file():
         raise CLIError(f"{inp}: no such file")
     mdl = _load_model(model)
+    if payload_kg is not None:
+        from ..payload import model_with_payload, payload_outside
+
+        if not (payload_kg >= 0 and payload_kg < float("inf")):
+            raise CLIError(f"--payload-kg must be a finite mass >= 0 kg, got {payload_kg}")
+        if payload_outside(getattr(mdl, "payload_range_", None), payload_kg).any():
+            rng = mdl.payload_range_
+            console().print(f"[yellow]warning:[/] {payload_kg:g} kg lies outside the payloads the model was trained on "
+                            f"({rng.lower_kg:g}-{rng.upper_kg:g} kg): the physics carries it, the networks hold their "
+                            "nearest trained payload", highlight=False)
+        mdl = model_with_payload(mdl, payload_kg)
     signs = _axis_signs(axis_signs, mdl.nominal.dof)
     th = getattr(mdl, "thermal_", None)
     if th is not None and th.coefficient_per_k != 0.0:
