@@ -56,16 +56,26 @@ residual variances for position and orientation rows (plain ``σ² (JᵀJ)⁻¹`
 
 from __future__ import annotations
 
-import fnmatch
 import math
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable
 
 import numpy as np
 import scipy.linalg
 
 from . import se3
+from .calibration_params import (
+    TWIST,
+    ModelState,
+    ParamSpec,
+    apply_deviations,
+    apply_step,
+    candidate_specs,
+    deviations_between,
+    parameter_names,
+    scale_of,
+    select_specs,
+)
 from .calibration_result import CalibrationError, CalibrationResult, residual_stats
 from .chain import build_chain
 from .compliance import (
@@ -90,10 +100,6 @@ __all__ = [
     "parameter_scales",
 ]
 
-SCALE_LENGTH_M = 1e-3  # typical deviation used to scale lengths (1 mm)
-SCALE_ANGLE_RAD = 1e-3  # typical deviation used to scale angles (1 mrad)
-SCALE_COMPLIANCE = 1e-6  # typical compliance, rad/N·m (k = 1e6 N·m/rad)
-BETA_SIN_ALPHA = 0.2  # beta is added for joints whose |sin(alpha)| is below this (near-parallel axes)
 _CHUNK = 20_000  # samples per Jacobian chunk (memory: ~6·P·chunk doubles)
 _ID_SAMPLES = 600  # samples (evenly spread) used for the identifiability QR
 _COARSE_SAMPLES = 20_000  # larger data sets first converge on this many evenly spread samples
@@ -115,73 +121,6 @@ def _gram(A: np.ndarray, B: np.ndarray | None = None) -> np.ndarray:
     a = torch.from_numpy(np.ascontiguousarray(A.T))  # (P, m)
     b = a if B is None else torch.from_numpy(np.ascontiguousarray(B.T))
     return (a @ b.T).numpy()
-
-
-# --------------------------------------------------------------------------- parameters
-
-
-@dataclass(frozen=True)
-class _Spec:
-    name: str
-    group: str  # "base" | "tool" | "geom" | "origin" | "comp"
-    joint: int  # joint index (-1 for base/tool)
-    field: str  # a alpha d theta beta | x y z rx ry rz | c
-    unit: str  # "m" | "rad" | "c"
-
-
-_TWIST = ("x", "y", "z", "rx", "ry", "rz")
-
-
-def _candidate_specs(robot: Robot, *, base: bool, tool: bool, compliance: bool, n_points: int = 1) -> list[_Spec]:
-    """All candidate parameters in priority order (base, tool, joints, compliance, further reflectors'
-    offsets ``p2.x`` ... in the TCP frame when ``n_points > 1``)."""
-    out: list[_Spec] = []
-    tw = lambda g, j, prefix: [
-        _Spec(f"{prefix}.{f}", g, j, f, "m" if f in ("x", "y", "z") else "rad") for f in _TWIST
-    ]
-    if base:
-        out += tw("base", -1, "base")
-    if tool:
-        out += tw("tool", -1, "tool")
-    n = robot.dof
-    for i in range(n):
-        k = i + 1
-        if robot.convention == "urdf":
-            out += tw("origin", i, f"o{k}")
-            continue
-        fields = ["a", "alpha", "d", "theta"]
-        if abs(math.sin(robot.alpha_rad[i])) < BETA_SIN_ALPHA:
-            fields.append("beta")
-        for f in fields:
-            out.append(_Spec(f"{f}{k}", "geom", i, f, "m" if f in ("a", "d") else "rad"))
-    if compliance:
-        for i in range(n):
-            out.append(_Spec(f"c{i + 1}", "comp", i, "c", "c"))
-    for k in range(1, n_points):
-        out += [_Spec(f"p{k + 1}.{f}", "point", k, f, "m") for f in ("x", "y", "z")]
-    return out
-
-
-def _scale_of(spec: _Spec) -> float:
-    return {"m": SCALE_LENGTH_M, "rad": SCALE_ANGLE_RAD, "c": SCALE_COMPLIANCE}[spec.unit]
-
-
-def parameter_names(robot: Robot, *, base: bool = True, tool: bool = True, compliance: bool = True) -> list[str]:
-    """Names of the candidate calibration parameters of ``robot``, in priority order."""
-    return [s.name for s in _candidate_specs(robot, base=base, tool=tool, compliance=compliance)]
-
-
-def _select(specs: list[_Spec], params) -> list[_Spec]:
-    if params is None or (isinstance(params, str) and params == "auto"):
-        return specs
-    pats = [params] if isinstance(params, str) else list(params)
-    keep = [s for s in specs if any(fnmatch.fnmatchcase(s.name, p) for p in pats)]
-    for p in pats:
-        if not any(fnmatch.fnmatchcase(s.name, p) for s in specs):
-            raise CalibrationError(
-                f"params: pattern {p!r} matches no parameter; candidates are {', '.join(s.name for s in specs)}"
-            )
-    return keep
 
 
 # --------------------------------------------------------------------------- data
@@ -228,87 +167,6 @@ def _as_data(robot: Robot, data, position_only):
     return np.ascontiguousarray(q), xyz, R
 
 
-# --------------------------------------------------------------------------- model state
-
-
-@dataclass
-class _State:
-    """Current robot plus the compliance vector being identified."""
-
-    robot: Robot
-    c: np.ndarray  # (n,) compliance, rad/N·m
-    pts: np.ndarray = field(default_factory=lambda: np.zeros((1, 3)))  # (K, 3) reflector offsets, TCP frame; row 0 = 0
-
-
-def _robot_with_c(robot: Robot, c: np.ndarray) -> Robot:
-    k = np.where(c > 0, 1.0 / np.where(c > 0, c, 1.0), np.inf)
-    return robot.copy(stiffness_nm_per_rad=k)
-
-
-def _E(v: np.ndarray) -> np.ndarray:
-    """``[exp(w), t]`` from a 6-vector ``(t, w)``."""
-    T = np.eye(4)
-    T[:3, :3] = se3.rotvec_to_matrix(np.asarray(v[3:], dtype=np.float64))
-    T[:3, 3] = v[:3]
-    return T
-
-
-def _log6(T: np.ndarray) -> np.ndarray:
-    return np.concatenate([T[:3, 3], se3.matrix_to_rotvec(T[:3, :3])])
-
-
-def _apply(state: _State, specs: list[_Spec], delta: np.ndarray) -> _State:
-    """Compose the deviations ``delta`` (SI, one per spec) into a new state."""
-    r = state.robot
-    geom = {"a": r.a_m.copy(), "alpha": r.alpha_rad.copy(), "d": r.d_m.copy(), "theta": r.theta_rad.copy(), "beta": r.beta_rad.copy()}
-    base6, tool6 = np.zeros(6), np.zeros(6)
-    orig6 = np.zeros((r.dof, 6))
-    c = state.c.copy()
-    pts = state.pts.copy()
-    for s, v in zip(specs, delta):
-        if s.group == "point":
-            pts[s.joint, _TWIST.index(s.field)] += v
-        elif s.group == "geom":
-            geom[s.field][s.joint] += v
-        elif s.group == "base":
-            base6[_TWIST.index(s.field)] = v
-        elif s.group == "tool":
-            tool6[_TWIST.index(s.field)] = v
-        elif s.group == "origin":
-            orig6[s.joint, _TWIST.index(s.field)] = v
-        else:
-            c[s.joint] = max(c[s.joint] + v, 0.0)  # compliance is physical only when >= 0
-    changes = dict(a_m=geom["a"], alpha_rad=geom["alpha"], d_m=geom["d"], theta_rad=geom["theta"], beta_rad=geom["beta"])
-    changes["base"] = r.base @ _E(base6)
-    changes["tool"] = r.tool @ _E(tool6)
-    if r.convention == "urdf" and np.any(orig6):
-        O = se3.xyzrpy_to_transform(r.origin_xyz_m, r.origin_rpy_rad)
-        O = np.stack([O[i] @ _E(orig6[i]) for i in range(r.dof)])
-        xyz, rpy = se3.transform_to_xyzrpy(O)
-        changes.update(origin_xyz_m=xyz, origin_rpy_rad=rpy)
-    new = _robot_with_c(r.copy(**changes), c)
-    return _State(robot=new, c=c, pts=pts)
-
-
-def apply_deviations(robot: Robot, deviations: dict[str, float]) -> Robot:
-    """``robot`` with parameter deviations applied, in the parametrisation :func:`calibrate` reports.
-
-    ``deviations``: ``{name: value}`` (SI) with names from :func:`parameter_names` (``"a2"``,
-    ``"base.rz"``, ``"c3"``...). Base/tool/URDF-origin twists compose as ``T · E(x, y, z, rx, ry, rz)``
-    (one 6-vector per frame); compliance adds to ``1 / stiffness``. Used to build test truths and to
-    replay a :class:`CalibrationResult` (``apply_deviations(robot, dict(zip(res.names, res.values)))``).
-    """
-    specs = {s.name: s for s in _candidate_specs(robot, base=True, tool=True, compliance=True)}
-    for name in ("beta",):  # beta is a candidate only for near-parallel axes; allow it everywhere here
-        for i in range(robot.dof):
-            specs.setdefault(f"{name}{i + 1}", _Spec(f"{name}{i + 1}", "geom", i, name, "rad"))
-    unknown = [k for k in deviations if k not in specs]
-    if unknown:
-        raise CalibrationError(f"apply_deviations: unknown parameter(s) {', '.join(unknown)}")
-    sel = [specs[k] for k in deviations]
-    return _apply(_State(robot, compliance_of(robot)), sel, np.array([float(v) for v in deviations.values()])).robot
-
-
 # --------------------------------------------------------------------------- model, residual, Jacobian
 
 
@@ -338,7 +196,7 @@ def _frames(chain, q: np.ndarray):
     return prev, joint, _rmul(T, np.asarray(chain.tool))
 
 
-def _model_poses(state: _State, q: np.ndarray, payload=None) -> np.ndarray:
+def _model_poses(state: ModelState, q: np.ndarray, payload=None) -> np.ndarray:
     return fk(state.robot, _effective_joints(state, q, payload))
 
 
@@ -351,7 +209,7 @@ def _payload_kw(payload, sl=slice(None)) -> dict:
     return {"payload_kg": kg[sl], "payload_com_m": None if com is None else com[sl]}
 
 
-def _effective_joints(state: _State, q: np.ndarray, payload=None) -> np.ndarray:
+def _effective_joints(state: ModelState, q: np.ndarray, payload=None) -> np.ndarray:
     """Deflected (link-side) joints under gravity, ``(N, n)`` (``q`` itself when rigid); ``payload``:
     per-row ``(kg (N,), com (N, 3) | None)`` or None (the robot's payload)."""
     if not np.any(state.c):
@@ -394,14 +252,14 @@ def _residual(T_model: np.ndarray, xyz: np.ndarray, R_meas: np.ndarray | None, w
     return rp, ro
 
 
-def _local_axes(robot: Robot, spec: _Spec):
+def _local_axes(robot: Robot, spec: ParamSpec):
     """(frame kind, kind 'rot'|'trans', local axis (3,), local point (3,)) of a parameter."""
     e = np.eye(3)
     zero = np.zeros(3)
     i = spec.joint
     if spec.group in ("base", "tool", "origin"):
         frame = {"base": "base", "tool": "tcp", "origin": "origin"}[spec.group]
-        j = _TWIST.index(spec.field)
+        j = TWIST.index(spec.field)
         return (frame, "trans", e[j], zero) if j < 3 else (frame, "rot", e[j - 3], zero)
     if spec.group == "comp":
         return ("joint", "trans" if robot.joint_type[i] == "prismatic" else "rot", e[2], zero)
@@ -425,7 +283,7 @@ def _local_axes(robot: Robot, spec: _Spec):
     }[spec.field]
 
 
-def _jacobian_chunk(state: _State, specs: list[_Spec], q_eff: np.ndarray, tau, w: float, with_rot: bool):
+def _jacobian_chunk(state: ModelState, specs: list[ParamSpec], q_eff: np.ndarray, tau, w: float, with_rot: bool):
     """d(residual)/d(parameter) for one chunk, column-major: position rows ``(P, N, 3)`` and
     weighted rotation rows ``(P, N, 3)`` (or None), plus the modelled TCP poses ``(N, 4, 4)``."""
     robot = state.robot
@@ -441,7 +299,7 @@ def _jacobian_chunk(state: _State, specs: list[_Spec], q_eff: np.ndarray, tau, w
         origin = [_rmul(prev[:, i], O[i]) for i in range(robot.dof)]
     for k, s in enumerate(specs):
         if s.group == "point":  # a further reflector's offset along a TCP axis: moves that point only
-            Jp[k, :, s.joint] = -tcp[:, :3, _TWIST.index(s.field)]
+            Jp[k, :, s.joint] = -tcp[:, :3, TWIST.index(s.field)]
             continue
         frame, kind, u, pt = _local_axes(robot, s)
         if frame == "base":
@@ -522,9 +380,9 @@ def identification_jacobian(robot: Robot, q, *, position_only: bool = False, ori
     parameter deviation (SI units). Compliance columns are evaluated at the robot's own compliance,
     under the per-row payload ``payload_kg`` / ``payload_com_m`` when given (else the robot's).
     """
-    specs = _candidate_specs(robot, base=base, tool=tool, compliance=compliance)
+    specs = candidate_specs(robot, base=base, tool=tool, compliance=compliance)
     q = np.ascontiguousarray(np.asarray(q, dtype=np.float64).reshape(-1, robot.dof))
-    state = _State(robot=robot, c=compliance_of(robot))
+    state = ModelState(robot=robot, c=compliance_of(robot))
     from .payload import payload_of
 
     pl = payload_of((), payload_kg, payload_com_m, n_rows=q.shape[0]) if payload_kg is not None else None
@@ -559,7 +417,7 @@ def _identifiable(J_s: np.ndarray, rank_tol: float, negligible_tol: float) -> tu
 def parameter_scales(robot: Robot, *, base: bool = True, tool: bool = True, compliance: bool = True) -> np.ndarray:
     """``(P,)`` typical deviation of each candidate parameter (:func:`parameter_names` order): the
     scaling :func:`calibrate` applies to the identification Jacobian (1 mm, 1 mrad, 1e-6 rad/N·m)."""
-    return np.array([_scale_of(s) for s in _candidate_specs(robot, base=base, tool=tool, compliance=compliance)])
+    return np.array([scale_of(s) for s in candidate_specs(robot, base=base, tool=tool, compliance=compliance)])
 
 
 def identifiable_columns(J_scaled: np.ndarray, rank_tol: float = 1e-6, negligible_tol: float = 1e-9):
@@ -598,7 +456,7 @@ def _lm_step(lin: dict, act: np.ndarray, lam: float, is_comp: np.ndarray, c: np.
 # --------------------------------------------------------------------------- main entry
 
 
-def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, max_iter: int, tol: float,
+def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: float, max_iter: int, tol: float,
                     rank_tol: float, negligible_tol: float, progress,
                     prefer: np.ndarray | None = None, pts0: np.ndarray | None = None,
                     pl=None) -> tuple[CalibrationResult, float]:
@@ -614,8 +472,8 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
     N = q.shape[0]
     last = {"rel": 0.0}
     P = len(specs)
-    scale = np.array([_scale_of(s) for s in specs])
-    state0 = _State(robot=robot.copy(), c=compliance_of(robot), pts=np.zeros((xyz.shape[1], 3)) if pts0 is None else pts0)
+    scale = np.array([scale_of(s) for s in specs])
+    state0 = ModelState(robot=robot.copy(), c=compliance_of(robot), pts=np.zeros((xyz.shape[1], 3)) if pts0 is None else pts0)
     rows_per = 3 * xyz.shape[1] + (0 if R_meas is None else 3)
     from .plausibility import check_calibration_size
 
@@ -623,7 +481,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
     is_comp = np.array([sp.group == "comp" for sp in specs])
     comp_joint = np.array([sp.joint for sp in specs])
 
-    def cost_of(st: _State, qd, xyzd, Rd, pld):
+    def cost_of(st: ModelState, qd, xyzd, Rd, pld):
         q_eff = _effective_joints(st, qd, pld)
         rp, ro = _residual(fk(st.robot, q_eff), xyzd, Rd, w, st.pts)
         cost = 0.5 * (float(np.sum(rp * rp)) + (0.0 if ro is None else float(np.sum(ro * ro))))
@@ -648,7 +506,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
                     break
                 delta = np.zeros(P)
                 delta[free] = step_s * scale[free]
-                trial = _apply(state, specs, delta)
+                trial = apply_step(state, specs, delta)
                 try:
                     new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd, pld)
                 except ComplianceError:  # the step made the joints too soft for an equilibrium: reject it
@@ -741,7 +599,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[_Spec], w: float, 
             for b_ in range(a_ + 1, fa.size):
                 if abs(corr[a_, b_]) > 0.9:
                     strong.append((specs[fa[a_]].name, specs[fa[b_]].name, float(corr[a_, b_])))
-    values = _deviations(state0, state, specs)
+    values = deviations_between(state0, state, specs)
     return CalibrationResult(
         robot=state.robot, names=[s.name for s in specs], values=values, std=std, identifiable=final,
         correlation=corr, strong_correlations=strong, before=before, after=after, iterations=it,
@@ -827,7 +685,7 @@ def calibrate(
     pl = payload_of(data, payload_kg, payload_com_m, n_rows=q.shape[0])
     w = 1.0 if auto_w else float(orientation_weight_m_per_rad)
     K = 1 if xyz.ndim == 2 else xyz.shape[1]
-    specs = _select(_candidate_specs(robot, base=base, tool=tool, compliance=compliance, n_points=K), params)
+    specs = select_specs(candidate_specs(robot, base=base, tool=tool, compliance=compliance, n_points=K), params)
     names = {s.name for s in specs}
     frames = [s for s in specs if s.group in ("base", "tool", "point")]
     run = lambda rob, sp, ww, it, pref=None, pts=None: _calibrate_pass(
@@ -835,7 +693,7 @@ def calibrate(
     pts_zero = np.zeros((K, 3))
     starts = [(robot, pts_zero)]
     reg = None
-    full_frames = all(f"base.{f}" in names for f in _TWIST) and all(f"tool.{f}" in names for f in ("x", "y", "z"))
+    full_frames = all(f"base.{f}" in names for f in TWIST) and all(f"tool.{f}" in names for f in ("x", "y", "z"))
     if initial and full_frames:
         reg = initial_registration(robot, q, xyz, R_meas)
         if reg.rms_m < reg.rms_before_m:
@@ -890,9 +748,9 @@ def calibrate(
     if not res.converged and rel <= _STALLED_REL:  # the cap stopped a cost that no longer moves
         res.converged = True
         res.message += f"; iteration cap reached with the cost changing by {rel:.2g} (relative) per iteration"
-    state0 = _State(robot=robot.copy(), c=compliance_of(robot), pts=pts_zero)
-    state1 = _State(robot=res.robot, c=compliance_of(res.robot), pts=res.point_offsets_m)
-    res.values = _deviations(state0, state1, specs)
+    state0 = ModelState(robot=robot.copy(), c=compliance_of(robot), pts=pts_zero)
+    state1 = ModelState(robot=res.robot, c=compliance_of(res.robot), pts=res.point_offsets_m)
+    res.values = deviations_between(state0, state1, specs)
     # before: the robot file as given (further reflectors at its TCP: their offsets are unknown)
     res.before = residual_stats(*_residual(_model_poses(state0, q, pl), xyz, R_meas, res.orientation_weight_m_per_rad,
                                            pts_zero), res.orientation_weight_m_per_rad)
@@ -911,29 +769,6 @@ def calibrate(
         check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl)
     return res
 
-
-def _deviations(s0: _State, s1: _State, specs: Sequence[_Spec]) -> np.ndarray:
-    r0, r1 = s0.robot, s1.robot
-    b = _log6(np.linalg.inv(r0.base) @ r1.base)
-    t = _log6(np.linalg.inv(r0.tool) @ r1.tool)
-    O0 = se3.xyzrpy_to_transform(r0.origin_xyz_m, r0.origin_rpy_rad)
-    O1 = se3.xyzrpy_to_transform(r1.origin_xyz_m, r1.origin_rpy_rad)
-    geo = {"a": "a_m", "alpha": "alpha_rad", "d": "d_m", "theta": "theta_rad", "beta": "beta_rad"}
-    out = np.zeros(len(specs))
-    for k, s in enumerate(specs):
-        if s.group == "geom":
-            out[k] = getattr(r1, geo[s.field])[s.joint] - getattr(r0, geo[s.field])[s.joint]
-        elif s.group == "base":
-            out[k] = b[_TWIST.index(s.field)]
-        elif s.group == "tool":
-            out[k] = t[_TWIST.index(s.field)]
-        elif s.group == "origin":
-            out[k] = _log6(np.linalg.inv(O0[s.joint]) @ O1[s.joint])[_TWIST.index(s.field)]
-        elif s.group == "point":
-            out[k] = s1.pts[s.joint, _TWIST.index(s.field)] - s0.pts[s.joint, _TWIST.index(s.field)]
-        else:
-            out[k] = s1.c[s.joint] - s0.c[s.joint]
-    return out
 
 
 def calibrated_fk(robot: Robot, q) -> np.ndarray:
