@@ -43,16 +43,8 @@ def import_ur5_cmd(
 ) -> None:
     """Import a serial-robots-ur5 CSV (exactly six joints; anything else: `hykin import table`)."""
     from ..importers import import_ur5, ur5_robot_for_dataset
-    from ..robot import save_robot_toml
 
-    check_output(out, (path,), force)
-    if robot_out is not None:
-        check_output(robot_out, (path, out), force)
-    ds = import_ur5(path)
-    _write(ds, out, [path])
-    if robot_out is not None:
-        save_robot_toml(ur5_robot_for_dataset(), robot_out)
-        typer.echo(f"wrote the matching nominal robot to {robot_out}")
+    _import_fixed(path, out, robot_out, force, lambda: import_ur5(path), ur5_robot_for_dataset)
 
 
 @import_app.command("ipa")
@@ -68,15 +60,23 @@ def import_ipa_cmd(
 ) -> None:
     """Import an ipa-robot-accuracy series (UR10, laser tracker + T-Mac)."""
     from ..importers import import_ipa_series, ipa_nominal_robot
+
+    _import_fixed(path, out, robot_out, force,
+                  lambda: import_ipa_series(path, register_to=ipa_nominal_robot() if register else None), ipa_nominal_robot)
+
+
+def _import_fixed(path: Path, out: Path, robot_out: Optional[Path], force: bool, read, nominal_robot) -> None:
+    """A fixed-layout import: outputs checked first, then ``read()`` -> dataset, and the set-up's nominal
+    robot (``nominal_robot()``) written to ``robot_out`` when asked."""
     from ..robot import save_robot_toml
 
     check_output(out, (path,), force)
     if robot_out is not None:
         check_output(robot_out, (path, out), force)
-    ds = import_ipa_series(path, register_to=ipa_nominal_robot() if register else None)
+    ds = read()
     _write(ds, out, [path])
     if robot_out is not None:
-        save_robot_toml(ipa_nominal_robot(), robot_out)
+        save_robot_toml(nominal_robot(), robot_out)
         typer.echo(f"wrote the matching nominal robot to {robot_out}")
 
 
