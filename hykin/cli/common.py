@@ -90,7 +90,14 @@ def console():
 
 def progress():
     """A rich progress bar writing to stderr (disabled when stderr is not a terminal and CI is set)."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
 
     return Progress(
         TextColumn("[bold]{task.description}"),
@@ -132,10 +139,11 @@ def load_model_or_robot(spec: str):
 
 
 def load_model(spec) -> "object":
-    """A hykin model file (commands that need the networks: register, export)."""
+    """A hykin model file (commands that need the networks: register, export, compensate, serve)."""
     p = Path(spec)
-    if p.is_file() and p.suffix.lower() in (".csv", ".parquet", ".toml", ".urdf"):
-        raise CLIError(f"{spec}: expected a hykin model file (written by `hykin fit`), got a {p.suffix} file")
+    if p.is_file() and not is_model_file(str(spec)):
+        got = f"a {p.suffix} file" if p.suffix else "another kind of file"
+        raise CLIError(f"{spec}: expected a hykin model file (written by `hykin fit`), got {got}")
     from ..hybrid import HybridModel
 
     return HybridModel.load(spec)

@@ -15,19 +15,11 @@ from .common import (
     app,
     check_output,
     console,
-    is_model_file,
+    load_model,
     write_rows,
 )
 
 _FORMATS = ("csv", "urscript", "krl", "rapid")
-
-
-def _load_model(spec: str):
-    if not is_model_file(spec):
-        raise CLIError(f"{spec}: not a hykin model file (compensation needs a fitted model: hykin fit ...)")
-    from ..hybrid import HybridModel
-
-    return HybridModel.load(spec)
 
 
 def _format_of(path: Path, fmt: str | None) -> str:
@@ -81,7 +73,7 @@ def compensate_cmd(
     check_output(out, [inp, model, context], force)
     if not inp.is_file():
         raise CLIError(f"{inp}: no such file")
-    mdl = _load_model(model)
+    mdl = load_model(model)
     if payload_kg is not None:
         from ..payload import model_with_payload, payload_outside
 
@@ -203,7 +195,7 @@ def serve_cmd(
     """Serve fk / ik / compensate over HTTP (JSON batches; GET /health)."""
     if not 0 < port < 65536:
         raise CLIError(f"--port must be 1..65535, got {port}")
-    mdl = _load_model(model)
+    mdl = load_model(model)
     import uvicorn
 
     from ..compensation.service import create_app
@@ -222,7 +214,7 @@ def export_urdf_cmd(
     from ..urdf import calibrated_urdf
 
     check_output(out, [Path(model)], force)
-    mdl = _load_model(model)
+    mdl = load_model(model)
     text, info = calibrated_urdf(mdl)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)

@@ -9,6 +9,7 @@ import typer
 
 from .common import AngleUnit, CLIError, Force, LengthUnit, app, check_output, progress
 
+
 @app.command("presets")
 def presets_cmd() -> None:
     """List the robot presets and the virtual-robot presets shipped with hykin."""

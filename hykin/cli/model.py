@@ -8,7 +8,16 @@ from typing import Optional
 
 import typer
 
-from .common import AngleUnit, CLIError, Force, LengthUnit, app, check_output, load_model, load_model_or_robot
+from .common import (
+    AngleUnit,
+    CLIError,
+    Force,
+    LengthUnit,
+    app,
+    check_output,
+    load_model,
+    load_model_or_robot,
+)
 
 OrientationWeight = typer.Option(
     "auto", "--orientation-weight",

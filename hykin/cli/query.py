@@ -8,8 +8,18 @@ from typing import Optional
 import numpy as np
 import typer
 
-from .common import (AngleUnit, CLIError, Force, LengthUnit, app, check_output, console, load_model_or_robot,
-                     temperature_of, write_rows)
+from .common import (
+    AngleUnit,
+    CLIError,
+    Force,
+    LengthUnit,
+    app,
+    check_output,
+    console,
+    load_model_or_robot,
+    temperature_of,
+    write_rows,
+)
 
 PAYLOAD_HELP = ("Payload mass (kg, at the TCP) for a file without a payload_kg column; a model file deflects "
                 "the joints under it (default: the file's column, else the robot file's payload).")
