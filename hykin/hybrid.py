@@ -836,7 +836,7 @@ class HybridModel:
         q2, single = self._q(q)
         # support-based whatever the fade mode: without fade, an extrapolating network has no
         # validated band, and the calibrated model's is the best stated guess there
-        w = _fade_np(self.support_distance(q2) - self.fade_offset, self.fade_width)
+        w = self._fade_of(self.support_distance(q2))
         # the calibrated model extrapolates too: beyond a joint's trained range its band steps up and
         # grows with the excess (in units of that range) as measured in fit (hykin.uncertainty)
         ex = self.range_excess(q2)
@@ -998,7 +998,12 @@ class HybridModel:
         q2, _ = self._q(q)
         if self.fade is False:
             return np.ones(len(q2))
-        return _fade_np(self._fade_distance(q2) - self.fade_offset, self.fade_width)
+        return self._fade_of(self._fade_distance(q2))
+
+    def _fade_of(self, d: np.ndarray) -> np.ndarray:
+        """Fade weight for support distances ``d``: 1 up to ``fade_offset``, 0 beyond a further ``fade_width``
+        (the torch path in :meth:`predict_torch` mirrors it)."""
+        return _fade_np(d - self.fade_offset, self.fade_width)
 
     def _fade_distance(self, q2: np.ndarray, ex: np.ndarray | None = None) -> np.ndarray:
         ex = self.range_excess(q2) if ex is None else ex
@@ -1072,7 +1077,7 @@ class HybridModel:
             w = None
         else:
             d = exm if self.fade == "range" else (self.support_distance(q2) if self.fade == "full" else np.maximum(exm, gap))
-            w = _fade_np(d - self.fade_offset, self.fade_width)
+            w = self._fade_of(d)
             if np.all(w == 1.0):
                 w = None
         qin = self._net_in(qn, payload_kg)
