@@ -590,6 +590,9 @@ def read_dataset(
         raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
     ds = Dataset(q=q, xyz_m=xyz, quat_wxyz=quat, extra=t.extras(_standard_columns(t)), source=where,
                  meta={"length_unit_read": length_unit, "angle_unit_read": angle_unit})
+    from .reflectors import with_reflector_unit
+
+    ds = with_reflector_unit(ds, length_unit)  # further reflectors x2,y2,z2, ... in metres like x,y,z
     validate(ds, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset)
     if robot is not None and plausibility:
         from .plausibility import check_dataset
@@ -661,10 +664,13 @@ def _columns_for_writing(ds: Dataset, length_unit: str, angle_unit: str, robot=N
     if ds.quat_wxyz is not None:
         for j, c in enumerate(QUAT_COLUMNS):
             out[c] = ds.quat_wxyz[:, j]
+    from .reflectors import reflector_columns
+
+    points = {n for names in reflector_columns(ds) for n in names}  # x2,y2,z2, ...: lengths like x,y,z
     for k, v in ds.extra.items():
         if k in out:
             raise DatasetError(f"{ds.source or '<dataset>'}: extra column '{k}' clashes with a standard column", column=k)
-        out[k] = v
+        out[k] = np.asarray(v, dtype=np.float64) / L if k in points else v
     return out
 
 

@@ -45,8 +45,8 @@ def reflector_points(ds) -> np.ndarray:
 
 
 def with_reflector_unit(ds, length_unit: str):
-    """``ds`` with the further reflectors' columns converted to metres (``read_dataset`` converts
-    ``x,y,z`` by ``--length-unit`` but keeps extra columns as read)."""
+    """``ds`` with the further reflectors' columns converted from ``length_unit`` to metres (called by
+    :func:`hykin.dataset.read_dataset`, which converts ``x,y,z`` the same way)."""
     f = {"m": 1.0, "mm": 1e-3}[length_unit]
     if f == 1.0:
         return ds

@@ -325,3 +325,21 @@ def test_read_joints_and_poses(tmp_path):
         read_poses(tmp_path / "j.csv")
     with pytest.raises(DatasetError, match="no joint columns"):
         read_joints(tmp_path / "t.csv")
+
+
+def test_further_reflectors_follow_the_length_unit(tmp_path):
+    """x2,y2,z2 are lengths like x,y,z: written and read in the declared unit, metres in memory."""
+    rng = np.random.default_rng(3)
+    ds = Dataset(q=rng.normal(size=(6, 6)), xyz_m=rng.normal(size=(6, 3)),
+                 extra={"x2": rng.normal(size=6), "y2": rng.normal(size=6), "z2": rng.normal(size=6),
+                        "temperature_c": np.full(6, 21.5)})
+    p = tmp_path / "mm.csv"
+    write_dataset(ds, p, length_unit="mm")
+    with open(p) as f:
+        head = f.readline().strip().split(",")
+        row = [float(v) for v in f.readline().split(",")]
+    assert row[head.index("x2")] == pytest.approx(ds.extra["x2"][0] * 1e3, rel=1e-12)
+    assert row[head.index("temperature_c")] == 21.5  # not a length: as is
+    back = read_dataset(p, length_unit="mm")
+    np.testing.assert_allclose(back.extra["y2"], ds.extra["y2"], rtol=1e-12)
+    np.testing.assert_allclose(back.extra["temperature_c"], 21.5)

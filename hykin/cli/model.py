@@ -81,7 +81,6 @@ def fit_cmd(
     from ..dataset import read_dataset
     from ..hybrid import HybridModel
     from ..plausibility import check_fit_size
-    from ..reflectors import with_reflector_unit
     from ..robot import load_robot
 
     kw = {}
@@ -101,7 +100,7 @@ def fit_cmd(
     check_output(out, (robot, train, val), force)  # before any long work
     cal_kw = _calibration_options(orientation_weight, max_deviation)
     rob = load_robot(robot)
-    tr = with_reflector_unit(read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob), length_unit)
+    tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
     check_fit_size(rob, tr)
     va = None
     if val is not None:
@@ -189,12 +188,11 @@ def calibrate_cmd(
     (--max-deviation) or leaves an implausible residual is refused (exit 2, nothing written)."""
     from ..calibrate import calibrate
     from ..dataset import read_dataset
-    from ..reflectors import with_reflector_unit
     from ..robot import load_robot, save_robot_toml
 
     check_output(out, (robot, data), force)
     rob = load_robot(robot)
-    ds = with_reflector_unit(read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob), length_unit)
+    ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
     res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation))
     typer.echo(res.report())
     save_robot_toml(res.robot, out)
