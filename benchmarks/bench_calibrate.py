@@ -17,9 +17,9 @@ import time
 import numpy as np
 import scipy.optimize
 
-from hykin import se3
-from hykin.calibrate import apply_deviations, calibrate, calibrated_fk
-from hykin.simulate import simulate, true_poses, virtual_preset
+from hykin.calibration.calibrate import apply_deviations, calibrate, calibrated_fk
+from hykin.kinematics import se3
+from hykin.sim.simulate import simulate, true_poses, virtual_preset
 
 
 def peer_least_squares(nominal, ds, names):

@@ -43,10 +43,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from hykin import Robot, load_robot, se3
-from hykin.hybrid import HybridModel
-from hykin.ik import ik
-from hykin.simulate import VirtualRobot, geometric_deviation, simulate, true_poses
+from hykin import Robot, load_robot
+from hykin.hybrid.model import HybridModel
+from hykin.kinematics import se3
+from hykin.kinematics.ik import ik
+from hykin.sim.simulate import VirtualRobot, geometric_deviation, simulate, true_poses
 
 
 def deviate(rob: Robot, seed: int, sigma_m: float, sigma_rad: float, name: str) -> Robot:
@@ -106,7 +107,7 @@ def hykin_cli(*args) -> str:
 
 
 def part_csv(tmp: Path, n: int) -> tuple[bool, Path, VirtualRobot]:
-    from hykin.dataset import read_joints
+    from hykin.io.dataset import read_joints
 
     print("1. targets CSV, own 6R arm")
     vr = arm_6r()
@@ -127,7 +128,7 @@ def part_csv(tmp: Path, n: int) -> tuple[bool, Path, VirtualRobot]:
     t = time.perf_counter()
     print("  " + hykin_cli("compensate", str(mp), str(tmp / "targets.csv"), "-o", str(tmp / "commands.csv")).strip())
     print(f"  hykin compensate (CLI, {n} targets): {time.perf_counter() - t:.1f} s wall incl. start-up")
-    from hykin.dataset import read_poses
+    from hykin.io.dataset import read_poses
 
     Tc, _ = read_poses(tmp / "commands.csv")
     qm, _ = read_joints(tmp / "commands.csv", dof=6)
@@ -148,7 +149,7 @@ def _unchanged(a: str, b: str, target_lines: set) -> tuple[bool, int]:
 
 def part_urscript(tmp: Path, n: int) -> bool:
     from hykin.compensation import urscript
-    from hykin.simulate import virtual_preset
+    from hykin.sim.simulate import virtual_preset
 
     print("2. URScript program, UR10-like (ur10-virtual, seed 16)")
     vr = virtual_preset("ur10-virtual", seed=16)
@@ -346,7 +347,7 @@ def main() -> None:
     a = ap.parse_args()
     import warnings
 
-    from hykin.hybrid import OutOfRangeWarning
+    from hykin.hybrid.model import OutOfRangeWarning
 
     warnings.simplefilter("ignore", OutOfRangeWarning)  # the model-error check queries a few joints past the data
     with tempfile.TemporaryDirectory() as d:

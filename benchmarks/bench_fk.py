@@ -22,10 +22,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from hykin.chain import chain_of  # noqa: E402
-from hykin.fk import fk, fk_torch  # noqa: E402
-from hykin.robot import load_robot  # noqa: E402
-from _timing import best_of  # noqa: E402
+from _timing import best_of
+
+from hykin.kinematics.chain import chain_of
+from hykin.kinematics.fk import fk, fk_torch
+from hykin.kinematics.robot import load_robot
 
 
 def best_time(fn, repeat: int = 3) -> float:

@@ -25,10 +25,10 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hykin import se3  # noqa: E402
-from hykin.fk import fk  # noqa: E402
-from hykin.hybrid import HybridModel, OutOfRangeWarning, classical_fk  # noqa: E402
-from hykin.simulate import simulate, virtual_preset  # noqa: E402
+from hykin.hybrid.model import HybridModel, OutOfRangeWarning, classical_fk
+from hykin.kinematics import se3
+from hykin.kinematics.fk import fk
+from hykin.sim.simulate import simulate, virtual_preset
 
 
 def errors(T_pred, ds):

@@ -27,10 +27,10 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from hykin import se3  # noqa: E402
-from hykin.hybrid_ik import hybrid_ik, wang_ik, classical_seeds, _seed_robot  # noqa: E402
-from hykin.ik_analytic import ik_closed_form  # noqa: E402
-from hykin.simulate import simulate, true_poses, virtual_preset  # noqa: E402
+from hykin.hybrid.ik import _seed_robot, classical_seeds, hybrid_ik, wang_ik
+from hykin.kinematics import se3
+from hykin.kinematics.ik_closed_form import ik_closed_form
+from hykin.sim.simulate import simulate, true_poses, virtual_preset
 
 
 class TruthModel:
@@ -43,30 +43,30 @@ class TruthModel:
         return true_poses(self.vr, np.asarray(q, dtype=np.float64))
 
     def predict_classical(self, q):
-        from hykin.compliance import compliant_fk
+        from hykin.kinematics.compliance import compliant_fk
 
         return compliant_fk(self.robot, q)
 
     def predict_torch(self, q):
-        from hykin.compliance import compliant_fk_torch
+        from hykin.kinematics.compliance import compliant_fk_torch
 
         return compliant_fk_torch(self.vr.truth, q)
 
 
 def build_model(args, vr):
     if args.model:
-        from hykin.hybrid import HybridModel
+        from hykin.hybrid.model import HybridModel
 
         return HybridModel.load(args.model), f"HybridModel loaded from {args.model}"
     if not args.standin:
         try:
-            from hykin.hybrid import HybridModel  # noqa: F401
+            from hykin.hybrid.model import HybridModel
         except ImportError:
             print("hykin.hybrid not available: using the ground-truth stand-in", flush=True)
         else:
             import torch
 
-            from hykin.hybrid import HybridModel
+            from hykin.hybrid.model import HybridModel
 
             torch.set_num_threads(1)  # small nets, busy 2-core machine: one thread trains fastest
             rng = np.random.default_rng(1)
@@ -131,7 +131,7 @@ def main() -> None:
     near = hybrid_ik(model, T, nearest=True, q_current=q_true)
     t_near = time.perf_counter() - t
     pn, an = se3.pose_error(model.predict(near.q[near.success]), T[near.target[near.success]])
-    from hykin.ik import nearest_representation
+    from hykin.kinematics.ik import nearest_representation
 
     qn = nearest_representation(near.q[near.success], q_true[near.target[near.success]], robot.lower, robot.upper)
     recovered = np.abs(qn - q_true[near.target[near.success]]).max(1) < 1e-6
@@ -179,7 +179,7 @@ def main() -> None:
           f"the nominal robot {n_nom.sum()}; targets differing: {(n_found != n_nom).sum()} "
           f"(more: {(n_found > n_nom).sum()}, fewer: {(n_found < n_nom).sum()})")
     if (n_found != n_nom).any():
-        from hykin.fk import jacobian
+        from hykin.kinematics.fk import jacobian
 
         d = n_found != n_nom
         sv = np.linalg.svd(jacobian(robot, q_true[:k]), compute_uv=False)[:, -1]

@@ -20,7 +20,6 @@ import os
 import time
 
 import numpy as np
-
 from _timing import best_of
 
 
@@ -39,9 +38,9 @@ def _contains(qs_list, q, tol=1e-6):
 
 
 def bench_closed_form(name, n, n_peer, rows):
-    from hykin.fk import fk
-    from hykin.ik_analytic import ik_closed_form, poe_model
-    from hykin.robot import load_robot
+    from hykin.kinematics.fk import fk
+    from hykin.kinematics.ik_closed_form import ik_closed_form, poe_model
+    from hykin.kinematics.robot import load_robot
 
     r = load_robot(name)
     rng = np.random.default_rng(0)
@@ -107,7 +106,6 @@ def _rtb_ets(robot):
     """roboticstoolbox ETS of a DH robot; theta offsets are folded into the joint variable (the
     C++ solver rejects offsets), so rtb joints = hykin joints + offset."""
     import roboticstoolbox as rtb
-
     from spatialmath import SE3
 
     link = rtb.RevoluteDH if robot.convention == "dh" else rtb.RevoluteMDH
@@ -120,10 +118,10 @@ def _rtb_ets(robot):
 
 
 def bench_numeric(name, n, n_peer, rows, tol=1e-6):
-    from hykin import se3
-    from hykin.fk import fk
-    from hykin.ik import ik
-    from hykin.robot import load_robot
+    from hykin.kinematics import se3
+    from hykin.kinematics.fk import fk
+    from hykin.kinematics.ik import ik
+    from hykin.kinematics.robot import load_robot
 
     r = load_robot(name)
     rng = np.random.default_rng(1)

@@ -13,10 +13,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hykin.fk import fk  # noqa: E402
-from hykin.ik_analytic import has_closed_form, ik_closed_form  # noqa: E402
-from hykin.robot import list_presets, load_robot  # noqa: E402
-from hykin.se3 import pose_error  # noqa: E402
+from hykin.kinematics.fk import fk
+from hykin.kinematics.ik_closed_form import has_closed_form, ik_closed_form
+from hykin.kinematics.robot import list_presets, load_robot
+from hykin.kinematics.se3 import pose_error
 
 
 def main(n: int = 10_000) -> None:

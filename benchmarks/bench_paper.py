@@ -41,11 +41,11 @@ import torch
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from hykin import se3  # noqa: E402
-from hykin.hybrid import HybridModel, classical_fk  # noqa: E402
-from hykin.hybrid_ik import hybrid_ik, wang_ik  # noqa: E402
-from hykin.metrics import ErrorStats, stats_from_errors  # noqa: E402
-from hykin.simulate import simulate, true_poses, virtual_preset  # noqa: E402
+from hykin.evaluation.metrics import ErrorStats, stats_from_errors
+from hykin.hybrid.ik import hybrid_ik, wang_ik
+from hykin.hybrid.model import HybridModel, classical_fk
+from hykin.kinematics import se3
+from hykin.sim.simulate import simulate, true_poses, virtual_preset
 
 MEAN_NORM_3D = math.sqrt(8.0 / math.pi)  # E||z|| for z ~ N(0, I_3)
 
@@ -71,7 +71,7 @@ def stats(T_pred, T_ref) -> ErrorStats:
 
 def md_table(head, rows) -> str:
     w = [max(len(str(h)), *(len(str(r[i])) for r in rows)) for i, h in enumerate(head)]
-    line = lambda c: "| " + " | ".join(str(x).ljust(k) for x, k in zip(c, w)) + " |"  # noqa: E731
+    line = lambda c: "| " + " | ".join(str(x).ljust(k) for x, k in zip(c, w)) + " |"
     return "\n".join([line(head), "|" + "|".join("-" * (k + 2) for k in w) + "|"] + [line(r) for r in rows])
 
 
@@ -203,7 +203,7 @@ def nongeo(args):
     d_noise = (Tmeas[:, :3, 3] - T_truth[:, :3, 3]) * 1e3
     d_therm = (T_truth[:, :3, 3] - T_truth_tm[:, :3, 3]) * 1e3
     d_model = (Th_nt[:, :3, 3] - T_truth_tm[:, :3, 3]) * 1e3
-    nrm = lambda v: float(np.linalg.norm(v, axis=1).mean())  # noqa: E731
+    nrm = lambda v: float(np.linalg.norm(v, axis=1).mean())
     _, a_model = se3.pose_error(Th_nt, T_truth_tm)
     print(f"remaining position error, parts (mean norm, mm): model vs truth at the training mean temperature "
           f"{t_mean:.2f} °C {_g(nrm(d_model))}, thermal drift (test temperature vs that mean; not a function of q) "
@@ -252,7 +252,7 @@ def ik_round_trip(model, q_true, count):
     k = min(count, N)
     # distinct solutions vs the closed form of the nominal robot, each difference explained (joint limit,
     # singularity / workspace edge, or unexplained = a solver miss)
-    from hykin.hybrid_ik import branch_count_report
+    from hykin.hybrid.ik import branch_count_report
 
     rep = branch_count_report(model, T[:k], res, model.robot)
     out["branches"] = (k, int(rep.n_found.sum()), int(rep.n_closed_form.sum()), int(rep.differ.sum()))

@@ -29,10 +29,10 @@ import warnings
 
 import numpy as np
 
-from hykin.compliance import compliant_fk
-from hykin.hybrid import HybridModel
-from hykin.se3 import pose_error
-from hykin.simulate import simulate, virtual_preset
+from hykin.hybrid.model import HybridModel
+from hykin.kinematics.compliance import compliant_fk
+from hykin.kinematics.se3 import pose_error
+from hykin.sim.simulate import simulate, virtual_preset
 
 
 def errors_at(model, vr, q, payloads, use_payload=True):

@@ -29,13 +29,18 @@ import warnings
 
 import numpy as np
 
-from hykin.calibrate import apply_deviations, calibrate, calibrated_fk, parameter_names
-from hykin.hybrid import HybridModel
+from hykin.calibration.calibrate import (
+    apply_deviations,
+    calibrate,
+    calibrated_fk,
+    parameter_names,
+)
+from hykin.hybrid.model import HybridModel
+from hykin.kinematics.robot import Robot
 from hykin.planning import Constraints, plan_poses
 from hykin.planning.forecast import forecast_accuracy
-from hykin.robot import Robot
-from hykin.sampling import random as random_joints
-from hykin.simulate import PeriodicError, VirtualRobot, simulate, true_poses
+from hykin.sim.sampling import random as random_joints
+from hykin.sim.simulate import PeriodicError, VirtualRobot, simulate, true_poses
 
 DEG = np.pi / 180
 

@@ -31,12 +31,12 @@ from pathlib import Path
 import numpy as np
 
 import hykin
-from hykin import se3
-from hykin.dataset import read_dataset, write_dataset
-from hykin.evaluate import evaluate_model
-from hykin.hybrid import HybridModel
-from hykin.robot import Robot, load_robot, save_robot_toml
-from hykin.simulate import PeriodicError, VirtualRobot
+from hykin.evaluation.evaluate import evaluate_model
+from hykin.hybrid.model import HybridModel
+from hykin.io.dataset import read_dataset, write_dataset
+from hykin.kinematics import se3
+from hykin.kinematics.robot import Robot, load_robot, save_robot_toml
+from hykin.sim.simulate import PeriodicError, VirtualRobot
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"  # ../shared/data beside the repository
 
@@ -170,8 +170,8 @@ def ur10(tmp: Path, min_steps: int) -> None:
           f"base = identity: {np.allclose(nb.base, np.eye(4))}")
     _, _, t_a = cli("calibrate", tmp / "ur10.toml", tmp / "ur10_A_train.csv", "-o", tmp / "ur10_cal_a.toml")
     _, _, t_b = cli("calibrate", tmp / "ur10_nominal.toml", tmp / "ur10_At_train.csv", "-o", tmp / "ur10_cal_b.toml")
-    from hykin.compliance import compliant_fk
-    from hykin.metrics import error_stats
+    from hykin.evaluation.metrics import error_stats
+    from hykin.kinematics.compliance import compliant_fk
 
     res = {}
     for key, rob, test in (("a", "ur10_cal_a.toml", "ur10_A_test.csv"), ("b", "ur10_cal_b.toml", "ur10_At_test.csv")):

@@ -24,12 +24,17 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hykin import se3  # noqa: E402
-from hykin.dataset import Dataset, split  # noqa: E402
-from hykin.fk import fk  # noqa: E402
-from hykin.hybrid import HybridModel, OutOfRangeWarning  # noqa: E402
-from hykin.importers import import_ipa_series, import_ur5, ipa_nominal_robot, ur5_robot_for_dataset  # noqa: E402
-from hykin.register import register_model  # noqa: E402
+from hykin.hybrid.model import HybridModel, OutOfRangeWarning
+from hykin.io.dataset import Dataset, split
+from hykin.io.importers import (
+    import_ipa_series,
+    import_ur5,
+    ipa_nominal_robot,
+    ur5_robot_for_dataset,
+)
+from hykin.kinematics import se3
+from hykin.kinematics.fk import fk
+from hykin.measure.register import register_model
 
 
 def pos_mm(T, ds):

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hykin import se3
-from hykin.hybrid import HybridModel, OutOfRangeWarning
-from hykin.register import fit_frames, register_model
+from hykin.hybrid.model import HybridModel, OutOfRangeWarning
+from hykin.kinematics import se3
+from hykin.measure.register import fit_frames, register_model
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "ipa-robot-accuracy"
 
@@ -93,7 +93,7 @@ def _quartile_ratios(q, ph, pc) -> list[float]:
 
 
 def ur10(variants, n_reg=30, fades=(True, "range", False), seed=0):
-    from hykin.importers import import_ipa_series, ipa_nominal_robot
+    from hykin.io.importers import import_ipa_series, ipa_nominal_robot
 
     A = import_ipa_series(DATA / "Series_A", register_to=ipa_nominal_robot())
     B = import_ipa_series(DATA / "Series_B")  # tracker frame
@@ -147,8 +147,8 @@ def ur10(variants, n_reg=30, fades=(True, "range", False), seed=0):
 
 
 def virtual(preset="rx160-nongeo", n=6000, fraction=0.5, seed=0, max_epochs=None):
-    from hykin.sampling import restricted
-    from hykin.simulate import simulate, virtual_preset
+    from hykin.sim.sampling import restricted
+    from hykin.sim.simulate import simulate, virtual_preset
 
     vr = virtual_preset(preset)
     rob = vr.nominal
@@ -185,7 +185,7 @@ def speed(n=200_000, threads=2):
     """Throughput (poses/s) of predict per fade mode, support_distance, pair_gap and predict_uncertainty."""
     import torch
 
-    from hykin.simulate import simulate, virtual_preset
+    from hykin.sim.simulate import simulate, virtual_preset
 
     torch.set_num_threads(threads)
     vr = virtual_preset("rx160-nongeo")

@@ -12,18 +12,18 @@ by CSV text formatting in hykin.dataset.write_dataset, not by the simulation).
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 from pathlib import Path
 
-import sys
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hykin.compliance import deflected_joints, gravity_torques
-from hykin.fk import fk
-from hykin.sampling import sample
-from hykin.simulate import simulate, simulate_to_file, virtual_preset
 from _timing import best_of
+
+from hykin.kinematics.compliance import deflected_joints, gravity_torques
+from hykin.kinematics.fk import fk
+from hykin.sim.sampling import sample
+from hykin.sim.simulate import simulate, simulate_to_file, virtual_preset
 
 
 def timed(fn, repeat: int = 1):

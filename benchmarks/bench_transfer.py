@@ -26,22 +26,21 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-import tomllib
 import warnings
 from pathlib import Path
 
 import numpy as np
+import tomllib
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hykin import se3  # noqa: E402
-from hykin.dataset import split  # noqa: E402
-from hykin.thermal import temperature_of  # noqa: E402
-from hykin.hybrid import HybridModel, OutOfRangeWarning  # noqa: E402
-from hykin.register import register_model  # noqa: E402
-
+from hykin.calibration.thermal import temperature_of
+from hykin.hybrid.model import HybridModel, OutOfRangeWarning
+from hykin.io.dataset import split
+from hykin.kinematics import se3
+from hykin.measure.register import register_model
 
 # --------------------------------------------------------------------------- plain reference (independent of hykin)
 
@@ -142,15 +141,15 @@ def read_toml_dh(path: Path):
 
 def rcv_kwargs(robot, name):
     """calibrate() keyword arguments of region_cv candidate ``name``."""
-    from hykin.region_cv import CANDIDATES, candidate_kwargs
+    from hykin.hybrid.region_cv import CANDIDATES, candidate_kwargs
 
     return candidate_kwargs(robot, CANDIDATES[name])
 
 
 
 def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path) -> None:
-    from hykin.importers import import_ipa_series, ipa_nominal_robot
-    from hykin.robot import save_robot_toml
+    from hykin.io.importers import import_ipa_series, ipa_nominal_robot
+    from hykin.kinematics.robot import save_robot_toml
 
     d = root / "ipa-robot-accuracy"
     if not (d / "Series_B").is_dir():
@@ -208,10 +207,10 @@ def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path)
     for nm, (p, a) in rows.items():
         print(f"| {nm} | {p.mean():.4f} | {np.percentile(p, 95):.4f} | {a.mean():.4f} | {p.mean() / peer:.3f} |")
     # calibration parameter sets: region-blocked validation on A vs what transfers to B
-    from hykin.calibrate import calibrate
-    from hykin.hybrid import classical_fk
-    from hykin.region_cv import CANDIDATES, select_calibration
-    from hykin.register import fit_frames
+    from hykin.calibration.calibrate import calibrate
+    from hykin.hybrid.model import classical_fk
+    from hykin.hybrid.region_cv import CANDIDATES, select_calibration
+    from hykin.measure.register import fit_frames
 
     t0 = time.perf_counter()
     rcv = select_calibration(rob, tr, n_blocks=4)
@@ -236,7 +235,7 @@ def two_day_robot(seed: int = 11):
     0.05 deg, joint zeros drifted by 0.01 deg). Returns ``(vr_day1, vr_day2, tracker2 (4, 4), drift_rad)``."""
     import dataclasses
 
-    from hykin.simulate import virtual_preset
+    from hykin.sim.simulate import virtual_preset
 
     vr = virtual_preset("rx160-nongeo", seed=seed)
 
@@ -260,7 +259,7 @@ def two_day_robot(seed: int = 11):
 
 def day_series(vr, q, tracker, seed, start_index=0):
     """Simulated series in the tracker frame ``tracker`` (4, 4)."""
-    from hykin.simulate import simulate
+    from hykin.sim.simulate import simulate
 
     ds = simulate(vr, q, rng=seed, start_index=start_index)
     T = tracker @ ds.poses()
@@ -270,7 +269,7 @@ def day_series(vr, q, tracker, seed, start_index=0):
 
 
 def days(min_steps: int | None, n_train: int = 6000, device: str = "cpu") -> None:
-    from hykin.sampling import sample
+    from hykin.sim.sampling import sample
 
     vr1, vr2, tracker2, drift = two_day_robot()
     q1 = sample("uniform", vr1.nominal, n_train, 0)
@@ -312,7 +311,7 @@ def beside(min_steps: int | None, device: str, n: int = 8000, n_blocks: int = 4)
     networks, default fade, fade measured by leave-one-region-out (``fade_cv``)."""
     import copy
 
-    from hykin.sampling import sample
+    from hykin.sim.sampling import sample
 
     vr1, _, _, _ = two_day_robot()
     q = sample("uniform", vr1.nominal, n, 7)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from hykin import Robot, fk, load_robot
-from hykin.simulate import geometric_deviation
+from hykin.sim.simulate import geometric_deviation
 
 
 def deviate(rob: Robot, seed: int, sigma_m: float = 5e-4, sigma_rad: float = np.radians(0.08)) -> Robot:
@@ -44,8 +44,8 @@ def exact(preset: str, seed: int) -> ExactModel:
 @functools.cache
 def tiny_model_file() -> Path:
     """A real model file: UR10 with geometric deviations, 300 noise-free poses, 2 epochs (built once)."""
-    from hykin.hybrid import HybridModel
-    from hykin.simulate import VirtualRobot, simulate
+    from hykin.hybrid.model import HybridModel
+    from hykin.sim.simulate import VirtualRobot, simulate
 
     nom = load_robot("ur10")
     vr = VirtualRobot("ur10-test", nom, deviate(nom, 3))

@@ -11,8 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hykin import se3
-from hykin.calibrate import (
+from hykin.calibration.calibrate import (
     CalibrationError,
     apply_deviations,
     calibrate,
@@ -20,8 +19,9 @@ from hykin.calibrate import (
     identification_jacobian,
     parameter_names,
 )
-from hykin.compliance import compliance_of, compliant_fk
-from hykin.robot import dh_to_mdh, load_robot
+from hykin.kinematics import se3
+from hykin.kinematics.compliance import compliance_of, compliant_fk
+from hykin.kinematics.robot import dh_to_mdh, load_robot
 
 UR5_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "serial-robots-ur5" / "UR5"
 UNIT = {"m": 1e-3, "rad": 1e-3, "c": 1e-6}  # typical deviation per unit kind
@@ -127,7 +127,7 @@ def test_mdh_robot_calibrates_and_detects_base_redundancy():
 
 
 def test_urdf_robot_origin_twists():
-    from hykin.urdf import load_urdf_string, robot_to_urdf
+    from hykin.io.urdf import load_urdf_string, robot_to_urdf
 
     rng = np.random.default_rng(3)
     dh = load_robot("ur5").copy(tool=se3.trans(0.02, 0.01, 0.1))
@@ -147,7 +147,7 @@ def test_urdf_robot_origin_twists():
 
 def test_prismatic_scara_dh_and_mdh():
     """R-R-P-R SCARA (all axes parallel): exact, and 4R + 2P + 6 = 20 parameters identifiable."""
-    from hykin.robot import Robot
+    from hykin.kinematics.robot import Robot
 
     scara = Robot(name="scara", convention="dh", a_m=[0.4, 0.3, 0.0, 0.0], alpha_rad=[0, np.pi, 0, 0],
                   d_m=[0.3, 0, 0.0, 0.05], theta_rad=[0, 0, 0, 0], lower=[-2, -2, 0.0, -3], upper=[2, 2, 0.2, 3],
@@ -314,7 +314,7 @@ def test_identification_jacobian_matches_finite_differences(conv):
 
 
 def test_dataset_input_and_bad_input():
-    from hykin.dataset import Dataset
+    from hykin.io.dataset import Dataset
 
     rng = np.random.default_rng(10)
     nom = _rx160()
@@ -344,7 +344,7 @@ def test_coarse_to_fine_gives_the_same_solution(monkeypatch):
     """Large data sets first converge on a spread subset; the end point is that of all samples."""
     import importlib
 
-    cal = importlib.import_module("hykin.calibrate")  # the module (hykin.calibrate is the function)
+    cal = importlib.import_module("hykin.calibration.calibrate")  # the module (hykin.calibrate is the function)
 
     rng = np.random.default_rng(14)
     nom = _rx160()
@@ -378,7 +378,7 @@ def test_register_base_and_tool_only():
 
 
 def test_virtual_preset_rx160_geometric():
-    simulate = pytest.importorskip("hykin.simulate")
+    simulate = pytest.importorskip("hykin.sim.simulate")
     vr = simulate.virtual_preset("rx160-geometric")
     rng = np.random.default_rng(12)
     q = vr.nominal.random_joints(1200, rng)

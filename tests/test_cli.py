@@ -7,22 +7,19 @@ import sys
 
 import numpy as np
 import pytest
-
-from hykin.dataset import read_dataset
-from hykin.fk import fk
-from hykin.robot import load_robot
-from hykin.se3 import pose_error
 from cli_run import run
 
-
+from hykin.io.dataset import read_dataset
+from hykin.kinematics.fk import fk
+from hykin.kinematics.robot import load_robot
+from hykin.kinematics.se3 import pose_error
 
 
 def write_joints(path, q, header=None):
     header = header or [f"q{i + 1}" for i in range(q.shape[1])]
     with open(path, "w") as f:
         f.write(",".join(header) + "\n")
-        for row in q:
-            f.write(",".join(repr(float(v)) for v in row) + "\n")
+        f.writelines(",".join(repr(float(v)) for v in row) + "\n" for row in q)
 
 
 def test_help_for_every_command(capsys):
@@ -92,7 +89,7 @@ def test_simulate_writes_data_and_truth(tmp_path, capsys):
 def test_calibrate_command_recovers_truth(tmp_path, capsys):
     out = tmp_path / "sim.csv"
     assert run(["simulate", "rx160-virtual", "-n", "1500", "-o", str(out), "--no-noise"], capsys)[0] == 0
-    from hykin.simulate import load_truth, simulate
+    from hykin.sim.simulate import load_truth, simulate
 
     vr = load_truth(tmp_path / "sim.truth.json")
     code, stdout, err = run(["calibrate", _nominal_file(vr, tmp_path), str(out), "-o", str(tmp_path / "cal.toml")], capsys)
@@ -100,14 +97,14 @@ def test_calibrate_command_recovers_truth(tmp_path, capsys):
     cal = load_robot(tmp_path / "cal.toml")
     q = vr.nominal.random_joints(300, 9)
     test = simulate(vr, q, noise=False)
-    from hykin.compliance import compliant_fk
+    from hykin.kinematics.compliance import compliant_fk
 
     p, a = pose_error(compliant_fk(cal, q), test.poses())
     assert p.mean() < 1e-3 and a.mean() < 1e-4  # below 1 µm and 1e-4 deg
 
 
 def _nominal_file(vr, tmp_path):
-    from hykin.robot import save_robot_toml
+    from hykin.kinematics.robot import save_robot_toml
 
     path = tmp_path / "nominal.toml"
     save_robot_toml(vr.nominal, path)
@@ -126,7 +123,7 @@ def test_console_script_entry_point(tmp_path):
 
 def test_fit_then_fk_evaluate_ik_end_to_end(tmp_path, capsys):
     """simulate -> fit (short) -> fk / evaluate / ik on the model file; numbers agree with the API."""
-    from hykin.hybrid import HybridModel
+    from hykin.hybrid.model import HybridModel
 
     data, model = tmp_path / "d.csv", tmp_path / "m.hykin"
     code, _, err = run(["simulate", "rx160-nongeo", "-n", "800", "-o", str(data), "--seed", "2", "--noise"], capsys)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from comp_models import ExactModel, deviate, exact, tiny_model_file
 
-from hykin import fk, load_robot, se3
+from hykin import fk, load_robot
 from hykin.compensation import compensate, resolve_frame
 from hykin.compensation.branches import (
     abb_confdata,
@@ -20,7 +20,8 @@ from hykin.compensation.branches import (
     match_abb_confdata,
     match_kuka_status,
 )
-from hykin.ik import ik
+from hykin.kinematics import se3
+from hykin.kinematics.ik import ik
 
 
 def _controller(nom, T_cmd, q_ref):
@@ -144,8 +145,8 @@ def test_cli_compensate_csv_programs_and_urdf(tmp_path):
     from typer.testing import CliRunner
 
     from hykin.cli import app
-    from hykin.hybrid import HybridModel
-    from hykin.urdf import load_urdf
+    from hykin.hybrid.model import HybridModel
+    from hykin.io.urdf import load_urdf
 
     mp = tiny_model_file()
     m = HybridModel.load(mp)
@@ -202,8 +203,8 @@ def test_cli_payload_kg_compensates_for_the_load_the_robot_carries(tmp_path, cap
 
     from cli_run import run as run_cli
 
-    from hykin.hybrid import HybridModel, OutOfRangeWarning
-    from hykin.simulate import simulate, true_poses, virtual_preset
+    from hykin.hybrid.model import HybridModel, OutOfRangeWarning
+    from hykin.sim.simulate import simulate, true_poses, virtual_preset
 
     vr = virtual_preset("kr-payload-virtual", seed=2)
     nom = vr.nominal

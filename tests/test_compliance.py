@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import torch
 
-from hykin.chain import build_chain, geometry_of
-from hykin.compliance import (
+from hykin.kinematics.chain import build_chain, geometry_of
+from hykin.kinematics.compliance import (
     ComplianceError,
     _gravity_torques_xp,
     compliant_fk,
@@ -14,9 +14,9 @@ from hykin.compliance import (
     deflected_joints,
     gravity_torques,
 )
-from hykin.fk import fk, fk_frames
-from hykin.robot import Robot, load_robot
-from hykin.se3 import rotx, trans
+from hykin.kinematics.fk import fk, fk_frames
+from hykin.kinematics.robot import Robot, load_robot
+from hykin.kinematics.se3 import rotx, trans
 
 G = 9.81
 

@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
-from hykin import se3
-from hykin.dataset import (
+from hykin.io.dataset import (
     Dataset,
     DatasetError,
     concat,
@@ -17,7 +15,8 @@ from hykin.dataset import (
     validate,
     write_dataset,
 )
-from hykin.robot import load_robot
+from hykin.kinematics import se3
+from hykin.kinematics.robot import load_robot
 
 
 def _random_dataset(n=40, dof=6, seed=0, orientation=True, extra=True):
@@ -300,7 +299,7 @@ def test_hash_depends_on_poses_only():
 
 
 def test_read_joints_and_poses(tmp_path):
-    from hykin.dataset import read_joints, read_poses
+    from hykin.io.dataset import read_joints, read_poses
 
     ds = _random_dataset(8)
     p = tmp_path / "full.csv"

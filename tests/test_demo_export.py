@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from hykin.hybrid import HybridModel
-from hykin.sampling import sample
-from hykin.se3 import pose_error
-from hykin.simulate import simulate, virtual_preset
+from hykin.hybrid.model import HybridModel
+from hykin.kinematics.se3 import pose_error
+from hykin.sim.sampling import sample
+from hykin.sim.simulate import simulate, virtual_preset
 
 
 @pytest.fixture(scope="module")
@@ -21,14 +21,14 @@ def small_model():
 
 
 def test_demo_quick_writes_report_and_beats_nominal(tmp_path):
-    from hykin.demo import run_demo
+    from hykin.cli.demo import run_demo
 
     path = run_demo(tmp_path / "demo", quick=True)
     html = path.read_text()
     assert path.name == "report.html" and html.count("data:image/png;base64,") >= 3
     # The model the demo saved is loadable and far better than the nominal robot on the demo's test set.
-    from hykin.dataset import read_dataset
-    from hykin.fk import fk
+    from hykin.io.dataset import read_dataset
+    from hykin.kinematics.fk import fk
 
     model = HybridModel.load(tmp_path / "demo" / "model.hykin")
     test = read_dataset(tmp_path / "demo" / "test.csv")
@@ -41,7 +41,7 @@ def test_demo_quick_writes_report_and_beats_nominal(tmp_path):
 
 def test_onnx_export_matches_hykin(tmp_path, small_model):
     pytest.importorskip("onnxruntime")
-    from hykin.export import export_onnx
+    from hykin.hybrid.export import export_onnx
 
     info = export_onnx(small_model, tmp_path / "m.onnx", n_check=500)
     assert info["max_pos_diff_mm"] < 1e-6 and info["max_ang_diff_deg"] < 1e-6
@@ -57,7 +57,7 @@ def test_onnx_export_matches_hykin(tmp_path, small_model):
 
 def test_registered_model_roundtrip(tmp_path, small_model):
     """A model with registration frames saves and loads them (the frames change predictions)."""
-    from hykin import se3
+    from hykin.kinematics import se3
 
     m = small_model
     q = m.nominal.random_joints(20, 3)

@@ -19,9 +19,9 @@ import pytest
 
 pin = pytest.importorskip("pinocchio")
 
-from hykin.fk import fk, fk_frames, fk_torch, jacobian  # noqa: E402
-from hykin.robot import dh_to_mdh, list_presets, load_robot, mdh_to_dh  # noqa: E402
-from hykin.urdf import load_urdf, load_urdf_string, robot_to_urdf  # noqa: E402
+from hykin.io.urdf import load_urdf, load_urdf_string, robot_to_urdf
+from hykin.kinematics.fk import fk, fk_frames, fk_torch, jacobian
+from hykin.kinematics.robot import dh_to_mdh, list_presets, load_robot, mdh_to_dh
 
 DATA = Path(__file__).parent / "data"
 TOL = 1e-12
@@ -315,7 +315,7 @@ def test_opw_presets_match_opw_closed_form(name, params, sign, offset_deg):
 
 def test_preset_zero_poses_published():
     """Flange positions at the zero pose quoted in manufacturer / community documentation."""
-    zero = lambda n: fk(load_robot(n), np.zeros(load_robot(n).dof))[:3, 3]  # noqa: E731
+    zero = lambda n: fk(load_robot(n), np.zeros(load_robot(n).dof))[:3, 3]
     np.testing.assert_allclose(zero("ur5"), [-0.81725, -0.19145, -0.005491], atol=1e-12)
     np.testing.assert_allclose(zero("ur10"), [-1.1843, -0.256141, 0.0116], atol=1e-12)
     np.testing.assert_allclose(zero("ur10e"), [-1.18425, -0.2907, 0.06085], atol=1e-12)

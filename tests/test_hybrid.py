@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 import torch
 
-from hykin.dataset import Dataset
-from hykin.fk import fk
-from hykin.hybrid import HybridError, HybridModel, OutOfRangeWarning
-from hykin.modelfile import ModelFileError
-from hykin.robot import load_robot
-from hykin.se3 import rotvec_to_matrix
+from hykin.hybrid.model import HybridError, HybridModel, OutOfRangeWarning
+from hykin.io.dataset import Dataset
+from hykin.io.modelfile import ModelFileError
+from hykin.kinematics.fk import fk
+from hykin.kinematics.robot import load_robot
+from hykin.kinematics.se3 import rotvec_to_matrix
 
 TINY = {"max_epochs": 8, "batch_size": 64}
 

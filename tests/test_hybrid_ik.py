@@ -12,9 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from hykin import se3
-from hykin.fk import fk, fk_torch, jacobian
-from hykin.hybrid_ik import (
+from hykin.hybrid.ik import (
     HybridIKError,
     _Problem,
     branch_count_report,
@@ -23,8 +21,10 @@ from hykin.hybrid_ik import (
     ik_result_to_rows,
     wang_ik,
 )
-from hykin.ik_analytic import ik_closed_form
-from hykin.robot import load_robot
+from hykin.kinematics import se3
+from hykin.kinematics.fk import fk, fk_torch, jacobian
+from hykin.kinematics.ik_closed_form import ik_closed_form
+from hykin.kinematics.robot import load_robot
 
 
 class StandInHybrid:
@@ -236,8 +236,8 @@ def test_bad_input(model):
 @pytest.mark.slow
 def test_round_trip_with_a_trained_hybrid_model():
     """rx160-virtual: a small HybridModel (calibration + nets), hybrid FK -> hybrid IK -> hybrid FK."""
-    from hykin.hybrid import HybridModel
-    from hykin.simulate import simulate, virtual_preset
+    from hykin.hybrid.model import HybridModel
+    from hykin.sim.simulate import simulate, virtual_preset
 
     vr = virtual_preset("rx160-virtual")
     rng = np.random.default_rng(0)

@@ -12,17 +12,24 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hykin import se3
-from hykin.fk import fk
-from hykin.ik import IKBranches, IKResult, _lm_numpy, ik, ik_all_numeric, nearest_representation
-from hykin.ik_analytic import (
+from hykin.kinematics import se3
+from hykin.kinematics.fk import fk
+from hykin.kinematics.ik import (
+    IKBranches,
+    IKResult,
+    _lm_numpy,
+    ik,
+    ik_all_numeric,
+    nearest_representation,
+)
+from hykin.kinematics.ik_closed_form import (
     ClosedFormError,
     has_closed_form,
     ik_closed_form,
     poe_model,
     wrap_to_limits,
 )
-from hykin.robot import Robot, dh_to_mdh, list_presets, load_robot
+from hykin.kinematics.robot import Robot, dh_to_mdh, list_presets, load_robot
 
 PRESETS = list_presets()
 EXPECTED_FAMILY = {

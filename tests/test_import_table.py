@@ -11,16 +11,19 @@ import math
 
 import numpy as np
 import pytest
-
-from hykin import se3
-from hykin.dataset import read_dataset
-from hykin.fk import fk
-from hykin.robot import load_robot
-from hykin.table_import import import_table
-from hykin.table_map import TableMap, TableMapError, load_table_map, table_map_from_dict
 from cli_run import run
 
-
+from hykin.io.dataset import read_dataset
+from hykin.io.table_import import import_table
+from hykin.io.table_map import (
+    TableMap,
+    TableMapError,
+    load_table_map,
+    table_map_from_dict,
+)
+from hykin.kinematics import se3
+from hykin.kinematics.fk import fk
+from hykin.kinematics.robot import load_robot
 
 
 def _rot_err(R1, R2):

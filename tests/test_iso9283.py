@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from hykin import se3
-from hykin.iso9283 import ISOError, iso9283_pose
+from hykin.evaluation.iso9283 import ISOError, iso9283_pose
+from hykin.kinematics import se3
 
 
 def _T(xyz_mm, rpy_deg):

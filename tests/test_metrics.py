@@ -4,8 +4,16 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hykin import se3
-from hykin.metrics import ErrorStats, MetricsError, compare, error_stats, format_table, pose_errors, stats_from_errors
+from hykin.evaluation.metrics import (
+    ErrorStats,
+    MetricsError,
+    compare,
+    error_stats,
+    format_table,
+    pose_errors,
+    stats_from_errors,
+)
+from hykin.kinematics import se3
 
 
 def _pair(n=257, seed=0):

@@ -24,9 +24,9 @@ import pytest
 
 import hykin
 from hykin.cli import main
-from hykin.dataset import Dataset, read_dataset, write_dataset
-from hykin.fk import fk
-from hykin.modelfile import ModelFileError
+from hykin.io.dataset import Dataset, read_dataset, write_dataset
+from hykin.io.modelfile import ModelFileError
+from hykin.kinematics.fk import fk
 
 # A 6-dof arm unlike the presets: other link lengths, joint 1 limited to ±100° (so a target behind it
 # needs joints outside the limits), in mm and degrees.
@@ -477,7 +477,7 @@ def test_model_hash_detects_edits_and_bit_flips(files, tmp_path):
 
     from safetensors import safe_open
 
-    from hykin.modelfile import content_hash
+    from hykin.io.modelfile import content_hash
 
     with safe_open(str(files["model"]), framework="pt") as f:
         md = f.metadata()
@@ -510,8 +510,8 @@ def test_model_without_hash_loads_with_a_note():
 def test_plausibility_accepts_tracker_frame_and_refuses_slips(files):
     """Frame-independent checks: data in a far, rotated tracker frame with another tool pass; the same
     data with a unit slip or scalar-last quaternions are refused."""
-    from hykin import se3
-    from hykin.plausibility import PlausibilityError, check_dataset
+    from hykin.calibration.plausibility import PlausibilityError, check_dataset
+    from hykin.kinematics import se3
 
     robot = files["robot_obj"]
     q, T = files["q"], files["T"]
@@ -527,7 +527,7 @@ def test_plausibility_accepts_tracker_frame_and_refuses_slips(files):
 
 
 def test_minimum_fit_size_is_stated(files):
-    from hykin.plausibility import PlausibilityError, minimum_fit_rows
+    from hykin.calibration.plausibility import PlausibilityError, minimum_fit_rows
 
     robot = files["robot_obj"]
     assert minimum_fit_rows(robot, True) == 30 and minimum_fit_rows(robot, False) == 30  # 2 * 42 / 3 = 28
@@ -538,7 +538,7 @@ def test_minimum_fit_size_is_stated(files):
 
 def test_api_fit_refuses_scalar_last_quaternions(files):
     """The Python API path checks too (HybridModel.fit on in-memory data)."""
-    from hykin.plausibility import PlausibilityError
+    from hykin.calibration.plausibility import PlausibilityError
 
     ds = read_dataset(files["data"], robot=files["robot_obj"])
     bad = Dataset(q=ds.q, xyz_m=ds.xyz_m, quat_wxyz=ds.quat_wxyz[:, [1, 2, 3, 0]].copy())

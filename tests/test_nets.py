@@ -4,8 +4,13 @@ import numpy as np
 import pytest
 import torch
 
-from hykin.nets import ARCHITECTURES, count_parameters, list_architectures, make_net
-from hykin.train import get_recipe, train_net
+from hykin.hybrid.nets import (
+    ARCHITECTURES,
+    count_parameters,
+    list_architectures,
+    make_net,
+)
+from hykin.hybrid.train import get_recipe, train_net
 
 
 def dense_params(n_in, widths, n_out):
@@ -19,7 +24,7 @@ def dense_params(n_in, widths, n_out):
 def resnet_params(n_in, widths, n_out):
     """Chen 2020 components: dense block (3 Dense+BN main path + Dense+BN shortcut) + 2 identity
     blocks (3 Dense+BN each); BatchNorm has 2 trainable parameters per unit."""
-    lin = lambda a, b: a * b + b  # noqa: E731
+    lin = lambda a, b: a * b + b
     tot, prev = 0, n_in
     for u in widths:
         tot += lin(prev, u) + 2 * lin(u, u) + lin(prev, u) + 4 * 2 * u  # dense block
@@ -142,7 +147,7 @@ def test_bad_training_input():
 def test_default_recipe_small_data_batch_and_epochs():
     """Small data sets get >= 16 batches per epoch (batch >= 32) and >= 30000 steps; large ones keep
     batch 256 x 200 epochs; explicit batch_size / max_epochs overrides are taken literally."""
-    from hykin.train import batch_and_epochs
+    from hykin.hybrid.train import batch_and_epochs
 
     r = get_recipe("default")
     assert batch_and_epochs(r, 900) == (57, 1875)  # ceil(900/16) = 57 -> 16 steps/epoch, ceil(30000/16)

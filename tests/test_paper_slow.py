@@ -15,10 +15,10 @@ import warnings
 import numpy as np
 import pytest
 
-from hykin import se3
-from hykin.hybrid import HybridModel, classical_fk
-from hykin.hybrid_ik import hybrid_ik, wang_ik
-from hykin.simulate import simulate, virtual_preset
+from hykin.hybrid.ik import hybrid_ik, wang_ik
+from hykin.hybrid.model import HybridModel, classical_fk
+from hykin.kinematics import se3
+from hykin.sim.simulate import simulate, virtual_preset
 
 pytestmark = pytest.mark.slow
 

@@ -8,18 +8,24 @@ import warnings
 import numpy as np
 import pytest
 import torch
-
-from hykin.calibrate import calibrate
-from hykin.compliance import compliant_fk, deflected_joints, gravity_torques
-from hykin.dataset import DatasetError, read_dataset, write_dataset
-from hykin.evaluate import evaluate_model
-from hykin.fk import fk
-from hykin.hybrid import HybridModel
-from hykin.payload import (PAYLOAD_COLUMNS, model_with_payload, payload_of, payload_range_of, robot_with_payload,
-                           with_payload)
-from hykin.se3 import pose_error
-from hykin.simulate import simulate, true_poses, virtual_preset
 from cli_run import run as _run
+
+from hykin.calibration.calibrate import calibrate
+from hykin.evaluation.evaluate import evaluate_model
+from hykin.hybrid.model import HybridModel
+from hykin.io.dataset import DatasetError, read_dataset, write_dataset
+from hykin.kinematics.compliance import compliant_fk, deflected_joints, gravity_torques
+from hykin.kinematics.fk import fk
+from hykin.kinematics.payload import (
+    PAYLOAD_COLUMNS,
+    model_with_payload,
+    payload_of,
+    payload_range_of,
+    robot_with_payload,
+    with_payload,
+)
+from hykin.kinematics.se3 import pose_error
+from hykin.sim.simulate import simulate, true_poses, virtual_preset
 
 
 @pytest.fixture(scope="module")
@@ -169,8 +175,7 @@ def test_cli_simulate_payloads_and_fk_payload_option(tmp_path, capsys, vr):
     plain = tmp_path / "plain.csv"
     with open(plain, "w") as f:
         f.write(",".join(f"q{j + 1}" for j in range(6)) + "\n")
-        for row in ds.q:
-            f.write(",".join(repr(float(v)) for v in row) + "\n")
+        f.writelines(",".join(repr(float(v)) for v in row) + "\n" for row in ds.q)
     code, _, err = _run(["fk", str(tmp_path / "m.hykin"), str(plain), "-o", str(tmp_path / "o.csv"), "--payload-kg", "12"],
                         capsys)
     assert code == 0, err

@@ -8,17 +8,17 @@ import math
 
 import numpy as np
 import pytest
+from cli_run import run as _run
 
-from hykin.calibrate import calibrate, parameter_names
-from hykin.fk import fk
+from hykin.calibration.calibrate import calibrate, parameter_names
+from hykin.kinematics.fk import fk
+from hykin.kinematics.robot import Robot, load_robot
 from hykin.planning import Constraints, PlanningError, embed, farthest_point, plan_poses
 from hykin.planning.constraints import segment_hits_box
 from hykin.planning.criteria import identification_model, scaled_rows
 from hykin.planning.forecast import forecast_accuracy
 from hykin.planning.order import order_path, path_travel, travel_matrix
 from hykin.planning.select import active_poses, d_optimal, i_optimal
-from hykin.robot import Robot, load_robot
-from cli_run import run as _run
 
 DEG = math.pi / 180
 
@@ -232,7 +232,7 @@ def test_cli_plan_writes_ordered_joints_with_line_of_sight(tmp_path, capsys):
                          "--length-unit", "mm", "--max-incidence", "40", "--pool", "2048",
                          "--region", "-90:90,:,:,:,:,:"], capsys)
     assert code == 0, se
-    from hykin.dataset import read_joints
+    from hykin.io.dataset import read_joints
 
     q, extra = read_joints(out)
     assert q.shape == (20, 6)
@@ -264,8 +264,8 @@ def test_cli_plan_report_prints_table(tmp_path, capsys):
 
 
 def test_active_poses_go_where_the_model_is_uncertain(tmp_path, capsys):
-    from hykin.hybrid import HybridModel
-    from hykin.simulate import simulate, virtual_preset
+    from hykin.hybrid.model import HybridModel
+    from hykin.sim.simulate import simulate, virtual_preset
 
     vr = virtual_preset("ur10-virtual")
     rob = vr.nominal
@@ -289,6 +289,6 @@ def test_active_poses_go_where_the_model_is_uncertain(tmp_path, capsys):
                          "--report-max", "100"], capsys)
     assert code == 0, se
     assert "hybrid mm" in so
-    from hykin.dataset import read_joints
+    from hykin.io.dataset import read_joints
 
     assert read_joints(out)[0].shape == (8, 6)

@@ -13,7 +13,7 @@ import pytest
 from comp_models import exact
 from scipy.spatial.transform import Rotation
 
-from hykin import fk, se3
+from hykin import fk
 from hykin.compensation import compensate, krl, rapid, urscript
 from hykin.compensation.branches import (
     abb_confdata,
@@ -22,7 +22,8 @@ from hykin.compensation.branches import (
     match_kuka_status,
 )
 from hykin.compensation.programs import compensate_program
-from hykin.ik import ik
+from hykin.kinematics import se3
+from hykin.kinematics.ik import ik
 
 
 def _diff_lines(a: str, b: str) -> set:

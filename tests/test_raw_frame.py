@@ -10,13 +10,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hykin import se3
-from hykin.calibrate import CalibrationError, calibrate
-from hykin.calibration_checks import DEFAULT_MAX_DEVIATION, parse_max_deviation
-from hykin.compliance import compliant_fk
-from hykin.dataset import Dataset, write_dataset
-from hykin.initial_registration import initial_registration
-from hykin.robot import Robot, load_robot, save_robot_toml
+from hykin.calibration.calibrate import CalibrationError, calibrate
+from hykin.calibration.checks import DEFAULT_MAX_DEVIATION, parse_max_deviation
+from hykin.calibration.initial_registration import initial_registration
+from hykin.io.dataset import Dataset, write_dataset
+from hykin.kinematics import se3
+from hykin.kinematics.compliance import compliant_fk
+from hykin.kinematics.robot import Robot, load_robot, save_robot_toml
 
 PI = np.pi
 
@@ -155,7 +155,7 @@ def test_cli_refuses_with_one_line_and_writes_nothing(setup, tmp_path):
     runner = CliRunner()
     r = runner.invoke(app, ["calibrate", "ur10", str(tmp_path / "d.csv"), "-o", str(tmp_path / "out.toml")])
     # refused by the calibration or already by the data check before it (hykin.plausibility)
-    from hykin.plausibility import PlausibilityError
+    from hykin.calibration.plausibility import PlausibilityError
 
     assert r.exit_code != 0 and isinstance(r.exception, (CalibrationError, PlausibilityError))
     assert "joint order" in str(r.exception)
@@ -172,7 +172,7 @@ def test_cli_refuses_with_one_line_and_writes_nothing(setup, tmp_path):
 @pytest.mark.slow
 def test_fit_calibrates_on_all_of_train(setup):
     """The networks' validation split does not change the calibrated robot; counts are right."""
-    from hykin.hybrid import HybridModel
+    from hykin.hybrid.model import HybridModel
 
     _, _, q, _, Tt, wrong_tool = setup
     ds = Dataset.from_poses(q, Tt)
@@ -196,7 +196,7 @@ def _three_reflectors(nom, truth, q, rng, noise_m=2e-5):
 def test_several_reflectors_fit_as_one_tool_body(setup):
     """Three reflectors per pose (x,y,z, x2..z3 columns): one fit of all points predicts every
     reflector at least as well as a fit of that reflector alone (held-out poses)."""
-    from hykin.reflectors import reflector_points
+    from hykin.calibration.reflectors import reflector_points
 
     nom, truth, q, _, _, wrong_tool = setup
     rng = np.random.default_rng(21)

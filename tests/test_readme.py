@@ -37,7 +37,7 @@ def _cli_commands() -> dict[str, set[tuple[str, ...]]]:
 
 def _readme_block() -> str:
     text = README.read_text()
-    m = re.search(r"## Command line\n.*?```[a-z]*\n(.*?)```", text, flags=re.S)
+    m = re.search(r"## Command line\n.*?```[a-z]*\n(.*?)```", text, flags=re.DOTALL)
     assert m, "README has no '## Command line' code block"
     return m.group(1)
 

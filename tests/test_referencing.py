@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hykin import se3
-from hykin.fk import fk_frames
-from hykin.referencing import (
+from hykin.kinematics import se3
+from hykin.kinematics.fk import fk_frames
+from hykin.kinematics.robot import load_robot
+from hykin.measure.referencing import (
     ReferencingError,
     axis_from_sweep,
     base_frame_from_sweeps,
@@ -17,7 +18,6 @@ from hykin.referencing import (
     register_points,
     tool_frame_from_sweeps,
 )
-from hykin.robot import load_robot
 
 NOISE = 15e-6  # tracker-like, m
 

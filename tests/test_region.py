@@ -7,13 +7,18 @@ import numpy as np
 import pytest
 import torch
 
-from hykin.dataset import Dataset
-from hykin.fk import fk
-from hykin.hybrid import HybridError, HybridModel, OutOfRangeWarning, support_report
-from hykin.robot import load_robot
-from hykin.sampling import restricted
-from hykin.se3 import pose_error, rotvec_to_matrix
-from hykin.simulate import simulate, virtual_preset
+from hykin.hybrid.model import (
+    HybridError,
+    HybridModel,
+    OutOfRangeWarning,
+    support_report,
+)
+from hykin.io.dataset import Dataset
+from hykin.kinematics.fk import fk
+from hykin.kinematics.robot import load_robot
+from hykin.kinematics.se3 import pose_error, rotvec_to_matrix
+from hykin.sim.sampling import restricted
+from hykin.sim.simulate import simulate, virtual_preset
 
 FAST = {"max_epochs": 40, "batch_size": 64, "lr": 1e-2}
 
@@ -223,7 +228,7 @@ def test_holes_inside_the_joint_box_fade_to_calibrated(rx160):
 
 
 def test_fit_growth_recovers_a_linear_band():
-    from hykin.uncertainty import _fit_growth
+    from hykin.hybrid.uncertainty import _fit_growth
 
     rng = np.random.default_rng(0)
     d = rng.uniform(0, 0.4, 20000)
@@ -292,7 +297,7 @@ def test_full_fade_torch_matches_numpy_and_is_differentiable(restricted_virtual)
 
 
 def test_registration_avoids_the_fade_zone():
-    from hykin.register import _avoid_fade_zone
+    from hykin.measure.register import _avoid_fade_zone
 
     class Fake:
         fade = True

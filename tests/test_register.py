@@ -4,14 +4,19 @@ applied to a virtual robot's data are recovered."""
 import numpy as np
 import pytest
 
-from hykin import se3
-from hykin.dataset import Dataset
-from hykin.fk import fk
-from hykin.hybrid import HybridModel
-from hykin.register import fit_frames, register_model, select_representative, select_spread
-from hykin.robot import load_robot
+from hykin.hybrid.model import HybridModel
+from hykin.io.dataset import Dataset
+from hykin.kinematics import se3
+from hykin.kinematics.fk import fk
+from hykin.kinematics.robot import load_robot
+from hykin.measure.register import (
+    fit_frames,
+    register_model,
+    select_representative,
+    select_spread,
+)
 
-pytestmark = pytest.mark.filterwarnings("ignore::hykin.hybrid.OutOfRangeWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::hykin.hybrid.model.OutOfRangeWarning")
 
 B_TRUE = se3.make_transform(se3.rotvec_to_matrix(np.array([0.3, -1.2, 2.0])), np.array([2.5, -1.0, 0.7]))
 E_TRUE = se3.make_transform(se3.rotvec_to_matrix(np.array([0.0, 2.1, 0.4])), np.array([0.05, -0.02, 0.13]))

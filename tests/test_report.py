@@ -8,7 +8,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from hykin.report import Report, error_histograms
+from hykin.evaluation.report import Report, error_histograms
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
 
@@ -51,7 +51,7 @@ def test_report_renders_in_headless_chromium(tmp_path):
     # matplotlib's first two default colours (C0 blue, C1 orange), blended at alpha 0.6 on white.
     c0 = np.array([31, 119, 180]) / 255 * 0.6 + 0.4
     c1 = np.array([255, 127, 14]) / 255 * 0.6 + 0.4
-    near = lambda c: np.all(np.abs(img - c) < 0.06, axis=-1).sum()  # noqa: E731
+    near = lambda c: np.all(np.abs(img - c) < 0.06, axis=-1).sum()
     # The histogram bars are only present if the embedded PNG was decoded and drawn.
     assert near(c0) > 500, "no histogram bars (C0) rendered"
     assert near(c1) > 500, "no histogram bars (C1) rendered"

@@ -10,9 +10,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hykin import se3
-from hykin.fk import fk, fk_frames
-from hykin.robot import (
+from hykin.io.urdf import load_urdf, load_urdf_string, robot_to_urdf
+from hykin.kinematics import se3
+from hykin.kinematics.fk import fk, fk_frames
+from hykin.kinematics.robot import (
     Robot,
     RobotFileError,
     list_presets,
@@ -21,7 +22,6 @@ from hykin.robot import (
     robot_to_toml_string,
     save_robot_toml,
 )
-from hykin.urdf import load_urdf, load_urdf_string, robot_to_urdf
 
 DATA = Path(__file__).parent / "data"
 
@@ -38,8 +38,8 @@ def dh_robots(draw):
     prism = draw(st.lists(st.booleans(), min_size=n, max_size=n))
     lo = np.array(draw(st.lists(st.floats(-3, 0), min_size=n, max_size=n)))
     hi = lo + np.array(draw(st.lists(st.floats(0.01, 3), min_size=n, max_size=n)))
-    arr = lambda s: np.array(draw(st.lists(s, min_size=n, max_size=n)))  # noqa: E731
-    frame = lambda: se3.xyzrpy_to_transform(  # noqa: E731
+    arr = lambda s: np.array(draw(st.lists(s, min_size=n, max_size=n)))
+    frame = lambda: se3.xyzrpy_to_transform(
         np.array(draw(st.lists(length, min_size=3, max_size=3))), np.array(draw(st.lists(angle, min_size=3, max_size=3)))
     )
     return Robot(

@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 from comp_models import tiny_model_file
 
-from hykin import fk, se3
+from hykin import fk
+from hykin.kinematics import se3
 
 httpx = pytest.importorskip("httpx")
 ROOT = Path(__file__).resolve().parents[1]
@@ -49,7 +50,7 @@ def server():
             proc.kill()
             pytest.fail(f"server did not start: {proc.stderr.read().decode()[-500:]}")
         time.sleep(0.2)
-    from hykin.hybrid import HybridModel
+    from hykin.hybrid.model import HybridModel
 
     yield client, HybridModel.load(mp), proc
     client.close()

@@ -5,13 +5,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import qmc
 
-from hykin.compliance import deflected_joints
-from hykin.dataset import read_dataset
-from hykin.fk import fk
-from hykin.robot import load_robot
-from hykin.sampling import PlanError, iso_cube, restricted, sample, uniform, zigzag
-from hykin.se3 import pose_error, pose_to_transform
-from hykin.simulate import (
+from hykin.io.dataset import read_dataset
+from hykin.kinematics.compliance import deflected_joints
+from hykin.kinematics.fk import fk
+from hykin.kinematics.robot import load_robot
+from hykin.kinematics.se3 import pose_error, pose_to_transform
+from hykin.sim.sampling import PlanError, iso_cube, restricted, sample, uniform, zigzag
+from hykin.sim.simulate import (
     PeriodicError,
     SimulationError,
     ThermalDrift,
@@ -127,7 +127,7 @@ def test_transmission_error():
 
 def test_thermal_drift_scales_base_frame_position():
     r = load_robot("rx160")
-    from hykin.se3 import make_transform, rotvec_to_matrix
+    from hykin.kinematics.se3 import make_transform, rotvec_to_matrix
 
     base = make_transform(rotvec_to_matrix(np.array([0.1, -0.2, 0.3])), np.array([0.5, -0.2, 0.1]))
     r = r.copy(base=base)

@@ -4,10 +4,17 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from hykin import se3
-from hykin.fk import fk
-from hykin.robot import load_robot
-from hykin.streams import StreamError, align_streams, estimate_clock, estimate_time_offset, resample_tracker, tcp_speed
+from hykin.kinematics import se3
+from hykin.kinematics.fk import fk
+from hykin.kinematics.robot import load_robot
+from hykin.measure.streams import (
+    StreamError,
+    align_streams,
+    estimate_clock,
+    estimate_time_offset,
+    resample_tracker,
+    tcp_speed,
+)
 
 B = se3.xyzrpy_to_transform([2.0, -1.0, 0.3], [0.1, -0.2, 1.0])  # robot base in tracker frame
 OFFSET = 0.0373

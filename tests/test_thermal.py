@@ -8,12 +8,17 @@ import warnings
 import numpy as np
 import pytest
 
-from hykin import se3
-from hykin.dataset import Dataset, read_dataset, write_dataset
-from hykin.fk import fk
-from hykin.hybrid import HybridError, HybridModel, OutOfRangeWarning
-from hykin.simulate import simulate, true_poses, virtual_preset
-from hykin.thermal import fit_coefficient, scale_about, temperature_of, to_reference
+from hykin.calibration.thermal import (
+    fit_coefficient,
+    scale_about,
+    temperature_of,
+    to_reference,
+)
+from hykin.hybrid.model import HybridError, HybridModel, OutOfRangeWarning
+from hykin.io.dataset import Dataset, read_dataset, write_dataset
+from hykin.kinematics import se3
+from hykin.kinematics.fk import fk
+from hykin.sim.simulate import simulate, true_poses, virtual_preset
 
 FAST = {"max_epochs": 15}
 
@@ -36,7 +41,7 @@ def model(session):
 
 def test_scaling_is_exact_for_uniform_expansion():
     """Scaling every length of the chain by s scales the TCP position about the base origin by s."""
-    from hykin.robot import load_robot
+    from hykin.kinematics.robot import load_robot
 
     rob = load_robot("rx160").copy(base=se3.xyzrpy_to_transform(np.array([[0.3, -0.2, 0.1]]), np.array([[0.1, 0.2, -0.3]]))[0],
                                    tool=se3.xyzrpy_to_transform(np.array([[0.01, 0.02, 0.15]]), np.zeros((1, 3)))[0])
@@ -165,7 +170,7 @@ def test_cli_fk_and_evaluate_use_the_temperature_column(model, session, tmp_path
 
 
 def test_hybrid_ik_reaches_targets_at_temperature(model, session):
-    from hykin.hybrid_ik import hybrid_ik
+    from hykin.hybrid.ik import hybrid_ik
 
     vr, q, ds = session
     q0 = q[:20]

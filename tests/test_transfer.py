@@ -11,17 +11,17 @@ import numpy as np
 import pytest
 import torch
 
-from hykin import se3
-from hykin.dataset import Dataset
-from hykin.evaluate import evaluate_model, joint_region_rows
-from hykin.fade import calibrate_fade, fade_distance, region_blocks
-from hykin.fk import fk
-from hykin.hybrid import HybridModel
-from hykin.region_cv import joint_blocks, select_calibration
-from hykin.register import RegistrationError, register_model
-from hykin.robot import load_robot
+from hykin.evaluation.evaluate import evaluate_model, joint_region_rows
+from hykin.hybrid.fade import calibrate_fade, fade_distance, region_blocks
+from hykin.hybrid.model import HybridModel
+from hykin.hybrid.region_cv import joint_blocks, select_calibration
+from hykin.io.dataset import Dataset
+from hykin.kinematics import se3
+from hykin.kinematics.fk import fk
+from hykin.kinematics.robot import load_robot
+from hykin.measure.register import RegistrationError, register_model
 
-pytestmark = pytest.mark.filterwarnings("ignore::hykin.hybrid.OutOfRangeWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::hykin.hybrid.model.OutOfRangeWarning")
 
 TRACKER = se3.make_transform(se3.rotvec_to_matrix(np.array([0.1, -0.3, 1.9])), np.array([1.5, 2.0, -0.4]))
 REMOUNT = se3.make_transform(se3.rotvec_to_matrix(np.radians(0.05) * np.array([0.6, 0.0, 0.8])), np.array([3e-4, -4e-4, 0.0]))
@@ -157,7 +157,7 @@ def test_blocks_partition():
 
 @pytest.mark.slow
 def test_calibrate_fade_and_region_cv_end_to_end():
-    from hykin.simulate import simulate, virtual_preset
+    from hykin.sim.simulate import simulate, virtual_preset
 
     vr = virtual_preset("rx160-geometric", seed=2)
     q = vr.nominal.random_joints(1200, np.random.default_rng(2))

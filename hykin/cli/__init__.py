@@ -12,7 +12,7 @@ import sys
 from . import compensate, data, imports, model, plan, query  # noqa: F401  (register the commands)
 from .common import CLIError, app
 
-__all__ = ["app", "main", "CLIError"]
+__all__ = ["CLIError", "app", "main"]
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -125,10 +125,10 @@ def is_model_file(spec: str) -> bool:
 
 def load_model_or_robot(spec: str):
     """Return ``(model_or_None, robot)`` for a model file, a robot file or a preset name."""
-    from ..robot import load_robot
+    from ..kinematics.robot import load_robot
 
     if is_model_file(spec):
-        from ..hybrid import HybridModel
+        from ..hybrid.model import HybridModel
 
         model = HybridModel.load(spec)
         return model, model.robot
@@ -138,13 +138,13 @@ def load_model_or_robot(spec: str):
     return None, load_robot(spec)
 
 
-def load_model(spec) -> "object":
+def load_model(spec) -> object:
     """A hykin model file (commands that need the networks: register, export, compensate, serve)."""
     p = Path(spec)
     if p.is_file() and not is_model_file(str(spec)):
         got = f"a {p.suffix} file" if p.suffix else "another kind of file"
         raise CLIError(f"{spec}: expected a hykin model file (written by `hykin fit`), got {got}")
-    from ..hybrid import HybridModel
+    from ..hybrid.model import HybridModel
 
     return HybridModel.load(spec)
 
@@ -154,7 +154,7 @@ def load_model(spec) -> "object":
 
 def temperature_of(mdl, extra: dict, path) -> np.ndarray | None:
     """The file's temperature column for a model with a thermal coefficient (note when it is missing)."""
-    from ..thermal import temperature_from
+    from ..calibration.thermal import temperature_from
 
     th = getattr(mdl, "thermal_", None)
     if th is None or th.coefficient_per_k == 0.0:

@@ -75,7 +75,7 @@ def compensate_cmd(
         raise CLIError(f"{inp}: no such file")
     mdl = load_model(model)
     if payload_kg is not None:
-        from ..payload import model_with_payload, payload_outside
+        from ..kinematics.payload import model_with_payload, payload_outside
 
         if not (payload_kg >= 0 and payload_kg < float("inf")):
             raise CLIError(f"--payload-kg must be a finite mass >= 0 kg, got {payload_kg}")
@@ -98,7 +98,7 @@ def compensate_cmd(
 
 def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_unit: str, angle_unit: str) -> None:
     from ..compensation.targets import command_rows, compensate
-    from ..dataset import read_joints, read_poses
+    from ..io.dataset import read_joints, read_poses
 
     T, has_rot = read_poses(inp, length_unit=length_unit)
     n = mdl.nominal.dof
@@ -211,7 +211,7 @@ def export_urdf_cmd(
     force: bool = Force,
 ) -> None:
     """Calibrated URDF: geometry, joint offsets, base and tool of the calibrated model in the joint origins."""
-    from ..urdf import calibrated_urdf
+    from ..io.urdf import calibrated_urdf
 
     check_output(out, [Path(model)], force)
     mdl = load_model(model)

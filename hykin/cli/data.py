@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -13,14 +12,14 @@ from .common import AngleUnit, CLIError, Force, LengthUnit, app, check_output, p
 @app.command("presets")
 def presets_cmd() -> None:
     """List the robot presets and the virtual-robot presets shipped with hykin."""
-    from ..robot import list_presets, load_robot
+    from ..kinematics.robot import list_presets, load_robot
 
     typer.echo("robot presets (use as ROBOT):")
     for name in list_presets():
         r = load_robot(name)
         typer.echo(f"  {name:16s} {r.dof} dof, {r.convention}")
     try:
-        from ..simulate import list_virtual_presets, virtual_preset
+        from ..sim.simulate import list_virtual_presets, virtual_preset
 
         typer.echo("virtual robots (use with `hykin simulate`):")
         for name in list_virtual_presets():
@@ -38,11 +37,16 @@ def simulate_cmd(
     seed: int = typer.Option(0, "--seed", help="Random seed (reproducible)."),
     plan: str = typer.Option("uniform", "--plan", help="Sampling plan: uniform, random, zigzag, iso-cube, restricted."),
     noise: bool = typer.Option(True, "--noise/--no-noise", help="Add tracker-like measurement noise."),
-    payloads: Optional[str] = typer.Option(None, "--payloads", help="Payload masses in kg, e.g. 0,12: rows cycle through them (column payload_kg)."),
+    payloads: str | None = typer.Option(None, "--payloads", help="Payload masses in kg, e.g. 0,12: rows cycle through them (column payload_kg)."),
     force: bool = Force,
 ) -> None:
     """Simulate a measured dataset from a virtual robot whose truth is known."""
-    from ..simulate import load_truth, simulate_to_file, truth_path_for, virtual_preset
+    from ..sim.simulate import (
+        load_truth,
+        simulate_to_file,
+        truth_path_for,
+        virtual_preset,
+    )
 
     check_output(out, (preset,), force)
     check_output(truth_path_for(out), (preset,), force)  # the truth file written beside it
@@ -75,13 +79,13 @@ def split_cmd(
     out_prefix: Path = typer.Option(..., "-o", "--out", help="Output prefix: writes PREFIX_train.csv and PREFIX_test.csv."),
     test: float = typer.Option(0.2, "--test", help="Fraction held out for testing.", min=0.01, max=0.99),
     seed: int = typer.Option(0, "--seed"),
-    group: Optional[str] = typer.Option(None, "--group", help="Keep rows with the same value of this column together."),
+    group: str | None = typer.Option(None, "--group", help="Keep rows with the same value of this column together."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     force: bool = Force,
 ) -> None:
     """Random train/test split of a dataset (disjoint, reproducible)."""
-    from ..dataset import read_dataset, split, write_dataset
+    from ..io.dataset import read_dataset, split, write_dataset
 
     suffix = data.suffix if data.suffix in (".csv", ".parquet") else ".csv"
     paths = [Path(f"{out_prefix}_train{suffix}"), Path(f"{out_prefix}_test{suffix}")]

@@ -9,7 +9,6 @@ aligns a robot joint log with a tracker stream.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -20,7 +19,7 @@ app.add_typer(import_app, name="import")
 
 
 def _write(ds, out: Path, inputs, what: str = "") -> None:
-    from ..dataset import write_dataset
+    from ..io.dataset import write_dataset
 
     write_dataset(ds, out)
     frame = ds.meta.get("frame", "robot base")
@@ -38,11 +37,11 @@ Out = typer.Option(..., "-o", "--out", help="Output dataset in the standard form
 def import_ur5_cmd(
     path: Path = typer.Argument(..., help="serial-robots-ur5 CSV (joint_1..joint_6, x_t.., x_dif..)."),
     out: Path = Out,
-    robot_out: Optional[Path] = RobotOut,
+    robot_out: Path | None = RobotOut,
     force: bool = Force,
 ) -> None:
     """Import a serial-robots-ur5 CSV (exactly six joints; anything else: `hykin import table`)."""
-    from ..importers import import_ur5, ur5_robot_for_dataset
+    from ..io.importers import import_ur5, ur5_robot_for_dataset
 
     _import_fixed(path, out, robot_out, force, lambda: import_ur5(path), ur5_robot_for_dataset)
 
@@ -55,20 +54,20 @@ def import_ipa_cmd(
         False, "--register/--tracker-frame",
         help="Express poses in the robot base by a rigid base+tool fit of the nominal UR10 (default: keep the tracker frame).",
     ),
-    robot_out: Optional[Path] = RobotOut,
+    robot_out: Path | None = RobotOut,
     force: bool = Force,
 ) -> None:
     """Import an ipa-robot-accuracy series (UR10, laser tracker + T-Mac)."""
-    from ..importers import import_ipa_series, ipa_nominal_robot
+    from ..io.importers import import_ipa_series, ipa_nominal_robot
 
     _import_fixed(path, out, robot_out, force,
                   lambda: import_ipa_series(path, register_to=ipa_nominal_robot() if register else None), ipa_nominal_robot)
 
 
-def _import_fixed(path: Path, out: Path, robot_out: Optional[Path], force: bool, read, nominal_robot) -> None:
+def _import_fixed(path: Path, out: Path, robot_out: Path | None, force: bool, read, nominal_robot) -> None:
     """A fixed-layout import: outputs checked first, then ``read()`` -> dataset, and the set-up's nominal
     robot (``nominal_robot()``) written to ``robot_out`` when asked."""
-    from ..robot import save_robot_toml
+    from ..kinematics.robot import save_robot_toml
 
     check_output(out, (path,), force)
     if robot_out is not None:
@@ -108,8 +107,8 @@ def _joint_spec(s: str | None):
     return s.strip() if ("*" in s or ".." in s) else _csv_names(s)
 
 
-def _build_map(map_path: Optional[Path], opts: dict):
-    from ..table_map import load_table_map, table_map_from_dict
+def _build_map(map_path: Path | None, opts: dict):
+    from ..io.table_map import load_table_map, table_map_from_dict
 
     opts = {k: v for k, v in opts.items() if v is not None and v != []}
     if map_path is not None:
@@ -128,41 +127,41 @@ def _robot(spec: str | None):
 @import_app.command("table")
 def import_table_cmd(
     path: Path = typer.Argument(..., help="Delimited text table (any tracker/robot export)."),
-    out: Optional[Path] = typer.Option(None, "-o", "--out", help="Output dataset (.csv/.parquet)."),
-    map_path: Optional[Path] = MapOpt,
+    out: Path | None = typer.Option(None, "-o", "--out", help="Output dataset (.csv/.parquet)."),
+    map_path: Path | None = MapOpt,
     suggest: bool = typer.Option(False, "--suggest", help="Print the header and a suggested mapping TOML; import nothing."),
-    joints: Optional[str] = JointsOpt,
-    angle_unit: Optional[str] = AngleOpt,
-    position: Optional[str] = PositionOpt,
-    length_unit: Optional[str] = LengthOpt,
-    quaternion: Optional[str] = typer.Option(None, "--quaternion", help="Quaternion columns, in quaternion-order."),
-    quaternion_order: Optional[str] = typer.Option(None, "--quaternion-order", help="wxyz (scalar first) or xyzw."),
-    euler: Optional[str] = typer.Option(None, "--euler", help="Euler angle columns, in the order of --euler-convention."),
-    euler_convention: Optional[str] = typer.Option(
+    joints: str | None = JointsOpt,
+    angle_unit: str | None = AngleOpt,
+    position: str | None = PositionOpt,
+    length_unit: str | None = LengthOpt,
+    quaternion: str | None = typer.Option(None, "--quaternion", help="Quaternion columns, in quaternion-order."),
+    quaternion_order: str | None = typer.Option(None, "--quaternion-order", help="wxyz (scalar first) or xyzw."),
+    euler: str | None = typer.Option(None, "--euler", help="Euler angle columns, in the order of --euler-convention."),
+    euler_convention: str | None = typer.Option(
         None, "--euler-convention", help="Axis letters, e.g. xyz, zyx, zyz (case: scipy's, lowercase extrinsic), or kuka / rpy."),
-    euler_extrinsic: Optional[bool] = typer.Option(None, "--euler-extrinsic/--euler-intrinsic", help="Rotations about fixed / moving axes."),
-    euler_unit: Optional[str] = typer.Option(None, "--euler-unit", help="rad or deg (default rad)."),
-    rotvec: Optional[str] = typer.Option(None, "--rotvec", help="Rotation-vector (axis·angle) columns."),
-    rotvec_unit: Optional[str] = typer.Option(None, "--rotvec-unit", help="rad or deg (default rad)."),
-    point: Optional[List[str]] = PointOpt,
-    time: Optional[str] = typer.Option(None, "--time", help="Time column -> time_s."),
-    time_unit: Optional[str] = typer.Option(None, "--time-unit", help="s, ms, us or ns."),
-    temperature: Optional[str] = typer.Option(None, "--temperature", help="Temperature column -> temperature_c."),
-    temperature_unit: Optional[str] = typer.Option(None, "--temperature-unit", help="C, K or F."),
-    payload: Optional[str] = typer.Option(None, "--payload", help="Payload mass column (kg) -> payload_kg."),
-    keep: Optional[List[str]] = typer.Option(None, "--keep", help="Further columns to carry as they are ('*' = all unmapped)."),
-    ignore: Optional[str] = typer.Option(None, "--ignore", help="Columns that look like joints but are not (comma-separated)."),
-    delimiter: Optional[str] = DelimOpt,
-    decimal: Optional[str] = DecimalOpt,
-    skip_rows: Optional[int] = SkipOpt,
-    header_row: Optional[int] = HeaderOpt,
-    comment: Optional[str] = CommentOpt,
-    drop_rows: Optional[str] = typer.Option(None, "--drop-rows", help="1-based file lines to drop, comma-separated (e.g. a units line)."),
-    where: Optional[List[str]] = typer.Option(None, "--where", help="Row filter 'column op value' (== != < <= > >=); repeat to AND."),
-    encoding: Optional[str] = typer.Option(None, "--encoding", help="Text encoding (default UTF-8, falling back to cp1252)."),
-    dof: Optional[int] = DofOpt,
-    robot: Optional[str] = RobotOpt,
-    unit_check: Optional[bool] = UnitCheckOpt,
+    euler_extrinsic: bool | None = typer.Option(None, "--euler-extrinsic/--euler-intrinsic", help="Rotations about fixed / moving axes."),
+    euler_unit: str | None = typer.Option(None, "--euler-unit", help="rad or deg (default rad)."),
+    rotvec: str | None = typer.Option(None, "--rotvec", help="Rotation-vector (axis·angle) columns."),
+    rotvec_unit: str | None = typer.Option(None, "--rotvec-unit", help="rad or deg (default rad)."),
+    point: list[str] | None = PointOpt,
+    time: str | None = typer.Option(None, "--time", help="Time column -> time_s."),
+    time_unit: str | None = typer.Option(None, "--time-unit", help="s, ms, us or ns."),
+    temperature: str | None = typer.Option(None, "--temperature", help="Temperature column -> temperature_c."),
+    temperature_unit: str | None = typer.Option(None, "--temperature-unit", help="C, K or F."),
+    payload: str | None = typer.Option(None, "--payload", help="Payload mass column (kg) -> payload_kg."),
+    keep: list[str] | None = typer.Option(None, "--keep", help="Further columns to carry as they are ('*' = all unmapped)."),
+    ignore: str | None = typer.Option(None, "--ignore", help="Columns that look like joints but are not (comma-separated)."),
+    delimiter: str | None = DelimOpt,
+    decimal: str | None = DecimalOpt,
+    skip_rows: int | None = SkipOpt,
+    header_row: int | None = HeaderOpt,
+    comment: str | None = CommentOpt,
+    drop_rows: str | None = typer.Option(None, "--drop-rows", help="1-based file lines to drop, comma-separated (e.g. a units line)."),
+    where: list[str] | None = typer.Option(None, "--where", help="Row filter 'column op value' (== != < <= > >=); repeat to AND."),
+    encoding: str | None = typer.Option(None, "--encoding", help="Text encoding (default UTF-8, falling back to cp1252)."),
+    dof: int | None = DofOpt,
+    robot: str | None = RobotOpt,
+    unit_check: bool | None = UnitCheckOpt,
     force: bool = Force,
 ) -> None:
     """Import any table into the standard dataset through a column mapping (see docs/import-table.md)."""
@@ -184,7 +183,7 @@ def import_table_cmd(
     if map_path is None and opts["joints"] is None and opts["position"] is None:
         raise CLIError(f"{path}: no column mapping given; `hykin import table {path} --suggest` prints the header and a "
                        "suggested mapping to check and pass with --map")
-    from ..table_import import import_table
+    from ..io.table_import import import_table
 
     check_output(out, (path, map_path), force)
     m = _build_map(map_path, opts)
@@ -192,9 +191,9 @@ def import_table_cmd(
     _write(ds, out, [path, map_path], f", orientation from {m.orientation}" if m.orientation else "")
 
 
-def _suggest(path: Path, map_path: Optional[Path], opts: dict) -> None:
-    from ..table_import import guess_layout, read_text_table
-    from ..table_map import suggest_map
+def _suggest(path: Path, map_path: Path | None, opts: dict) -> None:
+    from ..io.table_import import guess_layout, read_text_table
+    from ..io.table_map import suggest_map
 
     layout = {k: opts[k] for k in ("delimiter", "decimal", "skip_rows", "header_row", "comment", "encoding")}
     m = _build_map(map_path, layout)
@@ -233,22 +232,22 @@ def _parse_nest(spec: str):
 def import_three_smr_cmd(
     path: Path = typer.Argument(..., help="Table with joints and three reflector positions per pose."),
     out: Path = Out,
-    nest: Optional[str] = typer.Option(
+    nest: str | None = typer.Option(
         None, "--nest", help="Reflector positions in the tool frame: 'x1,y1,z1; x2,y2,z2; x3,y3,z3' or a TOML file with nest = [...]."),
-    nest_unit: Optional[str] = typer.Option(None, "--nest-unit", help="Unit of the nest: m or mm, ... (default m)."),
-    max_fit_rms_mm: Optional[float] = typer.Option(None, "--max-fit-rms-mm", help="Largest accepted fit residual per pose (default 1 mm)."),
-    map_path: Optional[Path] = MapOpt,
-    joints: Optional[str] = JointsOpt,
-    angle_unit: Optional[str] = AngleOpt,
-    position: Optional[str] = typer.Option(None, "--position", help="Reflector 1 columns 'X1,Y1,Z1' (default p1x,p1y,p1z)."),
-    length_unit: Optional[str] = LengthOpt,
-    point: Optional[List[str]] = typer.Option(None, "--point", help="Reflector 2 and 3 columns (give twice; default p2x.., p3x..)."),
-    delimiter: Optional[str] = DelimOpt,
-    decimal: Optional[str] = DecimalOpt,
-    skip_rows: Optional[int] = SkipOpt,
-    comment: Optional[str] = CommentOpt,
-    dof: Optional[int] = DofOpt,
-    robot: Optional[str] = RobotOpt,
+    nest_unit: str | None = typer.Option(None, "--nest-unit", help="Unit of the nest: m or mm, ... (default m)."),
+    max_fit_rms_mm: float | None = typer.Option(None, "--max-fit-rms-mm", help="Largest accepted fit residual per pose (default 1 mm)."),
+    map_path: Path | None = MapOpt,
+    joints: str | None = JointsOpt,
+    angle_unit: str | None = AngleOpt,
+    position: str | None = typer.Option(None, "--position", help="Reflector 1 columns 'X1,Y1,Z1' (default p1x,p1y,p1z)."),
+    length_unit: str | None = LengthOpt,
+    point: list[str] | None = typer.Option(None, "--point", help="Reflector 2 and 3 columns (give twice; default p2x.., p3x..)."),
+    delimiter: str | None = DelimOpt,
+    decimal: str | None = DecimalOpt,
+    skip_rows: int | None = SkipOpt,
+    comment: str | None = CommentOpt,
+    dof: int | None = DofOpt,
+    robot: str | None = RobotOpt,
     force: bool = Force,
 ) -> None:
     """Full poses from three reflectors per pose (a rigid fit of the known nest onto the three points).
@@ -256,7 +255,7 @@ def import_three_smr_cmd(
     Without a mapping the columns are q1..qN and p1x,p1y,p1z, p2x,..., p3z (comma-separated) and every
     other column is kept.
     """
-    from ..table_import import import_table
+    from ..io.table_import import import_table
 
     check_output(out, (path, map_path), force)
     opts = dict(joints=_joint_spec(joints), angle_unit=angle_unit, position=_csv_names(position), length_unit=length_unit,
@@ -289,29 +288,29 @@ def import_stream_cmd(
     tracker_stream: Path = typer.Argument(..., help="Tracker stream: a time column and positions (empty cells = beam lost)."),
     out: Path = Out,
     robot: str = typer.Option(..., "--robot", help="Robot file/preset (or model file): FK of the logged joints for the clock fit."),
-    robot_map: Optional[Path] = typer.Option(None, "--robot-map", help="Mapping TOML of the robot log (time, joints, angle_unit, layout)."),
-    tracker_map: Optional[Path] = typer.Option(None, "--tracker-map", help="Mapping TOML of the tracker stream (time, position, orientation, units, layout)."),
-    robot_time: Optional[str] = typer.Option(None, "--robot-time", help="Time column of the robot log (default t)."),
-    joints: Optional[str] = typer.Option(None, "--joints", help="Joint columns of the robot log (default q*)."),
-    angle_unit: Optional[str] = AngleOpt,
-    tracker_time: Optional[str] = typer.Option(None, "--tracker-time", help="Time column of the tracker stream (default t)."),
-    position: Optional[str] = typer.Option(None, "--position", help="Position columns of the tracker stream (default x,y,z)."),
-    quaternion: Optional[str] = typer.Option(None, "--quaternion", help="Quaternion columns (wxyz) of the tracker stream, if any."),
-    length_unit: Optional[str] = LengthOpt,
-    robot_time_unit: Optional[str] = typer.Option(None, "--robot-time-unit", help="Unit of the robot log's time: s, ms, us, ns (default s)."),
-    tracker_time_unit: Optional[str] = typer.Option(None, "--tracker-time-unit", help="Unit of the tracker's time: s, ms, us, ns (default s)."),
-    offset: Optional[float] = typer.Option(None, "--offset", help="Known clock offset t_tracker - t_robot (s); default: estimated."),
+    robot_map: Path | None = typer.Option(None, "--robot-map", help="Mapping TOML of the robot log (time, joints, angle_unit, layout)."),
+    tracker_map: Path | None = typer.Option(None, "--tracker-map", help="Mapping TOML of the tracker stream (time, position, orientation, units, layout)."),
+    robot_time: str | None = typer.Option(None, "--robot-time", help="Time column of the robot log (default t)."),
+    joints: str | None = typer.Option(None, "--joints", help="Joint columns of the robot log (default q*)."),
+    angle_unit: str | None = AngleOpt,
+    tracker_time: str | None = typer.Option(None, "--tracker-time", help="Time column of the tracker stream (default t)."),
+    position: str | None = typer.Option(None, "--position", help="Position columns of the tracker stream (default x,y,z)."),
+    quaternion: str | None = typer.Option(None, "--quaternion", help="Quaternion columns (wxyz) of the tracker stream, if any."),
+    length_unit: str | None = LengthOpt,
+    robot_time_unit: str | None = typer.Option(None, "--robot-time-unit", help="Unit of the robot log's time: s, ms, us, ns (default s)."),
+    tracker_time_unit: str | None = typer.Option(None, "--tracker-time-unit", help="Unit of the tracker's time: s, ms, us, ns (default s)."),
+    offset: float | None = typer.Option(None, "--offset", help="Known clock offset t_tracker - t_robot (s); default: estimated."),
     fit_drift: bool = typer.Option(False, "--fit-drift", help="Also estimate a clock drift (needs a log of >= 2 windows)."),
     method: str = typer.Option("speed", "--method", help="Offset estimate: speed (frame-free) or positions (accurate model)."),
     max_offset: float = typer.Option(1.0, "--max-offset", help="Search the offset within ± this (s).", min=0.0),
     max_speed: float = typer.Option(0.1, "--max-speed", help="Drop samples where the TCP moves faster (m/s); 0 keeps all.", min=0.0),
-    max_gap: Optional[float] = typer.Option(None, "--max-gap", help="Longest tracker gap bridged (s; default 3 tracker periods)."),
+    max_gap: float | None = typer.Option(None, "--max-gap", help="Longest tracker gap bridged (s; default 3 tracker periods)."),
     frame: str = typer.Option("tracker", "--frame", help="tracker (keep the tracker frame) or fit (robot base by the rigid map of the clock fit)."),
     force: bool = Force,
 ) -> None:
     """Align a robot joint log with a tracker stream (clock offset, interpolation) into a dataset."""
-    from ..streams import align_streams
-    from ..table_import import read_mapped
+    from ..io.table_import import read_mapped
+    from ..measure.streams import align_streams
 
     if frame not in ("tracker", "fit"):
         raise CLIError(f"import stream: --frame must be tracker or fit, got {frame!r}")

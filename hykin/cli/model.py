@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -31,7 +30,7 @@ MaxDeviation = typer.Option(
 
 def _calibration_options(orientation_weight: str, max_deviation: str | None) -> dict:
     """``calibrate`` keyword arguments from the CLI options (CLIError on bad values)."""
-    from ..calibration_checks import parse_max_deviation
+    from ..calibration.checks import parse_max_deviation
 
     kw: dict = {}
     if orientation_weight != "auto":
@@ -55,18 +54,18 @@ def fit_cmd(
     robot: str = typer.Argument(..., help="Robot file (.toml), URDF, or preset name."),
     train: Path = typer.Argument(..., help="Training dataset (.csv/.parquet)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output model file (one safetensors file)."),
-    val: Optional[Path] = typer.Option(None, "--val", help="Validation dataset (default: 10% of TRAIN held out)."),
+    val: Path | None = typer.Option(None, "--val", help="Validation dataset (default: 10% of TRAIN held out)."),
     arch: str = typer.Option("default", "--arch", help="Network architecture: default, D1, D4, D4w, D4W, Rw, Rd, B1..B4."),
     recipe: str = typer.Option("default", "--recipe", help="Training recipe: default or paper."),
     calibrate: bool = typer.Option(True, "--calibrate/--no-calibrate", help="Parametric calibration before the networks."),
     device: str = typer.Option("cpu", "--device", help="cpu, cuda, or auto."),
     seed: int = typer.Option(0, "--seed"),
-    max_minutes: Optional[float] = typer.Option(None, "--max-minutes", help="Time budget for network training."),
+    max_minutes: float | None = typer.Option(None, "--max-minutes", help="Time budget for network training."),
     thermal: str = typer.Option("auto", "--thermal", help="Thermal expansion from a temperature_c column: auto, on, off."),
-    min_steps: Optional[int] = typer.Option(None, "--min-steps", help="Least number of optimiser steps per network (default recipe: 30000)."),
-    max_epochs: Optional[int] = typer.Option(None, "--max-epochs", help="Most training epochs per network (default: the recipe's)."),
+    min_steps: int | None = typer.Option(None, "--min-steps", help="Least number of optimiser steps per network (default recipe: 30000)."),
+    max_epochs: int | None = typer.Option(None, "--max-epochs", help="Most training epochs per network (default: the recipe's)."),
     orientation_weight: str = OrientationWeight,
-    max_deviation: Optional[str] = MaxDeviation,
+    max_deviation: str | None = MaxDeviation,
     region_cv: bool = typer.Option(False, "--region-cv", help="Choose the calibration's parameter set by region-blocked validation."),
     fade_cv: int = typer.Option(0, "--fade-cv", help="Measure the fade by leave-one-region-out over this many regions (>= 2; 0 = fixed fade)."),
     length_unit: str = LengthUnit,
@@ -78,10 +77,10 @@ def fit_cmd(
     Exactly the API path: ``HybridModel(robot, ...).fit(train, val)``; without ``--val`` the model
     holds out its validation rows itself, so the same data, options and seed give the same model; the
     calibration uses all of TRAIN (the networks' split must not change the calibrated robot)."""
-    from ..dataset import read_dataset
-    from ..hybrid import HybridModel
-    from ..plausibility import check_fit_size
-    from ..robot import load_robot
+    from ..calibration.plausibility import check_fit_size
+    from ..hybrid.model import HybridModel
+    from ..io.dataset import read_dataset
+    from ..kinematics.robot import load_robot
 
     kw = {}
     if max_minutes is not None:
@@ -145,13 +144,13 @@ def evaluate_cmd(
     model: str = typer.Argument(..., help="Model file (or a robot: classical only)."),
     test: Path = typer.Argument(..., help="Test dataset (.csv/.parquet)."),
     as_json: bool = typer.Option(False, "--json", help="Print the table as JSON."),
-    report: Optional[Path] = typer.Option(None, "--report", help="Write an HTML report with plots to this directory."),
+    report: Path | None = typer.Option(None, "--report", help="Write an HTML report with plots to this directory."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
 ) -> None:
     """Before/after error table (mean, std, p95, max; position mm, orientation deg)."""
-    from ..dataset import read_dataset
-    from ..evaluate import evaluate_model, evaluation_report
+    from ..evaluation.evaluate import evaluate_model, evaluation_report
+    from ..io.dataset import read_dataset
 
     if report is not None and report.exists() and not report.is_dir():
         raise CLIError(f"{report}: --report must name a directory, got an existing file")
@@ -176,7 +175,7 @@ def calibrate_cmd(
     out: Path = typer.Option(..., "-o", "--out", help="Calibrated robot file (.toml)."),
     compliance: bool = typer.Option(True, "--compliance/--no-compliance", help="Identify joint compliance under gravity."),
     orientation_weight: str = OrientationWeight,
-    max_deviation: Optional[str] = MaxDeviation,
+    max_deviation: str | None = MaxDeviation,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     force: bool = Force,
@@ -186,9 +185,9 @@ def calibrate_cmd(
     The data may be in any frame (a tracker's) with an unknown tool offset: base and tool are found
     first. A calibration that does not converge, bends a parameter beyond its plausible bound
     (--max-deviation) or leaves an implausible residual is refused (exit 2, nothing written)."""
-    from ..calibrate import calibrate
-    from ..dataset import read_dataset
-    from ..robot import load_robot, save_robot_toml
+    from ..calibration.calibrate import calibrate
+    from ..io.dataset import read_dataset
+    from ..kinematics.robot import load_robot, save_robot_toml
 
     check_output(out, (robot, data), force)
     rob = load_robot(robot)
@@ -213,8 +212,8 @@ def register_cmd(
     """Re-fit base and tool frames for a new series (tracker moved, tool changed) and, where the poses
     identify them and they are significant, joint zero offsets and a thermal state; keep the learned errors.
     Refuses (exit 2, one line) when the residual shows the series does not fit the model."""
-    from ..dataset import read_dataset
-    from ..register import register_model
+    from ..io.dataset import read_dataset
+    from ..measure.register import register_model
 
     check_output(out, (model, series), force)
     mdl = load_model(model)
@@ -232,7 +231,7 @@ def export_cmd(
     force: bool = Force,
 ) -> None:
     """Export a hybrid model to ONNX (joints in, 4x4 poses out) and check it against PyTorch."""
-    from ..export import export_onnx
+    from ..hybrid.export import export_onnx
 
     check_output(out, (model,), force)
     mdl = load_model(model)
@@ -252,7 +251,7 @@ def demo_cmd(
     seed: int = typer.Option(0, "--seed"),
 ) -> None:
     """The main job on the embedded default: virtual RX160, calibrate, train, evaluate, IK, report."""
-    from ..demo import run_demo
+    from .demo import run_demo
 
     if out.exists() and not out.is_dir():
         raise CLIError(f"{out}: the demo writes a directory, but this is an existing file")

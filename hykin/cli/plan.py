@@ -129,7 +129,7 @@ def _console():
 def _report(rob, model, p, c, n, noise_mm, unmodelled_mm, plot, measure, seed, pool, speeds, dwell, report_max) -> None:
     from ..planning.forecast import LEARNING_A, LEARNING_B, forecast_accuracy
     from ..planning.select import plan_poses
-    from ..sampling import uniform
+    from ..sim.sampling import uniform
 
     if model is not None:
         # the forecast is for a plan of that size for the model's robot; anchor the learning curve on the model

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import typer
@@ -31,13 +30,13 @@ def fk_cmd(
     out: Path = typer.Option(..., "-o", "--out", help="Output poses (dataset columns q…, x,y,z,qw,qx,qy,qz)."),
     angle_unit: str = AngleUnit,
     no_fade: bool = typer.Option(False, "--no-fade", help="Apply the network correction even outside the training region."),
-    payload_kg: Optional[float] = typer.Option(None, "--payload-kg", help=PAYLOAD_HELP),
+    payload_kg: float | None = typer.Option(None, "--payload-kg", help=PAYLOAD_HELP),
     force: bool = Force,
 ) -> None:
     """Forward kinematics: full hybrid model for a model file, classical FK for a robot."""
-    from ..dataset import Dataset, read_joints, write_dataset
-    from ..fk import fk
-    from ..plausibility import check_joint_unit
+    from ..calibration.plausibility import check_joint_unit
+    from ..io.dataset import Dataset, read_joints, write_dataset
+    from ..kinematics.fk import fk
 
     check_output(out, (model, joints), force)
     mdl, rob = load_model_or_robot(model)
@@ -49,7 +48,7 @@ def fk_cmd(
         if no_fade:
             mdl.fade = False
         temp = temperature_of(mdl, extra, joints)
-        from ..payload import payload_from_columns, payload_kwargs
+        from ..kinematics.payload import payload_from_columns, payload_kwargs
 
         T = mdl.predict(q, temperature_c=temp, **payload_kwargs(payload_from_columns(extra, len(q), str(joints), payload_kg)))
         extra = dict(extra)
@@ -68,19 +67,19 @@ def ik_cmd(
     poses: Path = typer.Argument(..., help="Target poses: x,y,z[,qw,qx,qy,qz] (m)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output joints CSV: target, branch, q…, errors."),
     all_branches: bool = typer.Option(False, "--all-branches", help="Every solution branch, not only the nearest one."),
-    seed_joints: Optional[Path] = typer.Option(None, "--seed-joints", help="CSV of current joints (one row per target, or one row)."),
+    seed_joints: Path | None = typer.Option(None, "--seed-joints", help="CSV of current joints (one row per target, or one row)."),
     position_only: bool = typer.Option(False, "--position-only", help="Solve for position only."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
-    payload_kg: Optional[float] = typer.Option(None, "--payload-kg", help=PAYLOAD_HELP),
+    payload_kg: float | None = typer.Option(None, "--payload-kg", help=PAYLOAD_HELP),
     force: bool = Force,
 ) -> None:
     """Inverse kinematics: every branch (or the one nearest the seed joints), failures reported.
 
     A target that is not solved gets one row with no joint values and a reason (out of reach, joint
     limits, singular, not converged)."""
-    from ..dataset import read_joints, read_poses
-    from ..plausibility import check_target_reach
+    from ..calibration.plausibility import check_target_reach
+    from ..io.dataset import read_joints, read_poses
 
     check_output(out, (model, poses, seed_joints), force)
     mdl, rob = load_model_or_robot(model)
@@ -101,8 +100,8 @@ def ik_cmd(
     if mdl is None:
         rows = _classical_ik_rows(rob, T, q_cur if nearest else None, position_only)
     else:
-        from ..hybrid_ik import hybrid_ik, ik_result_to_rows
-        from ..payload import payload_from_columns
+        from ..hybrid.ik import hybrid_ik, ik_result_to_rows
+        from ..kinematics.payload import payload_from_columns
 
         target = T[:, :3, 3] if position_only else T
         temp = temperature_of(mdl, pose_extra, poses)
@@ -114,7 +113,7 @@ def ik_cmd(
             rows = ik_result_to_rows(res, robot=mdl.robot_, targets=target)
         else:  # one solve per distinct payload, rows back in target order
             rows = _ik_rows_per_payload(mdl, target, pl, q_cur, nearest, position_only, temp)
-        from ..hybrid import support_report
+        from ..hybrid.model import support_report
 
         qs = np.stack([np.asarray(rows[f"q{j + 1}"], dtype=np.float64) for j in range(rob.dof)], 1)
         has_q = np.isfinite(qs).all(axis=1)
@@ -131,8 +130,8 @@ def ik_cmd(
 def _ik_rows_per_payload(mdl, target, pl, q_cur, nearest: bool, position_only: bool, temp) -> dict:
     """Hybrid IK rows when targets carry payloads: one solve per distinct (mass, centre of mass),
     on the model carrying that payload; ``target`` numbering of the whole file."""
-    from ..hybrid_ik import hybrid_ik, ik_result_to_rows
-    from ..payload import model_with_payload
+    from ..hybrid.ik import hybrid_ik, ik_result_to_rows
+    from ..kinematics.payload import model_with_payload
 
     kg, com = pl
     key = np.column_stack([kg, np.zeros((len(kg), 3)) if com is None else com])
@@ -153,7 +152,7 @@ def _ik_rows_per_payload(mdl, target, pl, q_cur, nearest: bool, position_only: b
 
 def _classical_ik_rows(robot, T, q_current, position_only: bool) -> dict:
     """Rows for classical IK on a robot: every branch, or the one nearest ``q_current``."""
-    from ..ik import ik
+    from ..kinematics.ik import ik
 
     br = ik(robot, T, all_branches=True, position_only=position_only)
     if q_current is not None:
@@ -163,7 +162,7 @@ def _classical_ik_rows(robot, T, q_current, position_only: bool) -> dict:
     else:
         q, ok, pe, ae, lab = br.q, br.success, br.pos_err_m, br.ang_err_rad, br.label
     N, K, n = q.shape
-    from ..ik_reasons import failure_reasons
+    from ..kinematics.ik_reasons import failure_reasons
 
     failed = ~ok.any(axis=1)
     reasons = np.full(N, "", dtype=object)

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..robot import Robot
+from ..kinematics.robot import Robot
 
 __all__ = [
     "abb_confdata",
@@ -68,7 +68,7 @@ def _closest_on_first(o1, z1, o2, z2):
 
 def arm_geometry(robot: Robot, q: np.ndarray, axis_signs=None) -> tuple[np.ndarray, np.ndarray]:
     """``(overhead (M,) bool, elbow (M,) float)`` for joints ``q`` ``(M, n)`` (module docstring)."""
-    from ..fk import fk_frames
+    from ..kinematics.fk import fk_frames
 
     if robot.dof < 5:
         raise ValueError(f"robot {robot.name!r}: configuration flags need a 6-axis arm, it has {robot.dof} joints")
@@ -118,7 +118,7 @@ def candidate_solutions(robot: Robot, T_world: np.ndarray) -> tuple[np.ndarray, 
 
     ``T_world`` ``(N, 4, 4)`` (world frame of ``robot``). Returns ``(q (N, K, n), ok (N, K))``.
     """
-    from ..ik import ik
+    from ..kinematics.ik import ik
 
     br = ik(robot, T_world, all_branches=True)
     q, ok = br.q, br.success.copy()

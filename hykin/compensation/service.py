@@ -68,7 +68,7 @@ def _matrix(body: dict, key: str, widths: tuple, required: bool = True):
 
 def _poses(a: np.ndarray) -> np.ndarray:
     """``(N, 7)`` rows ``x,y,z,qw,qx,qy,qz`` -> ``(N, 4, 4)``; ``(N, 3)`` positions kept."""
-    from .. import se3
+    from ..kinematics import se3
 
     if a.shape[1] == 3:
         return a
@@ -80,7 +80,7 @@ def _poses(a: np.ndarray) -> np.ndarray:
 
 
 def _pose_rows(T: np.ndarray, ok: np.ndarray) -> list:
-    from .. import se3
+    from ..kinematics import se3
 
     xyz, quat = se3.transform_to_pose(np.where(np.isfinite(T), T, np.eye(4)))
     rows = np.concatenate([xyz, quat], 1).tolist()
@@ -124,7 +124,7 @@ class Handlers:
         return {"poses": _pose_rows(T, np.ones(len(q), bool)), "in_support": (np.asarray(sup) <= 0).tolist()}
 
     def ik(self, body) -> dict:
-        from ..hybrid_ik import hybrid_ik
+        from ..hybrid.ik import hybrid_ik
         from .targets import first_row_per_target
 
         body = _check_keys(body, {"targets", "q_current"})

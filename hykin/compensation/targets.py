@@ -33,8 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import se3
-from ..fk import fk
+from ..kinematics import se3
+from ..kinematics.fk import fk
 
 __all__ = ["FRAMES", "Compensation", "compensate", "fitted_base", "resolve_frame", "to_model_frame"]
 
@@ -125,7 +125,7 @@ def compensate(model, T_target, *, q_branch=None, frame: str = "measurement", po
     Default: the nominal solution nearest the previous target's (:func:`sequential_nearest`).
     ``frame``, ``tool_delta``: module docstring. Other keywords go to :func:`hykin.hybrid_ik.hybrid_ik`.
     """
-    from ..hybrid_ik import hybrid_ik
+    from ..hybrid.ik import hybrid_ik
     from .branches import sequential_nearest
 
     T, pos_in = _targets(T_target)

@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..fk import fk
-from ..robot import Robot
+from ..kinematics.fk import fk
+from ..kinematics.robot import Robot
 
 __all__ = [
     "Constraints",

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..robot import Robot
+from ..kinematics.robot import Robot
 
 __all__ = ["embed", "farthest_point", "fill_distance", "min_spacing"]
 

@@ -21,8 +21,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..calibrate import identifiable_columns, identification_jacobian, parameter_scales
-from ..robot import Robot
+from ..calibration.calibrate import (
+    identifiable_columns,
+    identification_jacobian,
+    parameter_scales,
+)
+from ..kinematics.robot import Robot
 
 __all__ = ["IdentificationModel", "identification_model", "information", "observability", "scaled_rows"]
 

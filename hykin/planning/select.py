@@ -48,8 +48,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..robot import Robot
-from ..sampling import uniform
+from ..kinematics.robot import Robot
+from ..sim.sampling import uniform
 from .constraints import Constraints, PlanningError, feasible, region_bounds
 from .coverage import embed, farthest_point, min_spacing
 from .criteria import (
@@ -255,7 +255,7 @@ def calibration_std_mm(model, q) -> np.ndarray | None:
     """``(N,)`` position standard deviation (mm, root of the trace over x, y, z) of a fitted model's
     calibrated classical prediction from the parameter covariance stored in its metadata (None when
     there is none)."""
-    from ..calibrate import identification_jacobian
+    from ..calibration.calibrate import identification_jacobian
 
     cal = (getattr(model, "meta_", {}) or {}).get("calibration") or {}
     names = cal.get("correlation_names") or []

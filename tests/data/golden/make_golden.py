@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 import hykin
-from hykin.simulate import simulate, virtual_preset
+from hykin.sim.simulate import simulate, virtual_preset
 
 HERE = Path(__file__).parent
 

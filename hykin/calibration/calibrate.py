@@ -1,0 +1,544 @@
+"""Parametric calibration: the "calibrated classical model" (DESIGN.md §1.4).
+
+Identifies, from measured TCP poses (or positions), deviations of
+
+* the geometry: per joint ``a, alpha, d, theta`` (DH / MDH) plus Hayati's ``beta`` where two
+  consecutive axes are near-parallel (``|sin alpha| < 0.2``), or a small 6-D twist on every URDF
+  joint origin (``o3.x`` ... ``o3.rz``);
+* the base frame (world/measurement -> robot base) and the tool frame (flange -> TCP), each as a
+  small 6-D twist applied on the right: ``T <- T · E(v, w)`` with ``E = [exp(w), v]``;
+* joint compliance ``c_i = 1 / k_i`` (rad/N·m), the joints deflecting under the gravity torques of
+  the link masses and payload (:mod:`hykin.compliance`): ``q_eff = q + c * tau(q_eff)``;
+
+by Levenberg–Marquardt over all samples. The Jacobian is analytic and vectorised: every parameter is
+an elementary twist (a rotation about, or a translation along, a known axis of a known frame of the
+chain), so its column is ``[u x (p_tcp - p0); u]`` or ``[u; 0]`` evaluated at the deflected joints;
+a compliance column is the joint's own column times its gravity torque (the small coupling
+``c dtau/dq`` is left out of the Jacobian, not out of the residual: the fixed point is exact).
+Each iteration relinearises at the current estimate (the deviations are composed into the robot),
+so the Jacobian is always the exact derivative at zero deviation.
+
+Residual per sample: ``p_meas - p_model`` (m) for every measured point and, for full-pose data,
+``w · log(R_meas R_model^T)`` (rad × ``w`` m/rad, the orientation weight). Data with several
+reflectors per pose (``x2,y2,z2`` ... columns, :mod:`hykin.reflectors`) are fitted as what they are:
+points on one tool body, the first at the TCP, each further one with its own unknown offset
+``p2.x, p2.y, p2.z`` ... (TCP frame) identified with everything else. The orientation weight is
+chosen from the data by default (``"auto"``): a first fit at ``w = 1 m/rad`` gives the residual
+standard deviations per coordinate, and the fit is repeated at ``w = σ_pos / σ_rot`` so that each
+kind of row counts by its noise (a fixed 1 m/rad over-weights orientations that come from reflectors
+0.1 m apart by 10×: measured, the held-out error of every reflector doubled, benchmarks/bench_reflectors.py).
+
+Raw data (a tracker's frame, unknown tool, robot file without ``[base]``) run in stages:
+
+1. closed-form base and tool offset(s) from the nominal kinematics
+   (:func:`hykin.initial_registration.initial_registration`: linear in the offsets for a fixed base
+   rotation, Kabsch for the rotation, a few alternations, joint Gauss–Newton; several tool
+   guesses), kept where it explains the data better than the robot file's own frames;
+2. LM on base and tool (and reflector offsets) only, from that start;
+3. identifiability decided at this estimate (the set identifiable at the robot file first in the
+   QR order, so a choice between redundant parameters does not flip), LM on everything;
+4. identifiability re-checked at the solution; a further pass when the set changed, when the
+   orientation weight was re-estimated, or when the iteration cap stopped a still-falling cost;
+5. if the fit is still implausible, a restart from the robot file's own frames; the best is kept;
+6. refusals (:mod:`hykin.calibration_checks`): not converged, a parameter beyond its plausible
+   bound, or a residual no correct robot file leaves -> :class:`CalibrationError`, one line that says
+   what to check (robot file, units, tool, joint order).
+
+Identifiability: the identification Jacobian is scaled by physical units (1 mm, 1 mrad,
+1e-6 rad/N·m) and factorised by Householder QR in a fixed priority order (base, tool, joints
+base-to-tip, compliance). ``|R_kk|`` is how much of column k is not explained by the columns before
+it: a parameter whose ``|R_kk| / ‖column‖`` is below ``rank_tol`` (redundant, e.g. DH ``theta1`` and
+``d1`` with a full base frame) or whose column is negligible (tool rotation for position-only data,
+the compliance of a vertical joint 1) is fixed at zero. The check is repeated at the solution.
+Standard deviations come from the sandwich covariance ``(JᵀJ)⁻¹ Jᵀ Σ J (JᵀJ)⁻¹`` with separate
+residual variances for position and orientation rows (plain ``σ² (JᵀJ)⁻¹`` for one kind of row).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+import scipy.linalg
+
+from ..kinematics import se3
+from ..kinematics.compliance import (
+    ComplianceError,
+    compliance_of,
+    compliant_fk,
+    gravity_torques,
+)
+from ..kinematics.fk import fk
+from ..kinematics.payload import payload_kwargs
+from ..kinematics.robot import Robot
+from .jacobian import (
+    effective_joints,
+    identification_jacobian,
+    linearize,
+    model_poses,
+    residual,
+)
+from .params import (
+    TWIST,
+    ModelState,
+    ParamSpec,
+    apply_deviations,
+    apply_step,
+    candidate_specs,
+    deviations_between,
+    parameter_names,
+    scale_of,
+    select_specs,
+)
+from .result import CalibrationError, CalibrationResult, residual_stats
+
+__all__ = [
+    "CalibrationError",
+    "CalibrationResult",
+    "apply_deviations",
+    "calibrate",
+    "calibrated_fk",
+    "identifiable_columns",
+    "identification_jacobian",
+    "parameter_names",
+    "parameter_scales",
+]
+
+_ID_SAMPLES = 600  # samples (evenly spread) used for the identifiability QR
+_COARSE_SAMPLES = 20_000  # larger data sets first converge on this many evenly spread samples
+#: relative cost decrease per iteration below which an LM stopped by its iteration cap counts as
+#: converged (a flat valley, e.g. compliances creeping to their bound 0: 1e-5 of the cost is
+#: ~5e-6 of the RMS residual, far below anything that matters); above it the cost is still falling
+_STALLED_REL = 1e-5
+#: |R_kk| / ‖column‖ a parameter outside the set identifiable at the robot file needs to join it at
+#: a later estimate (rank_tol admits near-redundant ones, e.g. wrist offsets made "identifiable" by a
+#: tool 0.1 mm off the last axis, with correlations of ±1.000)
+_ADD_TOL = 1e-3
+
+
+# --------------------------------------------------------------------------- data
+
+
+def _as_data(robot: Robot, data, position_only):
+    """-> q (N,n), xyz (N,3), R (N,3,3) or None."""
+    if hasattr(data, "q") and hasattr(data, "xyz_m"):
+        from .reflectors import reflector_points
+
+        q = np.asarray(data.q, dtype=np.float64)
+        try:
+            xyz = reflector_points(data)
+        except ValueError as e:
+            raise CalibrationError(str(e)) from None
+        xyz = xyz[:, 0] if xyz.shape[1] == 1 else xyz
+        quat = getattr(data, "quat_wxyz", None)
+        R = None if quat is None else se3.quat_to_matrix(np.asarray(quat, dtype=np.float64))
+    elif isinstance(data, (tuple, list)) and len(data) == 2:
+        q = np.asarray(data[0], dtype=np.float64)
+        P = np.asarray(data[1], dtype=np.float64)
+        if P.ndim == 3 and P.shape[1:] == (4, 4):
+            xyz, R = P[:, :3, 3].copy(), P[:, :3, :3].copy()
+        elif P.ndim == 2 and P.shape[1] == 3 or P.ndim == 3 and P.shape[2] == 3 and P.shape[1] != 4:
+            xyz, R = P, None
+        else:
+            raise CalibrationError(f"data: measured poses must be (N, 4, 4) or positions (N, 3), got {P.shape}")
+    else:
+        raise CalibrationError("data: expected a Dataset or a tuple (q (N, n), poses (N, 4, 4) | positions (N, 3))")
+    if q.ndim != 2 or q.shape[1] != robot.dof:
+        raise CalibrationError(f"data: joints must be (N, {robot.dof}) for robot {robot.name!r}, got {q.shape}")
+    if xyz.shape[0] != q.shape[0] or xyz.shape[-1] != 3:
+        raise CalibrationError(f"data: positions must be ({q.shape[0]}, 3) or ({q.shape[0]}, K, 3), got {xyz.shape}")
+    for nm, arr in (("joints", q), ("positions", xyz)) + ((("orientations", R),) if R is not None else ()):
+        bad = ~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1)
+        if bad.any():
+            raise CalibrationError(f"data: row {int(np.argmax(bad)) + 1}: non-finite {nm}")
+    if position_only is None:
+        position_only = R is None
+    if position_only:
+        R = None
+    elif R is None:
+        raise CalibrationError("data: position_only=False but the data have no orientations")
+    return np.ascontiguousarray(q), xyz, R
+
+
+# --------------------------------------------------------------------------- identifiability
+
+
+def _identifiable(J_s: np.ndarray, rank_tol: float, negligible_tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Mask of identifiable columns of the scaled Jacobian (priority order) and the ratios |R_kk|/‖col‖."""
+    norms = np.linalg.norm(J_s, axis=0)
+    if J_s.shape[0] == 0 or not np.any(norms > 0):
+        return np.zeros(J_s.shape[1], bool), np.zeros(J_s.shape[1])
+    import torch
+
+    R = torch.linalg.qr(torch.from_numpy(np.ascontiguousarray(J_s)), mode="r")[1].numpy()
+    m = min(R.shape)
+    rkk = np.zeros(J_s.shape[1])
+    rkk[:m] = np.abs(np.diag(R[:m, :m]))
+    ratio = np.where(norms > 0, rkk / np.where(norms > 0, norms, 1.0), 0.0)
+    mask = (ratio > rank_tol) & (norms > negligible_tol * norms.max())
+    return mask, ratio
+
+
+def parameter_scales(robot: Robot, *, base: bool = True, tool: bool = True, compliance: bool = True) -> np.ndarray:
+    """``(P,)`` typical deviation of each candidate parameter (:func:`parameter_names` order): the
+    scaling :func:`calibrate` applies to the identification Jacobian (1 mm, 1 mrad, 1e-6 rad/N·m)."""
+    return np.array([scale_of(s) for s in candidate_specs(robot, base=base, tool=tool, compliance=compliance)])
+
+
+def identifiable_columns(J_scaled: np.ndarray, rank_tol: float = 1e-6, negligible_tol: float = 1e-9):
+    """Identifiability test of :func:`calibrate` on a scaled Jacobian ``(rows, P)`` whose columns are
+    in priority order: ``(mask (P,) bool, ratio |R_kk| / ‖column‖ (P,))``."""
+    return _identifiable(np.asarray(J_scaled, dtype=np.float64), rank_tol, negligible_tol)
+
+
+# --------------------------------------------------------------------------- LM step
+
+
+def _lm_step(lin: dict, act: np.ndarray, lam: float, is_comp: np.ndarray, c: np.ndarray, comp_joint: np.ndarray):
+    """Damped Gauss-Newton step (scaled units) on the free parameters.
+
+    Compliance is bounded below by 0: a compliance at its bound whose step points below it is held
+    (active-set), then the system is solved again. Returns (free indices, step) or (.., None).
+    """
+    free = act.copy()
+    while free.size:
+        A = (lin["JtJ_p"] + lin["JtJ_o"])[np.ix_(free, free)]
+        g = lin["Jtr"][free]
+        D = np.sqrt(np.diag(A))
+        D[D == 0] = 1.0
+        M = A / np.outer(D, D) + lam * np.eye(free.size)
+        try:
+            step = -scipy.linalg.solve(M, g / D, assume_a="pos", check_finite=False) / D
+        except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+            step = -np.linalg.lstsq(M, g / D, rcond=None)[0] / D
+        held = is_comp[free] & (c[comp_joint[free]] <= 0) & (step < 0)
+        if not held.any():
+            return free, step
+        free = free[~held]
+    return free, None
+
+
+# --------------------------------------------------------------------------- main entry
+
+
+def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: float, max_iter: int, tol: float,
+                    rank_tol: float, negligible_tol: float, progress,
+                    prefer: np.ndarray | None = None, pts0: np.ndarray | None = None,
+                    pl=None) -> tuple[CalibrationResult, float]:
+    """One identifiability selection at ``robot`` plus one LM run on the parameters ``specs``.
+
+    pl: per-row payload ``(kg (N,), com (N, 3) | None)`` deflecting the joints, or None (the robot's).
+    prefer: bool mask of parameters put first in the QR order (an identified set chosen earlier
+    stays chosen where it is still identifiable; others are added where they became so).
+    Returns the result (deviations relative to ``robot``) and the relative cost decrease of the
+    last accepted iteration (large when the iteration cap stopped a still-falling cost).
+    """
+    t0 = time.perf_counter()
+    N = q.shape[0]
+    last = {"rel": 0.0}
+    P = len(specs)
+    scale = np.array([scale_of(s) for s in specs])
+    state0 = ModelState(robot=robot.copy(), c=compliance_of(robot), pts=np.zeros((xyz.shape[1], 3)) if pts0 is None else pts0)
+    rows_per = 3 * xyz.shape[1] + (0 if R_meas is None else 3)
+    from .plausibility import check_calibration_size
+
+    check_calibration_size(N, P, rows_per)  # fewer equations than unknowns would fit the noise exactly
+    is_comp = np.array([sp.group == "comp" for sp in specs])
+    comp_joint = np.array([sp.joint for sp in specs])
+
+    def cost_of(st: ModelState, qd, xyzd, Rd, pld):
+        q_eff = effective_joints(st, qd, pld)
+        rp, ro = residual(fk(st.robot, q_eff), xyzd, Rd, w, st.pts)
+        cost = 0.5 * (float(np.sum(rp * rp)) + (0.0 if ro is None else float(np.sum(ro * ro))))
+        return cost, rp, ro, q_eff
+
+    def run_lm(state, qd, xyzd, Rd, act, max_it, id_rows=None, pld=None):
+        """Relinearising LM on the samples ``qd``; returns (state, rp, ro, lin, it, converged, message)."""
+        cost, rp, ro, q_eff = cost_of(state, qd, xyzd, Rd, pld)
+        lin = linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows, payload=pld)
+        if act is None:
+            return state, rp, ro, lin, 0, False, ""
+        lam = 1e-6
+        converged, message, it = False, "maximum number of iterations reached", 0
+        if act.size == 0:
+            return state, rp, ro, lin, 0, True, "no identifiable parameter"
+        for it in range(1, max_it + 1):
+            accepted = False
+            for _ in range(12):
+                free, step_s = _lm_step(lin, act, lam, is_comp, state.c, comp_joint)
+                if step_s is None or np.max(np.abs(step_s)) < 1e-10:  # < 1e-13 m / rad: nothing left
+                    converged, message = True, "step below 1e-13"
+                    break
+                delta = np.zeros(P)
+                delta[free] = step_s * scale[free]
+                trial = apply_step(state, specs, delta)
+                try:
+                    new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd, pld)
+                except ComplianceError:  # the step made the joints too soft for an equilibrium: reject it
+                    new_cost = math.inf
+                if new_cost < cost:
+                    accepted = True
+                    lam = max(lam / 10, 1e-12)
+                    break
+                lam *= 10
+            if converged:
+                break
+            if not accepted:
+                converged, message = True, "no further decrease of the cost"
+                break
+            rel = (cost - new_cost) / max(cost, 1e-300)
+            last["rel"] = rel
+            state, cost, q_eff, rp, ro = trial, new_cost, new_q_eff, new_rp, new_ro
+            if progress is not None:
+                progress(it, cost)
+            lin = linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows, payload=pld)
+            if rel <= tol:
+                converged, message = True, f"relative cost decrease {rel:.2g} <= tol"
+                break
+        return state, rp, ro, lin, it, converged, message
+
+    # identifiability at the input robot, on evenly spread samples
+    state = state0
+    id_rows = np.unique(np.linspace(0, N - 1, min(N, _ID_SAMPLES)).astype(np.int64))
+    sub = lambda a, idx: None if a is None else a[idx]
+    sub_pl = lambda idx: None if pl is None else (pl[0][idx], sub(pl[1], idx))
+    _, rp0, ro0, lin0, _, _, _ = run_lm(state0, q[id_rows], xyz[id_rows], sub(R_meas, id_rows), None, 0,
+                                        id_rows=np.arange(id_rows.size), pld=sub_pl(id_rows))
+    order = np.arange(P) if prefer is None else np.concatenate([np.flatnonzero(prefer), np.flatnonzero(~prefer)])
+    mask = np.zeros(P, bool)
+    m_o, ratio_o = _identifiable(lin0["J_id"][:, order], rank_tol, negligible_tol)
+    mask[order] = m_o
+    if prefer is not None:  # a parameter joins the earlier set only when clearly identifiable here
+        ratio = np.zeros(P)
+        ratio[order] = ratio_o
+        mask &= prefer | (ratio > _ADD_TOL)
+    if N * rows_per < mask.sum():
+        raise CalibrationError(f"data: {N} samples give {N * rows_per} equations for {int(mask.sum())} parameters")
+    act = np.flatnonzero(mask)
+    it_sub = 0
+    if N > 2 * _COARSE_SAMPLES:  # coarse-to-fine: converge on a spread subset, finish on all samples
+        sel = np.unique(np.linspace(0, N - 1, _COARSE_SAMPLES).astype(np.int64))
+        state, _, _, _, it_sub, _, _ = run_lm(state0, q[sel], xyz[sel], sub(R_meas, sel), act, max_iter, pld=sub_pl(sel))
+    state, rp0, ro0, lin, it, converged, message = run_lm(
+        state, q, xyz, R_meas, act, max(max_iter - it_sub, 1), id_rows=id_rows, pld=pl
+    )
+    it += it_sub
+    before = residual_stats(*residual(model_poses(state0, q, pl), xyz, R_meas, w, state0.pts), w)
+    # recheck at the solution: the identified set must still have full rank there
+    final = mask.copy()
+    if act.size:
+        keep_end, _ = _identifiable(lin["J_id"][:, act[np.argsort(np.argsort(order)[act])]], rank_tol, negligible_tol)
+        keep_end = keep_end[np.argsort(np.argsort(np.argsort(order)[act]))]
+        lost = [specs[k].name for k in act[~keep_end]]
+        if lost:
+            message += f"; at the solution {', '.join(lost)} became unidentifiable (no std reported)"
+        final[act[~keep_end]] = False
+    at_bound = final & is_comp & (state.c[np.maximum(comp_joint, 0)] <= 0)
+    if at_bound.any():
+        message += "; " + ", ".join(specs[k].name for k in np.flatnonzero(at_bound)) + " at the bound 0 (rigid; no std)"
+    fa = np.flatnonzero(final & ~at_bound)
+    rp, ro = rp0, ro0  # residuals of the accepted state
+    after = residual_stats(rp, ro, w)
+    m_p = rp.size
+    m_o = 0 if ro is None else ro.size
+    m = m_p + m_o
+    dof_frac = max(m - fa.size, 1) / m
+    sig2_p = float(np.sum(rp * rp)) / max(m_p * dof_frac, 1e-300)
+    sig2_o = 0.0 if ro is None else float(np.sum(ro * ro)) / max(m_o * dof_frac, 1e-300)
+    std = np.full(P, np.nan)
+    corr = np.zeros((fa.size, fa.size))
+    strong: list[tuple[str, str, float]] = []
+    if fa.size:
+        Jp = lin["JtJ_p"][np.ix_(fa, fa)]
+        Jo = lin["JtJ_o"][np.ix_(fa, fa)]
+        A = Jp + Jo
+        D = np.sqrt(np.diag(A))
+        Ainv = np.linalg.pinv(A / np.outer(D, D), rcond=1e-15) / np.outer(D, D)
+        cov_s = Ainv @ (sig2_p * Jp + sig2_o * Jo) @ Ainv
+        sd_s = np.sqrt(np.clip(np.diag(cov_s), 0, None))
+        std[fa] = sd_s * scale[fa]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr = cov_s / np.outer(sd_s, sd_s)
+        corr = np.nan_to_num(corr)
+        for a_ in range(fa.size):
+            for b_ in range(a_ + 1, fa.size):
+                if abs(corr[a_, b_]) > 0.9:
+                    strong.append((specs[fa[a_]].name, specs[fa[b_]].name, float(corr[a_, b_])))
+    values = deviations_between(state0, state, specs)
+    return CalibrationResult(
+        robot=state.robot, names=[s.name for s in specs], values=values, std=std, identifiable=final,
+        correlation=corr, strong_correlations=strong, before=before, after=after, iterations=it,
+        converged=converged, message=message, units=[s.unit for s in specs], n_samples=N,
+        correlation_names=[specs[k].name for k in fa],
+        position_only=R_meas is None, orientation_weight_m_per_rad=w, sigma_pos_m=math.sqrt(sig2_p),
+        sigma_rot_rad=math.sqrt(sig2_o) / w if R_meas is not None else float("nan"),
+        seconds=time.perf_counter() - t0, point_offsets_m=state.pts.copy(),
+    ), last["rel"]
+
+
+def calibrate(
+    robot: Robot,
+    data,
+    *,
+    params="auto",
+    compliance: bool = True,
+    base: bool = True,
+    tool: bool = True,
+    position_only: bool | None = None,
+    orientation_weight_m_per_rad: float | str = "auto",
+    max_iter: int = 50,
+    tol: float = 1e-12,
+    rank_tol: float = 1e-6,
+    negligible_tol: float = 1e-9,
+    progress: Callable[[int, float], None] | None = None,
+    initial: bool | str = "auto",
+    restarts: int = 2,
+    max_deviation: dict | None = None,
+    checks: bool = True,
+    payload_kg=None,
+    payload_com_m=None,
+) -> CalibrationResult:
+    """Identify geometry, base, tool and joint compliance of ``robot`` from measured poses.
+
+    data: a :class:`hykin.dataset.Dataset` (or any object with ``q``, ``xyz_m``, ``quat_wxyz``), or a
+    tuple ``(q (N, n) rad, poses (N, 4, 4) m)`` / ``(q, positions (N, 3) m)``. Measured poses may be
+    in any frame (a tracker's, metres away and turned): base and tool are found first
+    (:mod:`hykin.initial_registration`), then refined with everything else.
+    params: ``"auto"`` (every candidate, see :func:`parameter_names`) or fnmatch patterns selecting
+    candidates (``["base.*", "tool.*"]`` re-registers a measurement series only).
+    compliance/base/tool: include those parameter groups. position_only: ignore orientations
+    (default: only when the data have none). orientation_weight_m_per_rad: length scale ``w`` that
+    weights orientation residuals (``w = 1``: 1 mrad counts like 1 mm); ``"auto"`` (default) takes
+    ``w = σ_pos / σ_rot`` from the residuals of a first fit, so that each kind counts by its noise.
+    max_iter / tol: LM iterations per pass and relative cost decrease at which it stops.
+    rank_tol: identifiability threshold on ``|R_kk| / ‖column‖``; negligible_tol: columns smaller
+    than this times the largest are fixed. progress: called as ``progress(iteration, cost)``.
+    initial: ``"auto"``/True: closed-form base + tool start when base and tool are calibrated
+    (kept only where it explains the data better than the robot file's frames); False: start at
+    the robot file. restarts: further LM passes when the iteration cap stopped a still-falling cost,
+    and starts tried (robot file's frames) when the fit is implausible.
+    max_deviation: overrides of :data:`hykin.calibration_checks.DEFAULT_MAX_DEVIATION`
+    (``{"length_mm": 30}``). checks: refuse (raise :class:`CalibrationError`) a calibration that did
+    not converge, a parameter beyond its plausible bound, or an implausible residual
+    (:mod:`hykin.calibration_checks`); False returns whatever the fit gave.
+
+    payload_kg / payload_com_m: per-row payload (``(N,)`` kg, ``(N, 3)`` m in the tool frame) that
+    deflects the joints; by default read from the dataset's ``payload_kg``/``payload_com_*``
+    columns (:mod:`hykin.payload`), else the robot's payload.
+
+    Identifiability is decided at the current estimate: after base and tool are found, and again at
+    the solution (a further pass runs when the identified set changed there).
+    """
+    from .checks import check_calibration, resolve_max_deviation
+    from .initial_registration import initial_registration
+
+    t0 = time.perf_counter()
+    auto_w = isinstance(orientation_weight_m_per_rad, str)
+    if auto_w and orientation_weight_m_per_rad != "auto":
+        raise CalibrationError(f"orientation_weight_m_per_rad must be a positive number or 'auto', got {orientation_weight_m_per_rad!r}")
+    if not auto_w and not (orientation_weight_m_per_rad > 0 and math.isfinite(orientation_weight_m_per_rad)):
+        raise CalibrationError(f"orientation_weight_m_per_rad must be a positive number, got {orientation_weight_m_per_rad}")
+    try:
+        lim = resolve_max_deviation(max_deviation)
+    except ValueError as e:
+        raise CalibrationError(str(e)) from None
+    q, xyz, R_meas = _as_data(robot, data, position_only)
+    if q.shape[0] == 0:
+        raise CalibrationError("data: no samples")
+    from ..kinematics.payload import payload_of
+
+    pl = payload_of(data, payload_kg, payload_com_m, n_rows=q.shape[0])
+    w = 1.0 if auto_w else float(orientation_weight_m_per_rad)
+    K = 1 if xyz.ndim == 2 else xyz.shape[1]
+    specs = select_specs(candidate_specs(robot, base=base, tool=tool, compliance=compliance, n_points=K), params)
+    names = {s.name for s in specs}
+    frames = [s for s in specs if s.group in ("base", "tool", "point")]
+    run = lambda rob, sp, ww, it, pref=None, pts=None: _calibrate_pass(
+        rob, q, xyz, R_meas, sp, ww, it, tol, rank_tol, negligible_tol, progress, prefer=pref, pts0=pts, pl=pl)
+    pts_zero = np.zeros((K, 3))
+    starts = [(robot, pts_zero)]
+    reg = None
+    full_frames = all(f"base.{f}" in names for f in TWIST) and all(f"tool.{f}" in names for f in ("x", "y", "z"))
+    if initial and full_frames:
+        reg = initial_registration(robot, q, xyz, R_meas)
+        if reg.rms_m < reg.rms_before_m:
+            # further reflectors: offsets from reflector 1 in the TCP frame
+            pts = (reg.offsets_m - reg.offsets_m[0]) @ reg.tool[:3, :3]
+            starts.insert(0, (robot.copy(base=reg.base, tool=reg.tool), pts))
+
+    # the set identifiable at the robot file (kept first in the QR order at later estimates)
+    nominal_set = run(robot, specs, w, 0, pts=starts[0][1])[0].identifiable if len(starts) > 1 else None
+
+    def chain(start):
+        """frames, then everything (identifiability at the estimate), then again at the solution."""
+        iters, ww = 0, w
+        cur, pts = start
+        if nominal_set is not None and frames and len(frames) < len(specs):
+            r, _ = run(cur, frames, ww, max_iter, pts=pts)
+            cur, pts, iters = r.robot, r.point_offsets_m, iters + r.iterations
+        res, rel = run(cur, specs, ww, max_iter, nominal_set, pts=pts)
+        iters += res.iterations
+        if auto_w and R_meas is not None and res.sigma_rot_rad > 0 and math.isfinite(res.sigma_rot_rad):
+            ww = float(np.clip(res.sigma_pos_m / res.sigma_rot_rad, 1e-3, 1e3))
+        for _ in range(max(int(restarts), 0) + 1):
+            again = ww != res.orientation_weight_m_per_rad or "unidentifiable" in res.message or (
+                not res.converged and rel > _STALLED_REL)
+            if not again:
+                break
+            res, rel = run(res.robot, specs, ww, max_iter, res.identifiable | (nominal_set if nominal_set is not None else False),
+                           pts=res.point_offsets_m)
+            iters += res.iterations
+        return res, rel, iters
+
+    best = None
+    diverged = None
+    for k, start in enumerate(starts[: 1 + max(int(restarts), 0)]):
+        try:
+            res, rel, iters = chain(start)
+        except ComplianceError as e:  # the fit made joints too soft for an equilibrium: a bad start or file
+            diverged = e
+            continue
+        cost = res.after["pos_rms_mm"] ** 2 + (res.after.get("rot_rms_deg", 0.0) * 0.0)
+        if best is None or cost < best[3]:
+            best = (res, rel, iters, cost)
+        plausible = res.after["pos_rms_mm"] <= lim["residual_mm"] and (res.converged or rel <= _STALLED_REL)
+        if plausible:
+            break
+    if best is None:
+        from .checks import ADVICE
+
+        raise CalibrationError(f"calibration of {robot.name!r} diverged ({str(diverged).splitlines()[0]}); the data do "
+                               f"not fit this robot file: {ADVICE}")
+    res, rel, iters, _ = best
+    if not res.converged and rel <= _STALLED_REL:  # the cap stopped a cost that no longer moves
+        res.converged = True
+        res.message += f"; iteration cap reached with the cost changing by {rel:.2g} (relative) per iteration"
+    state0 = ModelState(robot=robot.copy(), c=compliance_of(robot), pts=pts_zero)
+    state1 = ModelState(robot=res.robot, c=compliance_of(res.robot), pts=res.point_offsets_m)
+    res.values = deviations_between(state0, state1, specs)
+    # before: the robot file as given (further reflectors at its TCP: their offsets are unknown)
+    res.before = residual_stats(*residual(model_poses(state0, q, pl), xyz, R_meas, res.orientation_weight_m_per_rad,
+                                           pts_zero), res.orientation_weight_m_per_rad)
+    res.iterations = iters
+    res.seconds = time.perf_counter() - t0
+    if reg is not None:
+        res.message += (f"; start: base and tool from the nominal kinematics ({reg.rms_m * 1e3:.3g} mm RMS, robot "
+                        f"file frames {reg.rms_before_m * 1e3:.3g} mm)" if reg.rms_m < reg.rms_before_m
+                        else "; start: the robot file's base and tool")
+    if checks:
+        defl = None
+        if np.any(state1.c):
+            q_eff = effective_joints(state1, q, pl)
+            tau = gravity_torques(state1.robot, np.ascontiguousarray(q_eff), **payload_kwargs(pl))
+            defl = np.max(np.abs(state1.c * tau), axis=0)
+        check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl)
+    return res
+
+
+
+def calibrated_fk(robot: Robot, q) -> np.ndarray:
+    """Prediction of the calibrated classical model: TCP poses ``(N, 4, 4)`` including joint
+    compliance under gravity (:func:`hykin.compliance.compliant_fk`)."""
+    return compliant_fk(robot, q)

@@ -1,0 +1,155 @@
+"""Refusals of a calibration that cannot be right (never a silent wrong robot).
+
+:func:`hykin.calibrate.calibrate` ends with :func:`check_calibration`; it raises
+:class:`hykin.calibrate.CalibrationError` with one line saying what is wrong and what to check when
+
+* the Levenberg–Marquardt did not converge (iteration cap reached while the cost still fell by
+  more than ``1e-5`` relative per iteration, after the restarts);
+* an identified parameter deviates from the robot file beyond a physically plausible bound
+  (:data:`DEFAULT_MAX_DEVIATION`, per kind, overridable): a wrong robot file, units or joint order
+  make the fit bend the geometry by centimetres or degrees to absorb the mismatch;
+* the residual after the fit is larger than any correct robot file could leave (RMS position
+  ``residual_mm``, RMS orientation ``residual_deg``): an industrial arm with the right file,
+  calibrated geometry, base, tool and compliance is within a few tenths of a millimetre.
+
+Bounds (deviation from the robot file; SI in the code, mm/deg in the keys):
+
+==================  =======  ==========================================================
+key                 default  applies to
+==================  =======  ==========================================================
+length_mm           20       DH/MDH ``a``, ``d``; URDF origin ``x, y, z``
+angle_deg           2        DH/MDH ``alpha``, ``beta``; URDF origin ``rx, ry, rz``
+joint_offset_deg    5        DH/MDH ``theta`` (joint zero offsets)
+deflection_deg      1        largest joint deflection under gravity ``c_i · tau_i`` over the data
+                             (the compliance itself is not bounded: a joint with little gravity torque
+                             in a robot file without payload mass gets a large, harmless ``c``)
+tool_m              2        distance of the TCP (and every reflector) from the flange
+residual_mm         3        RMS position residual after the calibration
+residual_deg        1        RMS orientation residual after the calibration
+==================  =======  ==========================================================
+
+Base and tool are otherwise unbounded: they are what the calibration finds for data in a
+tracker's frame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+
+__all__ = ["DEFAULT_MAX_DEVIATION", "check_calibration", "parse_max_deviation", "resolve_max_deviation"]
+
+DEFAULT_MAX_DEVIATION: dict[str, float] = {
+    "length_mm": 20.0,
+    "angle_deg": 2.0,
+    "joint_offset_deg": 5.0,
+    "deflection_deg": 1.0,
+    "tool_m": 2.0,
+    "residual_mm": 3.0,
+    "residual_deg": 1.0,
+}
+
+#: the one line of advice appended to every refusal
+ADVICE = "check the robot file (right robot, DH table), units (--length-unit/--angle-unit), tool and joint order"
+
+
+def parse_max_deviation(text: str | None) -> dict[str, float]:
+    """``"length_mm=30,angle_deg=3"`` -> ``{"length_mm": 30.0, "angle_deg": 3.0}`` (ValueError on bad keys)."""
+    out: dict[str, float] = {}
+    for part in str(text or "").split(","):
+        part = part.strip()
+        if not part:
+            continue
+        if "=" not in part:
+            raise ValueError(f"--max-deviation: {part!r} is not KIND=VALUE (kinds: {', '.join(DEFAULT_MAX_DEVIATION)})")
+        k, v = (s.strip() for s in part.split("=", 1))
+        try:
+            out[k] = float(v)
+        except ValueError:
+            raise ValueError(f"--max-deviation: {k}={v!r} is not a number") from None
+    return resolve_max_deviation(out)
+
+
+def resolve_max_deviation(overrides: Mapping[str, float] | None) -> dict[str, float]:
+    """The defaults with ``overrides`` applied; unknown kinds and non-positive values are refused."""
+    out = dict(DEFAULT_MAX_DEVIATION)
+    for k, v in dict(overrides or {}).items():
+        if k not in DEFAULT_MAX_DEVIATION:
+            raise ValueError(f"max_deviation: unknown kind {k!r}; kinds are {', '.join(DEFAULT_MAX_DEVIATION)}")
+        v = float(v)
+        if not (v > 0 and not math.isnan(v)):
+            raise ValueError(f"max_deviation: {k} must be > 0, got {v}")
+        out[k] = v
+    return out
+
+
+def _limit_of(name: str, unit: str, group: str, field: str, lim: dict) -> tuple[float, float, str] | None:
+    """(bound in SI, display factor, display unit) for one parameter, None when unbounded."""
+    if group in ("base", "tool", "point"):  # frames and reflector offsets: unknown, found by the fit
+        return None
+    if group == "comp":  # bounded through the deflection it causes (check_calibration)
+        return None
+    if unit == "m":
+        return lim["length_mm"] * 1e-3, 1e3, "mm"
+    if group == "geom" and field == "theta":
+        return math.radians(lim["joint_offset_deg"]), 180 / math.pi, "deg"
+    return math.radians(lim["angle_deg"]), 180 / math.pi, "deg"
+
+
+def check_calibration(res, specs, lim: dict, *, still_falling: bool, deflection_rad=None) -> None:
+    """Raise :class:`~hykin.calibrate.CalibrationError` when ``res`` cannot be a correct calibration.
+
+    res: the :class:`~hykin.calibrate.CalibrationResult` (values relative to the robot file);
+    specs: its parameter specs (``name, group, field, unit``); lim: resolved bounds;
+    still_falling: the cost still fell materially in the last iteration (not converged);
+    deflection_rad: ``(n,)`` largest gravity deflection of each joint over the data (or None).
+    """
+    from .result import CalibrationError
+
+    name = res.robot.name
+    if not res.converged and still_falling:
+        raise CalibrationError(
+            f"calibration of {name!r} did not converge in {res.iterations} iterations "
+            f"(residual {res.after['pos_rms_mm']:.3g} mm RMS): {ADVICE}; or raise max_iter")
+    worst = None
+    for s, v, m in zip(specs, res.values, res.identifiable):
+        if not m:
+            continue
+        lb = _limit_of(s.name, s.unit, s.group, s.field, lim)
+        if lb is None:
+            continue
+        bound, f, un = lb
+        if s.unit == "rad":  # an angle 360° away is the same angle
+            v = (v + math.pi) % (2 * math.pi) - math.pi
+        if abs(v) > bound and (worst is None or abs(v) / bound > worst[0]):
+            worst = (abs(v) / bound, s.name, v * f, bound * f, un)
+    if worst is not None:
+        _, nm, v, b, un = worst
+        raise CalibrationError(
+            f"calibration of {name!r}: {nm} deviates {v:+.4g} {un} from the robot file (plausible: ±{b:.4g} {un}); "
+            f"the data do not fit this robot file: {ADVICE} (or widen --max-deviation)")
+    if deflection_rad is not None and np.max(deflection_rad) > math.radians(lim["deflection_deg"]):
+        j = int(np.argmax(deflection_rad))
+        raise CalibrationError(
+            f"calibration of {name!r}: joint {j + 1} deflects up to {math.degrees(deflection_rad[j]):.3g} deg under gravity "
+            f"(compliance c{j + 1} = {1e6 * (1.0 / res.robot.stiffness_nm_per_rad[j]):.4g} µrad/N·m; plausible: "
+            f"<= {lim['deflection_deg']:g} deg); the data do not fit this robot file: {ADVICE} (masses, payload)")
+    tool_len = float(np.linalg.norm(res.robot.tool[:3, 3]))
+    if getattr(res, "point_offsets_m", None) is not None:  # further reflectors: as far from the flange
+        pts = res.robot.tool[:3, :3] @ np.asarray(res.point_offsets_m).T + res.robot.tool[:3, 3:4]
+        tool_len = max(tool_len, float(np.linalg.norm(pts, axis=0).max()))
+    if tool_len > lim["tool_m"]:
+        raise CalibrationError(
+            f"calibration of {name!r}: the tool offset came out {tool_len:.3g} m from the flange (plausible: "
+            f"<= {lim['tool_m']:g} m); the data do not fit this robot file: {ADVICE}")
+    rms = res.after["pos_rms_mm"]
+    if rms > lim["residual_mm"]:
+        raise CalibrationError(
+            f"calibration of {name!r} leaves {rms:.3g} mm RMS (a correct robot file leaves < {lim['residual_mm']:g} mm): "
+            f"the data do not fit this robot file: {ADVICE}")
+    if "rot_rms_deg" in res.after and res.after["rot_rms_deg"] > lim["residual_deg"]:
+        raise CalibrationError(
+            f"calibration of {name!r} leaves {res.after['rot_rms_deg']:.3g} deg RMS orientation residual (a correct "
+            f"robot file leaves < {lim['residual_deg']:g} deg): the data do not fit this robot file: {ADVICE}")

@@ -1,0 +1,148 @@
+"""Outcome of a calibration: :class:`CalibrationResult` (parameters, uncertainties, residual
+statistics, report) and :func:`residual_stats`. Produced by :func:`hykin.calibrate.calibrate`."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..kinematics.robot import Robot
+
+__all__ = ["CalibrationResult", "residual_stats"]
+
+
+def residual_stats(rp: np.ndarray, ro: np.ndarray | None, w: float) -> dict:
+    """Mean / RMS / p95 / max of position residuals ``rp`` ``(N, 3)`` m (reported in mm) and of
+    rotation residuals ``ro`` ``(N, 3)`` (weighted by ``w`` m/rad; reported in deg) or None."""
+    e = np.linalg.norm(rp, axis=1) * 1e3
+    d = {
+        "pos_mean_mm": float(e.mean()), "pos_rms_mm": float(np.sqrt(np.mean(e * e))),
+        "pos_p95_mm": float(np.percentile(e, 95)), "pos_max_mm": float(e.max()),
+    }
+    if ro is not None:
+        a = np.degrees(np.linalg.norm(ro, axis=1) / w)
+        d.update({
+            "rot_mean_deg": float(a.mean()), "rot_rms_deg": float(np.sqrt(np.mean(a * a))),
+            "rot_p95_deg": float(np.percentile(a, 95)), "rot_max_deg": float(a.max()),
+        })
+    return d
+
+
+
+class CalibrationError(ValueError):
+    """Bad input to :func:`hykin.calibrate.calibrate` (shapes, non-finite values, unknown parameter
+    names) or a calibration refused by :mod:`hykin.calibration_checks`."""
+
+
+@dataclass
+class CalibrationResult:
+    """Outcome of :func:`calibrate`.
+
+    robot: the calibrated robot (geometry, base, tool, ``stiffness_nm_per_rad = 1 / c``).
+    names: parameter names (priority order); values: identified deviations from the input robot
+    (SI: m, rad, rad/N·m; base/tool/URDF-origin deviations as ``(x, y, z, rx, ry, rz)`` of
+    ``T0⁻¹ T``); std: standard deviations (nan where not identified); identifiable: bool mask.
+    correlation: ``(k, k)`` among the estimated parameters, ``correlation_names`` order (identifiable
+    ones that did not end at a bound: a compliance at 0 has no std).
+    strong_correlations: ``(name_i, name_j, rho)`` with ``|rho| > 0.9``.
+    before / after: residual statistics on the calibration data (``pos_mean_mm``, ``pos_rms_mm``,
+    ``pos_p95_mm``, ``pos_max_mm`` and the ``rot_*_deg`` twins for full-pose data).
+    sigma_pos_m / sigma_rot_rad: residual standard deviations per coordinate after calibration.
+    point_offsets_m: ``(K, 3)`` offsets of every reflector from the TCP (= reflector 1), TCP frame
+    (``p_k = T_tcp · point_offsets_m[k]``); one zero row for one point per pose.
+    """
+
+    robot: Robot
+    names: list[str]
+    values: np.ndarray
+    std: np.ndarray
+    identifiable: np.ndarray
+    correlation: np.ndarray
+    strong_correlations: list[tuple[str, str, float]]
+    before: dict
+    after: dict
+    iterations: int
+    converged: bool
+    message: str
+    units: list[str] = field(default_factory=list)
+    correlation_names: list[str] = field(default_factory=list)
+    n_samples: int = 0
+    position_only: bool = False
+    orientation_weight_m_per_rad: float = 1.0
+    sigma_pos_m: float = float("nan")
+    sigma_rot_rad: float = float("nan")
+    seconds: float = 0.0
+    point_offsets_m: np.ndarray | None = None
+
+    @property
+    def identified_names(self) -> list[str]:
+        return [n for n, m in zip(self.names, self.identifiable) if m]
+
+    @property
+    def rms_before_mm(self) -> float:
+        return self.before["pos_rms_mm"]
+
+    @property
+    def rms_after_mm(self) -> float:
+        return self.after["pos_rms_mm"]
+
+    def value(self, name: str) -> float:
+        """Identified deviation of parameter ``name`` (SI)."""
+        return float(self.values[self.names.index(name)])
+
+    def report(self) -> str:
+        """Human-readable table (lengths in mm, angles in deg, compliance in µrad/(N·m))."""
+        lines = [
+            f"Calibration of {self.robot.name!r}: {self.n_samples} samples, "
+            f"{'position only' if self.position_only else f'full pose (w = {self.orientation_weight_m_per_rad:g} m/rad)'}, "
+            f"{int(self.identifiable.sum())}/{len(self.names)} parameters identified, "
+            f"{self.iterations} iterations, {'converged' if self.converged else 'NOT converged'} ({self.message}), "
+            f"{self.seconds:.2f} s",
+            f"{'parameter':<10} {'deviation':>14} {'std':>12}  unit",
+        ]
+        for n, v, s, u, m in zip(self.names, self.values, self.std, self.units, self.identifiable):
+            f, un = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg"), "c": (1e6, "µrad/N·m")}[u]
+            vs = f"{v * f:14.6f}" if m else f"{'fixed':>14}"
+            ss = f"{s * f:12.6f}" if m and np.isfinite(s) else f"{'-':>12}"
+            lines.append(f"{n:<10} {vs} {ss}  {un}")
+        lines.append(f"{'':<10} {'before':>14} {'after':>12}")
+        for key, lab in (("pos_mean_mm", "pos mean mm"), ("pos_p95_mm", "pos p95 mm"), ("pos_max_mm", "pos max mm"),
+                         ("rot_mean_deg", "rot mean deg"), ("rot_p95_deg", "rot p95 deg"), ("rot_max_deg", "rot max deg")):
+            if key in self.before:
+                lines.append(f"{lab:<14} {self.before[key]:10.6f} {self.after[key]:12.6f}")
+        lines.append("identified at the solution: " + (", ".join(self.identified_names) or "none"))
+        if self.strong_correlations:
+            lines.append("strong correlations (|rho| > 0.9): " + ", ".join(
+                f"{a}~{b} {r:+.3f}" for a, b, r in self.strong_correlations))
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """JSON-able summary (SI units)."""
+        f = lambda x: None if not np.isfinite(x) else float(x)
+        return {
+            "robot": self.robot.name,
+            "n_samples": self.n_samples,
+            "position_only": self.position_only,
+            "orientation_weight_m_per_rad": self.orientation_weight_m_per_rad,
+            "parameters": [
+                {"name": n, "unit": u, "value": float(v), "std": f(s), "identifiable": bool(m)}
+                for n, u, v, s, m in zip(self.names, self.units, self.values, self.std, self.identifiable)
+            ],
+            "identified_names": self.identified_names,
+            "correlation_names": self.correlation_names,
+            "correlation": self.correlation.tolist(),
+            "strong_correlations": [[a, b, float(r)] for a, b, r in self.strong_correlations],
+            "before": self.before,
+            "after": self.after,
+            "sigma_pos_m": f(self.sigma_pos_m),
+            "sigma_rot_rad": f(self.sigma_rot_rad),
+            "iterations": self.iterations,
+            "converged": self.converged,
+            "message": self.message,
+            "seconds": self.seconds,
+            "point_offsets_m": None if self.point_offsets_m is None else np.asarray(self.point_offsets_m).tolist(),
+        }
+
+

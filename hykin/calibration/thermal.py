@@ -1,0 +1,113 @@
+"""Thermal expansion of the arm: one linear coefficient, identified from a temperature column.
+
+A robot's links (and tool) expand with temperature: about 11.5e-6 /K for steel, 23e-6 /K for
+aluminium, i.e. 0.02 mm per kelvin at a 1.5 m reach. Measurement sessions warm up by several
+kelvin, so this is an error the joints cannot explain: a model of q alone can only average it out.
+When the data carry the temperature (a ``temperature_c`` or ``temperature`` column, °C, kept as an
+extra column by :mod:`hykin.dataset`), uniform expansion of every length of the chain is modelled
+exactly: the pose at temperature ``t`` is the pose at the reference temperature ``t_ref`` with its
+position scaled about the robot base origin ``b``,
+
+    p(t) = b + (1 + alpha (t - t_ref)) (p(t_ref) - b),    orientation unchanged,
+
+``alpha`` (1/K) being identified by least squares together with the calibration (alternating: fit
+``alpha`` on the calibrated residuals, map the measurements to ``t_ref``, recalibrate). The
+coefficient is kept only when it is significant (``|alpha| >= 3 std``), physically plausible
+(``|alpha| <= 60e-6 /K``) and not negligible (``|alpha|`` x temperature std x RMS reach >= 0.5 µm);
+otherwise the model ignores temperature. On the real UR10 series A (laser tracker, 22.9-23.7 °C,
+std 0.17 K) it is not significant (-1.5e-5 +- 1.3e-5 /K) and so not used.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+__all__ = [
+    "TEMPERATURE_COLUMNS",
+    "ThermalFit",
+    "fit_coefficient",
+    "scale_about",
+    "temperature_from",
+    "temperature_of",
+    "to_reference",
+]
+
+#: extra columns read as the temperature (°C), in order of preference
+TEMPERATURE_COLUMNS = ("temperature_c", "temperature")
+#: largest plausible linear expansion coefficient (1/K); aluminium is 23e-6, magnesium 26e-6
+MAX_PLAUSIBLE_PER_K = 60e-6
+#: smallest effect worth a coefficient: alpha x temperature std x RMS reach (m)
+MIN_EFFECT_M = 0.5e-6
+
+
+@dataclasses.dataclass
+class ThermalFit:
+    """Identified expansion: ``coefficient_per_k`` (1/K, 0 when not kept), its ``std_per_k``,
+    ``reference_c`` (°C), the training range ``range_c`` (min, max) and ``note`` (why it was kept
+    or not)."""
+
+    coefficient_per_k: float
+    std_per_k: float
+    reference_c: float
+    range_c: tuple[float, float]
+    note: str
+
+    def to_dict(self) -> dict:
+        return {"coefficient_per_k": self.coefficient_per_k, "std_per_k": self.std_per_k,
+                "reference_c": self.reference_c, "range_c": list(self.range_c), "note": self.note}
+
+
+def temperature_from(extra: dict, where: str = "<dataset>") -> np.ndarray | None:
+    """The temperature column (°C, ``(N,)`` float64) among extra columns ``{name: (N,)}``, or None.
+    Raises ``ValueError`` naming the file, column and row on a non-numeric or non-finite value."""
+    for name in TEMPERATURE_COLUMNS:
+        if name in (extra or {}):
+            try:
+                t = np.asarray(extra[name], dtype=np.float64).reshape(-1)
+            except (TypeError, ValueError):
+                raise ValueError(f"{where}: column '{name}' is not numeric (temperature, °C)") from None
+            bad = ~np.isfinite(t)
+            if bad.any():
+                raise ValueError(f"{where}: column '{name}', row {int(np.argmax(bad)) + 1}: non-finite temperature")
+            return t
+    return None
+
+
+def temperature_of(ds) -> np.ndarray | None:
+    """The temperature column of a Dataset (see :func:`temperature_from`), or None."""
+    return temperature_from(getattr(ds, "extra", None) or {}, getattr(ds, "source", "") or "<dataset>")
+
+
+def scale_about(T: np.ndarray, origin_m: np.ndarray, factor: np.ndarray) -> np.ndarray:
+    """Poses ``T`` ``(N, 4, 4)`` with positions scaled by ``factor`` ``(N,)`` about ``origin_m`` ``(3,)``
+    (a copy; rotations unchanged)."""
+    out = np.array(T, dtype=np.float64, copy=True)
+    out[:, :3, 3] = origin_m + factor[:, None] * (out[:, :3, 3] - origin_m)
+    return out
+
+
+def fit_coefficient(xyz_meas_m: np.ndarray, xyz_model_m: np.ndarray, origin_m: np.ndarray, dtemp_k: np.ndarray,
+                    alpha0: float) -> tuple[float, float]:
+    """Least-squares update of ``alpha`` given model positions at the reference temperature.
+
+    ``xyz_meas_m`` measured ``(N, 3)``; ``xyz_model_m`` the model's ``(N, 3)`` at ``t_ref`` when the
+    data were mapped with ``alpha0``; ``dtemp_k`` ``t - t_ref`` ``(N,)``. Returns ``(alpha, std)``.
+    """
+    g = dtemp_k[:, None] * (xyz_model_m - origin_m)  # d p / d alpha
+    r = xyz_meas_m - (origin_m + (1.0 + alpha0 * dtemp_k)[:, None] * (xyz_model_m - origin_m))
+    gg = float(np.sum(g * g))
+    if gg <= 0:
+        return 0.0, float("inf")
+    step = float(np.sum(g * r)) / gg
+    res = r - step * g
+    dof = max(r.size - 1, 1)
+    sigma2 = float(np.sum(res * res)) / dof
+    return alpha0 + step, float(np.sqrt(sigma2 / gg))
+
+
+def to_reference(ds, origin_m: np.ndarray, alpha: float, dtemp_k: np.ndarray):
+    """The Dataset ``ds`` with its measured positions mapped to the reference temperature."""
+    s = 1.0 + alpha * dtemp_k
+    return dataclasses.replace(ds, xyz_m=origin_m + (ds.xyz_m - origin_m) / s[:, None])

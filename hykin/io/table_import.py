@@ -1,0 +1,527 @@
+"""Any tracker/robot table into the standard dataset (``hykin import table``, DESIGN.md §3-4).
+
+:func:`read_text_table` reads a delimited text file as laid out by a :class:`~hykin.table_map.TableMap`
+(delimiter, decimal comma, metadata lines, comments, dropped and filtered rows), keeping the file line
+of every data row. :func:`read_mapped` turns the mapped columns into SI arrays (joints rad/m, positions
+m, orientation as unit quaternions, further reflectors, time s); :func:`import_table` makes the
+:class:`~hykin.dataset.Dataset` (with a ``nest``: the full pose from three reflectors).
+
+Every error is a :class:`~hykin.dataset.DatasetError` naming the file, the data row with its line in
+the file, the column and the likely cause (missing column with did-you-mean, non-numeric or empty
+cell, decimal comma, NaN, joint count, values that look like another unit, a further joint column the
+mapping leaves out).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .dataset import Dataset, DatasetError, validate
+from .table_map import (
+    ANGLE_UNITS_RAD,
+    LENGTH_UNITS_M,
+    TIME_UNITS_S,
+    TableMap,
+    TableMapError,
+    did_you_mean,
+    euler_sequence,
+    expand_joint_spec,
+    load_table_map,
+    table_map_from_dict,
+)
+
+__all__ = ["MappedTable", "TextTable", "import_table", "numeric_column", "read_mapped", "read_text_table"]
+
+RAD_LOOKS_LIKE_DEG = 2 * math.pi * 1.2  # |angle| above this, declared rad: degrees
+M_LOOKS_LIKE_MM = 50.0  # |coordinate| above this, declared m: millimetres
+MM_LOOKS_LIKE_M = 5.0  # every point within this of the origin, declared mm: metres
+QUAT_NORM_TOL = 1e-3
+
+
+@dataclass
+class TextTable:
+    """A delimited text table: ``header``, ``rows`` (cells as text), ``lines`` ``(N,)`` 1-based file
+    line of each row, the ``delimiter`` used and the file name ``where``."""
+
+    where: str
+    header: list[str]
+    rows: list[list[str]]
+    lines: np.ndarray
+    delimiter: str
+
+    def col(self, name: str) -> list[str]:
+        i = self.header.index(name)
+        return [r[i] for r in self.rows]
+
+    def error(self, row: int | None, column: str | None, msg: str) -> DatasetError:
+        """DatasetError '<file>, row r (line L of the file), column 'c': msg' (``row`` 0-based)."""
+        parts = [self.where]
+        if row is not None:
+            parts.append(f"row {row + 1} (line {int(self.lines[row])} of the file)")
+        if column is not None:
+            parts.append(f"column '{column}'")
+        return DatasetError(", ".join(parts) + ": " + msg, file=self.where,
+                            row=None if row is None else row + 1, column=column)
+
+
+def _read_lines(path: Path, encoding: str | None, where: str) -> list[str]:
+    if not path.is_file():
+        raise DatasetError(f"{where}: file not found", file=where)
+    raw = path.read_bytes()
+    try:
+        text = raw.decode(encoding or "utf-8-sig")
+    except UnicodeDecodeError:
+        if encoding:
+            raise DatasetError(f"{where}: cannot be decoded as {encoding}", file=where) from None
+        text = raw.decode("cp1252", errors="replace")  # Windows tracker software: '°', 'µ' in headers
+    return text.splitlines()
+
+
+def _detect_delimiter(header_line: str, decimal: str) -> str:
+    for d in ("\t", ";", "|"):
+        if d in header_line:
+            return d
+    if "," in header_line and decimal != ",":
+        return ","
+    return " "
+
+
+def _split(lines: list[str], delimiter: str) -> list[list[str]]:
+    if delimiter == " ":
+        return [ln.split() for ln in lines]
+    return [[c.strip() for c in row] for row in csv.reader(lines, delimiter=delimiter)]
+
+
+_COND = re.compile(r"^\s*(.+?)\s*(==|!=|<=|>=|<|>)\s*(.*?)\s*$")
+
+
+def _filter_rows(t: TextTable, conditions: list[str], decimal: str) -> None:
+    """Keep the rows where every ``"column op value"`` condition holds (numbers compared as numbers)."""
+    keep = np.ones(len(t.rows), bool)
+    for cond in conditions:
+        m = _COND.match(cond)
+        if not m:
+            raise TableMapError(f"{t.where}: where condition {cond!r} must look like 'column == value' "
+                                "(operators == != < <= > >=)", file=t.where, column="where")
+        col, op, val = m.group(1).strip("\"'"), m.group(2), m.group(3).strip("\"'")
+        if col not in t.header:
+            raise TableMapError(f"{t.where}: where condition {cond!r}: no column {col!r}{did_you_mean(col, t.header)}",
+                                file=t.where, column=col)
+        cells = t.col(col)
+        try:
+            ref = float(val.replace(decimal, "."))
+            vals = np.array([_num_or_nan(c, decimal) for c in cells])
+        except ValueError:
+            if op not in ("==", "!="):
+                raise TableMapError(f"{t.where}: where condition {cond!r}: {op} needs a number", file=t.where, column=col) from None
+            vals, ref = np.asarray(cells, dtype=object), val
+        ok = {"==": vals == ref, "!=": vals != ref}.get(op) if op in ("==", "!=") else \
+            {"<": vals < ref, "<=": vals <= ref, ">": vals > ref, ">=": vals >= ref}[op]
+        keep &= np.asarray(ok, bool)
+    t.rows = [r for r, k in zip(t.rows, keep) if k]
+    t.lines = t.lines[keep]
+
+
+def _num_or_nan(c: str, decimal: str) -> float:
+    try:
+        return float(c.replace(decimal, ".") if decimal != "." else c)
+    except ValueError:
+        return math.nan
+
+
+def read_text_table(path: str | Path, m: TableMap | None = None) -> TextTable:
+    """Read ``path`` as laid out by ``m`` (see :class:`~hykin.table_map.TableMap`): header, rows, lines.
+
+    Blank lines and ``comment`` lines are skipped anywhere; a trailing delimiter on every line is
+    tolerated; a row with another number of cells than the header is an error naming its line.
+    """
+    m = m or TableMap()
+    where = str(path)
+    text = _read_lines(Path(path), m.encoding, where)
+    numbered = [(i + 1, ln) for i, ln in enumerate(text)]
+    skip = m.skip_rows if m.header_row is None else max(m.header_row - 1, 0)
+    numbered = [(i, ln) for i, ln in numbered[skip:]
+                if ln.strip() and not (m.comment and ln.lstrip().startswith(m.comment))]
+    if not numbered:
+        raise DatasetError(f"{where}: no lines left after skipping {skip} line(s), blank and comment lines", file=where)
+    no_header = m.header_row == 0
+    delim = m.delimiter or _detect_delimiter(numbered[0][1], m.decimal)
+    if no_header:
+        width = len(_split([numbered[0][1]], delim)[0])
+        header, body = [str(k + 1) for k in range(width)], numbered
+    else:
+        header, body = _split([numbered[0][1]], delim)[0], numbered[1:]
+    drop = set(m.drop_rows)
+    body = [(i, ln) for i, ln in body if i not in drop]
+    cells = _split([ln for _, ln in body], delim)
+    while header and header[-1] == "" and all(len(r) == len(header) and r[-1] == "" for r in cells):
+        header, cells = header[:-1], [r[:-1] for r in cells]  # every line ends with the delimiter
+    seen = set()
+    for h in header:
+        if h == "":
+            raise DatasetError(f"{where}, line {numbered[0][0]}: the header has an empty column name", file=where)
+        if h in seen:
+            raise DatasetError(f"{where}, column '{h}': appears twice in the header", file=where, column=h)
+        seen.add(h)
+    t = TextTable(where, header, cells, np.array([i for i, _ in body], dtype=np.int64), delim)
+    for r, row in enumerate(cells):
+        if len(row) > len(header) and not any(row[len(header):]):
+            cells[r] = row[:len(header)]  # trailing delimiter(s) on this line only
+        elif len(row) != len(header):
+            name = {",": "','", ";": "';'", "\t": "tab", " ": "whitespace", "|": "'|'"}[delim]
+            raise t.error(r, None, f"has {len(row)} cells, the header has {len(header)} (delimiter: {name}; "
+                          "declare delimiter, skip_rows or comment if this is not the layout)")
+    if m.where:
+        _filter_rows(t, m.where, m.decimal)
+    if not t.rows:
+        raise DatasetError(f"{where}: no data rows" + (" left after the where filters" if m.where else " under the header"),
+                           file=where)
+    return t
+
+
+def guess_layout(path: str | Path, m: TableMap | None = None) -> dict:
+    """Guess ``skip_rows`` (metadata lines above the header), the delimiter and a decimal comma, for
+    :func:`~hykin.table_map.suggest_map` only (the user confirms them in the mapping)."""
+    m = m or TableMap()
+    where = str(path)
+    text = _read_lines(Path(path), m.encoding, where)
+    numbered = [(i, ln) for i, ln in enumerate(text) if ln.strip() and not (m.comment and ln.lstrip().startswith(m.comment))]
+    for k, (i, ln) in enumerate(numbered[:30]):
+        delim = m.delimiter or _detect_delimiter(ln, m.decimal)
+        width = len(_split([ln], delim)[0])
+        nxt = _split([x for _, x in numbered[k + 1:k + 21]], delim)
+        if width > 1 and nxt and all(len(r) == width or (len(r) == width + 1 and not r[-1]) for r in nxt):
+            out = {"skip_rows": i, "delimiter": delim}
+            cells = [c for r in nxt for c in r]
+            if m.decimal == "." and delim != "," and any(re.fullmatch(r"[+-]?\d*,\d+", c) for c in cells):
+                out["decimal"] = ","
+            return out
+    return {}
+
+
+def numeric_column(t: TextTable, name: str, decimal: str = ".", allow_missing: bool = False) -> np.ndarray:
+    """Column ``name`` as float64 ``(N,)``. Empty, non-numeric and non-finite cells are errors naming
+    the row, line and likely cause; with ``allow_missing`` empty/NaN cells become NaN (lost beam)."""
+    cells = t.col(name)
+    conv = [c.replace(decimal, ".") for c in cells] if decimal != "." else cells
+    if allow_missing:
+        conv = [c if c.strip() else "nan" for c in conv]
+    try:
+        arr = np.asarray(conv, dtype=np.float64)
+    except ValueError:
+        arr = None
+    if arr is None:
+        for r, c in enumerate(conv):
+            try:
+                float(c)
+            except ValueError:
+                raw = cells[r]
+                if not raw.strip():
+                    cause = "the cell is empty"
+                elif decimal == "." and re.fullmatch(r"[+-]?\d*,\d+([eE][+-]?\d+)?", raw):
+                    cause = f"{raw!r} looks like a decimal comma: declare decimal = \",\" (--decimal ,)"
+                elif decimal == "," and re.fullmatch(r"[+-]?\d*\.\d+([eE][+-]?\d+)?", raw):
+                    cause = f"{raw!r} has a decimal point but decimal = \",\" was declared"
+                else:
+                    cause = f"{raw!r} is not a number"
+                    if r == 0 and re.search(r"[A-Za-z°µ\[\]]", raw):
+                        cause += f" (a units line under the header? drop it with drop_rows = [{int(t.lines[0])}])"
+                raise t.error(r, name, cause)
+    if not allow_missing:
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            r = int(np.argmax(bad))
+            raise t.error(r, name, f"value {cells[r]!r} is not finite (NaN or inf); every mapped cell must be a number")
+    return arr
+
+
+@dataclass
+class MappedTable:
+    """The mapped quantities of a table in SI units (rows as filtered, ``lines`` = file lines).
+
+    q ``(N, dof)`` rad/m or None; joint_columns; xyz_m ``(N, 3)`` or None; quat_wxyz ``(N, 4)`` or
+    None; points_m ``(N, K, 3)`` further reflectors; time_s ``(N,)`` or None; extra ``{name: (N,)}``.
+    """
+
+    table: TextTable
+    q: np.ndarray | None
+    joint_columns: list[str]
+    xyz_m: np.ndarray | None
+    quat_wxyz: np.ndarray | None
+    points_m: np.ndarray
+    time_s: np.ndarray | None
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def _stack(t: TextTable, names: list[str], decimal: str, allow_missing: bool = False) -> np.ndarray:
+    return np.stack([numeric_column(t, c, decimal, allow_missing) for c in names], axis=1)
+
+
+def _require(t: TextTable, names: list[str], role: str) -> None:
+    for c in names:
+        if c not in t.header:
+            raise t.error(None, c, f"no such column (mapped as {role}){did_you_mean(c, t.header)}; "
+                          f"the header is: {', '.join(t.header)}")
+
+
+def _check_further_joints(t: TextTable, joints: list[str], used: set[str], m: TableMap) -> None:
+    """Refuse a header column that continues the joints' numbering (``joint_7`` next to joint_1..6)."""
+    for j in joints[-1:]:
+        mm = re.fullmatch(r"(.*?)(\d+)(\D*)", j)
+        if not mm:
+            return
+        rx = re.compile(re.escape(mm.group(1)) + r"(\d+)" + re.escape(mm.group(3)))
+        for h in t.header:
+            k = rx.fullmatch(h)
+            if k and h not in used and h not in m.ignore and h not in m.keep_names():
+                raise t.error(None, h, f"looks like a further joint that the mapping leaves out (joints: {', '.join(joints)}); "
+                              "map it under joints, or list it under ignore if it is not a joint of this arm")
+
+
+def _unit_checks(t: TextTable, m: TableMap, q_raw, rev, xyz_raw, ang_raw, ang_unit, ang_cols, jn, pos) -> None:
+    if not m.check_units:
+        return
+    hint_off = " (check_units = false / --no-unit-check if the values are right)"
+    if q_raw is not None and rev.any():
+        qr = np.abs(q_raw[:, rev])
+        names = [c for c, r in zip(jn, rev) if r]
+        if m.angle_unit == "rad" and (qr > RAD_LOOKS_LIKE_DEG).any():
+            r, c = np.argwhere(qr > RAD_LOOKS_LIKE_DEG)[0]
+            raise t.error(int(r), names[c], f"joint value {q_raw[r, rev][c]:.6g} declared rad looks like degrees: "
+                          "declare angle_unit = \"deg\" (--angle-unit deg)" + hint_off)
+        span = np.ptp(q_raw[:, rev], axis=0).max() if len(q_raw) > 1 else 0.0
+        if m.angle_unit == "deg" and len(q_raw) >= 10 and qr.max() <= 2 * math.pi + 0.1 and span > 0.5:
+            r, c = np.unravel_index(int(np.argmax(qr)), qr.shape)
+            raise t.error(int(r), names[c], f"every joint value is within ±2π although degrees were declared "
+                          f"(largest {qr.max():.6g}): looks like radians; declare angle_unit = \"rad\"" + hint_off)
+    if xyz_raw is not None:
+        a = np.abs(xyz_raw)
+        if m.length_unit == "m" and (a > M_LOOKS_LIKE_MM).any():
+            r, c = np.argwhere(a > M_LOOKS_LIKE_MM)[0]
+            raise t.error(int(r), pos[c], f"position {xyz_raw[r, c]:.6g} declared m looks like millimetres: "
+                          "declare length_unit = \"mm\" (--length-unit mm)" + hint_off)
+        far = np.linalg.norm(xyz_raw, axis=1).max()
+        if m.length_unit == "mm" and len(xyz_raw) >= 2 and far < MM_LOOKS_LIKE_M and np.ptp(xyz_raw, axis=0).max() > 0:
+            raise t.error(None, pos[0], f"every position is within {far:.3g} mm of the origin although mm was declared: "
+                          "looks like metres; declare length_unit = \"m\"" + hint_off)
+    if ang_raw is not None and ang_unit == "rad":
+        a = np.abs(ang_raw)
+        if (a > RAD_LOOKS_LIKE_DEG).any():
+            r, c = np.argwhere(a > RAD_LOOKS_LIKE_DEG)[0]
+            key = "euler_unit" if m.euler is not None else "rotvec_unit"
+            raise t.error(int(r), ang_cols[c], f"angle {ang_raw[r, c]:.6g} declared rad looks like degrees: "
+                          f"declare {key} = \"deg\"" + hint_off)
+
+
+def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool = True, need_position: bool = True,
+                allow_missing: bool = False, dof: int | None = None) -> MappedTable:
+    """Read ``path`` with mapping ``m`` into SI arrays (:class:`MappedTable`).
+
+    ``robot`` (optional) fixes the joint count and marks prismatic joints (length unit); ``dof`` (or
+    ``m.dof``) fixes the joint count. ``allow_missing`` lets position/orientation cells be empty or
+    NaN (a tracker stream losing the beam); joints never.
+    """
+    t = read_text_table(path, m)
+    d = m.decimal
+    jn = expand_joint_spec(m.joints, t.header, t.where) if m.joints is not None else []
+    if need_joints and not jn:
+        raise TableMapError(f"{t.where}: the mapping names no joint columns (joints = [...] / --joints)", file=t.where,
+                            column="joints")
+    if need_position and m.position is None:
+        raise TableMapError(f"{t.where}: the mapping names no position columns (position = [x, y, z] / --position)",
+                            file=t.where, column="position")
+    ori = {"quaternion": m.quaternion, "euler": m.euler, "rotvec": m.rotvec}.get(m.orientation or "", None) or []
+    pts = [c for p in m.points for c in p]
+    roles = [(jn, "joints"), (m.position or [], "position"), (ori, m.orientation or ""), (pts, "points"),
+             ([m.time] if m.time else [], "time"), ([m.temperature] if m.temperature else [], "temperature"),
+             ([m.payload] if m.payload else [], "payload")]
+    keep = m.keep_names()
+    keep_all = "*" in keep
+    keep.pop("*", None)
+    roles.append((list(keep), "keep"))
+    used: dict[str, str] = {}
+    for names, role in roles:
+        _require(t, names, role)
+        for c in names:
+            if c in used and role != "keep":
+                raise t.error(None, c, f"is mapped twice (as {used[c]} and as {role})")
+            used.setdefault(c, role)
+    want = robot.dof if robot is not None else (dof if dof is not None else m.dof)
+    if robot is not None and (dof or m.dof) not in (None, robot.dof):
+        raise DatasetError(f"{t.where}: dof {dof or m.dof} given but robot {robot.name!r} has {robot.dof} joints", file=t.where)
+    if jn and want is not None and len(jn) != want:
+        who = f"robot {robot.name!r}" if robot is not None else f"dof = {want}"
+        raise t.error(None, jn[-1], f"the mapping names {len(jn)} joint column(s) ({', '.join(jn)}) but {who} "
+                      f"has {want} joints")
+    if jn:
+        _check_further_joints(t, jn, set(used), m)
+    rev = np.array([jt == "revolute" for jt in robot.joint_type], bool) if robot is not None else np.ones(len(jn), bool)
+    q_raw = _stack(t, jn, d) if jn else None
+    xyz_raw = _stack(t, m.position, d, allow_missing) if m.position else None
+    ang_raw = ang_unit = None
+    if m.orientation in ("euler", "rotvec"):
+        ang_raw = _stack(t, ori, d, allow_missing)
+        ang_unit = m.euler_unit if m.orientation == "euler" else m.rotvec_unit
+    pos_ok = None if xyz_raw is None else np.isfinite(xyz_raw).all(1)
+    _unit_checks(t, m, q_raw, rev, None if xyz_raw is None else xyz_raw[pos_ok], ang_raw, ang_unit, ori, jn, m.position)
+    L = LENGTH_UNITS_M[m.length_unit]
+    q = None if q_raw is None else q_raw * np.where(rev, ANGLE_UNITS_RAD[m.angle_unit], L)
+    xyz = None if xyz_raw is None else xyz_raw * L
+    quat = _orientation(t, m, ori, ang_raw, allow_missing)
+    P = np.stack([_stack(t, p, d, allow_missing) * L for p in m.points], axis=1) if m.points else np.zeros((len(t.rows), 0, 3))
+    if pts and m.check_units and m.length_unit == "m":
+        big = np.abs(P) > M_LOOKS_LIKE_MM
+        if big.any():
+            r, k, c = np.argwhere(big)[0]
+            raise t.error(int(r), m.points[k][c], f"position {P[r, k, c]:.6g} declared m looks like millimetres: "
+                          "declare length_unit = \"mm\"")
+    time_s = _time_column(t, m) if m.time else None
+    extra: dict[str, np.ndarray] = {}
+    if m.temperature:
+        tc = numeric_column(t, m.temperature, d)
+        extra["temperature_c"] = {"C": tc, "K": tc - 273.15, "F": (tc - 32.0) * 5.0 / 9.0}[m.temperature_unit]
+    if m.payload:
+        extra["payload_kg"] = numeric_column(t, m.payload, d)
+    if keep_all:
+        keep.update({c: c for c in t.header if c not in used})
+    for c, new in keep.items():
+        extra[new] = _lenient(t.col(c), d)
+    return MappedTable(t, q, jn, xyz, quat, P, time_s, extra)
+
+
+def _time_column(t: TextTable, m: TableMap) -> np.ndarray:
+    """Time column in seconds: numbers in ``time_unit``, ISO 8601 date-times or ``time_format`` text
+    (date-times as seconds since 1970, clock taken as UTC)."""
+    if m.time_format:
+        from datetime import datetime, timezone
+
+        out = np.empty(len(t.rows))
+        for r, c in enumerate(t.col(m.time)):
+            try:
+                out[r] = datetime.strptime(c, m.time_format).replace(tzinfo=timezone.utc).timestamp()
+            except ValueError:
+                raise t.error(r, m.time, f"{c!r} does not match time_format {m.time_format!r}") from None
+        return out
+    try:
+        return numeric_column(t, m.time, m.decimal) * TIME_UNITS_S[m.time_unit]
+    except DatasetError as e:
+        cells = [c.replace(" ", "T", 1) for c in t.col(m.time)]
+        try:
+            stamps = np.array(cells, dtype="datetime64[ns]")
+        except ValueError:
+            raise e from None
+        if np.isnat(stamps).any():
+            raise t.error(int(np.argmax(np.isnat(stamps))), m.time, "empty time stamp") from None
+        return (stamps - np.datetime64(0, "ns")).astype(np.int64) * 1e-9
+
+
+def _lenient(cells: list[str], decimal: str) -> np.ndarray:
+    conv = [c.replace(decimal, ".") for c in cells] if decimal != "." else cells
+    try:
+        return np.asarray(conv, dtype=np.float64)
+    except ValueError:
+        return np.asarray(cells, dtype=str)
+
+
+def _orientation(t: TextTable, m: TableMap, cols: list[str], ang_raw, allow_missing: bool) -> np.ndarray | None:
+    """Unit quaternions ``(N, 4)`` scalar first, ``qw >= 0`` (NaN rows kept NaN with allow_missing)."""
+    if m.orientation is None:
+        return None
+    raw = _stack(t, cols, m.decimal, allow_missing) if m.orientation == "quaternion" else ang_raw
+    ok = np.isfinite(raw).all(1)
+    out = np.full((len(raw), 4), np.nan)
+    if m.orientation == "quaternion":
+        qv = raw[ok] if m.quaternion_order == "wxyz" else raw[ok][:, [3, 0, 1, 2]]
+        norm = np.linalg.norm(qv, axis=1)
+        bad = np.abs(norm - 1.0) > QUAT_NORM_TOL
+        if bad.any():
+            r = int(np.flatnonzero(ok)[np.argmax(bad)])
+            raise t.error(r, ",".join(cols), f"quaternion norm is {norm[np.argmax(bad)]:.6g}, not 1: not a unit quaternion "
+                          "(are these the right four columns?)")
+        rot = Rotation.from_quat(qv, scalar_first=True)
+    elif m.orientation == "euler":
+        rot = Rotation.from_euler(euler_sequence(m, t.where), raw[ok], degrees=m.euler_unit == "deg")
+    else:
+        rot = Rotation.from_rotvec(raw[ok], degrees=m.rotvec_unit == "deg")
+    out[ok] = rot.as_quat(canonical=True, scalar_first=True)
+    return out
+
+
+def _nest_pose(mt: MappedTable, m: TableMap) -> tuple[np.ndarray, np.ndarray]:
+    """Poses (tool frame -> measurement frame) and fit RMS (m) from position + two points and the nest."""
+    from ..measure.referencing import pose_from_three_points
+
+    t = mt.table
+    if mt.points_m.shape[1] != 2 or m.orientation is not None:
+        raise TableMapError(f"{t.where}: a nest needs position plus exactly two further points (three reflectors) and no "
+                            f"orientation columns; the mapping has {1 + mt.points_m.shape[1]} point(s)", file=t.where,
+                            column="nest")
+    nest = np.asarray(m.nest, dtype=np.float64) * LENGTH_UNITS_M[m.nest_unit]
+    try:
+        T, rms = pose_from_three_points(mt.xyz_m, mt.points_m[:, 0], mt.points_m[:, 1], nest, return_residual=True)
+    except ValueError as e:  # collinear nest or measured points
+        raise DatasetError(f"{t.where}: {e}", file=t.where) from None
+    bad = rms > m.max_fit_rms_mm * 1e-3
+    if bad.any():
+        r = int(np.argmax(bad))
+        raise t.error(r, m.position[0], f"the three points do not fit the nest (RMS {rms[r] * 1e3:.3f} mm > "
+                      f"{m.max_fit_rms_mm:.3f} mm): wrong nest geometry, reflector order or length unit?")
+    return T, rms
+
+
+def import_table(path: str | Path, m: TableMap | dict | str | Path, robot=None, *, dof: int | None = None) -> Dataset:
+    """Import any table into a :class:`~hykin.dataset.Dataset` (SI) with mapping ``m``.
+
+    Output columns: ``q1..qN`` (the mapped joints in order), ``x,y,z`` (position), ``qw..qz`` (from
+    the quaternion, Euler angles or rotation vector, if mapped), ``x2,y2,z2, ...`` (further points),
+    ``time_s``, ``temperature_c``, ``payload_kg`` and the kept columns. With ``m.nest`` the pose is
+    the rigid fit of the nest onto position + two points (extra ``smr_fit_rms_m``). Validated as any
+    dataset (with ``robot``: joint count, limits). ``m`` may also be a dict of mapping keys or the
+    path of a mapping TOML file.
+    """
+    if isinstance(m, dict):
+        m = table_map_from_dict(m)
+    elif not isinstance(m, TableMap):
+        m = load_table_map(m)
+    mt = read_mapped(path, m, robot, dof=dof)
+    t = mt.table
+    extra = {}
+    if mt.time_s is not None:
+        extra["time_s"] = mt.time_s
+    extra.update(mt.extra)
+    if m.nest is not None:
+        T, rms = _nest_pose(mt, m)
+        extra["smr_fit_rms_m"] = rms
+        ds = Dataset.from_poses(mt.q, T, extra=extra, source=t.where)
+    else:
+        for k in range(mt.points_m.shape[1]):
+            for a in range(3):
+                extra[f"{'xyz'[a]}{k + 2}"] = mt.points_m[:, k, a]
+        ds = Dataset(q=mt.q, xyz_m=mt.xyz_m, quat_wxyz=mt.quat_wxyz, extra=extra, source=t.where)
+    from .dataset import POSITION_COLUMNS, QUAT_COLUMNS, joint_columns
+
+    clash = set(ds.extra) & (set(joint_columns(ds.dof)) | set(POSITION_COLUMNS) | set(QUAT_COLUMNS))
+    if clash:
+        c = min(clash)
+        raise TableMapError(f"{t.where}, column '{c}': a kept column has the name of a dataset column; rename it "
+                            f"(keep = {{ {c} = \"{c}_raw\" }})", file=t.where, column=c)
+    ds.meta = {"frame": "file's", "imported_from": t.where, "joint_columns": mt.joint_columns}
+    try:
+        validate(ds, robot, where=t.where, angle_unit=m.angle_unit, line_offset=None)
+    except DatasetError as e:
+        if e.row is None:
+            raise
+        line = int(t.lines[e.row - 1])
+        msg = str(e).replace(f"row {e.row}", f"row {e.row} (line {line} of the file)", 1)
+        jm = re.fullmatch(r"q(\d+)", e.column or "")
+        if jm and int(jm.group(1)) <= len(mt.joint_columns):
+            msg = msg.replace(f"column '{e.column}'", f"column '{mt.joint_columns[int(jm.group(1)) - 1]}'", 1)
+        raise DatasetError(msg, file=e.file, row=e.row, column=e.column) from None
+    return ds

@@ -1,0 +1,334 @@
+"""URDF robots: load a serial chain from a URDF file, and export any :class:`Robot` as URDF.
+
+* :func:`load_urdf` reads a URDF (standard library XML parser, no ROS needed) and returns a
+  :class:`~hykin.robot.Robot` with ``convention="urdf"``. The chain runs from ``base_link`` (default:
+  the root link) to ``tip_link`` (default: the leaf at the end of the chain with the most movable
+  joints). Revolute, continuous and prismatic joints become robot joints; fixed joints are folded into
+  the next movable joint's origin, or into ``tool`` after the last movable joint. Link frame i is the
+  child link of movable joint i; its mass and centre of mass (``mass_kg``, ``com_m``, link frame i)
+  combine that link's ``<inertial>`` with every link fixed to it further down the chain.
+  Continuous joints get limits ``[-pi, pi]`` (every orientation once).
+* :func:`robot_to_urdf` writes any robot (DH, MDH or URDF) as a URDF serial chain with the same
+  forward kinematics: ``base`` and ``tool`` become fixed joints, each joint i becomes a movable joint
+  (child link ``joint_i_frame``, z = joint axis) followed by a fixed joint to ``link_i`` (hykin link
+  frame i, which carries the link's mass and centre of mass). Used to cross-check with Pinocchio.
+
+Units: URDF is SI (m, rad, kg). Errors are :class:`~hykin.robot.RobotFileError` naming the file and
+the element.
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from ..kinematics import se3
+from ..kinematics.robot import Robot, RobotFileError
+
+__all__ = ["calibrated_urdf", "load_urdf", "load_urdf_string", "robot_to_urdf"]
+
+_MOVABLE = ("revolute", "continuous", "prismatic")
+
+
+def _floats(text: str | None, n: int, where: str, default: tuple[float, ...]) -> np.ndarray:
+    if text is None:
+        return np.array(default, dtype=np.float64)
+    parts = text.split()
+    try:
+        vals = [float(p) for p in parts]
+    except ValueError:
+        raise RobotFileError(f"{where}: expected {n} numbers, got {text!r}") from None
+    if len(vals) != n or not all(math.isfinite(v) for v in vals):
+        raise RobotFileError(f"{where}: expected {n} finite numbers, got {text!r}")
+    return np.array(vals)
+
+
+def _float_attr(el: ET.Element, key: str, where: str, required: bool = True, default: float = 0.0) -> float:
+    txt = el.get(key)
+    if txt is None:
+        if required:
+            raise RobotFileError(f"{where}: missing attribute '{key}'")
+        return default
+    try:
+        v = float(txt)
+    except ValueError:
+        raise RobotFileError(f"{where}: attribute '{key}' is not a number: {txt!r}") from None
+    if not math.isfinite(v):
+        raise RobotFileError(f"{where}: attribute '{key}' must be finite, got {txt!r}")
+    return v
+
+
+def _check_attrs(el: ET.Element, allowed, where: str) -> None:
+    """An attribute outside ``allowed`` is a typo that would silently read as the default: refuse it."""
+    import difflib
+
+    for k in el.attrib:
+        if k not in allowed:
+            close = difflib.get_close_matches(k, list(allowed), n=1, cutoff=0.6)
+            hint = f" (did you mean '{close[0]}'?)" if close else f" (expected {', '.join(allowed)})"
+            raise RobotFileError(f"{where}: unknown attribute '{k}'{hint}")
+
+
+def _origin(el: ET.Element | None, where: str) -> np.ndarray:
+    """``<origin xyz rpy>`` of an element -> (4, 4) (identity when absent)."""
+    o = None if el is None else el.find("origin")
+    if o is None:
+        return np.eye(4)
+    _check_attrs(o, ("xyz", "rpy"), f"{where} <origin>")
+    xyz = _floats(o.get("xyz"), 3, f"{where} <origin xyz>", (0.0, 0.0, 0.0))
+    rpy = _floats(o.get("rpy"), 3, f"{where} <origin rpy>", (0.0, 0.0, 0.0))
+    return se3.xyzrpy_to_transform(xyz, rpy)
+
+
+def load_urdf(path: str | Path, base_link: str | None = None, tip_link: str | None = None) -> Robot:
+    """Load the serial chain ``base_link`` -> ``tip_link`` of a URDF file as a :class:`Robot`.
+
+    See the module docstring for defaults and conventions. Raises :class:`RobotFileError` naming the
+    file and the element (joint/link) on malformed input.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RobotFileError(f"{path}: file not found") from None
+    return load_urdf_string(text, base_link, tip_link, where=str(path))
+
+
+def load_urdf_string(
+    text: str, base_link: str | None = None, tip_link: str | None = None, where: str = "<urdf>"
+) -> Robot:
+    """Like :func:`load_urdf` for URDF text; ``where`` names the source in error messages."""
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as e:
+        raise RobotFileError(f"{where}: invalid XML: {e}") from None
+    if root.tag != "robot":
+        raise RobotFileError(f"{where}: root element must be <robot>, got <{root.tag}>")
+
+    links: dict[str, ET.Element] = {}
+    for el in root.findall("link"):
+        nm = el.get("name")
+        if not nm:
+            raise RobotFileError(f"{where}: <link> without a name")
+        links[nm] = el
+    joints: dict[str, dict] = {}  # child link -> joint info
+    for el in root.findall("joint"):
+        jn = el.get("name")
+        w = f"{where}: joint '{jn}'"
+        if not jn:
+            raise RobotFileError(f"{where}: <joint> without a name")
+        jt = el.get("type")
+        if jt not in _MOVABLE + ("fixed",):
+            raise RobotFileError(f"{w}: type {jt!r} not supported (revolute, continuous, prismatic, fixed)")
+        p, c = el.find("parent"), el.find("child")
+        if p is None or p.get("link") is None:
+            raise RobotFileError(f"{w}: missing <parent link=...>")
+        if c is None or c.get("link") is None:
+            raise RobotFileError(f"{w}: missing <child link=...>")
+        parent, child = p.get("link"), c.get("link")
+        for ln in (parent, child):
+            if ln not in links:
+                raise RobotFileError(f"{w}: link '{ln}' is not defined")
+        if child in joints:
+            raise RobotFileError(f"{w}: link '{child}' already has parent joint '{joints[child]['name']}'")
+        info = {"name": jn, "type": jt, "parent": parent, "child": child, "origin": _origin(el, w)}
+        if jt in _MOVABLE:
+            ax = el.find("axis")
+            if ax is not None:
+                _check_attrs(ax, ("xyz",), f"{w} <axis>")
+            axis = _floats(None if ax is None else ax.get("xyz"), 3, f"{w} <axis xyz>", (1.0, 0.0, 0.0))
+            nrm = float(np.linalg.norm(axis))
+            if nrm < 1e-12:
+                raise RobotFileError(f"{w} <axis xyz>: axis must be non-zero")
+            info["axis"] = axis / nrm
+            lim = el.find("limit")
+            if jt == "continuous":
+                info["limits"] = (-math.pi, math.pi)
+            else:
+                if lim is None:
+                    raise RobotFileError(f"{w}: missing <limit lower=... upper=...> (required for {jt} joints)")
+                _check_attrs(lim, ("lower", "upper", "effort", "velocity"), f"{w} <limit>")
+                if lim.get("lower") is None and lim.get("upper") is None:
+                    raise RobotFileError(f"{w} <limit>: neither lower nor upper given (the joint would be locked at 0)")
+                lo = _float_attr(lim, "lower", f"{w} <limit>", required=False, default=0.0)
+                hi = _float_attr(lim, "upper", f"{w} <limit>", required=False, default=0.0)
+                if lo > hi:
+                    raise RobotFileError(f"{w} <limit>: lower > upper")
+                info["limits"] = (lo, hi)
+        joints[child] = info
+
+    children: dict[str, list[str]] = {}
+    for info in joints.values():
+        children.setdefault(info["parent"], []).append(info["child"])
+    if base_link is None:
+        roots = [ln for ln in links if ln not in joints]
+        if len(roots) != 1:
+            raise RobotFileError(f"{where}: expected one root link, found {roots}; name base_link")
+        base_link = roots[0]
+    elif base_link not in links:
+        raise RobotFileError(f"{where}: base_link '{base_link}' is not a link")
+
+    def path_to(tip: str) -> list[dict]:
+        chain, ln = [], tip
+        while ln != base_link:
+            if ln not in joints:
+                raise RobotFileError(f"{where}: tip_link '{tip}' is not below base_link '{base_link}'")
+            chain.append(joints[ln])
+            ln = joints[ln]["parent"]
+        return chain[::-1]
+
+    if tip_link is None:
+        leaves, stack = [], [base_link]
+        while stack:  # depth-first over the tree below base_link
+            ln = stack.pop()
+            kids = children.get(ln, [])
+            if not kids:
+                leaves.append(ln)
+            stack.extend(kids)
+        score = {lf: (sum(j["type"] in _MOVABLE for j in path_to(lf)), len(path_to(lf))) for lf in leaves}
+        best = max(score.values())
+        cands = sorted(lf for lf, s in score.items() if s == best)
+        if len(cands) > 1:
+            raise RobotFileError(f"{where}: several chain ends {cands} are equally long; name tip_link")
+        tip_link = cands[0]
+    elif tip_link not in links:
+        raise RobotFileError(f"{where}: tip_link '{tip_link}' is not a link")
+    chain = path_to(tip_link)
+
+    def inertial(ln: str) -> tuple[float, np.ndarray]:
+        el = links[ln].find("inertial")
+        if el is None:
+            return 0.0, np.zeros(3)
+        w = f"{where}: link '{ln}' <inertial>"
+        m_el = el.find("mass")
+        m = 0.0 if m_el is None else _float_attr(m_el, "value", f"{w} <mass>")
+        if m < 0:
+            raise RobotFileError(f"{w} <mass>: must be >= 0")
+        return m, _origin(el, w)[:3, 3]
+
+    pending = np.eye(4)  # fixed transforms since the last movable joint's child frame
+    origins, axes, types, lower, upper, masses, coms, names = [], [], [], [], [], [], [], []
+    for j in chain:
+        if j["type"] == "fixed":
+            pending = pending @ j["origin"]
+            if masses:  # a link rigidly attached to link frame i: merge its mass into link i
+                m, c = inertial(j["child"])
+                if m > 0:
+                    c_i = (pending @ np.append(c, 1.0))[:3]
+                    mt = masses[-1] + m
+                    coms[-1] = (masses[-1] * coms[-1] + m * c_i) / mt
+                    masses[-1] = mt
+            continue
+        origins.append(pending @ j["origin"])
+        pending = np.eye(4)
+        axes.append(j["axis"])
+        types.append("prismatic" if j["type"] == "prismatic" else "revolute")
+        lower.append(j["limits"][0])
+        upper.append(j["limits"][1])
+        m, c = inertial(j["child"])
+        masses.append(m)
+        coms.append(c)
+        names.append(j["name"])
+    if not origins:
+        raise RobotFileError(f"{where}: no movable joint between '{base_link}' and '{tip_link}'")
+    origins = np.array(origins)
+    xyz, rpy = se3.transform_to_xyzrpy(origins)
+    n = len(origins)
+    return Robot(
+        name=root.get("name") or Path(where).stem,
+        convention="urdf",
+        a_m=np.zeros(n),
+        alpha_rad=np.zeros(n),
+        d_m=np.zeros(n),
+        theta_rad=np.zeros(n),
+        lower=lower,
+        upper=upper,
+        origin_xyz_m=xyz,
+        origin_rpy_rad=rpy,
+        axis=np.array(axes),
+        joint_type=tuple(types),
+        mass_kg=masses,
+        com_m=np.array(coms),
+        tool=pending,
+        source=f"URDF {where}: chain {base_link} -> {tip_link}, joints {', '.join(names)}",
+    )
+
+
+def _fmt(v) -> str:
+    return " ".join(repr(float(x)) for x in np.ravel(v))
+
+
+def _origin_xml(T: np.ndarray) -> str:
+    xyz, rpy = se3.transform_to_xyzrpy(np.asarray(T, dtype=np.float64))
+    return f'<origin xyz="{_fmt(xyz)}" rpy="{_fmt(rpy)}"/>'
+
+
+def robot_to_urdf(robot: Robot) -> str:
+    """URDF text of ``robot`` as a serial chain with the same FK (see module docstring).
+
+    Links: ``world`` -(fixed ``base``)-> ``base_link`` -(joint_1)-> ``joint_1_frame`` -(fixed)->
+    ``link_1`` ... ``link_n`` -(fixed ``tool``)-> ``tcp``. Frame ``link_i`` equals hykin link frame i
+    and ``joint_i_frame`` the joint frame i of :func:`hykin.fk.fk_frames`.
+    """
+    from ..kinematics.chain import chain_of
+
+    ch = chain_of(robot)
+    out = [f'<?xml version="1.0"?>\n<robot name="{robot.name}">', '  <link name="world"/>', '  <link name="base_link"/>']
+    out.append(
+        f'  <joint name="base_joint" type="fixed"><parent link="world"/><child link="base_link"/>'
+        f"{_origin_xml(robot.base)}</joint>"
+    )
+    parent = "base_link"
+    for i in range(robot.dof):
+        k = i + 1
+        jt = "prismatic" if robot.joint_type[i] == "prismatic" else "revolute"
+        out.append(f'  <link name="joint_{k}_frame"/>')
+        inert = ""
+        if robot.mass_kg[i] > 0:
+            inert = (
+                f'<inertial><origin xyz="{_fmt(robot.com_m[i])}" rpy="0 0 0"/><mass value="{float(robot.mass_kg[i])!r}"/>'
+                '<inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial>'
+            )
+        out.append(f'  <link name="link_{k}">{inert}</link>')
+        out.append(
+            f'  <joint name="joint_{k}" type="{jt}"><parent link="{parent}"/><child link="joint_{k}_frame"/>'
+            f'{_origin_xml(ch.pre[i])}<axis xyz="0 0 1"/>'
+            f'<limit lower="{float(robot.lower[i])!r}" upper="{float(robot.upper[i])!r}" effort="0" velocity="0"/></joint>'
+        )
+        out.append(
+            f'  <joint name="link_{k}_fixed" type="fixed"><parent link="joint_{k}_frame"/><child link="link_{k}"/>'
+            f"{_origin_xml(ch.post[i])}</joint>"
+        )
+        parent = f"link_{k}"
+    out.append('  <link name="tcp"/>')
+    out.append(
+        f'  <joint name="tool_joint" type="fixed"><parent link="{parent}"/><child link="tcp"/>'
+        f"{_origin_xml(robot.tool)}</joint>"
+    )
+    out.append("</robot>\n")
+    return "\n".join(out)
+
+
+def calibrated_urdf(model) -> tuple[str, str]:
+    """URDF of a fitted hybrid model's calibrated classical robot, and what a URDF cannot carry.
+
+    The calibrated geometry and joint offsets go into the joint origins (:func:`robot_to_urdf`), the
+    calibrated base (with the model's registration frame ``frame_pre``) into ``base_joint`` and the
+    tool (with ``frame_post``) into ``tool_joint``. Joint compliance, thermal expansion and the
+    residual networks are not representable; the second item names those the model has.
+    """
+    rob = model.robot_
+    rob = rob.copy(base=model.frame_pre @ rob.base, tool=rob.tool @ model.frame_post, name=f"{rob.name}-calibrated",
+                   stiffness_nm_per_rad=np.full(rob.dof, np.inf))
+    left = []
+    if model.robot_.has_compliance:
+        left.append("joint compliance")
+    th = getattr(model, "thermal_", None)
+    if th is not None and th.coefficient_per_k != 0.0:
+        left.append("thermal expansion")
+    if getattr(model, "net_pos_", None) is not None:
+        left.append("the residual networks")
+    return robot_to_urdf(rob), ", ".join(left) or "nothing"

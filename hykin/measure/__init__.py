@@ -1,0 +1,1 @@
+"""hykin.measure."""

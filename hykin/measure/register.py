@@ -1,0 +1,566 @@
+"""Registration of a new measurement series to an existing hybrid model.
+
+When the tracker is moved or the tool is changed, the robot's own error model (calibrated joints,
+compliance, residual networks) stays valid; only the rigid frames around it change. A new series
+is registered by fitting two rigid transforms, ``T_meas ≈ B · T_model(q) · E`` (B: measurement
+frame -> old world frame, E: old TCP -> new TCP), from a few of its poses, without retraining.
+Where the poses identify them and they are significant, :func:`register_model` also re-fits what a
+new day changes inside the arm: joint zero offsets (an encoder re-referenced, a joint zero drifted)
+and a thermal state (a uniform length scale); the choice is made from the data (QR of the
+registration Jacobian, then backward elimination by leave-one-pose-out error and t-statistics) and
+reported with standard deviations (:meth:`RegistrationInfo.report`). A registration whose residual
+is far above the model's own error is refused (:class:`RegistrationError`): the series does not fit
+the model. On a virtual robot measured on two days (tracker moved, tool re-mounted by 0.5 mm /
+0.05°, joint zeros drifted by 0.01°; benchmarks/bench_transfer.py, default recipe) the 30-pose
+registration recovers the drifts of joints 2-5 to within 0.0002-0.0011° (std 0.0016-0.0024°) and
+predicts day 2 at 1.12× (position) / 1.06× (orientation) day 1's own held-out error, against
+5.9× / 2.2× with base and tool alone. On UR10 series B (model from series A) no joint zero or
+thermal state is significant from 30 poses (stds 0.015-0.05°), and forcing them in does not help
+(0.403 mm vs 0.399 mm on the other 1,465 poses).
+
+Which poses: :func:`select_representative` (default of :func:`register_model`) clusters the
+series' measured poses (k-means on z-scored position and rotation-matrix columns) and takes the
+pose nearest each centre: spread over the workspace but typical, not extreme. Measured on UR10
+series B against a model trained on series A (benchmarks/bench_real.py), 30 poses chosen this way
+leave 3-8 % more mean position error than a registration from all 1495 poses (4 seeds), against
+15-24 % for farthest-point sampling in joint space (:func:`select_spread`, which picks the extreme
+configurations where the model is least accurate) and 3-10 % for random choice.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..io.dataset import Dataset
+from ..kinematics.se3 import (
+    make_transform,
+    pose_error,
+    rotation_difference_rotvec,
+    rotvec_to_matrix,
+)
+
+__all__ = ["RegisteredParameter", "RegistrationError", "RegistrationInfo", "fit_frames", "register_model", "select_representative", "select_spread"]
+
+
+@dataclass
+class RegistrationInfo:
+    """What a registration did and how well: errors on the poses used and on the rest of the series."""
+
+    n_used: int
+    n_total: int
+    frame_pre: np.ndarray
+    frame_post: np.ndarray
+    used_pos_mean_mm: float
+    used_ang_mean_deg: float | None
+    rest_pos_mean_mm: float | None
+    rest_ang_mean_deg: float | None
+    used_index: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, int))
+    converged: bool = True  # least-squares solver reached a tolerance (scipy status > 0)
+    message: str = ""  # solver message
+    nfev: int = 0  # residual evaluations
+    n_fade_swapped: int = 0  # selected poses in the model's fade zone (0 < w < 1) replaced by trusted neighbours
+    parameters: list = field(default_factory=list)  # RegisteredParameter: every re-fitted value with its std
+    not_fitted: dict = field(default_factory=dict)  # candidate name -> why it was not re-fitted
+
+    def report(self) -> str:
+        """Multi-line report: the summary, then each re-fitted parameter (value ± std) and what was left out."""
+        lines = [self.summary()]
+        if self.parameters:
+            lines.append("re-fitted (value ± std): " + ", ".join(
+                f"{p.name} {p.value:+.4f} ± {p.std:.4f} {p.unit}" for p in self.parameters))
+        extra = [p.name for p in self.parameters if p.name.endswith(".zero") or p.name == "thermal.scale"]
+        lines.append("joint zeros / thermal state re-fitted: " + (", ".join(extra) if extra else "none"))
+        if self.not_fitted:
+            groups: dict[str, list[str]] = {}
+            for k, v in self.not_fitted.items():
+                groups.setdefault(v, []).append(k)
+            for why, names in groups.items():
+                lines.append(f"not re-fitted: {', '.join(names)}: {why}")
+        return "\n".join(lines)
+
+    def summary(self) -> str:
+        ang = lambda v: "" if v is None else f", {v:.4f} deg"
+        s = (
+            f"registered from {self.n_used} of {self.n_total} poses: "
+            f"{self.used_pos_mean_mm:.4f} mm{ang(self.used_ang_mean_deg)} mean on those poses"
+        )
+        if self.rest_pos_mean_mm is not None:
+            s += f"; {self.rest_pos_mean_mm:.4f} mm{ang(self.rest_ang_mean_deg)} mean on the other {self.n_total - self.n_used}"
+        if self.n_fade_swapped:
+            s += f" ({self.n_fade_swapped} selected poses in the fade zone of the network correction replaced by their nearest validated neighbours)"
+        if not self.converged:
+            s += f" (WARNING: solver did not converge: {self.message})"
+        return s
+
+
+def select_spread(q: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
+    """Indices of ``n`` rows of ``q`` spread over joint space (greedy farthest-point sampling)."""
+    q = np.asarray(q, dtype=np.float64)
+    N = len(q)
+    if n >= N:
+        return np.arange(N)
+    z = (q - q.mean(0)) / np.maximum(q.std(0), 1e-12)
+    rng = np.random.default_rng(seed)
+    idx = [int(rng.integers(N))]
+    d = np.linalg.norm(z - z[idx[0]], axis=1)
+    for _ in range(n - 1):
+        k = int(np.argmax(d))
+        idx.append(k)
+        d = np.minimum(d, np.linalg.norm(z - z[k], axis=1))
+    return np.array(sorted(idx))
+
+
+def select_representative(T_meas: np.ndarray, n: int, seed: int = 0, position_only: bool = False) -> np.ndarray:
+    """Indices of ``n`` representative rows of measured poses ``T_meas`` ``(N, 4, 4)``: k-means
+    (scipy ``kmeans2``, k-means++ start, ``seed``) on z-scored features (position; plus the 9
+    rotation-matrix entries unless ``position_only``), then the pose nearest each centre. Sorted,
+    unique; fewer than ``n`` only if centres share a nearest pose (then topped up by farthest-point
+    sampling in the same features)."""
+    from scipy.cluster.vq import kmeans2
+
+    T_meas = np.asarray(T_meas, dtype=np.float64)
+    N = len(T_meas)
+    if n >= N:
+        return np.arange(N)
+    X = T_meas[:, :3, 3] if position_only else np.concatenate([T_meas[:, :3, 3], T_meas[:, :3, :3].reshape(N, 9)], 1)
+    z = (X - X.mean(0)) / np.maximum(X.std(0), 1e-12)
+    cen, _ = kmeans2(z, n, seed=seed, minit="++")
+    d2 = ((z[:, None, :] - cen[None, :, :]) ** 2).sum(-1) if N * n <= 4_000_000 else None
+    if d2 is not None:
+        idx = set(int(i) for i in np.argmin(d2, axis=0))
+    else:
+        idx = {int(np.argmin(((z - c) ** 2).sum(1))) for c in cen}
+    if len(idx) < n:  # top up with the poses farthest from those chosen
+        d = np.min(np.linalg.norm(z[:, None, :] - z[sorted(idx)][None], axis=-1), axis=1)
+        while len(idx) < n:
+            k = int(np.argmax(d))
+            idx.add(k)
+            d = np.minimum(d, np.linalg.norm(z - z[k], axis=1))
+    return np.array(sorted(idx))
+
+
+def _pose6(x: np.ndarray) -> np.ndarray:
+    return make_transform(rotvec_to_matrix(x[:3]), x[3:6])
+
+
+def fit_frames(
+    T_model: np.ndarray, T_meas: np.ndarray, position_only: bool = False, orientation_weight_m_per_rad: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares ``B, E`` with ``T_meas ≈ B · T_model · E``; returns ``(B (4,4), E (4,4))``.
+
+    Initialisation (so large frame changes, e.g. a tool turned 120°, converge): Kabsch fit of the
+    positions for B's rotation, chordal mean of ``(B R_model)ᵀ R_meas`` for E's rotation, then the
+    translations of B and E by linear least squares; three rounds. With ``position_only`` only E's
+    translation is fitted (its rotation is not observable from positions).
+    """
+    B, E, _ = _fit_frames(T_model, T_meas, position_only, orientation_weight_m_per_rad)
+    return B, E
+
+
+def _fit_frames(T_model, T_meas, position_only=False, orientation_weight_m_per_rad=1.0):
+    """Worker of :func:`fit_frames`; also returns the scipy solution."""
+    from scipy.spatial.transform import Rotation
+
+    from .referencing import kabsch
+
+    T_model = np.asarray(T_model, dtype=np.float64)
+    T_meas = np.asarray(T_meas, dtype=np.float64)
+    pm, Rm, pz, Rz = T_model[:, :3, 3], T_model[:, :3, :3], T_meas[:, :3, 3], T_meas[:, :3, :3]
+    te = np.zeros(3)
+    RE = np.eye(3)
+    for _ in range(3):
+        RB = kabsch(pm + Rm @ te, pz)[0]
+        if not position_only:
+            RE = Rotation.from_matrix(np.einsum("nji,kj,nkl->nil", Rm, RB, Rz)).mean().as_matrix()
+        A = np.concatenate([np.broadcast_to(np.eye(3), (len(pm), 3, 3)), np.einsum("ij,njk->nik", RB, Rm)], 2)
+        sol_t = np.linalg.lstsq(A.reshape(-1, 6), (pz - pm @ RB.T).ravel(), rcond=None)[0]
+        tb, te = sol_t[:3], sol_t[3:]
+    x0 = np.concatenate([rotation_difference_rotvec(RB, np.eye(3)), tb, rotation_difference_rotvec(RE, np.eye(3)), te])
+    w = orientation_weight_m_per_rad
+
+    def resid(x):
+        B = _pose6(x[:6])
+        E = _pose6(np.concatenate([np.zeros(3) if position_only else x[6:9], x[9:12]]))
+        T = B @ T_model @ E
+        r = [(T[:, :3, 3] - T_meas[:, :3, 3]).ravel()]
+        if not position_only:
+            r.append(w * rotation_difference_rotvec(T[:, :3, :3], T_meas[:, :3, :3]).ravel())
+        return np.concatenate(r)
+
+    sol = least_squares(resid, x0, method="lm" if len(T_model) * 3 >= 12 else "trf", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    x = sol.x
+    B = _pose6(x[:6])
+    E = _pose6(np.concatenate([np.zeros(3) if position_only else x[6:9], x[9:12]]))
+    return B, E, sol
+
+
+def _avoid_fade_zone(model, q: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, int]:
+    """Replace the selected rows ``idx`` that lie in ``model``'s fade zone (0 < w < 1) by the nearest
+    (joint space) unselected rows outside it; returns ``(idx, number replaced)``."""
+    if getattr(model, "fade", False) is False or not hasattr(model, "fade_weight"):
+        return idx, 0
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        wf = np.asarray(model.fade_weight(q))
+    ok = (wf == 0.0) | (wf == 1.0)
+    bad = idx[~ok[idx]]
+    free = np.setdiff1d(np.flatnonzero(ok), idx)
+    if bad.size == 0 or free.size < bad.size:
+        return idx, 0
+    keep = list(idx[ok[idx]])
+    for b in bad:
+        j = int(np.argmin(np.linalg.norm(q[free] - q[b], axis=1)))
+        keep.append(int(free[j]))
+        free = np.delete(free, j)
+    return np.sort(np.asarray(keep, dtype=np.int64)), int(bad.size)
+
+
+class RegistrationError(ValueError):
+    """The series does not fit the model (wrong robot, wrong tool, unit slip): one line, nothing written."""
+
+
+#: Scale of each kind of registration parameter for the identifiability QR (1 mm, 1 mrad, 1e-3 scale).
+_SCALE = {"frame_m": 1e-3, "frame_rad": 1e-3, "offset": 1e-3, "scale": 1e-3}
+_RANK_TOL = 0.05  # |R_kk| / ||column|| below this: redundant with the parameters before it
+_MIN_PRESS_GAIN = 0.03  # a parameter is kept only if it lowers the leave-one-pose-out error by >= 3 %
+_MIN_T = 3.0  # ... and its estimate is at least 3 standard deviations from zero
+MAX_THERMAL_SCALE = 2e-3  # |length scale| a thermal state can explain (aluminium, 23e-6 /K, over ~90 K)
+MAX_ZERO_RAD = np.radians(2.0)  # a joint zero that moved more than this is not a drift
+
+
+@dataclass
+class RegisteredParameter:
+    """One re-fitted quantity: ``value``/``std`` in report units (mm, deg or ppm)."""
+
+    name: str
+    value: float
+    std: float
+    unit: str
+
+
+def _candidate_names(model, series_has_temperature: bool) -> list[str]:
+    """Joint-zero and thermal-scale candidates beyond the 12 frame parameters, in priority order."""
+    rob = model.robot_
+    out = []
+    if rob.convention in ("dh", "mdh"):
+        out += [f"q{j + 1}.zero" for j in range(rob.dof) if rob.joint_type[j] == "revolute"]
+    out.append("thermal.scale")
+    return out
+
+
+def _robot_with(rob, names: list[str], x: np.ndarray):
+    """``rob`` with joint zero offsets (rad) and a uniform length scale (thermal state) applied."""
+    if not names:
+        return rob
+    th = rob.theta_rad.copy()
+    s = 0.0
+    for nm, v in zip(names, x):
+        if nm == "thermal.scale":
+            s = v
+        else:
+            th[int(nm[1:].split(".")[0]) - 1] += v
+    ch = {"theta_rad": th}
+    if s != 0.0:
+        f = 1.0 + s
+        base, tool = rob.base.copy(), rob.tool.copy()
+        base[:3, 3] *= f
+        tool[:3, 3] *= f
+        ch.update(a_m=rob.a_m * f, d_m=rob.d_m * f, base=base, tool=tool, origin_xyz_m=rob.origin_xyz_m * f)
+    return rob.copy(**ch)
+
+
+class _Problem:
+    """Registration residual ``T_meas ≈ B · T_model(q; offsets, scale) · E`` on the used poses.
+
+    The model's own correction (networks, thermal) is kept from its prediction ``T_h0`` and the
+    extra parameters act through the classical chain: ``p = p_h0 + p_c(x) - p_c(0)``,
+    ``R = R_c(x) R_c(0)ᵀ R_h0``."""
+
+    def __init__(self, model, q, T_h0, T_meas, extra: list[str], position_only: bool, w: float = 1.0):
+        from ..hybrid.model import classical_fk
+
+        self.model, self.q, self.T_h0, self.T_meas = model, q, T_h0, T_meas
+        self.extra, self.pos_only, self.w = list(extra), position_only, w
+        self.T_c0 = classical_fk(model.robot_, q)
+        self._fk = classical_fk
+
+    def poses(self, x: np.ndarray) -> np.ndarray:
+        T = self.T_h0
+        if self.extra and np.any(x[12:] != 0):
+            Tc = self._fk(_robot_with(self.model.robot_, self.extra, x[12:]), self.q)
+            T = np.array(self.T_h0, copy=True)
+            T[:, :3, 3] += Tc[:, :3, 3] - self.T_c0[:, :3, 3]
+            T[:, :3, :3] = Tc[:, :3, :3] @ np.swapaxes(self.T_c0[:, :3, :3], 1, 2) @ self.T_h0[:, :3, :3]
+        B = _pose6(x[:6])
+        E = _pose6(np.concatenate([np.zeros(3) if self.pos_only else x[6:9], x[9:12]]))
+        return B @ T @ E
+
+    def resid(self, x: np.ndarray) -> np.ndarray:
+        """``(N, 3 or 6)`` residual rows per pose (m, and w · rad)."""
+        T = self.poses(x)
+        r = T[:, :3, 3] - self.T_meas[:, :3, 3]
+        if self.pos_only:
+            return r
+        return np.concatenate([r, self.w * rotation_difference_rotvec(T[:, :3, :3], self.T_meas[:, :3, :3])], 1)
+
+    def jac(self, x: np.ndarray, h: float = 1e-7) -> np.ndarray:
+        """Central-difference Jacobian ``(N, rows, P)`` of :meth:`resid` (SI units)."""
+        cols = []
+        for k in range(len(x)):
+            e = np.zeros(len(x))
+            e[k] = h
+            cols.append((self.resid(x + e) - self.resid(x - e)) / (2 * h))
+        return np.stack(cols, -1)
+
+
+def _loo_press(r: np.ndarray, J: np.ndarray) -> float:
+    """Leave-one-pose-out prediction error sum of squares of the linearised fit ``J dx ≈ -r``: each
+    pose's rows are left out together (``e_i = (I - H_ii)⁻¹ r_i`` of the fitted residual)."""
+    N, m, P = J.shape
+    A = J.reshape(N * m, P)
+    sol, *_ = np.linalg.lstsq(A, -r.ravel(), rcond=None)
+    rf = (r.ravel() + A @ sol).reshape(N, m)
+    G = np.linalg.pinv(A.T @ A)
+    H = np.einsum("nip,pq,njq->nij", J, G, J)  # (N, m, m) diagonal blocks of the hat matrix
+    I = np.eye(m)
+    e = np.linalg.solve(I[None] - H + 1e-12 * I[None], rf[..., None])[..., 0]
+    return float((e**2).sum())
+
+
+def _select_extra(prob: _Problem, x0: np.ndarray, cands: list[str]) -> tuple[list[str], dict[str, str]]:
+    """Which of ``cands`` to re-fit: identifiable after the frames (QR of the scaled Jacobian, priority
+    order frames, joints base to tip, thermal scale) and significant (backward elimination by
+    leave-one-pose-out error of the linearised fit: each kept parameter lowers it by >= 3 % and is
+    >= 3 std from zero).
+    Returns the chosen names and, for each candidate left out, why."""
+    from ..calibration.calibrate import identifiable_columns
+
+    why: dict[str, str] = {}
+    if not cands:
+        return [], why
+    full = _Problem(prob.model, prob.q, prob.T_h0, prob.T_meas, cands, prob.pos_only, prob.w)
+    x = np.concatenate([x0, np.zeros(len(cands))])
+    r = full.resid(x)
+    J = full.jac(x)
+    N, m, P = J.shape
+    sc = np.array([_SCALE["frame_rad"]] * 3 + [_SCALE["frame_m"]] * 3 + [_SCALE["frame_rad"]] * 3 + [_SCALE["frame_m"]] * 3
+                  + [_SCALE["scale" if c == "thermal.scale" else "offset"] for c in cands])
+    frame_cols = [k for k in range(12) if not (prob.pos_only and 6 <= k < 9)]
+    keep_cols = frame_cols + list(range(12, P))
+    Js = (J * sc)[..., keep_cols].reshape(N * m, -1)
+    mask, ratio = identifiable_columns(Js, _RANK_TOL, 1e-6)
+    ident = [c for k, c in enumerate(cands) if mask[len(frame_cols) + k]]
+    for k, c in enumerate(cands):
+        if c not in ident:
+            why[c] = f"not identifiable from these poses (QR ratio {ratio[len(frame_cols) + k]:.3f})"
+    floor = N * m * (1e-7) ** 2  # below 0.1 µm per row there is nothing left to explain
+
+    def fit_stats(names):
+        cols = frame_cols + [12 + cands.index(k) for k in names]
+        A = J[..., cols].reshape(N * m, -1)
+        dx, *_ = np.linalg.lstsq(A, -r.ravel(), rcond=None)
+        s2 = float(((r.ravel() + A @ dx) ** 2).sum()) / max(N * m - len(cols), 1)
+        std = np.sqrt(np.maximum(np.diag(np.linalg.pinv(A.T @ A)) * s2, 1e-300))
+        return _loo_press(r, J[..., cols]), np.abs(dx[len(frame_cols):]) / std[len(frame_cols):]
+
+    # Backward elimination from every identifiable candidate (forward selection misses parameters
+    # that only act together, e.g. opposite zero drifts of two parallel joints).
+    chosen = list(ident)
+    while len(frame_cols) + len(chosen) > N * m // 3:
+        chosen.pop()
+    press, t = fit_stats(chosen)
+    while chosen:
+        trials = [(fit_stats([k for k in chosen if k != c])[0], c) for c in chosen]
+        pr, c = min(trials)
+        weak = int(np.argmin(t))
+        if pr <= press + max(_MIN_PRESS_GAIN * pr, floor):
+            why[c] = "not significant (leaving it out changes the leave-one-pose-out error by less than 3 %)"
+        elif t[weak] < _MIN_T:
+            c = chosen[weak]
+            why[c] = f"not significant (|estimate| {t[weak]:.1f} std < {_MIN_T:g})"
+        else:
+            break
+        chosen.remove(c)
+        press, t = fit_stats(chosen)
+    return [c for c in cands if c in chosen], why
+
+
+def _reference_error_mm(model) -> tuple[float | None, float | None]:
+    """The model's own error on its training data (hybrid; mm, deg): the scale a registration
+    residual is judged against. None when the model file does not carry it."""
+    tr = (getattr(model, "meta_", None) or {}).get("metrics", {}).get("train", {})
+    p = tr.get("classical_pos_mean_mm")
+    a = tr.get("classical_rot_mean_deg")
+    return (None if p is None else float(p)), (None if a is None else float(a))
+
+
+def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, select: str = "representative",
+                   refit: str | tuple = "auto", max_residual_ratio: float = 5.0):
+    """Register ``series`` to ``model`` from ``n_poses`` poses; returns ``(new_model, info)``.
+
+    ``select``: ``"representative"`` (:func:`select_representative` on the measured poses, default)
+    or ``"spread"`` (:func:`select_spread`, farthest-point in joint space).
+
+    What is re-fitted: always the two rigid frames (base = tracker placement, tool = re-mounting);
+    with ``refit="auto"`` (default) also, where the poses identify them and they are significant,
+    joint zero offsets (DH/MDH robots; ``q<j>.zero``) and a thermal state (``thermal.scale``: a
+    uniform length scale of the arm, ppm, e.g. a different temperature of the structure). The
+    choice: QR of the scaled registration Jacobian after the frames (a joint zero that a frame
+    rotation explains, e.g. joint 1 with a free base, is not identifiable), then
+    backward elimination by leave-one-pose-out error of the linearised fit (each kept parameter must
+    lower it by >= 3 % and be >= 3 standard deviations from zero). ``refit="frames"``: frames only; a tuple
+    of names: exactly those. Offsets and scale go into the copy's calibrated robot; frames into
+    ``frame_pre``/``frame_post``; ``info.parameters`` lists every re-fitted value with its standard
+    deviation, ``info.not_fitted`` why each other candidate was left out.
+
+    Refusal (:class:`RegistrationError`, one line): when the mean residual on the poses used exceeds
+    ``max_residual_ratio`` times the model's own calibrated error on its training data (at least
+    0.1 mm / 0.01 deg), the series does not fit the model (wrong robot, wrong tool, unit slip).
+
+    The returned model is a copy (the input model is never changed). Poses are chosen where the model is validated:
+    inside the networks' training support (fade weight 1) or beyond the fade (weight 0, the calibrated
+    model); a selected pose in between, where the correction is only partly applied and unvalidated,
+    is replaced by its nearest validated neighbour in joint space (on UR10 series B, two such poses
+    among 30 made the orientation error 9 % worse than calibration alone in one joint region).
+    The registered model fades its correction with the nearest-neighbour gap too (``fade="full"``,
+    unless the model's fade was off or ``"range"``): a new series samples the joint box differently
+    from the training one, and on UR10 series B (random poses, model trained on series A's grid) 35
+    poses inside the pairwise grids but far from every training pose were 11 % (position) / 20 %
+    (orientation) worse than calibration alone with the default fade. ``info`` reports the error on the poses used
+    and on the rest of the series (an honest check of the registration).
+    """
+    if n_poses < 3:
+        raise ValueError(f"register: need at least 3 poses, got {n_poses}")
+    if len(series) < 3:
+        raise ValueError(f"{series.source}: a series needs at least 3 poses to register, got {len(series)}")
+    pos_only = not series.has_orientation
+    if select not in ("representative", "spread"):
+        raise ValueError(f"register: select must be 'representative' or 'spread', got {select!r}")
+    if select == "spread":
+        idx = select_spread(series.q, n_poses, seed)
+    else:
+        idx = select_representative(series.poses(), n_poses, seed, position_only=pos_only)
+    new = copy.deepcopy(model)
+    new.frame_pre = np.eye(4)
+    new.frame_post = np.eye(4)
+    if getattr(new, "fade", False) in (True, "support"):
+        new.fade = "full"
+    idx, n_swapped = _avoid_fade_zone(new, series.q, idx)
+    from ..calibration.thermal import temperature_of
+    from ..kinematics.payload import payload_kwargs, payload_of
+
+    temp = temperature_of(series)
+    pl_kw = payload_kwargs(payload_of(series))
+    T_model = new.predict(series.q, temperature_c=temp, **pl_kw)
+    T_meas = series.poses()
+    B, E, sol = _fit_frames(T_model[idx], T_meas[idx], position_only=pos_only)
+    x0 = np.concatenate([rotation_difference_rotvec(B[None, :3, :3], np.eye(3)[None])[0], B[:3, 3],
+                         rotation_difference_rotvec(E[None, :3, :3], np.eye(3)[None])[0], E[:3, 3]])
+    has_rob = getattr(new, "robot_", None) is not None
+    cands = _candidate_names(new, temp is not None) if has_rob else []
+    not_fitted: dict[str, str] = {}
+    if refit == "frames" or not cands:
+        extra = []
+        not_fitted = {c: "not requested (frames only)" for c in cands}
+    elif refit == "auto":
+        prob0 = _Problem(new, series.q[idx], T_model[idx], T_meas[idx], [], pos_only)
+        extra, not_fitted = _select_extra(prob0, x0, cands)
+    else:
+        extra = [str(c) for c in refit]
+        bad = [c for c in extra if c not in cands]
+        if bad:
+            raise ValueError(f"register: refit names {bad} are not candidates; candidates: {', '.join(cands)}")
+    prob = _Problem(new, series.q[idx], T_model[idx], T_meas[idx], extra, pos_only) if has_rob else None
+    x = x0
+    params: list[RegisteredParameter] = []
+    if extra:
+        sol = least_squares(lambda v: prob.resid(v).ravel(), np.concatenate([x0, np.zeros(len(extra))]),
+                            jac=lambda v: prob.jac(v).reshape(-1, len(v)), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        x = sol.x
+        _check_extra_plausible(series, extra, x[12:])
+        new.robot_ = _robot_with(new.robot_, extra, x[12:])
+        T_model = new.predict(series.q, temperature_c=temp, **pl_kw)
+        B = _pose6(x[:6])
+        E = _pose6(np.concatenate([np.zeros(3) if pos_only else x[6:9], x[9:12]]))
+    # standard deviations of everything fitted: sigma^2 (J^T J)^-1 at the solution
+    if prob is not None:
+        J = prob.jac(x)
+        r = prob.resid(x)
+        cols = [k for k in range(len(x)) if not (pos_only and 6 <= k < 9)]
+        A = J[..., cols].reshape(-1, len(cols))
+        s2 = float((r**2).sum()) / max(A.shape[0] - len(cols), 1)
+        std = dict(zip(cols, np.sqrt(np.maximum(np.diag(np.linalg.pinv(A.T @ A)) * s2, 0.0))))
+        labels = ["base.rx", "base.ry", "base.rz", "base.x", "base.y", "base.z",
+                  "tool.rx", "tool.ry", "tool.rz", "tool.x", "tool.y", "tool.z"] + extra
+        for k in cols:
+            nm = labels[k]
+            if nm == "thermal.scale":
+                f, unit = 1e6, "ppm"
+            elif nm.endswith(".zero") or nm.split(".")[1].startswith("r"):
+                f, unit = np.degrees(1.0), "deg"
+            else:
+                f, unit = 1e3, "mm"
+            params.append(RegisteredParameter(nm, float(x[k] * f), float(std[k] * f), unit))
+    new.frame_pre, new.frame_post = B, E
+    T_reg = B @ T_model @ E
+    p, a = pose_error(T_reg, T_meas)
+    rest = np.setdiff1d(np.arange(len(series)), idx)
+    info = RegistrationInfo(
+        n_used=len(idx),
+        n_total=len(series),
+        frame_pre=B,
+        frame_post=E,
+        used_pos_mean_mm=float(p[idx].mean()),
+        used_ang_mean_deg=None if pos_only else float(a[idx].mean()),
+        rest_pos_mean_mm=float(p[rest].mean()) if len(rest) else None,
+        rest_ang_mean_deg=None if pos_only or not len(rest) else float(a[rest].mean()),
+        used_index=idx,
+        converged=bool(sol.status > 0),
+        message=str(sol.message),
+        nfev=int(sol.nfev),
+        n_fade_swapped=n_swapped,
+        parameters=params,
+        not_fitted=not_fitted,
+    )
+    _check_plausible(model, info, series, max_residual_ratio)
+    return new, info
+
+
+def _check_extra_plausible(series: Dataset, names: list[str], values: np.ndarray) -> None:
+    """Refuse joint zeros or a length scale no thermal state or zero drift can explain: a unit slip
+    (a scale of 1000) or joints in another convention would otherwise be absorbed by them."""
+    src = getattr(series, "source", "series")
+    for nm, v in zip(names, values):
+        if nm == "thermal.scale" and abs(v) > MAX_THERMAL_SCALE:
+            raise RegistrationError(
+                f"{src}: the series is {1 + v:.6g} times the model's size (a thermal state explains at most "
+                f"{MAX_THERMAL_SCALE * 1e6:g} ppm): length unit slip or another robot?")
+        if nm.endswith(".zero") and abs(v) > MAX_ZERO_RAD:
+            raise RegistrationError(
+                f"{src}: joint {nm[1:].split('.')[0]} zero would move by {np.degrees(v):.3f} deg (more than "
+                f"{np.degrees(MAX_ZERO_RAD):g} deg): joints in another convention, angle unit slip or another robot?")
+
+
+def _check_plausible(model, info: RegistrationInfo, series: Dataset, ratio: float) -> None:
+    """Raise :class:`RegistrationError` when the registration residual is far above the model's own error."""
+    ref_p, ref_a = _reference_error_mm(model)
+    lim_p = ratio * max(ref_p if ref_p is not None else 0.0, 0.02)
+    lim_p = max(lim_p, 0.1)
+    lim_a = max(ratio * max(ref_a if ref_a is not None else 0.0, 0.002), 0.01)
+    src = getattr(series, "source", "series")
+    tail = ("the series does not fit the model (wrong robot or model file, wrong tool or T-Mac, length/angle unit slip, "
+            "or joints in another convention)")
+    if info.used_pos_mean_mm > lim_p:
+        raise RegistrationError(
+            f"{src}: registration residual {info.used_pos_mean_mm:.3f} mm mean on the {info.n_used} poses used, "
+            f"above {lim_p:.3f} mm ({ratio:g} x the model's calibrated error {ref_p if ref_p is not None else float('nan'):.3f} mm): {tail}")
+    if info.used_ang_mean_deg is not None and info.used_ang_mean_deg > lim_a:
+        raise RegistrationError(
+            f"{src}: registration residual {info.used_ang_mean_deg:.4f} deg mean on the {info.n_used} poses used, "
+            f"above {lim_a:.4f} deg ({ratio:g} x the model's calibrated error): {tail}")
