@@ -15,8 +15,8 @@ from hykin.io.dataset import (
     validate,
     write_dataset,
 )
+from hykin.io.robot_file import load_robot
 from hykin.kinematics import se3
-from hykin.kinematics.robot import load_robot
 
 
 def _random_dataset(n=40, dof=6, seed=0, orientation=True, extra=True):

@@ -11,8 +11,9 @@ import pytest
 from cli_run import run as _run
 
 from hykin.calibration.calibrate import calibrate, parameter_names
+from hykin.io.robot_file import load_robot
 from hykin.kinematics.fk import fk
-from hykin.kinematics.robot import Robot, load_robot
+from hykin.kinematics.robot import Robot
 from hykin.planning import Constraints, PlanningError, embed, farthest_point, plan_poses
 from hykin.planning.constraints import segment_hits_box
 from hykin.planning.criteria import identification_model, scaled_rows

@@ -41,7 +41,7 @@ def model(session):
 
 def test_scaling_is_exact_for_uniform_expansion():
     """Scaling every length of the chain by s scales the TCP position about the base origin by s."""
-    from hykin.kinematics.robot import load_robot
+    from hykin.io.robot_file import load_robot
 
     rob = load_robot("rx160").copy(base=se3.xyzrpy_to_transform(np.array([[0.3, -0.2, 0.1]]), np.array([[0.1, 0.2, -0.3]]))[0],
                                    tool=se3.xyzrpy_to_transform(np.array([[0.01, 0.02, 0.15]]), np.zeros((1, 3)))[0])

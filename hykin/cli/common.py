@@ -125,7 +125,7 @@ def is_model_file(spec: str) -> bool:
 
 def load_model_or_robot(spec: str):
     """Return ``(model_or_None, robot)`` for a model file, a robot file or a preset name."""
-    from ..kinematics.robot import load_robot
+    from ..io.robot_file import load_robot
 
     if is_model_file(spec):
         from ..hybrid.model import HybridModel

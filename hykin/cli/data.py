@@ -12,7 +12,7 @@ from .common import AngleUnit, CLIError, Force, LengthUnit, app, check_output, p
 @app.command("presets")
 def presets_cmd() -> None:
     """List the robot presets and the virtual-robot presets shipped with hykin."""
-    from ..kinematics.robot import list_presets, load_robot
+    from ..io.robot_file import list_presets, load_robot
 
     typer.echo("robot presets (use as ROBOT):")
     for name in list_presets():

@@ -67,7 +67,7 @@ def import_ipa_cmd(
 def _import_fixed(path: Path, out: Path, robot_out: Path | None, force: bool, read, nominal_robot) -> None:
     """A fixed-layout import: outputs checked first, then ``read()`` -> dataset, and the set-up's nominal
     robot (``nominal_robot()``) written to ``robot_out`` when asked."""
-    from ..kinematics.robot import save_robot_toml
+    from ..io.robot_toml import save_robot_toml
 
     check_output(out, (path,), force)
     if robot_out is not None:

@@ -80,7 +80,7 @@ def fit_cmd(
     from ..calibration.plausibility import check_fit_size
     from ..hybrid.model import HybridModel
     from ..io.dataset import read_dataset
-    from ..kinematics.robot import load_robot
+    from ..io.robot_file import load_robot
 
     kw = {}
     if max_minutes is not None:
@@ -187,7 +187,8 @@ def calibrate_cmd(
     (--max-deviation) or leaves an implausible residual is refused (exit 2, nothing written)."""
     from ..calibration.calibrate import calibrate
     from ..io.dataset import read_dataset
-    from ..kinematics.robot import load_robot, save_robot_toml
+    from ..io.robot_file import load_robot
+    from ..io.robot_toml import save_robot_toml
 
     check_output(out, (robot, data), force)
     rob = load_robot(robot)

@@ -95,7 +95,8 @@ _UR5_COLUMNS = ["x_t", "y_t", "z_t", "x_dif", "y_dif", "z_dif"] + [f"joint_{i}" 
 
 
 def _ur5_preset():
-    from ..kinematics.robot import Robot, RobotFileError, load_robot
+    from ..kinematics.robot import Robot, RobotFileError
+    from .robot_file import load_robot
 
     try:
         return load_robot("ur5")
@@ -188,7 +189,8 @@ def ipa_nominal_robot():
     (:data:`IPA_BASE_LINK_FROM_DH`): ``Goal = Rz(π) · fk(ipa_nominal_robot(), q)`` (median 0.09 mm).
     Measurements are in the laser-tracker frame; bring them to the base with :func:`register_rigid`.
     """
-    from ..kinematics.robot import RobotFileError, load_robot
+    from ..kinematics.robot import RobotFileError
+    from .robot_file import load_robot
 
     try:
         r = load_robot("ur10")

@@ -59,10 +59,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io.robot_file import load_robot
 from ..kinematics import se3
 from ..kinematics.compliance import deflected_joints
 from ..kinematics.fk import fk
-from ..kinematics.robot import Robot, load_robot
+from ..kinematics.robot import Robot
 
 __all__ = [
     "PeriodicError",
