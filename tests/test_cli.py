@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from cli_run import run
 
-from hykin.io.dataset import read_dataset
+from hykin.io.dataset_files import read_dataset
 from hykin.io.robot_file import load_robot
 from hykin.kinematics.fk import fk
 from hykin.kinematics.se3 import pose_error

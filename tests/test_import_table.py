@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from cli_run import run
 
-from hykin.io.dataset import read_dataset
+from hykin.io.dataset_files import read_dataset
 from hykin.io.robot_file import load_robot
 from hykin.io.table_import import import_table
 from hykin.io.table_map import (

@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import qmc
 
-from hykin.io.dataset import read_dataset
+from hykin.io.dataset_files import read_dataset
 from hykin.io.robot_file import load_robot
 from hykin.kinematics.compliance import deflected_joints
 from hykin.kinematics.fk import fk

@@ -15,7 +15,8 @@ from hykin.calibration.thermal import (
     to_reference,
 )
 from hykin.hybrid.model import HybridError, HybridModel, OutOfRangeWarning
-from hykin.io.dataset import Dataset, read_dataset, write_dataset
+from hykin.io.dataset import Dataset
+from hykin.io.dataset_files import read_dataset, write_dataset
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
 from hykin.sim.simulate import simulate, true_poses, virtual_preset

@@ -85,7 +85,8 @@ def split_cmd(
     force: bool = Force,
 ) -> None:
     """Random train/test split of a dataset (disjoint, reproducible)."""
-    from ..io.dataset import read_dataset, split, write_dataset
+    from ..io.dataset import split
+    from ..io.dataset_files import read_dataset, write_dataset
 
     suffix = data.suffix if data.suffix in (".csv", ".parquet") else ".csv"
     paths = [Path(f"{out_prefix}_train{suffix}"), Path(f"{out_prefix}_test{suffix}")]

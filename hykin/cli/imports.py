@@ -19,7 +19,7 @@ app.add_typer(import_app, name="import")
 
 
 def _write(ds, out: Path, inputs, what: str = "") -> None:
-    from ..io.dataset import write_dataset
+    from ..io.dataset_files import write_dataset
 
     write_dataset(ds, out)
     frame = ds.meta.get("frame", "robot base")

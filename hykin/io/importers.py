@@ -20,15 +20,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..kinematics import se3
-from .dataset import (
-    Dataset,
-    DatasetError,
-    _check_units,
-    _to_float_column,
-    _try_float_column,
-    read_csv_table,
-    validate,
-)
+from .dataset import Dataset, DatasetError, check_units, validate
+from .text_table import float_column, lenient_column, read_delimited
 
 __all__ = [
     "IPA_BASE_LINK_FROM_DH",
@@ -148,13 +141,14 @@ def import_ur5(path: str | Path) -> Dataset:
     such files go through ``hykin import table``.
     """
     where = str(path)
-    header, cols = read_csv_table(path, delimiter=",")
+    t = read_delimited(path, delimiter=",", layout_hint="is that the file's delimiter?")
+    header = t.header
     missing = [c for c in _UR5_COLUMNS if c not in header]
     if missing:
         raise DatasetError(f"{where}: not a serial-robots-ur5 file: missing column(s) {', '.join(missing)} "
                            f"(expected {', '.join(_UR5_COLUMNS)})", file=where, column=missing[0])
     _refuse_unknown_columns(where, header, set(_UR5_COLUMNS) | {"step_order"}, "serial-robots-ur5", 6)
-    num = {c: _to_float_column(where, c, cols[c]) for c in _UR5_COLUMNS}
+    num = {c: float_column(t, c, finite=False) for c in _UR5_COLUMNS}
     if num["x_t"].size == 0:
         raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
     q = np.radians(np.stack([num[f"joint_{i}"] for i in range(1, 7)], axis=1))
@@ -162,7 +156,7 @@ def import_ur5(path: str | Path) -> Dataset:
     xyz = (xt + np.stack([num["x_dif"], num["y_dif"], num["z_dif"]], axis=1)) * 1e-3
     extra = {"x_t_m": xt[:, 0] * 1e-3, "y_t_m": xt[:, 1] * 1e-3, "z_t_m": xt[:, 2] * 1e-3}
     if "step_order" in header:
-        extra["step_order"] = _try_float_column(cols["step_order"])
+        extra["step_order"] = lenient_column(t.col("step_order"))
     ds = Dataset(q=q, xyz_m=xyz, quat_wxyz=None, extra=extra, source=where,
                  meta={"frame": "robot base", "dataset": "serial-robots-ur5", "robot": "ur5"})
     validate(ds, where=where, angle_unit="deg")
@@ -266,7 +260,8 @@ def import_ipa_series(
     """
     path = _ipa_file(series)
     where = str(path)
-    header, cols = read_csv_table(path, delimiter=";")
+    t = read_delimited(path, delimiter=";", decimal=",", layout_hint="is that the file's delimiter?")
+    header = t.header
     need = _IPA_GOAL + _IPA_JOINTS + _IPA_MEAS + ["measurement_temperature"]
     missing = [c for c in need if c not in header]
     if missing:
@@ -274,7 +269,7 @@ def import_ipa_series(
                            file=where, column=missing[0])
     known = set(need) | {"Timestamp"} | {f"measurement_std_{c}" for c in ("x", "y", "z", "rx", "ry", "rz")}
     _refuse_unknown_columns(where, header, known, "ipa-robot-accuracy", 6)
-    num = {c: _to_float_column(where, c, cols[c], decimal=",") for c in need}
+    num = {c: float_column(t, c, decimal=",", finite=False) for c in need}
     if num[need[0]].size == 0:
         raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
     q = np.stack([num[c] for c in _IPA_JOINTS], axis=1)
@@ -296,13 +291,13 @@ def import_ipa_series(
         "temperature_c": num["measurement_temperature"],
     }
     if "Timestamp" in header:
-        raw = cols["Timestamp"]
+        raw = t.col("Timestamp")
         extra["timestamp_s"] = _ipa_timestamps(raw)
         extra["timestamp_raw"] = np.asarray(raw, dtype=str)
     for c, unit in (("x", "mm"), ("y", "mm"), ("z", "mm"), ("rx", "deg"), ("ry", "deg"), ("rz", "deg")):
         col = f"measurement_std_{c}"
         if col in header:
-            extra[f"std_{c}_{unit}"] = _to_float_column(where, col, cols[col], decimal=",")
+            extra[f"std_{c}_{unit}"] = float_column(t, col, decimal=",", finite=False)
     ds = Dataset(q=q, xyz_m=p_m, quat_wxyz=quat, extra=extra, source=where,
                  meta={"frame": "tracker", "dataset": "ipa-robot-accuracy", "robot": "ur10",
                        "series": path.parent.name})
@@ -354,7 +349,7 @@ def import_three_smr(
     from .table_map import TableMap
 
     where = str(path)
-    _check_units(where, length_unit, angle_unit)
+    check_units(where, length_unit, angle_unit)
     nest = np.asarray(nest, dtype=np.float64)
     if nest.shape != (3, 3) or not np.isfinite(nest).all():
         raise DatasetError(f"{where}: nest must be a finite (3, 3) array (rows = SMRs, m), got shape {nest.shape}", file=where)

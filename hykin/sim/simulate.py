@@ -508,7 +508,8 @@ def simulate_to_file(preset, n: int, out_path, plan: str = "uniform", seed: int 
     ``payloads``: payload masses (kg) to draw the data at (row ``i`` carries ``payloads[i % k]``,
     at the TCP), kept as column ``payload_kg``; default: the preset's payload, no column.
     """
-    from ..io.dataset import concat, write_dataset
+    from ..io.dataset import concat
+    from ..io.dataset_files import write_dataset
     from .sampling import iso_cube, sample
 
     if isinstance(preset, VirtualRobot):
