@@ -1,4 +1,4 @@
-"""Importers of real measured datasets into standard :class:`~hykin.dataset.Dataset` s, the nominal
+"""Importers of real measured datasets into standard :class:`~hykin.io.dataset.Dataset` s, the nominal
 robot models they go with, rigid registration of tracker-frame poses, and three-SMR pose import.
 
 Real data (read in place, never copied; see ``shared/data/README.md``):
@@ -53,7 +53,7 @@ def register_rigid(
     ``T_meas``: ``(N, 4, 4)`` measured poses in the measurement (tracker) frame, m.
     ``T_base`` maps robot base -> measurement frame; ``T_tool`` maps model TCP -> measured TCP.
 
-    Delegates to :func:`hykin.register.fit_frames` (initial guess by Kabsch, rotation mean and
+    Delegates to :func:`hykin.measure.register.fit_frames` (initial guess by Kabsch, rotation mean and
     linear least squares for the translations, then non-linear least squares on the position error
     (m) and, with ``use_orientation``, ``rot_weight_m_per_rad × log(R_meas R̂ᵀ)``), so any tool rotation
     (e.g. 180°) converges. Position-only data (``use_orientation=False``) fit the base and the tool
@@ -87,22 +87,6 @@ UR5_XT_D5_M = 0.09456
 _UR5_COLUMNS = ["x_t", "y_t", "z_t", "x_dif", "y_dif", "z_dif"] + [f"joint_{i}" for i in range(1, 7)]
 
 
-def _ur5_preset():
-    from ..kinematics.robot import Robot, RobotFileError
-    from .robot_file import load_robot
-
-    try:
-        return load_robot("ur5")
-    except RobotFileError:  # pragma: no cover - preset missing: DESIGN.md §2 table
-        pi = math.pi
-        return Robot(
-            name="ur5", convention="dh",
-            a_m=[0, -0.425, -0.39225, 0, 0, 0], d_m=[0.089159, 0, 0, 0.10915, 0.09465, 0.0823],
-            alpha_rad=[pi / 2, 0, 0, pi / 2, -pi / 2, 0], theta_rad=np.zeros(6),
-            lower=np.full(6, -2 * pi), upper=np.full(6, 2 * pi),
-        )
-
-
 def ur5_robot_for_dataset(match_xt: bool = True):
     """The UR5 nominal model of the serial-robots-ur5 data: ``ur5`` preset, TCP 31 mm along tool z.
 
@@ -112,7 +96,9 @@ def ur5_robot_for_dataset(match_xt: bool = True):
     this model). ``match_xt=False`` keeps the data-sheet ``d5 = 0.09465 m`` (0.09 mm off ``x_t``).
     Base is identity (``x_t`` is in the robot base frame).
     """
-    r = _ur5_preset()
+    from .robot_file import load_robot
+
+    r = load_robot("ur5")
     d = r.d_m.copy()
     if match_xt:
         d[4] = UR5_XT_D5_M
@@ -183,21 +169,9 @@ def ipa_nominal_robot():
     (:data:`IPA_BASE_LINK_FROM_DH`): ``Goal = Rz(π) · fk(ipa_nominal_robot(), q)`` (median 0.09 mm).
     Measurements are in the laser-tracker frame; bring them to the base with :func:`register_rigid`.
     """
-    from ..kinematics.robot import RobotFileError
     from .robot_file import load_robot
 
-    try:
-        r = load_robot("ur10")
-    except RobotFileError:  # pragma: no cover - preset missing: DESIGN.md §2 table
-        from ..kinematics.robot import Robot
-
-        pi = math.pi
-        r = Robot(
-            name="ur10", convention="dh",
-            a_m=[0, -0.612, -0.5723, 0, 0, 0], d_m=[0.1273, 0, 0, 0.163941, 0.1157, 0.0922],
-            alpha_rad=[pi / 2, 0, 0, pi / 2, -pi / 2, 0], theta_rad=np.zeros(6),
-            lower=np.full(6, -2 * pi), upper=np.full(6, 2 * pi),
-        )
+    r = load_robot("ur10")
     return r.copy(tool=IPA_TCP_FROM_FLANGE.copy(), name="ur10-ipa")
 
 
@@ -337,12 +311,12 @@ def import_three_smr(
 
     ``nest``: ``(3, 3)`` known positions of SMR 1..3 in the tool (TCP) frame, **in metres**. Each
     row's full pose is the Kabsch fit of the nest onto the three measured points
-    (:func:`hykin.referencing.pose_from_three_points`). A row whose fit RMS exceeds
+    (:func:`hykin.measure.referencing.pose_from_three_points`). A row whose fit RMS exceeds
     ``max_fit_rms_m`` (wrong nest, swapped reflectors, a bad measurement) is an error naming the
     row; swapped reflectors are only detectable when the nest's three sides differ in length. Extras: ``smr_fit_rms_m`` plus every other column as read.
 
-    Other layouts (column names, delimiters, units): :func:`hykin.table_import.import_table` with a
-    :class:`~hykin.table_map.TableMap` holding ``position``, two ``points`` and ``nest``
+    Other layouts (column names, delimiters, units): :func:`hykin.io.table_import.import_table` with a
+    :class:`~hykin.io.table_map.TableMap` holding ``position``, two ``points`` and ``nest``
     (``hykin import three-smr``).
     """
     from .table_import import import_table

@@ -31,7 +31,6 @@ ROBOT_ARRAYS = (
 )
 #: Fields without a default in :class:`Robot`: a robot entry lacking one of them cannot be read.
 REQUIRED_FIELDS = ("name", "convention", "a_m", "alpha_rad", "d_m", "theta_rad", "lower", "upper")
-_SCALARS = ("joint_type", "payload_kg", "source")
 
 
 class RobotDictError(ValueError):

@@ -1,12 +1,12 @@
 """Any tracker/robot table into the standard dataset (``hykin import table``, DESIGN.md §3-4).
 
-:func:`read_text_table` reads a delimited text file as laid out by a :class:`~hykin.table_map.TableMap`
+:func:`read_text_table` reads a delimited text file as laid out by a :class:`~hykin.io.table_map.TableMap`
 (delimiter, decimal comma, metadata lines, comments, dropped and filtered rows), keeping the file line
 of every data row. :func:`read_mapped` turns the mapped columns into SI arrays (joints rad/m, positions
 m, orientation as unit quaternions, further reflectors, time s); :func:`import_table` makes the
-:class:`~hykin.dataset.Dataset` (with a ``nest``: the full pose from three reflectors).
+:class:`~hykin.io.dataset.Dataset` (with a ``nest``: the full pose from three reflectors).
 
-Every error is a :class:`~hykin.dataset.DatasetError` naming the file, the data row with its line in
+Every error is a :class:`~hykin.io.dataset.DatasetError` naming the file, the data row with its line in
 the file, the column and the likely cause (missing column with did-you-mean, non-numeric or empty
 cell, decimal comma, NaN, joint count, values that look like another unit, a further joint column the
 mapping leaves out).
@@ -92,7 +92,7 @@ def _num_or_nan(c: str, decimal: str) -> float:
 
 
 def read_text_table(path: str | Path, m: TableMap | None = None) -> TextTable:
-    """Read ``path`` as laid out by ``m`` (see :class:`~hykin.table_map.TableMap`): header, rows, lines
+    """Read ``path`` as laid out by ``m`` (see :class:`~hykin.io.table_map.TableMap`): header, rows, lines
     (:func:`hykin.io.text_table.read_delimited`), then ``m.where`` filters; no data rows is an error.
 
     Blank lines and ``comment`` lines are skipped anywhere; a trailing delimiter on every line is
@@ -112,7 +112,7 @@ def read_text_table(path: str | Path, m: TableMap | None = None) -> TextTable:
 
 def guess_layout(path: str | Path, m: TableMap | None = None) -> dict:
     """Guess ``skip_rows`` (metadata lines above the header), the delimiter and a decimal comma, for
-    :func:`~hykin.table_map.suggest_map` only (the user confirms them in the mapping)."""
+    :func:`~hykin.io.table_map.suggest_map` only (the user confirms them in the mapping)."""
     m = m or TableMap()
     where = str(path)
     text = read_lines(Path(path), m.encoding, where)
@@ -357,7 +357,7 @@ def _nest_pose(mt: MappedTable, m: TableMap) -> tuple[np.ndarray, np.ndarray]:
 
 
 def import_table(path: str | Path, m: TableMap | dict | str | Path, robot=None, *, dof: int | None = None) -> Dataset:
-    """Import any table into a :class:`~hykin.dataset.Dataset` (SI) with mapping ``m``.
+    """Import any table into a :class:`~hykin.io.dataset.Dataset` (SI) with mapping ``m``.
 
     Output columns: ``q1..qN`` (the mapped joints in order), ``x,y,z`` (position), ``qw..qz`` (from
     the quaternion, Euler angles or rotation vector, if mapped), ``x2,y2,z2, ...`` (further points),
