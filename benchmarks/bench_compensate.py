@@ -107,7 +107,7 @@ def hykin_cli(*args) -> str:
 
 
 def part_csv(tmp: Path, n: int) -> tuple[bool, Path, VirtualRobot]:
-    from hykin.io.dataset import read_joints
+    from hykin.io.dataset_files import read_joints
 
     print("1. targets CSV, own 6R arm")
     vr = arm_6r()
@@ -128,7 +128,7 @@ def part_csv(tmp: Path, n: int) -> tuple[bool, Path, VirtualRobot]:
     t = time.perf_counter()
     print("  " + hykin_cli("compensate", str(mp), str(tmp / "targets.csv"), "-o", str(tmp / "commands.csv")).strip())
     print(f"  hykin compensate (CLI, {n} targets): {time.perf_counter() - t:.1f} s wall incl. start-up")
-    from hykin.io.dataset import read_poses
+    from hykin.io.dataset_files import read_poses
 
     Tc, _ = read_poses(tmp / "commands.csv")
     qm, _ = read_joints(tmp / "commands.csv", dof=6)

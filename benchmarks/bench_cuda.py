@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     from hykin.hybrid.model import HybridModel
-    from hykin.io.dataset import read_dataset
+    from hykin.io.dataset_files import read_dataset
     from hykin.kinematics.se3 import pose_error
 
     work = Path(args.keep or tempfile.mkdtemp(prefix="hykin-cuda-"))

@@ -24,9 +24,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from _timing import best_of
 
+from hykin.io.robot_file import load_robot
 from hykin.kinematics.chain import chain_of
 from hykin.kinematics.fk import fk, fk_torch
-from hykin.kinematics.robot import load_robot
 
 
 def best_time(fn, repeat: int = 3) -> float:

@@ -38,9 +38,9 @@ def _contains(qs_list, q, tol=1e-6):
 
 
 def bench_closed_form(name, n, n_peer, rows):
+    from hykin.io.robot_file import load_robot
     from hykin.kinematics.fk import fk
     from hykin.kinematics.ik_closed_form import ik_closed_form, poe_model
-    from hykin.kinematics.robot import load_robot
 
     r = load_robot(name)
     rng = np.random.default_rng(0)
@@ -118,10 +118,10 @@ def _rtb_ets(robot):
 
 
 def bench_numeric(name, n, n_peer, rows, tol=1e-6):
+    from hykin.io.robot_file import load_robot
     from hykin.kinematics import se3
     from hykin.kinematics.fk import fk
     from hykin.kinematics.ik import ik
-    from hykin.kinematics.robot import load_robot
 
     r = load_robot(name)
     rng = np.random.default_rng(1)

@@ -149,7 +149,7 @@ def rcv_kwargs(robot, name):
 
 def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path) -> None:
     from hykin.io.importers import import_ipa_series, ipa_nominal_robot
-    from hykin.kinematics.robot import save_robot_toml
+    from hykin.io.robot_toml import save_robot_toml
 
     d = root / "ipa-robot-accuracy"
     if not (d / "Series_B").is_dir():

@@ -19,9 +19,10 @@ from hykin.calibration.calibrate import (
     identification_jacobian,
     parameter_names,
 )
+from hykin.io.robot_file import load_robot
 from hykin.kinematics import se3
 from hykin.kinematics.compliance import compliance_of, compliant_fk
-from hykin.kinematics.robot import dh_to_mdh, load_robot
+from hykin.kinematics.robot import dh_to_mdh
 
 UR5_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "serial-robots-ur5" / "UR5"
 UNIT = {"m": 1e-3, "rad": 1e-3, "c": 1e-6}  # typical deviation per unit kind

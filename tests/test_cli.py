@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from cli_run import run
 
-from hykin.io.dataset import read_dataset
+from hykin.io.dataset_files import read_dataset
+from hykin.io.robot_file import load_robot
 from hykin.kinematics.fk import fk
-from hykin.kinematics.robot import load_robot
 from hykin.kinematics.se3 import pose_error
 
 
@@ -104,7 +104,7 @@ def test_calibrate_command_recovers_truth(tmp_path, capsys):
 
 
 def _nominal_file(vr, tmp_path):
-    from hykin.kinematics.robot import save_robot_toml
+    from hykin.io.robot_toml import save_robot_toml
 
     path = tmp_path / "nominal.toml"
     save_robot_toml(vr.nominal, path)

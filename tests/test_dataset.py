@@ -10,13 +10,12 @@ from hykin.io.dataset import (
     DatasetError,
     concat,
     dataset_hash,
-    read_dataset,
     split,
     validate,
-    write_dataset,
 )
+from hykin.io.dataset_files import read_dataset, write_dataset
+from hykin.io.robot_file import load_robot
 from hykin.kinematics import se3
-from hykin.kinematics.robot import load_robot
 
 
 def _random_dataset(n=40, dof=6, seed=0, orientation=True, extra=True):
@@ -299,7 +298,7 @@ def test_hash_depends_on_poses_only():
 
 
 def test_read_joints_and_poses(tmp_path):
-    from hykin.io.dataset import read_joints, read_poses
+    from hykin.io.dataset_files import read_joints, read_poses
 
     ds = _random_dataset(8)
     p = tmp_path / "full.csv"

@@ -27,7 +27,7 @@ def test_demo_quick_writes_report_and_beats_nominal(tmp_path):
     html = path.read_text()
     assert path.name == "report.html" and html.count("data:image/png;base64,") >= 3
     # The model the demo saved is loadable and far better than the nominal robot on the demo's test set.
-    from hykin.io.dataset import read_dataset
+    from hykin.io.dataset_files import read_dataset
     from hykin.kinematics.fk import fk
 
     model = HybridModel.load(tmp_path / "demo" / "model.hykin")

@@ -19,9 +19,10 @@ import pytest
 
 pin = pytest.importorskip("pinocchio")
 
+from hykin.io.robot_file import list_presets, load_robot
 from hykin.io.urdf import load_urdf, load_urdf_string, robot_to_urdf
 from hykin.kinematics.fk import fk, fk_frames, fk_torch, jacobian
-from hykin.kinematics.robot import dh_to_mdh, list_presets, load_robot, mdh_to_dh
+from hykin.kinematics.robot import dh_to_mdh, mdh_to_dh
 
 DATA = Path(__file__).parent / "data"
 TOL = 1e-12

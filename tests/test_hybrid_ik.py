@@ -21,10 +21,10 @@ from hykin.hybrid.ik import (
     ik_result_to_rows,
     wang_ik,
 )
+from hykin.io.robot_file import load_robot
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk, fk_torch, jacobian
 from hykin.kinematics.ik_closed_form import ik_closed_form
-from hykin.kinematics.robot import load_robot
 
 
 class StandInHybrid:

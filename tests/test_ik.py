@@ -12,6 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from hykin.io.robot_file import list_presets, load_robot
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
 from hykin.kinematics.ik import (
@@ -29,7 +30,7 @@ from hykin.kinematics.ik_closed_form import (
     poe_model,
     wrap_to_limits,
 )
-from hykin.kinematics.robot import Robot, dh_to_mdh, list_presets, load_robot
+from hykin.kinematics.robot import Robot, dh_to_mdh
 
 PRESETS = list_presets()
 EXPECTED_FAMILY = {

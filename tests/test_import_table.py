@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from cli_run import run
 
-from hykin.io.dataset import read_dataset
+from hykin.io.dataset_files import read_dataset
+from hykin.io.robot_file import load_robot
 from hykin.io.table_import import import_table
 from hykin.io.table_map import (
     TableMap,
@@ -23,7 +24,6 @@ from hykin.io.table_map import (
 )
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
-from hykin.kinematics.robot import load_robot
 
 
 def _rot_err(R1, R2):

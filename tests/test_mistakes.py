@@ -24,7 +24,8 @@ import pytest
 
 import hykin
 from hykin.cli import main
-from hykin.io.dataset import Dataset, read_dataset, write_dataset
+from hykin.io.dataset import Dataset
+from hykin.io.dataset_files import read_dataset, write_dataset
 from hykin.io.modelfile import ModelFileError
 from hykin.kinematics.fk import fk
 

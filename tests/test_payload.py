@@ -13,7 +13,8 @@ from cli_run import run as _run
 from hykin.calibration.calibrate import calibrate
 from hykin.evaluation.evaluate import evaluate_model
 from hykin.hybrid.model import HybridModel
-from hykin.io.dataset import DatasetError, read_dataset, write_dataset
+from hykin.io.dataset import DatasetError
+from hykin.io.dataset_files import read_dataset, write_dataset
 from hykin.kinematics.compliance import compliant_fk, deflected_joints, gravity_torques
 from hykin.kinematics.fk import fk
 from hykin.kinematics.payload import (

@@ -11,8 +11,9 @@ import pytest
 from cli_run import run as _run
 
 from hykin.calibration.calibrate import calibrate, parameter_names
+from hykin.io.robot_file import load_robot
 from hykin.kinematics.fk import fk
-from hykin.kinematics.robot import Robot, load_robot
+from hykin.kinematics.robot import Robot
 from hykin.planning import Constraints, PlanningError, embed, farthest_point, plan_poses
 from hykin.planning.constraints import segment_hits_box
 from hykin.planning.criteria import identification_model, scaled_rows
@@ -232,7 +233,7 @@ def test_cli_plan_writes_ordered_joints_with_line_of_sight(tmp_path, capsys):
                          "--length-unit", "mm", "--max-incidence", "40", "--pool", "2048",
                          "--region", "-90:90,:,:,:,:,:"], capsys)
     assert code == 0, se
-    from hykin.io.dataset import read_joints
+    from hykin.io.dataset_files import read_joints
 
     q, extra = read_joints(out)
     assert q.shape == (20, 6)
@@ -289,6 +290,6 @@ def test_active_poses_go_where_the_model_is_uncertain(tmp_path, capsys):
                          "--report-max", "100"], capsys)
     assert code == 0, se
     assert "hybrid mm" in so
-    from hykin.io.dataset import read_joints
+    from hykin.io.dataset_files import read_joints
 
     assert read_joints(out)[0].shape == (8, 6)

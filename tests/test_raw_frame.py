@@ -13,10 +13,13 @@ import pytest
 from hykin.calibration.calibrate import CalibrationError, calibrate
 from hykin.calibration.checks import DEFAULT_MAX_DEVIATION, parse_max_deviation
 from hykin.calibration.initial_registration import initial_registration
-from hykin.io.dataset import Dataset, write_dataset
+from hykin.io.dataset import Dataset
+from hykin.io.dataset_files import write_dataset
+from hykin.io.robot_file import load_robot
+from hykin.io.robot_toml import save_robot_toml
 from hykin.kinematics import se3
 from hykin.kinematics.compliance import compliant_fk
-from hykin.kinematics.robot import Robot, load_robot, save_robot_toml
+from hykin.kinematics.robot import Robot
 
 PI = np.pi
 

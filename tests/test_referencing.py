@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from hykin.io.robot_file import load_robot
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk_frames
-from hykin.kinematics.robot import load_robot
 from hykin.measure.referencing import (
     ReferencingError,
     axis_from_sweep,

@@ -14,8 +14,8 @@ from hykin.hybrid.model import (
     support_report,
 )
 from hykin.io.dataset import Dataset
+from hykin.io.robot_file import load_robot
 from hykin.kinematics.fk import fk
-from hykin.kinematics.robot import load_robot
 from hykin.kinematics.se3 import pose_error, rotvec_to_matrix
 from hykin.sim.sampling import restricted
 from hykin.sim.simulate import simulate, virtual_preset

@@ -6,9 +6,9 @@ import pytest
 
 from hykin.hybrid.model import HybridModel
 from hykin.io.dataset import Dataset
+from hykin.io.robot_file import load_robot
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
-from hykin.kinematics.robot import load_robot
 from hykin.measure.register import (
     fit_frames,
     register_model,

@@ -5,10 +5,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import qmc
 
-from hykin.io.dataset import read_dataset
+from hykin.io.dataset_files import read_dataset
+from hykin.io.robot_file import load_robot
 from hykin.kinematics.compliance import deflected_joints
 from hykin.kinematics.fk import fk
-from hykin.kinematics.robot import load_robot
 from hykin.kinematics.se3 import pose_error, pose_to_transform
 from hykin.sim.sampling import PlanError, iso_cube, restricted, sample, uniform, zigzag
 from hykin.sim.simulate import (

@@ -15,7 +15,8 @@ from hykin.calibration.thermal import (
     to_reference,
 )
 from hykin.hybrid.model import HybridError, HybridModel, OutOfRangeWarning
-from hykin.io.dataset import Dataset, read_dataset, write_dataset
+from hykin.io.dataset import Dataset
+from hykin.io.dataset_files import read_dataset, write_dataset
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
 from hykin.sim.simulate import simulate, true_poses, virtual_preset
@@ -41,7 +42,7 @@ def model(session):
 
 def test_scaling_is_exact_for_uniform_expansion():
     """Scaling every length of the chain by s scales the TCP position about the base origin by s."""
-    from hykin.kinematics.robot import load_robot
+    from hykin.io.robot_file import load_robot
 
     rob = load_robot("rx160").copy(base=se3.xyzrpy_to_transform(np.array([[0.3, -0.2, 0.1]]), np.array([[0.1, 0.2, -0.3]]))[0],
                                    tool=se3.xyzrpy_to_transform(np.array([[0.01, 0.02, 0.15]]), np.zeros((1, 3)))[0])

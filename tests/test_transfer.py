@@ -16,9 +16,9 @@ from hykin.hybrid.fade import calibrate_fade, fade_distance, region_blocks
 from hykin.hybrid.model import HybridModel
 from hykin.hybrid.region_cv import joint_blocks, select_calibration
 from hykin.io.dataset import Dataset
+from hykin.io.robot_file import load_robot
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
-from hykin.kinematics.robot import load_robot
 from hykin.measure.register import RegistrationError, register_model
 
 pytestmark = pytest.mark.filterwarnings("ignore::hykin.hybrid.model.OutOfRangeWarning")

@@ -125,7 +125,7 @@ def is_model_file(spec: str) -> bool:
 
 def load_model_or_robot(spec: str):
     """Return ``(model_or_None, robot)`` for a model file, a robot file or a preset name."""
-    from ..kinematics.robot import load_robot
+    from ..io.robot_file import load_robot
 
     if is_model_file(spec):
         from ..hybrid.model import HybridModel
@@ -167,21 +167,9 @@ def temperature_of(mdl, extra: dict, path) -> np.ndarray | None:
 
 
 def write_rows(rows: dict, out: Path) -> None:
-    import csv
+    """Write command output rows (column name -> ``(N,)`` values) as CSV (:data:`hykin.io.csv_writer.ROWS_STYLE`),
+    creating the output folder."""
+    from ..io.csv_writer import ROWS_STYLE, write_csv
 
-    keys = list(rows)
-    cols = [np.asarray(rows[k]) for k in keys]
     out.parent.mkdir(parents=True, exist_ok=True)
-    with open(out, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(keys)
-        for i in range(len(cols[0]) if cols else 0):
-            w.writerow([_fmt(c[i]) for c in cols])
-
-
-def _fmt(v) -> str:
-    if isinstance(v, (float, np.floating)):
-        return repr(float(v))
-    if isinstance(v, (bool, np.bool_)):
-        return "true" if v else "false"
-    return str(v)
+    write_csv(out, rows, ROWS_STYLE)

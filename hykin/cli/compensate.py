@@ -98,7 +98,7 @@ def compensate_cmd(
 
 def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_unit: str, angle_unit: str) -> None:
     from ..compensation.targets import command_rows, compensate
-    from ..io.dataset import read_joints, read_poses
+    from ..io.dataset_files import read_joints, read_poses
 
     T, has_rot = read_poses(inp, length_unit=length_unit)
     n = mdl.nominal.dof

@@ -12,7 +12,7 @@ from .common import AngleUnit, CLIError, Force, LengthUnit, app, check_output, p
 @app.command("presets")
 def presets_cmd() -> None:
     """List the robot presets and the virtual-robot presets shipped with hykin."""
-    from ..kinematics.robot import list_presets, load_robot
+    from ..io.robot_file import list_presets, load_robot
 
     typer.echo("robot presets (use as ROBOT):")
     for name in list_presets():
@@ -85,7 +85,8 @@ def split_cmd(
     force: bool = Force,
 ) -> None:
     """Random train/test split of a dataset (disjoint, reproducible)."""
-    from ..io.dataset import read_dataset, split, write_dataset
+    from ..io.dataset import split
+    from ..io.dataset_files import read_dataset, write_dataset
 
     suffix = data.suffix if data.suffix in (".csv", ".parquet") else ".csv"
     paths = [Path(f"{out_prefix}_train{suffix}"), Path(f"{out_prefix}_test{suffix}")]

@@ -58,7 +58,7 @@ def _run_demo(out_dir, n_train: int, quick: bool, seed: int) -> Path:
     from ..evaluation.report import Report, error_histograms
     from ..hybrid.ik import hybrid_ik, wang_ik
     from ..hybrid.model import HybridModel
-    from ..io.dataset import write_dataset
+    from ..io.dataset_files import write_dataset
     from ..kinematics.se3 import pose_error
     from ..sim.sampling import sample
     from ..sim.simulate import save_truth, simulate, virtual_preset

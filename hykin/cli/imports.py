@@ -19,7 +19,7 @@ app.add_typer(import_app, name="import")
 
 
 def _write(ds, out: Path, inputs, what: str = "") -> None:
-    from ..io.dataset import write_dataset
+    from ..io.dataset_files import write_dataset
 
     write_dataset(ds, out)
     frame = ds.meta.get("frame", "robot base")
@@ -67,7 +67,7 @@ def import_ipa_cmd(
 def _import_fixed(path: Path, out: Path, robot_out: Path | None, force: bool, read, nominal_robot) -> None:
     """A fixed-layout import: outputs checked first, then ``read()`` -> dataset, and the set-up's nominal
     robot (``nominal_robot()``) written to ``robot_out`` when asked."""
-    from ..kinematics.robot import save_robot_toml
+    from ..io.robot_toml import save_robot_toml
 
     check_output(out, (path,), force)
     if robot_out is not None:

@@ -79,8 +79,8 @@ def fit_cmd(
     calibration uses all of TRAIN (the networks' split must not change the calibrated robot)."""
     from ..calibration.plausibility import check_fit_size
     from ..hybrid.model import HybridModel
-    from ..io.dataset import read_dataset
-    from ..kinematics.robot import load_robot
+    from ..io.dataset_files import read_dataset
+    from ..io.robot_file import load_robot
 
     kw = {}
     if max_minutes is not None:
@@ -150,7 +150,7 @@ def evaluate_cmd(
 ) -> None:
     """Before/after error table (mean, std, p95, max; position mm, orientation deg)."""
     from ..evaluation.evaluate import evaluate_model, evaluation_report
-    from ..io.dataset import read_dataset
+    from ..io.dataset_files import read_dataset
 
     if report is not None and report.exists() and not report.is_dir():
         raise CLIError(f"{report}: --report must name a directory, got an existing file")
@@ -186,8 +186,9 @@ def calibrate_cmd(
     first. A calibration that does not converge, bends a parameter beyond its plausible bound
     (--max-deviation) or leaves an implausible residual is refused (exit 2, nothing written)."""
     from ..calibration.calibrate import calibrate
-    from ..io.dataset import read_dataset
-    from ..kinematics.robot import load_robot, save_robot_toml
+    from ..io.dataset_files import read_dataset
+    from ..io.robot_file import load_robot
+    from ..io.robot_toml import save_robot_toml
 
     check_output(out, (robot, data), force)
     rob = load_robot(robot)
@@ -212,7 +213,7 @@ def register_cmd(
     """Re-fit base and tool frames for a new series (tracker moved, tool changed) and, where the poses
     identify them and they are significant, joint zero offsets and a thermal state; keep the learned errors.
     Refuses (exit 2, one line) when the residual shows the series does not fit the model."""
-    from ..io.dataset import read_dataset
+    from ..io.dataset_files import read_dataset
     from ..measure.register import register_model
 
     check_output(out, (model, series), force)

@@ -35,7 +35,8 @@ def fk_cmd(
 ) -> None:
     """Forward kinematics: full hybrid model for a model file, classical FK for a robot."""
     from ..calibration.plausibility import check_joint_unit
-    from ..io.dataset import Dataset, read_joints, write_dataset
+    from ..io.dataset import Dataset
+    from ..io.dataset_files import read_joints, write_dataset
     from ..kinematics.fk import fk
 
     check_output(out, (model, joints), force)
@@ -79,7 +80,7 @@ def ik_cmd(
     A target that is not solved gets one row with no joint values and a reason (out of reach, joint
     limits, singular, not converged)."""
     from ..calibration.plausibility import check_target_reach
-    from ..io.dataset import read_joints, read_poses
+    from ..io.dataset_files import read_joints, read_poses
 
     check_output(out, (model, poses, seed_joints), force)
     mdl, rob = load_model_or_robot(model)

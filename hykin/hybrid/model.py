@@ -117,6 +117,8 @@ from ..io.modelfile import (
     robot_to_dict,
     write_model_file,
 )
+from ..io.robot_file import load_robot
+from ..io.robot_toml import robot_to_toml_string
 from ..kinematics import se3
 from ..kinematics.fk import HAVE_NUMBA, fk, fk_torch
 from ..kinematics.payload import (
@@ -127,7 +129,7 @@ from ..kinematics.payload import (
     payload_outside,
     payload_range_of,
 )
-from ..kinematics.robot import Robot, load_robot, robot_to_toml_string
+from ..kinematics.robot import Robot
 from .nets import ResidualNet, count_parameters, make_net
 from .train import Recipe, get_recipe, train_net
 

@@ -1,4 +1,6 @@
-"""Measured-pose datasets: the :class:`Dataset` container, CSV/Parquet files, validation, splits.
+"""Measured-pose datasets: the :class:`Dataset` container, validation, splits and hashing.
+
+Files (CSV/Parquet reading and writing) are in :mod:`hykin.io.dataset_files`.
 
 File format (DESIGN.md §3): one row per measured pose, header required, columns
 ``q1..qN`` (joints), ``x,y,z`` (measured TCP position in the robot base frame) and optionally
@@ -16,12 +18,10 @@ line 2 of a CSV file); messages give both the row and the file line.
 
 from __future__ import annotations
 
-import csv
 import hashlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -32,18 +32,17 @@ __all__ = [
     "QUAT_COLUMNS",
     "Dataset",
     "DatasetError",
+    "check_finite",
+    "check_units",
     "concat",
     "dataset_hash",
     "joint_columns",
-    "read_csv_table",
-    "read_dataset",
-    "read_joints",
-    "read_poses",
+    "revolute_mask",
+    "row_error",
     "split",
     "validate",
     "validate_joints",
     "validate_poses",
-    "write_dataset",
 ]
 
 POSITION_COLUMNS = ("x", "y", "z")
@@ -67,8 +66,10 @@ class DatasetError(ValueError):
         self.file, self.row, self.column = file, row, column
 
 
-def _err(where: str, msg: str, row: int | None = None, column: str | None = None, line_offset: int | None = 1) -> DatasetError:
-    """Build a DatasetError '<where>: row R (line L), column 'c': msg'. ``row`` is 0-based here."""
+def row_error(where: str, msg: str, row: int | None = None, column: str | None = None,
+              line_offset: int | None = 1) -> DatasetError:
+    """A DatasetError '<where>, row R (line L of the file), column 'c': msg'. ``row`` is 0-based here;
+    ``line_offset`` = file line minus data row (None: no line is named)."""
     parts = [where]
     if row is not None:
         r = int(row) + 1
@@ -221,17 +222,19 @@ def concat(datasets: Sequence[Dataset], source: str | None = None) -> Dataset:
 # --------------------------------------------------------------------------- validation
 
 
-def _revolute_mask(dof: int, robot) -> np.ndarray:
+def revolute_mask(dof: int, robot) -> np.ndarray:
+    """``(dof,)`` bool: which joints are revolute (all of them without a ``robot``)."""
     if robot is None:
         return np.ones(dof, dtype=bool)
     return np.array([t == "revolute" for t in robot.joint_type], dtype=bool)
 
 
-def _check_finite(where: str, arr: np.ndarray, names: Sequence[str], line_offset: int | None) -> None:
+def check_finite(where: str, arr: np.ndarray, names: Sequence[str], line_offset: int | None) -> None:
+    """Raise :class:`DatasetError` naming the first non-finite cell of ``arr`` ``(N, len(names))``."""
     bad = ~np.isfinite(arr)
     if bad.any():
         r, c = np.argwhere(bad)[0]
-        raise _err(where, f"value {arr[r, c]!r} is not finite (NaN or inf); every cell must be a finite number",
+        raise row_error(where, f"value {arr[r, c]!r} is not finite (NaN or inf); every cell must be a finite number",
                    r, names[c], line_offset)
 
 
@@ -280,8 +283,8 @@ def validate_joints(
             file=where,
         )
     qn = joint_columns(dof)
-    _check_finite(where, q, qn, line_offset)
-    rev = _revolute_mask(dof, robot)
+    check_finite(where, q, qn, line_offset)
+    rev = revolute_mask(dof, robot)
     if rev.any():
         qr = q[:, rev]
         names = [c for c, m in zip(qn, rev) if m]
@@ -290,12 +293,12 @@ def validate_joints(
         big = np.abs(qr) > 2 * math.pi + DEG_AS_RAD_MARGIN
         if big.any():
             r, c = np.argwhere(big)[0]
-            raise _err(where, f"joint value {qr[r, c]:.6g} rad is beyond ±2π: likely degrees passed as radians; {hint}",
+            raise row_error(where, f"joint value {qr[r, c]:.6g} rad is beyond ±2π: likely degrees passed as radians; {hint}",
                        r, names[c], line_offset)
         integral = np.all(np.abs(qr - np.round(qr)) < 1e-9)
         if integral and np.max(np.abs(qr)) > math.pi and qr.size > 1:
             r, c = np.unravel_index(int(np.argmax(np.abs(qr))), qr.shape)
-            raise _err(where, f"all revolute joint values are whole numbers, up to {qr[r, c]:.6g}: likely degrees "
+            raise row_error(where, f"all revolute joint values are whole numbers, up to {qr[r, c]:.6g}: likely degrees "
                        f"passed as radians; {hint}", r, names[c], line_offset)
     if robot is not None:
         lo, hi = robot.lower - limit_tol, robot.upper + limit_tol
@@ -304,7 +307,7 @@ def validate_joints(
             r, c = np.argwhere(out)[0]
             conv = np.degrees if rev[c] else (lambda v: v)
             u = "deg" if rev[c] else "m"
-            raise _err(where, f"joint value {conv(q[r, c]):.6g} {u} is outside the limits "
+            raise row_error(where, f"joint value {conv(q[r, c]):.6g} {u} is outside the limits "
                        f"[{conv(robot.lower[c]):.6g}, {conv(robot.upper[c]):.6g}] {u} of robot {robot.name!r}",
                        r, qn[c], line_offset)
 
@@ -319,14 +322,14 @@ def validate_poses(
     """Pose part of :func:`validate`: finite, unit quaternions (renormalised in place), metres."""
     if xyz_m.shape[0] == 0:
         raise DatasetError(f"{where}: the dataset is empty (no data rows)", file=where)
-    _check_finite(where, xyz_m, POSITION_COLUMNS, line_offset)
+    check_finite(where, xyz_m, POSITION_COLUMNS, line_offset)
     if quat_wxyz is not None:
-        _check_finite(where, quat_wxyz, QUAT_COLUMNS, line_offset)
+        check_finite(where, quat_wxyz, QUAT_COLUMNS, line_offset)
         norm = np.linalg.norm(quat_wxyz, axis=1)
         bad = np.abs(norm - 1.0) > QUAT_NORM_TOL
         if bad.any():
             r = int(np.argmax(bad))
-            raise _err(where, f"quaternion norm is {norm[r]:.6g}, not 1 (tolerance {QUAT_NORM_TOL:g}); "
+            raise row_error(where, f"quaternion norm is {norm[r]:.6g}, not 1 (tolerance {QUAT_NORM_TOL:g}); "
                        "qw,qx,qy,qz must be a unit quaternion, scalar first", r, "qw,qx,qy,qz", line_offset)
         fix = np.abs(norm - 1.0) > 1e-12  # leave exact-to-rounding rows bit-identical (stable hashes)
         quat_wxyz[fix] /= norm[fix, None]
@@ -334,388 +337,19 @@ def validate_poses(
     far = dist > MAX_POSITION_M
     if far.any():
         r = int(np.argmax(far))
-        raise _err(where, f"TCP position is {dist[r]:.6g} m from the base (> {MAX_POSITION_M:g} m): likely millimetres "
+        raise row_error(where, f"TCP position is {dist[r]:.6g} m from the base (> {MAX_POSITION_M:g} m): likely millimetres "
                    "passed as metres; declare length_unit='mm' (CLI: --length-unit mm)", r, "x,y,z", line_offset)
 
 
-# --------------------------------------------------------------------------- reading
 
-
-def _check_units(where: str, length_unit: str, angle_unit: str) -> None:
+def check_units(where: str, length_unit: str, angle_unit: str) -> None:
+    """Raise :class:`DatasetError` unless ``length_unit`` is in :data:`LENGTH_UNITS` and ``angle_unit`` in
+    :data:`ANGLE_UNITS` (``where`` names the file)."""
     if length_unit not in LENGTH_UNITS:
         raise DatasetError(f"{where}: length_unit must be one of {tuple(LENGTH_UNITS)}, got {length_unit!r}", file=where)
     if angle_unit not in ANGLE_UNITS:
         raise DatasetError(f"{where}: angle_unit must be one of {tuple(ANGLE_UNITS)}, got {angle_unit!r}", file=where)
 
-
-def _to_float_column(where: str, name: str, cells: Sequence[str], decimal: str = ".", line_offset: int = 1) -> np.ndarray:
-    """Strings -> float64, raising a DatasetError naming the first bad row. Empty cells are errors."""
-    if decimal != ".":
-        cells = [c.replace(decimal, ".") for c in cells]
-    try:
-        arr = np.asarray(cells, dtype=np.float64)
-        return arr
-    except ValueError:
-        pass
-    for r, c in enumerate(cells):
-        try:
-            float(c)
-        except ValueError:
-            shown = c if c.strip() else "(empty)"
-            raise _err(where, f"cell {shown!r} is not a number", r, name, line_offset) from None
-    raise _err(where, "could not be read as numbers", None, name)  # pragma: no cover
-
-
-def _try_float_column(cells: Sequence[str], decimal: str = ".") -> np.ndarray:
-    """Strings -> float64 when all parse, else the strings themselves (extras are kept as read)."""
-    if decimal != ".":
-        conv = [c.replace(decimal, ".") for c in cells]
-    else:
-        conv = cells
-    try:
-        return np.asarray(conv, dtype=np.float64)
-    except ValueError:
-        return np.asarray(cells, dtype=str)
-
-
-def read_csv_table(path: str | Path, *, delimiter: str = ",", decimal: str = ".") -> tuple[list[str], dict[str, list[str]]]:
-    """Read a delimited text file with one header line into ``(header, {column: cells})``.
-
-    Raises :class:`DatasetError` for a missing/empty file, duplicate column names or a row with the
-    wrong number of cells (naming the row and the line). Lines that are completely empty are
-    allowed only at the end of the file.
-    """
-    where = str(path)
-    p = Path(path)
-    if not p.exists():
-        raise DatasetError(f"{where}: file not found", file=where)
-    with p.open("r", newline="", encoding="utf-8-sig") as fh:
-        rows = list(csv.reader(fh, delimiter=delimiter))
-    while rows and not any(c.strip() for c in rows[-1]):
-        rows.pop()
-    if not rows:
-        raise DatasetError(f"{where}: the file is empty (a header line is required)", file=where)
-    header = [h.strip() for h in rows[0]]
-    seen = set()
-    for h in header:
-        if h in seen:
-            raise _err(where, "appears twice in the header", None, h)
-        seen.add(h)
-    body = rows[1:]
-    ncol = len(header)
-    for r, row in enumerate(body):
-        if len(row) != ncol:
-            raise _err(where, f"has {len(row)} cells, the header has {ncol} "
-                       f"(is the delimiter {delimiter!r} right?)", r, None)
-    cols = {h: [row[i].strip() for row in body] for i, h in enumerate(header)}
-    return header, cols
-
-
-def _dof_from_header(where: str, header: Sequence[str], robot, dof: int | None) -> int:
-    present = {h for h in header}
-    k = 0
-    while f"q{k + 1}" in present:
-        k += 1
-    want = robot.dof if robot is not None else dof
-    if want is None:
-        if k == 0:
-            raise DatasetError(
-                f"{where}: no joint columns; expected q1..qN, x, y, z and optionally qw, qx, qy, qz "
-                f"(found: {', '.join(header)})", file=where)
-        return k
-    if robot is not None and dof is not None and dof != robot.dof:
-        raise DatasetError(f"{where}: dof={dof} given but robot {robot.name!r} has {robot.dof} joints", file=where)
-    missing = [c for c in joint_columns(want) if c not in present]
-    if missing:
-        raise DatasetError(
-            f"{where}: missing column(s) {', '.join(missing)}; expected {', '.join(joint_columns(want))}, x, y, z "
-            f"and optionally qw, qx, qy, qz (found: {', '.join(header)})", file=where, column=missing[0])
-    if f"q{want + 1}" in present:
-        raise DatasetError(
-            f"{where}: the file has joint columns q1..q{k} but the robot{'' if robot is None else ' ' + repr(robot.name)} "
-            f"has {want} joints", file=where, column=f"q{want + 1}")
-    return want
-
-
-@dataclass
-class _Table:
-    """A read table: header, a strict numeric accessor (errors name row/column) and a lenient one."""
-
-    where: str
-    header: list[str]
-    numeric: object  # (name) -> float64 (N,), raising DatasetError on a bad cell
-    lenient: object  # (name) -> float64 or str (N,)
-    line_offset: int | None
-    metadata: dict
-
-    def extras(self, skip) -> dict[str, np.ndarray]:
-        skip = set(skip)
-        return {c: self.lenient(c) for c in self.header if c not in skip}
-
-
-def _open_table(path: str | Path) -> _Table:
-    """Open a ``.csv`` (comma) or ``.parquet`` table."""
-    where = str(path)
-    suffix = Path(path).suffix.lower()
-    if suffix in (".parquet", ".pq"):
-        return _open_parquet(path)
-    if suffix not in (".csv", ".txt", ".tsv"):
-        raise DatasetError(f"{where}: unknown dataset file type {suffix!r}; expected .csv or .parquet", file=where)
-    header, cols = read_csv_table(path, delimiter="\t" if suffix == ".tsv" else ",")
-    if len(header) == 1 and ";" in header[0]:
-        raise DatasetError(f"{where}: the header is one column {header[0][:60]!r}...: the file looks ';'-separated; "
-                           "datasets are comma-separated (use hykin.importers for other layouts)", file=where)
-    return _Table(where, header, lambda c: _to_float_column(where, c, cols[c]), lambda c: _try_float_column(cols[c]), 1, {})
-
-
-def _open_parquet(path) -> _Table:
-    where = str(path)
-    try:
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-    except ImportError:  # pragma: no cover
-        raise DatasetError(f"{where}: reading Parquet needs pyarrow (pip install pyarrow)", file=where) from None
-    if not Path(path).exists():
-        raise DatasetError(f"{where}: file not found", file=where)
-    try:
-        table = pq.read_table(path)
-    except Exception as e:  # pyarrow raises several types for corrupt files
-        raise DatasetError(f"{where}: not a readable Parquet file ({e})", file=where) from None
-    md = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items() if k.startswith(b"hykin.")}
-    header = [str(n) for n in table.column_names]
-
-    def numeric(c: str) -> np.ndarray:
-        col = table.column(c)
-        if col.null_count:
-            r = int(np.flatnonzero(np.asarray(col.is_null().to_numpy(zero_copy_only=False)))[0])
-            raise _err(where, "cell is empty (null)", r, c, None)
-        if pa.types.is_floating(col.type) or pa.types.is_integer(col.type):
-            return np.asarray(col.to_numpy(), dtype=np.float64)
-        cells = [str(v) for v in col.to_pylist()]
-        arr = _try_float_column(cells)
-        if arr.dtype.kind != "f":
-            for r, v in enumerate(cells):
-                try:
-                    float(v)
-                except ValueError:
-                    raise _err(where, f"cell {v!r} is not a number (column type {col.type})", r, c, None) from None
-        return arr
-
-    def lenient(c: str) -> np.ndarray:
-        arr = table.column(c).to_numpy(zero_copy_only=False)
-        return arr.astype(np.float64) if arr.dtype.kind in "iuf" else arr.astype(str)
-
-    return _Table(where, header, numeric, lenient, None, md)
-
-
-def _check_declared_units(t: _Table, length_unit: str, angle_unit: str) -> None:
-    for key, declared in (("hykin.length_unit", length_unit), ("hykin.angle_unit", angle_unit)):
-        if key in t.metadata and t.metadata[key] != declared:
-            raise DatasetError(
-                f"{t.where}: the file says it was written with {key.split('.')[1]}={t.metadata[key]!r} "
-                f"but {declared!r} was declared; declare the file's unit", file=t.where)
-
-
-def _joints_of(t: _Table, robot, dof, angle_unit: str, length_unit: str) -> np.ndarray:
-    n_dof = _dof_from_header(t.where, t.header, robot, dof)
-    qn = joint_columns(n_dof)
-    q = np.stack([t.numeric(c) for c in qn], axis=1)
-    _check_finite(t.where, q, qn, t.line_offset)
-    rev = _revolute_mask(n_dof, robot)
-    return q * np.where(rev, ANGLE_UNITS[angle_unit], LENGTH_UNITS[length_unit])
-
-
-def _check_pose_header(t: _Table, expect: str) -> bool:
-    """Raise for missing x/y/z or partial orientation columns; return True when orientation is present."""
-    present = set(t.header)
-    missing = [c for c in POSITION_COLUMNS if c not in present]
-    if missing:
-        raise DatasetError(
-            f"{t.where}: missing column(s) {', '.join(missing)}; expected {expect} "
-            f"(found: {', '.join(t.header)})", file=t.where, column=missing[0])
-    qcols = [c for c in QUAT_COLUMNS if c in present]
-    if qcols and len(qcols) != 4:
-        miss = [c for c in QUAT_COLUMNS if c not in present]
-        raise DatasetError(
-            f"{t.where}: orientation columns incomplete: missing {', '.join(miss)}; give all of qw, qx, qy, qz "
-            "or none (position-only data)", file=t.where, column=miss[0])
-    return bool(qcols)
-
-
-def _poses_of(t: _Table, length_unit: str, expect: str) -> tuple[np.ndarray, np.ndarray | None]:
-    qcols = _check_pose_header(t, expect)
-    xyz = np.stack([t.numeric(c) for c in POSITION_COLUMNS], axis=1)
-    quat = np.stack([t.numeric(c) for c in QUAT_COLUMNS], axis=1) if qcols else None
-    _check_finite(t.where, xyz, POSITION_COLUMNS, t.line_offset)
-    if quat is not None:
-        _check_finite(t.where, quat, QUAT_COLUMNS, t.line_offset)
-    return xyz * LENGTH_UNITS[length_unit], quat
-
-
-def _standard_columns(t: _Table) -> set[str]:
-    k = 0
-    while f"q{k + 1}" in t.header:
-        k += 1
-    return set(joint_columns(k)) | set(POSITION_COLUMNS) | set(QUAT_COLUMNS)
-
-
-def read_dataset(
-    path: str | Path,
-    *,
-    length_unit: str = "m",
-    angle_unit: str = "rad",
-    robot=None,
-    dof: int | None = None,
-    plausibility: bool = True,
-) -> Dataset:
-    """Read a dataset file (``.csv`` or ``.parquet``, DESIGN.md §3) into SI units and validate it.
-
-    ``length_unit`` (``"m"``/``"mm"``) and ``angle_unit`` (``"rad"``/``"deg"``) are the units *in the
-    file*. ``robot`` (optional) fixes the number of joints, which joints are prismatic, and enables
-    the joint-limit check and (``plausibility``) the unit and quaternion-order checks of
-    :func:`hykin.plausibility.check_dataset` (positions vs the robot's motion, orientations vs its
-    rotations); ``dof`` fixes the number of joints without a robot. Without either the joints are the
-    contiguous ``q1, q2, ...`` columns of the header.
-    """
-    where = str(path)
-    _check_units(where, length_unit, angle_unit)
-    t = _open_table(path)
-    _check_declared_units(t, length_unit, angle_unit)
-    n_dof = _dof_from_header(where, t.header, robot, dof)
-    expect = f"{', '.join(joint_columns(n_dof))}, x, y, z and optionally qw, qx, qy, qz"
-    _check_pose_header(t, expect)  # name missing columns before reading any cell
-    q = _joints_of(t, robot, dof, angle_unit, length_unit)
-    xyz, quat = _poses_of(t, length_unit, expect)
-    if q.shape[0] == 0:
-        raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
-    ds = Dataset(q=q, xyz_m=xyz, quat_wxyz=quat, extra=t.extras(_standard_columns(t)), source=where,
-                 meta={"length_unit_read": length_unit, "angle_unit_read": angle_unit})
-    from ..calibration.reflectors import with_reflector_unit
-
-    ds = with_reflector_unit(ds, length_unit)  # further reflectors x2,y2,z2, ... in metres like x,y,z
-    validate(ds, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset)
-    if robot is not None and plausibility:
-        from ..calibration.plausibility import check_dataset
-
-        check_dataset(robot, ds, where=where, length_unit=length_unit, angle_unit=angle_unit)
-    return ds
-
-
-def read_joints(
-    path: str | Path,
-    *,
-    dof: int | None = None,
-    angle_unit: str = "rad",
-    length_unit: str = "m",
-    robot=None,
-) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Read joints ``q1..qN`` from a CSV/Parquet file: ``(q (N, dof) rad/m, extras)``.
-
-    Pose columns (``x,y,z,qw..qz``), if present, are ignored; every other column is returned in
-    ``extras``. Joint checks as in :func:`validate` (degrees-as-radians, limits when ``robot``).
-    """
-    where = str(path)
-    _check_units(where, length_unit, angle_unit)
-    t = _open_table(path)
-    _check_declared_units(t, length_unit, angle_unit)
-    q = _joints_of(t, robot, dof, angle_unit, length_unit)
-    if q.shape[0] == 0:
-        raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
-    validate_joints(q, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset)
-    return q, t.extras(_standard_columns(t))
-
-
-def read_poses(path: str | Path, *, length_unit: str = "m", extras: bool = False):
-    """Read target poses ``x,y,z[,qw,qx,qy,qz]`` from a CSV/Parquet file: ``(T (N, 4, 4) m, has_orientation)``.
-
-    Joint and other columns are ignored (returned as a third item ``{name: (N,)}`` with
-    ``extras=True``). Without orientation columns the rotations are identity.
-    """
-    where = str(path)
-    _check_units(where, length_unit, "rad")
-    t = _open_table(path)
-    if "hykin.length_unit" in t.metadata:
-        _check_declared_units(t, length_unit, t.metadata.get("hykin.angle_unit", "rad"))
-    xyz, quat = _poses_of(t, length_unit, "x, y, z and optionally qw, qx, qy, qz")
-    if xyz.shape[0] == 0:
-        raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
-    validate_poses(xyz, quat, where=where, line_offset=t.line_offset)
-    if quat is None:
-        T = np.tile(np.eye(4), (len(xyz), 1, 1))
-        T[:, :3, 3] = xyz
-    else:
-        T = se3.pose_to_transform(xyz, quat)
-    if extras:
-        return T, quat is not None, t.extras(_standard_columns(t))
-    return T, quat is not None
-
-
-# --------------------------------------------------------------------------- writing
-
-
-def _columns_for_writing(ds: Dataset, length_unit: str, angle_unit: str, robot=None) -> dict[str, np.ndarray]:
-    L, A = LENGTH_UNITS[length_unit], ANGLE_UNITS[angle_unit]
-    rev = _revolute_mask(ds.dof, robot)
-    out: dict[str, np.ndarray] = {}
-    for j, c in enumerate(joint_columns(ds.dof)):
-        out[c] = ds.q[:, j] / (A if rev[j] else L)
-    for j, c in enumerate(POSITION_COLUMNS):
-        out[c] = ds.xyz_m[:, j] / L
-    if ds.quat_wxyz is not None:
-        for j, c in enumerate(QUAT_COLUMNS):
-            out[c] = ds.quat_wxyz[:, j]
-    from ..calibration.reflectors import reflector_columns
-
-    points = {n for names in reflector_columns(ds) for n in names}  # x2,y2,z2, ...: lengths like x,y,z
-    for k, v in ds.extra.items():
-        if k in out:
-            raise DatasetError(f"{ds.source or '<dataset>'}: extra column '{k}' clashes with a standard column", column=k)
-        out[k] = np.asarray(v, dtype=np.float64) / L if k in points else v
-    return out
-
-
-def write_dataset(ds: Dataset, path: str | Path, *, length_unit: str = "m", angle_unit: str = "rad", robot=None) -> None:
-    """Write ``ds`` to CSV or Parquet (by suffix): ``q1..qN, x, y, z[, qw, qx, qy, qz]`` + extras.
-
-    Values are converted to the declared units (extras as they are); CSV numbers use the shortest
-    repr that reads back to the same float64. ``robot`` marks prismatic joints (length unit).
-    """
-    where = str(path)
-    _check_units(where, length_unit, angle_unit)
-    cols = _columns_for_writing(ds, length_unit, angle_unit, robot)
-    suffix = Path(path).suffix.lower()
-    if suffix in (".parquet", ".pq"):
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-
-        table = pa.table({k: pa.array(np.asarray(v)) for k, v in cols.items()})
-        table = table.replace_schema_metadata(
-            {"hykin.length_unit": length_unit, "hykin.angle_unit": angle_unit, "hykin.source": ds.source})
-        pq.write_table(table, path)
-        return
-    if suffix not in (".csv", ".txt"):
-        raise DatasetError(f"{where}: unknown dataset file type {suffix!r}; expected .csv or .parquet", file=where)
-    names = list(cols)
-    try:
-        import pyarrow as pa
-        import pyarrow.csv as pacsv
-    except ImportError:  # optional dependency: fall back to Python's csv writer (same values, slower)
-        pa = None
-    if pa is not None and all(np.asarray(v).dtype.kind in "iuf" for v in cols.values()):
-        # Arrow's writer prints the shortest round-trip repr of each float64, 4-5x faster than Python.
-        table = pa.table({k: pa.array(np.asarray(v, dtype=np.float64)) for k, v in cols.items()})
-        with open(path, "wb") as fh:
-            fh.write((",".join(names) + "\n").encode("utf-8"))
-            pacsv.write_csv(table, fh, write_options=pacsv.WriteOptions(include_header=False, quoting_style="none"))
-        return
-    text_cols = []
-    for v in cols.values():
-        v = np.asarray(v)
-        text_cols.append(list(map(repr, v.astype(np.float64).tolist())) if v.dtype.kind in "iuf" else list(map(str, v.tolist())))
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh, lineterminator="\n")
-        w.writerow(names)
-        w.writerows(zip(*text_cols))
 
 
 # --------------------------------------------------------------------------- splits and hashing

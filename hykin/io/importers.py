@@ -1,4 +1,4 @@
-"""Importers of real measured datasets into standard :class:`~hykin.dataset.Dataset` s, the nominal
+"""Importers of real measured datasets into standard :class:`~hykin.io.dataset.Dataset` s, the nominal
 robot models they go with, rigid registration of tracker-frame poses, and three-SMR pose import.
 
 Real data (read in place, never copied; see ``shared/data/README.md``):
@@ -20,15 +20,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..kinematics import se3
-from .dataset import (
-    Dataset,
-    DatasetError,
-    _check_units,
-    _to_float_column,
-    _try_float_column,
-    read_csv_table,
-    validate,
-)
+from .dataset import Dataset, DatasetError, check_units, validate
+from .text_table import float_column, lenient_column, read_delimited
 
 __all__ = [
     "IPA_BASE_LINK_FROM_DH",
@@ -60,7 +53,7 @@ def register_rigid(
     ``T_meas``: ``(N, 4, 4)`` measured poses in the measurement (tracker) frame, m.
     ``T_base`` maps robot base -> measurement frame; ``T_tool`` maps model TCP -> measured TCP.
 
-    Delegates to :func:`hykin.register.fit_frames` (initial guess by Kabsch, rotation mean and
+    Delegates to :func:`hykin.measure.register.fit_frames` (initial guess by Kabsch, rotation mean and
     linear least squares for the translations, then non-linear least squares on the position error
     (m) and, with ``use_orientation``, ``rot_weight_m_per_rad × log(R_meas R̂ᵀ)``), so any tool rotation
     (e.g. 180°) converges. Position-only data (``use_orientation=False``) fit the base and the tool
@@ -94,21 +87,6 @@ UR5_XT_D5_M = 0.09456
 _UR5_COLUMNS = ["x_t", "y_t", "z_t", "x_dif", "y_dif", "z_dif"] + [f"joint_{i}" for i in range(1, 7)]
 
 
-def _ur5_preset():
-    from ..kinematics.robot import Robot, RobotFileError, load_robot
-
-    try:
-        return load_robot("ur5")
-    except RobotFileError:  # pragma: no cover - preset missing: DESIGN.md §2 table
-        pi = math.pi
-        return Robot(
-            name="ur5", convention="dh",
-            a_m=[0, -0.425, -0.39225, 0, 0, 0], d_m=[0.089159, 0, 0, 0.10915, 0.09465, 0.0823],
-            alpha_rad=[pi / 2, 0, 0, pi / 2, -pi / 2, 0], theta_rad=np.zeros(6),
-            lower=np.full(6, -2 * pi), upper=np.full(6, 2 * pi),
-        )
-
-
 def ur5_robot_for_dataset(match_xt: bool = True):
     """The UR5 nominal model of the serial-robots-ur5 data: ``ur5`` preset, TCP 31 mm along tool z.
 
@@ -118,7 +96,9 @@ def ur5_robot_for_dataset(match_xt: bool = True):
     this model). ``match_xt=False`` keeps the data-sheet ``d5 = 0.09465 m`` (0.09 mm off ``x_t``).
     Base is identity (``x_t`` is in the robot base frame).
     """
-    r = _ur5_preset()
+    from .robot_file import load_robot
+
+    r = load_robot("ur5")
     d = r.d_m.copy()
     if match_xt:
         d[4] = UR5_XT_D5_M
@@ -147,13 +127,14 @@ def import_ur5(path: str | Path) -> Dataset:
     such files go through ``hykin import table``.
     """
     where = str(path)
-    header, cols = read_csv_table(path, delimiter=",")
+    t = read_delimited(path, delimiter=",", layout_hint="is that the file's delimiter?")
+    header = t.header
     missing = [c for c in _UR5_COLUMNS if c not in header]
     if missing:
         raise DatasetError(f"{where}: not a serial-robots-ur5 file: missing column(s) {', '.join(missing)} "
                            f"(expected {', '.join(_UR5_COLUMNS)})", file=where, column=missing[0])
     _refuse_unknown_columns(where, header, set(_UR5_COLUMNS) | {"step_order"}, "serial-robots-ur5", 6)
-    num = {c: _to_float_column(where, c, cols[c]) for c in _UR5_COLUMNS}
+    num = {c: float_column(t, c, finite=False) for c in _UR5_COLUMNS}
     if num["x_t"].size == 0:
         raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
     q = np.radians(np.stack([num[f"joint_{i}"] for i in range(1, 7)], axis=1))
@@ -161,7 +142,7 @@ def import_ur5(path: str | Path) -> Dataset:
     xyz = (xt + np.stack([num["x_dif"], num["y_dif"], num["z_dif"]], axis=1)) * 1e-3
     extra = {"x_t_m": xt[:, 0] * 1e-3, "y_t_m": xt[:, 1] * 1e-3, "z_t_m": xt[:, 2] * 1e-3}
     if "step_order" in header:
-        extra["step_order"] = _try_float_column(cols["step_order"])
+        extra["step_order"] = lenient_column(t.col("step_order"))
     ds = Dataset(q=q, xyz_m=xyz, quat_wxyz=None, extra=extra, source=where,
                  meta={"frame": "robot base", "dataset": "serial-robots-ur5", "robot": "ur5"})
     validate(ds, where=where, angle_unit="deg")
@@ -188,20 +169,9 @@ def ipa_nominal_robot():
     (:data:`IPA_BASE_LINK_FROM_DH`): ``Goal = Rz(π) · fk(ipa_nominal_robot(), q)`` (median 0.09 mm).
     Measurements are in the laser-tracker frame; bring them to the base with :func:`register_rigid`.
     """
-    from ..kinematics.robot import RobotFileError, load_robot
+    from .robot_file import load_robot
 
-    try:
-        r = load_robot("ur10")
-    except RobotFileError:  # pragma: no cover - preset missing: DESIGN.md §2 table
-        from ..kinematics.robot import Robot
-
-        pi = math.pi
-        r = Robot(
-            name="ur10", convention="dh",
-            a_m=[0, -0.612, -0.5723, 0, 0, 0], d_m=[0.1273, 0, 0, 0.163941, 0.1157, 0.0922],
-            alpha_rad=[pi / 2, 0, 0, pi / 2, -pi / 2, 0], theta_rad=np.zeros(6),
-            lower=np.full(6, -2 * pi), upper=np.full(6, 2 * pi),
-        )
+    r = load_robot("ur10")
     return r.copy(tool=IPA_TCP_FROM_FLANGE.copy(), name="ur10-ipa")
 
 
@@ -264,7 +234,8 @@ def import_ipa_series(
     """
     path = _ipa_file(series)
     where = str(path)
-    header, cols = read_csv_table(path, delimiter=";")
+    t = read_delimited(path, delimiter=";", decimal=",", layout_hint="is that the file's delimiter?")
+    header = t.header
     need = _IPA_GOAL + _IPA_JOINTS + _IPA_MEAS + ["measurement_temperature"]
     missing = [c for c in need if c not in header]
     if missing:
@@ -272,7 +243,7 @@ def import_ipa_series(
                            file=where, column=missing[0])
     known = set(need) | {"Timestamp"} | {f"measurement_std_{c}" for c in ("x", "y", "z", "rx", "ry", "rz")}
     _refuse_unknown_columns(where, header, known, "ipa-robot-accuracy", 6)
-    num = {c: _to_float_column(where, c, cols[c], decimal=",") for c in need}
+    num = {c: float_column(t, c, decimal=",", finite=False) for c in need}
     if num[need[0]].size == 0:
         raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
     q = np.stack([num[c] for c in _IPA_JOINTS], axis=1)
@@ -294,13 +265,13 @@ def import_ipa_series(
         "temperature_c": num["measurement_temperature"],
     }
     if "Timestamp" in header:
-        raw = cols["Timestamp"]
+        raw = t.col("Timestamp")
         extra["timestamp_s"] = _ipa_timestamps(raw)
         extra["timestamp_raw"] = np.asarray(raw, dtype=str)
     for c, unit in (("x", "mm"), ("y", "mm"), ("z", "mm"), ("rx", "deg"), ("ry", "deg"), ("rz", "deg")):
         col = f"measurement_std_{c}"
         if col in header:
-            extra[f"std_{c}_{unit}"] = _to_float_column(where, col, cols[col], decimal=",")
+            extra[f"std_{c}_{unit}"] = float_column(t, col, decimal=",", finite=False)
     ds = Dataset(q=q, xyz_m=p_m, quat_wxyz=quat, extra=extra, source=where,
                  meta={"frame": "tracker", "dataset": "ipa-robot-accuracy", "robot": "ur10",
                        "series": path.parent.name})
@@ -340,19 +311,19 @@ def import_three_smr(
 
     ``nest``: ``(3, 3)`` known positions of SMR 1..3 in the tool (TCP) frame, **in metres**. Each
     row's full pose is the Kabsch fit of the nest onto the three measured points
-    (:func:`hykin.referencing.pose_from_three_points`). A row whose fit RMS exceeds
+    (:func:`hykin.measure.referencing.pose_from_three_points`). A row whose fit RMS exceeds
     ``max_fit_rms_m`` (wrong nest, swapped reflectors, a bad measurement) is an error naming the
     row; swapped reflectors are only detectable when the nest's three sides differ in length. Extras: ``smr_fit_rms_m`` plus every other column as read.
 
-    Other layouts (column names, delimiters, units): :func:`hykin.table_import.import_table` with a
-    :class:`~hykin.table_map.TableMap` holding ``position``, two ``points`` and ``nest``
+    Other layouts (column names, delimiters, units): :func:`hykin.io.table_import.import_table` with a
+    :class:`~hykin.io.table_map.TableMap` holding ``position``, two ``points`` and ``nest``
     (``hykin import three-smr``).
     """
     from .table_import import import_table
     from .table_map import TableMap
 
     where = str(path)
-    _check_units(where, length_unit, angle_unit)
+    check_units(where, length_unit, angle_unit)
     nest = np.asarray(nest, dtype=np.float64)
     if nest.shape != (3, 3) or not np.isfinite(nest).all():
         raise DatasetError(f"{where}: nest must be a finite (3, 3) array (rows = SMRs, m), got shape {nest.shape}", file=where)

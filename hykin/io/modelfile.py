@@ -22,12 +22,16 @@ itself lives in :mod:`hykin.hybrid`.
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
-import numpy as np
-
 from ..kinematics.robot import Robot
+from .robot_codec import (
+    REQUIRED_FIELDS,
+    ROBOT_ARRAYS,
+    RobotDictError,
+    robot_from_json,
+    robot_to_json,
+)
 
 __all__ = [
     "FORMAT",
@@ -72,47 +76,20 @@ def content_hash(tensors: dict, md: dict) -> str:
     return h.hexdigest()
 
 
-_ARRAYS = (
-    "a_m", "alpha_rad", "d_m", "theta_rad", "beta_rad", "lower", "upper", "origin_xyz_m", "origin_rpy_rad",
-    "axis", "mass_kg", "com_m", "stiffness_nm_per_rad", "base", "tool", "gravity_base",
-)
-
-
-def _enc(x):
-    """JSON-safe nested lists; inf stays representable as the string "inf"."""
-    a = np.asarray(x, dtype=np.float64)
-    if a.ndim == 0:
-        v = float(a)
-        return v if math.isfinite(v) else ("inf" if v > 0 else "-inf")
-    return [_enc(v) for v in a]
-
-
-def _dec(x):
-    if isinstance(x, list):
-        return [_dec(v) for v in x]
-    if isinstance(x, str):
-        return float(x)
-    return x
-
-
 def robot_to_dict(robot: Robot) -> dict:
-    """Every field of a :class:`Robot` (any convention, URDF included) as JSON-safe data, SI units.
+    """Every field of a :class:`Robot` (any convention, URDF included) as JSON-safe data, SI units,
+    as model files store it (``inf`` as the string ``"inf"``; :func:`hykin.io.robot_codec.robot_to_json`).
     Exact: floats round-trip through JSON (repr) without loss."""
-    d = {"name": robot.name, "convention": robot.convention, "joint_type": list(robot.joint_type),
-         "payload_kg": float(robot.payload_kg), "source": robot.source}
-    for k in _ARRAYS:
-        d[k] = _enc(getattr(robot, k))
-    return d
+    return robot_to_json(robot, inf_as="string")
 
 
 def robot_from_json_dict(d: dict, where: str = "model file") -> Robot:
-    """Inverse of :func:`robot_to_dict`."""
+    """Inverse of :func:`robot_to_dict`; every field must be present (:class:`ModelFileError` otherwise)."""
     try:
-        kw = {k: np.array(_dec(d[k]), dtype=np.float64) for k in _ARRAYS}
-        return Robot(name=d["name"], convention=d["convention"], joint_type=tuple(d["joint_type"]),
-                     payload_kg=float(d["payload_kg"]), source=d.get("source", ""), **kw)
-    except (KeyError, TypeError, ValueError) as e:
-        raise ModelFileError(f"{where}: robot entry is malformed ({type(e).__name__}: {e})") from None
+        return robot_from_json(d, required=REQUIRED_FIELDS + ROBOT_ARRAYS + ("joint_type", "payload_kg"))
+    except ValueError as e:  # RobotDictError (missing field, bad type) or RobotFileError
+        why = str(e) if isinstance(e, RobotDictError) else f"{type(e).__name__}: {e}"
+        raise ModelFileError(f"{where}: robot entry is malformed ({why})") from None
 
 
 def write_model_file(path: str | Path, tensors: dict, meta: dict) -> None:

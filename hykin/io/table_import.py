@@ -1,12 +1,12 @@
 """Any tracker/robot table into the standard dataset (``hykin import table``, DESIGN.md §3-4).
 
-:func:`read_text_table` reads a delimited text file as laid out by a :class:`~hykin.table_map.TableMap`
+:func:`read_text_table` reads a delimited text file as laid out by a :class:`~hykin.io.table_map.TableMap`
 (delimiter, decimal comma, metadata lines, comments, dropped and filtered rows), keeping the file line
 of every data row. :func:`read_mapped` turns the mapped columns into SI arrays (joints rad/m, positions
 m, orientation as unit quaternions, further reflectors, time s); :func:`import_table` makes the
-:class:`~hykin.dataset.Dataset` (with a ``nest``: the full pose from three reflectors).
+:class:`~hykin.io.dataset.Dataset` (with a ``nest``: the full pose from three reflectors).
 
-Every error is a :class:`~hykin.dataset.DatasetError` naming the file, the data row with its line in
+Every error is a :class:`~hykin.io.dataset.DatasetError` naming the file, the data row with its line in
 the file, the column and the likely cause (missing column with did-you-mean, non-numeric or empty
 cell, decimal comma, NaN, joint count, values that look like another unit, a further joint column the
 mapping leaves out).
@@ -14,7 +14,6 @@ mapping leaves out).
 
 from __future__ import annotations
 
-import csv
 import math
 import re
 from dataclasses import dataclass, field
@@ -36,67 +35,23 @@ from .table_map import (
     load_table_map,
     table_map_from_dict,
 )
+from .text_table import (
+    TextTable,
+    detect_delimiter,
+    float_column,
+    lenient_column,
+    read_delimited,
+    read_lines,
+    split_lines,
+    with_file_line,
+)
 
-__all__ = ["MappedTable", "TextTable", "import_table", "numeric_column", "read_mapped", "read_text_table"]
+__all__ = ["MappedTable", "guess_layout", "import_table", "read_mapped", "read_text_table"]
 
 RAD_LOOKS_LIKE_DEG = 2 * math.pi * 1.2  # |angle| above this, declared rad: degrees
 M_LOOKS_LIKE_MM = 50.0  # |coordinate| above this, declared m: millimetres
 MM_LOOKS_LIKE_M = 5.0  # every point within this of the origin, declared mm: metres
 QUAT_NORM_TOL = 1e-3
-
-
-@dataclass
-class TextTable:
-    """A delimited text table: ``header``, ``rows`` (cells as text), ``lines`` ``(N,)`` 1-based file
-    line of each row, the ``delimiter`` used and the file name ``where``."""
-
-    where: str
-    header: list[str]
-    rows: list[list[str]]
-    lines: np.ndarray
-    delimiter: str
-
-    def col(self, name: str) -> list[str]:
-        i = self.header.index(name)
-        return [r[i] for r in self.rows]
-
-    def error(self, row: int | None, column: str | None, msg: str) -> DatasetError:
-        """DatasetError '<file>, row r (line L of the file), column 'c': msg' (``row`` 0-based)."""
-        parts = [self.where]
-        if row is not None:
-            parts.append(f"row {row + 1} (line {int(self.lines[row])} of the file)")
-        if column is not None:
-            parts.append(f"column '{column}'")
-        return DatasetError(", ".join(parts) + ": " + msg, file=self.where,
-                            row=None if row is None else row + 1, column=column)
-
-
-def _read_lines(path: Path, encoding: str | None, where: str) -> list[str]:
-    if not path.is_file():
-        raise DatasetError(f"{where}: file not found", file=where)
-    raw = path.read_bytes()
-    try:
-        text = raw.decode(encoding or "utf-8-sig")
-    except UnicodeDecodeError:
-        if encoding:
-            raise DatasetError(f"{where}: cannot be decoded as {encoding}", file=where) from None
-        text = raw.decode("cp1252", errors="replace")  # Windows tracker software: '°', 'µ' in headers
-    return text.splitlines()
-
-
-def _detect_delimiter(header_line: str, decimal: str) -> str:
-    for d in ("\t", ";", "|"):
-        if d in header_line:
-            return d
-    if "," in header_line and decimal != ",":
-        return ","
-    return " "
-
-
-def _split(lines: list[str], delimiter: str) -> list[list[str]]:
-    if delimiter == " ":
-        return [ln.split() for ln in lines]
-    return [[c.strip() for c in row] for row in csv.reader(lines, delimiter=delimiter)]
 
 
 _COND = re.compile(r"^\s*(.+?)\s*(==|!=|<=|>=|<|>)\s*(.*?)\s*$")
@@ -137,66 +92,35 @@ def _num_or_nan(c: str, decimal: str) -> float:
 
 
 def read_text_table(path: str | Path, m: TableMap | None = None) -> TextTable:
-    """Read ``path`` as laid out by ``m`` (see :class:`~hykin.table_map.TableMap`): header, rows, lines.
+    """Read ``path`` as laid out by ``m`` (see :class:`~hykin.io.table_map.TableMap`): header, rows, lines
+    (:func:`hykin.io.text_table.read_delimited`), then ``m.where`` filters; no data rows is an error.
 
     Blank lines and ``comment`` lines are skipped anywhere; a trailing delimiter on every line is
     tolerated; a row with another number of cells than the header is an error naming its line.
     """
     m = m or TableMap()
-    where = str(path)
-    text = _read_lines(Path(path), m.encoding, where)
-    numbered = [(i + 1, ln) for i, ln in enumerate(text)]
     skip = m.skip_rows if m.header_row is None else max(m.header_row - 1, 0)
-    numbered = [(i, ln) for i, ln in numbered[skip:]
-                if ln.strip() and not (m.comment and ln.lstrip().startswith(m.comment))]
-    if not numbered:
-        raise DatasetError(f"{where}: no lines left after skipping {skip} line(s), blank and comment lines", file=where)
-    no_header = m.header_row == 0
-    delim = m.delimiter or _detect_delimiter(numbered[0][1], m.decimal)
-    if no_header:
-        width = len(_split([numbered[0][1]], delim)[0])
-        header, body = [str(k + 1) for k in range(width)], numbered
-    else:
-        header, body = _split([numbered[0][1]], delim)[0], numbered[1:]
-    drop = set(m.drop_rows)
-    body = [(i, ln) for i, ln in body if i not in drop]
-    cells = _split([ln for _, ln in body], delim)
-    while header and header[-1] == "" and all(len(r) == len(header) and r[-1] == "" for r in cells):
-        header, cells = header[:-1], [r[:-1] for r in cells]  # every line ends with the delimiter
-    seen = set()
-    for h in header:
-        if h == "":
-            raise DatasetError(f"{where}, line {numbered[0][0]}: the header has an empty column name", file=where)
-        if h in seen:
-            raise DatasetError(f"{where}, column '{h}': appears twice in the header", file=where, column=h)
-        seen.add(h)
-    t = TextTable(where, header, cells, np.array([i for i, _ in body], dtype=np.int64), delim)
-    for r, row in enumerate(cells):
-        if len(row) > len(header) and not any(row[len(header):]):
-            cells[r] = row[:len(header)]  # trailing delimiter(s) on this line only
-        elif len(row) != len(header):
-            name = {",": "','", ";": "';'", "\t": "tab", " ": "whitespace", "|": "'|'"}[delim]
-            raise t.error(r, None, f"has {len(row)} cells, the header has {len(header)} (delimiter: {name}; "
-                          "declare delimiter, skip_rows or comment if this is not the layout)")
+    t = read_delimited(path, delimiter=m.delimiter, decimal=m.decimal, skip_rows=skip, header=m.header_row != 0,
+                       comment=m.comment, drop_lines=m.drop_rows, encoding=m.encoding)
     if m.where:
         _filter_rows(t, m.where, m.decimal)
     if not t.rows:
-        raise DatasetError(f"{where}: no data rows" + (" left after the where filters" if m.where else " under the header"),
-                           file=where)
+        raise DatasetError(f"{t.where}: no data rows" + (" left after the where filters" if m.where else " under the header"),
+                           file=t.where)
     return t
 
 
 def guess_layout(path: str | Path, m: TableMap | None = None) -> dict:
     """Guess ``skip_rows`` (metadata lines above the header), the delimiter and a decimal comma, for
-    :func:`~hykin.table_map.suggest_map` only (the user confirms them in the mapping)."""
+    :func:`~hykin.io.table_map.suggest_map` only (the user confirms them in the mapping)."""
     m = m or TableMap()
     where = str(path)
-    text = _read_lines(Path(path), m.encoding, where)
+    text = read_lines(Path(path), m.encoding, where)
     numbered = [(i, ln) for i, ln in enumerate(text) if ln.strip() and not (m.comment and ln.lstrip().startswith(m.comment))]
     for k, (i, ln) in enumerate(numbered[:30]):
-        delim = m.delimiter or _detect_delimiter(ln, m.decimal)
-        width = len(_split([ln], delim)[0])
-        nxt = _split([x for _, x in numbered[k + 1:k + 21]], delim)
+        delim = m.delimiter or detect_delimiter(ln, m.decimal)
+        width = len(split_lines([ln], delim)[0])
+        nxt = split_lines([x for _, x in numbered[k + 1:k + 21]], delim)
         if width > 1 and nxt and all(len(r) == width or (len(r) == width + 1 and not r[-1]) for r in nxt):
             out = {"skip_rows": i, "delimiter": delim}
             cells = [c for r in nxt for c in r]
@@ -204,42 +128,6 @@ def guess_layout(path: str | Path, m: TableMap | None = None) -> dict:
                 out["decimal"] = ","
             return out
     return {}
-
-
-def numeric_column(t: TextTable, name: str, decimal: str = ".", allow_missing: bool = False) -> np.ndarray:
-    """Column ``name`` as float64 ``(N,)``. Empty, non-numeric and non-finite cells are errors naming
-    the row, line and likely cause; with ``allow_missing`` empty/NaN cells become NaN (lost beam)."""
-    cells = t.col(name)
-    conv = [c.replace(decimal, ".") for c in cells] if decimal != "." else cells
-    if allow_missing:
-        conv = [c if c.strip() else "nan" for c in conv]
-    try:
-        arr = np.asarray(conv, dtype=np.float64)
-    except ValueError:
-        arr = None
-    if arr is None:
-        for r, c in enumerate(conv):
-            try:
-                float(c)
-            except ValueError:
-                raw = cells[r]
-                if not raw.strip():
-                    cause = "the cell is empty"
-                elif decimal == "." and re.fullmatch(r"[+-]?\d*,\d+([eE][+-]?\d+)?", raw):
-                    cause = f"{raw!r} looks like a decimal comma: declare decimal = \",\" (--decimal ,)"
-                elif decimal == "," and re.fullmatch(r"[+-]?\d*\.\d+([eE][+-]?\d+)?", raw):
-                    cause = f"{raw!r} has a decimal point but decimal = \",\" was declared"
-                else:
-                    cause = f"{raw!r} is not a number"
-                    if r == 0 and re.search(r"[A-Za-z°µ\[\]]", raw):
-                        cause += f" (a units line under the header? drop it with drop_rows = [{int(t.lines[0])}])"
-                raise t.error(r, name, cause)
-    if not allow_missing:
-        bad = ~np.isfinite(arr)
-        if bad.any():
-            r = int(np.argmax(bad))
-            raise t.error(r, name, f"value {cells[r]!r} is not finite (NaN or inf); every mapped cell must be a number")
-    return arr
 
 
 @dataclass
@@ -261,7 +149,7 @@ class MappedTable:
 
 
 def _stack(t: TextTable, names: list[str], decimal: str, allow_missing: bool = False) -> np.ndarray:
-    return np.stack([numeric_column(t, c, decimal, allow_missing) for c in names], axis=1)
+    return np.stack([float_column(t, c, decimal, allow_missing=allow_missing) for c in names], axis=1)
 
 
 def _require(t: TextTable, names: list[str], role: str) -> None:
@@ -385,14 +273,14 @@ def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool 
     time_s = _time_column(t, m) if m.time else None
     extra: dict[str, np.ndarray] = {}
     if m.temperature:
-        tc = numeric_column(t, m.temperature, d)
+        tc = float_column(t, m.temperature, d)
         extra["temperature_c"] = {"C": tc, "K": tc - 273.15, "F": (tc - 32.0) * 5.0 / 9.0}[m.temperature_unit]
     if m.payload:
-        extra["payload_kg"] = numeric_column(t, m.payload, d)
+        extra["payload_kg"] = float_column(t, m.payload, d)
     if keep_all:
         keep.update({c: c for c in t.header if c not in used})
     for c, new in keep.items():
-        extra[new] = _lenient(t.col(c), d)
+        extra[new] = lenient_column(t.col(c), d)
     return MappedTable(t, q, jn, xyz, quat, P, time_s, extra)
 
 
@@ -410,7 +298,7 @@ def _time_column(t: TextTable, m: TableMap) -> np.ndarray:
                 raise t.error(r, m.time, f"{c!r} does not match time_format {m.time_format!r}") from None
         return out
     try:
-        return numeric_column(t, m.time, m.decimal) * TIME_UNITS_S[m.time_unit]
+        return float_column(t, m.time, m.decimal) * TIME_UNITS_S[m.time_unit]
     except DatasetError as e:
         cells = [c.replace(" ", "T", 1) for c in t.col(m.time)]
         try:
@@ -420,14 +308,6 @@ def _time_column(t: TextTable, m: TableMap) -> np.ndarray:
         if np.isnat(stamps).any():
             raise t.error(int(np.argmax(np.isnat(stamps))), m.time, "empty time stamp") from None
         return (stamps - np.datetime64(0, "ns")).astype(np.int64) * 1e-9
-
-
-def _lenient(cells: list[str], decimal: str) -> np.ndarray:
-    conv = [c.replace(decimal, ".") for c in cells] if decimal != "." else cells
-    try:
-        return np.asarray(conv, dtype=np.float64)
-    except ValueError:
-        return np.asarray(cells, dtype=str)
 
 
 def _orientation(t: TextTable, m: TableMap, cols: list[str], ang_raw, allow_missing: bool) -> np.ndarray | None:
@@ -477,7 +357,7 @@ def _nest_pose(mt: MappedTable, m: TableMap) -> tuple[np.ndarray, np.ndarray]:
 
 
 def import_table(path: str | Path, m: TableMap | dict | str | Path, robot=None, *, dof: int | None = None) -> Dataset:
-    """Import any table into a :class:`~hykin.dataset.Dataset` (SI) with mapping ``m``.
+    """Import any table into a :class:`~hykin.io.dataset.Dataset` (SI) with mapping ``m``.
 
     Output columns: ``q1..qN`` (the mapped joints in order), ``x,y,z`` (position), ``qw..qz`` (from
     the quaternion, Euler angles or rotation vector, if mapped), ``x2,y2,z2, ...`` (further points),
@@ -518,8 +398,7 @@ def import_table(path: str | Path, m: TableMap | dict | str | Path, robot=None, 
     except DatasetError as e:
         if e.row is None:
             raise
-        line = int(t.lines[e.row - 1])
-        msg = str(e).replace(f"row {e.row}", f"row {e.row} (line {line} of the file)", 1)
+        msg = str(with_file_line(e, t.lines))
         jm = re.fullmatch(r"q(\d+)", e.column or "")
         if jm and int(jm.group(1)) <= len(mt.joint_columns):
             msg = msg.replace(f"column '{e.column}'", f"column '{mt.joint_columns[int(jm.group(1)) - 1]}'", 1)

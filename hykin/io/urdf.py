@@ -1,7 +1,7 @@
 """URDF robots: load a serial chain from a URDF file, and export any :class:`Robot` as URDF.
 
 * :func:`load_urdf` reads a URDF (standard library XML parser, no ROS needed) and returns a
-  :class:`~hykin.robot.Robot` with ``convention="urdf"``. The chain runs from ``base_link`` (default:
+  :class:`~hykin.kinematics.robot.Robot` with ``convention="urdf"``. The chain runs from ``base_link`` (default:
   the root link) to ``tip_link`` (default: the leaf at the end of the chain with the most movable
   joints). Revolute, continuous and prismatic joints become robot joints; fixed joints are folded into
   the next movable joint's origin, or into ``tool`` after the last movable joint. Link frame i is the
@@ -13,7 +13,7 @@
   (child link ``joint_i_frame``, z = joint axis) followed by a fixed joint to ``link_i`` (hykin link
   frame i, which carries the link's mass and centre of mass). Used to cross-check with Pinocchio.
 
-Units: URDF is SI (m, rad, kg). Errors are :class:`~hykin.robot.RobotFileError` naming the file and
+Units: URDF is SI (m, rad, kg). Errors are :class:`~hykin.kinematics.robot.RobotFileError` naming the file and
 the element.
 """
 

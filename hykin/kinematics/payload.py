@@ -274,13 +274,13 @@ def payload_virtual_robot(seed: int = 0):
     off by 3 % / 5 mm, periodic transmission errors (orders 1-3 on joints 1-3, 1-2 on 4-6) and
     tracker noise 10 µm / 50 µrad. Simulate it at several payloads: ``hykin simulate
     kr-payload-virtual --payloads 0,12``."""
+    from ..io.robot_file import load_robot
     from ..sim.simulate import (
         PeriodicError,
         VirtualRobot,
         geometric_deviation,
         mass_deviation,
     )
-    from .robot import load_robot
 
     nominal = load_robot("kr-payload")
     rng = np.random.default_rng([seed, 120, 1])

@@ -54,15 +54,17 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from ..io.robot_codec import robot_from_json, robot_to_json
+from ..io.robot_file import load_robot
 from ..kinematics import se3
 from ..kinematics.compliance import deflected_joints
 from ..kinematics.fk import fk
-from ..kinematics.robot import Robot, load_robot
+from ..kinematics.robot import Robot
 
 __all__ = [
     "PeriodicError",
@@ -415,39 +417,11 @@ def virtual_preset(name: str, seed: int = 0) -> VirtualRobot:
 
 # --------------------------------------------------------------------------- truth files
 
-_ROBOT_ARRAYS = ("a_m", "alpha_rad", "d_m", "theta_rad", "beta_rad", "lower", "upper", "origin_xyz_m",
-                 "origin_rpy_rad", "axis", "mass_kg", "com_m", "stiffness_nm_per_rad", "base", "tool", "gravity_base")
-
-
-def _robot_to_dict(r: Robot) -> dict:
-    d = {"name": r.name, "convention": r.convention, "joint_type": list(r.joint_type)}
-    for k in _ROBOT_ARRAYS:
-        v = np.asarray(getattr(r, k), dtype=np.float64)
-        if k == "stiffness_nm_per_rad":
-            d[k] = [None if np.isinf(x) else float(x) for x in v]  # null = rigid
-        else:
-            d[k] = v.tolist()
-    d["payload_kg"] = r.payload_kg
-    d["source"] = r.source
-    return d
-
-
-def _robot_from_dict(d: dict, where: str) -> Robot:
-    if not isinstance(d, dict):
-        raise SimulationError(f"{where}: expected an object")
-    kw = {}
-    for f in fields(Robot):
-        if f.name not in d:
-            if f.name in ("name", "convention", "a_m", "alpha_rad", "d_m", "theta_rad", "lower", "upper"):
-                raise SimulationError(f"{where}: missing field '{f.name}'")
-            continue
-        v = d[f.name]
-        if f.name == "stiffness_nm_per_rad":
-            v = [math.inf if x is None else x for x in v]
-        kw[f.name] = v
+def _robot_from_truth(d, where: str) -> Robot:
+    """A robot entry of a truth file (:func:`hykin.io.robot_codec.robot_from_json`; null = rigid)."""
     try:
-        return Robot(**kw)
-    except (TypeError, ValueError) as e:
+        return robot_from_json(d)
+    except ValueError as e:  # RobotDictError (missing field, bad type) or RobotFileError
         raise SimulationError(f"{where}: {e}") from None
 
 
@@ -477,8 +451,8 @@ def save_truth(vr: VirtualRobot, path) -> Path:
         "transmission": [vars(p).copy() for p in vr.transmission],
         "thermal": None if vr.thermal is None else vars(vr.thermal).copy(),
         "deviations": _deviations(vr),
-        "nominal": _robot_to_dict(vr.nominal),
-        "truth": _robot_to_dict(vr.truth),
+        "nominal": robot_to_json(vr.nominal, inf_as="null"),
+        "truth": robot_to_json(vr.truth, inf_as="null"),
     }
     path = Path(path)
     path.write_text(json.dumps(doc, indent=1), encoding="utf-8")
@@ -504,8 +478,8 @@ def load_truth(path) -> VirtualRobot:
     noise = doc.get("noise", {})
     return VirtualRobot(
         name=str(doc.get("name", path.stem)),
-        nominal=_robot_from_dict(doc.get("nominal"), f"{path}: nominal"),
-        truth=_robot_from_dict(doc.get("truth"), f"{path}: truth"),
+        nominal=_robot_from_truth(doc.get("nominal"), f"{path}: nominal"),
+        truth=_robot_from_truth(doc.get("truth"), f"{path}: truth"),
         transmission=trans,
         thermal=thermal,
         noise_position_m=float(noise.get("position_m", 0.0)),
@@ -534,7 +508,8 @@ def simulate_to_file(preset, n: int, out_path, plan: str = "uniform", seed: int 
     ``payloads``: payload masses (kg) to draw the data at (row ``i`` carries ``payloads[i % k]``,
     at the TCP), kept as column ``payload_kg``; default: the preset's payload, no column.
     """
-    from ..io.dataset import concat, write_dataset
+    from ..io.dataset import concat
+    from ..io.dataset_files import write_dataset
     from .sampling import iso_cube, sample
 
     if isinstance(preset, VirtualRobot):

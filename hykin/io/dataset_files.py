@@ -1,0 +1,353 @@
+"""Dataset files: read and write CSV (also ``.txt``/``.tsv``) and Parquet datasets (DESIGN.md §3).
+
+File format: one row per measured pose, header required, columns ``q1..qN`` (joints), ``x,y,z``
+(measured TCP position) and optionally ``qw,qx,qy,qz`` (unit quaternion, scalar first); every other
+column is kept in :attr:`~hykin.io.dataset.Dataset.extra`. Units are **declared**, never guessed
+(``length_unit``, ``angle_unit``; see :mod:`hykin.io.dataset`); Parquet files written by hykin
+record them and a different declaration is refused.
+
+Text files are read by :func:`hykin.io.text_table.read_delimited` and written by
+:func:`hykin.io.csv_writer.write_csv`. Errors are :class:`~hykin.io.dataset.DatasetError` naming the
+file, the data row (with its line in the file) and the column.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..kinematics import se3
+from .csv_writer import DATASET_STYLE, write_csv
+from .dataset import (
+    ANGLE_UNITS,
+    LENGTH_UNITS,
+    POSITION_COLUMNS,
+    QUAT_COLUMNS,
+    Dataset,
+    DatasetError,
+    check_finite,
+    check_units,
+    joint_columns,
+    revolute_mask,
+    row_error,
+    validate,
+    validate_joints,
+    validate_poses,
+)
+from .text_table import float_column, lenient_column, read_delimited, with_file_line
+
+__all__ = ["read_dataset", "read_joints", "read_poses", "write_dataset"]
+
+
+def _dof_from_header(where: str, header: Sequence[str], robot, dof: int | None) -> int:
+    present = {h for h in header}
+    k = 0
+    while f"q{k + 1}" in present:
+        k += 1
+    want = robot.dof if robot is not None else dof
+    if want is None:
+        if k == 0:
+            raise DatasetError(
+                f"{where}: no joint columns; expected q1..qN, x, y, z and optionally qw, qx, qy, qz "
+                f"(found: {', '.join(header)})", file=where)
+        return k
+    if robot is not None and dof is not None and dof != robot.dof:
+        raise DatasetError(f"{where}: dof={dof} given but robot {robot.name!r} has {robot.dof} joints", file=where)
+    missing = [c for c in joint_columns(want) if c not in present]
+    if missing:
+        raise DatasetError(
+            f"{where}: missing column(s) {', '.join(missing)}; expected {', '.join(joint_columns(want))}, x, y, z "
+            f"and optionally qw, qx, qy, qz (found: {', '.join(header)})", file=where, column=missing[0])
+    if f"q{want + 1}" in present:
+        raise DatasetError(
+            f"{where}: the file has joint columns q1..q{k} but the robot{'' if robot is None else ' ' + repr(robot.name)} "
+            f"has {want} joints", file=where, column=f"q{want + 1}")
+    return want
+
+
+
+@dataclass
+class _Table:
+    """A read table: header, a strict numeric accessor (errors name row/column) and a lenient one.
+
+    ``line_offset``: file line minus data row when constant (else None); ``lines``: ``(N,)`` file
+    line of each row for text files (None for Parquet)."""
+
+    where: str
+    header: list[str]
+    numeric: object  # (name) -> float64 (N,), raising DatasetError on a bad cell
+    lenient: object  # (name) -> float64 or str (N,)
+    line_offset: int | None
+    metadata: dict
+    lines: np.ndarray | None = None
+
+    def extras(self, skip) -> dict[str, np.ndarray]:
+        skip = set(skip)
+        return {c: self.lenient(c) for c in self.header if c not in skip}
+
+
+@contextmanager
+def _file_lines(t: _Table):
+    """Name the file line in a row error raised without one (rows not one line apart: blank lines)."""
+    try:
+        yield
+    except DatasetError as e:
+        if (type(e) is DatasetError and e.row is not None and t.line_offset is None and t.lines is not None
+                and f"row {e.row} (line" not in str(e)):
+            raise with_file_line(e, t.lines) from None
+        raise
+
+
+def _open_table(path: str | Path) -> _Table:
+    """Open a ``.csv``/``.txt`` (comma), ``.tsv`` (tab) or ``.parquet`` table."""
+    where = str(path)
+    suffix = Path(path).suffix.lower()
+    if suffix in (".parquet", ".pq"):
+        return _open_parquet(path)
+    if suffix not in (".csv", ".txt", ".tsv"):
+        raise DatasetError(f"{where}: unknown dataset file type {suffix!r}; expected .csv or .parquet", file=where)
+    t = read_delimited(path, delimiter="\t" if suffix == ".tsv" else ",", allow_empty_names=True,
+                       layout_hint="is that the file's delimiter?")
+    if len(t.header) == 1 and ";" in t.header[0]:
+        raise DatasetError(f"{where}: the header is one column {t.header[0][:60]!r}...: the file looks ';'-separated; "
+                           "datasets are comma-separated (use hykin.importers for other layouts)", file=where)
+    return _Table(where, t.header, lambda c: float_column(t, c, finite=False), lambda c: lenient_column(t.col(c)),
+                  t.line_offset(), {}, t.lines)
+
+
+def _open_parquet(path) -> _Table:
+    where = str(path)
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError:  # pragma: no cover
+        raise DatasetError(f"{where}: reading Parquet needs pyarrow (pip install pyarrow)", file=where) from None
+    if not Path(path).exists():
+        raise DatasetError(f"{where}: file not found", file=where)
+    try:
+        table = pq.read_table(path)
+    except Exception as e:  # pyarrow raises several types for corrupt files
+        raise DatasetError(f"{where}: not a readable Parquet file ({e})", file=where) from None
+    md = {k.decode(): v.decode() for k, v in (table.schema.metadata or {}).items() if k.startswith(b"hykin.")}
+    header = [str(n) for n in table.column_names]
+
+    def numeric(c: str) -> np.ndarray:
+        col = table.column(c)
+        if col.null_count:
+            r = int(np.flatnonzero(np.asarray(col.is_null().to_numpy(zero_copy_only=False)))[0])
+            raise row_error(where, "cell is empty (null)", r, c, None)
+        if pa.types.is_floating(col.type) or pa.types.is_integer(col.type):
+            return np.asarray(col.to_numpy(), dtype=np.float64)
+        cells = [str(v) for v in col.to_pylist()]
+        arr = lenient_column(cells)
+        if arr.dtype.kind != "f":
+            for r, v in enumerate(cells):
+                try:
+                    float(v)
+                except ValueError:
+                    raise row_error(where, f"cell {v!r} is not a number (column type {col.type})", r, c, None) from None
+        return arr
+
+    def lenient(c: str) -> np.ndarray:
+        arr = table.column(c).to_numpy(zero_copy_only=False)
+        return arr.astype(np.float64) if arr.dtype.kind in "iuf" else arr.astype(str)
+
+    return _Table(where, header, numeric, lenient, None, md)
+
+
+def _check_declared_units(t: _Table, length_unit: str, angle_unit: str) -> None:
+    for key, declared in (("hykin.length_unit", length_unit), ("hykin.angle_unit", angle_unit)):
+        if key in t.metadata and t.metadata[key] != declared:
+            raise DatasetError(
+                f"{t.where}: the file says it was written with {key.split('.')[1]}={t.metadata[key]!r} "
+                f"but {declared!r} was declared; declare the file's unit", file=t.where)
+
+
+def _joints_of(t: _Table, robot, dof, angle_unit: str, length_unit: str) -> np.ndarray:
+    n_dof = _dof_from_header(t.where, t.header, robot, dof)
+    qn = joint_columns(n_dof)
+    q = np.stack([t.numeric(c) for c in qn], axis=1)
+    check_finite(t.where, q, qn, t.line_offset)
+    rev = revolute_mask(n_dof, robot)
+    return q * np.where(rev, ANGLE_UNITS[angle_unit], LENGTH_UNITS[length_unit])
+
+
+def _check_pose_header(t: _Table, expect: str) -> bool:
+    """Raise for missing x/y/z or partial orientation columns; return True when orientation is present."""
+    present = set(t.header)
+    missing = [c for c in POSITION_COLUMNS if c not in present]
+    if missing:
+        raise DatasetError(
+            f"{t.where}: missing column(s) {', '.join(missing)}; expected {expect} "
+            f"(found: {', '.join(t.header)})", file=t.where, column=missing[0])
+    qcols = [c for c in QUAT_COLUMNS if c in present]
+    if qcols and len(qcols) != 4:
+        miss = [c for c in QUAT_COLUMNS if c not in present]
+        raise DatasetError(
+            f"{t.where}: orientation columns incomplete: missing {', '.join(miss)}; give all of qw, qx, qy, qz "
+            "or none (position-only data)", file=t.where, column=miss[0])
+    return bool(qcols)
+
+
+def _poses_of(t: _Table, length_unit: str, expect: str) -> tuple[np.ndarray, np.ndarray | None]:
+    qcols = _check_pose_header(t, expect)
+    xyz = np.stack([t.numeric(c) for c in POSITION_COLUMNS], axis=1)
+    quat = np.stack([t.numeric(c) for c in QUAT_COLUMNS], axis=1) if qcols else None
+    check_finite(t.where, xyz, POSITION_COLUMNS, t.line_offset)
+    if quat is not None:
+        check_finite(t.where, quat, QUAT_COLUMNS, t.line_offset)
+    return xyz * LENGTH_UNITS[length_unit], quat
+
+
+def _standard_columns(t: _Table) -> set[str]:
+    k = 0
+    while f"q{k + 1}" in t.header:
+        k += 1
+    return set(joint_columns(k)) | set(POSITION_COLUMNS) | set(QUAT_COLUMNS)
+
+
+def read_dataset(
+    path: str | Path,
+    *,
+    length_unit: str = "m",
+    angle_unit: str = "rad",
+    robot=None,
+    dof: int | None = None,
+    plausibility: bool = True,
+) -> Dataset:
+    """Read a dataset file (``.csv`` or ``.parquet``, DESIGN.md §3) into SI units and validate it.
+
+    ``length_unit`` (``"m"``/``"mm"``) and ``angle_unit`` (``"rad"``/``"deg"``) are the units *in the
+    file*. ``robot`` (optional) fixes the number of joints, which joints are prismatic, and enables
+    the joint-limit check and (``plausibility``) the unit and quaternion-order checks of
+    :func:`hykin.plausibility.check_dataset` (positions vs the robot's motion, orientations vs its
+    rotations); ``dof`` fixes the number of joints without a robot. Without either the joints are the
+    contiguous ``q1, q2, ...`` columns of the header.
+    """
+    where = str(path)
+    check_units(where, length_unit, angle_unit)
+    t = _open_table(path)
+    with _file_lines(t):
+        _check_declared_units(t, length_unit, angle_unit)
+        n_dof = _dof_from_header(where, t.header, robot, dof)
+        expect = f"{', '.join(joint_columns(n_dof))}, x, y, z and optionally qw, qx, qy, qz"
+        _check_pose_header(t, expect)  # name missing columns before reading any cell
+        q = _joints_of(t, robot, dof, angle_unit, length_unit)
+        xyz, quat = _poses_of(t, length_unit, expect)
+        if q.shape[0] == 0:
+            raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
+        ds = Dataset(q=q, xyz_m=xyz, quat_wxyz=quat, extra=t.extras(_standard_columns(t)), source=where,
+                     meta={"length_unit_read": length_unit, "angle_unit_read": angle_unit})
+        from ..calibration.reflectors import with_reflector_unit
+
+        ds = with_reflector_unit(ds, length_unit)  # further reflectors x2,y2,z2, ... in metres like x,y,z
+        validate(ds, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset)
+        if robot is not None and plausibility:
+            from ..calibration.plausibility import check_dataset
+
+            check_dataset(robot, ds, where=where, length_unit=length_unit, angle_unit=angle_unit)
+        return ds
+
+
+def read_joints(
+    path: str | Path,
+    *,
+    dof: int | None = None,
+    angle_unit: str = "rad",
+    length_unit: str = "m",
+    robot=None,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Read joints ``q1..qN`` from a CSV/Parquet file: ``(q (N, dof) rad/m, extras)``.
+
+    Pose columns (``x,y,z,qw..qz``), if present, are ignored; every other column is returned in
+    ``extras``. Joint checks as in :func:`validate` (degrees-as-radians, limits when ``robot``).
+    """
+    where = str(path)
+    check_units(where, length_unit, angle_unit)
+    t = _open_table(path)
+    with _file_lines(t):
+        _check_declared_units(t, length_unit, angle_unit)
+        q = _joints_of(t, robot, dof, angle_unit, length_unit)
+        if q.shape[0] == 0:
+            raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
+        validate_joints(q, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset)
+        return q, t.extras(_standard_columns(t))
+
+
+def read_poses(path: str | Path, *, length_unit: str = "m", extras: bool = False):
+    """Read target poses ``x,y,z[,qw,qx,qy,qz]`` from a CSV/Parquet file: ``(T (N, 4, 4) m, has_orientation)``.
+
+    Joint and other columns are ignored (returned as a third item ``{name: (N,)}`` with
+    ``extras=True``). Without orientation columns the rotations are identity.
+    """
+    where = str(path)
+    check_units(where, length_unit, "rad")
+    t = _open_table(path)
+    with _file_lines(t):
+        if "hykin.length_unit" in t.metadata:
+            _check_declared_units(t, length_unit, t.metadata.get("hykin.angle_unit", "rad"))
+        xyz, quat = _poses_of(t, length_unit, "x, y, z and optionally qw, qx, qy, qz")
+        if xyz.shape[0] == 0:
+            raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
+        validate_poses(xyz, quat, where=where, line_offset=t.line_offset)
+        if quat is None:
+            T = np.tile(np.eye(4), (len(xyz), 1, 1))
+            T[:, :3, 3] = xyz
+        else:
+            T = se3.pose_to_transform(xyz, quat)
+        if extras:
+            return T, quat is not None, t.extras(_standard_columns(t))
+        return T, quat is not None
+
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def _columns_for_writing(ds: Dataset, length_unit: str, angle_unit: str, robot=None) -> dict[str, np.ndarray]:
+    L, A = LENGTH_UNITS[length_unit], ANGLE_UNITS[angle_unit]
+    rev = revolute_mask(ds.dof, robot)
+    out: dict[str, np.ndarray] = {}
+    for j, c in enumerate(joint_columns(ds.dof)):
+        out[c] = ds.q[:, j] / (A if rev[j] else L)
+    for j, c in enumerate(POSITION_COLUMNS):
+        out[c] = ds.xyz_m[:, j] / L
+    if ds.quat_wxyz is not None:
+        for j, c in enumerate(QUAT_COLUMNS):
+            out[c] = ds.quat_wxyz[:, j]
+    from ..calibration.reflectors import reflector_columns
+
+    points = {n for names in reflector_columns(ds) for n in names}  # x2,y2,z2, ...: lengths like x,y,z
+    for k, v in ds.extra.items():
+        if k in out:
+            raise DatasetError(f"{ds.source or '<dataset>'}: extra column '{k}' clashes with a standard column", column=k)
+        out[k] = np.asarray(v, dtype=np.float64) / L if k in points else v
+    return out
+
+
+def write_dataset(ds: Dataset, path: str | Path, *, length_unit: str = "m", angle_unit: str = "rad", robot=None) -> None:
+    """Write ``ds`` to CSV or Parquet (by suffix): ``q1..qN, x, y, z[, qw, qx, qy, qz]`` + extras.
+
+    Values are converted to the declared units (extras as they are); CSV numbers use the shortest
+    repr that reads back to the same float64. ``robot`` marks prismatic joints (length unit).
+    """
+    where = str(path)
+    check_units(where, length_unit, angle_unit)
+    cols = _columns_for_writing(ds, length_unit, angle_unit, robot)
+    suffix = Path(path).suffix.lower()
+    if suffix in (".parquet", ".pq"):
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        table = pa.table({k: pa.array(np.asarray(v)) for k, v in cols.items()})
+        table = table.replace_schema_metadata(
+            {"hykin.length_unit": length_unit, "hykin.angle_unit": angle_unit, "hykin.source": ds.source})
+        pq.write_table(table, path)
+        return
+    if suffix not in (".csv", ".txt"):
+        raise DatasetError(f"{where}: unknown dataset file type {suffix!r}; expected .csv or .parquet", file=where)
+    write_csv(path, cols, DATASET_STYLE)

@@ -1,0 +1,39 @@
+"""Robot specs to :class:`Robot`: a preset name (the TOML files shipped in :mod:`hykin.presets`), a
+TOML robot file or a URDF file."""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+from ..kinematics.robot import Robot, RobotFileError
+from .robot_toml import load_robot_toml, robot_from_toml_text
+from .urdf import load_urdf
+
+__all__ = ["list_presets", "load_robot"]
+
+
+def list_presets() -> list[str]:
+    """Names of the robot presets shipped with hykin."""
+    files = resources.files("hykin.presets").iterdir()
+    return sorted(p.name[:-5] for p in files if p.name.endswith(".toml"))
+
+
+def load_robot(spec: str | Path | Robot) -> Robot:
+    """Load a robot from a preset name, a TOML robot file or a URDF file.
+
+    URDF files take their chain from the first to the last link of the longest serial chain;
+    use :func:`hykin.io.urdf.load_urdf` to name base and tip links explicitly.
+    """
+    if isinstance(spec, Robot):
+        return spec
+    s = str(spec)
+    if s.lower() in list_presets():
+        text = resources.files("hykin.presets").joinpath(s.lower() + ".toml").read_text(encoding="utf-8")
+        return robot_from_toml_text(text, f"preset:{s.lower()}")
+    p = Path(s)
+    if p.suffix.lower() == ".urdf":
+        return load_urdf(p)
+    if p.suffix.lower() == ".toml" or p.exists():
+        return load_robot_toml(p)
+    raise RobotFileError(f"{s}: not a preset ({', '.join(list_presets())}), and no such file")

@@ -1,0 +1,213 @@
+"""The one reader of delimited text tables (CSV, ``;``/tab/whitespace separated), and its columns.
+
+:func:`read_delimited` reads a file into a :class:`TextTable` (header, cells as text, the file line
+of every data row); :func:`float_column` and :func:`lenient_column` turn a column into numbers.
+Every reader of text files in hykin goes through them: dataset files
+(:mod:`hykin.io.dataset_files`), the fixed-layout importers (:mod:`hykin.io.importers`) and the
+generic table importer (:mod:`hykin.io.table_import`, which adds the layout of a
+:class:`~hykin.io.table_map.TableMap`).
+
+Every error is a :class:`~hykin.io.dataset.DatasetError` naming the file, the data row (1-based,
+the first row under the header is row 1) with its line in the file, and the column.
+"""
+
+from __future__ import annotations
+
+import csv
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .dataset import DatasetError
+
+__all__ = ["TextTable", "detect_delimiter", "float_column", "lenient_column", "read_delimited", "read_lines",
+           "split_lines", "with_file_line"]
+
+_DELIMITER_NAMES = {",": "','", ";": "';'", "\t": "tab", " ": "whitespace", "|": "'|'"}
+
+
+@dataclass
+class TextTable:
+    """A delimited text table: ``header``, ``rows`` (cells as text, stripped), ``lines`` ``(N,)``
+    1-based file line of each row, the ``delimiter`` used and the file name ``where``."""
+
+    where: str
+    header: list[str]
+    rows: list[list[str]]
+    lines: np.ndarray
+    delimiter: str
+
+    def col(self, name: str) -> list[str]:
+        """The cells of column ``name`` (text), one per row."""
+        i = self.header.index(name)
+        return [r[i] for r in self.rows]
+
+    def error(self, row: int | None, column: str | None, msg: str) -> DatasetError:
+        """DatasetError '<file>, row r (line L of the file), column 'c': msg' (``row`` 0-based)."""
+        parts = [self.where]
+        if row is not None:
+            parts.append(f"row {row + 1} (line {int(self.lines[row])} of the file)")
+        if column is not None:
+            parts.append(f"column '{column}'")
+        return DatasetError(", ".join(parts) + ": " + msg, file=self.where,
+                            row=None if row is None else row + 1, column=column)
+
+    def line_offset(self) -> int | None:
+        """File line minus data row when that is the same for every row (1 for a plain CSV with one
+        header line), else None (blank, comment or metadata lines in between)."""
+        if len(self.lines) == 0:
+            return None
+        off = int(self.lines[0]) - 1
+        return off if np.array_equal(self.lines, np.arange(len(self.lines)) + 1 + off) else None
+
+
+def read_lines(path: Path, encoding: str | None, where: str) -> list[str]:
+    """The lines of a text file: ``encoding``, or UTF-8 (with or without BOM) falling back to
+    cp1252 (Windows tracker software: '°', 'µ' in headers)."""
+    if not path.is_file():
+        raise DatasetError(f"{where}: file not found", file=where)
+    raw = path.read_bytes()
+    try:
+        text = raw.decode(encoding or "utf-8-sig")
+    except UnicodeDecodeError:
+        if encoding:
+            raise DatasetError(f"{where}: cannot be decoded as {encoding}", file=where) from None
+        text = raw.decode("cp1252", errors="replace")
+    return text.splitlines()
+
+
+def detect_delimiter(header_line: str, decimal: str) -> str:
+    """The delimiter a header line uses: tab, ';', '|', ',' (unless decimal comma), else whitespace."""
+    for d in ("\t", ";", "|"):
+        if d in header_line:
+            return d
+    if "," in header_line and decimal != ",":
+        return ","
+    return " "
+
+
+def split_lines(lines: list[str], delimiter: str) -> list[list[str]]:
+    """Lines -> stripped cells (CSV quoting understood; ``" "`` = runs of whitespace)."""
+    if delimiter == " ":
+        return [ln.split() for ln in lines]
+    return [[c.strip() for c in row] for row in csv.reader(lines, delimiter=delimiter)]
+
+
+def read_delimited(
+    path: str | Path,
+    *,
+    delimiter: str | None = None,
+    decimal: str = ".",
+    skip_rows: int = 0,
+    header: bool = True,
+    comment: str | None = None,
+    drop_lines=(),
+    encoding: str | None = None,
+    allow_empty_names: bool = False,
+    layout_hint: str = "declare delimiter, skip_rows or comment if this is not the layout",
+) -> TextTable:
+    """Read a delimited text file: one header line (``header=False``: columns named 1, 2, ...), then
+    one row per line.
+
+    ``skip_rows`` lines above the header are skipped; blank lines and ``comment`` lines are skipped
+    anywhere; ``drop_lines`` (1-based file lines) are dropped. ``delimiter`` None: detected from the
+    header line (:func:`detect_delimiter`). A trailing delimiter on a line is tolerated; a row with
+    another number of cells than the header is an error naming its row and line (``layout_hint``
+    says what to check). Duplicate (and, unless ``allow_empty_names``, empty) column names are
+    errors. A header without data rows gives a table with no rows.
+    """
+    where = str(path)
+    text = read_lines(Path(path), encoding, where)
+    numbered = [(i, ln) for i, ln in enumerate(text, start=1)][skip_rows:]
+    numbered = [(i, ln) for i, ln in numbered if ln.strip() and not (comment and ln.lstrip().startswith(comment))]
+    if not numbered:
+        if not any(ln.strip() for ln in text):
+            raise DatasetError(f"{where}: the file is empty (a header line is required)", file=where)
+        raise DatasetError(f"{where}: no lines left after skipping {skip_rows} line(s), blank and comment lines",
+                           file=where)
+    delim = delimiter or detect_delimiter(numbered[0][1], decimal)
+    if not header:
+        width = len(split_lines([numbered[0][1]], delim)[0])
+        names, body = [str(k + 1) for k in range(width)], numbered
+    else:
+        names, body = split_lines([numbered[0][1]], delim)[0], numbered[1:]
+    drop = set(drop_lines)
+    body = [(i, ln) for i, ln in body if i not in drop]
+    cells = split_lines([ln for _, ln in body], delim)
+    while names and names[-1] == "" and all(len(r) == len(names) and r[-1] == "" for r in cells):
+        names, cells = names[:-1], [r[:-1] for r in cells]  # every line ends with the delimiter
+    seen = set()
+    for h in names:
+        if h == "" and not allow_empty_names:
+            raise DatasetError(f"{where}, line {numbered[0][0]}: the header has an empty column name", file=where)
+        if h in seen:
+            raise DatasetError(f"{where}, column '{h}': appears twice in the header", file=where, column=h)
+        seen.add(h)
+    t = TextTable(where, names, cells, np.array([i for i, _ in body], dtype=np.int64), delim)
+    for r, row in enumerate(cells):
+        if len(row) > len(names) and not any(row[len(names):]):
+            cells[r] = row[:len(names)]  # trailing delimiter(s) on this line only
+        elif len(row) != len(names):
+            raise t.error(r, None, f"has {len(row)} cells, the header has {len(names)} "
+                          f"(delimiter: {_DELIMITER_NAMES.get(delim, repr(delim))}; {layout_hint})")
+    return t
+
+
+def float_column(t: TextTable, name: str, decimal: str = ".", *, allow_missing: bool = False,
+                 finite: bool = True) -> np.ndarray:
+    """Column ``name`` as float64 ``(N,)``.
+
+    Empty and non-numeric cells are errors naming the row, line and likely cause (decimal comma,
+    units line under the header). ``finite``: NaN/inf cells are errors too. ``allow_missing``: empty
+    and NaN cells become NaN (a tracker stream losing the beam).
+    """
+    cells = t.col(name)
+    conv = [c.replace(decimal, ".") for c in cells] if decimal != "." else cells
+    if allow_missing:
+        conv = [c if c.strip() else "nan" for c in conv]
+    try:
+        arr = np.asarray(conv, dtype=np.float64)
+    except ValueError:
+        arr = None
+    if arr is None:
+        for r, c in enumerate(conv):
+            try:
+                float(c)
+            except ValueError:
+                raw = cells[r]
+                if not raw.strip():
+                    cause = "cell '(empty)' is not a number: the cell is empty"
+                elif decimal == "." and re.fullmatch(r"[+-]?\d*,\d+([eE][+-]?\d+)?", raw):
+                    cause = f"{raw!r} looks like a decimal comma: declare decimal = \",\" (--decimal ,)"
+                elif decimal == "," and re.fullmatch(r"[+-]?\d*\.\d+([eE][+-]?\d+)?", raw):
+                    cause = f"{raw!r} has a decimal point but decimal = \",\" was declared"
+                else:
+                    cause = f"cell {raw!r} is not a number"
+                    if r == 0 and re.search(r"[A-Za-z°µ\[\]]", raw):
+                        cause += f" (a units line under the header? drop it with drop_rows = [{int(t.lines[0])}])"
+                raise t.error(r, name, cause)
+    if finite and not allow_missing:
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            r = int(np.argmax(bad))
+            raise t.error(r, name, f"value {cells[r]!r} is not finite (NaN or inf); every mapped cell must be a number")
+    return arr
+
+
+def with_file_line(e: DatasetError, lines: np.ndarray) -> DatasetError:
+    """``e`` (naming a data row ``e.row`` but no line) with "(line L of the file)" after the row,
+    ``lines`` ``(N,)`` being the file line of each data row (:attr:`TextTable.lines`)."""
+    line = int(lines[e.row - 1])
+    msg = str(e).replace(f"row {e.row}", f"row {e.row} (line {line} of the file)", 1)
+    return DatasetError(msg, file=e.file, row=e.row, column=e.column)
+
+
+def lenient_column(cells: list[str], decimal: str = ".") -> np.ndarray:
+    """Cells -> float64 when all parse, else the cells themselves as strings (extras kept as read)."""
+    conv = [c.replace(decimal, ".") for c in cells] if decimal != "." else cells
+    try:
+        return np.asarray(conv, dtype=np.float64)
+    except ValueError:
+        return np.asarray(cells, dtype=str)
