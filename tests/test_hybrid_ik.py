@@ -23,7 +23,7 @@ from hykin.hybrid.ik import (
 )
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk, fk_torch, jacobian
-from hykin.kinematics.ik_closed_form import ik_closed_form
+from hykin.kinematics.ik import ik_closed_form
 from hykin.kinematics.robot import load_robot
 
 

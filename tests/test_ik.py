@@ -15,20 +15,19 @@ from hypothesis import strategies as st
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
 from hykin.kinematics.ik import (
-    IKBranches,
-    IKResult,
     _lm_numpy,
     ik,
     ik_all_numeric,
-    nearest_representation,
-)
-from hykin.kinematics.ik_closed_form import (
-    ClosedFormError,
-    has_closed_form,
     ik_closed_form,
-    poe_model,
+)
+from hykin.kinematics.ik_closed_form import ClosedFormError, has_closed_form
+from hykin.kinematics.ik_solutions import (
+    IKBranches,
+    IKResult,
+    nearest_representation,
     wrap_to_limits,
 )
+from hykin.kinematics.poe import poe_model
 from hykin.kinematics.robot import Robot, dh_to_mdh, list_presets, load_robot
 
 PRESETS = list_presets()

@@ -33,8 +33,9 @@ import sys
 import numpy as np
 
 from .chain import Chain, chain_of
-from .fk import HAVE_NUMBA, _frames_xp, fk, fk_torch
+from .fk import HAVE_NUMBA, fk, fk_torch
 from .robot import Robot
+from .walk import chain_walk
 
 if HAVE_NUMBA:
     import numba
@@ -266,7 +267,7 @@ def _frames(robot: Robot, q, chain: Chain | None, xp):
     """(joint frames (N,n,4,4), link frames (N,n,4,4), tcp (N,4,4), base (4,4)) in namespace xp."""
     if xp is np:
         ch = chain_of(robot) if chain is None else chain
-        j, l, t = _frames_xp(np, ch, q)
+        j, l, t = chain_walk(np, ch, q, frames=True)
         return j, l, t, np.asarray(ch.base)
     j, l, t = fk_torch(robot, q, chain=chain, frames=True)
     base = chain.base if chain is not None else xp.as_tensor(np.array(robot.base), dtype=q.dtype, device=q.device)
