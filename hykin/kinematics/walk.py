@@ -79,7 +79,9 @@ _DP3 = 2.69515142907905952645e-15
 _FOUR_OVER_PI = 1.27323954473516268615
 
 if HAVE_NUMBA:
-    __all__ += ["axes_one", "fk_one", "joint_step", "sincos", "store_top", "top_rows"]
+    __all__ += [
+        "axes_one", "fk_one", "joint_motion_top", "joint_step", "sincos", "store_top", "times_fixed", "top_rows",
+    ]
 
     @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
     def sincos(x):  # pragma: no cover - compiled
@@ -113,9 +115,9 @@ if HAVE_NUMBA:
                 F[2, 0], F[2, 1], F[2, 2], F[2, 3])
 
     @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
-    def joint_step(st, F, prism, qi, sq, cq):  # pragma: no cover - compiled
-        """Walk state ``st`` (12 scalars, :func:`top_rows`) times ``J(q_i)`` times fixed transform ``F``
-        (4, 4); ``sq, cq = sincos(qi)``. The compiled twin of :func:`joint_motion` plus ``@ F``."""
+    def joint_motion_top(st, prism, qi, sq, cq):  # pragma: no cover - compiled
+        """Walk state ``st`` (12 scalars, :func:`top_rows`) times ``J(q_i)``: the joint frame; ``sq, cq =
+        sincos(qi)``. The compiled twin of :func:`joint_motion`."""
         a0, a1, a2, a3, b0, b1, b2, b3, c0, c1, c2, c3 = st
         if prism:
             a3 += a2 * qi
@@ -131,6 +133,12 @@ if HAVE_NUMBA:
             x, y = c0, c1
             c0 = cq * x + sq * y
             c1 = cq * y - sq * x
+        return a0, a1, a2, a3, b0, b1, b2, b3, c0, c1, c2, c3
+
+    @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
+    def times_fixed(st, F):  # pragma: no cover - compiled
+        """Walk state ``st`` (12 scalars) times a fixed transform ``F`` (4, 4) (bottom row ``[0, 0, 0, 1]``)."""
+        a0, a1, a2, a3, b0, b1, b2, b3, c0, c1, c2, c3 = st
         f00, f01, f02, f03 = F[0, 0], F[0, 1], F[0, 2], F[0, 3]
         f10, f11, f12, f13 = F[1, 0], F[1, 1], F[1, 2], F[1, 3]
         f20, f21, f22, f23 = F[2, 0], F[2, 1], F[2, 2], F[2, 3]
@@ -142,6 +150,11 @@ if HAVE_NUMBA:
             c0 * f00 + c1 * f10 + c2 * f20, c0 * f01 + c1 * f11 + c2 * f21,
             c0 * f02 + c1 * f12 + c2 * f22, c0 * f03 + c1 * f13 + c2 * f23 + c3,
         )
+
+    @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
+    def joint_step(st, F, prism, qi, sq, cq):  # pragma: no cover - compiled
+        """One step of the walk: state ``st`` times ``J(q_i)`` times the fused fixed transform ``F``."""
+        return times_fixed(joint_motion_top(st, prism, qi, sq, cq), F)
 
     @numba.njit(cache=True, fastmath=False, nogil=True, inline="always")
     def store_top(st, out):  # pragma: no cover - compiled
