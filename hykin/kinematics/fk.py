@@ -81,15 +81,14 @@ if HAVE_NUMBA:
 _PARALLEL_MIN = 20_000  # below this, thread start-up costs more than it saves
 
 
-def fk_chain(chain: Chain, q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+def fk_chain(chain: Chain, q: np.ndarray) -> np.ndarray:
     """FK of a numpy :class:`Chain` for ``q`` ``(N, dof)`` (contiguous float64) -> ``(N, 4, 4)``."""
     fixed = np.ascontiguousarray(chain.fixed, dtype=np.float64)
     prism = np.ascontiguousarray(chain.prismatic, dtype=np.bool_)
     q = np.ascontiguousarray(q, dtype=np.float64)
     if not HAVE_NUMBA:
         return chain_walk(np, chain, q)
-    if out is None:
-        out = np.empty((q.shape[0], 4, 4))
+    out = np.empty((q.shape[0], 4, 4))
     if q.shape[0] >= _PARALLEL_MIN:
         _fk_batch_parallel(fixed, prism, q, out)
     else:
