@@ -1,10 +1,12 @@
 """Inverse kinematics: the public API (closed form where it exists, Levenberg–Marquardt everywhere).
 
 * :func:`ik` — one solution per target (nearest the seed) or, with ``all_branches=True``, every
-  distinct solution. Robots with a closed form (:func:`hykin.kinematics.ik_closed_form.has_closed_form`) are seeded
-  from it (or from the closed form of ``seed_robot``, e.g. the nominal robot behind a calibrated
-  one) and polished with LM; other robots (7 dof, prismatic joints, calibrated geometry) use LM from
-  the seed and random restarts.
+  distinct solution. Robots with a closed form (:func:`~hykin.kinematics.ik_closed_form.has_closed_form`)
+  are seeded from it (or from the closed form of ``seed_robot``, e.g. the nominal robot behind a
+  calibrated one) and polished with LM; other robots (7 dof, prismatic joints, calibrated geometry)
+  use LM from the seed and random restarts.
+* :func:`ik_closed_form` — every closed-form branch (:mod:`hykin.kinematics.ik_closed_form`), with
+  near-singular candidates refined by LM.
 * :func:`solve_lm` — one batched LM run from given seeds (compiled per-target kernel, adaptive
   damping, joints projected onto their limits after every step).
 * :func:`ik_numeric` — LM from a seed plus random restarts for the targets that failed.

@@ -1,5 +1,12 @@
 """Closed-form inverse kinematics returning every solution branch, batched over targets.
 
+This module: which robots have a closed form (:func:`has_closed_form`) and the 8 candidate branches
+per target with limit wrapping, FK check and duplicate removal (:func:`closed_form_candidates`).
+The POE model is in :mod:`hykin.kinematics.poe`, the subproblems in
+:mod:`hykin.kinematics.ik_subproblems`, the two family solvers in :mod:`hykin.kinematics.ik_families`;
+the public :func:`hykin.kinematics.ik.ik_closed_form` adds the LM refinement of near-singular
+candidates (LM lives in :mod:`hykin.kinematics.ik`, which calls this module, never the other way).
+
 Two families of 6R arms are solved exactly (up to 8 solutions each):
 
 * ``"opw"`` — spherical wrist (axes 4, 5, 6 meet in one point) and parallel axes 2 ∥ 3, with axis 1
@@ -15,8 +22,8 @@ frame — unit axis ``h_i`` and a point ``p_i`` on each joint axis plus the zero
 base and tool frames, theta offsets and axis signs are all absorbed, so no per-vendor parameter
 table (``a1, a2, b, c1..c4``, offsets, signs) has to be extracted. The structure test is geometric
 (parallel / intersecting axes to ``tol``) and the extracted POE model is verified against
-:func:`hykin.kinematics.fk.fk` on random joints; the robot is rejected (``None``) otherwise. The joint angles
-follow from the Paden–Kahan subproblems 1 (rotation of a point onto another) and 4 (rotation
+:func:`hykin.kinematics.fk.fk` on random joints; the robot is rejected (``None``) otherwise. The joint
+angles follow from the Paden–Kahan subproblems 1 (rotation of a point onto another) and 4 (rotation
 giving a prescribed projection; subproblems 2 and 3 reduce to it), as in ik-geo (Elias & Wen 2022).
 
 Branches and representation (decisions, documented):
