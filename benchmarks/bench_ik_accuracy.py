@@ -14,7 +14,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hykin.kinematics.fk import fk
-from hykin.kinematics.ik_closed_form import has_closed_form, ik_closed_form
+from hykin.kinematics.ik import ik_closed_form
+from hykin.kinematics.ik_closed_form import has_closed_form
 from hykin.kinematics.robot import list_presets, load_robot
 from hykin.kinematics.se3 import pose_error
 
