@@ -40,7 +40,8 @@ def _contains(qs_list, q, tol=1e-6):
 def bench_closed_form(name, n, n_peer, rows):
     from hykin.io.robot_file import load_robot
     from hykin.kinematics.fk import fk
-    from hykin.kinematics.ik_closed_form import ik_closed_form, poe_model
+    from hykin.kinematics.ik import ik_closed_form
+    from hykin.kinematics.poe import poe_model
 
     r = load_robot(name)
     rng = np.random.default_rng(0)

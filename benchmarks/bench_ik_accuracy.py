@@ -15,7 +15,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hykin.io.robot_file import list_presets, load_robot
 from hykin.kinematics.fk import fk
-from hykin.kinematics.ik_closed_form import has_closed_form, ik_closed_form
+from hykin.kinematics.ik import ik_closed_form
+from hykin.kinematics.ik_closed_form import has_closed_form
 from hykin.kinematics.se3 import pose_error
 
 

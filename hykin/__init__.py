@@ -38,9 +38,9 @@ _EXPORTS = {
     "jacobian": "kinematics.fk",
     "ik": "kinematics.ik",
     "ik_numeric": "kinematics.ik",
-    "IKResult": "kinematics.ik",
-    "IKBranches": "kinematics.ik",
-    "ik_closed_form": "kinematics.ik_closed_form",
+    "IKResult": "kinematics.ik_solutions",
+    "IKBranches": "kinematics.ik_solutions",
+    "ik_closed_form": "kinematics.ik",
     "has_closed_form": "kinematics.ik_closed_form",
     # data
     "Dataset": "io.dataset",

@@ -21,8 +21,10 @@ pin = pytest.importorskip("pinocchio")
 
 from hykin.io.robot_file import list_presets, load_robot
 from hykin.io.urdf import load_urdf, load_urdf_string, robot_to_urdf
+from hykin.kinematics.chain import chain_of
 from hykin.kinematics.fk import fk, fk_frames, fk_torch, jacobian
 from hykin.kinematics.robot import dh_to_mdh, mdh_to_dh
+from hykin.kinematics.walk import chain_walk
 
 DATA = Path(__file__).parent / "data"
 TOL = 1e-12
@@ -165,6 +167,23 @@ def test_preset_fk_torch_matches_fk(name):
     fr = fk_frames(robot, Q[:50])
     np.testing.assert_allclose(lf.numpy(), fr.link, rtol=0, atol=TOL)
     np.testing.assert_allclose(jf.numpy(), fr.joint, rtol=0, atol=TOL)
+
+
+@pytest.mark.parametrize("name", [*PRESETS, "test_arm.urdf"])
+def test_numpy_chain_walk_matches_pinocchio(name):
+    """The array-namespace walk (FK's backend without numba) against the independent models; the
+    URDF test arm has a prismatic joint."""
+    if name.endswith(".urdf"):
+        robot = load_urdf(DATA / name)
+        model = pin.buildModelFromUrdf(str(DATA / name))
+        tcp = model.getFrameId("tcp")
+    else:
+        robot = load_robot(name)
+        model, _, tcp = pin_model_from_dh(robot)
+    Q = robot.random_joints(200, rng=7)
+    T = chain_walk(np, chain_of(robot), Q)
+    _assert_poses(T, _pin_poses(model, tcp, Q))
+    np.testing.assert_allclose(fk(robot, Q), T, rtol=0, atol=1e-14)  # compiled backend, same step
 
 
 @pytest.mark.parametrize("name", [p for p in PRESETS if load_robot(p).convention in ("dh", "mdh")])

@@ -24,7 +24,7 @@ from hykin.hybrid.ik import (
 from hykin.io.robot_file import load_robot
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk, fk_torch, jacobian
-from hykin.kinematics.ik_closed_form import ik_closed_form
+from hykin.kinematics.ik import ik_closed_form
 
 
 class StandInHybrid:

@@ -16,20 +16,19 @@ from hykin.io.robot_file import list_presets, load_robot
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
 from hykin.kinematics.ik import (
-    IKBranches,
-    IKResult,
     _lm_numpy,
     ik,
     ik_all_numeric,
-    nearest_representation,
-)
-from hykin.kinematics.ik_closed_form import (
-    ClosedFormError,
-    has_closed_form,
     ik_closed_form,
-    poe_model,
+)
+from hykin.kinematics.ik_closed_form import ClosedFormError, has_closed_form
+from hykin.kinematics.ik_solutions import (
+    IKBranches,
+    IKResult,
+    nearest_representation,
     wrap_to_limits,
 )
+from hykin.kinematics.poe import poe_model
 from hykin.kinematics.robot import Robot, dh_to_mdh
 
 PRESETS = list_presets()

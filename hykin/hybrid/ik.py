@@ -262,7 +262,7 @@ def classical_seeds(robot: Robot, T: np.ndarray, *, all_branches: bool = True, q
         if sr is not None and (~ok).any():
             # a branch just outside the joint limits (or failing the classical polish) still seeds the
             # hybrid solve: the hybrid solution may lie inside; the closed form returns it clipped
-            from ..kinematics.ik_closed_form import ik_closed_form
+            from ..kinematics.ik import ik_closed_form
 
             cf = ik_closed_form(sr, T, tol_m=np.inf, tol_rad=np.inf)
             if cf.q.shape == q.shape:
@@ -1097,7 +1097,8 @@ def branch_count_report(model, T_target, result: HybridIKResult, robot: Robot | 
     ``< sing_rel``: a fold whose pair of solutions the correction removes); otherwise *unexplained*
     (a solver miss). Targets ``(N, 4, 4)``; a robot without a closed form raises ``HybridIKError``.
     """
-    from ..kinematics.ik_closed_form import has_closed_form, ik_closed_form
+    from ..kinematics.ik import ik_closed_form
+    from ..kinematics.ik_closed_form import has_closed_form
 
     T, pos_only = _targets(T_target)
     if pos_only:

@@ -206,14 +206,3 @@ def chain_of(robot: Robot) -> Chain:
 # id(robot) -> (weakref to robot, geometry field objects, Chain, strict identity check). Kept outside the robot so that
 # copy.deepcopy / pickle of a robot never carry a chain keyed on the original's arrays.
 _CACHE: dict[int, tuple] = {}
-
-
-def _geometry_key(robot: Robot) -> bytes:
-    """Content key of the robot's geometry (bytes); for caches that must see in-place edits too."""
-    parts = [
-        robot.a_m, robot.alpha_rad, robot.d_m, robot.theta_rad, robot.beta_rad, robot.origin_xyz_m,
-        robot.origin_rpy_rad, robot.axis, robot.base, robot.tool,
-    ]
-    return robot.convention.encode() + b"".join(np.ascontiguousarray(p).tobytes() for p in parts) + str(
-        robot.joint_type
-    ).encode()

@@ -33,11 +33,14 @@ import sys
 import numpy as np
 
 from .chain import Chain, chain_of
-from .fk import HAVE_NUMBA, _frames_xp, fk, fk_torch
+from .fk import HAVE_NUMBA, fk, fk_torch
 from .robot import Robot
+from .walk import chain_walk
 
 if HAVE_NUMBA:
     import numba
+
+    from .walk import joint_motion_top, sincos, times_fixed, top_rows
 
 __all__ = [
     "compliance_of",
@@ -67,48 +70,26 @@ def _is_torch(x) -> bool:
 if HAVE_NUMBA:
 
     @numba.njit(cache=True, nogil=True)
-    def _tau_ws(pre, post, base, ppt, prism, com, mass, payload, g, q, out, T, A, z, o, cm):  # pragma: no cover
+    def _tau_ws(fixed, post, ppt, prism, com, mass, payload, g, q, out, z, o, cm):  # pragma: no cover
         """Gravity torques of one sample into ``out``; ``payload`` (kg) at ``ppt`` (3,) (flange frame);
-        ``T``, ``A`` (4, 4), ``z``, ``o``, ``cm`` (n, 3) scratch."""
+        ``z``, ``o``, ``cm`` (n, 3) scratch. Walks the chain with the shared step (:mod:`.walk`)."""
         n = q.shape[0]
-        for r in range(4):
-            for c in range(4):
-                T[r, c] = base[r, c]
+        st = top_rows(fixed[0])
+        T = st
         for i in range(n):
-            # A = T @ pre[i]
+            sq, cq = sincos(q[i])
+            J = joint_motion_top(st, prism[i], q[i], sq, cq)  # joint frame i
+            z[i, 0], z[i, 1], z[i, 2] = J[2], J[6], J[10]
+            o[i, 0], o[i, 1], o[i, 2] = J[3], J[7], J[11]
+            T = times_fixed(J, post[i])  # link frame i
             for r in range(3):
-                for c in range(4):
-                    v = T[r, 0] * pre[i, 0, c] + T[r, 1] * pre[i, 1, c] + T[r, 2] * pre[i, 2, c]
-                    if c == 3:
-                        v += T[r, 3]
-                    A[r, c] = v
-            # joint motion
-            if prism[i]:
-                for r in range(3):
-                    A[r, 3] += A[r, 2] * q[i]
-            else:
-                cq, sq = np.cos(q[i]), np.sin(q[i])
-                for r in range(3):
-                    x, y = A[r, 0], A[r, 1]
-                    A[r, 0] = cq * x + sq * y
-                    A[r, 1] = cq * y - sq * x
-            for r in range(3):
-                z[i, r] = A[r, 2]
-                o[i, r] = A[r, 3]
-            # T = A @ post[i]
-            for r in range(3):
-                for c in range(4):
-                    v = A[r, 0] * post[i, 0, c] + A[r, 1] * post[i, 1, c] + A[r, 2] * post[i, 2, c]
-                    if c == 3:
-                        v += A[r, 3]
-                    T[r, c] = v
-            for r in range(3):
-                cm[i, r] = T[r, 0] * com[i, 0] + T[r, 1] * com[i, 1] + T[r, 2] * com[i, 2] + T[r, 3]
+                cm[i, r] = T[4 * r] * com[i, 0] + T[4 * r + 1] * com[i, 1] + T[4 * r + 2] * com[i, 2] + T[4 * r + 3]
+            st = times_fixed(J, fixed[i + 1])
         # payload at its point (the TCP by default: ppt = tool[:3, 3])
         Fs0, Fs1, Fs2 = payload * g[0], payload * g[1], payload * g[2]
-        p0 = T[0, 0] * ppt[0] + T[0, 1] * ppt[1] + T[0, 2] * ppt[2] + T[0, 3]
-        p1 = T[1, 0] * ppt[0] + T[1, 1] * ppt[1] + T[1, 2] * ppt[2] + T[1, 3]
-        p2 = T[2, 0] * ppt[0] + T[2, 1] * ppt[1] + T[2, 2] * ppt[2] + T[2, 3]
+        p0 = T[0] * ppt[0] + T[1] * ppt[1] + T[2] * ppt[2] + T[3]
+        p1 = T[4] * ppt[0] + T[5] * ppt[1] + T[6] * ppt[2] + T[7]
+        p2 = T[8] * ppt[0] + T[9] * ppt[1] + T[10] * ppt[2] + T[11]
         Ms0 = p1 * Fs2 - p2 * Fs1
         Ms1 = p2 * Fs0 - p0 * Fs2
         Ms2 = p0 * Fs1 - p1 * Fs0
@@ -134,32 +115,32 @@ if HAVE_NUMBA:
     # robot's scalar payload at the TCP is the broadcast of one value: same operations, same numbers).
 
     @numba.njit(cache=True, nogil=True)
-    def _tau_one(pre, post, base, ppt, prism, com, mass, payload, g, q, out):  # pragma: no cover
+    def _tau_one(fixed, post, ppt, prism, com, mass, payload, g, q, out):  # pragma: no cover
         n = q.shape[0]
-        _tau_ws(pre, post, base, ppt, prism, com, mass, payload, g, q, out,
-                np.empty((4, 4)), np.empty((4, 4)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)))
+        _tau_ws(fixed, post, ppt, prism, com, mass, payload, g, q, out, np.empty((n, 3)), np.empty((n, 3)),
+                np.empty((n, 3)))
 
     @numba.njit(cache=True, nogil=True)
-    def _tau_serial(pre, post, base, ppt, prism, com, mass, payload, g, q, out):  # pragma: no cover
+    def _tau_serial(fixed, post, ppt, prism, com, mass, payload, g, q, out):  # pragma: no cover
         for k in range(q.shape[0]):
-            _tau_one(pre, post, base, ppt[k], prism, com, mass, payload[k], g, q[k], out[k])
+            _tau_one(fixed, post, ppt[k], prism, com, mass, payload[k], g, q[k], out[k])
 
     @numba.njit(cache=True, nogil=True, parallel=True)
-    def _tau_parallel(pre, post, base, ppt, prism, com, mass, payload, g, q, out):  # pragma: no cover
+    def _tau_parallel(fixed, post, ppt, prism, com, mass, payload, g, q, out):  # pragma: no cover
         for k in numba.prange(q.shape[0]):
-            _tau_one(pre, post, base, ppt[k], prism, com, mass, payload[k], g, q[k], out[k])
+            _tau_one(fixed, post, ppt[k], prism, com, mass, payload[k], g, q[k], out[k])
 
     @numba.njit(cache=True, nogil=True)
-    def _deflect_one(pre, post, base, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out,
-                     tau, T, A, z, o, cm):  # pragma: no cover
+    def _deflect_one(fixed, post, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out,
+                     tau, z, o, cm):  # pragma: no cover
         """Fixed point q_eff = q + C tau(q_eff) of one sample into ``out``; returns the last update.
-        ``tau`` (n,), ``T``, ``A`` (4, 4), ``z``, ``o``, ``cm`` (n, 3): scratch (no allocation per sample)."""
+        ``tau`` (n,), ``z``, ``o``, ``cm`` (n, 3): scratch (no allocation per sample)."""
         n = q.shape[0]
         for i in range(n):
             out[i] = q[i]
         step = np.inf
         for it in range(max_it):
-            _tau_ws(pre, post, base, ppt, prism, com, mass, payload, g, out, tau, T, A, z, o, cm)
+            _tau_ws(fixed, post, ppt, prism, com, mass, payload, g, out, tau, z, o, cm)
             step = 0.0
             for i in range(n):
                 new = q[i] + C[i] * tau[i]
@@ -171,31 +152,29 @@ if HAVE_NUMBA:
         return step
 
     @numba.njit(cache=True, nogil=True)
-    def _deflect_range(pre, post, base, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
+    def _deflect_range(fixed, post, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
                        lo, hi):  # pragma: no cover
         """Samples ``lo:hi`` of :func:`_deflect_one`, sharing one set of scratch arrays."""
         n = q.shape[1]
         tau = np.empty(n)
-        T = np.empty((4, 4))
-        A = np.empty((4, 4))
         z = np.empty((n, 3))
         o = np.empty((n, 3))
         cm = np.empty((n, 3))
         for k in range(lo, hi):
-            steps[k] = _deflect_one(pre, post, base, ppt[k], prism, com, mass, payload[k], g, C, q[k], min_it, max_it,
-                                    tol, out[k], tau, T, A, z, o, cm)
+            steps[k] = _deflect_one(fixed, post, ppt[k], prism, com, mass, payload[k], g, C, q[k], min_it, max_it,
+                                    tol, out[k], tau, z, o, cm)
 
     @numba.njit(cache=True, nogil=True)
-    def _deflect_serial(pre, post, base, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps):  # pragma: no cover
-        _deflect_range(pre, post, base, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
+    def _deflect_serial(fixed, post, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps):  # pragma: no cover
+        _deflect_range(fixed, post, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
                        0, q.shape[0])
 
     @numba.njit(cache=True, nogil=True, parallel=True)
-    def _deflect_parallel(pre, post, base, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps):  # pragma: no cover
+    def _deflect_parallel(fixed, post, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps):  # pragma: no cover
         N = q.shape[0]
         chunk = 1024
         for b in numba.prange((N + chunk - 1) // chunk):
-            _deflect_range(pre, post, base, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
+            _deflect_range(fixed, post, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
                            b * chunk, min(N, (b + 1) * chunk))
 
 
@@ -216,7 +195,7 @@ def _kernel_args(robot: Robot, chain: Chain | None, N: int, payload=None):
         kg, com = payload
         ppt = np.broadcast_to(tool[:3, 3], (N, 3)) if com is None else com @ tool[:3, :3].T + tool[:3, 3]
     return (
-        c(ch.pre), c(ch.post), c(ch.base), c(ppt), np.ascontiguousarray(ch.prismatic, dtype=np.bool_),
+        c(ch.fixed), c(ch.post), c(ppt), np.ascontiguousarray(ch.prismatic, dtype=np.bool_),
         c(robot.com_m), c(robot.mass_kg), c(kg), c(g),
     )
 
@@ -266,7 +245,7 @@ def _frames(robot: Robot, q, chain: Chain | None, xp):
     """(joint frames (N,n,4,4), link frames (N,n,4,4), tcp (N,4,4), base (4,4)) in namespace xp."""
     if xp is np:
         ch = chain_of(robot) if chain is None else chain
-        j, l, t = _frames_xp(np, ch, q)
+        j, l, t = chain_walk(np, ch, q, frames=True)
         return j, l, t, np.asarray(ch.base)
     j, l, t = fk_torch(robot, q, chain=chain, frames=True)
     base = chain.base if chain is not None else xp.as_tensor(np.array(robot.base), dtype=q.dtype, device=q.device)

@@ -1,10 +1,12 @@
 """Inverse kinematics: the public API (closed form where it exists, Levenberg–Marquardt everywhere).
 
 * :func:`ik` — one solution per target (nearest the seed) or, with ``all_branches=True``, every
-  distinct solution. Robots with a closed form (:func:`hykin.ik_analytic.has_closed_form`) are seeded
-  from it (or from the closed form of ``seed_robot``, e.g. the nominal robot behind a calibrated
-  one) and polished with LM; other robots (7 dof, prismatic joints, calibrated geometry) use LM from
-  the seed and random restarts.
+  distinct solution. Robots with a closed form (:func:`~hykin.kinematics.ik_closed_form.has_closed_form`)
+  are seeded from it (or from the closed form of ``seed_robot``, e.g. the nominal robot behind a
+  calibrated one) and polished with LM; other robots (7 dof, prismatic joints, calibrated geometry)
+  use LM from the seed and random restarts.
+* :func:`ik_closed_form` — every closed-form branch (:mod:`hykin.kinematics.ik_closed_form`), with
+  near-singular candidates refined by LM.
 * :func:`solve_lm` — one batched LM run from given seeds (compiled per-target kernel, adaptive
   damping, joints projected onto their limits after every step).
 * :func:`ik_numeric` — LM from a seed plus random restarts for the targets that failed.
@@ -21,101 +23,26 @@ solutions found from the random seeds, a sample of the self-motion manifold.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from .chain import chain_of
+from .chunks import run_chunked
 from .fk import HAVE_NUMBA, fk
-from .ik_closed_form import (
+from .ik_closed_form import closed_form_candidates, has_closed_form
+from .ik_solutions import (
+    IKBranches,
+    IKResult,
     IKSolutions,
-    _as_targets,
-    has_closed_form,
-    ik_closed_form,
+    as_targets,
     mark_duplicates,
+    nearest_representation,
     pose_residual,
-    run_chunked,
+    wrap_to_limits,
 )
 from .robot import Robot
 
-__all__ = ["IKBranches", "IKResult", "ik", "ik_all_numeric", "ik_numeric", "nearest_representation", "solve_lm"]
-
-TWO_PI = 2.0 * np.pi
-
-
-@dataclass
-class IKResult:
-    """One IK solution per target.
-
-    q: ``(N, dof)`` joints (rad / m); success: ``(N,)``; pos_err_m, ang_err_rad: ``(N,)`` residuals of
-    ``q`` (``ang_err_rad`` is 0 for position-only solves); branch: ``(N,)`` closed-form branch id
-    (0..7) or -1; label: ``(N,)`` branch label strings ("" when none); iterations: ``(N,)`` LM iterations
-    of the last attempt (0 when the closed form was already within tolerance).
-    """
-
-    q: np.ndarray
-    success: np.ndarray
-    pos_err_m: np.ndarray
-    ang_err_rad: np.ndarray
-    branch: np.ndarray
-    label: np.ndarray
-    iterations: np.ndarray
-
-    @property
-    def success_rate(self) -> float:
-        return float(np.mean(self.success)) if self.success.size else 0.0
-
-
-@dataclass
-class IKBranches:
-    """Every distinct solution of each target, padded to ``K`` slots.
-
-    q: ``(N, K, dof)`` (NaN in empty slots); success: ``(N, K)``; pos_err_m, ang_err_rad: ``(N, K)``;
-    branch: ``(N, K)`` closed-form branch ids or -1; label: ``(N, K)`` strings.
-    """
-
-    q: np.ndarray
-    success: np.ndarray
-    pos_err_m: np.ndarray
-    ang_err_rad: np.ndarray
-    branch: np.ndarray
-    label: np.ndarray
-
-    @property
-    def n_solutions(self) -> np.ndarray:
-        """``(N,)`` number of solutions per target (0 = unreachable)."""
-        return self.success.sum(axis=1)
-
-    def nearest_to(self, q_current, lower=None, upper=None) -> IKResult:
-        """The solution nearest ``q_current`` ``(N, dof)`` or ``(dof,)`` (Euclidean, joint space).
-
-        With ``lower``/``upper`` given, each solution's 2π-equivalent representations within those
-        limits are considered too (so a ±270° joint goes the short way round).
-        """
-        N, K, n = self.q.shape
-        qc = np.broadcast_to(np.asarray(q_current, dtype=np.float64), (N, n))
-        q = self.q
-        if lower is not None and upper is not None:
-            q = nearest_representation(q, qc[:, None, :], lower, upper)
-        d = np.linalg.norm(np.nan_to_num(q - qc[:, None, :], nan=np.inf), axis=-1)
-        d = np.where(self.success, d, np.inf)
-        k = np.argmin(d, axis=1)
-        idx = np.arange(N)
-        return IKResult(
-            q=q[idx, k].copy(), success=self.success[idx, k].copy(), pos_err_m=self.pos_err_m[idx, k].copy(),
-            ang_err_rad=self.ang_err_rad[idx, k].copy(), branch=np.array(self.branch[idx, k]),
-            label=np.array(self.label[idx, k], dtype=object), iterations=np.zeros(N, np.int64),
-        )
-
-
-def nearest_representation(q, q_ref, lower, upper):
-    """Each revolute angle of ``q`` moved by multiples of 2π to be nearest ``q_ref`` within limits."""
-    q = np.asarray(q, dtype=np.float64)
-    k_lo = np.ceil((lower - q) / TWO_PI - 1e-12)
-    k_hi = np.floor((upper - q) / TWO_PI + 1e-12)
-    k = np.clip(np.round((q_ref - q) / TWO_PI), k_lo, k_hi)
-    k = np.where(k_lo <= k_hi, k, 0.0)
-    return q + TWO_PI * np.nan_to_num(k)
+__all__ = ["IKBranches", "IKResult", "ik", "ik_all_numeric", "ik_closed_form", "ik_numeric", "nearest_representation",
+           "solve_lm"]
 
 
 # --------------------------------------------------------------------------- LM kernel
@@ -123,20 +50,8 @@ def nearest_representation(q, q_ref, lower, upper):
 if HAVE_NUMBA:
     import numba
 
-    from .fk import _first, _sincos, _step
-
-    @numba.njit(cache=True, nogil=True)
-    def _frames(fixed, prismatic, q, z, o, T):  # pragma: no cover - compiled
-        """Joint axes z (n,3), origins o (n,3) and TCP T (3,4) of one configuration (FK's kernel steps)."""
-        st = _first(fixed[0])
-        for i in range(q.shape[0]):
-            z[i, 0], z[i, 1], z[i, 2] = st[2], st[6], st[10]
-            o[i, 0], o[i, 1], o[i, 2] = st[3], st[7], st[11]
-            sq, cq = _sincos(q[i])
-            st = _step(st, fixed[i + 1], prismatic[i], q[i], sq, cq)
-        for r in range(3):
-            for c in range(4):
-                T[r, c] = st[4 * r + c]
+    # joint axes, origins and TCP of one configuration: the chain walk's compiled backend
+    from .walk import axes_one as _frames
 
     @numba.njit(cache=True, nogil=True)
     def _residual(T, Tt, pos_only, e):  # pragma: no cover - compiled
@@ -389,7 +304,7 @@ def solve_lm(robot: Robot, T_world, q0, position_only: bool = False, tol_m: floa
     both residuals are below tolerance, after ``max_iter`` iterations, or when no damping improves
     the cost (local minimum / joint limit).
     """
-    T, _ = _as_targets(T_world)
+    T, _ = as_targets(T_world)
     q = np.array(np.broadcast_to(np.asarray(q0, dtype=np.float64), (len(T), robot.dof)))
     lo, hi = robot.lower, robot.upper
     if not bounded:
@@ -444,7 +359,7 @@ def ik_numeric(robot: Robot, T_world, q_seed=None, position_only: bool = False, 
     """LM from ``q_seed`` (default: middle of the joint limits), then up to ``restarts`` rounds of
     random seeds (uniform within limits) for the targets still failing (the later half of the rounds
     with ``4 * max_iter`` iterations). Failed targets return their best joints, clipped to the limits."""
-    T, _ = _as_targets(T_world)
+    T, _ = as_targets(T_world)
     N, n = len(T), robot.dof
     rng = np.random.default_rng(rng)
     if q_seed is None:
@@ -478,19 +393,17 @@ def ik_all_numeric(robot: Robot, T_world, n_seeds: int = 200, position_only: boo
                    rng: np.random.Generator | int | None = 0, max_solutions: int | None = None) -> IKBranches:
     """Exhaustive numerical search: LM from ``n_seeds`` random seeds per target, successes kept,
     duplicates (modulo 2π on revolute joints, to ``dedup_tol`` rad) removed. Counts branches the way
-    :func:`hykin.ik_analytic.ik_closed_form` does."""
-    T, _ = _as_targets(T_world)
+    :func:`ik_closed_form` does."""
+    T, _ = as_targets(T_world)
     N, n = len(T), robot.dof
     rng = np.random.default_rng(rng)
     q0 = robot.random_joints(N * n_seeds, rng)
     TT = np.repeat(T, n_seeds, axis=0)
-    q, pe, ae, _, ok = _attempt(robot, TT, q0, position_only, tol_m, tol_rad, max_iter)
+    q, _, _, _, ok = _attempt(robot, TT, q0, position_only, tol_m, tol_rad, max_iter)
     ok = ok.reshape(N, n_seeds)
     q = q.reshape(N, n_seeds, n)
     rev = _revolute(robot)
     # canonical representation (nearest zero within limits) so duplicates compare equal
-    from .ik_closed_form import wrap_to_limits
-
     qc = np.where(rev, wrap_to_limits(q, robot.lower, robot.upper), q)
     qc = np.where(robot.within_limits(qc.reshape(-1, n), tol=0.0).reshape(N, n_seeds)[..., None], qc, q)
     uniq = mark_duplicates(qc, ok, tol=dedup_tol, revolute=rev)
@@ -506,6 +419,44 @@ def ik_all_numeric(robot: Robot, T_world, n_seeds: int = 200, position_only: boo
     succ &= (pe_s <= tol_m) & (ae_s <= tol_rad)
     return IKBranches(q=qs, success=succ, pos_err_m=np.where(succ, pe_s, np.inf), ang_err_rad=np.where(succ, ae_s, np.inf),
                       branch=np.full((N, K), -1), label=np.full((N, K), "", dtype=object))
+
+
+def ik_closed_form(robot: Robot, T_world, tol_m: float = 1e-9, tol_rad: float = 1e-9,
+                   structure_tol: float = 1e-9, use_numba: bool = True) -> IKSolutions:
+    """All closed-form IK solutions (up to 8) of world TCP targets ``T_world`` ``(N, 4, 4)``.
+
+    Raises :class:`~hykin.kinematics.ik_closed_form.ClosedFormError` when the robot is not of the
+    ``opw`` or ``ur`` family (see :func:`has_closed_form`). Solutions are wrapped into the joint
+    limits (see :mod:`hykin.kinematics.ik_closed_form`); ``valid`` marks the ones within limits whose FK
+    reproduces the target to ``tol_m`` / ``tol_rad``. Candidates near singularities that miss the
+    tolerance by little get a few LM steps (:func:`solve_lm`). ``use_numba=False`` runs the
+    vectorised numpy reference instead of the compiled kernel.
+    """
+    T, _ = as_targets(T_world)
+    sols = closed_form_candidates(robot, T, tol_m, tol_rad, structure_tol, use_numba)
+    _refine(robot, T, sols.q, sols.valid, sols.pos_err_m, sols.ang_err_rad, tol_m, tol_rad)
+    return sols
+
+
+def _refine(robot: Robot, T, q, valid, pe, ae, tol_m, tol_rad, near: float = 1e-5) -> None:
+    """In place: candidates within ``near`` of the target but outside tolerance (roots of
+    near-tangent subproblems at elbow/wrist/shoulder singularities lose about half the digits to
+    ``acos``) get a few Gauss-Newton/LM steps within the limits, then duplicates are re-marked."""
+    cand = np.isfinite(q).all(-1) & ~valid & (pe < near) & (ae < near)
+    if not cand.any() or not np.isfinite(tol_m) or not np.isfinite(tol_rad):
+        return
+    rows, cols = np.nonzero(cand)
+    qs, _, _, _ = solve_lm(robot, T[rows], q[rows, cols], tol_m=min(tol_m, 1e-12), tol_rad=min(tol_rad, 1e-12),
+                           max_iter=10, bounded=True)
+    pe_new, ae_new = pose_residual(fk(robot, qs), T[rows])
+    q[rows, cols], pe[rows, cols], ae[rows, cols] = qs, pe_new, ae_new
+    ok = (pe_new <= tol_m) & (ae_new <= tol_rad) & robot.within_limits(qs, tol=0.0)
+    valid[rows[ok], cols[ok]] = True
+    touched = np.unique(rows[ok])
+    if touched.size:
+        sub = valid[touched].copy()
+        # re-mark duplicates: refined slots may coincide with each other or with earlier ones
+        valid[touched] = mark_duplicates(q[touched], sub)
 
 
 def _polish_branches(robot: Robot, T, sols: IKSolutions, position_only, tol_m, tol_rad, max_iter,
@@ -543,7 +494,7 @@ def ik(robot: Robot, T_world, q_seed=None, all_branches: bool = False, position_
     distinct solution; otherwise an :class:`IKResult`. position_only: 3-D residual (orientation free;
     the closed form does not apply). Unreachable targets come back with ``success = False``.
     """
-    T, _ = _as_targets(T_world)
+    T, _ = as_targets(T_world)
     N, n = len(T), robot.dof
     if method not in ("auto", "closed_form", "numeric"):
         raise ValueError(f"method must be 'auto', 'closed_form' or 'numeric', got {method!r}")
@@ -558,7 +509,7 @@ def ik(robot: Robot, T_world, q_seed=None, all_branches: bool = False, position_
         elif seed_robot is not None and has_closed_form(seed_robot) and seed_robot.dof == n:
             cf_robot = seed_robot
     if method == "closed_form" and cf_robot is None:
-        raise ValueError(f"robot {robot.name!r}: no closed-form IK (see hykin.ik_analytic.has_closed_form)")
+        raise ValueError(f"robot {robot.name!r}: no closed-form IK (see hykin.kinematics.ik_closed_form.has_closed_form)")
 
     if cf_robot is not None:
         same = cf_robot is robot
@@ -579,7 +530,7 @@ def ik(robot: Robot, T_world, q_seed=None, all_branches: bool = False, position_
                          branch=np.broadcast_to(sols.branch, (N, 8)), label=np.broadcast_to(lab, (N, 8)))
         res = raw.nearest_to(ref, robot.lower, robot.upper)
         has = np.flatnonzero(res.success)
-        q, pe, ae, it = solve_lm(robot, T[has], res.q[has], position_only, tol_m, tol_rad, max_iter)
+        q, _, _, it = solve_lm(robot, T[has], res.q[has], position_only, tol_m, tol_rad, max_iter)
         res.q[has], res.iterations[has] = q, it
         res.pos_err_m[has], res.ang_err_rad[has] = _final_check(robot, T[has], q, position_only)
         res.success[has] = (res.pos_err_m[has] <= tol_m) & (res.ang_err_rad[has] <= tol_rad) & robot.within_limits(
