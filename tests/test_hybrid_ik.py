@@ -212,7 +212,7 @@ def test_jacobian_matches_finite_differences(model, sample):
     prob = IKProblem(model, model.robot, T[:5] @ se3.trans(0.001, 0.0, 0.0), False, 1.0)
     rows = np.arange(5)
     Ja = prob.exact_jac(q[:5], rows)
-    Jn = prob._fd_jac(q[:5], rows, h=1e-6)
+    Jn = prob.fd_jac(q[:5], rows, h=1e-6)
     assert np.abs(Ja - Jn).max() < 1e-7
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..kinematics.fk import jacobian
 from ..kinematics.ik_closed_form import has_closed_form, ik_closed_form
-from ..kinematics.ik_reasons import categorise, failure_reasons
+from ..kinematics.ik_rows import ik_rows
 from ..kinematics.robot import Robot
 from .ik_result import HybridIKError, HybridIKResult, classical_robot, parse_targets
 from .ik_roots import wrapped_diff
@@ -17,41 +17,23 @@ from .ik_roots import wrapped_diff
 __all__ = ["BranchCountReport", "branch_count_report", "ik_result_to_rows"]
 
 def ik_result_to_rows(result: HybridIKResult, robot: Robot | None = None, targets=None) -> dict[str, np.ndarray]:
-    """Columns for a CSV: ``target, branch, q1..qn, success, pos_err_mm, ang_err_deg, reason``.
+    """Columns for a CSV (the one IK row schema, :func:`hykin.kinematics.ik_rows.ik_rows`): ``target,
+    branch, q1..qn, success, pos_err_mm, ang_err_deg, reason, in_support, support_distance``.
 
     Joints are rad; a row that is not a solution (``success`` 0) has **no joint values** (NaN: never
     made-up joints, whatever the path: all branches, nearest, position only) and a ``reason`` that
-    starts with its category (:data:`hykin.ik_reasons.CATEGORIES`: out of reach, joint limits,
-    singular, not converged). With ``robot`` (the model's calibrated robot) and ``targets`` (the
-    ``(N, 4, 4)`` or ``(N, 3)`` targets given to :func:`hybrid_ik`) the category is established by
-    :func:`hykin.ik_reasons.failure_reasons` (reach, IK with opened joint limits, Jacobian at the best
-    attempt); otherwise it is read from the solver's reason. ``success`` is 0/1 int; ``in_support``
-    (0/1) and ``support_distance`` follow ``reason``.
+    starts with its category (:data:`hykin.kinematics.ik_reasons.CATEGORIES`: out of reach, joint
+    limits, singular, not converged). With ``robot`` (the model's calibrated robot) and ``targets`` (the
+    ``(N, 4, 4)`` or ``(N, 3)`` targets given to :func:`hykin.hybrid.ik.hybrid_ik`) the category is
+    established by :func:`hykin.kinematics.ik_reasons.failure_reasons` (reach, IK with opened joint
+    limits, Jacobian at the best attempt); otherwise it is read from the solver's reason. ``success`` is
+    0/1 int; ``in_support`` (0/1) and ``support_distance`` follow ``reason``.
     """
-    ok = np.asarray(result.success, dtype=bool)
-    q = np.array(result.q, dtype=np.float64, copy=True)
-    reason = result.reason.astype(object).copy()
-    bad = np.flatnonzero(~ok)
-    if bad.size:
-        if robot is not None and targets is not None:
-            tg = np.asarray(targets, dtype=np.float64)[result.target[bad]]
-            cls = np.array(["no classical solution" in str(reason[i]) or "classical solution outside" in str(reason[i])
-                            for i in bad])
-            cat = failure_reasons(robot, tg, bool(result.position_only), q_best=q[bad], classical_failed=cls)
-            reason[bad] = [f"{c}; {r}" if r else c for c, r in zip(cat, reason[bad])]
-        else:
-            reason[bad] = [categorise(str(reason[i])) for i in bad]
-        q[bad] = np.nan
-    cols: dict[str, np.ndarray] = {"target": result.target.astype(int), "branch": result.branch.astype(str)}
-    for j in range(q.shape[1]):
-        cols[f"q{j + 1}"] = q[:, j]
-    cols["success"] = ok.astype(int)
-    cols["pos_err_mm"] = result.pos_err_mm
-    cols["ang_err_deg"] = result.ang_err_deg
-    cols["reason"] = reason.astype(str)
-    cols["in_support"] = result.in_support.astype(int)
-    cols["support_distance"] = result.support_distance
-    return cols
+    reason = result.reason.astype(str)
+    cls = np.array(["no classical solution" in r or "classical solution outside" in r for r in reason], dtype=bool)
+    return ik_rows(result.target, result.branch, result.q, result.success, result.pos_err_mm, result.ang_err_deg,
+                   reason, robot=robot, targets=targets, position_only=bool(result.position_only), q_best=True,
+                   classical_failed=cls, in_support=result.in_support, support_distance=result.support_distance)
 
 
 # --------------------------------------------------------------------------- branch counts vs the closed form
