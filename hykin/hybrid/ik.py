@@ -3,13 +3,14 @@
 Method (Ojer et al. 2024, §1.3), batched over every target × branch:
 
 1. Classical IK on the model's calibrated classical robot (:func:`classical_robot`): closed form for all
-   branches where the robot has one (:func:`hykin.ik.ik`), numerical otherwise. Each branch gives a
+   branches where the robot has one (:func:`hykin.kinematics.ik.ik`), numerical otherwise. Each branch gives a
    seed ``q0``.
 2. Bounded non-linear least squares in the box ``q0 ± δ`` (clipped to the joint limits): minimise
    the Cartesian error between the target and the hybrid pose ``T*(q)`` — position (m) and
    orientation (rotation vector ``log(R* R_targetᵀ)``, rad, weighted by ``orientation_weight_m``), or
    position only. Solver: vectorised projected Levenberg–Marquardt in float64 over all rows at once
-   (no per-target Python loop). Jacobian: the classical geometric Jacobian of the calibrated robot at the
+   (no per-target Python loop; :func:`hykin.kinematics.lm.lm_solve`, damping scaled by the mean
+   diagonal of JᵀJ). Jacobian: the classical geometric Jacobian of the calibrated robot at the
    current joints plus the correction to it (networks, compliance), measured once at the seed and
    kept — a quasi-Newton "frozen correction": the correction is ~1e-3 of the classical Jacobian and
    barely changes inside the box, so each iteration gains ~3 digits and 3–5 iterations reach
@@ -34,12 +35,19 @@ nominal robot and explains each difference (joint limit, singularity / workspace
 carry a reason and are never marked successful. :func:`wang_ik` is the comparison method of
 Wang et al. (2019): classical IK → hybrid FK → compensated target → classical IK again.
 
-The "model" is anything with ``robot`` (classical :class:`hykin.robot.Robot`), ``predict(q)`` →
+The "model" is anything with ``robot`` (classical :class:`hykin.kinematics.robot.Robot`), ``predict(q)`` →
 ``(N, 4, 4)`` numpy hybrid poses and, for exact Jacobians, ``predict_torch(q)`` (differentiable,
 float64); ``support_distance(q)`` → ``(N,)`` (0 inside the training region) is used when present.
 Units: joints rad (m for prismatic), positions m, reported errors mm and degrees.
+
+Modules: this one holds the public entry points (:func:`hybrid_ik`, :func:`wang_ik`);
+:mod:`~hykin.hybrid.ik_result` the result type and input checks, :mod:`~hykin.hybrid.ik_seeds` the
+classical seeds (step 1), :mod:`~hykin.hybrid.ik_solve` the residual, Jacobians and box solve (steps
+2–3, on the shared LM of :mod:`hykin.kinematics.lm`), :mod:`~hykin.hybrid.ik_roots` the searches of
+step 4 and duplicates, :mod:`~hykin.hybrid.ik_report` the output rows and branch-count report.
 """
 
+from __future__ import annotations
 
 import numpy as np
 

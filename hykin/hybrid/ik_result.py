@@ -85,7 +85,7 @@ ROW_FIELDS = (
 
 
 def classical_robot(model) -> Robot:
-    """The model's calibrated classical robot: ``model.robot_`` (a fitted :class:`hykin.hybrid.HybridModel`,
+    """The model's calibrated classical robot: ``model.robot_`` (a fitted :class:`hykin.hybrid.model.HybridModel`,
     whose ``robot`` is the nominal one) or else ``model.robot``."""
     for name in ("robot_", "robot"):
         r = getattr(model, name, None)

@@ -69,7 +69,7 @@ def classical_seeds(robot: Robot, T: np.ndarray, *, all_branches: bool = True, q
                     pull_m: tuple[float, ...] = (1e-3, 4e-3)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Classical IK of ``robot`` (rigid) for targets ``T`` ``(N, 4, 4)``: seeds for the hybrid refinement.
 
-    All branches come from :func:`hykin.ik.ik` with the closed form of ``seed_robot`` (default: the
+    All branches come from :func:`hykin.kinematics.ik.ik` with the closed form of ``seed_robot`` (default: the
     robot itself if it has one, else :func:`closed_form_proxy`) polished by LM on ``robot``; without
     any closed form, from ik's numerical multi-start search. ``q_seed`` ``(N, dof)`` / ``(N, S, dof)``
     adds one numerical solution per seed (the only ones when ``all_branches=False``). Branches with

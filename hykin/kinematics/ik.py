@@ -215,6 +215,9 @@ if HAVE_NUMBA:
             dq[a] = s / L[a, a]
         return True
 
+    # The rule of hykin.kinematics.lm.lm_solve (damping="identity", active-set projection, accept on a
+    # cost decrease, λ/10 floored at 1e-12 or 10 λ, stop at λ > 1e10), compiled per target: a rejected
+    # step is retried with the larger λ at once (same Jacobian), so `it` counts Jacobians, not trials.
     @numba.njit(cache=True, nogil=True)
     def _lm_one(fixed, prismatic, lower, upper, Tt, q, pos_only, tol_m, tol_rad, max_iter, lam0):  # pragma: no cover
         n = q.shape[0]
@@ -373,7 +376,9 @@ def solve_lm(robot: Robot, T_world, q0, position_only: bool = False, tol_m: floa
     from random seeds) and still clamps prismatic joints.
     Returns ``(q (N, dof), pos_err_m (N,), ang_err_rad (N,), iterations (N,))``. Stops per target when
     both residuals are below tolerance, after ``max_iter`` iterations, or when no damping improves
-    the cost (local minimum / joint limit).
+    the cost (local minimum / joint limit). The rule is that of :mod:`hykin.kinematics.lm` with
+    ``damping="identity"`` (λ I from ``lambda0``), active-set projection, λ/10 on a decrease, 10 λ
+    otherwise, stop at λ > 1e10: the compiled kernel ``_lm_one`` with numba, else :func:`hykin.kinematics.lm.lm_solve` itself.
     """
     T, _ = _as_targets(T_world)
     q = np.array(np.broadcast_to(np.asarray(q0, dtype=np.float64), (len(T), robot.dof)))
