@@ -20,7 +20,9 @@ def test_public_functions_are_not_shadowed_by_submodules():
                       ("calibrate", "calibration.calibrate"), ("hybrid_ik", "hybrid.ik")):
         importlib.import_module(f"hykin.{mod}")
         assert callable(getattr(hykin, name)) and not isinstance(getattr(hykin, name), types.ModuleType), name
-    from hykin.kinematics.fk import jacobian  # submodules stay importable by their full name
+    from hykin.kinematics.fk import (
+        jacobian,  # submodules stay importable by their full name
+    )
 
     assert callable(jacobian)
 

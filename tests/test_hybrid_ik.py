@@ -14,13 +14,13 @@ import torch
 
 from hykin.hybrid.ik import (
     HybridIKError,
-    _Problem,
     branch_count_report,
     hybrid_ik,
     hybrid_ik_from_seeds,
     ik_result_to_rows,
     wang_ik,
 )
+from hykin.hybrid.ik_solve import IKProblem
 from hykin.io.robot_file import load_robot
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk, fk_torch, jacobian
@@ -209,10 +209,10 @@ def test_wang_is_worse(model, sample, solved):
 
 def test_jacobian_matches_finite_differences(model, sample):
     q, T = sample
-    prob = _Problem(model, model.robot, T[:5] @ se3.trans(0.001, 0.0, 0.0), False, 1.0)
+    prob = IKProblem(model, model.robot, T[:5] @ se3.trans(0.001, 0.0, 0.0), False, 1.0)
     rows = np.arange(5)
     Ja = prob.exact_jac(q[:5], rows)
-    Jn = prob._fd_jac(q[:5], rows, h=1e-6)
+    Jn = prob.fd_jac(q[:5], rows, h=1e-6)
     assert np.abs(Ja - Jn).max() < 1e-7
 
 

@@ -99,7 +99,9 @@ def ik_cmd(
     if nearest and q_cur is None:
         q_cur = np.zeros((len(T), rob.dof))  # nearest to the zero pose when no seed is given
     if mdl is None:
-        rows = _classical_ik_rows(rob, T, q_cur if nearest else None, position_only)
+        from ..kinematics.ik_rows import classical_ik_rows
+
+        rows = classical_ik_rows(rob, T, q_cur if nearest else None, position_only)
     else:
         from ..hybrid.ik import hybrid_ik, ik_result_to_rows
         from ..kinematics.payload import payload_from_columns
@@ -149,48 +151,3 @@ def _ik_rows_per_payload(mdl, target, pl, q_cur, nearest: bool, position_only: b
         parts.append(r)
     order = np.argsort(np.concatenate([p["target"] for p in parts]), kind="stable")
     return {k: np.concatenate([np.asarray(p[k]) for p in parts])[order] for k in parts[0]}
-
-
-def _classical_ik_rows(robot, T, q_current, position_only: bool) -> dict:
-    """Rows for classical IK on a robot: every branch, or the one nearest ``q_current``."""
-    from ..kinematics.ik import ik
-
-    br = ik(robot, T, all_branches=True, position_only=position_only)
-    if q_current is not None:
-        r = br.nearest_to(q_current, robot.lower, robot.upper)
-        r.q[~r.success] = np.nan  # nearest_to may hand back a failed slot's joints
-        q, ok, pe, ae, lab = r.q[:, None], r.success[:, None], r.pos_err_m[:, None], r.ang_err_rad[:, None], np.asarray(r.label)[:, None]
-    else:
-        q, ok, pe, ae, lab = br.q, br.success, br.pos_err_m, br.ang_err_rad, br.label
-    N, K, n = q.shape
-    from ..kinematics.ik_reasons import failure_reasons
-
-    failed = ~ok.any(axis=1)
-    reasons = np.full(N, "", dtype=object)
-    if failed.any():
-        reasons[failed] = failure_reasons(robot, T[failed], position_only=position_only)  # classical: all failed
-    rows: dict = {"target": [], "branch": []}
-    rows.update({f"q{j + 1}": [] for j in range(n)})
-    rows.update({"success": [], "pos_err_mm": [], "ang_err_deg": [], "reason": []})
-    for i in range(N):
-        ks = [k for k in range(K) if ok[i, k]]
-        if not ks:  # unreachable: one row saying so, no made-up joints
-            rows["target"].append(i)
-            rows["branch"].append("")
-            for j in range(n):
-                rows[f"q{j + 1}"].append(float("nan"))
-            rows["success"].append(False)
-            rows["pos_err_mm"].append(float(np.nanmin(pe[i]) * 1e3) if np.isfinite(pe[i]).any() else float("nan"))
-            rows["ang_err_deg"].append(float(np.degrees(np.nanmin(ae[i]))) if np.isfinite(ae[i]).any() else float("nan"))
-            rows["reason"].append(reasons[i])
-            continue
-        for k in ks:
-            rows["target"].append(i)
-            rows["branch"].append(str(lab[i, k]))
-            for j in range(n):
-                rows[f"q{j + 1}"].append(float(q[i, k, j]))
-            rows["success"].append(True)
-            rows["pos_err_mm"].append(float(pe[i, k] * 1e3))
-            rows["ang_err_deg"].append(float(np.degrees(ae[i, k])))
-            rows["reason"].append("")
-    return rows

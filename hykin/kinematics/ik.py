@@ -130,6 +130,9 @@ if HAVE_NUMBA:
             dq[a] = s / L[a, a]
         return True
 
+    # The rule of hykin.kinematics.lm.lm_solve (damping="identity", active-set projection, accept on a
+    # cost decrease, λ/10 floored at 1e-12 or 10 λ, stop at λ > 1e10), compiled per target: a rejected
+    # step is retried with the larger λ at once (same Jacobian), so `it` counts Jacobians, not trials.
     @numba.njit(cache=True, nogil=True)
     def _lm_one(fixed, prismatic, lower, upper, Tt, q, pos_only, tol_m, tol_rad, max_iter, lam0):  # pragma: no cover
         n = q.shape[0]
@@ -250,47 +253,33 @@ if HAVE_NUMBA:
 
 
 def _lm_numpy(robot, T, q, pos_only, tol_m, tol_rad, max_iter, lam0, lo, hi):
-    """Vectorised numpy LM (fallback without numba): same algorithm, batched over targets."""
-    from .fk import fk_frames
+    """Vectorised numpy LM (fallback without numba): :func:`hykin.kinematics.lm.lm_solve` with the
+    compiled kernel's rule (identity damping from ``lam0``, stop when λ > 1e10), batched over targets.
+    Residual ``p − p_t`` and ``log(R R_tᵀ)`` (the kernel's ``−e``), Jacobian the geometric one."""
+    from .fk import fk_frames, jacobian
+    from .lm import lm_solve
     from .se3 import matrix_to_rotvec
 
-    N, n = q.shape
     m = 3 if pos_only else 6
-    lam = np.full(N, lam0)
-    q = np.clip(q, lo, hi)
-    prism = np.array([t == "prismatic" for t in robot.joint_type])
-    iters = np.zeros(N, int)
 
-    def resid(qq):
+    def resid(qq, idx):
         fr = fk_frames(robot, qq)
-        e = np.concatenate([T[:, :3, 3] - fr.tcp[:, :3, 3],
-                            matrix_to_rotvec(T[:, :3, :3] @ np.swapaxes(fr.tcp[:, :3, :3], -1, -2))], -1)
-        return fr, e[:, :m]
+        Tt = T[idx]
+        r = np.concatenate([fr.tcp[:, :3, 3] - Tt[:, :3, 3],
+                            -matrix_to_rotvec(Tt[:, :3, :3] @ np.swapaxes(fr.tcp[:, :3, :3], -1, -2))], -1)
+        return r[:, :m], (jacobian(robot, qq, frames=fr)[:, :m],)
 
-    fr, e = resid(q)
-    for _ in range(max_iter):
-        pe = np.linalg.norm(e[:, :3], axis=1)
-        ae = np.zeros(N) if pos_only else np.linalg.norm(e[:, 3:], axis=1)
-        active = ~((pe <= tol_m) & (ae <= tol_rad)) & (lam < 1e10)
-        if not active.any():
-            break
-        z, o, p = fr.joint[..., :3, 2], fr.joint[..., :3, 3], fr.tcp[:, None, :3, 3]
-        J = np.concatenate([np.where(prism[None, :, None], z, np.cross(z, p - o)),
-                            np.where(prism[None, :, None], 0.0, z)], -1).transpose(0, 2, 1)[:, :m]
-        A = np.swapaxes(J, 1, 2) @ J + lam[:, None, None] * np.eye(n)
-        dq = np.linalg.solve(A, (np.swapaxes(J, 1, 2) @ e[..., None]))[..., 0]
-        qn = np.clip(q + dq, lo, hi)
-        frn, en = resid(qn)
-        better = active & (np.sum(en**2, 1) < np.sum(e**2, 1))
-        q = np.where(better[:, None], qn, q)
-        e = np.where(better[:, None], en, e)
-        fr = type(fr)(*(np.where(better.reshape((-1,) + (1,) * (a.ndim - 1)), b, a)
-                        for a, b in zip((fr.joint, fr.link, fr.tcp), (frn.joint, frn.link, frn.tcp))))
-        lam = np.where(better, np.maximum(lam * 0.1, 1e-12), np.where(active, lam * 10, lam))
-        iters += active
-    pe = np.linalg.norm(e[:, :3], axis=1)
-    ae = np.zeros(N) if pos_only else np.linalg.norm(e[:, 3:], axis=1)
-    return q, pe, ae, iters
+    def errs(r):
+        return np.linalg.norm(r[:, :3], axis=1), (np.zeros(len(r)) if pos_only else np.linalg.norm(r[:, 3:], axis=1))
+
+    def converged(r):
+        pe, ae = errs(r)
+        return (pe <= tol_m) & (ae <= tol_rad)
+
+    res = lm_solve(resid, lambda qq, idx, aux, it: aux[0], q, lo, hi, converged=converged, lam0=lam0,
+                   damping="identity", lam_max=1e10, max_iter=max_iter)
+    pe, ae = errs(res.r)
+    return res.q, pe, ae, res.iterations
 
 
 def solve_lm(robot: Robot, T_world, q0, position_only: bool = False, tol_m: float = 1e-10,
@@ -302,7 +291,9 @@ def solve_lm(robot: Robot, T_world, q0, position_only: bool = False, tol_m: floa
     from random seeds) and still clamps prismatic joints.
     Returns ``(q (N, dof), pos_err_m (N,), ang_err_rad (N,), iterations (N,))``. Stops per target when
     both residuals are below tolerance, after ``max_iter`` iterations, or when no damping improves
-    the cost (local minimum / joint limit).
+    the cost (local minimum / joint limit). The rule is that of :mod:`hykin.kinematics.lm` with
+    ``damping="identity"`` (λ I from ``lambda0``), active-set projection, λ/10 on a decrease, 10 λ
+    otherwise, stop at λ > 1e10: the compiled kernel ``_lm_one`` with numba, else :func:`hykin.kinematics.lm.lm_solve` itself.
     """
     T, _ = as_targets(T_world)
     q = np.array(np.broadcast_to(np.asarray(q0, dtype=np.float64), (len(T), robot.dof)))
