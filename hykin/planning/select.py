@@ -51,7 +51,7 @@ import numpy as np
 from ..robot import Robot
 from ..sampling import uniform
 from .constraints import Constraints, PlanningError, feasible, region_bounds
-from .coverage import embed, farthest_point, min_spacing
+from .coverage import coverage_report, embed, farthest_point, min_spacing
 from .criteria import (
     IdentificationModel,
     identification_model,
@@ -73,7 +73,9 @@ class Plan:
 
     q: ``(N, dof)`` joints in measuring order (rad / m). core: ``(N,)`` bool, D-optimal core poses.
     pick_order: ``(N,)`` rank of each row in the (nested) selection. travel: :func:`path_travel`
-    of the order. criteria: :func:`hykin.planning.criteria.observability` of the plan.
+    of the order. criteria: :func:`hykin.planning.criteria.observability` of the plan, its
+    ``min_spacing`` and :func:`hykin.planning.coverage.coverage_report` (``discrepancy_cd``,
+    ``marginal_ks``, ``holes_pct``; :func:`plan_poses` only).
     id_model: the identification model used. n_pool / n_feasible: candidates drawn / feasible.
     lower/upper: the working region. score: active-selection score per pose (``--for-model``).
     """
@@ -236,6 +238,7 @@ def plan_poses(robot: Robot, n: int, constraints: Constraints | None = None, *, 
     path = order_path(q_sel, speeds, start)
     crit = observability(scaled_rows(idm, q_sel))
     crit["min_spacing"] = min_spacing(X[sel])
+    crit.update(coverage_report(q_sel, c.lower, c.upper, seed=seed))
     pick_order = path.copy()  # ordered row i is selection rank path[i]
     core = path < k_core
     return Plan(q=q_sel[path], core=core, pick_order=pick_order, travel=path_travel(q_sel[path], speeds, dwell_s),
