@@ -17,7 +17,15 @@ uniform random poses in the region:
    poses) and its power-law fit (the constants of ``hykin.planning.forecast``), on robot seed 100
    (the report in 1-3 uses other seeds).
 
-Run: ``PYTHONPATH=. python benchmarks/bench_plan.py [--seeds 0 1] [--min-steps 10000] [--curve]``.
+1. also says where the hybrid's error is: its calibrated part, the share of test poses where the
+networks fade (weight < 0.999) and the error there, and the error near the ends of the bounded joint
+ranges (within 5 %) vs the interior.
+
+``--robot ur-like``: a second, different 6R arm (:func:`bench_robot`) as a held-out check; the
+planner's settings were decided on bench-6r (robot seed 2, docs/planning.md).
+
+Run: ``PYTHONPATH=. python benchmarks/bench_plan.py [--seeds 0 1] [--min-steps 10000] [--robot ur-like]
+[--hybrid-only] [--curve]``.
 Timings are wall-clock on a shared machine and are not the point of this benchmark.
 """
 
