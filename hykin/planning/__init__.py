@@ -16,7 +16,7 @@ from .constraints import (
     parse_region,
     region_bounds,
 )
-from .coverage import embed, farthest_point, fill_distance
+from .coverage import coverage_report, embed, farthest_point, fill_distance
 from .criteria import identification_model, observability, scaled_rows
 from .forecast import Forecast, forecast_accuracy
 from .order import order_path, path_travel
@@ -28,6 +28,7 @@ __all__ = [
     "Plan",
     "PlanningError",
     "active_poses",
+    "coverage_report",
     "d_optimal",
     "embed",
     "farthest_point",

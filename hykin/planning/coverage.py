@@ -12,6 +12,23 @@ Coverage is measured in the same coordinates: :func:`embed` maps joints to a Euc
 :func:`farthest_point` is greedy maximin selection (Gonzalez's 2-approximation of the
 k-centre problem): each new point is the candidate farthest from every point chosen so far.
 :func:`fill_distance` is the covering radius of a set over a reference sample (smaller is better).
+
+Coverage as the hybrid sees it (:func:`coverage_report`), in the unit-cube coordinates
+``u = (q - lo) / (hi - lo)`` of the region (:func:`unit_coordinates`):
+
+* :func:`centred_discrepancy`: the squared centred L2 discrepancy (Hickernell 1998; ``scipy.stats.qmc``),
+  the mean squared difference between the set's empirical measure and the uniform one over all
+  boxes anchored at the cube's corners, every subset of joints included (lower is more uniform; its
+  expectation for a uniform random set falls as ``1/n``, for a low-discrepancy set nearly as ``1/n²``);
+* :func:`marginal_ks`: the largest Kolmogorov-Smirnov distance of one joint's values from the uniform
+  distribution (marginal stratification; a Latin hypercube reaches ``1/n``, a uniform random set
+  about ``0.9 / √n``). Transmission errors are functions of one joint each, learnt from its marginal;
+* :func:`hole_fraction`: the share of reference points (uniform over the region) that lie in a hole
+  of the design by the rule :class:`hykin.hybrid.HybridModel` uses to fade its networks (module
+  docstring there: for every pair of joints, distance in the 2-D projection to the nearest design
+  point beyond ``max(2 x`` the 95th percentile of the design's own nearest-neighbour spacing in that
+  projection``, 1/47)``, coordinates min-max normalised over the design). Reimplemented here without
+  the wrap of full-turn joints (an approximation near the networks' seam for those joints).
 """
 
 from __future__ import annotations
@@ -21,7 +38,8 @@ from scipy.spatial import cKDTree
 
 from ..kinematics.robot import Robot
 
-__all__ = ["embed", "farthest_point", "fill_distance", "min_spacing"]
+__all__ = ["centred_discrepancy", "coverage_report", "embed", "farthest_point", "fill_distance", "hole_fraction",
+           "marginal_ks", "min_spacing", "unit_coordinates"]
 
 _TWO_PI = 2.0 * np.pi
 
@@ -86,3 +104,60 @@ def min_spacing(X_design: np.ndarray) -> float:
         return float("inf")
     d, _ = cKDTree(X_design).query(X_design, k=2)
     return float(d[:, 1].min())
+
+
+def unit_coordinates(q, lower, upper) -> np.ndarray:
+    """``(N, dof)`` joints ``q`` mapped to the unit cube of the region: ``(q - lower) / (upper - lower)``."""
+    q = np.asarray(q, dtype=np.float64)
+    lo, hi = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
+    return (q - lo) / np.maximum(hi - lo, 1e-12)
+
+
+def centred_discrepancy(u: np.ndarray) -> float:
+    """Squared centred L2 discrepancy of points ``u`` ``(N, d)`` in the unit cube (module docstring); ``O(N² d)``."""
+    from scipy.stats import qmc
+
+    return float(qmc.discrepancy(np.clip(np.asarray(u, dtype=np.float64), 0.0, 1.0), method="CD"))
+
+
+def marginal_ks(u: np.ndarray) -> float:
+    """Largest over the columns of ``u`` ``(N, d)`` of the Kolmogorov-Smirnov distance from U(0, 1)."""
+    s = np.sort(np.clip(np.asarray(u, dtype=np.float64), 0.0, 1.0), axis=0)
+    n = len(s)
+    i = np.arange(1, n + 1, dtype=np.float64)[:, None]
+    return float(np.maximum(i / n - s, s - (i - 1) / n).max())
+
+
+_HOLE_GRID = 48  # the hybrid's pair-grid resolution: its tolerance is at least one grid step
+_HOLE_FACTOR = 2.0  # the hybrid's _GAP_FACTOR
+
+
+def hole_fraction(u_design: np.ndarray, u_ref: np.ndarray) -> float:
+    """Share of the reference points ``u_ref`` ``(M, d)`` in a pairwise hole of ``u_design`` ``(N, d)``
+    (module docstring: the hybrid's fade rule for holes). Coordinates are min-max normalised over the
+    design first, as the hybrid normalises over its training data; constant columns are skipped."""
+    X = np.asarray(u_design, dtype=np.float64)
+    R = np.asarray(u_ref, dtype=np.float64)
+    lo, span = X.min(0), np.ptp(X, axis=0)
+    cols = np.flatnonzero(span > 1e-9)
+    X = (X[:, cols] - lo[cols]) / span[cols]
+    R = np.clip((R[:, cols] - lo[cols]) / span[cols], 0.0, 1.0)  # outside the range: the range test's, not a hole
+    hole = np.zeros(len(R), bool)
+    for a in range(len(cols)):
+        for b in range(a + 1, len(cols)):
+            pts = np.unique(np.round(X[:, [a, b]], 6), axis=0)
+            tree = cKDTree(pts)
+            sp = tree.query(pts, k=2)[0][:, 1] if len(pts) > 1 else np.ones(1)
+            tol = max(_HOLE_FACTOR * float(np.percentile(sp, 95)), 1.0 / (_HOLE_GRID - 1))
+            hole |= tree.query(R[:, [a, b]])[0] > tol
+    return float(hole.mean())
+
+
+def coverage_report(q, lower, upper, *, n_ref: int = 4000, seed: int = 0, max_discrepancy_n: int = 5000) -> dict:
+    """Coverage of joints ``q`` ``(N, dof)`` over the region ``[lower, upper]`` (module docstring):
+    ``discrepancy_cd`` (None above ``max_discrepancy_n`` poses: ``O(N²)``), ``marginal_ks``,
+    ``holes_pct`` (share of ``n_ref`` uniform random reference poses in a pairwise hole, %)."""
+    u = unit_coordinates(q, lower, upper)
+    ref = np.random.default_rng([seed, 41]).random((n_ref, u.shape[1]))
+    return {"discrepancy_cd": centred_discrepancy(u) if len(u) <= max_discrepancy_n else None,
+            "marginal_ks": marginal_ks(u), "holes_pct": 100.0 * hole_fraction(u, ref)}
