@@ -83,7 +83,7 @@ _EXPORTS = {
     "reflector_points": "calibration.reflectors",
     "DEFAULT_MAX_DEVIATION": "calibration.checks",
     "HybridModel": "hybrid.model",
-    "OutOfRangeWarning": "hybrid.model",
+    "OutOfRangeWarning": "hybrid.errors",
     "ModelFileError": "io.modelfile",
     "UnverifiedModelWarning": "io.modelfile",
     "PlausibilityError": "calibration.plausibility",

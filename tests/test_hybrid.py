@@ -190,7 +190,23 @@ def test_bad_input(fitted, robot):
     with pytest.raises(HybridError, match="not fitted"):
         HybridModel(robot).predict(q)
     with pytest.raises(ValueError, match="unknown architecture"):
-        HybridModel(robot, arch="nope")
+        HybridModel(robot, arch="nope").fit(_data(robot, 50, 1), progress=False)
+
+
+def test_constructor_stores_settings_and_fit_validates_them(robot):
+    """scikit-learn contract: the constructor only stores (even bad settings), ``fit`` validates them
+    before any work, learns the ``*_`` attributes and returns self; settings are not rewritten."""
+    bad = HybridModel(robot, fade="sometimes", recipe_kw={"max_epochs": 3}, input_joints=[1, 2, 3])
+    assert bad.fade == "sometimes" and bad.recipe == "default" and bad.input_joints == [1, 2, 3]
+    assert not hasattr(bad, "net_pos_") and not hasattr(bad, "recipe_")
+    with pytest.raises(HybridError, match="fade must be"):
+        bad.fit(_data(robot, 50, 1), progress=False)
+    with pytest.raises(HybridError, match="input_joints"):
+        HybridModel(robot, input_joints=[0, 7]).fit(_data(robot, 50, 1), progress=False)
+    m = HybridModel(robot, calibrate=False, recipe_kw=TINY, seed=0)
+    assert m.fit(_data(robot, 100, 1), progress=False) is m
+    assert m.recipe == "default" and m.recipe_kw == TINY and m.val_fraction is None and m.input_joints is None
+    assert m.recipe_.max_epochs == TINY["max_epochs"] and m.net_pos_ is not None
 
 
 def test_full_fade_uses_nearest_neighbour_gap(fitted):

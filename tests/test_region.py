@@ -68,10 +68,11 @@ def test_wrap_makes_revolute_joints_periodic(frame_model, rx160):
     assert np.allclose(m.range_excess(q), m.range_excess(q2), atol=1e-12)
     # the "none" representation sees a different input there (no guarantee): only check it runs
     assert HybridModel(rx160, periodic="none").periodic == "none"
-    with pytest.raises(HybridError, match="periodic"):
-        HybridModel(rx160, periodic="sometimes")
+    ds = _data(rx160, rx160.random_joints(50, 4))
+    with pytest.raises(HybridError, match="periodic"):  # settings are validated by fit
+        HybridModel(rx160, periodic="sometimes").fit(ds, progress=False)
     with pytest.raises(HybridError, match="joint1"):
-        HybridModel(rx160, joint1="maybe")
+        HybridModel(rx160, joint1="maybe").fit(ds, progress=False)
 
 
 def test_joint1_frame_generalises_over_q1(frame_model, rx160):

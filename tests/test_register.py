@@ -120,3 +120,30 @@ def test_registered_model_fades_with_the_nearest_neighbour_gap(rx160):
     assert new.fade == "full" and m.fade is True  # the original model is untouched
     m.fade = "range"
     assert register_model(m, _series(rx160, 100), n_poses=30)[0].fade == "range"
+
+
+def test_register_model_returns_a_new_model_and_leaves_the_input_unchanged(rx160):
+    """Registration is not fitting the given model: the input model's predictions, frames, fade and
+    calibrated robot are bit-identical afterwards, also when joint zero offsets are re-fitted."""
+    import copy
+
+    m = copy.deepcopy(_model(rx160))
+    m.fade = True
+    q = rx160.random_joints(200, np.random.default_rng(11)) * 1.2  # partly outside the trained range
+    before = m.predict(q), m.predict_classical(q), m.fade_weight(q)
+    rob_before = copy.deepcopy(m.robot_)
+    # a series whose joint 2 zero is off by 0.5 mrad: the copy re-fits it into its calibrated robot
+    shifted = rx160.copy(theta_rad=rx160.theta_rad + np.r_[0.0, 5e-4, 0.0, 0.0, 0.0, 0.0])
+    qs = rx160.random_joints(300, np.random.default_rng(12))
+    T = B_TRUE @ fk(shifted, qs) @ E_TRUE
+    series = Dataset(q=qs, xyz_m=T[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T[:, :3, :3]), source="shifted")
+    new, info = register_model(m, series, n_poses=40)
+    assert new is not m and new.robot_ is not m.robot_
+    assert any(p.name.startswith("q2") for p in info.parameters)  # the copy's robot was changed
+    for a, b in zip(before, (m.predict(q), m.predict_classical(q), m.fade_weight(q))):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(m.frame_pre, np.eye(4))
+    np.testing.assert_array_equal(m.frame_post, np.eye(4))
+    assert m.fade is True and new.fade == "full"
+    np.testing.assert_array_equal(m.robot_.theta_rad, rob_before.theta_rad)
+    assert not np.allclose(new.robot_.theta_rad, rob_before.theta_rad)

@@ -36,6 +36,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errors import OutOfRangeWarning
+from .support import fade_weight
+
 __all__ = ["FadeCalibration", "calibrate_fade", "fade_distance", "region_blocks"]
 
 #: candidate offsets / widths (support-distance units: fractions of the trained joint range)
@@ -85,27 +88,16 @@ def region_blocks(xyz_m: np.ndarray, n_blocks: int, seed: int = 0) -> np.ndarray
 def fade_distance(model, q: np.ndarray, mode=None) -> np.ndarray:
     """``(N,)`` the support distance of ``model`` that fade ``mode`` (default ``model.fade``) uses
     (``"range"``: range excess; ``"full"``: :meth:`support_distance`; otherwise range excess and
-    pairwise holes)."""
-    mode = model.fade if mode is None else mode
-    if mode == "full":
-        return model.support_distance(q)
-    ex = model.range_excess(q).max(1)
-    if mode == "range":
-        return ex
-    return np.maximum(ex, model.pair_gap(q))
-
-
-def _w(d: np.ndarray, offset: float, width: float) -> np.ndarray:
-    t = np.clip((d - offset) / width, 0.0, 1.0)
-    return 0.5 * (1.0 + np.cos(np.pi * t))
+    pairwise holes; :meth:`HybridModel.fade_distance`)."""
+    return model.fade_distance(q, mode)
 
 
 def calibrate_fade(model, train, n_blocks: int = 4, min_steps: int = 3000, seed: int = 0) -> FadeCalibration:
     """Measure where ``model``'s networks stop helping by leave-one-region-out on ``train`` (the
     Dataset it was fitted on; module docstring) and return the fade that minimises the held-out error.
-    ``model`` is only read (fitted: ``robot_``, ``fade``, architecture, recipe)."""
+    ``model`` is only read (fitted: ``robot_``, ``recipe_``, ``fade``, architecture); the regions'
+    networks are models of the same class (``type(model)``), fitted without calibration."""
     from ..kinematics.se3 import rotation_difference_rotvec
-    from .model import HybridModel, OutOfRangeWarning
 
     if n_blocks < 2:
         raise ValueError(f"fade calibration needs at least 2 regions, got {n_blocks}")
@@ -116,7 +108,7 @@ def calibrate_fade(model, train, n_blocks: int = 4, min_steps: int = 3000, seed:
         hold = lab == k
         if hold.sum() < 5 or (~hold).sum() < 20:
             continue
-        cv = HybridModel(model.robot_, arch=model.arch, recipe=model.recipe, calibrate=False, fade=False,
+        cv = type(model)(model.robot_, arch=model.arch, recipe=model.recipe_, calibrate=False, fade=False,
                          seed=seed + k, device=model.device, periodic=model.periodic, joint1=model.joint1,
                          input_joints=model.input_joints, thermal=False,
                          recipe_kw={"min_steps": min_steps})
@@ -145,7 +137,7 @@ def calibrate_fade(model, train, n_blocks: int = 4, min_steps: int = 3000, seed:
     best = None
     for o in OFFSETS:
         for wd in WIDTHS:
-            e = err(_w(d, o, wd))
+            e = err(fade_weight(d, o, wd))
             if best is None or e < best[0] - 1e-12:
                 best = (e, o, wd)
     edges = np.unique(np.quantile(d, np.linspace(0, 1, 9)))
@@ -157,4 +149,4 @@ def calibrate_fade(model, train, n_blocks: int = 4, min_steps: int = 3000, seed:
         bins.append((float(lo), float(hi), int(sel.sum()), wopt))
     return FadeCalibration(offset=best[1], width=best[2], n_blocks=n_blocks, bins=bins,
                            err_calibrated_mm=err(np.zeros(len(d))), err_unfaded_mm=err(np.ones(len(d))),
-                           err_default_mm=err(_w(d, 0.0, 0.1)), err_chosen_mm=best[0])
+                           err_default_mm=err(fade_weight(d, 0.0, 0.1)), err_chosen_mm=best[0])

@@ -85,7 +85,7 @@ def select_calibration(robot, ds, candidates: dict[str, dict] | None = None, n_b
     from ..calibration.calibrate import calibrate
     from ..kinematics.se3 import pose_error
     from ..measure.register import fit_frames, select_representative
-    from .model import classical_fk
+    from .classical import classical_fk
 
     cands = CANDIDATES if candidates is None else candidates
     base_kw = dict(base_kw or {})

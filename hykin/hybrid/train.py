@@ -41,7 +41,7 @@ import torch
 
 from .nets import ResidualNet
 
-__all__ = ["RECIPES", "Recipe", "TrainResult", "batch_and_epochs", "get_recipe", "norm_loss", "train_net"]
+__all__ = ["RECIPES", "Recipe", "TrainResult", "batch_and_epochs", "get_recipe", "train_net"]
 
 
 @dataclass(frozen=True)
@@ -139,11 +139,6 @@ class TrainResult:
         d = asdict(self)
         d["history"] = [list(h) for h in self.history]
         return d
-
-
-def norm_loss(pred, target):
-    """Mean Euclidean norm of ``target - pred`` over rows."""
-    return torch.linalg.vector_norm(target - pred, dim=-1).mean()
 
 
 def _dtype(name: str) -> torch.dtype:

@@ -50,7 +50,7 @@ def extrapolation_growth(robot, train, qn: np.ndarray, joints: np.ndarray, level
     samples); see :func:`_fit_growth`.
     """
     from ..calibration.calibrate import CalibrationError, calibrate
-    from .model import classical_fk
+    from .classical import classical_fk
 
     rng = np.random.default_rng(seed)
     n = qn.shape[1]

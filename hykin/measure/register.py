@@ -283,7 +283,7 @@ class _Problem:
     ``R = R_c(x) R_c(0)ᵀ R_h0``."""
 
     def __init__(self, model, q, T_h0, T_meas, extra: list[str], position_only: bool, w: float = 1.0):
-        from ..hybrid.model import classical_fk
+        from ..hybrid.classical import classical_fk
 
         self.model, self.q, self.T_h0, self.T_meas = model, q, T_h0, T_meas
         self.extra, self.pos_only, self.w = list(extra), position_only, w

@@ -1,0 +1,107 @@
+"""Thermal expansion in the hybrid model: the coefficient identified with the calibration in ``fit``
+and its application to predictions and targets (:mod:`hykin.calibration.thermal` holds the physics:
+one linear coefficient, positions scaled about the base origin)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..calibration.thermal import (
+    MAX_PLAUSIBLE_PER_K,
+    MIN_EFFECT_M,
+    ThermalFit,
+    fit_coefficient,
+    scale_about,
+    temperature_of,
+    to_reference,
+)
+from ..kinematics.payload import payload_kwargs, payload_of
+from .classical import classical_fk
+from .errors import HybridError
+
+__all__ = ["apply_thermal", "fit_thermal", "targets_at_reference", "thermal_factor"]
+
+
+def fit_thermal(train, val, temp: np.ndarray, robot, calibration, recalibrate=None, rounds: int = 3):
+    """Identify the expansion coefficient (1/K) together with the calibration.
+
+    ``train``/``val``: Datasets (``val`` may be None); ``temp``: ``(N,)`` °C of ``train``; ``robot`` /
+    ``calibration``: the calibration at the measured temperatures; ``recalibrate(ds) -> (robot,
+    calibration)``: calibrates on data mapped to the reference temperature (None: the model does not
+    calibrate, one round). Returns ``(robot, calibration, thermal, train, val)``: the coefficient is
+    kept only if significant, plausible and not negligible (else ``thermal`` records why, and robot,
+    calibration and data are returned as given); otherwise the data are mapped to the reference
+    temperature (mean of ``temp``)."""
+    ref = float(temp.mean())
+    dt = temp - ref
+    q = np.asarray(train.q, dtype=np.float64)
+    first = (robot, calibration)
+    alpha, std = 0.0, float("inf")
+    for _ in range(rounds):
+        b = robot.base[:3, 3]
+        alpha, std = fit_coefficient(train.xyz_m, classical_fk(robot, q, **payload_kwargs(payload_of(train)))[:, :3, 3],
+                                     b, dt, alpha)
+        if recalibrate is None:
+            break
+        robot, calibration = recalibrate(to_reference(train, b, alpha, dt))
+    rng_c = (float(temp.min()), float(temp.max()))
+    # size of the effect in the data: alpha x temperature spread x reach (RMS), metres
+    reach = float(np.sqrt(np.mean(np.sum((train.xyz_m - robot.base[:3, 3]) ** 2, axis=1))))
+    effect_m = abs(alpha) * float(np.std(dt)) * reach
+    why = None
+    if abs(alpha) < 3.0 * std:
+        why = "not significant (|alpha| < 3 std)"
+    elif abs(alpha) > MAX_PLAUSIBLE_PER_K:
+        why = f"implausible (|alpha| > {MAX_PLAUSIBLE_PER_K:g} /K)"
+    elif effect_m < MIN_EFFECT_M:
+        why = f"negligible ({effect_m * 1e6:.2g} µm RMS in these data, below {MIN_EFFECT_M * 1e6:g} µm)"
+    if why is not None:
+        thermal = ThermalFit(0.0, std, ref, rng_c, f"ignored: alpha = {alpha:.3g} +- {std:.2g} /K is {why}")
+        return first[0], first[1], thermal, train, val
+    thermal = ThermalFit(alpha, std, ref, rng_c, f"alpha = {alpha:.4g} +- {std:.2g} /K "
+                         f"({effect_m * 1e6:.2g} µm RMS in the training data)")
+    b = robot.base[:3, 3]
+    train = to_reference(train, b, alpha, dt)
+    tv = None if val is None else temperature_of(val)
+    if tv is not None:
+        val = to_reference(val, b, alpha, tv - ref)
+    return robot, calibration, thermal, train, val
+
+
+def thermal_factor(thermal: ThermalFit | None, temperature_c, n: int) -> np.ndarray | None:
+    """Scale factors ``(n,)`` for queries at ``temperature_c`` (°C, scalar or ``(n,)``); None when
+    there is no thermal correction (no temperature, no or a zero coefficient)."""
+    if temperature_c is None or thermal is None or thermal.coefficient_per_k == 0.0:
+        return None
+    t = np.broadcast_to(np.asarray(temperature_c, dtype=np.float64).reshape(-1), (n,))
+    if not np.isfinite(t).all():
+        raise HybridError(f"temperature_c: non-finite value in row {int(np.argmax(~np.isfinite(t))) + 1}")
+    return 1.0 + thermal.coefficient_per_k * (t - thermal.reference_c)
+
+
+def apply_thermal(T: np.ndarray, thermal: ThermalFit | None, base_xyz_m: np.ndarray, temperature_c) -> np.ndarray:
+    """Poses ``T`` ``(N, 4, 4)`` at the reference temperature -> at ``temperature_c`` (positions scaled
+    about the base origin ``base_xyz_m`` ``(3,)``); ``T`` itself when there is no correction."""
+    f = thermal_factor(thermal, temperature_c, len(T))
+    return T if f is None else scale_about(T, base_xyz_m, f)
+
+
+def targets_at_reference(T_target, temperature_c, thermal: ThermalFit | None, base_xyz_m: np.ndarray,
+                         frame_pre: np.ndarray, frame_post: np.ndarray):
+    """Exact inverse of the thermal scaling of a prediction (see
+    :meth:`hykin.hybrid.model.HybridModel.targets_at_reference`): ``T_target`` ``(N, 4, 4)`` poses or
+    ``(N, 3)`` positions (m) measured at ``temperature_c`` -> the same at the reference temperature,
+    through the registration frames ``frame_pre``/``frame_post`` ``(4, 4)``."""
+    T_target = np.asarray(T_target, dtype=np.float64)
+    pos = T_target.shape[-2:] != (4, 4)  # positions (N, 3) / (3,), else poses (N, 4, 4) / (4, 4)
+    n = T_target.size // (3 if pos else 16)
+    f = thermal_factor(thermal, temperature_c, n)
+    if f is None:
+        return T_target
+    T = np.tile(np.eye(4), (n, 1, 1)) if pos else T_target.reshape(-1, 4, 4).copy()
+    if pos:
+        T[:, :3, 3] = T_target.reshape(-1, 3)
+    Tm = np.linalg.inv(frame_pre) @ T @ (np.eye(4) if pos else np.linalg.inv(frame_post))
+    Tm = scale_about(Tm, base_xyz_m, 1.0 / f)
+    out = frame_pre @ Tm @ (np.eye(4) if pos else frame_post)
+    return out[:, :3, 3].reshape(T_target.shape) if pos else out.reshape(T_target.shape)
