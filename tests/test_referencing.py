@@ -13,11 +13,9 @@ from hykin.measure.referencing import (
     base_frame_from_sweeps,
     fit_circle_3d,
     fit_plane,
-    kabsch,
-    pose_from_three_points,
-    register_points,
     tool_frame_from_sweeps,
 )
+from hykin.measure.rigid import kabsch, pose_from_three_points, register_points
 
 NOISE = 15e-6  # tracker-like, m
 
