@@ -30,7 +30,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 from hykin.hybrid.ik import _seed_robot, classical_seeds, hybrid_ik, wang_ik
 from hykin.kinematics import se3
 from hykin.kinematics.ik_closed_form import ik_closed_form
-from hykin.sim.simulate import simulate, true_poses, virtual_preset
+from hykin.sim.presets import virtual_preset
+from hykin.sim.simulate import simulate, true_poses
 
 
 class TruthModel:

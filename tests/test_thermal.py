@@ -18,7 +18,8 @@ from hykin.hybrid.model import HybridError, HybridModel, OutOfRangeWarning
 from hykin.io.dataset import Dataset, read_dataset, write_dataset
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
-from hykin.sim.simulate import simulate, true_poses, virtual_preset
+from hykin.sim.presets import virtual_preset
+from hykin.sim.simulate import simulate, true_poses
 
 FAST = {"max_epochs": 15}
 
