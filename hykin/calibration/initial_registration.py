@@ -31,6 +31,7 @@ import numpy as np
 from ..kinematics.compliance import compliance_of, deflected_joints
 from ..kinematics.fk import fk
 from ..kinematics.robot import Robot
+from ..kinematics.se3 import rotvec_to_matrix
 from ..measure.rigid import kabsch, nearest_rotation
 
 __all__ = ["InitialRegistration", "initial_registration"]
@@ -111,7 +112,7 @@ def _gauss_newton(Rb, b, t, F, f, P, iters: int = 15):
             J[:, k, :, 6 + 3 * k: 9 + 3 * k] = G
         J = J.reshape(-1, 6 + 3 * K)
         dx = np.linalg.lstsq(J, r.reshape(-1), rcond=None)[0]
-        Rn = _rotvec(dx[:3]) @ Rb
+        Rn = rotvec_to_matrix(dx[:3]) @ Rb
         bn, tn = b + dx[3:6], t + dx[6:].reshape(K, 3)
         new = _rms(Rn, bn, tn, F, f, P)
         if not new < rms:
@@ -121,12 +122,6 @@ def _gauss_newton(Rb, b, t, F, f, P, iters: int = 15):
         if done:
             break
     return Rb, b, t, rms
-
-
-def _rotvec(w: np.ndarray) -> np.ndarray:
-    from ..kinematics import se3
-
-    return se3.rotvec_to_matrix(w)
 
 
 def _alternate(F, f, P, t0: np.ndarray):
