@@ -28,6 +28,7 @@ __all__ = [
     "nearest_rotation",
     "pose_from_three_points",
     "register_points",
+    "rigid_residual_jacobian",
     "umeyama",
 ]
 
@@ -110,6 +111,19 @@ def kabsch(P, Q, weights=None, scale: bool = False):
     return (R[0], t[0], float(s[0])) if scale else (R[0], t[0])
 
 
+def rigid_residual_jacobian(y: np.ndarray, n_params: int = 6) -> np.ndarray:
+    """Jacobian ``(N, 3, n_params)`` of the residuals ``Q − (exp(δθ) y + t + δt)`` with respect to
+    ``(δt (m), δθ (rad))`` (columns 0–5) at ``δ = 0``; ``y`` ``(N, 3)`` = the mapped points ``s R P``.
+    Columns from 6 on are left zero for the caller's further parameters (scale, clock, ...)."""
+    J = np.zeros((len(y), 3, n_params))
+    J[:, :, :3] = -np.eye(3)
+    # d(exp(dθ) y)/dθ = -[y]x  -> residual derivative +[y]x
+    J[:, 0, 4], J[:, 0, 5] = y[:, 2], -y[:, 1]
+    J[:, 1, 3], J[:, 1, 5] = -y[:, 2], y[:, 0]
+    J[:, 2, 3], J[:, 2, 4] = y[:, 1], -y[:, 0]
+    return J
+
+
 @dataclass(frozen=True)
 class Registration:
     """Result of :func:`register_points`: ``Q ≈ scale · R P + t`` with ``T = [R, t]``.
@@ -151,12 +165,7 @@ def register_points(P, Q, weights=None, scale: bool = False) -> Registration:
     res = Q - (y + t)
     k = 7 if scale else 6
     N = len(P)
-    J = np.zeros((N, 3, k))
-    J[:, :, :3] = -np.eye(3)
-    # d(exp(dθ) y)/dθ = -[y]x  -> residual derivative +[y]x
-    J[:, 0, 4], J[:, 0, 5] = y[:, 2], -y[:, 1]
-    J[:, 1, 3], J[:, 1, 5] = -y[:, 2], y[:, 0]
-    J[:, 2, 3], J[:, 2, 4] = y[:, 1], -y[:, 0]
+    J = rigid_residual_jacobian(y, k)
     if scale:
         J[:, :, 6] = -(P @ R.T)
     sw = np.sqrt(w)

@@ -32,7 +32,7 @@ from scipy.signal import correlate, correlation_lags
 from scipy.spatial.transform import Rotation, Slerp
 
 from ..kinematics.se3 import make_transform
-from .rigid import umeyama
+from .rigid import rigid_residual_jacobian, umeyama
 
 __all__ = [
     "AlignedStreams",
@@ -327,11 +327,7 @@ def estimate_clock(t_robot, q_robot, t_tracker, p_tracker, robot=None, *, p_robo
     y = p_r[ok] @ R.T
     n = y.shape[0]
     k = 6 + len(cols)
-    J = np.zeros((n, 3, k))
-    J[:, :, :3] = -np.eye(3)
-    J[:, 0, 4], J[:, 0, 5] = y[:, 2], -y[:, 1]
-    J[:, 1, 3], J[:, 1, 5] = -y[:, 2], y[:, 0]
-    J[:, 2, 3], J[:, 2, 4] = y[:, 1], -y[:, 0]
+    J = rigid_residual_jacobian(y, k)
     J[:, :, 6] = vt
     if fit_drift:
         J[:, :, 7] = vt * tau[ok, None]
