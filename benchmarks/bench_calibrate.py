@@ -19,7 +19,8 @@ import scipy.optimize
 
 from hykin.calibration.calibrate import apply_deviations, calibrate, calibrated_fk
 from hykin.kinematics import se3
-from hykin.sim.simulate import simulate, true_poses, virtual_preset
+from hykin.sim.presets import virtual_preset
+from hykin.sim.simulate import simulate, true_poses
 
 
 def peer_least_squares(nominal, ds, names):

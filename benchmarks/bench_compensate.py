@@ -149,7 +149,7 @@ def _unchanged(a: str, b: str, target_lines: set) -> tuple[bool, int]:
 
 def part_urscript(tmp: Path, n: int) -> bool:
     from hykin.compensation import urscript
-    from hykin.sim.simulate import virtual_preset
+    from hykin.sim.presets import virtual_preset
 
     print("2. URScript program, UR10-like (ur10-virtual, seed 16)")
     vr = virtual_preset("ur10-virtual", seed=16)

@@ -28,7 +28,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from hykin.hybrid.model import HybridModel, OutOfRangeWarning, classical_fk
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
-from hykin.sim.simulate import simulate, virtual_preset
+from hykin.sim.presets import virtual_preset
+from hykin.sim.simulate import simulate
 
 
 def errors(T_pred, ds):

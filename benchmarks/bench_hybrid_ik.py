@@ -27,10 +27,12 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from hykin.hybrid.ik import _seed_robot, classical_seeds, hybrid_ik, wang_ik
+from hykin.hybrid.ik import hybrid_ik, wang_ik
+from hykin.hybrid.ik_seeds import classical_seeds, seed_robot_of
 from hykin.kinematics import se3
 from hykin.kinematics.ik import ik_closed_form
-from hykin.sim.simulate import simulate, true_poses, virtual_preset
+from hykin.sim.presets import virtual_preset
+from hykin.sim.simulate import simulate, true_poses
 
 
 class TruthModel:
@@ -116,7 +118,7 @@ def main() -> None:
     wang_ik(model, T[:8])
 
     t = time.perf_counter()
-    q0, lab, ok0 = classical_seeds(robot, T, seed_robot=_seed_robot(model, None))
+    q0, lab, ok0 = classical_seeds(robot, T, seed_robot=seed_robot_of(model, None))
     t_cls = time.perf_counter() - t
     n_seeded = int(np.all(np.isfinite(q0), axis=2).sum())
 

@@ -45,7 +45,8 @@ from hykin.evaluation.metrics import ErrorStats, stats_from_errors
 from hykin.hybrid.ik import hybrid_ik, wang_ik
 from hykin.hybrid.model import HybridModel, classical_fk
 from hykin.kinematics import se3
-from hykin.sim.simulate import simulate, true_poses, virtual_preset
+from hykin.sim.presets import virtual_preset
+from hykin.sim.simulate import simulate, true_poses
 
 MEAN_NORM_3D = math.sqrt(8.0 / math.pi)  # E||z|| for z ~ N(0, I_3)
 

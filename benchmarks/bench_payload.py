@@ -32,7 +32,8 @@ import numpy as np
 from hykin.hybrid.model import HybridModel
 from hykin.kinematics.compliance import compliant_fk
 from hykin.kinematics.se3 import pose_error
-from hykin.sim.simulate import simulate, virtual_preset
+from hykin.sim.presets import virtual_preset
+from hykin.sim.simulate import simulate
 
 
 def errors_at(model, vr, q, payloads, use_payload=True):

@@ -12,7 +12,7 @@ import test_raw_frame as t
 from hykin.calibration.calibrate import calibrate
 from hykin.io.dataset import Dataset
 from hykin.kinematics.compliance import compliant_fk
-from hykin.measure.referencing import pose_from_three_points
+from hykin.measure.rigid import pose_from_three_points
 
 rng = np.random.default_rng(3)
 nom = t._arm(); truth = t._truth(nom, rng)

@@ -147,8 +147,9 @@ def ur10(variants, n_reg=30, fades=(True, "range", False), seed=0):
 
 
 def virtual(preset="rx160-nongeo", n=6000, fraction=0.5, seed=0, max_epochs=None):
+    from hykin.sim.presets import virtual_preset
     from hykin.sim.sampling import restricted
-    from hykin.sim.simulate import simulate, virtual_preset
+    from hykin.sim.simulate import simulate
 
     vr = virtual_preset(preset)
     rob = vr.nominal
@@ -185,7 +186,8 @@ def speed(n=200_000, threads=2):
     """Throughput (poses/s) of predict per fade mode, support_distance, pair_gap and predict_uncertainty."""
     import torch
 
-    from hykin.sim.simulate import simulate, virtual_preset
+    from hykin.sim.presets import virtual_preset
+    from hykin.sim.simulate import simulate
 
     torch.set_num_threads(threads)
     vr = virtual_preset("rx160-nongeo")

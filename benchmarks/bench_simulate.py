@@ -22,8 +22,10 @@ from _timing import best_of
 
 from hykin.kinematics.compliance import deflected_joints, gravity_torques
 from hykin.kinematics.fk import fk
+from hykin.sim.generate import simulate_to_file
+from hykin.sim.presets import virtual_preset
 from hykin.sim.sampling import sample
-from hykin.sim.simulate import simulate, simulate_to_file, virtual_preset
+from hykin.sim.simulate import simulate
 
 
 def timed(fn, repeat: int = 1):

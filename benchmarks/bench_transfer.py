@@ -235,7 +235,7 @@ def two_day_robot(seed: int = 11):
     0.05 deg, joint zeros drifted by 0.01 deg). Returns ``(vr_day1, vr_day2, tracker2 (4, 4), drift_rad)``."""
     import dataclasses
 
-    from hykin.sim.simulate import virtual_preset
+    from hykin.sim.presets import virtual_preset
 
     vr = virtual_preset("rx160-nongeo", seed=seed)
 

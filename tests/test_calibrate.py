@@ -380,7 +380,7 @@ def test_register_base_and_tool_only():
 
 def test_virtual_preset_rx160_geometric():
     simulate = pytest.importorskip("hykin.sim.simulate")
-    vr = simulate.virtual_preset("rx160-geometric")
+    vr = pytest.importorskip("hykin.sim.presets").virtual_preset("rx160-geometric")
     rng = np.random.default_rng(12)
     q = vr.nominal.random_joints(1200, rng)
     res = calibrate(vr.nominal, simulate.simulate(vr, q, noise=False))

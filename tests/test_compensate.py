@@ -204,7 +204,8 @@ def test_cli_payload_kg_compensates_for_the_load_the_robot_carries(tmp_path, cap
     from cli_run import run as run_cli
 
     from hykin.hybrid.model import HybridModel, OutOfRangeWarning
-    from hykin.sim.simulate import simulate, true_poses, virtual_preset
+    from hykin.sim.presets import virtual_preset
+    from hykin.sim.simulate import simulate, true_poses
 
     vr = virtual_preset("kr-payload-virtual", seed=2)
     nom = vr.nominal

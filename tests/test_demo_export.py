@@ -9,8 +9,9 @@ import pytest
 
 from hykin.hybrid.model import HybridModel
 from hykin.kinematics.se3 import pose_error
+from hykin.sim.presets import virtual_preset
 from hykin.sim.sampling import sample
-from hykin.sim.simulate import simulate, virtual_preset
+from hykin.sim.simulate import simulate
 
 
 @pytest.fixture(scope="module")

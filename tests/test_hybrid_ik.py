@@ -237,7 +237,8 @@ def test_bad_input(model):
 def test_round_trip_with_a_trained_hybrid_model():
     """rx160-virtual: a small HybridModel (calibration + nets), hybrid FK -> hybrid IK -> hybrid FK."""
     from hykin.hybrid.model import HybridModel
-    from hykin.sim.simulate import simulate, virtual_preset
+    from hykin.sim.presets import virtual_preset
+    from hykin.sim.simulate import simulate
 
     vr = virtual_preset("rx160-virtual")
     rng = np.random.default_rng(0)

@@ -18,7 +18,8 @@ import pytest
 from hykin.hybrid.ik import hybrid_ik, wang_ik
 from hykin.hybrid.model import HybridModel, classical_fk
 from hykin.kinematics import se3
-from hykin.sim.simulate import simulate, virtual_preset
+from hykin.sim.presets import virtual_preset
+from hykin.sim.simulate import simulate
 
 pytestmark = pytest.mark.slow
 

@@ -26,7 +26,8 @@ from hykin.kinematics.payload import (
     with_payload,
 )
 from hykin.kinematics.se3 import pose_error
-from hykin.sim.simulate import simulate, true_poses, virtual_preset
+from hykin.sim.presets import virtual_preset
+from hykin.sim.simulate import simulate, true_poses
 
 
 @pytest.fixture(scope="module")

@@ -266,7 +266,8 @@ def test_cli_plan_report_prints_table(tmp_path, capsys):
 
 def test_active_poses_go_where_the_model_is_uncertain(tmp_path, capsys):
     from hykin.hybrid.model import HybridModel
-    from hykin.sim.simulate import simulate, virtual_preset
+    from hykin.sim.presets import virtual_preset
+    from hykin.sim.simulate import simulate
 
     vr = virtual_preset("ur10-virtual")
     rob = vr.nominal

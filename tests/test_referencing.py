@@ -1,4 +1,4 @@
-"""hykin.referencing: fits recover known geometry; stated uncertainties match Monte-Carlo scatter."""
+"""hykin.measure (fits, referencing, rigid): fits recover known geometry; stated uncertainties match Monte-Carlo scatter."""
 
 import numpy as np
 import pytest
@@ -7,17 +7,10 @@ from scipy.spatial.transform import Rotation
 from hykin.io.robot_file import load_robot
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk_frames
-from hykin.measure.referencing import (
-    ReferencingError,
-    axis_from_sweep,
-    base_frame_from_sweeps,
-    fit_circle_3d,
-    fit_plane,
-    kabsch,
-    pose_from_three_points,
-    register_points,
-    tool_frame_from_sweeps,
-)
+from hykin.measure.fits import axis_from_sweep, fit_circle_3d, fit_plane
+from hykin.measure.lsq import ReferencingError
+from hykin.measure.referencing import base_frame_from_sweeps, tool_frame_from_sweeps
+from hykin.measure.rigid import kabsch, pose_from_three_points, register_points
 
 NOISE = 15e-6  # tracker-like, m
 

@@ -17,8 +17,9 @@ from hykin.io.dataset import Dataset
 from hykin.io.robot_file import load_robot
 from hykin.kinematics.fk import fk
 from hykin.kinematics.se3 import pose_error, rotvec_to_matrix
+from hykin.sim.presets import virtual_preset
 from hykin.sim.sampling import restricted
-from hykin.sim.simulate import simulate, virtual_preset
+from hykin.sim.simulate import simulate
 
 FAST = {"max_epochs": 40, "batch_size": 64, "lr": 1e-2}
 

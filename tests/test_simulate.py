@@ -10,6 +10,8 @@ from hykin.io.robot_file import load_robot
 from hykin.kinematics.compliance import deflected_joints
 from hykin.kinematics.fk import fk
 from hykin.kinematics.se3 import pose_error, pose_to_transform
+from hykin.sim.generate import simulate_to_file
+from hykin.sim.presets import list_virtual_presets, virtual_preset
 from hykin.sim.sampling import PlanError, iso_cube, restricted, sample, uniform, zigzag
 from hykin.sim.simulate import (
     PeriodicError,
@@ -17,13 +19,10 @@ from hykin.sim.simulate import (
     ThermalDrift,
     VirtualRobot,
     dataset_error,
-    list_virtual_presets,
     load_truth,
     save_truth,
     simulate,
-    simulate_to_file,
     true_poses,
-    virtual_preset,
 )
 
 # ---------------------------------------------------------------- simulator
@@ -82,7 +81,7 @@ def test_noise_statistics():
     np.testing.assert_allclose(simulate(vr, q[:50], noise=False).xyz_m, T[:50, :3, 3], atol=1e-15)
 
 
-# Figures stated in the hykin.simulate docstring (seed 0), mean over uniform samples.
+# Figures stated in the hykin.sim.presets docstring (seed 0), mean over uniform samples.
 EXPECTED = {
     "rx160-virtual": (1.80, 0.170, 0.20, 0.25),  # paper Table I, tolerance ±20 % / ±25 %
     "rx160-geometric": (2.98, 0.205, 0.25, 0.25),

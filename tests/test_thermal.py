@@ -19,7 +19,8 @@ from hykin.io.dataset import Dataset
 from hykin.io.dataset_files import read_dataset, write_dataset
 from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
-from hykin.sim.simulate import simulate, true_poses, virtual_preset
+from hykin.sim.presets import virtual_preset
+from hykin.sim.simulate import simulate, true_poses
 
 FAST = {"max_epochs": 15}
 

@@ -157,7 +157,8 @@ def test_blocks_partition():
 
 @pytest.mark.slow
 def test_calibrate_fade_and_region_cv_end_to_end():
-    from hykin.sim.simulate import simulate, virtual_preset
+    from hykin.sim.presets import virtual_preset
+    from hykin.sim.simulate import simulate
 
     vr = virtual_preset("rx160-geometric", seed=2)
     q = vr.nominal.random_joints(1200, np.random.default_rng(2))

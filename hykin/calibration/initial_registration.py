@@ -10,7 +10,7 @@ measured point ``k`` of sample ``i``: ``p_ik = R_b (f_i + F_i t_k) + b`` with th
 pose ``(F_i, f_i)`` (robot frame), the unknown base ``(R_b, b)`` and tool point offsets ``t_k``
 (flange frame). With ``R_b`` fixed the model is linear in ``(b, t_1..t_K)`` (least squares, one
 ``3NK × (3 + 3K)`` system); with the offsets fixed ``R_b, b`` is the rigid fit of the points
-``f_i + F_i t_k`` onto the measurements (:func:`hykin.referencing.kabsch`). Alternating the two
+``f_i + F_i t_k`` onto the measurements (:func:`hykin.measure.rigid.kabsch`). Alternating the two
 decreases the squared residual monotonically but only linearly (the blocks are coupled), so a few
 alternations are followed by a joint Gauss–Newton on ``(R_b, b, t_k)``. It is started from
 several tool guesses (the robot file's tool, the flange, and the file's tool mirrored) and the start
@@ -31,9 +31,10 @@ import numpy as np
 from ..kinematics.compliance import compliance_of, deflected_joints
 from ..kinematics.fk import fk
 from ..kinematics.robot import Robot
-from ..measure.referencing import kabsch
+from ..kinematics.se3 import rotvec_to_matrix
+from ..measure.rigid import kabsch, nearest_rotation
 
-__all__ = ["InitialRegistration", "initial_registration", "nearest_rotation"]
+__all__ = ["InitialRegistration", "initial_registration"]
 
 _ITER = 10  # alternations per start before the joint Gauss-Newton
 
@@ -56,13 +57,6 @@ class InitialRegistration:
     rms_m: float
     rms_before_m: float
     starts: tuple[float, ...]
-
-
-def nearest_rotation(M: np.ndarray) -> np.ndarray:
-    """The proper rotation nearest (Frobenius) to ``M`` ``(3, 3)`` (SVD projection)."""
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    return U @ D @ Vt
 
 
 def _solve_linear(Rb: np.ndarray, F: np.ndarray, f: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -118,7 +112,7 @@ def _gauss_newton(Rb, b, t, F, f, P, iters: int = 15):
             J[:, k, :, 6 + 3 * k: 9 + 3 * k] = G
         J = J.reshape(-1, 6 + 3 * K)
         dx = np.linalg.lstsq(J, r.reshape(-1), rcond=None)[0]
-        Rn = _rotvec(dx[:3]) @ Rb
+        Rn = rotvec_to_matrix(dx[:3]) @ Rb
         bn, tn = b + dx[3:6], t + dx[6:].reshape(K, 3)
         new = _rms(Rn, bn, tn, F, f, P)
         if not new < rms:
@@ -128,12 +122,6 @@ def _gauss_newton(Rb, b, t, F, f, P, iters: int = 15):
         if done:
             break
     return Rb, b, t, rms
-
-
-def _rotvec(w: np.ndarray) -> np.ndarray:
-    from ..kinematics import se3
-
-    return se3.rotvec_to_matrix(w)
 
 
 def _alternate(F, f, P, t0: np.ndarray):

@@ -150,7 +150,8 @@ def check_orientation_order(robot: Robot, q, quat_wxyz, *, where: str = "<data>"
     not do: the angle of ``q_i* q_j`` is ``2 acos|q_i·q_j|``, blind to any fixed reordering of the
     quaternion components."""
     from ..kinematics.se3 import matrix_to_rotvec, quat_to_matrix
-    from ..measure.referencing import ReferencingError, kabsch
+    from ..measure.lsq import ReferencingError
+    from ..measure.rigid import kabsch
 
     q = np.asarray(q, dtype=np.float64)
     quat = np.asarray(quat_wxyz, dtype=np.float64)

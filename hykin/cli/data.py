@@ -19,7 +19,7 @@ def presets_cmd() -> None:
         r = load_robot(name)
         typer.echo(f"  {name:16s} {r.dof} dof, {r.convention}")
     try:
-        from ..sim.simulate import list_virtual_presets, virtual_preset
+        from ..sim.presets import list_virtual_presets, virtual_preset
 
         typer.echo("virtual robots (use with `hykin simulate`):")
         for name in list_virtual_presets():
@@ -41,12 +41,9 @@ def simulate_cmd(
     force: bool = Force,
 ) -> None:
     """Simulate a measured dataset from a virtual robot whose truth is known."""
-    from ..sim.simulate import (
-        load_truth,
-        simulate_to_file,
-        truth_path_for,
-        virtual_preset,
-    )
+    from ..sim.generate import simulate_to_file
+    from ..sim.presets import virtual_preset
+    from ..sim.simulate import load_truth, truth_path_for
 
     check_output(out, (preset,), force)
     check_output(truth_path_for(out), (preset,), force)  # the truth file written beside it

@@ -60,8 +60,9 @@ def _run_demo(out_dir, n_train: int, quick: bool, seed: int) -> Path:
     from ..hybrid.model import HybridModel
     from ..io.dataset_files import write_dataset
     from ..kinematics.se3 import pose_error
+    from ..sim.presets import virtual_preset
     from ..sim.sampling import sample
-    from ..sim.simulate import save_truth, simulate, virtual_preset
+    from ..sim.simulate import save_truth, simulate
 
     t0 = time.perf_counter()
     steps = QUICK_STEPS if quick else DEMO_STEPS

@@ -10,10 +10,16 @@ import numpy as np
 
 from ..io.dataset import Dataset
 from ..kinematics.fk import fk
-from ..kinematics.payload import errors_per_payload, payload_kwargs, payload_of
+from ..kinematics.payload import (
+    errors_per_payload,
+    format_payload_table,
+    payload_kwargs,
+    payload_of,
+)
 from ..kinematics.robot import Robot
 from ..kinematics.se3 import pose_error
 from .metrics import ErrorStats, error_stats, format_table
+from .report import Report, error_histograms
 
 __all__ = ["EvalResult", "evaluate_model", "evaluate_per_payload", "evaluation_report", "joint_region_rows"]
 
@@ -70,8 +76,6 @@ class EvalResult:
             n_out = int(np.sum(self.support_distance > 0))
             t += f"\n{n_out} of {self.n} samples lie outside the training region (network correction faded there)."
         if self.per_payload is not None:
-            from ..kinematics.payload import format_payload_table
-
             t += "\nError per payload:\n" + format_payload_table(self.per_payload)
         if self.regions:
             t += ("\n\nPer joint region (registered model; mean mm / deg; nominal + rigid fit = the nominal robot with "
@@ -132,7 +136,7 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
 
 
 def evaluate_per_payload(errors: dict, data: Dataset) -> dict | None:
-    """Error statistics per distinct payload of ``data`` (:func:`hykin.payload.errors_per_payload`)
+    """Error statistics per distinct payload of ``data`` (:func:`hykin.kinematics.payload.errors_per_payload`)
     for per-sample ``errors`` (name -> ``(pos_mm, ang_deg or None)``); None without a payload column."""
     pl = payload_of(data)
     return None if pl is None else errors_per_payload(pl[0], errors)
@@ -161,8 +165,6 @@ def joint_region_rows(q: np.ndarray, errors: dict, n_quantiles: int = 4) -> list
 
 def evaluation_report(res: EvalResult, out_dir: str | Path, title: str = "hykin evaluation") -> Path:
     """Write ``out_dir/report.html`` with the table and before/after error distributions."""
-    from .report import Report, error_histograms
-
     out_dir = Path(out_dir)
     rep = Report(title)
     rep.text(f"Dataset: {res.dataset} ({res.n} samples{', position only' if res.position_only else ''}).")

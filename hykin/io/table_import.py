@@ -336,7 +336,7 @@ def _orientation(t: TextTable, m: TableMap, cols: list[str], ang_raw, allow_miss
 
 def _nest_pose(mt: MappedTable, m: TableMap) -> tuple[np.ndarray, np.ndarray]:
     """Poses (tool frame -> measurement frame) and fit RMS (m) from position + two points and the nest."""
-    from ..measure.referencing import pose_from_three_points
+    from ..measure.rigid import pose_from_three_points
 
     t = mt.table
     if mt.points_m.shape[1] != 2 or m.orientation is not None:

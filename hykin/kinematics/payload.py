@@ -1,4 +1,4 @@
-"""Payload per row: dataset columns, validation, the payload fade of hybrid models, a virtual preset.
+"""Payload per row: dataset columns, validation, the payload fade of hybrid models.
 
 A dataset may carry, per row, the mass at the TCP ``payload_kg`` (kg) and optionally its centre of
 mass ``payload_com_x``, ``payload_com_y``, ``payload_com_z`` (m, tool frame; default the TCP). They
@@ -36,7 +36,6 @@ __all__ = [
     "payload_of",
     "payload_outside",
     "payload_range_of",
-    "payload_virtual_robot",
     "robot_with_payload",
     "with_payload",
 ]
@@ -259,46 +258,3 @@ def format_payload_table(per_payload: dict) -> str:
             rot = f"{d['rot_mean_deg']:13.4f}" if "rot_mean_deg" in d else f"{'-':>13}"
             lines.append(f"{v:10.3f} {name:<11} {d['n']:6d} {d['pos_mean_mm']:12.4f} {d['pos_p95_mm']:11.4f} {rot}")
     return "\n".join(lines)
-
-
-# --------------------------------------------------------------------------- virtual preset
-
-_KR_STIFFNESS = np.array([9e5, 1.1e6, 6e5, 9e4, 9e4, 6e4])  # N·m/rad, truth only (unknown to the user)
-
-
-def payload_virtual_robot(seed: int = 0):
-    """The ``kr-payload-virtual`` preset (:func:`hykin.simulate.virtual_preset`): nominal = the robot
-    preset ``kr-payload`` (``hykin/presets/kr-payload.toml``: a 2.7 m-reach, 120 kg-class arm with
-    an 8 kg gripper in link 6; masses and centres of mass given, rigid: stiffness unknown);
-    truth = geometric deviations (σ 0.3 mm, 0.03°), base/tool frame errors, joint springs, mass model
-    off by 3 % / 5 mm, periodic transmission errors (orders 1-3 on joints 1-3, 1-2 on 4-6) and
-    tracker noise 10 µm / 50 µrad. Simulate it at several payloads: ``hykin simulate
-    kr-payload-virtual --payloads 0,12``."""
-    from ..io.robot_file import load_robot
-    from ..sim.simulate import (
-        PeriodicError,
-        VirtualRobot,
-        geometric_deviation,
-        mass_deviation,
-    )
-
-    nominal = load_robot("kr-payload")
-    rng = np.random.default_rng([seed, 120, 1])
-    truth = geometric_deviation(nominal, rng, 3e-4, np.radians(0.03), 5e-4, np.radians(0.05))
-    truth = mass_deviation(truth, rng, 0.03, 0.005).copy(stiffness_nm_per_rad=_KR_STIFFNESS, name="kr-payload-truth")
-    trans = []
-    for j in (1, 2, 3):
-        for order, amp in ((1, 1.2e-4), (2, 6e-5), (3, 3e-5)):
-            trans.append(PeriodicError(j, float(amp * rng.uniform(0.7, 1.3)), float(order), 1.0, float(rng.uniform(0, 2 * np.pi))))
-    for j in (4, 5, 6):
-        for order, amp in ((1, 1.5e-4), (2, 8e-5)):
-            trans.append(PeriodicError(j, float(amp * rng.uniform(0.7, 1.3)), float(order), 1.0, float(rng.uniform(0, 2 * np.pi))))
-    return VirtualRobot(
-        name="kr-payload-virtual", nominal=nominal, truth=truth, transmission=trans, noise_position_m=10e-6,
-        noise_orientation_rad=50e-6, seed=seed,
-        description=(
-            "KR 120-class arm for payload studies: masses/COMs in the robot file, stiffness unknown, geometric and "
-            "transmission errors, noise 10 um / 50 urad; use --payloads 0,12.\n"
-            "Per-row payload (payload_kg column) deflects the truth; the nominal is rigid."
-        ),
-    )

@@ -1,23 +1,20 @@
 """Referencing: express tracker measurements in the robot's frames (DESIGN.md §1.4).
 
-Geometry fits (float64, metres and radians), each with a least-squares uncertainty:
+Frames from joint sweeps (float64, metres and radians), with first-order uncertainty:
 
-* :func:`fit_plane` — plane through points (total least squares).
-* :func:`fit_circle_3d` — circle in 3-D: plane fit, algebraic (Kåsa) circle in the plane, then a
-  geometric fit (``scipy.optimize.least_squares``) of centre, normal and radius.
-* :func:`axis_from_sweep` — a revolute joint's axis from the positions of a reflector (SMR) while
-  that joint alone moves.
 * :func:`base_frame_from_sweeps` / :func:`tool_frame_from_sweeps` — the robot's DH base frame from
   joint 1 and 2 sweeps; the flange frame from joint 5 and 6 sweeps.
-* :func:`kabsch` / :func:`register_points` — rigid (or similarity) registration of point sets
-  (weighted Umeyama, never a reflection); :func:`pose_from_three_points` — batched poses of a
-  tool carrying three SMRs.
+* :func:`frame_from_axes` — a DH link frame from two consecutive joint axes.
 
-Uncertainties are first-order: ``cov = s² (JᵀJ)⁻¹`` with ``J`` the residual Jacobian at the
-solution and ``s²`` the residual variance (sum of squared residuals / degrees of freedom), so they
-assume independent, isotropic, equal-variance noise. Scalar ``*_std_rad`` / ``*_std_m`` values are
-the root of the trace of the relevant covariance block, i.e. the RMS of the angle (or distance)
-error vector one should expect. Covariances of frames are propagated from the fits with a
+The geometry fits they rest on (:func:`~hykin.measure.fits.fit_plane`,
+:func:`~hykin.measure.fits.fit_circle_3d`, :func:`~hykin.measure.fits.axis_from_sweep`) live in
+:mod:`hykin.measure.fits`.
+
+The rigid registration of point sets (:func:`~hykin.measure.rigid.kabsch`,
+:func:`~hykin.measure.rigid.register_points`, :func:`~hykin.measure.rigid.pose_from_three_points`)
+lives in :mod:`hykin.measure.rigid`.
+
+The covariances of the frames are propagated from the axis (and plane) fits' covariances with a
 numerical Jacobian.
 
 Degenerate input (too few points, collinear points, parallel axes) raises :class:`ReferencingError`.
@@ -28,272 +25,18 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from ..kinematics.se3 import make_transform, matrix_to_rotvec
+from .fits import AxisFit, axis_from_sweep, fit_plane
+from .lsq import ReferencingError, as_points
 
 __all__ = [
-    "AxisFit",
-    "CircleFit",
     "Frame",
-    "PlaneFit",
     "ReferencingError",
-    "Registration",
-    "axis_from_sweep",
     "base_frame_from_sweeps",
-    "fit_circle_3d",
-    "fit_plane",
     "frame_from_axes",
-    "kabsch",
-    "pose_from_three_points",
-    "register_points",
     "tool_frame_from_sweeps",
 ]
-
-
-class ReferencingError(ValueError):
-    """Degenerate or malformed input to a referencing function (too few points, collinear, ...)."""
-
-
-# --------------------------------------------------------------------------- helpers
-
-
-def _points(points, name: str, min_n: int) -> np.ndarray:
-    p = np.asarray(points, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise ReferencingError(f"{name}: expected an (N, 3) array of points in m, got shape {p.shape}")
-    if p.shape[0] < min_n:
-        raise ReferencingError(f"{name}: needs at least {min_n} points, got {p.shape[0]}")
-    bad = ~np.isfinite(p).all(axis=1)
-    if bad.any():
-        raise ReferencingError(f"{name}: non-finite coordinates in row(s) {np.flatnonzero(bad)[:10].tolist()}")
-    return p
-
-
-def _weights(weights, n: int, name: str) -> np.ndarray:
-    if weights is None:
-        return np.ones(n)
-    w = np.asarray(weights, dtype=np.float64).ravel()
-    if w.shape != (n,):
-        raise ReferencingError(f"{name}: weights must have shape ({n},), got {w.shape}")
-    if not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
-        raise ReferencingError(f"{name}: weights must be finite, >= 0 and not all zero")
-    return w
-
-
-def _basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors ``u, v`` with ``(u, v, n)`` right-handed orthonormal."""
-    n = n / np.linalg.norm(n)
-    a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    u = np.cross(n, a)
-    u /= np.linalg.norm(u)
-    return u, np.cross(n, u)
-
-
-def _check_not_collinear(pc: np.ndarray, name: str, tol: float = 1e-9) -> None:
-    s = np.linalg.svd(pc, compute_uv=False)
-    if s[0] == 0 or s[1] < tol * s[0]:
-        raise ReferencingError(f"{name}: points are (nearly) collinear or coincident; a plane/circle/frame is undefined")
-
-
-def _cov(J: np.ndarray, r: np.ndarray, n_params: int, name: str) -> tuple[np.ndarray, float]:
-    dof = r.size - n_params
-    s2 = float(r @ r / dof) if dof > 0 else 0.0
-    JTJ = J.T @ J
-    try:
-        inv = np.linalg.inv(JTJ)
-    except np.linalg.LinAlgError as e:  # pragma: no cover - guarded by collinearity checks
-        raise ReferencingError(f"{name}: singular normal equations ({e})") from None
-    return s2 * inv, s2
-
-
-# --------------------------------------------------------------------------- plane
-
-
-@dataclass(frozen=True)
-class PlaneFit:
-    """Plane ``normal · (x − point) = 0``.
-
-    normal: ``(3,)`` unit normal, sign chosen so that its largest-magnitude component is positive.
-    point: ``(3,)`` weighted centroid of the points (m).
-    rms_m: RMS (weighted) orthogonal distance of the points to the plane.
-    normal_std_rad: RMS angular uncertainty of the normal (root of the trace of the tilt covariance).
-    offset_std_m: standard deviation of the plane position along the normal at ``point``.
-    cov: ``(3, 3)`` covariance of (tilt about ``-v`` i.e. toward ``u`` (rad), tilt toward ``v`` (rad),
-    offset along the normal (m)), where ``basis = (u, v)``.
-    """
-
-    normal: np.ndarray
-    point: np.ndarray
-    rms_m: float
-    normal_std_rad: float
-    offset_std_m: float
-    cov: np.ndarray
-    basis: np.ndarray
-
-
-def fit_plane(points, weights=None) -> PlaneFit:
-    """Least-squares plane through ``points`` ``(N, 3)`` (m), ``N >= 3``, optional weights ``(N,)``.
-
-    Total least squares (smallest singular vector of the weighted, centred points). Weights are
-    relative (e.g. inverse variances up to a common factor); the noise level comes from the residuals.
-    """
-    p = _points(points, "fit_plane", 3)
-    w = _weights(weights, len(p), "fit_plane")
-    c = (w[:, None] * p).sum(0) / w.sum()
-    d = p - c
-    sw = np.sqrt(w)[:, None]
-    _check_not_collinear(sw * d, "fit_plane")
-    _, _, Vt = np.linalg.svd(sw * d, full_matrices=False)
-    n = Vt[2]
-    if n[np.argmax(np.abs(n))] < 0:
-        n = -n
-    u, v = _basis(n)
-    r = d @ n
-    J = np.stack([d @ u, d @ v, -np.ones(len(p))], axis=1) * sw
-    cov, _ = _cov(J, r * sw[:, 0], 3, "fit_plane") if len(p) > 3 else (np.zeros((3, 3)), 0.0)
-    rms = float(np.sqrt((w * r * r).sum() / w.sum()))
-    return PlaneFit(n, c, rms, float(np.sqrt(cov[0, 0] + cov[1, 1])), float(np.sqrt(cov[2, 2])),
-                    cov, np.stack([u, v]))
-
-
-# --------------------------------------------------------------------------- circle
-
-
-@dataclass(frozen=True)
-class CircleFit:
-    """Circle in 3-D.
-
-    center: ``(3,)`` (m); normal: ``(3,)`` unit, right-handed with respect to the order of the points
-    (the points run counter-clockwise seen from the tip of ``normal``); radius_m; rms_m: RMS of the
-    geometric residuals (out-of-plane distance and radial deviation, two per point).
-    center_std_m: RMS 3-D uncertainty of the centre; normal_std_rad: RMS angular uncertainty of the
-    normal; radius_std_m.
-    cov: ``(6, 6)`` covariance of ``(center x, y, z, tilt toward u, tilt toward v, radius)`` with
-    ``basis = (u, v)`` perpendicular to ``normal``.
-    """
-
-    center: np.ndarray
-    normal: np.ndarray
-    radius_m: float
-    rms_m: float
-    center_std_m: float
-    normal_std_rad: float
-    radius_std_m: float
-    cov: np.ndarray
-    basis: np.ndarray
-
-
-def _circle_residuals(x, p, n0, u0, v0):
-    c, a, b, R = x[:3], x[3], x[4], x[5]
-    m = n0 + a * u0 + b * v0
-    nm = np.linalg.norm(m)
-    n = m / nm
-    d = p - c
-    h = d @ n
-    w = d - h[:, None] * n
-    rho = np.linalg.norm(w, axis=1)
-    return np.concatenate([h, rho - R]), (n, nm, d, h, w, rho)
-
-
-def _circle_jac(x, p, n0, u0, v0):
-    _, (n, nm, d, h, w, rho) = _circle_residuals(x, p, n0, u0, v0)
-    P = (np.eye(3) - np.outer(n, n)) / nm
-    dn_da, dn_db = P @ u0, P @ v0
-    N = len(p)
-    J = np.zeros((2 * N, 6))
-    J[:N, :3] = -n
-    J[:N, 3] = d @ dn_da
-    J[:N, 4] = d @ dn_db
-    rho_safe = np.where(rho > 0, rho, 1.0)
-    J[N:, :3] = -w / rho_safe[:, None]
-    J[N:, 3] = -h * J[:N, 3] / rho_safe
-    J[N:, 4] = -h * J[:N, 4] / rho_safe
-    J[N:, 5] = -1.0
-    return J
-
-
-def fit_circle_3d(points) -> CircleFit:
-    """Fit a circle to ``points`` ``(N, 3)`` (m), ``N >= 4``, e.g. an SMR while one joint turns.
-
-    Plane fit, then Kåsa's algebraic circle in the plane as a start, then the geometric fit
-    minimising the out-of-plane distances and the radial deviations (``least_squares``, analytic
-    Jacobian). An arc of any length works; a short arc gives large (and correctly reported)
-    uncertainties.
-    """
-    p = _points(points, "fit_circle_3d", 4)
-    pl = fit_plane(p)
-    n0 = pl.normal
-    u0, v0 = pl.basis
-    d = p - pl.point
-    x2, y2 = d @ u0, d @ v0
-    A = np.stack([x2, y2, np.ones_like(x2)], axis=1)
-    bvec = -(x2**2 + y2**2)
-    sol, *_ = np.linalg.lstsq(A, bvec, rcond=None)
-    cx, cy = -sol[0] / 2, -sol[1] / 2
-    R0 = np.sqrt(max(cx * cx + cy * cy - sol[2], 0.0))
-    if not np.isfinite(R0) or R0 <= 0:
-        raise ReferencingError("fit_circle_3d: points do not define a circle (zero radius)")
-    c0 = pl.point + cx * u0 + cy * v0
-    x0 = np.concatenate([c0, [0.0, 0.0, R0]])
-    res = least_squares(lambda x: _circle_residuals(x, p, n0, u0, v0)[0], x0,
-                        jac=lambda x: _circle_jac(x, p, n0, u0, v0), method="lm",
-                        xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200)
-    x = res.x
-    m = n0 + x[3] * u0 + x[4] * v0
-    n = m / np.linalg.norm(m)
-    c = x[:3]
-    # orientation from the traversal order (right-hand rule)
-    dd = p - c
-    turn = np.cross(dd[:-1], dd[1:]).sum(0) @ n
-    if turn < 0:
-        n = -n
-    u, v = _basis(n)
-    xf = np.concatenate([c, [0.0, 0.0, abs(x[5])]])
-    r, _ = _circle_residuals(xf, p, n, u, v)
-    J = _circle_jac(xf, p, n, u, v)
-    cov, _ = _cov(J, r, 6, "fit_circle_3d")
-    return CircleFit(
-        center=c, normal=n, radius_m=float(abs(x[5])), rms_m=float(np.sqrt(np.mean(r * r))),
-        center_std_m=float(np.sqrt(np.trace(cov[:3, :3]))),
-        normal_std_rad=float(np.sqrt(cov[3, 3] + cov[4, 4])),
-        radius_std_m=float(np.sqrt(cov[5, 5])), cov=cov, basis=np.stack([u, v]),
-    )
-
-
-# --------------------------------------------------------------------------- axes
-
-
-@dataclass(frozen=True)
-class AxisFit:
-    """A revolute joint axis: the line ``point + s · direction``.
-
-    direction: unit ``(3,)``, the positive rotation axis of the joint when the sweep points were
-    given in increasing joint angle. point: the circle centre (m). std_dir_rad: RMS angular
-    uncertainty of the direction; std_point_m: RMS uncertainty of the line's position perpendicular
-    to it (the part of the centre's uncertainty that moves the line). rms_m: fit residual RMS.
-    circle: the underlying :class:`CircleFit` (full covariance).
-    """
-
-    direction: np.ndarray
-    point: np.ndarray
-    std_dir_rad: float
-    std_point_m: float
-    rms_m: float
-    radius_m: float
-    circle: CircleFit
-
-
-def axis_from_sweep(points) -> AxisFit:
-    """Joint axis from SMR positions ``(N, 3)`` (m, N >= 4) recorded while one joint sweeps.
-
-    Give the points in increasing joint angle: the direction then follows the joint's positive
-    rotation (right-hand rule). The axis passes through the fitted circle centre along its normal.
-    """
-    c = fit_circle_3d(points)
-    P = np.eye(3) - np.outer(c.normal, c.normal)
-    std_pt = float(np.sqrt(np.trace(P @ c.cov[:3, :3] @ P)))
-    return AxisFit(c.normal, c.center, c.normal_std_rad, std_pt, c.rms_m, c.radius_m, c)
 
 
 # --------------------------------------------------------------------------- frames
@@ -459,8 +202,8 @@ def base_frame_from_sweeps(j1_points, j2_points, *, robot=None, q1_rad: float = 
     alpha = dh.get("alpha") if alpha1_rad is None else float(alpha1_rad)
     asg = _sign_of(dh.get("a"), a1_sign)
     th = dh.get("theta", 0.0) if theta1_rad is None else float(theta1_rad)
-    ax1 = axis_from_sweep(_points(j1_points, "base_frame_from_sweeps: j1_points", 4))
-    ax2 = axis_from_sweep(_points(j2_points, "base_frame_from_sweeps: j2_points", 4))
+    ax1 = axis_from_sweep(as_points(j1_points, "base_frame_from_sweeps: j1_points", 4))
+    ax2 = axis_from_sweep(as_points(j2_points, "base_frame_from_sweeps: j2_points", 4))
     plane = fit_plane(base_plane_points) if base_plane_points is not None else None
 
     def build(x):
@@ -519,8 +262,8 @@ def tool_frame_from_sweeps(j5_points, j6_points, *, robot=None, q6_rad: float = 
     a6 = dh6.get("a", 0.0) if a6_m is None else float(a6_m)
     al6 = dh6.get("alpha", 0.0) if alpha6_rad is None else float(alpha6_rad)
     th6 = dh6.get("theta", 0.0) if theta6_rad is None else float(theta6_rad)
-    ax5 = axis_from_sweep(_points(j5_points, "tool_frame_from_sweeps: j5_points", 4))
-    ax6 = axis_from_sweep(_points(j6_points, "tool_frame_from_sweeps: j6_points", 4))
+    ax5 = axis_from_sweep(as_points(j5_points, "tool_frame_from_sweeps: j5_points", 4))
+    ax6 = axis_from_sweep(as_points(j6_points, "tool_frame_from_sweeps: j6_points", 4))
     c6, s6 = np.cos(th6 + q6_rad), np.sin(th6 + q6_rad)
     ca, sa = np.cos(al6), np.sin(al6)
     L = np.array([[c6, -s6 * ca, s6 * sa, a6 * c6], [s6, c6 * ca, -c6 * sa, a6 * s6],
@@ -536,154 +279,3 @@ def tool_frame_from_sweeps(j5_points, j6_points, *, robot=None, q6_rad: float = 
     T, cov = _propagate(build, [ax5, ax6])
     info = dict(q6_rad=q6_rad, d6_m=d6, a6_m=a6, alpha6_rad=al6, theta6_rad=th6, alpha5_rad=alpha5, a5_sign=asg)
     return _frame(T, cov, [ax5, ax6], info)
-
-
-# --------------------------------------------------------------------------- registration
-
-
-def _umeyama(P, Q, w, scale: bool, name: str):
-    """Batched weighted Umeyama. P, Q: (B, N, 3); w: (B, N) normalised to sum 1. -> R, t, s."""
-    mp = np.einsum("bn,bni->bi", w, P)
-    mq = np.einsum("bn,bni->bi", w, Q)
-    Pc = P - mp[:, None]
-    Qc = Q - mq[:, None]
-    S = np.einsum("bn,bni,bnj->bij", w, Qc, Pc)  # cross-covariance q p^T
-    U, D, Vt = np.linalg.svd(S)
-    sgn = np.sign(np.linalg.det(U) * np.linalg.det(Vt))
-    sgn[sgn == 0] = 1.0
-    E = np.ones((len(P), 3))
-    E[:, 2] = sgn
-    R = np.einsum("bij,bj,bjk->bik", U, E, Vt)
-    if scale:
-        var_p = np.einsum("bn,bni,bni->b", w, Pc, Pc)
-        s = (D * E).sum(1) / var_p
-    else:
-        s = np.ones(len(P))
-    t = mq - s[:, None] * np.einsum("bij,bj->bi", R, mp)
-    return R, t, s
-
-
-def _degenerate_rows(X: np.ndarray, w: np.ndarray, tol: float = 1e-9) -> np.ndarray:
-    """(B,) mask of point sets (B, N, 3) that are collinear/coincident (weighted)."""
-    m = np.einsum("bn,bni->bi", w, X)
-    Xc = (X - m[:, None]) * np.sqrt(w)[..., None]
-    s = np.linalg.svd(Xc, compute_uv=False)
-    return (s[:, 0] == 0) | (s[:, 1] < tol * s[:, 0])
-
-
-def kabsch(P, Q, weights=None, scale: bool = False):
-    """Best rigid (or similarity) map of points ``P`` onto ``Q``: ``Q ≈ s R P + t``.
-
-    ``P``, ``Q``: ``(N, 3)`` corresponding points, ``N >= 3`` and not collinear; ``weights`` ``(N,)``.
-    Minimises ``Σ w_i |Q_i − (s R P_i + t)|²`` (Umeyama 1991). ``R`` is always a proper rotation
-    (``det = +1``): if the best orthogonal map is a reflection, the closest rotation is returned.
-    Returns ``(R (3, 3), t (3,))``, or ``(R, t, s)`` with ``scale=True``.
-    """
-    P = _points(P, "kabsch: P", 3)
-    Q = _points(Q, "kabsch: Q", 3)
-    if P.shape != Q.shape:
-        raise ReferencingError(f"kabsch: P has shape {P.shape} but Q has {Q.shape}")
-    w = _weights(weights, len(P), "kabsch")
-    w = (w / w.sum())[None]
-    if _degenerate_rows(P[None], w)[0]:
-        raise ReferencingError("kabsch: P points are collinear or coincident; the rotation is undefined")
-    if _degenerate_rows(Q[None], w)[0]:
-        raise ReferencingError("kabsch: Q points are collinear or coincident; the rotation is undefined")
-    R, t, s = _umeyama(P[None], Q[None], w, scale, "kabsch")
-    return (R[0], t[0], float(s[0])) if scale else (R[0], t[0])
-
-
-@dataclass(frozen=True)
-class Registration:
-    """Result of :func:`register_points`: ``Q ≈ scale · R P + t`` with ``T = [R, t]``.
-
-    residuals_m ``(N, 3)`` = ``Q − (s R P + t)``; rms_m = RMS point distance. cov: covariance of
-    ``(δt (3, m), δθ (3, rad)[, δs])`` with ``R_true ≈ exp(δθ) R`` (θ in Q's frame); std_trans_m and
-    std_rot_rad ``(3,)`` are the roots of its diagonal; scale_std is 0 without scale.
-    """
-
-    T: np.ndarray
-    scale: float
-    residuals_m: np.ndarray
-    rms_m: float
-    cov: np.ndarray
-    std_trans_m: np.ndarray
-    std_rot_rad: np.ndarray
-    scale_std: float
-
-    def apply(self, points) -> np.ndarray:
-        """Map points ``(..., 3)`` from P's frame to Q's frame."""
-        p = np.asarray(points, dtype=np.float64)
-        return self.scale * p @ self.T[:3, :3].T + self.T[:3, 3]
-
-
-def register_points(P, Q, weights=None, scale: bool = False) -> Registration:
-    """Register ``P`` onto ``Q`` (see :func:`kabsch`) and report residuals and uncertainty.
-
-    The covariance is ``s² (JᵀWJ)⁻¹`` with ``s²`` the weighted residual variance over ``3N − k``
-    degrees of freedom (``k`` = 6 or 7), weights relative (e.g. inverse variances up to a factor).
-    Needs ``N >= 3`` (N = 3 without scale leaves 3 degrees of freedom).
-    """
-    out = kabsch(P, Q, weights, scale)
-    R, t = out[0], out[1]
-    s = out[2] if scale else 1.0
-    P = np.asarray(P, dtype=np.float64)
-    Q = np.asarray(Q, dtype=np.float64)
-    w = _weights(weights, len(P), "register_points")
-    y = s * P @ R.T
-    res = Q - (y + t)
-    k = 7 if scale else 6
-    N = len(P)
-    J = np.zeros((N, 3, k))
-    J[:, :, :3] = -np.eye(3)
-    # d(exp(dθ) y)/dθ = -[y]x  -> residual derivative +[y]x
-    J[:, 0, 4], J[:, 0, 5] = y[:, 2], -y[:, 1]
-    J[:, 1, 3], J[:, 1, 5] = -y[:, 2], y[:, 0]
-    J[:, 2, 3], J[:, 2, 4] = y[:, 1], -y[:, 0]
-    if scale:
-        J[:, :, 6] = -(P @ R.T)
-    sw = np.sqrt(w)
-    Jw = (J * sw[:, None, None]).reshape(3 * N, k)
-    rw = (res * sw[:, None]).ravel()
-    if 3 * N > k:
-        cov, _ = _cov(Jw, rw, k, "register_points")
-    else:
-        cov = np.zeros((k, k))
-    d = np.sqrt(np.clip(np.diag(cov), 0, None))
-    return Registration(T=make_transform(R, t), scale=float(s), residuals_m=res,
-                        rms_m=float(np.sqrt(np.mean(np.sum(res * res, 1)))), cov=cov,
-                        std_trans_m=d[:3], std_rot_rad=d[3:6], scale_std=float(d[6]) if scale else 0.0)
-
-
-def pose_from_three_points(p1, p2, p3, nest, return_residual: bool = False):
-    """Poses of a tool carrying three SMRs, batched.
-
-    ``p1, p2, p3``: measured SMR positions ``(N, 3)`` (or ``(3,)``) in tracker coordinates (m);
-    ``nest``: ``(3, 3)`` rows = the same three SMR positions in the tool frame (m), not collinear.
-    Returns ``T`` ``(N, 4, 4)`` (tool frame -> tracker, the least-squares rigid fit of the nests onto
-    the measurements), and with ``return_residual=True`` also the RMS residual per pose ``(N,)`` (m),
-    which reveals a swapped or mis-measured reflector.
-    """
-    nest = np.asarray(nest, dtype=np.float64)
-    if nest.shape != (3, 3) or not np.isfinite(nest).all():
-        raise ReferencingError(f"pose_from_three_points: nest must be a finite (3, 3) array (rows = SMRs), got {nest.shape}")
-    M = np.stack([np.atleast_2d(np.asarray(p, dtype=np.float64)) for p in (p1, p2, p3)], axis=1)  # (N, 3, 3)
-    if M.ndim != 3 or M.shape[2] != 3:
-        raise ReferencingError(f"pose_from_three_points: p1, p2, p3 must be (N, 3) arrays of equal length, got {M.shape}")
-    bad = ~np.isfinite(M).all(axis=(1, 2))
-    if bad.any():
-        raise ReferencingError(f"pose_from_three_points: non-finite measurement in row(s) {np.flatnonzero(bad)[:10].tolist()}")
-    N = len(M)
-    w = np.full((N, 3), 1.0 / 3.0)
-    if _degenerate_rows(nest[None], w[:1])[0]:
-        raise ReferencingError("pose_from_three_points: the three nest positions are collinear")
-    deg = _degenerate_rows(M, w)
-    if deg.any():
-        raise ReferencingError(f"pose_from_three_points: measured SMRs collinear in row(s) {np.flatnonzero(deg)[:10].tolist()}")
-    P = np.broadcast_to(nest, (N, 3, 3))
-    R, t, _ = _umeyama(P, M, w, False, "pose_from_three_points")
-    T = make_transform(R, t)
-    if not return_residual:
-        return T
-    r = M - (np.einsum("bij,bnj->bni", R, P) + t[:, None])
-    return T, np.sqrt(np.mean(np.sum(r * r, -1), -1))

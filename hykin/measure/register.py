@@ -165,7 +165,7 @@ def _fit_frames(T_model, T_meas, position_only=False, orientation_weight_m_per_r
     """Worker of :func:`fit_frames`; also returns the scipy solution."""
     from scipy.spatial.transform import Rotation
 
-    from .referencing import kabsch
+    from .rigid import kabsch
 
     T_model = np.asarray(T_model, dtype=np.float64)
     T_meas = np.asarray(T_meas, dtype=np.float64)

@@ -32,6 +32,7 @@ from scipy.signal import correlate, correlation_lags
 from scipy.spatial.transform import Rotation, Slerp
 
 from ..kinematics.se3 import make_transform
+from .rigid import rigid_residual_jacobian, umeyama
 
 __all__ = [
     "AlignedStreams",
@@ -220,21 +221,13 @@ def _ncc_offset(a, m_t, t_t0, b, m_r, t_r0, dt, center, half, min_overlap):
     return float(off), float(ncc[k])
 
 
-def _kabsch(P, Q):
-    mp, mq = P.mean(0), Q.mean(0)
-    U, _, Vt = np.linalg.svd((Q - mq).T @ (P - mp))
-    E = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    R = U @ E @ Vt
-    return R, mq - R @ mp
-
-
 def _rigid_at(clock_fn, t_r, p_r, t_t, p_t, gap):
     tq = clock_fn(t_r)
     idx, ok = _coverage(t_t, tq, gap)
     if ok.sum() < 3:
         return None, float("nan"), 0
     pt = _interp(t_t, p_t, tq[ok], idx[ok])
-    R, tr = _kabsch(p_r[ok], pt)
+    R, tr, _ = umeyama(p_r[ok], pt)
     r = pt - (p_r[ok] @ R.T + tr)
     return make_transform(R, tr), float(np.sqrt(np.mean(np.sum(r * r, 1)))), int(ok.sum())
 
@@ -320,7 +313,7 @@ def estimate_clock(t_robot, q_robot, t_tracker, p_tracker, robot=None, *, p_robo
         pt = _interp(t_t, p_t, tq_ok, idx[ok])
         vt = (_interp(t_t, p_t, tq_ok + h, _coverage(t_t, tq_ok + h, np.inf)[0])
               - _interp(t_t, p_t, tq_ok - h, _coverage(t_t, tq_ok - h, np.inf)[0])) / (2 * h)
-        R, tr = _kabsch(p_r[ok], pt)
+        R, tr, _ = umeyama(p_r[ok], pt)
         r = pt - (p_r[ok] @ R.T + tr)
         cols = [vt.ravel()] + ([(vt * tau[ok, None]).ravel()] if fit_drift else [])
         A = np.stack(cols, axis=1)
@@ -334,11 +327,7 @@ def estimate_clock(t_robot, q_robot, t_tracker, p_tracker, robot=None, *, p_robo
     y = p_r[ok] @ R.T
     n = y.shape[0]
     k = 6 + len(cols)
-    J = np.zeros((n, 3, k))
-    J[:, :, :3] = -np.eye(3)
-    J[:, 0, 4], J[:, 0, 5] = y[:, 2], -y[:, 1]
-    J[:, 1, 3], J[:, 1, 5] = -y[:, 2], y[:, 0]
-    J[:, 2, 3], J[:, 2, 4] = y[:, 1], -y[:, 0]
+    J = rigid_residual_jacobian(y, k)
     J[:, :, 6] = vt
     if fit_drift:
         J[:, :, 7] = vt * tau[ok, None]

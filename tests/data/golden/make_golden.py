@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 
 import hykin
-from hykin.sim.simulate import simulate, virtual_preset
+from hykin.sim.presets import virtual_preset
+from hykin.sim.simulate import simulate
 
 HERE = Path(__file__).parent
 
