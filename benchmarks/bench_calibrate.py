@@ -1,6 +1,6 @@
 """Benchmark: parametric calibration (hykin.calibrate) on a virtual robot, 10k and 100k samples.
 
-For each size: wall time of :func:`hykin.calibrate.calibrate` (analytic Jacobian, relinearising LM)
+For each size: wall time of :func:`hykin.calibration.calibrate.calibrate` (analytic Jacobian, relinearising LM)
 and accuracy on 2000 held-out samples against the noise-free truth, next to the peer measured in the
 same run: ``scipy.optimize.least_squares`` (trf, 2-point finite-difference Jacobian) on the same
 residual and the same identifiable parameters (the textbook way to write it).

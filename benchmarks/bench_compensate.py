@@ -7,7 +7,7 @@ controller that knows only the nominal model, on virtual robots of our own; and 
    ``recipe_kw={"max_epochs": 5}``). 300 targets = true poses at random joints (reachable by the real
    robot), with the current joints as branch columns; ``hykin compensate`` (the CLI) writes the
    commands. Stand-in controller: nominal closed-form IK of each command, the solution nearest the
-   branch joints → joints → the TRUE robot's pose (``hykin.simulate.true_poses``) → error to the
+   branch joints → joints → the TRUE robot's pose (``hykin.sim.simulate.true_poses``) → error to the
    target. Baseline in the same run: the controller given the uncompensated target.
 2. URScript program on a UR-like robot (``ur10-virtual`` preset, seed 16, noise-free data): 300
    ``movel``/``movep``/``movec``/variable targets along a path with comments and a ``def``/``end``

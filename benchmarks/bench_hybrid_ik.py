@@ -2,7 +2,7 @@
 
 Round trip: random joints -> hybrid FK -> IK -> hybrid FK, errors against the target.
 
-* Model: a :class:`hykin.hybrid.HybridModel` trained here on ``--train`` noise-free simulated samples (default
+* Model: a :class:`hykin.hybrid.model.HybridModel` trained here on ``--train`` noise-free simulated samples (default
   recipe), or loaded with ``--model PATH``; ``--standin`` (or no ``hykin.hybrid`` available) uses the
   simulator's ground truth as a perfect "hybrid" model (classical = calibrated RX160, correction =
   joint compliance under gravity, 1.8 mm / 0.17° on average), which tests the IK, not the nets.

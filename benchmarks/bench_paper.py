@@ -11,7 +11,7 @@
   rows train, 5,000 test (same thermal conditions). Errors against the noisy test measurements and
   against the noise-free truth; noise floor = E‖noise‖ of a *perfect* model = σ·sqrt(8/π) per 3-D
   isotropic Gaussian. The session's ``temperature_c`` column lets the default model identify the
-  thermal expansion (:mod:`hykin.thermal`); rows with and without passing the temperature at query
+  thermal expansion (:mod:`hykin.calibration.thermal`); rows with and without passing the temperature at query
   time, the latter's error split into thermal drift (not a function of q), model error and noise;
   plus a test after the session (warmer: thermal extrapolation).
 * **Table IV** (hybrid IK on ``rx160-virtual``): random joints -> hybrid FK -> hybrid IK -> hybrid FK,

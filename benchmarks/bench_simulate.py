@@ -6,7 +6,7 @@ peer measured in the same run: hykin.fk numba kernel). Usage::
     python benchmarks/bench_simulate.py [-n 500000] [--preset rx160-nongeo] [--no-write] [--csv]
 
 ``simulate_to_file`` is timed with Parquet output by default; ``--csv`` adds CSV output (dominated
-by CSV text formatting in hykin.dataset.write_dataset, not by the simulation).
+by CSV text formatting in hykin.io.dataset_files.write_dataset, not by the simulation).
 """
 
 from __future__ import annotations

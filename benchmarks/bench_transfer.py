@@ -2,14 +2,14 @@
 
 * ``ur10``: UR10 series A -> series B (tracker moved, months later). A hykin model fitted on A
   (``--model``, e.g. ``hykin fit ur10.toml ur10_A_train.csv -o ur10.hykin``) is registered to B from
-  30 of B's poses (``hykin.register.register_model``: frames, plus joint zeros / thermal state where
+  30 of B's poses (``hykin.measure.register.register_model``: frames, plus joint zeros / thermal state where
   identifiable and significant), evaluated on the other 1,465. Peer, measured in the same run: a
   plain geometric calibration of the same A rows written here independently of hykin (own numpy
   DH FK, scipy least_squares over the 24 DH deviations + base + tool), registered to B on the SAME
   30 poses the same way (base + tool; and base + tool + the joint zeros hykin chose).
 * ``beside``: the same virtual robot trained on a Cartesian region (y above a cut, full joint ranges)
   and tested on the band beside it: calibrated vs unfaded networks vs the default fade vs the fade
-  measured by leave-one-region-out (``HybridModel(fade_cv=4)``, :mod:`hykin.fade`), per region.
+  measured by leave-one-region-out (``HybridModel(fade_cv=4)``, :mod:`hykin.hybrid.fade`), per region.
 * ``days``: a virtual robot of this benchmark's own (scaled RX160 geometry, own seed, transmission
   errors, thermal drift, noise) measured on two days: day 2 has the tracker moved, the tool
   re-mounted (0.5 mm / 0.05 deg) and the joint zeros drifted (0.01 deg). Day-1 model; day 2

@@ -24,7 +24,7 @@ def deviate(rob: Robot, seed: int, sigma_m: float = 5e-4, sigma_rad: float = np.
 
 
 class ExactModel:
-    """Model interface of :class:`hykin.hybrid.HybridModel` used by compensation, predicting the truth."""
+    """Model interface of :class:`hykin.hybrid.model.HybridModel` used by compensation, predicting the truth."""
 
     def __init__(self, nominal: Robot, truth: Robot, frame_pre=None):
         self.robot = self.nominal = nominal

@@ -1,6 +1,6 @@
 """Inverse kinematics: closed form (all branches) and Levenberg–Marquardt.
 
-References are independent of the solvers: plain FK (hykin.fk.fk) with se3.pose_error for the
+References are independent of the solvers: plain FK (hykin.kinematics.fk.fk) with se3.pose_error for the
 residuals, the joints the targets were generated from, and an exhaustive numerical search (many
 random LM seeds, duplicates removed modulo 2π) for the number of branches.
 """

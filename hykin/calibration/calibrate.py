@@ -8,7 +8,7 @@ Identifies, from measured TCP poses (or positions), deviations of
 * the base frame (world/measurement -> robot base) and the tool frame (flange -> TCP), each as a
   small 6-D twist applied on the right: ``T <- T · E(v, w)`` with ``E = [exp(w), v]``;
 * joint compliance ``c_i = 1 / k_i`` (rad/N·m), the joints deflecting under the gravity torques of
-  the link masses and payload (:mod:`hykin.compliance`): ``q_eff = q + c * tau(q_eff)``;
+  the link masses and payload (:mod:`hykin.kinematics.compliance`): ``q_eff = q + c * tau(q_eff)``;
 
 by Levenberg–Marquardt over all samples. The Jacobian is analytic and vectorised: every parameter is
 an elementary twist (a rotation about, or a translation along, a known axis of a known frame of the
@@ -20,7 +20,7 @@ so the Jacobian is always the exact derivative at zero deviation.
 
 Residual per sample: ``p_meas - p_model`` (m) for every measured point and, for full-pose data,
 ``w · log(R_meas R_model^T)`` (rad × ``w`` m/rad, the orientation weight). Data with several
-reflectors per pose (``x2,y2,z2`` ... columns, :mod:`hykin.reflectors`) are fitted as what they are:
+reflectors per pose (``x2,y2,z2`` ... columns, :mod:`hykin.calibration.reflectors`) are fitted as what they are:
 points on one tool body, the first at the TCP, each further one with its own unknown offset
 ``p2.x, p2.y, p2.z`` ... (TCP frame) identified with everything else. The orientation weight is
 chosen from the data by default (``"auto"``): a first fit at ``w = 1 m/rad`` gives the residual
@@ -31,7 +31,7 @@ kind of row counts by its noise (a fixed 1 m/rad over-weights orientations that 
 Raw data (a tracker's frame, unknown tool, robot file without ``[base]``) run in stages:
 
 1. closed-form base and tool offset(s) from the nominal kinematics
-   (:func:`hykin.initial_registration.initial_registration`: linear in the offsets for a fixed base
+   (:func:`hykin.calibration.initial_registration.initial_registration`: linear in the offsets for a fixed base
    rotation, Kabsch for the rotation, a few alternations, joint Gauss–Newton; several tool
    guesses), kept where it explains the data better than the robot file's own frames;
 2. LM on base and tool (and reflector offsets) only, from that start;
@@ -40,7 +40,7 @@ Raw data (a tracker's frame, unknown tool, robot file without ``[base]``) run in
 4. identifiability re-checked at the solution; a further pass when the set changed, when the
    orientation weight was re-estimated, or when the iteration cap stopped a still-falling cost;
 5. if the fit is still implausible, a restart from the robot file's own frames; the best is kept;
-6. refusals (:mod:`hykin.calibration_checks`): not converged, a parameter beyond its plausible
+6. refusals (:mod:`hykin.calibration.checks`): not converged, a parameter beyond its plausible
    bound, or a residual no correct robot file leaves -> :class:`CalibrationError`, one line that says
    what to check (robot file, units, tool, joint order).
 
@@ -402,10 +402,10 @@ def calibrate(
 ) -> CalibrationResult:
     """Identify geometry, base, tool and joint compliance of ``robot`` from measured poses.
 
-    data: a :class:`hykin.dataset.Dataset` (or any object with ``q``, ``xyz_m``, ``quat_wxyz``), or a
+    data: a :class:`hykin.io.dataset.Dataset` (or any object with ``q``, ``xyz_m``, ``quat_wxyz``), or a
     tuple ``(q (N, n) rad, poses (N, 4, 4) m)`` / ``(q, positions (N, 3) m)``. Measured poses may be
     in any frame (a tracker's, metres away and turned): base and tool are found first
-    (:mod:`hykin.initial_registration`), then refined with everything else.
+    (:mod:`hykin.calibration.initial_registration`), then refined with everything else.
     params: ``"auto"`` (every candidate, see :func:`parameter_names`) or fnmatch patterns selecting
     candidates (``["base.*", "tool.*"]`` re-registers a measurement series only).
     compliance/base/tool: include those parameter groups. position_only: ignore orientations
@@ -419,14 +419,14 @@ def calibrate(
     (kept only where it explains the data better than the robot file's frames); False: start at
     the robot file. restarts: further LM passes when the iteration cap stopped a still-falling cost,
     and starts tried (robot file's frames) when the fit is implausible.
-    max_deviation: overrides of :data:`hykin.calibration_checks.DEFAULT_MAX_DEVIATION`
+    max_deviation: overrides of :data:`hykin.calibration.checks.DEFAULT_MAX_DEVIATION`
     (``{"length_mm": 30}``). checks: refuse (raise :class:`CalibrationError`) a calibration that did
     not converge, a parameter beyond its plausible bound, or an implausible residual
-    (:mod:`hykin.calibration_checks`); False returns whatever the fit gave.
+    (:mod:`hykin.calibration.checks`); False returns whatever the fit gave.
 
     payload_kg / payload_com_m: per-row payload (``(N,)`` kg, ``(N, 3)`` m in the tool frame) that
     deflects the joints; by default read from the dataset's ``payload_kg``/``payload_com_*``
-    columns (:mod:`hykin.payload`), else the robot's payload.
+    columns (:mod:`hykin.kinematics.payload`), else the robot's payload.
 
     Identifiability is decided at the current estimate: after base and tool are found, and again at
     the solution (a further pass runs when the identified set changed there).
@@ -540,5 +540,5 @@ def calibrate(
 
 def calibrated_fk(robot: Robot, q) -> np.ndarray:
     """Prediction of the calibrated classical model: TCP poses ``(N, 4, 4)`` including joint
-    compliance under gravity (:func:`hykin.compliance.compliant_fk`)."""
+    compliance under gravity (:func:`hykin.kinematics.compliance.compliant_fk`)."""
     return compliant_fk(robot, q)

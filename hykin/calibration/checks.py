@@ -1,7 +1,7 @@
 """Refusals of a calibration that cannot be right (never a silent wrong robot).
 
-:func:`hykin.calibrate.calibrate` ends with :func:`check_calibration`; it raises
-:class:`hykin.calibrate.CalibrationError` with one line saying what is wrong and what to check when
+:func:`hykin.calibration.calibrate.calibrate` ends with :func:`check_calibration`; it raises
+:class:`hykin.calibration.result.CalibrationError` with one line saying what is wrong and what to check when
 
 * the Levenberg–Marquardt did not converge (iteration cap reached while the cost still fell by
   more than ``1e-5`` relative per iteration, after the restarts);
@@ -99,9 +99,9 @@ def _limit_of(name: str, unit: str, group: str, field: str, lim: dict) -> tuple[
 
 
 def check_calibration(res, specs, lim: dict, *, still_falling: bool, deflection_rad=None) -> None:
-    """Raise :class:`~hykin.calibrate.CalibrationError` when ``res`` cannot be a correct calibration.
+    """Raise :class:`~hykin.calibration.result.CalibrationError` when ``res`` cannot be a correct calibration.
 
-    res: the :class:`~hykin.calibrate.CalibrationResult` (values relative to the robot file);
+    res: the :class:`~hykin.calibration.result.CalibrationResult` (values relative to the robot file);
     specs: its parameter specs (``name, group, field, unit``); lim: resolved bounds;
     still_falling: the cost still fell materially in the last iteration (not converged);
     deflection_rad: ``(n,)`` largest gravity deflection of each joint over the data (or None).

@@ -2,7 +2,7 @@
 
 A user's measurements arrive in the tracker's frame, several metres and any rotation away from the
 robot base, with a reflector whose offset on the flange is known only roughly (or not at all), and
-a robot file without ``[base]``. The local Levenberg–Marquardt of :func:`hykin.calibrate.calibrate`
+a robot file without ``[base]``. The local Levenberg–Marquardt of :func:`hykin.calibration.calibrate.calibrate`
 linearises the base rotation and cannot bridge a rotation of 90° or a base metres away, so the
 calibration first finds base and tool from the nominal kinematics:
 

@@ -1,11 +1,11 @@
 """The calibration's model of the measurements and its identification Jacobian (used by
-:mod:`hykin.calibrate`, :mod:`hykin.planning` and :mod:`hykin.register` through ``calibrate``).
+:mod:`hykin.calibration.calibrate`, :mod:`hykin.planning` and :mod:`hykin.measure.register` through ``calibrate``).
 
 :func:`model_poses` / :func:`effective_joints`: TCP poses and deflected joints of a
-:class:`~hykin.calibration_params.ModelState` (per-row payloads through :mod:`hykin.payload`);
+:class:`~hykin.calibration.params.ModelState` (per-row payloads through :mod:`hykin.kinematics.payload`);
 :func:`residual`: stacked position (every reflector) and weighted orientation residuals;
 :func:`jacobian_chunk` / :func:`linearize`: analytic derivatives with respect to every
-:class:`~hykin.calibration_params.ParamSpec`, accumulated as scaled normal equations in chunks;
+:class:`~hykin.calibration.params.ParamSpec`, accumulated as scaled normal equations in chunks;
 :func:`identification_jacobian`: the same Jacobian for one robot and joint set (SI units).
 """
 

@@ -1,4 +1,4 @@
-"""Calibration parameters and the model state they act on (used by :mod:`hykin.calibrate`).
+"""Calibration parameters and the model state they act on (used by :mod:`hykin.calibration.calibrate`).
 
 A parameter is a :class:`ParamSpec` (group, joint, field, unit): per-joint geometry (a, alpha, d, theta,
 and beta where consecutive axes are near-parallel), base and tool frames (a 6-twist each), the joint

@@ -11,10 +11,10 @@ on the measurement frame (data may be in a tracker frame metres away, with an un
   degrees shrink the nominal motion and give ``s`` of tens or more.
 * **quaternion order** (:func:`check_orientation_order`): relative rotations ``R_i R_jᵀ`` equal the
   nominal ``R̂_i R̂_jᵀ`` turned by one fixed rotation (measurement frame), found by the rigid fit
-  :func:`hykin.referencing.kabsch` of their rotation vectors; the misfit is compared under the
+  :func:`hykin.measure.rigid.kabsch` of their rotation vectors; the misfit is compared under the
   declared scalar-first reading and the scalar-last one.
 * **joint unit without poses** (:func:`check_joint_unit`): radians declared degrees leave every
-  revolute joint within ±6.3° (degrees declared radians are caught in :mod:`hykin.dataset`:
+  revolute joint within ±6.3° (degrees declared radians are caught in :mod:`hykin.io.dataset`:
   values beyond ±2π or the limits).
 * **target reach** (:func:`check_target_reach`): IK targets against the robot's reach.
 
@@ -145,7 +145,7 @@ def check_orientation_order(robot: Robot, q, quat_wxyz, *, where: str = "<data>"
 
     Measured ``R_i = B R̂_i U`` (unknown measurement frame ``B`` and tool rotation ``U``), so the
     relative rotations ``R_i R_jᵀ = B R̂_i R̂_jᵀ Bᵀ``: their rotation vectors are those of the nominal
-    model turned by the one rotation ``B``, found by the rigid fit :func:`hykin.referencing.kabsch`
+    model turned by the one rotation ``B``, found by the rigid fit :func:`hykin.measure.rigid.kabsch`
     (the vector sets are symmetrised so the fit's translation is zero). A pair-angle comparison would
     not do: the angle of ``q_i* q_j`` is ``2 acos|q_i·q_j|``, blind to any fixed reordering of the
     quaternion components."""

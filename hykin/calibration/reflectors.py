@@ -1,8 +1,8 @@
 """Several reflectors measured at the same joints: the columns ``x2,y2,z2``, ``x3,y3,z3`` ... (DESIGN.md §3).
 
 The first point is the dataset's ``x,y,z`` (the TCP); further points are extra columns, kept by
-:func:`hykin.dataset.read_dataset` in :attr:`Dataset.extra` as read. :func:`reflector_points`
-stacks them ``(N, K, 3)``; :func:`hykin.calibrate.calibrate` then fits every reflector as a point
+:func:`hykin.io.dataset_files.read_dataset` in :attr:`Dataset.extra` as read. :func:`reflector_points`
+stacks them ``(N, K, 3)``; :func:`hykin.calibration.calibrate.calibrate` then fits every reflector as a point
 on the same tool body (each with its own unknown offset).
 """
 
@@ -46,7 +46,7 @@ def reflector_points(ds) -> np.ndarray:
 
 def with_reflector_unit(ds, length_unit: str):
     """``ds`` with the further reflectors' columns converted from ``length_unit`` to metres (called by
-    :func:`hykin.dataset.read_dataset`, which converts ``x,y,z`` the same way)."""
+    :func:`hykin.io.dataset_files.read_dataset`, which converts ``x,y,z`` the same way)."""
     f = {"m": 1.0, "mm": 1e-3}[length_unit]
     if f == 1.0:
         return ds

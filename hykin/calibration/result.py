@@ -1,5 +1,5 @@
 """Outcome of a calibration: :class:`CalibrationResult` (parameters, uncertainties, residual
-statistics, report) and :func:`residual_stats`. Produced by :func:`hykin.calibrate.calibrate`."""
+statistics, report) and :func:`residual_stats`. Produced by :func:`hykin.calibration.calibrate.calibrate`."""
 
 from __future__ import annotations
 
@@ -32,8 +32,8 @@ def residual_stats(rp: np.ndarray, ro: np.ndarray | None, w: float) -> dict:
 
 
 class CalibrationError(ValueError):
-    """Bad input to :func:`hykin.calibrate.calibrate` (shapes, non-finite values, unknown parameter
-    names) or a calibration refused by :mod:`hykin.calibration_checks`."""
+    """Bad input to :func:`hykin.calibration.calibrate.calibrate` (shapes, non-finite values, unknown parameter
+    names) or a calibration refused by :mod:`hykin.calibration.checks`."""
 
 
 @dataclass

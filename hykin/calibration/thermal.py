@@ -4,7 +4,7 @@ A robot's links (and tool) expand with temperature: about 11.5e-6 /K for steel, 
 aluminium, i.e. 0.02 mm per kelvin at a 1.5 m reach. Measurement sessions warm up by several
 kelvin, so this is an error the joints cannot explain: a model of q alone can only average it out.
 When the data carry the temperature (a ``temperature_c`` or ``temperature`` column, °C, kept as an
-extra column by :mod:`hykin.dataset`), uniform expansion of every length of the chain is modelled
+extra column by :mod:`hykin.io.dataset`), uniform expansion of every length of the chain is modelled
 exactly: the pose at temperature ``t`` is the pose at the reference temperature ``t_ref`` with its
 position scaled about the robot base origin ``b``,
 

@@ -4,7 +4,7 @@ A Cartesian target has up to eight closed-form solutions (shoulder, elbow, wrist
 with a range over 360°, several 2π representations. Controllers pick one from extra data in the
 program; this module computes that data from joints and picks the joints that match it.
 
-Geometry used (hykin joint frames, :func:`hykin.fk.fk_frames`; controller axis angles
+Geometry used (hykin joint frames, :func:`hykin.kinematics.fk.fk_frames`; controller axis angles
 ``A = axis_signs * q``):
 
 * wrist centre ``pw``: the point of axis 4 nearest axis 5 (the wrist centre of a spherical wrist);

@@ -172,7 +172,7 @@ class Handlers:
 
 
 def create_app(model):
-    """The FastAPI app serving ``model`` (a fitted :class:`hykin.hybrid.HybridModel`)."""
+    """The FastAPI app serving ``model`` (a fitted :class:`hykin.hybrid.model.HybridModel`)."""
     from fastapi import FastAPI, Request
     from fastapi.responses import JSONResponse
     from starlette.concurrency import run_in_threadpool

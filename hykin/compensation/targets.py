@@ -109,7 +109,7 @@ def _targets(T_target) -> tuple[np.ndarray, bool]:
 
 
 def first_row_per_target(res) -> np.ndarray:
-    """Row indices of a :class:`hykin.hybrid_ik.HybridIKResult`: one per target that has rows, its
+    """Row indices of a :class:`hykin.hybrid.ik_result.HybridIKResult`: one per target that has rows, its
     first successful row (else its first row), ordered by target."""
     order = np.lexsort((~res.success, res.target))
     return order[np.r_[True, res.target[order][1:] != res.target[order][:-1]]]
@@ -123,7 +123,7 @@ def compensate(model, T_target, *, q_branch=None, frame: str = "measurement", po
     ``q_branch`` ``(N, n)`` or ``(n,)``: joints choosing the branch (current joints, or the nominal
     solution the program means); NaN rows = no branch (the target fails with ``branch_reason``).
     Default: the nominal solution nearest the previous target's (:func:`sequential_nearest`).
-    ``frame``, ``tool_delta``: module docstring. Other keywords go to :func:`hykin.hybrid_ik.hybrid_ik`.
+    ``frame``, ``tool_delta``: module docstring. Other keywords go to :func:`hykin.hybrid.ik.hybrid_ik`.
     """
     from ..hybrid.ik import hybrid_ik
     from .branches import sequential_nearest

@@ -89,7 +89,7 @@ class EvalResult:
 def evaluate_model(model, data: Dataset) -> EvalResult:
     """Errors of the nominal, calibrated and hybrid predictions of ``model`` against ``data``.
 
-    ``model`` is a :class:`hykin.hybrid.HybridModel` or a plain :class:`Robot` (nominal FK only).
+    ``model`` is a :class:`hykin.hybrid.model.HybridModel` or a plain :class:`Robot` (nominal FK only).
     """
     T_meas = data.poses()
     pos_only = not data.has_orientation

@@ -7,7 +7,7 @@
 
 Conventions: ``std`` is the population standard deviation (``ddof=0``, as ``numpy.std``); ``p95`` is
 the 95th percentile with numpy's default linear interpolation. The orientation error is the angle of
-``R_pred R_meas^T`` (:func:`hykin.se3.pose_error`).
+``R_pred R_meas^T`` (:func:`hykin.kinematics.se3.pose_error`).
 """
 
 from __future__ import annotations

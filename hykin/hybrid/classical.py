@@ -17,7 +17,7 @@ __all__ = ["classical_fk", "classical_fk_torch"]
 def classical_fk(robot: Robot, q: np.ndarray, payload_kg=None, payload_com_m=None) -> np.ndarray:
     """Classical prediction ``(N, 4, 4)``: FK of the (calibrated) robot, with joint compliance when
     the robot has finite stiffness. ``payload_kg`` / ``payload_com_m``: per-row payload
-    (:func:`hykin.compliance.gravity_torques`); default the robot's."""
+    (:func:`hykin.kinematics.compliance.gravity_torques`); default the robot's."""
     if robot.has_compliance:
         from ..kinematics.compliance import compliant_fk
 

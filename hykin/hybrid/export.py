@@ -4,7 +4,7 @@ The exported graph maps joints ``q`` ``(N, dof)`` float64 (rad) to TCP poses ``(
 (m): the calibrated classical chain (with joint compliance), the position and orientation networks
 and the smooth joint-range fade, exactly as :meth:`HybridModel.predict_torch`. The export is checked
 against hykin with ONNX Runtime before it is reported done. A model with a thermal coefficient
-(:mod:`hykin.thermal`) is exported at its reference temperature; the returned info carries what the
+(:mod:`hykin.calibration.thermal`) is exported at its reference temperature; the returned info carries what the
 controller needs to apply the expansion: ``p = b + (1 + alpha (t - t_ref)) (p - b)``.
 """
 

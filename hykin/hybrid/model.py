@@ -4,7 +4,7 @@
 calibrated classical model (geometry + joint compliance), ``Δp``/``Δr`` the position and orientation
 networks (base frame) and ``w`` the support fade (below). When the training data carry a temperature
 column, ``T̂`` also expands with temperature (one linear coefficient identified with the calibration,
-:mod:`hykin.thermal`): ``predict(q, temperature_c=...)``; the networks learn at the reference
+:mod:`hykin.calibration.thermal`): ``predict(q, temperature_c=...)``; the networks learn at the reference
 temperature. On rx160-nongeo (simulated 11.5e-6 /K) the coefficient is recovered to 0.3 % and the
 hybrid error against noisy measurements is 1.28x the noise floor with the test temperatures given,
 1.53x without (benchmarks/bench_paper.py).
@@ -30,7 +30,7 @@ Training-region awareness (networks do not extrapolate): :meth:`HybridModel.rang
 (``fade``, ``fade_width``, ``fade_offset``, ``fade_cv``) are described, with their measurements, in
 :mod:`hykin.hybrid.support`; far outside the training data the hybrid equals the calibrated model.
 
-Payload (:mod:`hykin.payload`). Training data may carry a ``payload_kg`` column (and
+Payload (:mod:`hykin.kinematics.payload`). Training data may carry a ``payload_kg`` column (and
 ``payload_com_x/y/z``, tool frame): the calibration deflects every row under its own payload (joint
 stiffness identified), the targets are taken against that physics, and ``predict(q, payload_kg=...,
 payload_com_m=...)`` evaluates the calibrated compliance at any payload (default: the robot file's).
@@ -46,7 +46,7 @@ robot (rx160-nongeo): 0.0279 / 0.0279 / 0.0280 / 0.0280 mm with payload as input
 no payload dependence). With one payload the networks stay payload-agnostic and the physics
 carries every other payload. ``predict`` warns (:class:`OutOfRangeWarning`) for payloads outside
 the trained ones. Not payload-aware yet: :meth:`predict_uncertainty` (bands of the trained
-payloads) and the extrapolation growth of :mod:`hykin.uncertainty` (robot file's payload).
+payloads) and the extrapolation growth of :mod:`hykin.hybrid.uncertainty` (robot file's payload).
 
 Uncertainty (:meth:`HybridModel.predict_uncertainty`): split-conformal bands that widen to the
 calibrated model's outside the training data (:mod:`hykin.hybrid.bands`, measured coverage there).

@@ -6,7 +6,7 @@ parameter set that fits the training region closely; held-out *regions* reward o
 extrapolates. :func:`select_calibration` splits the data into ``n_blocks`` joint-space regions
 (k-means on the z-scored joints), calibrates each candidate parameter set on the other regions,
 re-registers base and tool on ``n_register`` representative poses of the held-out region (as a new
-series would be, :func:`hykin.register.fit_frames`) and scores the error on that region's other
+series would be, :func:`hykin.measure.register.fit_frames`) and scores the error on that region's other
 poses. The candidate with the lowest mean held-out error wins; ties within ``tie_tol`` go to the
 later (simpler) candidate.
 """
@@ -19,7 +19,7 @@ import numpy as np
 
 __all__ = ["CANDIDATES", "RegionCVResult", "candidate_kwargs", "joint_blocks", "select_calibration"]
 
-#: candidate parameter sets (``hykin.calibrate.calibrate`` keyword arguments), richest first
+#: candidate parameter sets (``hykin.calibration.calibrate.calibrate`` keyword arguments), richest first
 CANDIDATES: dict[str, dict] = {
     "full": {},
     "no-compliance": {"compliance": False},
@@ -79,7 +79,7 @@ def select_calibration(robot, ds, candidates: dict[str, dict] | None = None, n_b
     """Choose the calibration parameter set by region-blocked validation (module docstring).
 
     ``robot``: nominal Robot; ``ds``: Dataset in ``robot``'s world frame; ``candidates``: name ->
-    extra :func:`hykin.calibrate.calibrate` keyword arguments (default :data:`CANDIDATES`);
+    extra :func:`hykin.calibration.calibrate.calibrate` keyword arguments (default :data:`CANDIDATES`);
     ``base_kw``: keyword arguments common to all (e.g. ``position_only``); ``max_rows``: each
     calibration uses at most this many rows of the other regions (evenly spaced; cost)."""
     from ..calibration.calibrate import calibrate

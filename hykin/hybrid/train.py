@@ -171,8 +171,8 @@ def train_net(
     the lowest validation loss (training loss without validation data) are restored at the end.
     ``max_seconds`` stops training early (the best weights so far are kept).
     ``callback(epoch, max_epochs, train_loss, val_loss)`` is called after each epoch.
-    Initial weights are the caller's: seed torch before :func:`hykin.nets.make_net` for full
-    reproducibility (:class:`hykin.hybrid.HybridModel` does).
+    Initial weights are the caller's: seed torch before :func:`hykin.hybrid.nets.make_net` for full
+    reproducibility (:class:`hykin.hybrid.model.HybridModel` does).
     """
     if device.startswith("cuda") and not torch.cuda.is_available():
         raise ValueError("device 'cuda' requested but torch.cuda.is_available() is False")

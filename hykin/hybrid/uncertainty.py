@@ -1,6 +1,6 @@
 """How fast the calibrated model's error grows beyond the joint ranges it was fitted on.
 
-Split-conformal quantiles (see :meth:`hykin.hybrid.HybridModel.predict_uncertainty`) hold for queries
+Split-conformal quantiles (see :meth:`hykin.hybrid.model.HybridModel.predict_uncertainty`) hold for queries
 like the validation data. Outside the trained joint ranges the hybrid falls back to the calibrated
 classical model, whose parameters were identified on the same ranges and so extrapolate too: on a
 virtual RX160 trained on the middle half of every joint range, its mean error grows from 0.128 mm
@@ -42,7 +42,7 @@ def extrapolation_growth(robot, train, qn: np.ndarray, joints: np.ndarray, level
     robot: the nominal robot; train: the training Dataset; qn: ``(N, n)`` its joints in the
     coordinates the range excess is measured in (the networks' inputs); joints: ``(n,)`` bool, the
     joints that count; levels: ``(L,)`` band levels. calibrate_kw: keyword arguments of
-    :func:`hykin.calibrate.calibrate` (``None``: no calibration, the nominal model is evaluated).
+    :func:`hykin.calibration.calibrate.calibrate` (``None``: no calibration, the nominal model is evaluated).
     Refits use at most ``n_fit`` samples and evaluate at most ``n_out`` left-out ones per split.
     Returns ``{"pos_mm": (L, n), "pos_mm_step": (L, n), "ang_deg", "ang_deg_step" (or None),
     "n_splits", "n_points"}``: per level and joint the slope ``k`` and the step ``a`` of the band

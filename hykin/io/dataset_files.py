@@ -224,7 +224,7 @@ def read_dataset(
     ``length_unit`` (``"m"``/``"mm"``) and ``angle_unit`` (``"rad"``/``"deg"``) are the units *in the
     file*. ``robot`` (optional) fixes the number of joints, which joints are prismatic, and enables
     the joint-limit check and (``plausibility``) the unit and quaternion-order checks of
-    :func:`hykin.plausibility.check_dataset` (positions vs the robot's motion, orientations vs its
+    :func:`hykin.calibration.plausibility.check_dataset` (positions vs the robot's motion, orientations vs its
     rotations); ``dof`` fixes the number of joints without a robot. Without either the joints are the
     contiguous ``q1, q2, ...`` columns of the header.
     """

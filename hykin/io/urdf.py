@@ -271,7 +271,7 @@ def robot_to_urdf(robot: Robot) -> str:
 
     Links: ``world`` -(fixed ``base``)-> ``base_link`` -(joint_1)-> ``joint_1_frame`` -(fixed)->
     ``link_1`` ... ``link_n`` -(fixed ``tool``)-> ``tcp``. Frame ``link_i`` equals hykin link frame i
-    and ``joint_i_frame`` the joint frame i of :func:`hykin.fk.fk_frames`.
+    and ``joint_i_frame`` the joint frame i of :func:`hykin.kinematics.fk.fk_frames`.
     """
     from ..kinematics.chain import chain_of
 

@@ -289,11 +289,11 @@ def gravity_torques(robot: Robot, q, chain: Chain | None = None, xp=np, payload_
     """Generalized gravity force on each joint ``tau = -dV/dq``, ``(N, n)`` (N·m; N for prismatic).
 
     ``q``: ``(N, n)`` joints (numpy array, or a float64 torch tensor with ``xp=torch``). ``chain``:
-    a :class:`~hykin.chain.Chain` (numpy, or torch from ``build_chain(robot, geom, torch)`` to
+    a :class:`~hykin.kinematics.chain.Chain` (numpy, or torch from ``build_chain(robot, geom, torch)`` to
     differentiate with respect to geometry); default: the robot's own chain. Masses, centres of
     mass, payload and gravity come from ``robot``. ``payload_kg`` (scalar or ``(N,)`` kg) and
     ``payload_com_m`` (``(3,)`` or ``(N, 3)`` m, tool frame; default the TCP) replace the robot's
-    payload row by row (:mod:`hykin.payload`).
+    payload row by row (:mod:`hykin.kinematics.payload`).
     """
     if _is_torch(q):
         import torch
@@ -445,7 +445,7 @@ def _check_converged(robot: Robot, step: float) -> None:
 def compliant_fk(robot: Robot, q, payload_kg=None, payload_com_m=None) -> np.ndarray:
     """TCP poses ``(N, 4, 4)`` of a compliant robot: ``fk(robot, deflected_joints(robot, q))``.
 
-    Plain :func:`hykin.fk.fk` when no joint has finite stiffness. ``q``: ``(N, n)`` or ``(n,)``.
+    Plain :func:`hykin.kinematics.fk.fk` when no joint has finite stiffness. ``q``: ``(N, n)`` or ``(n,)``.
     ``payload_kg`` / ``payload_com_m``: per-row payload as in :func:`gravity_torques`.
     """
     q = np.asarray(q, dtype=np.float64)

@@ -2,12 +2,12 @@
 
 A dataset may carry, per row, the mass at the TCP ``payload_kg`` (kg) and optionally its centre of
 mass ``payload_com_x``, ``payload_com_y``, ``payload_com_z`` (m, tool frame; default the TCP). They
-are plain extra columns of :class:`hykin.dataset.Dataset`; :func:`payload_of` reads and validates
+are plain extra columns of :class:`hykin.io.dataset.Dataset`; :func:`payload_of` reads and validates
 them. Without them every function behaves as before: the payload is the robot file's
 (``Robot.payload_kg``, at the TCP).
 
-The physics carries the payload (:mod:`hykin.compliance`: gravity torques of link masses and the
-per-row payload, deflection ``C tau``, stiffness identified by :func:`hykin.calibrate.calibrate`
+The physics carries the payload (:mod:`hykin.kinematics.compliance`: gravity torques of link masses and the
+per-row payload, deflection ``C tau``, stiffness identified by :func:`hykin.calibration.calibrate.calibrate`
 from the per-row torques); a hybrid model's networks learn what remains. With several payloads in
 the training data the networks also take the payload as an input (:func:`payload_column`), clamped
 to the trained range (:class:`PayloadRange`), so outside it only the physics changes with payload
@@ -57,7 +57,7 @@ def payload_of(data, payload_kg=None, payload_com_m=None, n_rows: int | None = N
 
     Explicit ``payload_kg`` (scalar or ``(N,)``) / ``payload_com_m`` (``(3,)`` or ``(N, 3)``) win;
     otherwise the dataset's columns :data:`PAYLOAD_COLUMNS` (``data.extra``). None when neither is
-    given: the robot's own payload applies. Errors (:class:`hykin.dataset.DatasetError`) name the
+    given: the robot's own payload applies. Errors (:class:`hykin.io.dataset.DatasetError`) name the
     file, row and column: negative or non-finite mass, centre-of-mass columns without
     ``payload_kg`` or only some of the three.
     """

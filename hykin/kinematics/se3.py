@@ -129,7 +129,7 @@ def quat_to_matrix(quat_wxyz: np.ndarray) -> np.ndarray:
     """Unit quaternions ``(..., 4)`` scalar-first to matrices ``(..., 3, 3)``.
 
     The quaternion is normalised; callers that must reject non-unit input validate first
-    (see :mod:`hykin.dataset`).
+    (see :mod:`hykin.io.dataset`).
     """
     q, lead = _flat(quat_wxyz, (4,))
     return Rotation.from_quat(q, scalar_first=True).as_matrix().reshape(lead + (3, 3))

@@ -160,7 +160,7 @@ def _dh_from_robot(robot, i: int):
         return None
     if robot.convention != "dh":
         raise ReferencingError(f"robot {robot.name!r}: sweep referencing uses standard DH parameters, "
-                               f"got convention {robot.convention!r} (convert with hykin.robot.mdh_to_dh)")
+                               f"got convention {robot.convention!r} (convert with hykin.kinematics.robot.mdh_to_dh)")
     return dict(a=float(robot.a_m[i]), alpha=float(robot.alpha_rad[i]), d=float(robot.d_m[i]),
                 theta=float(robot.theta_rad[i]), beta=float(robot.beta_rad[i]))
 

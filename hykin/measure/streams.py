@@ -399,7 +399,7 @@ class AlignedStreams:
 
     q ``(L, dof)``, xyz_m ``(L, 3)``, quat_wxyz ``(L, 4)`` or None, t_robot_s ``(L,)``: the kept
     samples; mask ``(M,)``: which of the M robot samples were kept; info: clock, counts, frame;
-    dataset: a :class:`hykin.dataset.Dataset` when that module is available, else None.
+    dataset: a :class:`hykin.io.dataset.Dataset` when that module is available, else None.
     """
 
     q: np.ndarray

@@ -4,7 +4,7 @@ A pose ``q`` is *feasible* for a :class:`Constraints` when
 
 * every joint lies in the working region ``[lower, upper]`` (within the joint limits);
 * the reflector point ``p`` (TCP, or a point ``reflector_offset_m`` in the tool frame) lies in the
-  Cartesian ``box_m`` (world frame = the frame of :func:`hykin.fk.fk`, ``robot.base`` applied);
+  Cartesian ``box_m`` (world frame = the frame of :func:`hykin.kinematics.fk.fk`, ``robot.base`` applied);
 * line of sight, when a tracker position is given: the angle between the reflector's axis ``n``
   (tool-frame ``reflector_axis``, default tool z) and the direction to the tracker ``t - p`` is at
   most ``max_incidence_deg`` (a 1.5" SMR accepts about ±30°, a 6-D probe such as a T-Mac ±45°),
@@ -17,7 +17,7 @@ file); a user who needs it adds keep-out boxes around fixed obstacles, and the i
 already removes most self-occlusion by the wrist.
 
 Boxes are axis-aligned in the world frame, ``(2, 3)`` arrays ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``
-(m). All tests are vectorised over ``(N, dof)`` joints; FK is :func:`hykin.fk.fk` (the rigid model:
+(m). All tests are vectorised over ``(N, dof)`` joints; FK is :func:`hykin.kinematics.fk.fk` (the rigid model:
 joint deflection moves the TCP by millimetres, far below what changes an incidence angle).
 """
 

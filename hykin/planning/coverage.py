@@ -1,7 +1,7 @@
 """Space-filling in the joint space the networks see.
 
 The residual networks take the joints min-max normalised over the trained region, revolute joints
-that can turn a full circle wrapped onto it (:class:`hykin.hybrid.HybridModel`, ``periodic="wrap"``).
+that can turn a full circle wrapped onto it (:class:`hykin.hybrid.model.HybridModel`, ``periodic="wrap"``).
 Coverage is measured in the same coordinates: :func:`embed` maps joints to a Euclidean space where
 
 * a joint whose region spans less than a full turn becomes ``u = (q - lo) / (hi - lo)`` in [0, 1];
@@ -24,7 +24,7 @@ Coverage as the hybrid sees it (:func:`coverage_report`), in the unit-cube coord
   distribution (marginal stratification; a Latin hypercube reaches ``1/n``, a uniform random set
   about ``0.9 / √n``). Transmission errors are functions of one joint each, learnt from its marginal;
 * :func:`hole_fraction`: the share of reference points (uniform over the region) that lie in a hole
-  of the design by the rule :class:`hykin.hybrid.HybridModel` uses to fade its networks (module
+  of the design by the rule :class:`hykin.hybrid.model.HybridModel` uses to fade its networks (module
   docstring there: for every pair of joints, distance in the 2-D projection to the nearest design
   point beyond ``max(2 x`` the 95th percentile of the design's own nearest-neighbour spacing in that
   projection``, 1/47)``, coordinates min-max normalised over the design). Reimplemented here without

@@ -1,10 +1,10 @@
 """Identifiability criteria on the identification Jacobian of the calibration.
 
-The Jacobian is :func:`hykin.calibrate.identification_jacobian` (geometry, base, tool, joint
-compliance: exactly what :func:`hykin.calibrate.calibrate` estimates), scaled like the calibration
-scales it (:func:`hykin.calibrate.parameter_scales`: 1 mm, 1 mrad, 1e-6 rad/N·m) and expressed in
+The Jacobian is :func:`hykin.calibration.jacobian.identification_jacobian` (geometry, base, tool, joint
+compliance: exactly what :func:`hykin.calibration.calibrate.calibrate` estimates), scaled like the calibration
+scales it (:func:`hykin.calibration.calibrate.parameter_scales`: 1 mm, 1 mrad, 1e-6 rad/N·m) and expressed in
 mm of TCP displacement per typical deviation, restricted to the parameters the calibration can
-identify (:func:`hykin.calibrate.identifiable_columns` on a spread sample of the candidate pool).
+identify (:func:`hykin.calibration.calibrate.identifiable_columns` on a spread sample of the candidate pool).
 
 Criteria of a set of poses with scaled rows ``J`` (``(N, r, P)``) and information ``M = Σ J_iᵀ J_i``:
 

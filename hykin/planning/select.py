@@ -1,7 +1,7 @@
 """Choosing poses from a candidate pool: D-optimal core + space-filling fill, and active selection.
 
 :func:`plan_poses` (``hykin plan ROBOT``), two stages on one feasible candidate pool (scrambled
-Sobol over the working region, :func:`hykin.sampling.uniform`, filtered by
+Sobol over the working region, :func:`hykin.sim.sampling.uniform`, filtered by
 :func:`hykin.planning.constraints.feasible`):
 
 1. **Optimal core** for the calibration, ``core_factor × P / r`` poses (default twice the minimum
@@ -38,10 +38,10 @@ The plan is nested: its first ``k`` poses (before ordering) are the plan for ``k
 :mod:`hykin.planning.forecast` uses. The output is ordered for a short path (:mod:`hykin.planning.order`).
 
 :func:`active_poses` (``hykin plan --for-model``): the next poses for a fitted
-:class:`hykin.hybrid.HybridModel` where its uncertainty is largest. Score per candidate
+:class:`hykin.hybrid.model.HybridModel` where its uncertainty is largest. Score per candidate
 ``s = band95(q) · (1 + d(q) / fade_width) + 1.96 σ_cal(q)``: the model's 95 % position band
-(:meth:`~hykin.hybrid.HybridModel.predict_uncertainty`), grown with the distance outside its
-training support (:meth:`~hykin.hybrid.HybridModel.support_distance`), plus the calibrated model's
+(:meth:`~hykin.hybrid.model.HybridModel.predict_uncertainty`), grown with the distance outside its
+training support (:meth:`~hykin.hybrid.model.HybridModel.support_distance`), plus the calibrated model's
 position standard deviation from the parameter covariance stored with the model. A batch is made
 diverse by greedy selection of ``s · min(1, d_new / ρ)``, ``d_new`` the coverage distance to the
 poses already picked and ``ρ = 0.5 · N^(-1/d)`` (half the spacing of ``N`` evenly spread points).
@@ -286,7 +286,7 @@ def calibration_std_mm(model, q) -> np.ndarray | None:
 
 def active_poses(model, n: int, constraints: Constraints | None = None, *, seed: int = 0, pool: int = 20_000,
                  speeds=DEFAULT_SPEEDS_RAD_S, start=None, dwell_s: float = 0.0) -> Plan:
-    """The next ``n`` poses for a fitted :class:`hykin.hybrid.HybridModel` where it is least certain
+    """The next ``n`` poses for a fitted :class:`hykin.hybrid.model.HybridModel` where it is least certain
     (module docstring), ordered for a short path."""
     import warnings
 

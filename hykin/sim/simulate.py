@@ -192,7 +192,7 @@ def _temperature(vr: VirtualRobot, n: int, temperature_c, start_index: int) -> n
 
 def simulate(vr: VirtualRobot, q, *, noise: bool = True, rng=None, temperature=None, start_index: int = 0,
              payload_kg=None, payload_com_m=None):
-    """Simulated measurements of ``vr`` at commanded joints ``q`` ``(N, n)`` -> :class:`~hykin.dataset.Dataset`.
+    """Simulated measurements of ``vr`` at commanded joints ``q`` ``(N, n)`` -> :class:`~hykin.io.dataset.Dataset`.
 
     Positions (m) and orientations (wxyz) of the true TCP in the world frame (= the nominal robot's
     base frame, where the nominal model's poses live), with measurement noise when ``noise`` and the
@@ -200,7 +200,7 @@ def simulate(vr: VirtualRobot, q, *, noise: bool = True, rng=None, temperature=N
     ``temperature``: ``(N,)`` °C for thermal drift (default: warm-up profile from ``start_index``);
     with thermal drift the temperature is kept as extra column ``temperature_c``. ``payload_kg`` /
     ``payload_com_m``: payload per row (see :func:`true_poses`), kept as columns ``payload_kg`` and
-    ``payload_com_x/y/z`` (:mod:`hykin.payload`).
+    ``payload_com_x/y/z`` (:mod:`hykin.kinematics.payload`).
     """
     from ..io.dataset import Dataset
 
