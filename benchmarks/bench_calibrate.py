@@ -18,7 +18,7 @@ import numpy as np
 import scipy.optimize
 
 from hykin.calibration.calibrate import apply_deviations, calibrate, calibrated_fk
-from hykin.kinematics import se3
+from hykin.geometry import se3
 from hykin.sim.presets import virtual_preset
 from hykin.sim.simulate import simulate, true_poses
 

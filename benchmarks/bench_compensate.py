@@ -44,8 +44,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from hykin import Robot, load_robot
+from hykin.geometry import se3
 from hykin.hybrid.model import HybridModel
-from hykin.kinematics import se3
 from hykin.kinematics.ik import ik
 from hykin.sim.simulate import VirtualRobot, geometric_deviation, simulate, true_poses
 

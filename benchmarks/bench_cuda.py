@@ -73,9 +73,9 @@ def main(argv: list[str] | None = None) -> int:
         print("skipped: no CUDA device on this machine (torch.cuda.is_available() is False)")
         return 0
 
+    from hykin.geometry.se3 import pose_error
     from hykin.hybrid.model import HybridModel
     from hykin.io.dataset_files import read_dataset
-    from hykin.kinematics.se3 import pose_error
 
     work = Path(args.keep or tempfile.mkdtemp(prefix="hykin-cuda-"))
     work.mkdir(parents=True, exist_ok=True)

@@ -25,8 +25,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from hykin.geometry import se3
 from hykin.hybrid.model import HybridModel, OutOfRangeWarning, classical_fk
-from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
 from hykin.sim.presets import virtual_preset
 from hykin.sim.simulate import simulate

@@ -27,9 +27,9 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
+from hykin.geometry import se3
 from hykin.hybrid.ik import hybrid_ik, wang_ik
 from hykin.hybrid.ik_seeds import classical_seeds, seed_robot_of
-from hykin.kinematics import se3
 from hykin.kinematics.ik import ik_closed_form
 from hykin.sim.presets import virtual_preset
 from hykin.sim.simulate import simulate, true_poses

@@ -119,8 +119,8 @@ def _rtb_ets(robot):
 
 
 def bench_numeric(name, n, n_peer, rows, tol=1e-6):
+    from hykin.geometry import se3
     from hykin.io.robot_file import load_robot
-    from hykin.kinematics import se3
     from hykin.kinematics.fk import fk
     from hykin.kinematics.ik import ik
 

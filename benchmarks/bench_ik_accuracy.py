@@ -13,11 +13,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from hykin.geometry.se3 import pose_error
 from hykin.io.robot_file import list_presets, load_robot
 from hykin.kinematics.fk import fk
 from hykin.kinematics.ik import ik_closed_form
 from hykin.kinematics.ik_closed_form import has_closed_form
-from hykin.kinematics.se3 import pose_error
 
 
 def main(n: int = 10_000) -> None:

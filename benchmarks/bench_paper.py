@@ -42,9 +42,9 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from hykin.evaluation.metrics import ErrorStats, stats_from_errors
+from hykin.geometry import se3
 from hykin.hybrid.ik import hybrid_ik, wang_ik
 from hykin.hybrid.model import HybridModel, classical_fk
-from hykin.kinematics import se3
 from hykin.sim.presets import virtual_preset
 from hykin.sim.simulate import simulate, true_poses
 

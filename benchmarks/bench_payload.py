@@ -29,9 +29,9 @@ import warnings
 
 import numpy as np
 
+from hykin.geometry.se3 import pose_error
 from hykin.hybrid.model import HybridModel
 from hykin.kinematics.compliance import compliant_fk
-from hykin.kinematics.se3 import pose_error
 from hykin.sim.presets import virtual_preset
 from hykin.sim.simulate import simulate
 

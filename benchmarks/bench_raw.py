@@ -32,11 +32,11 @@ import numpy as np
 
 import hykin
 from hykin.evaluation.evaluate import evaluate_model
+from hykin.geometry import se3
 from hykin.hybrid.model import HybridModel
 from hykin.io.dataset_files import read_dataset, write_dataset
 from hykin.io.robot_file import load_robot
 from hykin.io.robot_toml import save_robot_toml
-from hykin.kinematics import se3
 from hykin.kinematics.robot import Robot
 from hykin.sim.simulate import PeriodicError, VirtualRobot
 

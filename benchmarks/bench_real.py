@@ -24,16 +24,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from hykin.geometry import se3
 from hykin.hybrid.model import HybridModel, OutOfRangeWarning
 from hykin.io.dataset import Dataset, split
-from hykin.io.importers import (
+from hykin.kinematics.fk import fk
+from hykin.measure.importers import (
     import_ipa_series,
     import_ur5,
     ipa_nominal_robot,
     ur5_robot_for_dataset,
 )
-from hykin.kinematics import se3
-from hykin.kinematics.fk import fk
 from hykin.measure.register import register_model
 
 

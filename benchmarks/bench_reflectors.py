@@ -10,9 +10,9 @@ sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1]
 import test_raw_frame as t
 
 from hykin.calibration.calibrate import calibrate
+from hykin.geometry.rigid import pose_from_three_points
 from hykin.io.dataset import Dataset
 from hykin.kinematics.compliance import compliant_fk
-from hykin.measure.rigid import pose_from_three_points
 
 rng = np.random.default_rng(3)
 nom = t._arm(); truth = t._truth(nom, rng)

@@ -20,9 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
+from hykin.calibration.frames import fit_frames
+from hykin.geometry import se3
 from hykin.hybrid.model import HybridModel, OutOfRangeWarning
-from hykin.kinematics import se3
-from hykin.measure.register import fit_frames, register_model
+from hykin.measure.register import register_model
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "ipa-robot-accuracy"
 
@@ -93,7 +94,7 @@ def _quartile_ratios(q, ph, pc) -> list[float]:
 
 
 def ur10(variants, n_reg=30, fades=(True, "range", False), seed=0):
-    from hykin.io.importers import import_ipa_series, ipa_nominal_robot
+    from hykin.measure.importers import import_ipa_series, ipa_nominal_robot
 
     A = import_ipa_series(DATA / "Series_A", register_to=ipa_nominal_robot())
     B = import_ipa_series(DATA / "Series_B")  # tracker frame

@@ -37,9 +37,9 @@ from scipy.spatial.transform import Rotation
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hykin.calibration.thermal import temperature_of
+from hykin.geometry import se3
 from hykin.hybrid.model import HybridModel, OutOfRangeWarning
 from hykin.io.dataset import split
-from hykin.kinematics import se3
 from hykin.measure.register import register_model
 
 # --------------------------------------------------------------------------- plain reference (independent of hykin)
@@ -148,8 +148,8 @@ def rcv_kwargs(robot, name):
 
 
 def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path) -> None:
-    from hykin.io.importers import import_ipa_series, ipa_nominal_robot
     from hykin.io.robot_toml import save_robot_toml
+    from hykin.measure.importers import import_ipa_series, ipa_nominal_robot
 
     d = root / "ipa-robot-accuracy"
     if not (d / "Series_B").is_dir():
@@ -210,7 +210,7 @@ def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path)
     from hykin.calibration.calibrate import calibrate
     from hykin.hybrid.model import classical_fk
     from hykin.hybrid.region_cv import CANDIDATES, select_calibration
-    from hykin.measure.register import fit_frames
+    from hykin.calibration.frames import fit_frames
 
     t0 = time.perf_counter()
     rcv = select_calibration(rob, tr, n_blocks=4)

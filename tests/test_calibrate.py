@@ -19,8 +19,8 @@ from hykin.calibration.calibrate import (
     identification_jacobian,
     parameter_names,
 )
+from hykin.geometry import se3
 from hykin.io.robot_file import load_robot
-from hykin.kinematics import se3
 from hykin.kinematics.compliance import compliance_of, compliant_fk
 from hykin.kinematics.robot import dh_to_mdh
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from cli_run import run
 
+from hykin.geometry.se3 import pose_error
 from hykin.io.dataset_files import read_dataset
 from hykin.io.robot_file import load_robot
 from hykin.kinematics.fk import fk
-from hykin.kinematics.se3 import pose_error
 
 
 def write_joints(path, q, header=None):

@@ -20,7 +20,7 @@ from hykin.compensation.branches import (
     match_abb_confdata,
     match_kuka_status,
 )
-from hykin.kinematics import se3
+from hykin.geometry import se3
 from hykin.kinematics.ik import ik
 
 

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 
+from hykin.geometry.se3 import rotx, trans
 from hykin.io.robot_file import load_robot
 from hykin.kinematics.chain import build_chain, geometry_of
 from hykin.kinematics.compliance import (
@@ -17,7 +18,6 @@ from hykin.kinematics.compliance import (
 )
 from hykin.kinematics.fk import fk, fk_frames
 from hykin.kinematics.robot import Robot
-from hykin.kinematics.se3 import rotx, trans
 
 G = 9.81
 

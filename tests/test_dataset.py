@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hykin.geometry import se3
 from hykin.io.dataset import (
     Dataset,
     DatasetError,
@@ -15,7 +16,6 @@ from hykin.io.dataset import (
 )
 from hykin.io.dataset_files import read_dataset, write_dataset
 from hykin.io.robot_file import load_robot
-from hykin.kinematics import se3
 
 
 def _random_dataset(n=40, dof=6, seed=0, orientation=True, extra=True):

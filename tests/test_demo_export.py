@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
+from hykin.geometry.se3 import pose_error
 from hykin.hybrid.model import HybridModel
-from hykin.kinematics.se3 import pose_error
 from hykin.sim.presets import virtual_preset
 from hykin.sim.sampling import sample
 from hykin.sim.simulate import simulate
@@ -58,7 +58,7 @@ def test_onnx_export_matches_hykin(tmp_path, small_model):
 
 def test_registered_model_roundtrip(tmp_path, small_model):
     """A model with registration frames saves and loads them (the frames change predictions)."""
-    from hykin.kinematics import se3
+    from hykin.geometry import se3
 
     m = small_model
     q = m.nominal.random_joints(20, 3)

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 import torch
 
+from hykin.geometry.se3 import rotvec_to_matrix
 from hykin.hybrid.model import HybridError, HybridModel, OutOfRangeWarning
 from hykin.io.dataset import Dataset
 from hykin.io.modelfile import ModelFileError
 from hykin.io.robot_file import load_robot
 from hykin.kinematics.fk import fk
-from hykin.kinematics.se3 import rotvec_to_matrix
 
 TINY = {"max_epochs": 8, "batch_size": 64}
 

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 
+from hykin.geometry import se3
 from hykin.hybrid.ik import (
     HybridIKError,
     branch_count_report,
@@ -22,7 +23,6 @@ from hykin.hybrid.ik import (
 )
 from hykin.hybrid.ik_solve import IKProblem
 from hykin.io.robot_file import load_robot
-from hykin.kinematics import se3
 from hykin.kinematics.fk import fk, fk_torch, jacobian
 from hykin.kinematics.ik import ik_closed_form
 

@@ -12,8 +12,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from hykin.geometry import se3
 from hykin.io.robot_file import list_presets, load_robot
-from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
 from hykin.kinematics.ik import (
     _lm_numpy,

@@ -13,17 +13,17 @@ import numpy as np
 import pytest
 from cli_run import run
 
+from hykin.geometry import se3
 from hykin.io.dataset_files import read_dataset
 from hykin.io.robot_file import load_robot
-from hykin.io.table_import import import_table
-from hykin.io.table_map import (
+from hykin.kinematics.fk import fk
+from hykin.measure.table_import import import_table
+from hykin.measure.table_map import (
     TableMap,
     TableMapError,
     load_table_map,
     table_map_from_dict,
 )
-from hykin.kinematics import se3
-from hykin.kinematics.fk import fk
 
 
 def _rot_err(R1, R2):

@@ -13,8 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hykin.geometry import se3
 from hykin.io.dataset import DatasetError
-from hykin.io.importers import (
+from hykin.kinematics.fk import fk
+from hykin.measure.importers import (
     IPA_BASE_LINK_FROM_DH,
     import_ipa_series,
     import_three_smr,
@@ -24,8 +26,6 @@ from hykin.io.importers import (
     registration_errors,
     ur5_robot_for_dataset,
 )
-from hykin.kinematics import se3
-from hykin.kinematics.fk import fk
 
 DATA = Path(os.environ.get("HYKIN_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 UR5_DIR = DATA / "serial-robots-ur5" / "UR5"
@@ -205,7 +205,7 @@ def test_ipa_importer_refuses_unknown_columns(tmp_path):
 @needs_ipa
 def test_ipa_series_b_through_the_generic_table_importer(tmp_path):
     """The generic importer with a mapping reproduces the dedicated ipa importer on real data."""
-    from hykin.io.table_import import import_table
+    from hykin.measure.table_import import import_table
 
     mp = tmp_path / "ipa.toml"
     mp.write_text(

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from hykin.evaluation.iso9283 import ISOError, iso9283_pose
-from hykin.kinematics import se3
+from hykin.geometry import se3
 
 
 def _T(xyz_mm, rpy_deg):

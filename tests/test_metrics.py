@@ -13,7 +13,7 @@ from hykin.evaluation.metrics import (
     pose_errors,
     stats_from_errors,
 )
-from hykin.kinematics import se3
+from hykin.geometry import se3
 
 
 def _pair(n=257, seed=0):

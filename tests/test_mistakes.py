@@ -511,8 +511,8 @@ def test_model_without_hash_loads_with_a_note():
 def test_plausibility_accepts_tracker_frame_and_refuses_slips(files):
     """Frame-independent checks: data in a far, rotated tracker frame with another tool pass; the same
     data with a unit slip or scalar-last quaternions are refused."""
-    from hykin.calibration.plausibility import PlausibilityError, check_dataset
-    from hykin.kinematics import se3
+    from hykin.geometry import se3
+    from hykin.io.plausibility import PlausibilityError, check_dataset
 
     robot = files["robot_obj"]
     q, T = files["q"], files["T"]
@@ -528,7 +528,7 @@ def test_plausibility_accepts_tracker_frame_and_refuses_slips(files):
 
 
 def test_minimum_fit_size_is_stated(files):
-    from hykin.calibration.plausibility import PlausibilityError, minimum_fit_rows
+    from hykin.io.plausibility import PlausibilityError, minimum_fit_rows
 
     robot = files["robot_obj"]
     assert minimum_fit_rows(robot, True) == 30 and minimum_fit_rows(robot, False) == 30  # 2 * 42 / 3 = 28
@@ -539,7 +539,7 @@ def test_minimum_fit_size_is_stated(files):
 
 def test_api_fit_refuses_scalar_last_quaternions(files):
     """The Python API path checks too (HybridModel.fit on in-memory data)."""
-    from hykin.calibration.plausibility import PlausibilityError
+    from hykin.io.plausibility import PlausibilityError
 
     ds = read_dataset(files["data"], robot=files["robot_obj"])
     bad = Dataset(q=ds.q, xyz_m=ds.xyz_m, quat_wxyz=ds.quat_wxyz[:, [1, 2, 3, 0]].copy())

@@ -15,9 +15,9 @@ import warnings
 import numpy as np
 import pytest
 
+from hykin.geometry import se3
 from hykin.hybrid.ik import hybrid_ik, wang_ik
 from hykin.hybrid.model import HybridModel, classical_fk
-from hykin.kinematics import se3
 from hykin.sim.presets import virtual_preset
 from hykin.sim.simulate import simulate
 

@@ -12,12 +12,11 @@ from cli_run import run as _run
 
 from hykin.calibration.calibrate import calibrate
 from hykin.evaluation.evaluate import evaluate_model
+from hykin.geometry.se3 import pose_error
 from hykin.hybrid.model import HybridModel
 from hykin.io.dataset import DatasetError
 from hykin.io.dataset_files import read_dataset, write_dataset
-from hykin.kinematics.compliance import compliant_fk, deflected_joints, gravity_torques
-from hykin.kinematics.fk import fk
-from hykin.kinematics.payload import (
+from hykin.io.payload import (
     PAYLOAD_COLUMNS,
     model_with_payload,
     payload_of,
@@ -25,7 +24,8 @@ from hykin.kinematics.payload import (
     robot_with_payload,
     with_payload,
 )
-from hykin.kinematics.se3 import pose_error
+from hykin.kinematics.compliance import compliant_fk, deflected_joints, gravity_torques
+from hykin.kinematics.fk import fk
 from hykin.sim.presets import virtual_preset
 from hykin.sim.simulate import simulate, true_poses
 

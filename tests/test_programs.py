@@ -22,7 +22,7 @@ from hykin.compensation.branches import (
     match_kuka_status,
 )
 from hykin.compensation.programs import compensate_program
-from hykin.kinematics import se3
+from hykin.geometry import se3
 from hykin.kinematics.ik import ik
 
 

@@ -13,11 +13,11 @@ import pytest
 from hykin.calibration.calibrate import CalibrationError, calibrate
 from hykin.calibration.checks import DEFAULT_MAX_DEVIATION, parse_max_deviation
 from hykin.calibration.initial_registration import initial_registration
+from hykin.geometry import se3
 from hykin.io.dataset import Dataset
 from hykin.io.dataset_files import write_dataset
 from hykin.io.robot_file import load_robot
 from hykin.io.robot_toml import save_robot_toml
-from hykin.kinematics import se3
 from hykin.kinematics.compliance import compliant_fk
 from hykin.kinematics.robot import Robot
 
@@ -158,7 +158,7 @@ def test_cli_refuses_with_one_line_and_writes_nothing(setup, tmp_path):
     runner = CliRunner()
     r = runner.invoke(app, ["calibrate", "ur10", str(tmp_path / "d.csv"), "-o", str(tmp_path / "out.toml")])
     # refused by the calibration or already by the data check before it (hykin.plausibility)
-    from hykin.calibration.plausibility import PlausibilityError
+    from hykin.io.plausibility import PlausibilityError
 
     assert r.exit_code != 0 and isinstance(r.exception, (CalibrationError, PlausibilityError))
     assert "joint order" in str(r.exception)
@@ -199,7 +199,7 @@ def _three_reflectors(nom, truth, q, rng, noise_m=2e-5):
 def test_several_reflectors_fit_as_one_tool_body(setup):
     """Three reflectors per pose (x,y,z, x2..z3 columns): one fit of all points predicts every
     reflector at least as well as a fit of that reflector alone (held-out poses)."""
-    from hykin.calibration.reflectors import reflector_points
+    from hykin.io.reflectors import reflector_points
 
     nom, truth, q, _, _, wrong_tool = setup
     rng = np.random.default_rng(21)

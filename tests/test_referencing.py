@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from hykin.geometry import se3
+from hykin.geometry.lsq import ReferencingError
+from hykin.geometry.rigid import kabsch, pose_from_three_points, register_points
 from hykin.io.robot_file import load_robot
-from hykin.kinematics import se3
 from hykin.kinematics.fk import fk_frames
 from hykin.measure.fits import axis_from_sweep, fit_circle_3d, fit_plane
-from hykin.measure.lsq import ReferencingError
 from hykin.measure.referencing import base_frame_from_sweeps, tool_frame_from_sweeps
-from hykin.measure.rigid import kabsch, pose_from_three_points, register_points
 
 NOISE = 15e-6  # tracker-like, m
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from hykin.geometry.se3 import pose_error, rotvec_to_matrix
 from hykin.hybrid.model import (
     HybridError,
     HybridModel,
@@ -16,7 +17,6 @@ from hykin.hybrid.model import (
 from hykin.io.dataset import Dataset
 from hykin.io.robot_file import load_robot
 from hykin.kinematics.fk import fk
-from hykin.kinematics.se3 import pose_error, rotvec_to_matrix
 from hykin.sim.presets import virtual_preset
 from hykin.sim.sampling import restricted
 from hykin.sim.simulate import simulate

@@ -4,17 +4,13 @@ applied to a virtual robot's data are recovered."""
 import numpy as np
 import pytest
 
+from hykin.calibration.frames import fit_frames, select_representative, select_spread
+from hykin.geometry import se3
 from hykin.hybrid.model import HybridModel
 from hykin.io.dataset import Dataset
 from hykin.io.robot_file import load_robot
-from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
-from hykin.measure.register import (
-    fit_frames,
-    register_model,
-    select_representative,
-    select_spread,
-)
+from hykin.measure.register import register_model
 
 pytestmark = pytest.mark.filterwarnings("ignore::hykin.hybrid.model.OutOfRangeWarning")
 

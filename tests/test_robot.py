@@ -10,10 +10,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from hykin.geometry import se3
 from hykin.io.robot_file import list_presets, load_robot
 from hykin.io.robot_toml import load_robot_toml, robot_to_toml_string, save_robot_toml
 from hykin.io.urdf import load_urdf, load_urdf_string, robot_to_urdf
-from hykin.kinematics import se3
 from hykin.kinematics.fk import fk, fk_frames
 from hykin.kinematics.robot import Robot, RobotFileError
 

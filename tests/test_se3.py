@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
 
-from hykin.kinematics import se3
+from hykin.geometry import se3
 
 torch = pytest.importorskip("torch")
 

@@ -19,7 +19,7 @@ import pytest
 from comp_models import tiny_model_file
 
 from hykin import fk
-from hykin.kinematics import se3
+from hykin.geometry import se3
 
 httpx = pytest.importorskip("httpx")
 ROOT = Path(__file__).resolve().parents[1]

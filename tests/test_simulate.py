@@ -5,11 +5,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import qmc
 
+from hykin.geometry.se3 import pose_error, pose_to_transform
 from hykin.io.dataset_files import read_dataset
 from hykin.io.robot_file import load_robot
 from hykin.kinematics.compliance import deflected_joints
 from hykin.kinematics.fk import fk
-from hykin.kinematics.se3 import pose_error, pose_to_transform
 from hykin.sim.generate import simulate_to_file
 from hykin.sim.presets import list_virtual_presets, virtual_preset
 from hykin.sim.sampling import PlanError, iso_cube, restricted, sample, uniform, zigzag
@@ -126,7 +126,7 @@ def test_transmission_error():
 
 def test_thermal_drift_scales_base_frame_position():
     r = load_robot("rx160")
-    from hykin.kinematics.se3 import make_transform, rotvec_to_matrix
+    from hykin.geometry.se3 import make_transform, rotvec_to_matrix
 
     base = make_transform(rotvec_to_matrix(np.array([0.1, -0.2, 0.3])), np.array([0.5, -0.2, 0.1]))
     r = r.copy(base=base)

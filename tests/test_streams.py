@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from hykin.geometry import se3
 from hykin.io.robot_file import load_robot
-from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
 from hykin.measure.streams import (
     StreamError,

@@ -14,10 +14,10 @@ from hykin.calibration.thermal import (
     temperature_of,
     to_reference,
 )
+from hykin.geometry import se3
 from hykin.hybrid.model import HybridError, HybridModel, OutOfRangeWarning
 from hykin.io.dataset import Dataset
 from hykin.io.dataset_files import read_dataset, write_dataset
-from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
 from hykin.sim.presets import virtual_preset
 from hykin.sim.simulate import simulate, true_poses

@@ -12,12 +12,12 @@ import pytest
 import torch
 
 from hykin.evaluation.evaluate import evaluate_model, joint_region_rows
+from hykin.geometry import se3
 from hykin.hybrid.fade import calibrate_fade, fade_distance, region_blocks
 from hykin.hybrid.model import HybridModel
 from hykin.hybrid.region_cv import joint_blocks, select_calibration
 from hykin.io.dataset import Dataset
 from hykin.io.robot_file import load_robot
-from hykin.kinematics import se3
 from hykin.kinematics.fk import fk
 from hykin.measure.register import RegistrationError, register_model
 

@@ -20,7 +20,7 @@ so the Jacobian is always the exact derivative at zero deviation.
 
 Residual per sample: ``p_meas - p_model`` (m) for every measured point and, for full-pose data,
 ``w · log(R_meas R_model^T)`` (rad × ``w`` m/rad, the orientation weight). Data with several
-reflectors per pose (``x2,y2,z2`` ... columns, :mod:`hykin.calibration.reflectors`) are fitted as what they are:
+reflectors per pose (``x2,y2,z2`` ... columns, :mod:`hykin.io.reflectors`) are fitted as what they are:
 points on one tool body, the first at the TCP, each further one with its own unknown offset
 ``p2.x, p2.y, p2.z`` ... (TCP frame) identified with everything else. The orientation weight is
 chosen from the data by default (``"auto"``): a first fit at ``w = 1 m/rad`` gives the residual
@@ -63,7 +63,8 @@ from collections.abc import Callable
 import numpy as np
 import scipy.linalg
 
-from ..kinematics import se3
+from ..geometry import se3
+from ..io.payload import payload_kwargs
 from ..kinematics.compliance import (
     ComplianceError,
     compliance_of,
@@ -71,7 +72,6 @@ from ..kinematics.compliance import (
     gravity_torques,
 )
 from ..kinematics.fk import fk
-from ..kinematics.payload import payload_kwargs
 from ..kinematics.robot import Robot
 from .jacobian import (
     effective_joints,
@@ -124,7 +124,7 @@ _ADD_TOL = 1e-3
 def _as_data(robot: Robot, data, position_only):
     """-> q (N,n), xyz (N,3), R (N,3,3) or None."""
     if hasattr(data, "q") and hasattr(data, "xyz_m"):
-        from .reflectors import reflector_points
+        from ..io.reflectors import reflector_points
 
         q = np.asarray(data.q, dtype=np.float64)
         try:
@@ -242,7 +242,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
     scale = np.array([scale_of(s) for s in specs])
     state0 = ModelState(robot=robot.copy(), c=compliance_of(robot), pts=np.zeros((xyz.shape[1], 3)) if pts0 is None else pts0)
     rows_per = 3 * xyz.shape[1] + (0 if R_meas is None else 3)
-    from .plausibility import check_calibration_size
+    from ..io.plausibility import check_calibration_size
 
     check_calibration_size(N, P, rows_per)  # fewer equations than unknowns would fit the noise exactly
     is_comp = np.array([sp.group == "comp" for sp in specs])
@@ -426,7 +426,7 @@ def calibrate(
 
     payload_kg / payload_com_m: per-row payload (``(N,)`` kg, ``(N, 3)`` m in the tool frame) that
     deflects the joints; by default read from the dataset's ``payload_kg``/``payload_com_*``
-    columns (:mod:`hykin.kinematics.payload`), else the robot's payload.
+    columns (:mod:`hykin.io.payload`), else the robot's payload.
 
     Identifiability is decided at the current estimate: after base and tool are found, and again at
     the solution (a further pass runs when the identified set changed there).
@@ -447,7 +447,7 @@ def calibrate(
     q, xyz, R_meas = _as_data(robot, data, position_only)
     if q.shape[0] == 0:
         raise CalibrationError("data: no samples")
-    from ..kinematics.payload import payload_of
+    from ..io.payload import payload_of
 
     pl = payload_of(data, payload_kg, payload_com_m, n_rows=q.shape[0])
     w = 1.0 if auto_w else float(orientation_weight_m_per_rad)

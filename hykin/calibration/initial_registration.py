@@ -10,7 +10,7 @@ measured point ``k`` of sample ``i``: ``p_ik = R_b (f_i + F_i t_k) + b`` with th
 pose ``(F_i, f_i)`` (robot frame), the unknown base ``(R_b, b)`` and tool point offsets ``t_k``
 (flange frame). With ``R_b`` fixed the model is linear in ``(b, t_1..t_K)`` (least squares, one
 ``3NK × (3 + 3K)`` system); with the offsets fixed ``R_b, b`` is the rigid fit of the points
-``f_i + F_i t_k`` onto the measurements (:func:`hykin.measure.rigid.kabsch`). Alternating the two
+``f_i + F_i t_k`` onto the measurements (:func:`hykin.geometry.rigid.kabsch`). Alternating the two
 decreases the squared residual monotonically but only linearly (the blocks are coupled), so a few
 alternations are followed by a joint Gauss–Newton on ``(R_b, b, t_k)``. It is started from
 several tool guesses (the robot file's tool, the flange, and the file's tool mirrored) and the start
@@ -28,11 +28,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.rigid import kabsch, nearest_rotation
+from ..geometry.se3 import rotvec_to_matrix
 from ..kinematics.compliance import compliance_of, deflected_joints
 from ..kinematics.fk import fk
 from ..kinematics.robot import Robot
-from ..kinematics.se3 import rotvec_to_matrix
-from ..measure.rigid import kabsch, nearest_rotation
 
 __all__ = ["InitialRegistration", "initial_registration"]
 

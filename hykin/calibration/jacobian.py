@@ -2,7 +2,7 @@
 :mod:`hykin.calibration.calibrate`, :mod:`hykin.planning` and :mod:`hykin.measure.register` through ``calibrate``).
 
 :func:`model_poses` / :func:`effective_joints`: TCP poses and deflected joints of a
-:class:`~hykin.calibration.params.ModelState` (per-row payloads through :mod:`hykin.kinematics.payload`);
+:class:`~hykin.calibration.params.ModelState` (per-row payloads through :mod:`hykin.io.payload`);
 :func:`residual`: stacked position (every reflector) and weighted orientation residuals;
 :func:`jacobian_chunk` / :func:`linearize`: analytic derivatives with respect to every
 :class:`~hykin.calibration.params.ParamSpec`, accumulated as scaled normal equations in chunks;
@@ -15,11 +15,11 @@ import math
 
 import numpy as np
 
-from ..kinematics import se3
+from ..geometry import se3
+from ..io.payload import payload_kwargs
 from ..kinematics.chain import build_chain
 from ..kinematics.compliance import compliance_of, deflected_joints, gravity_torques
 from ..kinematics.fk import fk
-from ..kinematics.payload import payload_kwargs
 from ..kinematics.robot import Robot
 from .params import TWIST, ModelState, ParamSpec, candidate_specs
 
@@ -255,7 +255,7 @@ def identification_jacobian(robot: Robot, q, *, position_only: bool = False, ori
     specs = candidate_specs(robot, base=base, tool=tool, compliance=compliance)
     q = np.ascontiguousarray(np.asarray(q, dtype=np.float64).reshape(-1, robot.dof))
     state = ModelState(robot=robot, c=compliance_of(robot))
-    from ..kinematics.payload import payload_of
+    from ..io.payload import payload_of
 
     pl = payload_of((), payload_kg, payload_com_m, n_rows=q.shape[0]) if payload_kg is not None else None
     q_eff = effective_joints(state, q, pl)

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..kinematics import se3
+from ..geometry import se3
 from ..kinematics.compliance import compliance_of
 from ..kinematics.robot import Robot
 from .result import CalibrationError

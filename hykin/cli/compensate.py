@@ -75,7 +75,7 @@ def compensate_cmd(
         raise CLIError(f"{inp}: no such file")
     mdl = load_model(model)
     if payload_kg is not None:
-        from ..kinematics.payload import model_with_payload, payload_outside
+        from ..io.payload import model_with_payload, payload_outside
 
         if not (payload_kg >= 0 and payload_kg < float("inf")):
             raise CLIError(f"--payload-kg must be a finite mass >= 0 kg, got {payload_kg}")

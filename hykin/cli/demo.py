@@ -56,10 +56,10 @@ def _run_demo(out_dir, n_train: int, quick: bool, seed: int) -> Path:
 
     from ..evaluation.evaluate import evaluate_model
     from ..evaluation.report import Report, error_histograms
+    from ..geometry.se3 import pose_error
     from ..hybrid.ik import hybrid_ik, wang_ik
     from ..hybrid.model import HybridModel
     from ..io.dataset_files import write_dataset
-    from ..kinematics.se3 import pose_error
     from ..sim.presets import virtual_preset
     from ..sim.sampling import sample
     from ..sim.simulate import save_truth, simulate
@@ -219,7 +219,7 @@ def _nominal_fk(model, q):
 
 
 def _nominal_err(model, ds):
-    from ..kinematics.se3 import pose_error
+    from ..geometry.se3 import pose_error
 
     p, a = pose_error(_nominal_fk(model, ds.q), ds.poses())
     return [float(p.mean()), float(a.mean())]

@@ -41,7 +41,7 @@ def import_ur5_cmd(
     force: bool = Force,
 ) -> None:
     """Import a serial-robots-ur5 CSV (exactly six joints; anything else: `hykin import table`)."""
-    from ..io.importers import import_ur5, ur5_robot_for_dataset
+    from ..measure.importers import import_ur5, ur5_robot_for_dataset
 
     _import_fixed(path, out, robot_out, force, lambda: import_ur5(path), ur5_robot_for_dataset)
 
@@ -58,7 +58,7 @@ def import_ipa_cmd(
     force: bool = Force,
 ) -> None:
     """Import an ipa-robot-accuracy series (UR10, laser tracker + T-Mac)."""
-    from ..io.importers import import_ipa_series, ipa_nominal_robot
+    from ..measure.importers import import_ipa_series, ipa_nominal_robot
 
     _import_fixed(path, out, robot_out, force,
                   lambda: import_ipa_series(path, register_to=ipa_nominal_robot() if register else None), ipa_nominal_robot)
@@ -108,7 +108,7 @@ def _joint_spec(s: str | None):
 
 
 def _build_map(map_path: Path | None, opts: dict):
-    from ..io.table_map import load_table_map, table_map_from_dict
+    from ..measure.table_map import load_table_map, table_map_from_dict
 
     opts = {k: v for k, v in opts.items() if v is not None and v != []}
     if map_path is not None:
@@ -183,7 +183,7 @@ def import_table_cmd(
     if map_path is None and opts["joints"] is None and opts["position"] is None:
         raise CLIError(f"{path}: no column mapping given; `hykin import table {path} --suggest` prints the header and a "
                        "suggested mapping to check and pass with --map")
-    from ..io.table_import import import_table
+    from ..measure.table_import import import_table
 
     check_output(out, (path, map_path), force)
     m = _build_map(map_path, opts)
@@ -192,8 +192,8 @@ def import_table_cmd(
 
 
 def _suggest(path: Path, map_path: Path | None, opts: dict) -> None:
-    from ..io.table_import import guess_layout, read_text_table
-    from ..io.table_map import suggest_map
+    from ..measure.table_import import guess_layout, read_text_table
+    from ..measure.table_map import suggest_map
 
     layout = {k: opts[k] for k in ("delimiter", "decimal", "skip_rows", "header_row", "comment", "encoding")}
     m = _build_map(map_path, layout)
@@ -255,7 +255,7 @@ def import_three_smr_cmd(
     Without a mapping the columns are q1..qN and p1x,p1y,p1z, p2x,..., p3z (comma-separated) and every
     other column is kept.
     """
-    from ..io.table_import import import_table
+    from ..measure.table_import import import_table
 
     check_output(out, (path, map_path), force)
     opts = dict(joints=_joint_spec(joints), angle_unit=angle_unit, position=_csv_names(position), length_unit=length_unit,
@@ -309,8 +309,8 @@ def import_stream_cmd(
     force: bool = Force,
 ) -> None:
     """Align a robot joint log with a tracker stream (clock offset, interpolation) into a dataset."""
-    from ..io.table_import import read_mapped
     from ..measure.streams import align_streams
+    from ..measure.table_import import read_mapped
 
     if frame not in ("tracker", "fit"):
         raise CLIError(f"import stream: --frame must be tracker or fit, got {frame!r}")

@@ -77,9 +77,9 @@ def fit_cmd(
     Exactly the API path: ``HybridModel(robot, ...).fit(train, val)``; without ``--val`` the model
     holds out its validation rows itself, so the same data, options and seed give the same model; the
     calibration uses all of TRAIN (the networks' split must not change the calibrated robot)."""
-    from ..calibration.plausibility import check_fit_size
     from ..hybrid.model import HybridModel
     from ..io.dataset_files import read_dataset
+    from ..io.plausibility import check_fit_size
     from ..io.robot_file import load_robot
 
     kw = {}

@@ -34,9 +34,9 @@ def fk_cmd(
     force: bool = Force,
 ) -> None:
     """Forward kinematics: full hybrid model for a model file, classical FK for a robot."""
-    from ..calibration.plausibility import check_joint_unit
     from ..io.dataset import Dataset
     from ..io.dataset_files import read_joints, write_dataset
+    from ..io.plausibility import check_joint_unit
     from ..kinematics.fk import fk
 
     check_output(out, (model, joints), force)
@@ -49,7 +49,7 @@ def fk_cmd(
         if no_fade:
             mdl.fade = False
         temp = temperature_of(mdl, extra, joints)
-        from ..kinematics.payload import payload_from_columns, payload_kwargs
+        from ..io.payload import payload_from_columns, payload_kwargs
 
         T = mdl.predict(q, temperature_c=temp, **payload_kwargs(payload_from_columns(extra, len(q), str(joints), payload_kg)))
         extra = dict(extra)
@@ -79,8 +79,8 @@ def ik_cmd(
 
     A target that is not solved gets one row with no joint values and a reason (out of reach, joint
     limits, singular, not converged)."""
-    from ..calibration.plausibility import check_target_reach
     from ..io.dataset_files import read_joints, read_poses
+    from ..io.plausibility import check_target_reach
 
     check_output(out, (model, poses, seed_joints), force)
     mdl, rob = load_model_or_robot(model)
@@ -104,7 +104,7 @@ def ik_cmd(
         rows = classical_ik_rows(rob, T, q_cur if nearest else None, position_only)
     else:
         from ..hybrid.ik import hybrid_ik, ik_result_to_rows
-        from ..kinematics.payload import payload_from_columns
+        from ..io.payload import payload_from_columns
 
         target = T[:, :3, 3] if position_only else T
         temp = temperature_of(mdl, pose_extra, poses)
@@ -134,7 +134,7 @@ def _ik_rows_per_payload(mdl, target, pl, q_cur, nearest: bool, position_only: b
     """Hybrid IK rows when targets carry payloads: one solve per distinct (mass, centre of mass),
     on the model carrying that payload; ``target`` numbering of the whole file."""
     from ..hybrid.ik import hybrid_ik, ik_result_to_rows
-    from ..kinematics.payload import model_with_payload
+    from ..io.payload import model_with_payload
 
     kg, com = pl
     key = np.column_stack([kg, np.zeros((len(kg), 3)) if com is None else com])

@@ -24,7 +24,7 @@ import re
 
 import numpy as np
 
-from ..kinematics import se3
+from ..geometry import se3
 from .programs import NUMBER, ProgramTarget, comment_mask, line_of, splice_numbers
 
 __all__ = ["SUFFIXES", "abc_from_matrix", "find_targets", "format_target", "matrix_from_abc"]

@@ -141,7 +141,7 @@ def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs
     ``frame``: how program poses map into the model's measurement frame (:mod:`.targets`).
     Returns a :class:`ProgramResult`; unreachable targets keep their literal and are listed in ``failed``.
     """
-    from ..kinematics import se3
+    from ..geometry import se3
 
     targets, notes = fmt.find_targets(text, model.nominal, context=context, axis_signs=axis_signs)
     if not targets:

@@ -68,7 +68,7 @@ def _matrix(body: dict, key: str, widths: tuple, required: bool = True):
 
 def _poses(a: np.ndarray) -> np.ndarray:
     """``(N, 7)`` rows ``x,y,z,qw,qx,qy,qz`` -> ``(N, 4, 4)``; ``(N, 3)`` positions kept."""
-    from ..kinematics import se3
+    from ..geometry import se3
 
     if a.shape[1] == 3:
         return a
@@ -80,7 +80,7 @@ def _poses(a: np.ndarray) -> np.ndarray:
 
 
 def _pose_rows(T: np.ndarray, ok: np.ndarray) -> list:
-    from ..kinematics import se3
+    from ..geometry import se3
 
     xyz, quat = se3.transform_to_pose(np.where(np.isfinite(T), T, np.eye(4)))
     rows = np.concatenate([xyz, quat], 1).tolist()

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kinematics import se3
+from ..geometry import se3
 from ..kinematics.fk import fk
 
 __all__ = ["FRAMES", "Compensation", "compensate", "fitted_base", "resolve_frame", "to_model_frame"]

@@ -16,7 +16,7 @@ import re
 
 import numpy as np
 
-from ..kinematics import se3
+from ..geometry import se3
 from .programs import NUMBER, ProgramTarget, comment_mask, line_of, splice_numbers
 
 __all__ = ["SUFFIXES", "find_targets", "format_target"]

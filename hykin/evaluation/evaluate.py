@@ -8,16 +8,16 @@ from pathlib import Path
 
 import numpy as np
 
+from ..geometry.se3 import pose_error
 from ..io.dataset import Dataset
-from ..kinematics.fk import fk
-from ..kinematics.payload import (
+from ..io.payload import (
     errors_per_payload,
     format_payload_table,
     payload_kwargs,
     payload_of,
 )
+from ..kinematics.fk import fk
 from ..kinematics.robot import Robot
-from ..kinematics.se3 import pose_error
 from .metrics import ErrorStats, error_stats, format_table
 from .report import Report, error_histograms
 
@@ -122,7 +122,7 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
     registered = not isinstance(model, Robot) and not (
         np.array_equal(getattr(model, "frame_pre", np.eye(4)), np.eye(4)) and np.array_equal(getattr(model, "frame_post", np.eye(4)), np.eye(4)))
     if registered and "nominal" in preds:
-        from ..measure.register import fit_frames
+        from ..calibration.frames import fit_frames
 
         Tn = fk(model.nominal, data.q)
         Bn, En = fit_frames(Tn, T_meas, position_only=pos_only)
@@ -136,7 +136,7 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
 
 
 def evaluate_per_payload(errors: dict, data: Dataset) -> dict | None:
-    """Error statistics per distinct payload of ``data`` (:func:`hykin.kinematics.payload.errors_per_payload`)
+    """Error statistics per distinct payload of ``data`` (:func:`hykin.io.payload.errors_per_payload`)
     for per-sample ``errors`` (name -> ``(pos_mm, ang_deg or None)``); None without a payload column."""
     pl = payload_of(data)
     return None if pl is None else errors_per_payload(pl[0], errors)

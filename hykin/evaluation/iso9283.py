@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kinematics.se3 import matrix_to_rpy, rotation_difference_rotvec
+from ..geometry.se3 import matrix_to_rpy, rotation_difference_rotvec
 
 __all__ = ["ISOError", "ISOResult", "iso9283_pose"]
 

@@ -7,7 +7,7 @@
 
 Conventions: ``std`` is the population standard deviation (``ddof=0``, as ``numpy.std``); ``p95`` is
 the 95th percentile with numpy's default linear interpolation. The orientation error is the angle of
-``R_pred R_meas^T`` (:func:`hykin.kinematics.se3.pose_error`).
+``R_pred R_meas^T`` (:func:`hykin.geometry.se3.pose_error`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ..kinematics.se3 import pose_error
+from ..geometry.se3 import pose_error
 
 __all__ = ["ErrorStats", "MetricsError", "compare", "error_stats", "format_table", "pose_errors", "stats_from_errors"]
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kinematics import se3
+from ..geometry import se3
 
 __all__ = ["UNC_LEVELS", "band_radii", "band_source", "error_quantiles", "growth_entries", "notemp_quantiles"]
 

@@ -27,7 +27,7 @@ def export_onnx(model, path: str | Path, n_check: int = 2000, opset: int = 17, s
     """
     import torch
 
-    from ..kinematics.se3 import pose_error
+    from ..geometry.se3 import pose_error
 
     class _Wrapper(torch.nn.Module):
         def __init__(self, m):

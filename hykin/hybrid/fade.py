@@ -97,7 +97,7 @@ def calibrate_fade(model, train, n_blocks: int = 4, min_steps: int = 3000, seed:
     Dataset it was fitted on; module docstring) and return the fade that minimises the held-out error.
     ``model`` is only read (fitted: ``robot_``, ``recipe_``, ``fade``, architecture); the regions'
     networks are models of the same class (``type(model)``), fitted without calibration."""
-    from ..kinematics.se3 import rotation_difference_rotvec
+    from ..geometry.se3 import rotation_difference_rotvec
 
     if n_blocks < 2:
         raise ValueError(f"fade calibration needs at least 2 regions, got {n_blocks}")

@@ -9,9 +9,9 @@ import time
 import numpy as np
 import torch
 
-from ..kinematics import se3
-from ..kinematics.payload import payload_kwargs, payload_of
-from .classical import classical_fk
+from ..geometry import se3
+from ..io.payload import payload_kwargs, payload_of
+from ..kinematics.classical import classical_fk
 from .inputs import TWO_PI, to_net_frame
 from .nets import count_parameters, make_net
 from .persistence import data_hash, json_safe, versions

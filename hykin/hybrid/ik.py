@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kinematics import se3
+from ..geometry import se3
 from ..kinematics.fk import fk
 from ..kinematics.ik import ik as classical_ik
 from ..kinematics.robot import Robot

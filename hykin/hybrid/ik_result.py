@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..kinematics import se3
+from ..geometry import se3
 from ..kinematics.robot import Robot
 
 __all__ = [

@@ -8,7 +8,7 @@ import warnings
 
 import numpy as np
 
-from ..kinematics import se3
+from ..geometry import se3
 from ..kinematics.fk import jacobian
 from ..kinematics.ik import nearest_representation
 from ..kinematics.lm import lm_solve

@@ -14,7 +14,7 @@ import math
 import numpy as np
 import torch
 
-from ..kinematics.payload import payload_column
+from ..io.payload import payload_column
 from .rotations import rotate_about
 
 __all__ = ["TWO_PI", "from_net_frame", "net_coordinates", "net_input", "seam_centres", "to_net_frame"]

@@ -30,7 +30,7 @@ Training-region awareness (networks do not extrapolate): :meth:`HybridModel.rang
 (``fade``, ``fade_width``, ``fade_offset``, ``fade_cv``) are described, with their measurements, in
 :mod:`hykin.hybrid.support`; far outside the training data the hybrid equals the calibrated model.
 
-Payload (:mod:`hykin.kinematics.payload`). Training data may carry a ``payload_kg`` column (and
+Payload (:mod:`hykin.io.payload`). Training data may carry a ``payload_kg`` column (and
 ``payload_com_x/y/z``, tool frame): the calibration deflects every row under its own payload (joint
 stiffness identified), the targets are taken against that physics, and ``predict(q, payload_kg=...,
 payload_com_m=...)`` evaluates the calibrated compliance at any payload (default: the robot file's).
@@ -62,14 +62,14 @@ import numpy as np
 import torch
 
 from ..calibration.thermal import TEMPERATURE_COLUMNS, temperature_of
+from ..geometry import se3
 from ..io.modelfile import ModelFileError, read_model_file, robot_from_json_dict
+from ..io.payload import payload_kwargs, payload_of, payload_range_of
 from ..io.robot_file import load_robot
-from ..kinematics import se3
-from ..kinematics.payload import payload_kwargs, payload_of, payload_range_of
+from ..kinematics.classical import classical_fk, classical_fk_torch
 from ..kinematics.robot import Robot
 from . import bands, fitting, inputs, persistence
 from . import support as sup_
-from .classical import classical_fk, classical_fk_torch
 from .errors import HybridError, OutOfRangeWarning
 from .nets import ResidualNet
 from .rotations import rotate_poses
@@ -225,7 +225,7 @@ class HybridModel:
         n = self.robot.dof
         if q.ndim != 2 or q.shape[1] != n:
             raise HybridError(f"training joints must be (N, {n}), got {q.shape}")
-        from ..calibration.plausibility import check_fit_data
+        from ..io.plausibility import check_fit_data
 
         check_fit_data(self.robot, train)  # minimum poses; units and quaternion order vs the robot
         if not (np.isfinite(q).all() and np.isfinite(train.xyz_m).all()):

@@ -18,8 +18,8 @@ import torch
 
 from ..calibration.thermal import ThermalFit
 from ..io.modelfile import robot_from_json_dict, robot_to_dict, write_model_file
+from ..io.payload import PayloadRange
 from ..io.robot_toml import robot_to_toml_string
-from ..kinematics.payload import PayloadRange
 from .nets import make_net
 from .support import GAP_FACTOR
 from .train import Recipe

@@ -6,7 +6,7 @@ parameter set that fits the training region closely; held-out *regions* reward o
 extrapolates. :func:`select_calibration` splits the data into ``n_blocks`` joint-space regions
 (k-means on the z-scored joints), calibrates each candidate parameter set on the other regions,
 re-registers base and tool on ``n_register`` representative poses of the held-out region (as a new
-series would be, :func:`hykin.measure.register.fit_frames`) and scores the error on that region's other
+series would be, :func:`hykin.calibration.frames.fit_frames`) and scores the error on that region's other
 poses. The candidate with the lowest mean held-out error wins; ties within ``tie_tol`` go to the
 later (simpler) candidate.
 """
@@ -83,9 +83,9 @@ def select_calibration(robot, ds, candidates: dict[str, dict] | None = None, n_b
     ``base_kw``: keyword arguments common to all (e.g. ``position_only``); ``max_rows``: each
     calibration uses at most this many rows of the other regions (evenly spaced; cost)."""
     from ..calibration.calibrate import calibrate
-    from ..kinematics.se3 import pose_error
-    from ..measure.register import fit_frames, select_representative
-    from .classical import classical_fk
+    from ..calibration.frames import fit_frames, select_representative
+    from ..geometry.se3 import pose_error
+    from ..kinematics.classical import classical_fk
 
     cands = CANDIDATES if candidates is None else candidates
     base_kw = dict(base_kw or {})

@@ -45,8 +45,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..io.payload import payload_outside
 from ..kinematics.fk import HAVE_NUMBA
-from ..kinematics.payload import payload_outside
 from .errors import OutOfRangeWarning
 
 __all__ = ["GAP_FACTOR", "PAIR_GRID", "SUPPORT_POINTS", "Support", "fade_distance", "fade_distance_torch",

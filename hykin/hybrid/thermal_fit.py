@@ -15,8 +15,8 @@ from ..calibration.thermal import (
     temperature_of,
     to_reference,
 )
-from ..kinematics.payload import payload_kwargs, payload_of
-from .classical import classical_fk
+from ..io.payload import payload_kwargs, payload_of
+from ..kinematics.classical import classical_fk
 from .errors import HybridError
 
 __all__ = ["apply_thermal", "fit_thermal", "targets_at_reference", "thermal_factor"]

@@ -22,7 +22,7 @@ import warnings
 
 import numpy as np
 
-from ..kinematics import se3
+from ..geometry import se3
 
 __all__ = ["extrapolation_growth"]
 
@@ -50,7 +50,7 @@ def extrapolation_growth(robot, train, qn: np.ndarray, joints: np.ndarray, level
     samples); see :func:`_fit_growth`.
     """
     from ..calibration.calibrate import CalibrationError, calibrate
-    from .classical import classical_fk
+    from ..kinematics.classical import classical_fk
 
     rng = np.random.default_rng(seed)
     n = qn.shape[1]

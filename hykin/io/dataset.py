@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..kinematics import se3
+from ..geometry import se3
 
 __all__ = [
     "POSITION_COLUMNS",

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..kinematics import se3
+from ..geometry import se3
 from .csv_writer import DATASET_STYLE, write_csv
 from .dataset import (
     ANGLE_UNITS,
@@ -224,7 +224,7 @@ def read_dataset(
     ``length_unit`` (``"m"``/``"mm"``) and ``angle_unit`` (``"rad"``/``"deg"``) are the units *in the
     file*. ``robot`` (optional) fixes the number of joints, which joints are prismatic, and enables
     the joint-limit check and (``plausibility``) the unit and quaternion-order checks of
-    :func:`hykin.calibration.plausibility.check_dataset` (positions vs the robot's motion, orientations vs its
+    :func:`hykin.io.plausibility.check_dataset` (positions vs the robot's motion, orientations vs its
     rotations); ``dof`` fixes the number of joints without a robot. Without either the joints are the
     contiguous ``q1, q2, ...`` columns of the header.
     """
@@ -242,12 +242,12 @@ def read_dataset(
             raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
         ds = Dataset(q=q, xyz_m=xyz, quat_wxyz=quat, extra=t.extras(_standard_columns(t)), source=where,
                      meta={"length_unit_read": length_unit, "angle_unit_read": angle_unit})
-        from ..calibration.reflectors import with_reflector_unit
+        from .reflectors import with_reflector_unit
 
         ds = with_reflector_unit(ds, length_unit)  # further reflectors x2,y2,z2, ... in metres like x,y,z
         validate(ds, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset)
         if robot is not None and plausibility:
-            from ..calibration.plausibility import check_dataset
+            from .plausibility import check_dataset
 
             check_dataset(robot, ds, where=where, length_unit=length_unit, angle_unit=angle_unit)
         return ds
@@ -319,7 +319,7 @@ def _columns_for_writing(ds: Dataset, length_unit: str, angle_unit: str, robot=N
     if ds.quat_wxyz is not None:
         for j, c in enumerate(QUAT_COLUMNS):
             out[c] = ds.quat_wxyz[:, j]
-    from ..calibration.reflectors import reflector_columns
+    from .reflectors import reflector_columns
 
     points = {n for names in reflector_columns(ds) for n in names}  # x2,y2,z2, ...: lengths like x,y,z
     for k, v in ds.extra.items():

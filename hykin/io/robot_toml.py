@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..kinematics import se3
+from ..geometry import se3
 from ..kinematics.robot import Robot, RobotFileError
 
 if sys.version_info >= (3, 11):

@@ -3,9 +3,9 @@
 :func:`read_delimited` reads a file into a :class:`TextTable` (header, cells as text, the file line
 of every data row); :func:`float_column` and :func:`lenient_column` turn a column into numbers.
 Every reader of text files in hykin goes through them: dataset files
-(:mod:`hykin.io.dataset_files`), the fixed-layout importers (:mod:`hykin.io.importers`) and the
-generic table importer (:mod:`hykin.io.table_import`, which adds the layout of a
-:class:`~hykin.io.table_map.TableMap`).
+(:mod:`hykin.io.dataset_files`), the fixed-layout importers (:mod:`hykin.measure.importers`) and the
+generic table importer (:mod:`hykin.measure.table_import`, which adds the layout of a
+:class:`~hykin.measure.table_map.TableMap`).
 
 Every error is a :class:`~hykin.io.dataset.DatasetError` naming the file, the data row (1-based,
 the first row under the header is row 1) with its line in the file, and the column.

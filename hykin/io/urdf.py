@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..kinematics import se3
+from ..geometry import se3
 from ..kinematics.robot import Robot, RobotFileError
 
 __all__ = ["calibrated_urdf", "load_urdf", "load_urdf_string", "robot_to_urdf"]

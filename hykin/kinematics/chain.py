@@ -58,7 +58,7 @@ def geometry_of(robot: Robot) -> dict[str, np.ndarray]:
     for DH/MDH); ``base``, ``tool`` ``(4, 4)``. Calibration perturbs these and calls
     :func:`build_chain`.
     """
-    from . import se3
+    from ..geometry import se3
 
     if robot.convention == "urdf":
         origin = se3.xyzrpy_to_transform(robot.origin_xyz_m, robot.origin_rpy_rad)
@@ -97,7 +97,7 @@ def _elem(xp, kind: str, v):
 
 def _align_z(axis: np.ndarray) -> np.ndarray:
     """Rotations ``(n, 4, 4)`` taking +z onto each unit ``axis`` (n, 3) (minimal rotation)."""
-    from . import se3
+    from ..geometry import se3
 
     n = axis.shape[0]
     z = np.array([0.0, 0.0, 1.0])

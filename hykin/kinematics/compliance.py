@@ -293,7 +293,7 @@ def gravity_torques(robot: Robot, q, chain: Chain | None = None, xp=np, payload_
     differentiate with respect to geometry); default: the robot's own chain. Masses, centres of
     mass, payload and gravity come from ``robot``. ``payload_kg`` (scalar or ``(N,)`` kg) and
     ``payload_com_m`` (``(3,)`` or ``(N, 3)`` m, tool frame; default the TCP) replace the robot's
-    payload row by row (:mod:`hykin.kinematics.payload`).
+    payload row by row (:mod:`hykin.io.payload`).
     """
     if _is_torch(q):
         import torch

@@ -256,9 +256,9 @@ def _lm_numpy(robot, T, q, pos_only, tol_m, tol_rad, max_iter, lam0, lo, hi):
     """Vectorised numpy LM (fallback without numba): :func:`hykin.kinematics.lm.lm_solve` with the
     compiled kernel's rule (identity damping from ``lam0``, stop when λ > 1e10), batched over targets.
     Residual ``p − p_t`` and ``log(R R_tᵀ)`` (the kernel's ``−e``), Jacobian the geometric one."""
+    from ..geometry.se3 import matrix_to_rotvec
     from .fk import fk_frames, jacobian
     from .lm import lm_solve
-    from .se3 import matrix_to_rotvec
 
     m = 3 if pos_only else 6
 

@@ -26,8 +26,8 @@ SING_REL = 0.02
 def is_singular(robot: Robot, q, position_only: bool = False, rel: float = SING_REL) -> np.ndarray:
     """``(N,)`` bool: the TCP Jacobian at ``q`` ``(N, dof)`` (finite rows) is nearly rank deficient
     (translation rows scaled by the robot's reach so metres and radians weigh alike)."""
-    from ..calibration.plausibility import robot_reach_m
     from .fk import jacobian
+    from .robot import robot_reach_m
 
     q = np.atleast_2d(np.asarray(q, dtype=np.float64))
     out = np.zeros(len(q), dtype=bool)
@@ -58,9 +58,9 @@ def failure_reasons(robot: Robot, T_target, position_only: bool = False, q_best=
     solution (default: all) — only those are tested for "joint limits" (classical IK with the revolute
     limits opened to ±2π); the others failed later (hybrid refinement) and are out of reach, singular
     or not converged."""
-    from ..calibration.plausibility import robot_reach_m
     from .ik import ik
     from .ik_closed_form import has_closed_form
+    from .robot import robot_reach_m
 
     T = np.asarray(T_target, dtype=np.float64)
     if T.ndim == 2:  # positions only

@@ -27,9 +27,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import se3
+from ..geometry import se3
 
-__all__ = ["CONVENTIONS", "Robot", "RobotFileError", "dh_to_mdh", "mdh_to_dh"]
+__all__ = ["CONVENTIONS", "Robot", "RobotFileError", "dh_to_mdh", "mdh_to_dh", "robot_reach_m"]
 
 CONVENTIONS = ("dh", "mdh", "urdf")
 
@@ -149,6 +149,14 @@ class Robot:
         """``(N,)`` bool: every joint of each row within limits (with tolerance)."""
         q = np.atleast_2d(q)
         return np.all((q >= self.lower - tol) & (q <= self.upper + tol), axis=-1)
+
+
+def robot_reach_m(robot: Robot) -> float:
+    """Upper bound of the distance from the robot base to the TCP (m): link lengths plus tool."""
+    links = np.hypot(robot.a_m, robot.d_m) + np.linalg.norm(robot.origin_xyz_m, axis=1)
+    pris = np.array([t == "prismatic" for t in robot.joint_type])
+    stroke = np.where(pris, np.maximum(np.abs(robot.lower), np.abs(robot.upper)), 0.0)
+    return float(links.sum() + stroke.sum() + np.linalg.norm(robot.tool[:3, 3]))
 
 
 # --------------------------------------------------------------------------- DH <-> MDH

@@ -12,7 +12,7 @@ assume independent, isotropic, equal-variance noise. Scalar ``*_std_rad`` / ``*_
 the root of the trace of the relevant covariance block, i.e. the RMS of the angle (or distance)
 error vector one should expect.
 
-Degenerate input (too few points, collinear points) raises :class:`~hykin.measure.lsq.ReferencingError`.
+Degenerate input (too few points, collinear points) raises :class:`~hykin.geometry.lsq.ReferencingError`.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from .lsq import ReferencingError, as_points, as_weights, lsq_covariance
+from ..geometry.lsq import ReferencingError, as_points, as_weights, lsq_covariance
 
 __all__ = ["AxisFit", "CircleFit", "PlaneFit", "axis_from_sweep", "fit_circle_3d", "fit_plane"]
 

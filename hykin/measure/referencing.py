@@ -10,9 +10,9 @@ The geometry fits they rest on (:func:`~hykin.measure.fits.fit_plane`,
 :func:`~hykin.measure.fits.fit_circle_3d`, :func:`~hykin.measure.fits.axis_from_sweep`) live in
 :mod:`hykin.measure.fits`.
 
-The rigid registration of point sets (:func:`~hykin.measure.rigid.kabsch`,
-:func:`~hykin.measure.rigid.register_points`, :func:`~hykin.measure.rigid.pose_from_three_points`)
-lives in :mod:`hykin.measure.rigid`.
+The rigid registration of point sets (:func:`~hykin.geometry.rigid.kabsch`,
+:func:`~hykin.geometry.rigid.register_points`, :func:`~hykin.geometry.rigid.pose_from_three_points`)
+lives in :mod:`hykin.geometry.rigid`.
 
 The covariances of the frames are propagated from the axis (and plane) fits' covariances with a
 numerical Jacobian.
@@ -26,9 +26,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..kinematics.se3 import make_transform, matrix_to_rotvec
+from ..geometry.lsq import ReferencingError, as_points
+from ..geometry.se3 import make_transform, matrix_to_rotvec
 from .fits import AxisFit, axis_from_sweep, fit_plane
-from .lsq import ReferencingError, as_points
 
 __all__ = [
     "Frame",

@@ -31,8 +31,8 @@ from scipy.ndimage import gaussian_filter1d
 from scipy.signal import correlate, correlation_lags
 from scipy.spatial.transform import Rotation, Slerp
 
-from ..kinematics.se3 import make_transform
-from .rigid import rigid_residual_jacobian, umeyama
+from ..geometry.rigid import rigid_residual_jacobian, umeyama
+from ..geometry.se3 import make_transform
 
 __all__ = [
     "AlignedStreams",
@@ -452,7 +452,7 @@ def align_streams(t_robot, q_robot, t_tracker, p_tracker, quat_tracker=None, rob
             raise StreamError(f"T_base_tracker must be None, a (4, 4) array or 'fit', got {T_base_tracker!r}")
         if clock.T_tracker_base is None:
             raise StreamError("T_base_tracker='fit' needs a clock from estimate_clock (it carries the rigid map)")
-        from ..kinematics.se3 import invert
+        from ..geometry.se3 import invert
 
         T_base_tracker, frame = invert(clock.T_tracker_base), "base (fit)"
     elif T_base_tracker is not None:

@@ -21,7 +21,7 @@ pose error of ``nominal`` against the noise-free truth on 4096 Sobol-uniform joi
   (k = 6e4, 6e4, 3e4, 8e3, 8e3, 8e3 N·m/rad), 2 kg tool + 5 kg payload, tracker noise 20 µm /
   100 µrad. Measured (seed 0, noise-free): **4.95 mm / 0.479°** (compliance alone ≈ 2.2 mm).
 
-* ``kr-payload-virtual`` — a 120 kg-class arm for payload studies (:mod:`hykin.kinematics.payload`): masses
+* ``kr-payload-virtual`` — a 120 kg-class arm for payload studies (:mod:`hykin.io.payload`): masses
   and centres of mass in its robot file, stiffness unknown, geometric and transmission errors,
   noise; draw it at several payloads (``simulate_to_file(..., payloads=[0, 12])``). Measured (seed
   0, noise-free, payload 0 kg): **5.43 mm / 0.199°** (5.83 mm at 12 kg, 6.10 mm at 20 kg).

@@ -204,7 +204,7 @@ def _pose_ik(robot: Robot, T_target: np.ndarray, seeds: np.ndarray, tol_m: float
     """Numerical IK (damped least squares on fk, scipy) from several seeds; best solution or None."""
     from scipy.optimize import least_squares
 
-    from ..kinematics.se3 import rotation_difference_rotvec
+    from ..geometry.se3 import rotation_difference_rotvec
 
     lo, hi = robot.lower, robot.upper
     L = max(_reach(robot), 1e-3)  # scale angles to metres so both residuals weigh alike

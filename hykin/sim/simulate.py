@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..geometry import se3
 from ..io.robot_codec import robot_from_json, robot_to_json
-from ..kinematics import se3
 from ..kinematics.compliance import deflected_joints
 from ..kinematics.fk import fk
 from ..kinematics.robot import Robot
@@ -200,7 +200,7 @@ def simulate(vr: VirtualRobot, q, *, noise: bool = True, rng=None, temperature=N
     ``temperature``: ``(N,)`` °C for thermal drift (default: warm-up profile from ``start_index``);
     with thermal drift the temperature is kept as extra column ``temperature_c``. ``payload_kg`` /
     ``payload_com_m``: payload per row (see :func:`true_poses`), kept as columns ``payload_kg`` and
-    ``payload_com_x/y/z`` (:mod:`hykin.kinematics.payload`).
+    ``payload_com_x/y/z`` (:mod:`hykin.io.payload`).
     """
     from ..io.dataset import Dataset
 
@@ -222,7 +222,7 @@ def simulate(vr: VirtualRobot, q, *, noise: bool = True, rng=None, temperature=N
     ds = Dataset(q=q, xyz_m=xyz, quat_wxyz=quat, extra=extra, source=f"hykin.simulate:{vr.name}")
     if payload_kg is None and payload_com_m is None:
         return ds
-    from ..kinematics.payload import with_payload
+    from ..io.payload import with_payload
 
     return with_payload(ds, vr.truth.payload_kg if payload_kg is None else payload_kg, payload_com_m)
 

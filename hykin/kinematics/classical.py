@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kinematics.fk import fk, fk_torch
-from ..kinematics.robot import Robot
+from .fk import fk, fk_torch
+from .robot import Robot
 
 __all__ = ["classical_fk", "classical_fk_torch"]
 
@@ -19,7 +19,7 @@ def classical_fk(robot: Robot, q: np.ndarray, payload_kg=None, payload_com_m=Non
     the robot has finite stiffness. ``payload_kg`` / ``payload_com_m``: per-row payload
     (:func:`hykin.kinematics.compliance.gravity_torques`); default the robot's."""
     if robot.has_compliance:
-        from ..kinematics.compliance import compliant_fk
+        from .compliance import compliant_fk
 
         return compliant_fk(robot, q, payload_kg=payload_kg, payload_com_m=payload_com_m)
     return fk(robot, q)
@@ -28,7 +28,7 @@ def classical_fk(robot: Robot, q: np.ndarray, payload_kg=None, payload_com_m=Non
 def classical_fk_torch(robot: Robot, q, payload_kg=None, payload_com_m=None):
     """Differentiable twin of :func:`classical_fk` (float64 tensor ``(N, n)`` -> ``(N, 4, 4)``)."""
     if robot.has_compliance:
-        from ..kinematics.compliance import compliant_fk_torch
+        from .compliance import compliant_fk_torch
 
         return compliant_fk_torch(robot, q, payload_kg=payload_kg, payload_com_m=payload_com_m)
     return fk_torch(robot, q)

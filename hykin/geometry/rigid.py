@@ -9,7 +9,7 @@ across hykin (referencing, raw-frame start of a calibration, stream alignment, r
   a tool carrying three reflectors (SMRs).
 
 Degenerate input (too few points, collinear or coincident points) raises
-:class:`~hykin.measure.lsq.ReferencingError` in the checked functions. Float64, metres, radians.
+:class:`~hykin.geometry.lsq.ReferencingError` in the checked functions. Float64, metres, radians.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kinematics.se3 import make_transform
 from .lsq import ReferencingError, as_points, as_weights, lsq_covariance
+from .se3 import make_transform
 
 __all__ = [
     "Registration",

@@ -1,6 +1,6 @@
 """Any tracker/robot table into the standard dataset (``hykin import table``, DESIGN.md §3-4).
 
-:func:`read_text_table` reads a delimited text file as laid out by a :class:`~hykin.io.table_map.TableMap`
+:func:`read_text_table` reads a delimited text file as laid out by a :class:`~hykin.measure.table_map.TableMap`
 (delimiter, decimal comma, metadata lines, comments, dropped and filtered rows), keeping the file line
 of every data row. :func:`read_mapped` turns the mapped columns into SI arrays (joints rad/m, positions
 m, orientation as unit quaternions, further reflectors, time s); :func:`import_table` makes the
@@ -22,7 +22,17 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .dataset import Dataset, DatasetError, validate
+from ..io.dataset import Dataset, DatasetError, validate
+from ..io.text_table import (
+    TextTable,
+    detect_delimiter,
+    float_column,
+    lenient_column,
+    read_delimited,
+    read_lines,
+    split_lines,
+    with_file_line,
+)
 from .table_map import (
     ANGLE_UNITS_RAD,
     LENGTH_UNITS_M,
@@ -34,16 +44,6 @@ from .table_map import (
     expand_joint_spec,
     load_table_map,
     table_map_from_dict,
-)
-from .text_table import (
-    TextTable,
-    detect_delimiter,
-    float_column,
-    lenient_column,
-    read_delimited,
-    read_lines,
-    split_lines,
-    with_file_line,
 )
 
 __all__ = ["MappedTable", "guess_layout", "import_table", "read_mapped", "read_text_table"]
@@ -92,7 +92,7 @@ def _num_or_nan(c: str, decimal: str) -> float:
 
 
 def read_text_table(path: str | Path, m: TableMap | None = None) -> TextTable:
-    """Read ``path`` as laid out by ``m`` (see :class:`~hykin.io.table_map.TableMap`): header, rows, lines
+    """Read ``path`` as laid out by ``m`` (see :class:`~hykin.measure.table_map.TableMap`): header, rows, lines
     (:func:`hykin.io.text_table.read_delimited`), then ``m.where`` filters; no data rows is an error.
 
     Blank lines and ``comment`` lines are skipped anywhere; a trailing delimiter on every line is
@@ -112,7 +112,7 @@ def read_text_table(path: str | Path, m: TableMap | None = None) -> TextTable:
 
 def guess_layout(path: str | Path, m: TableMap | None = None) -> dict:
     """Guess ``skip_rows`` (metadata lines above the header), the delimiter and a decimal comma, for
-    :func:`~hykin.io.table_map.suggest_map` only (the user confirms them in the mapping)."""
+    :func:`~hykin.measure.table_map.suggest_map` only (the user confirms them in the mapping)."""
     m = m or TableMap()
     where = str(path)
     text = read_lines(Path(path), m.encoding, where)
@@ -336,7 +336,7 @@ def _orientation(t: TextTable, m: TableMap, cols: list[str], ang_raw, allow_miss
 
 def _nest_pose(mt: MappedTable, m: TableMap) -> tuple[np.ndarray, np.ndarray]:
     """Poses (tool frame -> measurement frame) and fit RMS (m) from position + two points and the nest."""
-    from ..measure.rigid import pose_from_three_points
+    from ..geometry.rigid import pose_from_three_points
 
     t = mt.table
     if mt.points_m.shape[1] != 2 or m.orientation is not None:
@@ -385,7 +385,7 @@ def import_table(path: str | Path, m: TableMap | dict | str | Path, robot=None, 
             for a in range(3):
                 extra[f"{'xyz'[a]}{k + 2}"] = mt.points_m[:, k, a]
         ds = Dataset(q=mt.q, xyz_m=mt.xyz_m, quat_wxyz=mt.quat_wxyz, extra=extra, source=t.where)
-    from .dataset import POSITION_COLUMNS, QUAT_COLUMNS, joint_columns
+    from ..io.dataset import POSITION_COLUMNS, QUAT_COLUMNS, joint_columns
 
     clash = set(ds.extra) & (set(joint_columns(ds.dof)) | set(POSITION_COLUMNS) | set(QUAT_COLUMNS))
     if clash:

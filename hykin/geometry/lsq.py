@@ -1,4 +1,4 @@
-"""Shared pieces of the measurement fits (:mod:`hykin.measure.referencing`, :mod:`hykin.measure.rigid`):
+"""Shared pieces of the measurement fits (:mod:`hykin.measure.referencing`, :mod:`hykin.geometry.rigid`):
 the error type, input validation of point sets and weights, and the first-order least-squares covariance.
 """
 

@@ -11,7 +11,7 @@ on the measurement frame (data may be in a tracker frame metres away, with an un
   degrees shrink the nominal motion and give ``s`` of tens or more.
 * **quaternion order** (:func:`check_orientation_order`): relative rotations ``R_i R_jᵀ`` equal the
   nominal ``R̂_i R̂_jᵀ`` turned by one fixed rotation (measurement frame), found by the rigid fit
-  :func:`hykin.measure.rigid.kabsch` of their rotation vectors; the misfit is compared under the
+  :func:`hykin.geometry.rigid.kabsch` of their rotation vectors; the misfit is compared under the
   declared scalar-first reading and the scalar-last one.
 * **joint unit without poses** (:func:`check_joint_unit`): radians declared degrees leave every
   revolute joint within ±6.3° (degrees declared radians are caught in :mod:`hykin.io.dataset`:
@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kinematics.robot import Robot
+from ..kinematics.robot import Robot, robot_reach_m
 
 __all__ = [
     "MAX_ROWS",
@@ -41,7 +41,6 @@ __all__ = [
     "check_position_scale",
     "check_target_reach",
     "minimum_fit_rows",
-    "robot_reach_m",
 ]
 
 MAX_ROWS = 500
@@ -61,14 +60,6 @@ class PlausibilityError(ValueError):
 def _rows(n: int) -> np.ndarray:
     """At most MAX_ROWS evenly spread row indices (deterministic)."""
     return np.unique(np.linspace(0, n - 1, min(n, MAX_ROWS)).astype(np.int64))
-
-
-def robot_reach_m(robot: Robot) -> float:
-    """Upper bound of the distance from the robot base to the TCP (m): link lengths plus tool."""
-    links = np.hypot(robot.a_m, robot.d_m) + np.linalg.norm(robot.origin_xyz_m, axis=1)
-    pris = np.array([t == "prismatic" for t in robot.joint_type])
-    stroke = np.where(pris, np.maximum(np.abs(robot.lower), np.abs(robot.upper)), 0.0)
-    return float(links.sum() + stroke.sum() + np.linalg.norm(robot.tool[:3, 3]))
 
 
 def _nominal(robot: Robot, q: np.ndarray) -> np.ndarray:
@@ -119,7 +110,7 @@ def check_position_scale(robot: Robot, q, xyz_m, *, where: str = "<data>", lengt
 
 def _pair_rotvecs(R: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     """Rotation vectors (rad) of ``R_i R_jᵀ`` for index pairs, ``(P, 3)``."""
-    from ..kinematics.se3 import matrix_to_rotvec
+    from ..geometry.se3 import matrix_to_rotvec
 
     return matrix_to_rotvec(np.einsum("nab,ncb->nac", R[i], R[j]))
 
@@ -145,13 +136,13 @@ def check_orientation_order(robot: Robot, q, quat_wxyz, *, where: str = "<data>"
 
     Measured ``R_i = B R̂_i U`` (unknown measurement frame ``B`` and tool rotation ``U``), so the
     relative rotations ``R_i R_jᵀ = B R̂_i R̂_jᵀ Bᵀ``: their rotation vectors are those of the nominal
-    model turned by the one rotation ``B``, found by the rigid fit :func:`hykin.measure.rigid.kabsch`
+    model turned by the one rotation ``B``, found by the rigid fit :func:`hykin.geometry.rigid.kabsch`
     (the vector sets are symmetrised so the fit's translation is zero). A pair-angle comparison would
     not do: the angle of ``q_i* q_j`` is ``2 acos|q_i·q_j|``, blind to any fixed reordering of the
     quaternion components."""
-    from ..kinematics.se3 import matrix_to_rotvec, quat_to_matrix
-    from ..measure.lsq import ReferencingError
-    from ..measure.rigid import kabsch
+    from ..geometry.lsq import ReferencingError
+    from ..geometry.rigid import kabsch
+    from ..geometry.se3 import matrix_to_rotvec, quat_to_matrix
 
     q = np.asarray(q, dtype=np.float64)
     quat = np.asarray(quat_wxyz, dtype=np.float64)

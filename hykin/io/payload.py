@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .robot import Robot
+from ..kinematics.robot import Robot
 
 __all__ = [
     "PAYLOAD_COLUMNS",
@@ -61,7 +61,7 @@ def payload_of(data, payload_kg=None, payload_com_m=None, n_rows: int | None = N
     file, row and column: negative or non-finite mass, centre-of-mass columns without
     ``payload_kg`` or only some of the three.
     """
-    from ..io.dataset import DatasetError
+    from .dataset import DatasetError
 
     extra = getattr(data, "extra", None) or {}
     N = int(n_rows) if n_rows is not None else len(np.asarray(data.q))
@@ -113,7 +113,7 @@ def payload_from_columns(extra: dict, n_rows: int, where: str, payload_kg=None):
     ``payload_kg`` option (one value for a file without the column; both at once is an error)."""
     from types import SimpleNamespace
 
-    from ..io.dataset import DatasetError
+    from .dataset import DatasetError
 
     if payload_kg is not None and "payload_kg" in extra:
         raise DatasetError(f"{where}: column 'payload_kg' and the option --payload-kg both give the payload; drop one",
@@ -145,7 +145,7 @@ def payload_kwargs(payload, rows=slice(None)) -> dict:
 def with_payload(ds, payload_kg, payload_com_m=None):
     """Copy of dataset ``ds`` with the payload columns set (``payload_kg`` scalar or ``(N,)``;
     ``payload_com_m`` ``(3,)`` or ``(N, 3)``, m, tool frame; omitted when None)."""
-    from ..io.dataset import Dataset
+    from .dataset import Dataset
 
     N = len(ds.q)
     pl = payload_of(Dataset(q=ds.q, xyz_m=ds.xyz_m, source=ds.source), payload_kg, payload_com_m, n_rows=N)
@@ -167,7 +167,7 @@ def robot_with_payload(robot: Robot, payload_kg: float, payload_com_m=None) -> R
         raise PayloadError(f"payload_kg must be a finite mass >= 0 kg, got {payload_kg!r}")
     if payload_com_m is None or not np.any(payload_com_m):
         return robot.copy(payload_kg=kg)
-    from .chain import chain_of
+    from ..kinematics.chain import chain_of
 
     com = np.asarray(payload_com_m, dtype=np.float64).reshape(3)
     ch = chain_of(robot)

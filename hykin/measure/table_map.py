@@ -19,7 +19,7 @@ import re
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-from .dataset import DatasetError
+from ..io.dataset import DatasetError
 
 __all__ = [
     "ANGLE_UNITS_RAD",

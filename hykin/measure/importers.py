@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..kinematics import se3
-from .dataset import Dataset, DatasetError, check_units, validate
-from .text_table import float_column, lenient_column, read_delimited
+from ..geometry import se3
+from ..io.dataset import Dataset, DatasetError, check_units, validate
+from ..io.text_table import float_column, lenient_column, read_delimited
 
 __all__ = [
     "IPA_BASE_LINK_FROM_DH",
@@ -53,7 +53,7 @@ def register_rigid(
     ``T_meas``: ``(N, 4, 4)`` measured poses in the measurement (tracker) frame, m.
     ``T_base`` maps robot base -> measurement frame; ``T_tool`` maps model TCP -> measured TCP.
 
-    Delegates to :func:`hykin.measure.register.fit_frames` (initial guess by Kabsch, rotation mean and
+    Delegates to :func:`hykin.calibration.frames.fit_frames` (initial guess by Kabsch, rotation mean and
     linear least squares for the translations, then non-linear least squares on the position error
     (m) and, with ``use_orientation``, ``rot_weight_m_per_rad × log(R_meas R̂ᵀ)``), so any tool rotation
     (e.g. 180°) converges. Position-only data (``use_orientation=False``) fit the base and the tool
@@ -67,7 +67,7 @@ def register_rigid(
     need = 3 if use_orientation else 4
     if n < need:
         raise ValueError(f"register_rigid: need at least {need} poses, got {n}")
-    from ..measure.register import fit_frames
+    from ..calibration.frames import fit_frames
 
     return fit_frames(T_model, T_meas, position_only=not use_orientation, orientation_weight_m_per_rad=rot_weight_m_per_rad)
 
@@ -96,7 +96,7 @@ def ur5_robot_for_dataset(match_xt: bool = True):
     this model). ``match_xt=False`` keeps the data-sheet ``d5 = 0.09465 m`` (0.09 mm off ``x_t``).
     Base is identity (``x_t`` is in the robot base frame).
     """
-    from .robot_file import load_robot
+    from ..io.robot_file import load_robot
 
     r = load_robot("ur5")
     d = r.d_m.copy()
@@ -169,7 +169,7 @@ def ipa_nominal_robot():
     (:data:`IPA_BASE_LINK_FROM_DH`): ``Goal = Rz(π) · fk(ipa_nominal_robot(), q)`` (median 0.09 mm).
     Measurements are in the laser-tracker frame; bring them to the base with :func:`register_rigid`.
     """
-    from .robot_file import load_robot
+    from ..io.robot_file import load_robot
 
     r = load_robot("ur10")
     return r.copy(tool=IPA_TCP_FROM_FLANGE.copy(), name="ur10-ipa")
@@ -315,8 +315,8 @@ def import_three_smr(
     ``max_fit_rms_m`` (wrong nest, swapped reflectors, a bad measurement) is an error naming the
     row; swapped reflectors are only detectable when the nest's three sides differ in length. Extras: ``smr_fit_rms_m`` plus every other column as read.
 
-    Other layouts (column names, delimiters, units): :func:`hykin.io.table_import.import_table` with a
-    :class:`~hykin.io.table_map.TableMap` holding ``position``, two ``points`` and ``nest``
+    Other layouts (column names, delimiters, units): :func:`hykin.measure.table_import.import_table` with a
+    :class:`~hykin.measure.table_map.TableMap` holding ``position``, two ``points`` and ``nest``
     (``hykin import three-smr``).
     """
     from .table_import import import_table
