@@ -21,6 +21,7 @@ from ..kinematics.chain import build_chain
 from ..kinematics.compliance import compliance_of, deflected_joints, gravity_torques
 from ..kinematics.fk import fk
 from ..kinematics.robot import Robot
+from ..kinematics.walk import chain_walk
 from .params import TWIST, ModelState, ParamSpec, candidate_specs
 
 __all__ = [
@@ -57,24 +58,11 @@ def _rmul(T: np.ndarray, M: np.ndarray) -> np.ndarray:
 
 
 def _frames(chain, q: np.ndarray):
-    """prev (N,n,4,4) frame before each joint's fixed part, joint (N,n,4,4) joint frames, tcp (N,4,4)."""
-    N, n = q.shape
-    prev = np.empty((N, n, 4, 4))
-    joint = np.empty((N, n, 4, 4))
-    T = np.broadcast_to(np.asarray(chain.base), (N, 4, 4)).copy()
-    for i in range(n):
-        prev[:, i] = T
-        A = _rmul(T, np.asarray(chain.pre[i]))
-        if chain.prismatic[i]:
-            A[:, :3, 3] += A[:, :3, 2] * q[:, i : i + 1]
-        else:
-            cq, sq = np.cos(q[:, i])[:, None], np.sin(q[:, i])[:, None]
-            x, y = A[:, :3, 0].copy(), A[:, :3, 1].copy()
-            A[:, :3, 0] = cq * x + sq * y
-            A[:, :3, 1] = cq * y - sq * x
-        joint[:, i] = A
-        T = _rmul(A, np.asarray(chain.post[i]))
-    return prev, joint, _rmul(T, np.asarray(chain.tool))
+    """prev (N,n,4,4) frame before each joint's fixed part ``pre_i``, joint (N,n,4,4) joint frames,
+    tcp (N,4,4): the one chain walk (:func:`hykin.kinematics.walk.chain_walk`) with its frames."""
+    joint, link, tcp = chain_walk(np, chain, q, frames=True)
+    base = np.broadcast_to(np.asarray(chain.base), (len(q), 1, 4, 4))
+    return np.concatenate([base, link[:, :-1]], 1), joint, tcp
 
 
 def model_poses(state: ModelState, q: np.ndarray, payload=None) -> np.ndarray:
