@@ -6,7 +6,10 @@
   identifiable and significant), evaluated on the other 1,465. Peer, measured in the same run: a
   plain geometric calibration of the same A rows written here independently of hykin (own numpy
   DH FK, scipy least_squares over the 24 DH deviations + base + tool), registered to B on the SAME
-  30 poses the same way (base + tool; and base + tool + the joint zeros hykin chose).
+  30 poses the same way (base + tool; and base + tool + the joint zeros hykin chose). Then a
+  diagnosis (:func:`diagnose_b`): calibrated vs unfaded networks vs the hybrid as registered, how
+  much of B the networks' support reaches, the 30-pose draw's spread, and two floors of any
+  classical model on B (frames from all of B; a calibration on half of B itself).
 * ``beside``: the same virtual robot trained on a Cartesian region (y above a cut, full joint ranges)
   and tested on the band beside it: calibrated vs unfaded networks vs the default fade vs the fade
   measured by leave-one-region-out (``HybridModel(fade_cv=4)``, :mod:`hykin.fade`), per region.
@@ -207,6 +210,7 @@ def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path)
     print("|---|---|---|---|---|")
     for nm, (p, a) in rows.items():
         print(f"| {nm} | {p.mean():.4f} | {np.percentile(p, 95):.4f} | {a.mean():.4f} | {p.mean() / peer:.3f} |")
+    diagnose_b(m, m2, B, idx, rest)
     # calibration parameter sets: region-blocked validation on A vs what transfers to B
     from hykin.calibrate import calibrate
     from hykin.hybrid import classical_fk
@@ -225,6 +229,58 @@ def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path)
         p, a = errors(Bf @ T[rest] @ Ef, PB[rest], RB[rest])
         print(f"| {name}{' (chosen)' if name == rcv.best else ''} | {np.mean(rcv.pos_mm[name]):.4f} / {np.mean(rcv.ang_deg[name]):.4f} | "
               f"{p.mean():.4f} / {a.mean():.4f} |")
+
+
+def diagnose_b(m, m2, B, idx, rest) -> None:
+    """Why the hybrid equals the calibrated model on B, and what bounds any registration: (a) the
+    calibrated model, (b) the networks unfaded, (c) the hybrid as registered (fade ``"full"``), all with
+    the frames of the 30-pose registration; how many B poses the networks' support reaches; the
+    correlation of the unfaded network correction with the calibrated model's residual; the
+    registration's dependence on the 30-pose draw; and two floors of any classical model on B: frames
+    re-fitted on all of B, and a calibration fitted on half of B itself, scored on the other half."""
+    import copy
+
+    from hykin.calibrate import calibrate
+    from hykin.hybrid import classical_fk
+    from hykin.register import fit_frames, select_representative
+
+    TB = B.poses()
+    PB, RB = TB[:, :3, 3], TB[:, :3, :3]
+    mu = copy.deepcopy(m2)
+    mu.fade = False
+    ms = copy.deepcopy(m2)
+    ms.fade = True
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        Tc, Tu, Th = m2.predict_classical(B.q), mu.predict(B.q), m2.predict(B.q)
+        n_full, n_sup = int((m2.fade_weight(B.q) > 0).sum()), int((ms.fade_weight(B.q) > 0).sum())
+        d = m.support_distance(B.q)
+    print(f"\n#### Diagnosis on B (frames of the 30-pose registration; rest {len(rest)})\n")
+    print("| B rest | pos mean mm | ang mean deg |\n|---|---|---|")
+    for nm, T in (("(a) calibrated", Tc), ("(b) hybrid, networks unfaded", Tu), ("(c) hybrid as registered (fade full)", Th)):
+        p, a = errors(T[rest], PB[rest], RB[rest])
+        print(f"| {nm} | {p.mean():.4f} | {a.mean():.4f} |")
+    r, c = PB - Tc[:, :3, 3], Tu[:, :3, 3] - Tc[:, :3, 3]
+    print(f"\nB poses with network weight > 0: {n_full} of {len(B)} (fade full), {n_sup} (fade support); support distance "
+          f"to A's training poses (fraction of the joint range) min {d.min():.3f}, median {np.median(d):.3f}; "
+          f"corr(calibrated residual, unfaded correction) {float((r * c).sum() / np.sqrt((r * r).sum() * (c * c).sum())):+.3f} "
+          f"(position, all of B); unfaded correction {np.linalg.norm(c, axis=1).mean() * 1e3:.3f} mm mean")
+    draws = []
+    for seed in range(4):
+        j = select_representative(TB, 30, seed)
+        rj = np.setdiff1d(np.arange(len(B)), j)
+        Bf, Ef = fit_frames(Tc[j], TB[j])
+        draws.append(errors(Bf @ Tc[rj] @ Ef, PB[rj], RB[rj])[0].mean())
+    Bf, Ef = fit_frames(Tc, TB)
+    p_all = errors(Bf @ Tc @ Ef, PB, RB)[0].mean()
+    h = np.random.default_rng(0).permutation(len(B))
+    h1, h2 = h[: len(B) // 2], h[len(B) // 2:]
+    res = calibrate(m.nominal, B.subset(h1))
+    p_self = errors(classical_fk(res.robot, B.q[h2]), PB[h2], RB[h2])[0].mean()
+    print(f"calibrated model, frames from 30 poses, draws (seed 0-3) of select_representative: "
+          f"{' '.join(f'{v:.4f}' for v in draws)} mm (mean {np.mean(draws):.4f})")
+    print(f"floors of a classical model on B: frames re-fitted on all {len(B)} poses {p_all:.4f} mm; "
+          f"calibration fitted on {len(h1)} poses of B itself, other {len(h2)}: {p_self:.4f} mm")
 
 
 # --------------------------------------------------------------------------- two days of a virtual robot

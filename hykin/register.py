@@ -15,8 +15,19 @@ the model. On a virtual robot measured on two days (tracker moved, tool re-mount
 registration recovers the drifts of joints 2-5 to within 0.0002-0.0011° (std 0.0016-0.0024°) and
 predicts day 2 at 1.12× (position) / 1.06× (orientation) day 1's own held-out error, against
 5.9× / 2.2× with base and tool alone. On UR10 series B (model from series A) no joint zero or
-thermal state is significant from 30 poses (stds 0.015-0.05°), and forcing them in does not help
-(0.403 mm vs 0.399 mm on the other 1,465 poses).
+thermal state is significant from 30 poses (stds 0.014-0.05°), and forcing the zeros of joints 2-5
+in does not help (0.3947 mm vs 0.3925 mm on the other 1,465 poses); nor does a MAP fit of those
+zeros and the thermal scale with prior stds 0.002-1° / 20 ppm (0.4009-0.4086 mm against 0.4009 mm,
+mean of 4 draws of the 30 poses).
+
+What bounds a registration on UR10 series B (benchmarks/bench_transfer.py, ``diagnose_b``): every
+B pose lies outside the A-trained networks' support (support distance 0.18-0.72 of the joint
+range; no pose gets a network weight > 0 with the registered fade), and there the networks'
+unfaded correction is anti-correlated with B's error (r = -0.13; 1.25 mm mean error unfaded against
+0.39 mm calibrated), so the registered hybrid is the calibrated model on B by design. No classical
+model does much better there: base and tool re-fitted on all 1,495 poses leave 0.377 mm, and a
+calibration fitted on half of B itself leaves 0.367 mm on the other half; the 30-pose draw alone
+moves the result by 0.393-0.409 mm (4 seeds of :func:`select_representative`).
 
 Which poses: :func:`select_representative` (default of :func:`register_model`) clusters the
 series' measured poses (k-means on z-scored position and rotation-matrix columns) and takes the

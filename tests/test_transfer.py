@@ -170,3 +170,33 @@ def test_calibrate_fade_and_region_cv_end_to_end():
     # it exactly, so it extrapolates to the held-out regions at ~0 error and is chosen
     assert r.best == "full" and np.mean(r.pos_mm["full"]) < 0.01, r.table()
     assert np.mean(r.pos_mm["no-compliance"]) > 10 * np.mean(r.pos_mm["full"])
+
+
+def test_registered_model_keeps_correction_on_overlap_and_is_calibrated_beyond(rx160):
+    """Issue 13: a new series registered to a hybrid model keeps the networks' correction (mapped by
+    the re-fitted frames) on its poses that lie on the training data, and is exactly the calibrated
+    model on its poses far outside them (fade ``"full"``): no unvalidated extrapolation."""
+    truth = rx160.copy(theta_rad=rx160.theta_rad + np.radians([0.0, 0.05, -0.04, 0.03, 0.0, 0.0]),
+                       a_m=rx160.a_m + np.array([0.0, 3e-4, -2e-4, 0.0, 0.0, 0.0]))
+    rng = np.random.default_rng(21)
+    q_tr = rx160.random_joints(300, rng, margin=0.3)  # the middle 40 % of every joint range
+    T = fk(truth, q_tr)
+    train = Dataset(q=q_tr, xyz_m=T[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T[:, :3, :3]), source="day1")
+    m = HybridModel(rx160, calibrate=False, recipe_kw={"max_epochs": 3}, fade=True).fit(train, progress=False)
+    q_far = rx160.random_joints(2000, rng)
+    q_far = q_far[m.support_distance(q_far) > 2 * m.fade_width][:60]  # beyond the fade of every mode
+    q_new = np.concatenate([q_tr[:60], q_far])
+    T2 = TRACKER @ fk(truth, q_new) @ REMOUNT
+    day2 = Dataset(q=q_new, xyz_m=T2[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T2[:, :3, :3]), source="day2")
+    new, info = register_model(m, day2, n_poses=30, refit="frames")
+    assert len(q_far) == 60 and new.fade == "full" and m.fade is True  # the input model keeps its own fade
+    w = new.fade_weight(q_new)
+    np.testing.assert_array_equal(w[:60], 1.0)
+    np.testing.assert_array_equal(w[60:], 0.0)
+    Tn, Tc = new.predict(q_new), new.predict_classical(q_new)
+    # on the training poses: the original hybrid prediction seen through the new frames
+    np.testing.assert_allclose(Tn[:60], new.frame_pre @ m.predict(q_new[:60]) @ new.frame_post, atol=1e-12)
+    assert np.linalg.norm(Tn[:60, :3, 3] - Tc[:60, :3, 3], axis=1).min() > 1e-7  # the correction is there
+    # far from them: the calibrated model, bit for bit up to rounding
+    np.testing.assert_allclose(Tn[60:], Tc[60:], atol=1e-12)
+    np.testing.assert_allclose(new.frame_pre @ m.predict_classical(q_far) @ new.frame_post, Tc[60:], atol=1e-12)
