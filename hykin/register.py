@@ -540,8 +540,7 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         T_cls = new.predict_classical(series.q[idx], temperature_c=None if temp is None else np.asarray(temp)[idx],
                                       **payload_kwargs(payload_of(series), idx))
         keep, net_line = _networks_transfer(w_used, T_model[idx], T_cls, T_meas[idx], pos_only)
-        if not keep:
-            new.fade = "full"
+        if not keep:  # every fade mode's support distance is >= 0: weight 0 everywhere
             new.fade_offset = -(new.fade_width + 1.0)  # w = 0 at every support distance >= 0
             T_model = new.predict(series.q, temperature_c=temp, **pl_kw)
     B, E, sol = _fit_frames(T_model[idx], T_meas[idx], position_only=pos_only)
