@@ -19,6 +19,7 @@
   registered from 30 poses; its error on the rest of day 2 vs day 1's own held-out error.
 
 Usage: python benchmarks/bench_transfer.py [--data ../shared/data] [--model ur10.hykin] [--skip ur10 days beside] [--device cuda]
+       [--check-case]
        [--beside-n 2000]
        [--min-steps N]
 Prints markdown tables.
@@ -151,7 +152,7 @@ def rcv_kwargs(robot, name):
 
 
 
-def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path) -> None:
+def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path, check_case: bool = False) -> None:
     from hykin.importers import import_ipa_series, ipa_nominal_robot
     from hykin.robot import save_robot_toml
 
@@ -211,6 +212,8 @@ def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path)
     for nm, (p, a) in rows.items():
         print(f"| {nm} | {p.mean():.4f} | {np.percentile(p, 95):.4f} | {a.mean():.4f} | {p.mean() / peer:.3f} |")
     diagnose_b(m, m2, B, idx, rest)
+    if check_case:
+        network_check_case(rob, tr, B)
     # calibration parameter sets: region-blocked validation on A vs what transfers to B
     from hykin.calibrate import calibrate
     from hykin.hybrid import classical_fk
@@ -229,6 +232,28 @@ def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path)
         p, a = errors(Bf @ T[rest] @ Ef, PB[rest], RB[rest])
         print(f"| {name}{' (chosen)' if name == rcv.best else ''} | {np.mean(rcv.pos_mm[name]):.4f} / {np.mean(rcv.ang_deg[name]):.4f} | "
               f"{p.mean():.4f} / {a.mean():.4f} |")
+
+
+def network_check_case(rob, tr, B, joints=(2, 3), n_draws: int = 6) -> None:
+    """The case the registration's network check (:func:`hykin.register._networks_transfer`) was decided
+    on: networks that see only ``joints`` of series A extrapolate into series B (most of B under their
+    correction, which does not carry over). B registered from ``n_draws`` draws of 30 poses, with the
+    check and with the correction forced on; error on the rest."""
+    t0 = time.perf_counter()
+    m = HybridModel(rob, seed=0, input_joints=joints).fit(tr, progress=False)
+    print(f"\n#### Network check: networks on joints {list(joints)} of A (fit {time.perf_counter() - t0:.0f} s)\n")
+    TB = B.poses()
+    print("| draw | check | decision | hybrid rest mm / deg | calibrated rest mm / deg |\n|---|---|---|---|---|")
+    for seed in range(n_draws):
+        for chk in (True, False):
+            m2, info = register_model(m, B, n_poses=30, seed=seed, check_networks=chk)
+            rest = np.setdiff1d(np.arange(len(B)), info.used_index)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", OutOfRangeWarning)
+                ph, ah = errors(m2.predict(B.q[rest]), TB[rest, :3, 3], TB[rest, :3, :3])
+                pc, ac = errors(m2.predict_classical(B.q[rest]), TB[rest, :3, 3], TB[rest, :3, :3])
+            dec = info.network_check.split(";")[0].split(":")[1].strip() if chk else "forced on"
+            print(f"| {seed} | {chk} | {dec} | {ph.mean():.4f} / {ah.mean():.4f} | {pc.mean():.4f} / {ac.mean():.4f} |")
 
 
 def diagnose_b(m, m2, B, idx, rest) -> None:
@@ -421,10 +446,13 @@ def main() -> None:
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--beside-n", type=int, default=8000, help="joint samples of the beside-region case (60 %% train)")
     ap.add_argument("--work", default="/tmp")
+    ap.add_argument("--check-case", action="store_true",
+                    help="also fit networks on joints 2-3 of A and register B with / without the network check (~5 min)")
     args = ap.parse_args()
     warnings.simplefilter("ignore", OutOfRangeWarning)
     if "ur10" not in args.skip:
-        ur10(Path(args.data), None if args.model is None else Path(args.model), args.min_steps, Path(args.work))
+        ur10(Path(args.data), None if args.model is None else Path(args.model), args.min_steps, Path(args.work),
+             check_case=args.check_case)
     if "days" not in args.skip:
         days(args.min_steps, device=args.device)
     if "beside" not in args.skip:

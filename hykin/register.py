@@ -426,8 +426,10 @@ def _select_extra(prob: _Problem, x0: np.ndarray, cands: list[str]) -> tuple[lis
     # Backward elimination from every identifiable candidate (forward selection misses parameters
     # that only act together, e.g. opposite zero drifts of two parallel joints).
     chosen = list(ident)
-    while len(frame_cols) + len(chosen) > N * m // 3:
-        chosen.pop()
+    while chosen and len(frame_cols) + len(chosen) > N * m // 3:  # few poses: at most a third as many unknowns as rows
+        why[chosen.pop()] = f"too few poses ({N}) to re-fit it beside the frames"
+    if not chosen:
+        return [], why
     press, t = fit_stats(chosen)
     while chosen:
         trials = [(fit_stats([k for k in chosen if k != c])[0], c) for c in chosen]

@@ -257,3 +257,18 @@ def test_register_keeps_networks_only_where_they_help_the_new_series(learnt_mode
     np.testing.assert_allclose(back.predict(q[:50]), new.predict_classical(q[:50]), atol=1e-12)
     Tt = back.predict_torch(torch.as_tensor(q[:50])).detach().numpy()
     np.testing.assert_allclose(Tt, new.predict_classical(q[:50]), atol=1e-9)
+
+
+def test_register_from_few_position_only_poses(exact_model):
+    """8 position-only poses: 24 rows leave no room for joint zeros beside the 9 frame parameters
+    (a third as many unknowns as rows at most); the frames are fitted and every candidate is reported."""
+    ds = _day2(exact_model.robot, n=40, drift_deg=np.zeros(6), seed=6)
+    pos = Dataset(q=ds.q, xyz_m=ds.xyz_m, source="positions.csv")
+    new, info = register_model(exact_model, pos, n_poses=8)
+    assert info.n_used == 8 and info.used_ang_mean_deg is None
+    assert [p.name for p in info.parameters][:6] == ["base.rx", "base.ry", "base.rz", "base.x", "base.y", "base.z"]
+    assert not [p for p in info.parameters if p.name.endswith(".zero")]
+    assert all(c in info.not_fitted for c in ("q2.zero", "q3.zero", "thermal.scale")), info.report()
+    assert "too few poses (8)" in info.report()
+    # exact model, nothing drifted: the positions of the other poses are predicted to the noise
+    assert info.rest_pos_mean_mm < 0.02
