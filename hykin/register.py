@@ -12,7 +12,7 @@ reported with standard deviations (:meth:`RegistrationInfo.report`). A registrat
 is far above the model's own error is refused (:class:`RegistrationError`): the series does not fit
 the model. On a virtual robot measured on two days (tracker moved, tool re-mounted by 0.5 mm /
 0.05°, joint zeros drifted by 0.01°; benchmarks/bench_transfer.py, default recipe) the 30-pose
-registration recovers the drifts of joints 2-5 to within 0.0002-0.0011° (std 0.0015-0.0024°) and
+registration recovers the drifts of joints 2-5 to within 0.0002-0.0007° (std 0.0015-0.0024°) and
 predicts day 2 at 1.32× (position, 0.0286 mm) / 1.04× (orientation) day 1's own held-out error
 (0.0216 mm / 0.0068°), against 5.8× / 2.2× with base and tool alone (measured twice, identical,
 2026-11-23; an earlier state of the code gave 1.12× / 1.06×). On UR10 series B (model from series A) no joint zero or
