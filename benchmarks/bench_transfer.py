@@ -6,7 +6,10 @@
   identifiable and significant), evaluated on the other 1,465. Peer, measured in the same run: a
   plain geometric calibration of the same A rows written here independently of hykin (own numpy
   DH FK, scipy least_squares over the 24 DH deviations + base + tool), registered to B on the SAME
-  30 poses the same way (base + tool; and base + tool + the joint zeros hykin chose).
+  30 poses the same way (base + tool; and base + tool + the joint zeros hykin chose). Then a
+  diagnosis (:func:`diagnose_b`): calibrated vs unfaded networks vs the hybrid as registered, how
+  much of B the networks' support reaches, the 30-pose draw's spread, and two floors of any
+  classical model on B (frames from all of B; a calibration on half of B itself).
 * ``beside``: the same virtual robot trained on a Cartesian region (y above a cut, full joint ranges)
   and tested on the band beside it: calibrated vs unfaded networks vs the default fade vs the fade
   measured by leave-one-region-out (``HybridModel(fade_cv=4)``, :mod:`hykin.hybrid.fade`), per region.
@@ -16,6 +19,7 @@
   registered from 30 poses; its error on the rest of day 2 vs day 1's own held-out error.
 
 Usage: python benchmarks/bench_transfer.py [--data ../shared/data] [--model ur10.hykin] [--skip ur10 days beside] [--device cuda]
+       [--check-case]
        [--beside-n 2000]
        [--min-steps N]
 Prints markdown tables.
@@ -147,7 +151,7 @@ def rcv_kwargs(robot, name):
 
 
 
-def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path) -> None:
+def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path, check_case: bool = False) -> None:
     from hykin.io.robot_toml import save_robot_toml
     from hykin.measure.importers import import_ipa_series, ipa_nominal_robot
 
@@ -206,11 +210,14 @@ def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path)
     print("|---|---|---|---|---|")
     for nm, (p, a) in rows.items():
         print(f"| {nm} | {p.mean():.4f} | {np.percentile(p, 95):.4f} | {a.mean():.4f} | {p.mean() / peer:.3f} |")
+    diagnose_b(m, m2, B, idx, rest)
+    if check_case:
+        network_check_case(rob, tr, B)
     # calibration parameter sets: region-blocked validation on A vs what transfers to B
     from hykin.calibration.calibrate import calibrate
-    from hykin.hybrid.model import classical_fk
-    from hykin.hybrid.region_cv import CANDIDATES, select_calibration
     from hykin.calibration.frames import fit_frames
+    from hykin.hybrid.region_cv import CANDIDATES, select_calibration
+    from hykin.kinematics.classical import classical_fk
 
     t0 = time.perf_counter()
     rcv = select_calibration(rob, tr, n_blocks=4)
@@ -224,6 +231,80 @@ def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path)
         p, a = errors(Bf @ T[rest] @ Ef, PB[rest], RB[rest])
         print(f"| {name}{' (chosen)' if name == rcv.best else ''} | {np.mean(rcv.pos_mm[name]):.4f} / {np.mean(rcv.ang_deg[name]):.4f} | "
               f"{p.mean():.4f} / {a.mean():.4f} |")
+
+
+def network_check_case(rob, tr, B, joints=(2, 3), n_draws: int = 6) -> None:
+    """The case the registration's network check (:func:`hykin.register._networks_transfer`) was decided
+    on: networks that see only ``joints`` of series A extrapolate into series B (most of B under their
+    correction, which does not carry over). B registered from ``n_draws`` draws of 30 poses, with the
+    check and with the correction forced on; error on the rest."""
+    t0 = time.perf_counter()
+    m = HybridModel(rob, seed=0, input_joints=joints).fit(tr, progress=False)
+    print(f"\n#### Network check: networks on joints {list(joints)} of A (fit {time.perf_counter() - t0:.0f} s)\n")
+    TB = B.poses()
+    print("| draw | check | decision | hybrid rest mm / deg | calibrated rest mm / deg |\n|---|---|---|---|---|")
+    for seed in range(n_draws):
+        for chk in (True, False):
+            m2, info = register_model(m, B, n_poses=30, seed=seed, check_networks=chk)
+            rest = np.setdiff1d(np.arange(len(B)), info.used_index)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", OutOfRangeWarning)
+                ph, ah = errors(m2.predict(B.q[rest]), TB[rest, :3, 3], TB[rest, :3, :3])
+                pc, ac = errors(m2.predict_classical(B.q[rest]), TB[rest, :3, 3], TB[rest, :3, :3])
+            dec = info.network_check.split(";")[0].split(":")[1].strip() if chk else "forced on"
+            print(f"| {seed} | {chk} | {dec} | {ph.mean():.4f} / {ah.mean():.4f} | {pc.mean():.4f} / {ac.mean():.4f} |")
+
+
+def diagnose_b(m, m2, B, idx, rest) -> None:
+    """Why the hybrid equals the calibrated model on B, and what bounds any registration: (a) the
+    calibrated model, (b) the networks unfaded, (c) the hybrid as registered (fade ``"full"``), all with
+    the frames of the 30-pose registration; how many B poses the networks' support reaches; the
+    correlation of the unfaded network correction with the calibrated model's residual; the
+    registration's dependence on the 30-pose draw; and two floors of any classical model on B: frames
+    re-fitted on all of B, and a calibration fitted on half of B itself, scored on the other half."""
+    import copy
+
+    from hykin.calibration.calibrate import calibrate
+    from hykin.calibration.frames import fit_frames, select_representative
+    from hykin.kinematics.classical import classical_fk
+
+    TB = B.poses()
+    PB, RB = TB[:, :3, 3], TB[:, :3, :3]
+    mu = copy.deepcopy(m2)
+    mu.fade = False
+    ms = copy.deepcopy(m2)
+    ms.fade = True
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        Tc, Tu, Th = m2.predict_classical(B.q), mu.predict(B.q), m2.predict(B.q)
+        n_full, n_sup = int((m2.fade_weight(B.q) > 0).sum()), int((ms.fade_weight(B.q) > 0).sum())
+        d = m.support_distance(B.q)
+    print(f"\n#### Diagnosis on B (frames of the 30-pose registration; rest {len(rest)})\n")
+    print("| B rest | pos mean mm | ang mean deg |\n|---|---|---|")
+    for nm, T in (("(a) calibrated", Tc), ("(b) hybrid, networks unfaded", Tu), ("(c) hybrid as registered (fade full)", Th)):
+        p, a = errors(T[rest], PB[rest], RB[rest])
+        print(f"| {nm} | {p.mean():.4f} | {a.mean():.4f} |")
+    r, c = PB - Tc[:, :3, 3], Tu[:, :3, 3] - Tc[:, :3, 3]
+    print(f"\nB poses with network weight > 0: {n_full} of {len(B)} (fade full), {n_sup} (fade support); support distance "
+          f"to A's training poses (fraction of the joint range) min {d.min():.3f}, median {np.median(d):.3f}; "
+          f"corr(calibrated residual, unfaded correction) {float((r * c).sum() / np.sqrt((r * r).sum() * (c * c).sum())):+.3f} "
+          f"(position, all of B); unfaded correction {np.linalg.norm(c, axis=1).mean() * 1e3:.3f} mm mean")
+    draws = []
+    for seed in range(4):
+        j = select_representative(TB, 30, seed)
+        rj = np.setdiff1d(np.arange(len(B)), j)
+        Bf, Ef = fit_frames(Tc[j], TB[j])
+        draws.append(errors(Bf @ Tc[rj] @ Ef, PB[rj], RB[rj])[0].mean())
+    Bf, Ef = fit_frames(Tc, TB)
+    p_all = errors(Bf @ Tc @ Ef, PB, RB)[0].mean()
+    h = np.random.default_rng(0).permutation(len(B))
+    h1, h2 = h[: len(B) // 2], h[len(B) // 2:]
+    res = calibrate(m.nominal, B.subset(h1))
+    p_self = errors(classical_fk(res.robot, B.q[h2]), PB[h2], RB[h2])[0].mean()
+    print(f"calibrated model, frames from 30 poses, draws (seed 0-3) of select_representative: "
+          f"{' '.join(f'{v:.4f}' for v in draws)} mm (mean {np.mean(draws):.4f})")
+    print(f"floors of a classical model on B: frames re-fitted on all {len(B)} poses {p_all:.4f} mm; "
+          f"calibration fitted on {len(h1)} poses of B itself, other {len(h2)}: {p_self:.4f} mm")
 
 
 # --------------------------------------------------------------------------- two days of a virtual robot
@@ -364,10 +445,13 @@ def main() -> None:
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--beside-n", type=int, default=8000, help="joint samples of the beside-region case (60 %% train)")
     ap.add_argument("--work", default="/tmp")
+    ap.add_argument("--check-case", action="store_true",
+                    help="also fit networks on joints 2-3 of A and register B with / without the network check (~5 min)")
     args = ap.parse_args()
     warnings.simplefilter("ignore", OutOfRangeWarning)
     if "ur10" not in args.skip:
-        ur10(Path(args.data), None if args.model is None else Path(args.model), args.min_steps, Path(args.work))
+        ur10(Path(args.data), None if args.model is None else Path(args.model), args.min_steps, Path(args.work),
+             check_case=args.check_case)
     if "days" not in args.skip:
         days(args.min_steps, device=args.device)
     if "beside" not in args.skip:

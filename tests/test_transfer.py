@@ -171,3 +171,105 @@ def test_calibrate_fade_and_region_cv_end_to_end():
     # it exactly, so it extrapolates to the held-out regions at ~0 error and is chosen
     assert r.best == "full" and np.mean(r.pos_mm["full"]) < 0.01, r.table()
     assert np.mean(r.pos_mm["no-compliance"]) > 10 * np.mean(r.pos_mm["full"])
+
+
+def test_registered_model_keeps_correction_on_overlap_and_is_calibrated_beyond(rx160):
+    """Issue 13: a new series registered to a hybrid model keeps the networks' correction (mapped by
+    the re-fitted frames) on its poses that lie on the training data, and is exactly the calibrated
+    model on its poses far outside them (fade ``"full"``): no unvalidated extrapolation."""
+    truth = rx160.copy(theta_rad=rx160.theta_rad + np.radians([0.0, 0.05, -0.04, 0.03, 0.0, 0.0]),
+                       a_m=rx160.a_m + np.array([0.0, 3e-4, -2e-4, 0.0, 0.0, 0.0]))
+    rng = np.random.default_rng(21)
+    q_tr = rx160.random_joints(300, rng, margin=0.3)  # the middle 40 % of every joint range
+    T = fk(truth, q_tr)
+    train = Dataset(q=q_tr, xyz_m=T[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T[:, :3, :3]), source="day1")
+    m = HybridModel(rx160, calibrate=False, recipe_kw={"max_epochs": 3}, fade=True).fit(train, progress=False)
+    q_far = rx160.random_joints(2000, rng)
+    q_far = q_far[m.support_distance(q_far) > 2 * m.fade_width][:60]  # beyond the fade of every mode
+    q_new = np.concatenate([q_tr[:60], q_far])
+    T2 = TRACKER @ fk(truth, q_new) @ REMOUNT
+    day2 = Dataset(q=q_new, xyz_m=T2[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T2[:, :3, :3]), source="day2")
+    new, _ = register_model(m, day2, n_poses=30, refit="frames")
+    assert len(q_far) == 60 and new.fade == "full" and m.fade is True  # the input model keeps its own fade
+    w = new.fade_weight(q_new)
+    np.testing.assert_array_equal(w[:60], 1.0)
+    np.testing.assert_array_equal(w[60:], 0.0)
+    Tn, Tc = new.predict(q_new), new.predict_classical(q_new)
+    # on the training poses: the original hybrid prediction seen through the new frames
+    np.testing.assert_allclose(Tn[:60], new.frame_pre @ m.predict(q_new[:60]) @ new.frame_post, atol=1e-12)
+    assert np.linalg.norm(Tn[:60, :3, 3] - Tc[:60, :3, 3], axis=1).min() > 1e-7  # the correction is there
+    # far from them: the calibrated model, bit for bit up to rounding
+    np.testing.assert_allclose(Tn[60:], Tc[60:], atol=1e-12)
+    np.testing.assert_allclose(new.frame_pre @ m.predict_classical(q_far) @ new.frame_post, Tc[60:], atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def learnt_model(rx160):
+    """Networks that learnt a real residual: trained on a robot whose joint zeros and link lengths
+    differ from the model's (no calibration), so the correction is ~the deviation."""
+    dev = {"theta_rad": np.radians([0.0, 0.08, -0.06, 0.05, 0.0, 0.0]), "a_m": np.array([0.0, 6e-4, -4e-4, 0.0, 0.0, 0.0])}
+    truth = rx160.copy(theta_rad=rx160.theta_rad + dev["theta_rad"], a_m=rx160.a_m + dev["a_m"])
+    mirror = rx160.copy(theta_rad=rx160.theta_rad - dev["theta_rad"], a_m=rx160.a_m - dev["a_m"])
+    q = rx160.random_joints(600, np.random.default_rng(31), margin=0.3)
+    T = fk(truth, q)
+    train = Dataset(q=q, xyz_m=T[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T[:, :3, :3]), source="day1")
+    m = HybridModel(rx160, calibrate=False, recipe_kw={"max_epochs": 60}, fade=True).fit(train, progress=False)
+    return m, truth, mirror, q
+
+
+def _series(rob, q, name):
+    T = TRACKER @ fk(rob, q) @ REMOUNT
+    return Dataset(q=q, xyz_m=T[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T[:, :3, :3]), source=name)
+
+
+def _rest_errors(new, info, ds):
+    """Mean position error (m) of the registered hybrid and calibrated model on the poses not used."""
+    rest = np.setdiff1d(np.arange(len(ds)), info.used_index)
+    err = lambda T: np.linalg.norm(T[:, :3, 3] - ds.xyz_m[rest], axis=1).mean()
+    return err(new.predict(ds.q[rest])), err(new.predict_classical(ds.q[rest]))
+
+
+def test_register_keeps_networks_only_where_they_help_the_new_series(learnt_model, tmp_path):
+    """The check on the registration poses (leave-one-pose-out, hybrid against calibrated): a series of
+    the robot the networks learnt keeps their correction; a series of a robot whose errors are the
+    mirror image (the correction points the wrong way) gets the calibrated model everywhere."""
+    m, truth, mirror, q = learnt_model
+    same = _series(truth, q[:120], "same.csv")
+    new, info = register_model(m, same, n_poses=30, refit="frames")
+    assert info.network_check.startswith("network correction: kept"), info.report()
+    assert info.network_check in info.report()
+    eh, ec = _rest_errors(new, info, same)
+    assert eh < 0.5 * ec  # the networks carry the deviation: the hybrid is far better on the rest
+    np.testing.assert_array_equal(new.fade_weight(q[:120]), 1.0)
+
+    mir = _series(mirror, q[:120], "mirror.csv")
+    forced, finfo = register_model(m, mir, n_poses=30, refit="frames", check_networks=False)
+    eh, ec = _rest_errors(forced, finfo, mir)
+    assert eh > ec  # with the correction kept, this series is worse than the calibrated model
+    new, info = register_model(m, mir, n_poses=30, refit="frames")
+    assert info.network_check.startswith("network correction: OFF"), info.report()
+    np.testing.assert_array_equal(new.fade_weight(q[:120]), 0.0)
+    np.testing.assert_allclose(new.predict(q[:120]), new.predict_classical(q[:120]), atol=1e-12)
+    eh, ec = _rest_errors(new, info, mir)
+    assert eh == pytest.approx(ec, abs=1e-15)
+    # the choice survives save / load and holds on the torch path too
+    new.save(tmp_path / "mirror.hykin")
+    back = HybridModel.load(tmp_path / "mirror.hykin")
+    np.testing.assert_allclose(back.predict(q[:50]), new.predict_classical(q[:50]), atol=1e-12)
+    Tt = back.predict_torch(torch.as_tensor(q[:50])).detach().numpy()
+    np.testing.assert_allclose(Tt, new.predict_classical(q[:50]), atol=1e-9)
+
+
+def test_register_from_few_position_only_poses(exact_model):
+    """8 position-only poses: 24 rows leave no room for joint zeros beside the 9 frame parameters
+    (a third as many unknowns as rows at most); the frames are fitted and every candidate is reported."""
+    ds = _day2(exact_model.robot, n=40, drift_deg=np.zeros(6), seed=6)
+    pos = Dataset(q=ds.q, xyz_m=ds.xyz_m, source="positions.csv")
+    new, info = register_model(exact_model, pos, n_poses=8)
+    assert info.n_used == 8 and info.used_ang_mean_deg is None
+    assert [p.name for p in info.parameters][:6] == ["base.rx", "base.ry", "base.rz", "base.x", "base.y", "base.z"]
+    assert not [p for p in info.parameters if p.name.endswith(".zero")]
+    assert all(c in info.not_fitted for c in ("q2.zero", "q3.zero", "thermal.scale")), info.report()
+    assert "too few poses (8)" in info.report()
+    # exact model, nothing drifted: the positions of the other poses are predicted to the noise
+    assert info.rest_pos_mean_mm < 0.02
