@@ -406,7 +406,7 @@ def beside(min_steps: int | None, device: str, n: int = 8000, n_blocks: int = 4)
     m = HybridModel(vr1.nominal, seed=0, device=device, fade_cv=n_blocks, **kw).fit(tr, progress=False)
     fs = time.perf_counter() - t0
     md = copy.deepcopy(m)
-    md.fade_offset, md.fade_width = 0.0, 0.1  # the fixed default fade
+    md.fade_offset_, md.fade_width_ = 0.0, 0.1  # the fixed default fade
     mu = copy.deepcopy(m)
     mu.fade = False
     print(f"\n### Beside the training region: train y > {y_cut:.3f} m ({len(tr)} poses), test {band:.3f} < y <= {y_cut:.3f} "

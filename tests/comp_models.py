@@ -29,11 +29,11 @@ class ExactModel:
     def __init__(self, nominal: Robot, truth: Robot, frame_pre=None):
         self.robot = self.nominal = nominal
         self.robot_ = truth
-        self.frame_pre = np.eye(4) if frame_pre is None else frame_pre
-        self.frame_post = np.eye(4)
+        self.frame_pre_ = np.eye(4) if frame_pre is None else frame_pre
+        self.frame_post_ = np.eye(4)
 
     def predict(self, q):
-        return self.frame_pre @ fk(self.robot_, q)
+        return self.frame_pre_ @ fk(self.robot_, q)
 
 
 def exact(preset: str, seed: int) -> ExactModel:

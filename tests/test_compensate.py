@@ -190,7 +190,7 @@ def test_cli_compensate_csv_programs_and_urdf(tmp_path):
     r = run(app, ["export-urdf", str(mp), "-o", str(tmp_path / "r.urdf")])
     assert r.exit_code == 0, r.output
     u = load_urdf(tmp_path / "r.urdf")
-    ref = m.frame_pre @ fk(m.robot_.copy(stiffness_nm_per_rad=np.full(6, np.inf)), q) @ m.frame_post
+    ref = m.frame_pre_ @ fk(m.robot_.copy(stiffness_nm_per_rad=np.full(6, np.inf)), q) @ m.frame_post_
     assert np.abs(fk(u, q) - ref).max() < 1e-12
     assert np.abs(fk(u, q) - fk(nom, q)).max() > 1e-4  # the calibration is in it
 

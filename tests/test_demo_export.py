@@ -66,9 +66,9 @@ def test_registered_model_roundtrip(tmp_path, small_model):
     import copy
 
     m2 = copy.deepcopy(m)
-    m2.frame_pre = se3.trans(0.1, -0.2, 0.3) @ se3.rotz(0.3)
-    m2.frame_post = se3.trans(0, 0, 0.05)
+    m2.frame_pre_ = se3.trans(0.1, -0.2, 0.3) @ se3.rotz(0.3)
+    m2.frame_post_ = se3.trans(0, 0, 0.05)
     m2.save(tmp_path / "r.hykin")
     m3 = HybridModel.load(tmp_path / "r.hykin")
     T3 = m3.predict(q)
-    assert np.allclose(T3, m2.frame_pre @ T0 @ m2.frame_post, atol=1e-12)
+    assert np.allclose(T3, m2.frame_pre_ @ T0 @ m2.frame_post_, atol=1e-12)

@@ -207,6 +207,11 @@ def test_constructor_stores_settings_and_fit_validates_them(robot):
     assert m.fit(_data(robot, 100, 1), progress=False) is m
     assert m.recipe == "default" and m.recipe_kw == TINY and m.val_fraction is None and m.input_joints is None
     assert m.recipe_.max_epochs == TINY["max_epochs"] and m.net_pos_ is not None
+    # no public attribute appears after construction except the settings; fit adds only `*_` ones
+    settings = set(vars(HybridModel(robot)))
+    learned = {k for k in set(vars(m)) - settings if not k.startswith("_")}  # `_x`: private caches
+    assert learned and all(k.endswith("_") for k in learned), sorted(k for k in learned if not k.endswith("_"))
+    assert m.fade_offset == 0.0 and m.fade_offset_ == 0.0 and np.array_equal(m.frame_pre_, np.eye(4))
 
 
 def test_full_fade_uses_nearest_neighbour_gap(fitted):

@@ -70,8 +70,8 @@ def test_register_model_30_poses_noise_free(rx160):
     ds = _series(rx160, 300)
     new, info = register_model(_model(rx160), ds, n_poses=30)
     assert info.n_used == 30 and len(np.unique(info.used_index)) == 30
-    np.testing.assert_allclose(new.frame_pre, B_TRUE, atol=1e-9)
-    np.testing.assert_allclose(new.frame_post, E_TRUE, atol=1e-9)
+    np.testing.assert_allclose(new.frame_pre_, B_TRUE, atol=1e-9)
+    np.testing.assert_allclose(new.frame_post_, E_TRUE, atol=1e-9)
     assert info.rest_pos_mean_mm < 1e-6 and info.rest_ang_mean_deg < 1e-7
 
 
@@ -138,8 +138,8 @@ def test_register_model_returns_a_new_model_and_leaves_the_input_unchanged(rx160
     assert any(p.name.startswith("q2") for p in info.parameters)  # the copy's robot was changed
     for a, b in zip(before, (m.predict(q), m.predict_classical(q), m.fade_weight(q))):
         np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(m.frame_pre, np.eye(4))
-    np.testing.assert_array_equal(m.frame_post, np.eye(4))
+    np.testing.assert_array_equal(m.frame_pre_, np.eye(4))
+    np.testing.assert_array_equal(m.frame_post_, np.eye(4))
     assert m.fade is True and new.fade == "full"
     np.testing.assert_array_equal(m.robot_.theta_rad, rob_before.theta_rad)
     assert not np.allclose(new.robot_.theta_rad, rob_before.theta_rad)

@@ -99,8 +99,8 @@ def test_targets_at_reference_inverts_predict(session, model):
     import copy
 
     reg = copy.deepcopy(model)
-    reg.frame_pre = se3.xyzrpy_to_transform(np.array([[0.5, 0.1, -0.2]]), np.array([[0.01, -0.02, 0.3]]))[0]
-    reg.frame_post = se3.xyzrpy_to_transform(np.array([[0.0, 0.0, 0.02]]), np.array([[0.05, 0.0, 0.0]]))[0]
+    reg.frame_pre_ = se3.xyzrpy_to_transform(np.array([[0.5, 0.1, -0.2]]), np.array([[0.01, -0.02, 0.3]]))[0]
+    reg.frame_post_ = se3.xyzrpy_to_transform(np.array([[0.0, 0.0, 0.02]]), np.array([[0.05, 0.0, 0.0]]))[0]
     t = np.linspace(18, 30, 50)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OutOfRangeWarning)

@@ -55,11 +55,11 @@ def _day2(robot, n=200, noise_mm=0.005, noise_deg=0.0005, seed=1, drift_deg=DRIF
 
 def test_register_recovers_joint_zero_drift(exact_model):
     ds = _day2(exact_model.robot)
-    before = copy.deepcopy(exact_model.robot_), exact_model.frame_pre.copy()
+    before = copy.deepcopy(exact_model.robot_), exact_model.frame_pre_.copy()
     _, info = register_model(exact_model, ds, n_poses=30)
     # the input model is untouched (scikit-learn contract: a new model is returned)
     np.testing.assert_array_equal(exact_model.robot_.theta_rad, before[0].theta_rad)
-    np.testing.assert_array_equal(exact_model.frame_pre, before[1])
+    np.testing.assert_array_equal(exact_model.frame_pre_, before[1])
     fitted = {p.name: p for p in info.parameters}
     # joint 1 and joint 6 zeros are redundant with the base / tool frames: never fitted
     assert "q1.zero" not in fitted and "q6.zero" not in fitted
@@ -104,7 +104,7 @@ def test_register_refuses_unit_slip_and_wrong_robot(exact_model):
 def test_fade_offset_in_every_prediction_path(exact_model, tmp_path):
     m = copy.deepcopy(exact_model)
     m.fade = True
-    m.fade_offset, m.fade_width = 0.05, 0.2
+    m.fade_offset_, m.fade_width_ = 0.05, 0.2
     q = m.robot.random_joints(300, np.random.default_rng(9)) * 2.0  # partly outside the trained range
     d = fade_distance(m, q)
     w_ref = np.where(d <= 0.05, 1.0, np.where(d >= 0.25, 0.0, 0.5 * (1 + np.cos(np.pi * (d - 0.05) / 0.2))))
@@ -116,7 +116,7 @@ def test_fade_offset_in_every_prediction_path(exact_model, tmp_path):
     np.testing.assert_allclose(Tt, Tn, atol=1e-9)
     m.save(tmp_path / "m.hykin")
     m2 = HybridModel.load(tmp_path / "m.hykin")
-    assert m2.fade_offset == 0.05 and m2.fade_width == 0.2
+    assert m2.fade_offset_ == 0.05 and m2.fade_width_ == 0.2
     np.testing.assert_allclose(m2.fade_weight(q), w_ref, atol=1e-12)
 
 
@@ -185,7 +185,7 @@ def test_registered_model_keeps_correction_on_overlap_and_is_calibrated_beyond(r
     train = Dataset(q=q_tr, xyz_m=T[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T[:, :3, :3]), source="day1")
     m = HybridModel(rx160, calibrate=False, recipe_kw={"max_epochs": 3}, fade=True).fit(train, progress=False)
     q_far = rx160.random_joints(2000, rng)
-    q_far = q_far[m.support_distance(q_far) > 2 * m.fade_width][:60]  # beyond the fade of every mode
+    q_far = q_far[m.support_distance(q_far) > 2 * m.fade_width_][:60]  # beyond the fade of every mode
     q_new = np.concatenate([q_tr[:60], q_far])
     T2 = TRACKER @ fk(truth, q_new) @ REMOUNT
     day2 = Dataset(q=q_new, xyz_m=T2[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T2[:, :3, :3]), source="day2")
@@ -196,11 +196,11 @@ def test_registered_model_keeps_correction_on_overlap_and_is_calibrated_beyond(r
     np.testing.assert_array_equal(w[60:], 0.0)
     Tn, Tc = new.predict(q_new), new.predict_classical(q_new)
     # on the training poses: the original hybrid prediction seen through the new frames
-    np.testing.assert_allclose(Tn[:60], new.frame_pre @ m.predict(q_new[:60]) @ new.frame_post, atol=1e-12)
+    np.testing.assert_allclose(Tn[:60], new.frame_pre_ @ m.predict(q_new[:60]) @ new.frame_post_, atol=1e-12)
     assert np.linalg.norm(Tn[:60, :3, 3] - Tc[:60, :3, 3], axis=1).min() > 1e-7  # the correction is there
     # far from them: the calibrated model, bit for bit up to rounding
     np.testing.assert_allclose(Tn[60:], Tc[60:], atol=1e-12)
-    np.testing.assert_allclose(new.frame_pre @ m.predict_classical(q_far) @ new.frame_post, Tc[60:], atol=1e-12)
+    np.testing.assert_allclose(new.frame_pre_ @ m.predict_classical(q_far) @ new.frame_post_, Tc[60:], atol=1e-12)
 
 
 @pytest.fixture(scope="module")

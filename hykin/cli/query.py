@@ -86,7 +86,7 @@ def ik_cmd(
     mdl, rob = load_model_or_robot(model)
     T, has_rot, pose_extra = read_poses(poses, length_unit=length_unit, extras=True)
     check_target_reach(mdl.robot_ if mdl is not None else rob, T, where=str(poses), length_unit=length_unit,
-                       frame=None if mdl is None else mdl.frame_pre)
+                       frame=None if mdl is None else mdl.frame_pre_)
     position_only = position_only or not has_rot
     q_cur = None
     if seed_joints is not None:

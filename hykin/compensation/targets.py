@@ -73,7 +73,7 @@ class Compensation:
 
 def fitted_base(model) -> np.ndarray:
     """``(4, 4)`` the model's controller base in its measurement frame: ``frame_pre · robot_.base``."""
-    return np.asarray(model.frame_pre, dtype=np.float64) @ model.robot_.base
+    return np.asarray(model.frame_pre_, dtype=np.float64) @ model.robot_.base
 
 
 def resolve_frame(model, frame: str) -> str:

@@ -101,8 +101,8 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
         nominal = getattr(model, "nominal", None)
         if nominal is not None:
             # A registered model carries the frames of its measurement series; the nominal row uses them too.
-            pre = getattr(model, "frame_pre", np.eye(4))
-            post = getattr(model, "frame_post", np.eye(4))
+            pre = getattr(model, "frame_pre_", np.eye(4))
+            post = getattr(model, "frame_post_", np.eye(4))
             preds["nominal"] = pre @ fk(nominal, data.q) @ post
         from ..calibration.thermal import temperature_of
 
@@ -120,7 +120,7 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
         errors[name] = (p, None if pos_only else a)
     regions = []
     registered = not isinstance(model, Robot) and not (
-        np.array_equal(getattr(model, "frame_pre", np.eye(4)), np.eye(4)) and np.array_equal(getattr(model, "frame_post", np.eye(4)), np.eye(4)))
+        np.array_equal(getattr(model, "frame_pre_", np.eye(4)), np.eye(4)) and np.array_equal(getattr(model, "frame_post_", np.eye(4)), np.eye(4)))
     if registered and "nominal" in preds:
         from ..calibration.frames import fit_frames
 

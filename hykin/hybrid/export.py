@@ -68,7 +68,7 @@ def export_onnx(model, path: str | Path, n_check: int = 2000, opset: int = 17, s
     info = {"max_pos_diff_mm": float(p.max()), "max_ang_diff_deg": float(a.max()), "n_check": n_check}
     th = getattr(model, "thermal_", None)
     if th is not None and th.coefficient_per_k != 0.0:
-        b = model.frame_pre @ np.r_[model.robot_.base[:3, 3], 1.0]
+        b = model.frame_pre_ @ np.r_[model.robot_.base[:3, 3], 1.0]
         info.update(thermal_coefficient_per_k=th.coefficient_per_k, thermal_reference_c=th.reference_c,
                     thermal_origin_m=b[:3].tolist())
     if info["max_pos_diff_mm"] > 1e-6 or info["max_ang_diff_deg"] > 1e-6:

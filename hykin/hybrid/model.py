@@ -97,7 +97,7 @@ class HybridModel:
     fade: True (= "support": joint ranges and pairwise holes), "range", "full" or False (module
     docstring); fade_width in units of the range; fade_offset: support distance up to which the
     correction is fully applied. fade_cv: number of regions (>= 2) for a fade measured by
-    leave-one-region-out at the end of fit (:mod:`hykin.hybrid.fade`; sets fade_offset and fade_width; 0 = off).
+    leave-one-region-out at the end of fit (:mod:`hykin.hybrid.fade`; sets the fitted fade_offset_ and fade_width_; 0 = off).
     periodic: "wrap" (revolute joints on the circle) or "none"; joint1: "input" or "frame";
     input_joints: 1-based joints the networks see (default all; module docstring, "Input representation").
     device: "cpu" or "cuda". seed: training seed. max_seconds: training time budget per network.
@@ -109,7 +109,7 @@ class HybridModel:
     payload_input: "auto"/True: payload is a network input when the training data hold several
     payloads (``payload_kg`` column); False: payload-agnostic networks. Fitted: ``payload_range_``
     (None without a payload column), ``payload_input_`` (module docstring, "Payload").
-    ``frame_pre``/``frame_post`` ``(4, 4)``: rigid frames around the model, set by
+    ``frame_pre_``/``frame_post_`` ``(4, 4)``: fitted rigid frames around the model, set by
     :func:`hykin.measure.register.register_model` on its copy for a new measurement series (pose =
     frame_pre · T_model(q) · frame_post; identity for the series the model was trained on).
     """
@@ -140,8 +140,6 @@ class HybridModel:
         self.input_joints = input_joints
         self.thermal = thermal
         self.payload_input = payload_input
-        self.frame_pre = np.eye(4)
-        self.frame_post = np.eye(4)
 
     # ------------------------------------------------------------------ settings
 
@@ -167,6 +165,8 @@ class HybridModel:
         self.input_mask_ = np.array([(j + 1) in ij and not (j == 0 and self.joint1 == "frame")
                                      for j in range(self.robot.dof)])
         self.__dict__.update(empty_fitted_state(self.robot.dof))
+        # The fade in use: the settings, unless fit measures it (fade_cv) or registration turns it off.
+        self.fade_offset_, self.fade_width_ = float(self.fade_offset), float(self.fade_width)
 
     # ------------------------------------------------------------------ input representation
 
@@ -206,9 +206,9 @@ class HybridModel:
         return getattr(self, "meta_", {})
 
     def _framed(self, T: np.ndarray) -> np.ndarray:
-        if np.array_equal(self.frame_pre, np.eye(4)) and np.array_equal(self.frame_post, np.eye(4)):
+        if np.array_equal(self.frame_pre_, np.eye(4)) and np.array_equal(self.frame_post_, np.eye(4)):
             return T
-        return self.frame_pre @ T @ self.frame_post
+        return self.frame_pre_ @ T @ self.frame_post_
 
     # ------------------------------------------------------------------ fitting
 
@@ -305,7 +305,7 @@ class HybridModel:
             from .fade import calibrate_fade
 
             self.fade_calibration_ = calibrate_fade(self, train, n_blocks=int(self.fade_cv), seed=int(self.seed))
-            self.fade_offset, self.fade_width = self.fade_calibration_.offset, self.fade_calibration_.width
+            self.fade_offset_, self.fade_width_ = self.fade_calibration_.offset, self.fade_calibration_.width
             self.meta_["fade_calibration"] = persistence.json_safe(self.fade_calibration_.to_dict())
         self.meta_["metrics"]["train"] = self._metrics(train_in)
         if val_in is not None:
@@ -340,7 +340,7 @@ class HybridModel:
         frames are honoured; for positions ``frame_post``'s offset is scaled with the arm (an error of
         ``alpha dT |offset|``: 2 µm for a 2 cm offset at 9 K from the reference)."""
         return targets_at_reference(T_target, temperature_c, self.thermal_, self.robot_.base[:3, 3],
-                                    self.frame_pre, self.frame_post)
+                                    self.frame_pre_, self.frame_post_)
 
     def _metrics(self, ds) -> dict:
         """Mean/max position (mm) and orientation (deg) errors of classical and hybrid on ``ds``."""
@@ -404,7 +404,7 @@ class HybridModel:
         ex = sup_.range_excess(s, qn)
         # support-based whatever the fade mode: without fade, an extrapolating network has no
         # validated band, and the calibrated model's is the best stated guess there
-        w = sup_.fade_weight(sup_.support_distance(s, qn, ex), self.fade_offset, self.fade_width)
+        w = sup_.fade_weight(sup_.support_distance(s, qn, ex), self.fade_offset_, self.fade_width_)
         # the calibrated model extrapolates too: beyond a joint's trained range its band steps up and
         # grows with the excess (in units of that range) as measured in fit (hykin.hybrid.uncertainty)
         pos, ang = bands.band_radii(self.unc_, level, w, ex, temperature_c is not None)
@@ -462,7 +462,7 @@ class HybridModel:
         q2, _ = self._q(q)
         if self.fade is False:
             return np.ones(len(q2))
-        return sup_.fade_weight(self.fade_distance(q2), self.fade_offset, self.fade_width)
+        return sup_.fade_weight(self.fade_distance(q2), self.fade_offset_, self.fade_width_)
 
     # ------------------------------------------------------------------ prediction
 
@@ -514,7 +514,7 @@ class HybridModel:
             sup_.warn_outside(ex, gap, bool(self.fade), self.payload_range_, payload_kg, stacklevel=3)
         w = None
         if self.fade is not False:
-            w = sup_.fade_weight(sup_.fade_distance(s, qn, self.fade, ex, gap), self.fade_offset, self.fade_width)
+            w = sup_.fade_weight(sup_.fade_distance(s, qn, self.fade, ex, gap), self.fade_offset_, self.fade_width_)
             if np.all(w == 1.0):
                 w = None
         qin = self._net_in(qn, payload_kg)
@@ -544,8 +544,8 @@ class HybridModel:
         qd = self._net_in(qn, payload_kg).to(dev)
         w = None
         if self.fade is not False:
-            w = sup_.fade_weight(sup_.fade_distance_torch(self.support, qn, self.fade), self.fade_offset,
-                                 self.fade_width)[:, None]
+            w = sup_.fade_weight(sup_.fade_distance_torch(self.support, qn, self.fade), self.fade_offset_,
+                                 self.fade_width_)[:, None]
         dp = inputs.from_net_frame(self.j1_axis_, q, self.net_pos_(qd).to(device=q.device, dtype=torch.float64))
         if w is not None:
             dp = dp * w
@@ -559,9 +559,9 @@ class HybridModel:
         bottom = T_hat[:, 3:4, :]
         top = torch.cat([R, p[:, :, None]], dim=2)
         T = torch.cat([top, bottom], dim=1)
-        if not (np.array_equal(self.frame_pre, np.eye(4)) and np.array_equal(self.frame_post, np.eye(4))):
-            pre = torch.as_tensor(self.frame_pre, dtype=T.dtype, device=T.device)
-            post = torch.as_tensor(self.frame_post, dtype=T.dtype, device=T.device)
+        if not (np.array_equal(self.frame_pre_, np.eye(4)) and np.array_equal(self.frame_post_, np.eye(4))):
+            pre = torch.as_tensor(self.frame_pre_, dtype=T.dtype, device=T.device)
+            post = torch.as_tensor(self.frame_post_, dtype=T.dtype, device=T.device)
             T = pre @ T @ post
         return T
 

@@ -72,15 +72,21 @@ def json_safe(x):
     return str(x)
 
 
+def _fitted_or_setting(model, name: str):
+    """The fitted value ``name_`` of a fitted model (what its predictions use), else the setting."""
+    v = getattr(model, name + "_", None)
+    return getattr(model, name) if v is None else v
+
+
 def model_config(model) -> dict:
     """The settings of ``model`` as saved in the file header (``config``), resolved (recipe with its
     overrides, validation fraction, input joints)."""
     return {"arch": model.arch, "recipe": model.resolved_recipe().to_dict(), "calibrate": bool(model.calibrate),
             "calibrate_kw": json_safe(dict(model.calibrate_kw or {})), "normalise": model.normalise,
-            "fade": model.fade, "fade_width": float(model.fade_width), "device": model.device, "seed": int(model.seed),
+            "fade": model.fade, "fade_width": float(_fitted_or_setting(model, "fade_width")), "device": model.device, "seed": int(model.seed),
             "max_seconds": model.max_seconds, "val_fraction": model.resolved_val_fraction(),
             "periodic": model.periodic, "joint1": model.joint1, "input_joints": list(model.resolved_input_joints()),
-            "thermal": model.thermal, "payload_input": model.payload_input, "fade_offset": float(model.fade_offset),
+            "thermal": model.thermal, "payload_input": model.payload_input, "fade_offset": float(_fitted_or_setting(model, "fade_offset")),
             "fade_cv": int(model.fade_cv)}
 
 
@@ -111,7 +117,7 @@ def save_model(model, path: str | Path) -> None:
         "support": {"lower": model.support_lower_.tolist(), "upper": model.support_upper_.tolist(),
                     "spacing": model.support_spacing_, "gap_factor": GAP_FACTOR},
         "has_rot_net": model.net_rot_ is not None,
-        "frames": {"pre": model.frame_pre.tolist(), "post": model.frame_post.tolist()},
+        "frames": {"pre": model.frame_pre_.tolist(), "post": model.frame_post_.tolist()},
         "inputs": {"wrap_centre": json_safe(model.wrap_centre_),
                    "j1_axis": None if model.j1_axis_ is None else model.j1_axis_.tolist()},
         "uncertainty": json_safe(model.unc_),
@@ -161,5 +167,5 @@ def restore_fitted(m, tensors: dict, meta: dict, path, device: str) -> None:
                                 tuple(float(v) for v in th["range_c"]), str(th["note"]))
     fr = meta.get("frames")
     if fr is not None:
-        m.frame_pre = np.array(fr["pre"], dtype=np.float64).reshape(4, 4)
-        m.frame_post = np.array(fr["post"], dtype=np.float64).reshape(4, 4)
+        m.frame_pre_ = np.array(fr["pre"], dtype=np.float64).reshape(4, 4)
+        m.frame_post_ = np.array(fr["post"], dtype=np.float64).reshape(4, 4)

@@ -59,4 +59,6 @@ def empty_fitted_state(n: int) -> dict:
         "payload_range_": None,  # PayloadRange of the training data (payload_kg column)
         "payload_input_": False,  # payload is a network input (training data with several payloads)
         "payload_default_kg_": None,  # payload the networks see when predict gets none (None: robot_'s)
+        "frame_pre_": np.eye(4),  # registration frames: T = frame_pre_ · T_model(q) · frame_post_
+        "frame_post_": np.eye(4),
     }

@@ -321,7 +321,7 @@ def calibrated_urdf(model) -> tuple[str, str]:
     residual networks are not representable; the second item names those the model has.
     """
     rob = model.robot_
-    rob = rob.copy(base=model.frame_pre @ rob.base, tool=rob.tool @ model.frame_post, name=f"{rob.name}-calibrated",
+    rob = rob.copy(base=model.frame_pre_ @ rob.base, tool=rob.tool @ model.frame_post_, name=f"{rob.name}-calibrated",
                    stiffness_nm_per_rad=np.full(rob.dof, np.inf))
     left = []
     if model.robot_.has_compliance:

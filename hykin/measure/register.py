@@ -442,8 +442,8 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
     else:
         idx = select_representative(series.poses(), n_poses, seed, position_only=pos_only)
     new = copy.deepcopy(model)
-    new.frame_pre = np.eye(4)
-    new.frame_post = np.eye(4)
+    new.frame_pre_ = np.eye(4)
+    new.frame_post_ = np.eye(4)
     if getattr(new, "fade", False) in (True, "support"):
         new.fade = "full"
     idx, n_swapped = _avoid_fade_zone(new, series.q, idx)
@@ -467,7 +467,7 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
                                       **payload_kwargs(payload_of(series), idx))
         keep, net_line = _networks_transfer(w_used, T_model[idx], T_cls, T_meas[idx], pos_only)
         if not keep:  # every fade mode's support distance is >= 0: weight 0 everywhere
-            new.fade_offset = -(new.fade_width + 1.0)  # w = 0 at every support distance >= 0
+            new.fade_offset_ = -(new.fade_width_ + 1.0)  # w = 0 at every support distance >= 0
             T_model = new.predict(series.q, temperature_c=temp, **pl_kw)
     B, E, sol = fit_frames_solution(T_model[idx], T_meas[idx], position_only=pos_only)
     x0 = np.concatenate([rotation_difference_rotvec(B[None, :3, :3], np.eye(3)[None])[0], B[:3, 3],
@@ -517,7 +517,7 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
             else:
                 f, unit = 1e3, "mm"
             params.append(RegisteredParameter(nm, float(x[k] * f), float(std[k] * f), unit))
-    new.frame_pre, new.frame_post = B, E
+    new.frame_pre_, new.frame_post_ = B, E
     T_reg = B @ T_model @ E
     p, a = pose_error(T_reg, T_meas)
     rest = np.setdiff1d(np.arange(len(series)), idx)

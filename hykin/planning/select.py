@@ -301,7 +301,7 @@ def active_poses(model, n: int, constraints: Constraints | None = None, *, seed:
         warnings.simplefilter("ignore")
         band, _ = model.predict_uncertainty(cand)
         dsup = model.support_distance(cand)
-    s = np.asarray(band, dtype=np.float64) * (1.0 + dsup / model.fade_width)
+    s = np.asarray(band, dtype=np.float64) * (1.0 + dsup / model.fade_width_)
     sc = calibration_std_mm(model, cand)
     if sc is not None:
         s = s + 1.96 * sc
