@@ -61,7 +61,6 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-import scipy.linalg
 
 from ..geometry import se3
 from ..io.payload import payload_kwargs
@@ -72,6 +71,7 @@ from ..kinematics.compliance import (
     gravity_torques,
 )
 from ..kinematics.fk import fk
+from ..kinematics.lm import next_lambda, normal_equations_step
 from ..kinematics.robot import Robot
 from .jacobian import (
     effective_joints,
@@ -205,14 +205,7 @@ def _lm_step(lin: dict, act: np.ndarray, lam: float, is_comp: np.ndarray, c: np.
     free = act.copy()
     while free.size:
         A = (lin["JtJ_p"] + lin["JtJ_o"])[np.ix_(free, free)]
-        g = lin["Jtr"][free]
-        D = np.sqrt(np.diag(A))
-        D[D == 0] = 1.0
-        M = A / np.outer(D, D) + lam * np.eye(free.size)
-        try:
-            step = -scipy.linalg.solve(M, g / D, assume_a="pos", check_finite=False) / D
-        except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
-            step = -np.linalg.lstsq(M, g / D, rcond=None)[0] / D
+        step = normal_equations_step(A, lin["Jtr"][free], lam)
         held = is_comp[free] & (c[comp_joint[free]] <= 0) & (step < 0)
         if not held.any():
             return free, step
@@ -278,11 +271,10 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
                     new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd, pld)
                 except ComplianceError:  # the step made the joints too soft for an equilibrium: reject it
                     new_cost = math.inf
-                if new_cost < cost:
-                    accepted = True
-                    lam = max(lam / 10, 1e-12)
+                accepted = new_cost < cost
+                lam = float(next_lambda(lam, accepted))
+                if accepted:
                     break
-                lam *= 10
             if converged:
                 break
             if not accepted:

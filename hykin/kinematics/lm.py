@@ -1,4 +1,9 @@
-"""The one Levenberg–Marquardt loop of hykin's inverse kinematics: batched, projected onto a box.
+"""Levenberg–Marquardt in hykin: the one damping rule (:func:`next_lambda`) and steps, and the one
+batched, box-projected loop of the inverse kinematics (:func:`lm_solve`).
+
+The calibration (:mod:`hykin.calibration.calibrate`) solves one problem in tens of parameters whose
+Jacobian is accumulated in chunks over thousands of rows: its relinearising loop takes
+:func:`normal_equations_step` on those normal equations and updates λ with :func:`next_lambda`.
 
 Rows ``k`` are independent least-squares problems ``min_q |r_k(q)|²`` subject to
 ``lo_k <= q <= hi_k`` (joint limits, or a box around a seed). The caller gives the residual and its
@@ -30,9 +35,33 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LAMBDA_MIN", "LMResult", "damped_step", "lm_solve", "projected_step"]
+__all__ = ["LAMBDA_MIN", "LMResult", "damped_step", "lm_solve", "next_lambda", "normal_equations_step", "projected_step"]
 
 LAMBDA_MIN = 1e-12
+
+
+def next_lambda(lam, accepted):
+    """The damping after a trial step, the rule of every LM loop in hykin (IK here, the calibration
+    in :mod:`hykin.calibration.calibrate`): accepted -> ``max(λ/10, 1e-12)``, rejected -> ``10 λ``.
+    ``lam``, ``accepted``: scalars or arrays of one shape (elementwise)."""
+    return np.where(accepted, np.maximum(np.asarray(lam, dtype=np.float64) / 10, LAMBDA_MIN), np.asarray(lam) * 10.0)
+
+
+def normal_equations_step(A: np.ndarray, g: np.ndarray, lam: float) -> np.ndarray:
+    """Marquardt step ``(n,)`` from normal equations ``A = JᵀJ`` ``(n, n)``, ``g = Jᵀr`` ``(n,)``:
+    ``-(D⁻¹ A D⁻¹ + λ I)⁻¹ D⁻¹ g / D`` with ``D = sqrt(diag A)`` (Jacobi scaling: λ is relative for
+    every parameter whatever its unit; zero diagonals count as 1). Least squares when the damped
+    system is numerically singular. For problems whose Jacobian is accumulated in chunks (the
+    calibration: thousands of rows, tens of parameters)."""
+    import scipy.linalg
+
+    D = np.sqrt(np.diag(A))
+    D[D == 0] = 1.0
+    M = A / np.outer(D, D) + lam * np.eye(len(g))
+    try:
+        return -scipy.linalg.solve(M, g / D, assume_a="pos", check_finite=False) / D
+    except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+        return -np.linalg.lstsq(M, g / D, rcond=None)[0] / D
 
 
 def damped_step(J: np.ndarray, r: np.ndarray, lam: np.ndarray, damping: str = "identity",
@@ -159,8 +188,7 @@ def lm_solve(
         q[ib], r[ib], cost[ib] = q_new[better], r_new[better], c_new[better]
         for a, b in zip(aux, aux_new):
             a[ib] = b[better]
-        lam[ib] = np.maximum(lam[ib] / 10, LAMBDA_MIN)
-        lam[idx[~better]] *= 10
+        lam[idx] = next_lambda(lam[idx], better)
         iters[idx] += 1
         rejects[ib] = 0
         rejects[idx[~better]] += 1
