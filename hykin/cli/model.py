@@ -206,6 +206,10 @@ def register_cmd(
     out: Path = typer.Option(..., "-o", "--out", help="Output model file with re-fitted base and tool."),
     poses: int = typer.Option(30, "--poses", help="Number of poses of the series used to register (spread over it)."),
     frames_only: bool = typer.Option(False, "--frames-only", help="Re-fit base and tool only (no joint zeros / thermal state)."),
+    orientation_weight: str = typer.Option(
+        "auto", "--orientation-weight",
+        help="Weight of orientation residuals in the registration, m/rad, or 'auto': sigma_pos / sigma_rot of a "
+             "first fit on the registration poses."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     force: bool = Force,
@@ -217,9 +221,10 @@ def register_cmd(
     from ..measure.register import register_model
 
     check_output(out, (model, series), force)
+    w = _calibration_options(orientation_weight, None).get("orientation_weight_m_per_rad", "auto")
     mdl = load_model(model)
     ds = read_dataset(series, length_unit=length_unit, angle_unit=angle_unit, robot=mdl.robot)
-    new, info = register_model(mdl, ds, n_poses=poses, refit="frames" if frames_only else "auto")
+    new, info = register_model(mdl, ds, n_poses=poses, refit="frames" if frames_only else "auto", orientation_weight=w)
     new.save(out)
     typer.echo(info.report())
     typer.echo(f"registered model written to {out}")

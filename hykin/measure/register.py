@@ -13,9 +13,9 @@ is far above the model's own error is refused (:class:`RegistrationError`): the 
 the model. On a virtual robot measured on two days (tracker moved, tool re-mounted by 0.5 mm /
 0.05°, joint zeros drifted by 0.01°; benchmarks/bench_transfer.py, default recipe) the 30-pose
 registration recovers the drifts of joints 2-5 to within 0.0002-0.0007° (std 0.0015-0.0024°) and
-predicts day 2 at 1.32× (position, 0.0286 mm) / 1.04× (orientation) day 1's own held-out error
-(0.0216 mm / 0.0068°), against 5.8× / 2.2× with base and tool alone (measured twice, identical,
-2026-11-23; an earlier state of the code gave 1.12× / 1.06×). On UR10 series B (model from series A) no joint zero or
+predicts day 2 at 1.23× (position) / 1.04× (orientation) day 1's own held-out error (0.0216 mm /
+0.0068°) with the automatic orientation weight (other draws of the 30 poses: 1.12×, 1.13×), against
+1.32× / 1.04× at the former fixed 1 m/rad and 5.8× / 2.2× with base and tool alone (2026-11-23). On UR10 series B (model from series A) no joint zero or
 thermal state is significant from 30 poses (stds 0.014-0.05°), and forcing the zeros of joints 2-5
 in does not help (0.3947 mm vs 0.3925 mm on the other 1,465 poses); nor does a MAP fit of those
 zeros and the thermal scale with prior stds 0.002-1° / 20 ppm (0.4009-0.4086 mm against 0.4009 mm,
@@ -83,11 +83,14 @@ class RegistrationInfo:
     parameters: list = field(default_factory=list)  # RegisteredParameter: every re-fitted value with its std
     not_fitted: dict = field(default_factory=dict)  # candidate name -> why it was not re-fitted
     network_check: str = ""  # whether the networks' correction was kept for this series, and the evidence
+    orientation_weight_m_per_rad: float = 1.0  # weight of orientation residuals used (m/rad)
 
 
     def report(self) -> str:
         """Multi-line report: the summary, then each re-fitted parameter (value ± std) and what was left out."""
         lines = [self.summary()]
+        if self.used_ang_mean_deg is not None:
+            lines.append(f"orientation weight {self.orientation_weight_m_per_rad:.3g} m/rad")
         if self.parameters:
             lines.append("re-fitted (value ± std): " + ", ".join(
                 f"{p.name} {p.value:+.4f} ± {p.std:.4f} {p.unit}" for p in self.parameters))
@@ -376,9 +379,16 @@ def _reference_error_mm(model) -> tuple[float | None, float | None]:
 
 
 def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, select: str = "representative",
-                   refit: str | tuple = "auto", max_residual_ratio: float = 5.0, check_networks: bool = True):
+                   refit: str | tuple = "auto", max_residual_ratio: float = 5.0, check_networks: bool = True,
+                   orientation_weight: float | str = "auto"):
     """Register ``series`` to ``model`` from ``n_poses`` poses; returns ``(new_model, info)``.
 
+    ``orientation_weight``: m/rad weight of the orientation residuals, or ``"auto"`` (default):
+    ``sigma_pos / sigma_rot`` of a first frames fit at 1 m/rad on the registration poses (the rule of
+    the calibration's ``auto``). Measured (benchmarks/bench_transfer.py, three draws of the 30 poses):
+    the virtual two-day robot 1.23 / 1.12 / 1.13 × day 1's error with ``auto`` against 1.32 / 1.42 /
+    1.28 × at 1 m/rad; UR10 series B (model from A) 0.396 / 0.429 / 0.402 mm against 0.393 / 0.409 /
+    0.407 mm.
     ``select``: ``"representative"`` (:func:`select_representative` on the measured poses, default)
     or ``"spread"`` (:func:`select_spread`, farthest-point in joint space).
 
@@ -469,7 +479,14 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         if not keep:  # every fade mode's support distance is >= 0: weight 0 everywhere
             new.fade_offset_ = -(new.fade_width_ + 1.0)  # w = 0 at every support distance >= 0
             T_model = new.predict(series.q, temperature_c=temp, **pl_kw)
-    B, E, sol = fit_frames_solution(T_model[idx], T_meas[idx], position_only=pos_only)
+    w = 1.0 if orientation_weight == "auto" else float(orientation_weight)
+    B, E, sol = fit_frames_solution(T_model[idx], T_meas[idx], position_only=pos_only, orientation_weight_m_per_rad=w)
+    if orientation_weight == "auto" and not pos_only:  # sigma_pos / sigma_rot of this fit, as the calibration's auto
+        T_fit = B @ T_model[idx] @ E
+        rp = np.sqrt(np.mean(np.sum((T_fit[:, :3, 3] - T_meas[idx][:, :3, 3]) ** 2, 1)))
+        ra = np.sqrt(np.mean(np.sum(rotation_difference_rotvec(T_fit[:, :3, :3], T_meas[idx][:, :3, :3]) ** 2, 1)))
+        w = float(np.clip(rp / max(ra, 1e-12), 1e-3, 1e3))
+        B, E, sol = fit_frames_solution(T_model[idx], T_meas[idx], position_only=pos_only, orientation_weight_m_per_rad=w)
     x0 = np.concatenate([rotation_difference_rotvec(B[None, :3, :3], np.eye(3)[None])[0], B[:3, 3],
                          rotation_difference_rotvec(E[None, :3, :3], np.eye(3)[None])[0], E[:3, 3]])
     has_rob = getattr(new, "robot_", None) is not None
@@ -479,14 +496,14 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         extra = []
         not_fitted = {c: "not requested (frames only)" for c in cands}
     elif refit == "auto":
-        prob0 = _Problem(new, series.q[idx], T_model[idx], T_meas[idx], [], pos_only)
+        prob0 = _Problem(new, series.q[idx], T_model[idx], T_meas[idx], [], pos_only, w)
         extra, not_fitted = _select_extra(prob0, x0, cands)
     else:
         extra = [str(c) for c in refit]
         bad = [c for c in extra if c not in cands]
         if bad:
             raise ValueError(f"register: refit names {bad} are not candidates; candidates: {', '.join(cands)}")
-    prob = _Problem(new, series.q[idx], T_model[idx], T_meas[idx], extra, pos_only) if has_rob else None
+    prob = _Problem(new, series.q[idx], T_model[idx], T_meas[idx], extra, pos_only, w) if has_rob else None
     x = x0
     params: list[RegisteredParameter] = []
     if extra:
@@ -534,6 +551,7 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         converged=bool(sol.status > 0),
         message=str(sol.message),
         nfev=int(sol.nfev),
+        orientation_weight_m_per_rad=w,
         n_fade_swapped=n_swapped,
         parameters=params,
         not_fitted=not_fitted,
