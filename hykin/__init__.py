@@ -141,6 +141,7 @@ _EXPORTS = {
 
 __all__ = sorted(_EXPORTS) + ["__version__"]
 
+
 def __getattr__(name: str):
     mod = _EXPORTS.get(name)
     if mod is None:
