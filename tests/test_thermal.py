@@ -126,6 +126,7 @@ def test_save_load_keeps_thermal(model, session, tmp_path):
         assert np.array_equal(m2.predict(q[:20], temperature_c=25.0), model.predict(q[:20], temperature_c=25.0))
 
 
+@pytest.mark.slow  # ~7 s on 2 cores: in the slow suite to keep the default suite under 4 minutes
 def test_unrelated_temperature_is_ignored_and_required_column_checked():
     """No expansion in the data: a noisy temperature column must not produce a coefficient."""
     vr = dataclasses.replace(virtual_preset("rx160-nongeo"), thermal=None)
