@@ -92,7 +92,12 @@ from .params import (
     scale_of,
     select_specs,
 )
-from .result import CalibrationError, CalibrationResult, residual_stats
+from .result import (
+    CalibrationError,
+    CalibrationResult,
+    orientation_weight_from_sigmas,
+    residual_stats,
+)
 
 __all__ = [
     "CalibrationError",
@@ -473,7 +478,7 @@ def calibrate(
         res, rel = run(cur, specs, ww, max_iter, nominal_set, pts=pts)
         iters += res.iterations
         if auto_w and R_meas is not None and res.sigma_rot_rad > 0 and math.isfinite(res.sigma_rot_rad):
-            ww = float(np.clip(res.sigma_pos_m / res.sigma_rot_rad, 1e-3, 1e3))
+            ww = orientation_weight_from_sigmas(res.sigma_pos_m, res.sigma_rot_rad)
         for _ in range(max(int(restarts), 0) + 1):
             again = ww != res.orientation_weight_m_per_rad or "unidentifiable" in res.message or (
                 not res.converged and rel > _STALLED_REL)

@@ -10,7 +10,16 @@ import numpy as np
 
 from ..kinematics.robot import Robot
 
-__all__ = ["CalibrationResult", "residual_stats"]
+__all__ = ["CalibrationResult", "orientation_weight_from_sigmas", "residual_stats"]
+
+ORIENTATION_WEIGHT_BOUNDS = (1e-3, 1e3)  # m/rad: the automatic weight stays within these
+
+
+def orientation_weight_from_sigmas(sigma_pos_m: float, sigma_rot_rad: float) -> float:
+    """The automatic orientation weight ``w = σ_pos / σ_rot`` (m/rad) of the calibration and the
+    registration, so each kind of residual counts by its noise; clipped to
+    :data:`ORIENTATION_WEIGHT_BOUNDS` (``σ_rot`` is floored at 1e-12 rad)."""
+    return float(np.clip(sigma_pos_m / max(sigma_rot_rad, 1e-12), *ORIENTATION_WEIGHT_BOUNDS))
 
 
 def residual_stats(rp: np.ndarray, ro: np.ndarray | None, w: float) -> dict:

@@ -54,6 +54,7 @@ from ..calibration.frames import (
     select_representative,
     select_spread,
 )
+from ..calibration.result import orientation_weight_from_sigmas
 from ..geometry.se3 import (
     pose_error,
     rotation_difference_rotvec,
@@ -485,7 +486,7 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         T_fit = B @ T_model[idx] @ E
         rp = np.sqrt(np.mean(np.sum((T_fit[:, :3, 3] - T_meas[idx][:, :3, 3]) ** 2, 1)))
         ra = np.sqrt(np.mean(np.sum(rotation_difference_rotvec(T_fit[:, :3, :3], T_meas[idx][:, :3, :3]) ** 2, 1)))
-        w = float(np.clip(rp / max(ra, 1e-12), 1e-3, 1e3))
+        w = orientation_weight_from_sigmas(rp, ra)  # per-pose RMS norms: the same ratio as per coordinate
         B, E, sol = fit_frames_solution(T_model[idx], T_meas[idx], position_only=pos_only, orientation_weight_m_per_rad=w)
     x0 = np.concatenate([rotation_difference_rotvec(B[None, :3, :3], np.eye(3)[None])[0], B[:3, 3],
                          rotation_difference_rotvec(E[None, :3, :3], np.eye(3)[None])[0], E[:3, 3]])
