@@ -128,7 +128,8 @@ def test_fit_then_fk_evaluate_ik_end_to_end(tmp_path, capsys):
     data, model = tmp_path / "d.csv", tmp_path / "m.hykin"
     code, _, err = run(["simulate", "rx160-nongeo", "-n", "800", "-o", str(data), "--seed", "2", "--noise"], capsys)
     assert code == 0, err
-    code, out, err = run(["fit", "rx160", str(data), "-o", str(model), "--min-steps", "300", "--seed", "1"], capsys)
+    code, out, err = run(["fit", "rx160", str(data), "-o", str(model), "--min-steps", "300", "--max-epochs", "40",
+                          "--seed", "1"], capsys)
     assert code == 0, err
     assert "thermal expansion:" in out and "hybrid" in out  # the data carry temperature_c
     m = HybridModel.load(model)

@@ -105,7 +105,7 @@ def restricted_virtual():
     vr = virtual_preset("rx160-nongeo")
     rob = vr.nominal
     q_tr = restricted(rob, 1500, 0, fraction=0.4, method="random")
-    m = HybridModel(rob, seed=0, recipe_kw={"max_epochs": 60, "lr": 1e-2}).fit(simulate(vr, q_tr, rng=0), progress=False)
+    m = HybridModel(rob, seed=0, recipe_kw={"max_epochs": 40, "lr": 1e-2}).fit(simulate(vr, q_tr, rng=0), progress=False)
     return vr, m
 
 
