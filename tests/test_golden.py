@@ -36,8 +36,14 @@ def test_model_file_of_0_1_0_loads_and_predicts_the_same():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", hykin.OutOfRangeWarning)
         T = model.predict(ref["q"])
-    np.testing.assert_allclose(T, ref["T"], rtol=0, atol=1e-12)
+    # The classical part is float64 and must match to rounding. The networks run in float32, and
+    # torch picks its matmul kernels by CPU (AVX2, AVX-512, ...): their output may differ by a few
+    # float32 ulps of the correction from one machine to another (seen: 2 ulps, AMD vs Intel).
+    correction = np.abs(ref["T"] - ref["T_classical"]).max()
+    tol = 1e-12 + 16 * np.finfo(np.float32).eps * correction
     np.testing.assert_allclose(model.predict_classical(ref["q"]), ref["T_classical"], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(T, ref["T"], rtol=0, atol=tol)
+    assert correction > 1e-6  # the file's networks do correct: the check above is not vacuous
 
 
 def _header(path: Path) -> list[str]:
