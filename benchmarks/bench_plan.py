@@ -13,7 +13,10 @@ uniform random poses in the region:
 2. calibration alone from 60 planned poses vs from 10,000 uniform random poses (target ≤ 1.15);
 3. forecast validation: predicted (``hykin.planning.forecast``) vs measured mean position error of
    the calibrated model at several N, and of the hybrid at 1,000;
-4. ``--curve``: the networks' learning curve (hybrid / calibrated error at N = 250 ... 2000 planned
+4. ``--active``: active selection (``hykin plan --for-model``): a model fitted on 400 poses (uniform
+   over the region, or over the lower 60 % of joint 1's range only) gets 200 more poses chosen by
+   ``active_poses``, by a fresh passive plan, or uniformly at random; the refitted hybrids' errors;
+5. ``--curve``: the networks' learning curve (hybrid / calibrated error at N = 250 ... 2000 planned
    poses) and its power-law fit (the constants of ``hykin.planning.forecast``), on robot seed 100
    (the report in 1-3 uses other seeds).
 
@@ -25,7 +28,7 @@ ranges (within 5 %) vs the interior.
 planner's settings were decided on bench-6r (robot seed 2, docs/planning.md).
 
 Run: ``PYTHONPATH=. python benchmarks/bench_plan.py [--seeds 0 1] [--min-steps 10000] [--robot ur-like]
-[--hybrid-only] [--curve]``.
+[--hybrid-only] [--curve] [--active [--no-main]]``.
 Timings are wall-clock on a shared machine and are not the point of this benchmark.
 """
 
@@ -45,7 +48,8 @@ from hykin.calibration.calibrate import (
 )
 from hykin.hybrid.model import HybridModel
 from hykin.kinematics.robot import Robot
-from hykin.planning import Constraints, plan_poses
+from hykin.io.dataset import concat
+from hykin.planning import Constraints, active_poses, plan_poses
 from hykin.planning.forecast import forecast_accuracy
 from hykin.sim.sampling import random as random_joints
 from hykin.sim.simulate import PeriodicError, VirtualRobot, simulate, true_poses
@@ -243,6 +247,44 @@ def learning_curve(min_steps, lo, hi, log, seed: int = 100, ns=(250, 500, 1000, 
     return float(np.exp(loga)), float(-b)
 
 
+def active_vs_passive(seed: int, min_steps, lo, hi, log, geometry: str = "bench-6r", n0: int = 400, n_add: int = 200) -> dict:
+    """4. Which ``n_add`` poses improve a fitted model most: ``active_poses`` (``--for-model``), a
+    passive plan of the region, or uniform random poses. Two starts: ``n0`` uniform poses of the
+    region, and ``n0`` poses with joint 1 in the lower 60 % of its range only (a model to extend).
+    Every refit sees the same first ``n0`` measurements (same noise) plus the added ones."""
+    vr = bench_robot(seed, geometry)
+    rob = vr.nominal
+    c = Constraints(lower=lo, upper=hi)
+    q_test = random_joints(rob, 4000, np.random.default_rng([seed, 99]), lower=lo, upper=hi)
+    T_test = true_poses(vr, q_test)
+    hi_part = hi.copy()
+    hi_part[0] = lo[0] + 0.6 * (hi[0] - lo[0])
+    out = {}
+
+    def fit_err(ds):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m = HybridModel(rob, recipe_kw=None if min_steps is None else {"min_steps": min_steps}, seed=seed).fit(ds, progress=False)
+            return m, pos_err_mm(m.predict(q_test), T_test)
+
+    for start, upper in (("uniform", hi), ("joint 1 in lower 60 %", hi_part)):
+        q0 = random_joints(rob, n0, np.random.default_rng([seed, 21]), lower=lo, upper=upper)
+        d0 = simulate(vr, q0, rng=np.random.default_rng([seed, 22]))
+        m0, e0 = fit_err(d0)
+        adds = {"active (--for-model)": active_poses(m0, n_add, c, seed=seed).q,
+                "passive plan": plan_poses(rob, n_add, c, seed=seed + 1, position_only=False).q,
+                "uniform random": random_joints(rob, n_add, np.random.default_rng([seed, 23]), lower=lo, upper=hi)}
+        res = {"start": e0}
+        for name, qa in adds.items():
+            da = simulate(vr, qa, rng=np.random.default_rng([seed, 24]))
+            res[name] = fit_err(concat([d0, da]))[1]
+        out[start] = res
+        log(f"[seed {seed}] start {start} ({n0} poses): {e0:.4f} mm; + {n_add}: " + ", ".join(
+            f"{k} {v:.4f} mm" for k, v in res.items() if k != "start")
+            + f"; active / random = {res['active (--for-model)'] / res['uniform random']:.3f}")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
@@ -251,6 +293,7 @@ def main() -> None:
     ap.add_argument("--no-main", action="store_true", help="skip the planned-vs-random comparison")
     ap.add_argument("--robot", default="bench-6r", choices=sorted(REGIONS_DEG), help="robot geometry (ur-like: held-out check)")
     ap.add_argument("--hybrid-only", action="store_true", help="only the hybrid comparison (1.; faster)")
+    ap.add_argument("--active", action="store_true", help="active selection vs passive additions (4.)")
     a = ap.parse_args()
     region = REGIONS_DEG[a.robot]
     lo, hi = region[:, 0] * DEG, region[:, 1] * DEG
@@ -259,6 +302,12 @@ def main() -> None:
         f"recipe default{'' if a.min_steps is None else f' with min_steps={a.min_steps}'}")
     if a.curve:
         learning_curve(a.min_steps, lo, hi, log)
+    if a.active:
+        ratios = []
+        for sd in a.seeds:
+            r = active_vs_passive(sd, a.min_steps, lo, hi, log, a.robot)
+            ratios += [v["active (--for-model)"] / v["uniform random"] for v in r.values()]
+        log(f"SUMMARY active / random additions: {', '.join(f'{x:.3f}' for x in ratios)}")
     if a.no_main:
         return
     res = [run(s, a.min_steps, lo, hi, log, a.robot, a.hybrid_only) for s in a.seeds]

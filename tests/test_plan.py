@@ -279,11 +279,12 @@ def test_active_poses_go_where_the_model_is_uncertain(tmp_path, capsys):
     p = active_poses(m, 12, Constraints(lower=np.maximum(rob.lower, -2.0), upper=np.minimum(rob.upper, 2.0)),
                      pool=2048)
     outside = np.abs(p.q[:, 0]) > 0.5
-    assert outside.mean() >= 0.75  # the uncertainty is largest outside the trained band
-    # batch diversity: no two picks closer than half the greedy spacing rho
+    assert outside.mean() >= 0.75  # the training data are thinnest (none) outside the trained band
+    assert p.info["n_existing"] == 300
+    # a batch, not twelve copies of the best candidate
     X = embed(rob, p.q, np.maximum(rob.lower, -2.0), np.minimum(rob.upper, 2.0))
     d = np.linalg.norm(X[:, None] - X[None], axis=2) + np.eye(12) * 1e9
-    assert d.min() > 0.25 * p.info["rho"]
+    assert d.min() > 0.05
     path = tmp_path / "m.hykin"
     m.save(path)
     out = tmp_path / "next.csv"
@@ -294,6 +295,55 @@ def test_active_poses_go_where_the_model_is_uncertain(tmp_path, capsys):
     from hykin.io.dataset_files import read_joints
 
     assert read_joints(out)[0].shape == (8, 6)
+
+
+def _deficit_ref(X_pool, X_have, n, have_weight, weight, neighbours):
+    """Density-deficit augmentation written out with dense distance matrices (reference for
+    :func:`hykin.planning.coverage.deficit_select`; the rules restated from its docstring)."""
+    M = len(X_pool)
+    total = len(X_have) * have_weight + n
+    k = int(np.clip(round(neighbours * M / total), 2, M - 1))
+    D = np.linalg.norm(X_pool[:, None] - X_pool[None], axis=2)
+    probe = np.random.default_rng(0).permutation(M)[: min(M, 256)]
+    r = float(np.median(np.sort(D[probe], axis=1)[:, k]))
+    expected = (D <= r).sum(1) * total / M
+    observed = have_weight * (np.linalg.norm(X_pool[:, None] - X_have[None], axis=2) <= r).sum(1)
+    picked = []
+    while len(picked) < n:
+        score = (expected - observed) * weight
+        score[picked] = -np.inf
+        j = int(np.argmax(score))
+        picked.append(j)
+        observed = observed + (D[:, j] <= r)
+    return np.array(picked)
+
+
+def test_deficit_select_matches_reference_and_fills_the_empty_part():
+    from hykin.planning.coverage import deficit_select
+
+    rng = np.random.default_rng(5)
+    pool = rng.random((600, 3))
+    have = rng.random((80, 3)) * [0.5, 1.0, 1.0]  # existing design: the half x < 0.5 only
+    w = rng.uniform(0.5, 1.5, 600)
+    got = deficit_select(pool, have, 40, have_weight=2.0, weight=w, neighbours=12)
+    np.testing.assert_array_equal(got, _deficit_ref(pool, have, 40, 2.0, w, 12))
+    assert len(set(got.tolist())) == 40
+    # 160 existing (weighted) in one half, 40 new: the new poses belong in the empty half (a few fill
+    # holes of the random existing design, or land just short of the border their balls straddle)
+    assert (pool[got, 0] > 0.45).mean() >= 0.8
+
+
+def test_deficit_select_does_not_crowd_the_boundary():
+    from scipy.stats import qmc
+
+    from hykin.planning.coverage import deficit_select
+
+    pool = qmc.Sobol(4, seed=6).random(4096)  # a uniform pool, as in active_poses
+    got = deficit_select(pool, np.zeros((0, 4)), 100)
+    near = lambda X: (np.minimum(X, 1 - X).min(1) < 0.1).mean()
+    # farthest-point designs put most points on the boundary of a box; the deficit rule follows the pool
+    assert near(pool[got]) < 1.3 * near(pool)
+    assert near(pool[farthest_point(pool, 100)]) > 1.3 * near(pool)
 
 
 def _cd2_ref(x):

@@ -23,6 +23,8 @@ Coverage as the hybrid sees it (:func:`coverage_report`), in the unit-cube coord
 * :func:`marginal_ks`: the largest Kolmogorov-Smirnov distance of one joint's values from the uniform
   distribution (marginal stratification; a Latin hypercube reaches ``1/n``, a uniform random set
   about ``0.9 / √n``). Transmission errors are functions of one joint each, learnt from its marginal;
+* :func:`deficit_select`: augmenting an existing design so that the union is as even as possible
+  over a candidate pool drawn uniformly from the region (active selection, ``hykin plan --for-model``);
 * :func:`hole_fraction`: the share of reference points (uniform over the region) that lie in a hole
   of the design by the rule :class:`hykin.hybrid.model.HybridModel` uses to fade its networks (module
   docstring there: for every pair of joints, distance in the 2-D projection to the nearest design
@@ -38,8 +40,8 @@ from scipy.spatial import cKDTree
 
 from ..kinematics.robot import Robot
 
-__all__ = ["centred_discrepancy", "coverage_report", "embed", "farthest_point", "fill_distance", "hole_fraction",
-           "marginal_ks", "min_spacing", "unit_coordinates"]
+__all__ = ["centred_discrepancy", "coverage_report", "deficit_select", "embed", "farthest_point", "fill_distance",
+           "hole_fraction", "marginal_ks", "min_spacing", "unit_coordinates"]
 
 _TWO_PI = 2.0 * np.pi
 
@@ -161,3 +163,48 @@ def coverage_report(q, lower, upper, *, n_ref: int = 4000, seed: int = 0, max_di
     ref = np.random.default_rng([seed, 41]).random((n_ref, u.shape[1]))
     return {"discrepancy_cd": centred_discrepancy(u) if len(u) <= max_discrepancy_n else None,
             "marginal_ks": marginal_ks(u), "holes_pct": 100.0 * hole_fraction(u, ref)}
+
+
+def deficit_select(X_pool: np.ndarray, X_have: np.ndarray, n: int, *, have_weight: float = 1.0, weight=None,
+                   neighbours: float = 16.0) -> np.ndarray:
+    """Indices of ``n`` rows of ``X_pool`` ``(M, d)`` that make the design ``X_have`` ``(K, d)`` plus the
+    picks as even as possible over the pool, by **density deficit**.
+
+    ``X_pool`` is a uniform sample of the region (the target density); every coordinate is a
+    distance coordinate (e.g. unit-cube or :func:`embed`). Around each pool point, a ball of radius
+    ``r`` should hold ``E = (K·have_weight + n) · m / M`` points of an even design of the final size
+    (``m``: pool points in the ball, so balls clipped by the region's boundary expect fewer and the
+    boundary is not favoured, unlike farthest-point designs); it holds ``O`` points of the current
+    design (each row of ``X_have`` counts ``have_weight``: a subsample of the real design stands for
+    all of it). Each pick is the pool point of largest ``(E - O) · weight`` (the most points
+    missing), after which ``O`` grows by one in the balls it falls in. (Walking the pool in its
+    low-discrepancy order and taking every point with half a point missing was the alternative:
+    worse on the benchmark, docs/planning.md.)
+    ``r`` is the median radius of a ball that holds ``neighbours`` points of the final design.
+    ``weight`` ``(M,)``: optional positive factor per pool point (e.g. the model's uncertainty).
+    """
+    X_pool = np.asarray(X_pool, dtype=np.float64)
+    X_have = np.asarray(X_have, dtype=np.float64).reshape(-1, X_pool.shape[1])
+    M = len(X_pool)
+    if n > M:
+        raise ValueError(f"deficit_select: {n} picks from {M} candidates")
+    total = len(X_have) * have_weight + n
+    tree = cKDTree(X_pool)
+    # r: the median radius of a ball holding `neighbours` points of the final design, measured on the
+    # pool itself (any coordinates, circles of wrapped joints included)
+    k = int(np.clip(round(neighbours * M / max(total, 1.0)), 2, M - 1))
+    probe = np.random.default_rng(0).permutation(M)[: min(M, 256)]
+    r = float(np.median(tree.query(X_pool[probe], k=k + 1)[0][:, -1]))
+    expected = tree.query_ball_point(X_pool, r, return_length=True).astype(np.float64) * (total / M)
+    observed = np.zeros(M)
+    if len(X_have):
+        observed += have_weight * cKDTree(X_have).query_ball_point(X_pool, r, return_length=True)
+    w = np.ones(M) if weight is None else np.asarray(weight, dtype=np.float64)
+    avail = np.ones(M, bool)
+    out = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        j = int(np.argmax(np.where(avail, (expected - observed) * w, -np.inf)))
+        out[i] = j
+        avail[j] = False
+        observed[tree.query_ball_point(X_pool[j], r)] += 1.0
+    return out

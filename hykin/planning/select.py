@@ -38,13 +38,20 @@ The plan is nested: its first ``k`` poses (before ordering) are the plan for ``k
 :mod:`hykin.planning.forecast` uses. The output is ordered for a short path (:mod:`hykin.planning.order`).
 
 :func:`active_poses` (``hykin plan --for-model``): the next poses for a fitted
-:class:`hykin.hybrid.model.HybridModel` where its uncertainty is largest. Score per candidate
+:class:`hykin.hybrid.model.HybridModel`, where its training data are thinnest relative to an even
+cover of the region, weighted by its uncertainty. On a feasible uniform candidate pool, in the
+networks' own coordinates (joints as they see them, scaled by their training data's range; joints
+that are not network inputs left out), :func:`hykin.planning.coverage.deficit_select` picks greedily
+the candidate with the most design points missing around it (the count an even design of the final
+size would have in a ball there, minus the model's training poses and the poses already picked),
+times ``(s / median s) ** uncertainty_power`` with the uncertainty score
 ``s = band95(q) · (1 + d(q) / fade_width) + 1.96 σ_cal(q)``: the model's 95 % position band
 (:meth:`~hykin.hybrid.model.HybridModel.predict_uncertainty`), grown with the distance outside its
 training support (:meth:`~hykin.hybrid.model.HybridModel.support_distance`), plus the calibrated model's
-position standard deviation from the parameter covariance stored with the model. A batch is made
-diverse by greedy selection of ``s · min(1, d_new / ρ)``, ``d_new`` the coverage distance to the
-poses already picked and ``ρ = 0.5 · N^(-1/d)`` (half the spacing of ``N`` evenly spread points).
+position standard deviation from the parameter covariance stored with the model. Choosing by ``s``
+alone (the former rule) was measured worse than adding uniform random poses (1.15× the error,
+docs/planning.md): it piles poses where the band is widest, at the edges of the region, and leaves
+the interior as thin as before.
 """
 
 from __future__ import annotations
@@ -56,7 +63,7 @@ import numpy as np
 from ..kinematics.robot import Robot
 from ..sim.sampling import uniform
 from .constraints import Constraints, PlanningError, feasible, region_bounds
-from .coverage import coverage_report, embed, farthest_point, min_spacing
+from .coverage import coverage_report, deficit_select, embed, farthest_point, min_spacing
 from .criteria import (
     IdentificationModel,
     identification_model,
@@ -69,6 +76,7 @@ __all__ = ["DEFAULT_SPEEDS_RAD_S", "Plan", "active_poses", "candidate_pool", "d_
 
 DEFAULT_SPEEDS_RAD_S = 0.5  # conservative joint speed for a measuring campaign (rad/s, every joint)
 _CORE_POOL = 5000  # candidates searched for the optimal core
+ACTIVE_UNCERTAINTY_POWER = 0.5  # weight of the model's uncertainty in active selection (decided on bench_plan seed 2)
 _PRIOR = 1e-3  # weak prior of the information matrix (scaled units: (mm per typical deviation)^2)
 
 
@@ -285,10 +293,14 @@ def calibration_std_mm(model, q) -> np.ndarray | None:
 
 
 def active_poses(model, n: int, constraints: Constraints | None = None, *, seed: int = 0, pool: int = 20_000,
-                 speeds=DEFAULT_SPEEDS_RAD_S, start=None, dwell_s: float = 0.0) -> Plan:
-    """The next ``n`` poses for a fitted :class:`hykin.hybrid.model.HybridModel` where it is least certain
-    (module docstring), ordered for a short path."""
+                 speeds=DEFAULT_SPEEDS_RAD_S, start=None, dwell_s: float = 0.0,
+                 uncertainty_power: float = ACTIVE_UNCERTAINTY_POWER) -> Plan:
+    """The next ``n`` poses for a fitted :class:`hykin.hybrid.model.HybridModel`: where its training data
+    are thinnest relative to an even cover of the region, weighted by its uncertainty (module
+    docstring), ordered for a short path."""
     import warnings
+
+    from ..hybrid.inputs import net_coordinates
 
     if isinstance(n, bool) or int(n) != n or n < 1:
         raise PlanningError(f"number of poses must be a positive integer, got {n!r}")
@@ -305,22 +317,19 @@ def active_poses(model, n: int, constraints: Constraints | None = None, *, seed:
     sc = calibration_std_mm(model, cand)
     if sc is not None:
         s = s + 1.96 * sc
+    # the networks' own coordinates: joints as they see them, scaled by their training data's range
+    mask = np.asarray(model.input_mask_, dtype=bool)
+    lo, span = np.asarray(model.support_lower_), np.maximum(np.asarray(model.support_upper_) - model.support_lower_, 1e-6)
+    U = ((net_coordinates(cand, model.wrap_centre_, model.input_mask_) - lo) / span)[:, mask]
+    have = np.asarray(model.support_points_, dtype=np.float64)[:, mask]
+    n_have = int((getattr(model, "meta_", {}) or {}).get("n_total") or len(have))
+    weight = (s / max(float(np.median(s)), 1e-12)) ** uncertainty_power
+    sel = deficit_select(U, have, n, have_weight=n_have / max(len(have), 1), weight=weight)
     X = embed(robot, cand, c.lower, c.upper)
-    rho = 0.5 * n ** (-1.0 / X.shape[1])
-    dmin = np.full(len(cand), np.inf)
-    avail = np.ones(len(cand), bool)
-    sel = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        e = np.where(avail, s * np.minimum(1.0, dmin / rho), -np.inf)
-        j = int(np.argmax(e))
-        sel[i] = j
-        avail[j] = False
-        diff = X - X[j]
-        dmin = np.minimum(dmin, np.sqrt(np.einsum("ij,ij->i", diff, diff)))
     q_sel = cand[sel]
     path = order_path(q_sel, speeds, start)
     return Plan(q=q_sel[path], core=np.zeros(n, bool), pick_order=path, travel=path_travel(q_sel[path], speeds, dwell_s),
                 criteria={"min_spacing": min_spacing(X[sel]), "score_mean_mm": float(s[sel].mean()),
                           "pool_score_mean_mm": float(s.mean())},
                 id_model=None, n_pool=drawn, n_feasible=len(cand), lower=c.lower, upper=c.upper, speeds=speeds,
-                score=s[sel][path], info={"rho": rho})
+                score=s[sel][path], info={"uncertainty_power": uncertainty_power, "n_existing": n_have})
