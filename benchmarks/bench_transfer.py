@@ -19,8 +19,8 @@
   registered from 30 poses; its error on the rest of day 2 vs day 1's own held-out error.
 
 Usage: python benchmarks/bench_transfer.py [--data ../shared/data] [--model ur10.hykin] [--skip ur10 days beside] [--device cuda]
-       [--check-case]
-       [--beside-n 2000]
+       [--check-case] [--harmonics]
+       [--beside-n 2000] [--robot ur10-virtual --seed 3] [--draws 3]
        [--min-steps N]
 Prints markdown tables.
 """
@@ -49,9 +49,15 @@ from hykin.measure.register import register_model
 # --------------------------------------------------------------------------- plain reference (independent of hykin)
 
 
-def ref_fk(dh: np.ndarray, q: np.ndarray, base: np.ndarray, tool: np.ndarray) -> np.ndarray:
-    """Standard DH FK written here (numpy): dh ``(n, 4)`` rows (a, alpha, d, theta), q ``(N, n)``."""
+def ref_fk(dh: np.ndarray, q: np.ndarray, base: np.ndarray, tool: np.ndarray, h: np.ndarray | None = None) -> np.ndarray:
+    """Standard DH FK written here (numpy): dh ``(n, 4)`` rows (a, alpha, d, theta), q ``(N, n)``.
+    ``h`` ``(n, K, 2)`` rad: per-joint angle errors ``Σ_k h[j,k-1,0] sin(k q_j) + h[j,k-1,1] cos(k q_j)``
+    added to each joint (transmission / encoder errors as a Fourier series of the joint's own angle)."""
     N = len(q)
+    if h is not None and h.size:
+        k = np.arange(1, h.shape[1] + 1)
+        kq = q[:, :, None] * k
+        q = q + (np.sin(kq) * h[None, :, :, 0] + np.cos(kq) * h[None, :, :, 1]).sum(-1)
     T = np.broadcast_to(base, (N, 4, 4)).copy()
     for i, (a, al, d, th) in enumerate(dh):
         t = q[:, i] + th
@@ -78,10 +84,12 @@ def ref_resid(T: np.ndarray, P: np.ndarray, R: np.ndarray) -> np.ndarray:
     return np.concatenate([rp, ro], 1).ravel()  # 1 m per rad, as hykin's registration
 
 
-def ref_calibrate(dh0, tool0, q, P, R):
+def ref_calibrate(dh0, tool0, q, P, R, harmonics: int = 0):
     """Plain geometric calibration: DH deviations (a, alpha, d, theta) + base + tool twists, with the
     parameters a full base / tool frame explains left out (d1, theta1; all of joint n's) and, for
-    consecutive parallel axes (alpha = 0), the d of all but the last of them (only their sum acts)."""
+    consecutive parallel axes (alpha = 0), the d of all but the last of them (only their sum acts).
+    ``harmonics`` K > 0 adds per-joint angle errors of orders 1..K (``ref_fk``'s ``h``, 2K per joint).
+    Returns ``(dh, base, tool)``, or ``(dh, base, tool, h)`` with harmonics."""
     n = len(dh0)
     free = np.ones((n, 4), bool)
     free[0, 2] = free[0, 3] = False  # d1, theta1: redundant with the base frame
@@ -90,19 +98,25 @@ def ref_calibrate(dh0, tool0, q, P, R):
         if abs(np.sin(dh0[i, 1])) < 1e-6:  # axis i+1 parallel to axis i: d_i and d_(i+1) act along one axis
             free[i, 2] = False
     k = int(free.sum())
+    nh = 2 * harmonics * n
 
     def unpack(x):
         dh = dh0.copy()
         dh[free] += x[:k]
-        return dh, twist(x[k:k + 6]), tool0 @ twist(x[k + 6:k + 12])
+        return dh, twist(x[k:k + 6]), tool0 @ twist(x[k + 6:k + 12]), x[k + 12:].reshape(n, harmonics, 2)
 
-    sol = least_squares(lambda x: ref_resid(ref_fk(*unpack(x)[:1], q, *unpack(x)[1:]), P, R), np.zeros(k + 12),
-                        method="lm")
-    return unpack(sol.x)
+    def resid(x):
+        dh, b, t, h = unpack(x)
+        return ref_resid(ref_fk(dh, q, b, t, h), P, R)
+
+    sol = least_squares(resid, np.zeros(k + 12 + nh), method="lm")
+    out = unpack(sol.x)
+    return out if harmonics else out[:3]
 
 
-def ref_register(dh, base, tool, q, P, R, zero_joints=()):
-    """Re-fit base + tool (and the joint zeros ``zero_joints``, 0-based) on new poses."""
+def ref_register(dh, base, tool, q, P, R, zero_joints=(), h=None):
+    """Re-fit base + tool (and the joint zeros ``zero_joints``, 0-based) on new poses (``h``: the
+    calibration's joint-angle harmonics, kept as they are)."""
     z = list(zero_joints)
 
     def unpack(x):
@@ -112,7 +126,7 @@ def ref_register(dh, base, tool, q, P, R, zero_joints=()):
 
     x0 = np.zeros(12 + len(z))
     # coarse start for a moved tracker: Kabsch on positions
-    Tm = ref_fk(dh, q, base, tool)
+    Tm = ref_fk(dh, q, base, tool, h)
     a, b = Tm[:, :3, 3], P
     H = (a - a.mean(0)).T @ (b - b.mean(0))
     U, _, Vt = np.linalg.svd(H)
@@ -120,7 +134,12 @@ def ref_register(dh, base, tool, q, P, R, zero_joints=()):
     Rb = Vt.T @ D @ U.T
     x0[:3] = Rotation.from_matrix(Rb).as_rotvec()
     x0[3:6] = b.mean(0) - Rb @ a.mean(0)
-    sol = least_squares(lambda x: ref_resid(ref_fk(*unpack(x)[:1], q, *unpack(x)[1:]), P, R), x0, method="lm")
+
+    def resid(x):
+        d, b, t = unpack(x)
+        return ref_resid(ref_fk(d, q, b, t, h), P, R)
+
+    sol = least_squares(resid, x0, method="lm")
     return unpack(sol.x)
 
 
@@ -151,7 +170,8 @@ def rcv_kwargs(robot, name):
 
 
 
-def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path, check_case: bool = False) -> None:
+def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path, check_case: bool = False,
+         harmonics: bool = False) -> None:
     from hykin.io.robot_toml import save_robot_toml
     from hykin.measure.importers import import_ipa_series, ipa_nominal_robot
 
@@ -161,7 +181,7 @@ def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path,
         return
     rob = ipa_nominal_robot()
     A = import_ipa_series(d / "Series_A", register_to=rob)
-    tr, _ = split(A, (0.8, 0.2), seed=0)  # = hykin split ur10_A.csv --test 0.2 (the README's training rows)
+    tr, te = split(A, (0.8, 0.2), seed=0)  # = hykin split ur10_A.csv --test 0.2 (the README's training rows)
     if model_path is not None and model_path.exists():
         m = HybridModel.load(model_path)
         print(f"model: {model_path} (loaded)")
@@ -211,6 +231,8 @@ def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path,
     for nm, (p, a) in rows.items():
         print(f"| {nm} | {p.mean():.4f} | {np.percentile(p, 95):.4f} | {a.mean():.4f} | {p.mean() / peer:.3f} |")
     diagnose_b(m, m2, B, idx, rest)
+    if harmonics:
+        harmonics_study(dh0, tool0, tr, te, B, idx, rest)
     if check_case:
         network_check_case(rob, tr, B)
     # calibration parameter sets: region-blocked validation on A vs what transfers to B
@@ -231,6 +253,37 @@ def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path,
         p, a = errors(Bf @ T[rest] @ Ef, PB[rest], RB[rest])
         print(f"| {name}{' (chosen)' if name == rcv.best else ''} | {np.mean(rcv.pos_mm[name]):.4f} / {np.mean(rcv.ang_deg[name]):.4f} | "
               f"{p.mean():.4f} / {a.mean():.4f} |")
+
+
+def harmonics_study(dh0, tool0, tr, te, B, idx, rest, orders=(0, 2, 4)) -> None:
+    """Would a physical model of joint-angle errors carry A's accuracy to B? The plain reference
+    calibration with per-joint Fourier angle errors of orders 1..K (transmission / encoder errors,
+    :func:`ref_fk`'s ``h``), written here without hykin code: (a) fitted on half of B itself, scored
+    on the other half (what such a model can explain of B at all); (b) fitted on A's training rows,
+    scored on A's held-out 20 %, and registered to B on the same 30 poses (base + tool), scored on
+    B's rest (what carries over)."""
+    PB, RB = B.xyz_m, B.poses()[:, :3, :3]
+    h = np.random.default_rng(0).permutation(len(B))
+    h1, h2 = h[: len(B) // 2], h[len(B) // 2:]
+    # B into the robot frame, and its tool (the T-Mac sits turned by 180 deg on B): the fits start near
+    _, b0, t0 = ref_register(dh0, np.eye(4), tool0, B.q, PB, RB)
+    TB = np.linalg.inv(b0) @ B.poses()
+    print("\n#### Joint-angle harmonics: what they explain of B, and what carries over from A\n")
+    print("| orders 1..K | B half -> other half: pos mm / ang deg | A train -> A held-out | A -> B (30 poses: base + tool) -> rest |")
+    print("|---|---|---|---|")
+    for K in orders:
+        t0 = time.perf_counter()
+        fit_b = ref_calibrate(dh0, t0, B.q[h1], TB[h1, :3, 3], TB[h1, :3, :3], harmonics=K)
+        hb = fit_b[3] if K else None
+        pb, ab = errors(ref_fk(fit_b[0], B.q[h2], fit_b[1], fit_b[2], hb),
+                        TB[h2, :3, 3], TB[h2, :3, :3])
+        fit_a = ref_calibrate(dh0, tool0, tr.q, tr.xyz_m, tr.poses()[:, :3, :3], harmonics=K)
+        ha = fit_a[3] if K else None
+        pa, aa = errors(ref_fk(fit_a[0], te.q, fit_a[1], fit_a[2], ha), te.xyz_m, te.poses()[:, :3, :3])
+        d, b, t = ref_register(fit_a[0], fit_a[1], fit_a[2], B.q[idx], PB[idx], RB[idx], (), ha)
+        pr, ar = errors(ref_fk(d, B.q[rest], b, t, ha), PB[rest], RB[rest])
+        print(f"| {K} | {pb.mean():.4f} / {ab.mean():.4f} | {pa.mean():.4f} / {aa.mean():.4f} | {pr.mean():.4f} / {ar.mean():.4f} |"
+              f" ({time.perf_counter() - t0:.0f} s)", flush=True)
 
 
 def network_check_case(rob, tr, B, joints=(2, 3), n_draws: int = 6) -> None:
@@ -310,14 +363,18 @@ def diagnose_b(m, m2, B, idx, rest) -> None:
 # --------------------------------------------------------------------------- two days of a virtual robot
 
 
-def two_day_robot(seed: int = 11):
+def two_day_robot(seed: int = 11, preset: str | None = None):
     """Own virtual robot: rx160-nongeo's error model on an RX160 scaled to 0.8 of its lengths,
     drawn with another seed, and its day-2 variant (tracker moved, tool re-mounted by 0.5 mm /
-    0.05 deg, joint zeros drifted by 0.01 deg). Returns ``(vr_day1, vr_day2, tracker2 (4, 4), drift_rad)``."""
+    0.05 deg, joint zeros drifted by 0.01 deg). Returns ``(vr_day1, vr_day2, tracker2 (4, 4), drift_rad)``.
+    With ``preset`` (a virtual preset name, e.g. ``ur10-virtual``): that robot as it is (unscaled),
+    drawn with ``seed``, and the same day-2 changes: a held-out robot for the same protocol."""
     import dataclasses
 
     from hykin.sim.presets import virtual_preset
 
+    if preset is not None:
+        return day_two(virtual_preset(preset, seed=seed), seed)
     vr = virtual_preset("rx160-nongeo", seed=seed)
 
     def scaled(r):
@@ -327,6 +384,14 @@ def two_day_robot(seed: int = 11):
         return r.copy(a_m=r.a_m * 0.8, d_m=r.d_m * 0.8, base=b, tool=t, com_m=r.com_m * 0.8, name=r.name + "-0.8")
 
     vr1 = dataclasses.replace(vr, nominal=scaled(vr.nominal), truth=scaled(vr.truth), name="two-day-robot")
+    return day_two(vr1, seed)
+
+
+def day_two(vr1, seed: int):
+    """``vr1`` and its day-2 variant: tool re-mounted by 0.5 mm / 0.05 deg (random directions), joint
+    zeros drifted by ±0.01 deg, tracker moved. Returns ``(vr_day1, vr_day2, tracker2 (4, 4), drift_rad)``."""
+    import dataclasses
+
     rng = np.random.default_rng(seed + 100)
     drift = np.radians(0.01) * rng.choice([-1.0, 1.0], vr1.truth.dof)
     u = rng.normal(size=3)
@@ -349,10 +414,11 @@ def day_series(vr, q, tracker, seed, start_index=0):
     return dataclasses.replace(ds, xyz_m=T[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T[:, :3, :3]))
 
 
-def days(min_steps: int | None, n_train: int = 6000, device: str = "cpu") -> None:
+def days(min_steps: int | None, n_train: int = 6000, device: str = "cpu", preset: str | None = None, seed: int = 11,
+         draws: int = 1) -> None:
     from hykin.sim.sampling import sample
 
-    vr1, vr2, tracker2, drift = two_day_robot()
+    vr1, vr2, tracker2, drift = two_day_robot(seed, preset)
     q1 = sample("uniform", vr1.nominal, n_train, 0)
     qt = sample("random", vr1.nominal, 1500, 1)
     q2 = sample("random", vr1.nominal, 1500, 2)
@@ -362,8 +428,8 @@ def days(min_steps: int | None, n_train: int = 6000, device: str = "cpu") -> Non
     t0 = time.perf_counter()
     kw = {} if min_steps is None else {"recipe_kw": {"min_steps": min_steps}}
     m = HybridModel(vr1.nominal, seed=0, device=device, **kw).fit(d1, progress=False)
-    print(f"\n### Virtual two-day robot (fit on {n_train} day-1 poses in {time.perf_counter() - t0:.0f} s, "
-          f"min_steps {min_steps or 'default'})\n")
+    print(f"\n### Virtual two-day robot {vr1.name}, seed {seed} (fit on {n_train} day-1 poses in "
+          f"{time.perf_counter() - t0:.0f} s, min_steps {min_steps or 'default'})\n")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OutOfRangeWarning)
         p1, a1 = errors(m.predict(t1.q, temperature_c=temperature_of(t1)), t1.xyz_m, t1.poses()[:, :3, :3])
@@ -371,21 +437,26 @@ def days(min_steps: int | None, n_train: int = 6000, device: str = "cpu") -> Non
         print("| case | pos mean mm | ang mean deg | pos ratio vs day 1 | ang ratio vs day 1 |")
         print("|---|---|---|---|---|")
         print(f"| day 1 held-out ({len(t1)}) | {p1.mean():.4f} | {a1.mean():.4f} | 1.000 | 1.000 |")
-        for refit in ("auto", "frames"):
-            m2, info = register_model(m, d2, n_poses=30, refit=refit)
-            rest = np.setdiff1d(np.arange(len(d2)), info.used_index)
-            p2, a2 = errors(m2.predict(d2.q[rest], temperature_c=temperature_of(d2)[rest]), d2.xyz_m[rest],
-                            d2.poses()[rest][:, :3, :3])
-            print(f"| day 2 registered from 30 ({refit}), rest {len(rest)} | {p2.mean():.4f} | {a2.mean():.4f} | "
-                  f"{p2.mean() / p1.mean():.3f} | {a2.mean() / a1.mean():.3f} |")
-            if refit == "auto":
-                print("\n" + info.report() + "\n")
+        temp2 = temperature_of(d2)
+        reports = []
+        for draw in range(draws):
+            for refit in ("auto", "frames"):
+                m2, info = register_model(m, d2, n_poses=30, refit=refit, seed=draw)
+                rest = np.setdiff1d(np.arange(len(d2)), info.used_index)
+                p2, a2 = errors(m2.predict(d2.q[rest], temperature_c=None if temp2 is None else temp2[rest]),
+                                d2.xyz_m[rest], d2.poses()[rest][:, :3, :3])
+                print(f"| day 2 registered from 30 ({refit}, draw {draw}), rest {len(rest)} | {p2.mean():.4f} | "
+                      f"{a2.mean():.4f} | {p2.mean() / p1.mean():.3f} | {a2.mean() / a1.mean():.3f} |")
+                if refit == "auto":
+                    reports.append(info.report())
+        print("\n" + reports[0] + "\n")
 
 
 # --------------------------------------------------------------------------- beside the training region
 
 
-def beside(min_steps: int | None, device: str, n: int = 8000, n_blocks: int = 4) -> None:
+def beside(min_steps: int | None, device: str, n: int = 8000, n_blocks: int = 4, preset: str | None = None,
+           seed: int = 11) -> None:
     """Own virtual robot (the two-day robot of :func:`two_day_robot`, day 1), joints uniform over the
     full ranges; trained where the TCP has y > y_cut, tested on the adjacent band below it (same joint
     ranges, another Cartesian region). Per test region (quartiles of y): calibrated, unfaded
@@ -394,7 +465,7 @@ def beside(min_steps: int | None, device: str, n: int = 8000, n_blocks: int = 4)
 
     from hykin.sim.sampling import sample
 
-    vr1, _, _, _ = two_day_robot()
+    vr1, _, _, _ = two_day_robot(seed, preset)
     q = sample("uniform", vr1.nominal, n, 7)
     ds = day_series(vr1, q, np.eye(4), 8)
     y = ds.xyz_m[:, 1]
@@ -409,7 +480,7 @@ def beside(min_steps: int | None, device: str, n: int = 8000, n_blocks: int = 4)
     md.fade_offset_, md.fade_width_ = 0.0, 0.1  # the fixed default fade
     mu = copy.deepcopy(m)
     mu.fade = False
-    print(f"\n### Beside the training region: train y > {y_cut:.3f} m ({len(tr)} poses), test {band:.3f} < y <= {y_cut:.3f} "
+    print(f"\n### Beside the training region ({vr1.name}, seed {seed}): train y > {y_cut:.3f} m ({len(tr)} poses), test {band:.3f} < y <= {y_cut:.3f} "
           f"({len(te)} poses), same joint ranges (fit incl. fade calibration {fs:.0f} s, min_steps {min_steps or 'default'}, {device})\n")
     print(m.fade_calibration_.summary())
     print("evidence (support distance bin, n, optimal weight): " + "; ".join(
@@ -445,17 +516,23 @@ def main() -> None:
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--beside-n", type=int, default=8000, help="joint samples of the beside-region case (60 %% train)")
     ap.add_argument("--work", default="/tmp")
+    ap.add_argument("--robot", default=None,
+                    help="virtual preset for the days/beside cases instead of the scaled rx160-nongeo (held-out robots)")
+    ap.add_argument("--seed", type=int, default=11, help="draw of the days/beside robot")
+    ap.add_argument("--draws", type=int, default=1, help="draws of the 30 registration poses in the days case")
+    ap.add_argument("--harmonics", action="store_true",
+                    help="also fit the plain reference with per-joint angle harmonics (orders 2, 4) on B and on A -> B (~10 min)")
     ap.add_argument("--check-case", action="store_true",
                     help="also fit networks on joints 2-3 of A and register B with / without the network check (~5 min)")
     args = ap.parse_args()
     warnings.simplefilter("ignore", OutOfRangeWarning)
     if "ur10" not in args.skip:
         ur10(Path(args.data), None if args.model is None else Path(args.model), args.min_steps, Path(args.work),
-             check_case=args.check_case)
+             check_case=args.check_case, harmonics=args.harmonics)
     if "days" not in args.skip:
-        days(args.min_steps, device=args.device)
+        days(args.min_steps, device=args.device, preset=args.robot, seed=args.seed, draws=args.draws)
     if "beside" not in args.skip:
-        beside(args.min_steps, args.device, n=args.beside_n)
+        beside(args.min_steps, args.device, n=args.beside_n, preset=args.robot, seed=args.seed)
 
 
 if __name__ == "__main__":
