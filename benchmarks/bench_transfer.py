@@ -266,14 +266,14 @@ def harmonics_study(dh0, tool0, tr, te, B, idx, rest, orders=(0, 2, 4)) -> None:
     h = np.random.default_rng(0).permutation(len(B))
     h1, h2 = h[: len(B) // 2], h[len(B) // 2:]
     # B into the robot frame, and its tool (the T-Mac sits turned by 180 deg on B): the fits start near
-    _, b0, t0 = ref_register(dh0, np.eye(4), tool0, B.q, PB, RB)
+    _, b0, tool_b = ref_register(dh0, np.eye(4), tool0, B.q, PB, RB)
     TB = np.linalg.inv(b0) @ B.poses()
     print("\n#### Joint-angle harmonics: what they explain of B, and what carries over from A\n")
     print("| orders 1..K | B half -> other half: pos mm / ang deg | A train -> A held-out | A -> B (30 poses: base + tool) -> rest |")
     print("|---|---|---|---|")
     for K in orders:
         t0 = time.perf_counter()
-        fit_b = ref_calibrate(dh0, t0, B.q[h1], TB[h1, :3, 3], TB[h1, :3, :3], harmonics=K)
+        fit_b = ref_calibrate(dh0, tool_b, B.q[h1], TB[h1, :3, 3], TB[h1, :3, :3], harmonics=K)
         hb = fit_b[3] if K else None
         pb, ab = errors(ref_fk(fit_b[0], B.q[h2], fit_b[1], fit_b[2], hb),
                         TB[h2, :3, 3], TB[h2, :3, :3])
