@@ -85,7 +85,9 @@ def check_output(out, inputs=(), force: bool = False, directory: bool = False) -
 def console():
     from rich.console import Console
 
-    return Console(stderr=True)
+    # soft wrap: a message stays one line in logs and pipes (rich otherwise breaks it at 80 columns
+    # when the output is not a terminal); tables still fit the width
+    return Console(stderr=True, soft_wrap=True)
 
 
 def progress():

@@ -27,7 +27,7 @@ def plan_cmd(
     robot: str | None = typer.Argument(None, help="Robot file, URDF or preset name (not with --for-model)."),
     n: int = typer.Option(..., "-n", help="Number of poses to plan.", min=1),
     out: Path | None = typer.Option(None, "-o", "--out", help="Output joints CSV (q1..qN rad, step, core, incidence_deg)."),
-    for_model: str | None = typer.Option(None, "--for-model", help="Fitted model file: plan the next poses where it is least certain."),
+    for_model: str | None = typer.Option(None, "--for-model", help="Fitted model file: plan the next poses where its training data are thinnest, weighted by its uncertainty."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the candidate pool."),
     region: str | None = typer.Option(None, "--region", help="Joint ranges lo:hi per joint, comma-separated (deg; ':' keeps a limit)."),
     box: str | None = typer.Option(None, "--box", help="Cartesian box for the reflector: xmin,ymin,zmin,xmax,ymax,zmax (world frame)."),
