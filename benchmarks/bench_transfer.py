@@ -521,7 +521,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=11, help="draw of the days/beside robot")
     ap.add_argument("--draws", type=int, default=1, help="draws of the 30 registration poses in the days case")
     ap.add_argument("--harmonics", action="store_true",
-                    help="also fit the plain reference with per-joint angle harmonics (orders 2, 4) on B and on A -> B (~10 min)")
+                    help="also fit the plain reference with per-joint angle harmonics (orders 1-2, 1-4) on B and on A -> B (~1 min more)")
     ap.add_argument("--check-case", action="store_true",
                     help="also fit networks on joints 2-3 of A and register B with / without the network check (~5 min)")
     args = ap.parse_args()
