@@ -317,11 +317,10 @@ def active_poses(model, n: int, constraints: Constraints | None = None, *, seed:
     sc = calibration_std_mm(model, cand)
     if sc is not None:
         s = s + 1.96 * sc
-    # the networks' own coordinates: joints as they see them, scaled by their training data's range
-    mask = np.asarray(model.input_mask_, dtype=bool)
-    lo, span = np.asarray(model.support_lower_), np.maximum(np.asarray(model.support_upper_) - model.support_lower_, 1e-6)
-    U = ((net_coordinates(cand, model.wrap_centre_, model.input_mask_) - lo) / span)[:, mask]
-    have = np.asarray(model.support_points_, dtype=np.float64)[:, mask]
+    # the networks' own coordinates: joints as they see them, scaled like the model's support points
+    sup, mask = model.support, np.asarray(model.input_mask_, dtype=bool)
+    U = ((net_coordinates(cand, model.wrap_centre_, model.input_mask_) - sup.lower) / sup.span)[:, mask]
+    have = np.asarray(sup.points, dtype=np.float64)[:, mask]
     n_have = int((getattr(model, "meta_", {}) or {}).get("n_total") or len(have))
     weight = (s / max(float(np.median(s)), 1e-12)) ** uncertainty_power
     sel = deficit_select(U, have, n, have_weight=n_have / max(len(have), 1), weight=weight)
