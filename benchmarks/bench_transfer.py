@@ -89,7 +89,7 @@ def ref_calibrate(dh0, tool0, q, P, R, harmonics: int = 0):
     parameters a full base / tool frame explains left out (d1, theta1; all of joint n's) and, for
     consecutive parallel axes (alpha = 0), the d of all but the last of them (only their sum acts).
     ``harmonics`` K > 0 adds per-joint angle errors of orders 1..K (``ref_fk``'s ``h``, 2K per joint).
-    Returns ``(dh, base, tool)``, or ``(dh, base, tool, h)`` with harmonics."""
+    Returns ``(dh, base, tool, h)``; ``h`` is ``(n, 0, 2)`` (no effect in ``ref_fk``) without harmonics."""
     n = len(dh0)
     free = np.ones((n, 4), bool)
     free[0, 2] = free[0, 3] = False  # d1, theta1: redundant with the base frame
@@ -110,8 +110,7 @@ def ref_calibrate(dh0, tool0, q, P, R, harmonics: int = 0):
         return ref_resid(ref_fk(dh, q, b, t, h), P, R)
 
     sol = least_squares(resid, np.zeros(k + 12 + nh), method="lm")
-    out = unpack(sol.x)
-    return out if harmonics else out[:3]
+    return unpack(sol.x)
 
 
 def ref_register(dh, base, tool, q, P, R, zero_joints=(), h=None):
@@ -216,7 +215,7 @@ def ur10(root: Path, model_path: Path | None, min_steps: int | None, work: Path,
     save_robot_toml(rob, tom)
     dh0, tool0 = read_toml_dh(tom)
     t0 = time.perf_counter()
-    dh, base, tool = ref_calibrate(dh0, tool0, tr.q, tr.xyz_m, tr.poses()[:, :3, :3])
+    dh, base, tool, _ = ref_calibrate(dh0, tool0, tr.q, tr.xyz_m, tr.poses()[:, :3, :3])
     ts = time.perf_counter() - t0
     zj = [int(p.name[1:].split(".")[0]) - 1 for p in info.parameters if p.name.endswith(".zero")]
     zj = zj or list(range(1, len(dh0) - 1))  # hykin chose none: give the peer the zeros of joints 2..n-1 anyway
@@ -263,8 +262,8 @@ def harmonics_study(dh0, tool0, tr, te, B, idx, rest, orders=(0, 2, 4)) -> None:
     scored on A's held-out 20 %, and registered to B on the same 30 poses (base + tool), scored on
     B's rest (what carries over)."""
     PB, RB = B.xyz_m, B.poses()[:, :3, :3]
-    h = np.random.default_rng(0).permutation(len(B))
-    h1, h2 = h[: len(B) // 2], h[len(B) // 2:]
+    perm = np.random.default_rng(0).permutation(len(B))
+    h1, h2 = perm[: len(B) // 2], perm[len(B) // 2:]
     # B into the robot frame, and its tool (the T-Mac sits turned by 180 deg on B): the fits start near
     _, b0, tool_b = ref_register(dh0, np.eye(4), tool0, B.q, PB, RB)
     TB = np.linalg.inv(b0) @ B.poses()
@@ -274,12 +273,10 @@ def harmonics_study(dh0, tool0, tr, te, B, idx, rest, orders=(0, 2, 4)) -> None:
     for K in orders:
         t0 = time.perf_counter()
         fit_b = ref_calibrate(dh0, tool_b, B.q[h1], TB[h1, :3, 3], TB[h1, :3, :3], harmonics=K)
-        hb = fit_b[3] if K else None
-        pb, ab = errors(ref_fk(fit_b[0], B.q[h2], fit_b[1], fit_b[2], hb),
-                        TB[h2, :3, 3], TB[h2, :3, :3])
+        pb, ab = errors(ref_fk(fit_b[0], B.q[h2], *fit_b[1:]), TB[h2, :3, 3], TB[h2, :3, :3])
         fit_a = ref_calibrate(dh0, tool0, tr.q, tr.xyz_m, tr.poses()[:, :3, :3], harmonics=K)
-        ha = fit_a[3] if K else None
-        pa, aa = errors(ref_fk(fit_a[0], te.q, fit_a[1], fit_a[2], ha), te.xyz_m, te.poses()[:, :3, :3])
+        ha = fit_a[3]
+        pa, aa = errors(ref_fk(fit_a[0], te.q, *fit_a[1:]), te.xyz_m, te.poses()[:, :3, :3])
         d, b, t = ref_register(fit_a[0], fit_a[1], fit_a[2], B.q[idx], PB[idx], RB[idx], (), ha)
         pr, ar = errors(ref_fk(d, B.q[rest], b, t, ha), PB[rest], RB[rest])
         print(f"| {K} | {pb.mean():.4f} / {ab.mean():.4f} | {pa.mean():.4f} / {aa.mean():.4f} | {pr.mean():.4f} / {ar.mean():.4f} |"
