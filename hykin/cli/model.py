@@ -30,23 +30,12 @@ MaxDeviation = typer.Option(
 
 def _calibration_options(orientation_weight: str, max_deviation: str | None) -> dict:
     """``calibrate`` keyword arguments from the CLI options (CLIError on bad values)."""
-    from ..calibration.checks import parse_max_deviation
+    from ..hybrid.fit_options import calibration_options
 
-    kw: dict = {}
-    if orientation_weight != "auto":
-        try:
-            w = float(orientation_weight)
-        except ValueError:
-            raise CLIError(f"--orientation-weight must be a number (m/rad) or 'auto', got {orientation_weight!r}") from None
-        if not (w > 0 and w < float("inf")):
-            raise CLIError(f"--orientation-weight must be > 0, got {orientation_weight!r}")
-        kw["orientation_weight_m_per_rad"] = w
-    if max_deviation:
-        try:
-            kw["max_deviation"] = parse_max_deviation(max_deviation)
-        except ValueError as e:
-            raise CLIError(str(e)) from None
-    return kw
+    try:
+        return calibration_options(orientation_weight, max_deviation)
+    except ValueError as e:
+        raise CLIError(str(e)) from None
 
 
 @app.command("fit")
@@ -77,43 +66,27 @@ def fit_cmd(
     Exactly the API path: ``HybridModel(robot, ...).fit(train, val)``; without ``--val`` the model
     holds out its validation rows itself, so the same data, options and seed give the same model; the
     calibration uses all of TRAIN (the networks' split must not change the calibrated robot)."""
+    from ..hybrid.fit_options import model_kwargs
     from ..hybrid.model import HybridModel
     from ..io.dataset_files import read_dataset
     from ..io.plausibility import check_fit_size
     from ..io.robot_file import load_robot
 
-    kw = {}
-    if max_minutes is not None:
-        kw["max_seconds"] = max_minutes * 60
-    if min_steps is not None:
-        if min_steps < 0:
-            raise CLIError(f"--min-steps must be >= 0, got {min_steps}")
-        kw.setdefault("recipe_kw", {})["min_steps"] = min_steps
-    if max_epochs is not None:
-        if max_epochs < 1:
-            raise CLIError(f"--max-epochs must be >= 1, got {max_epochs}")
-        kw.setdefault("recipe_kw", {})["max_epochs"] = max_epochs
-    modes = {"auto": "auto", "on": True, "off": False}
-    if thermal not in modes:
-        raise CLIError(f"--thermal must be auto, on or off, got {thermal!r}")
+    try:  # the one mapping of fit options to model settings (hykin.hybrid.fit_options, also used by sweeps)
+        kw = model_kwargs(arch=arch, recipe=recipe, calibrate=calibrate, device=device, seed=seed,
+                          max_minutes=max_minutes, thermal=thermal, min_steps=min_steps, max_epochs=max_epochs,
+                          orientation_weight=orientation_weight, max_deviation=max_deviation, region_cv=region_cv,
+                          fade_cv=fade_cv)
+    except ValueError as e:
+        raise CLIError(str(e)) from None
     check_output(out, (robot, train, val), force)  # before any long work
-    cal_kw = _calibration_options(orientation_weight, max_deviation)
     rob = load_robot(robot)
     tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
     check_fit_size(rob, tr)
     va = None
     if val is not None:
         va = read_dataset(val, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
-    if device == "auto":
-        import torch
-
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    if fade_cv == 1 or fade_cv < 0:
-        raise CLIError(f"--fade-cv must be 0 (off) or >= 2 regions, got {fade_cv}")
-    if region_cv:
-        cal_kw["select"] = "region-cv"
-    model = HybridModel(rob, arch=arch, recipe=recipe, calibrate=calibrate, device=device, seed=seed,
-                        thermal=modes[thermal], calibrate_kw=cal_kw, fade_cv=fade_cv, **kw)
+    model = HybridModel(rob, **kw)
     model.fit(tr, va, progress=True)
     model.save(out)
     if model.thermal_ is not None:

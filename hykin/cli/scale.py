@@ -1,0 +1,63 @@
+"""Commands that run many fits on Ray: sweep (Ray Tune trials), fleet (one Ray task per robot)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from .common import CLIError, app
+
+Address = typer.Option(None, "--address", help="Ray cluster to join (e.g. auto, or ray://HEAD:10001); default: a local Ray on this machine's CPUs.")
+NumCpus = typer.Option(None, "--num-cpus", help="CPUs of the local Ray (default: all of this machine's); ignored with --address.")
+
+
+@app.command("sweep")
+def sweep_cmd(
+    sweep_file: Path = typer.Argument(..., help="Sweep file (.toml): robot, train, test, [grid], [random], [resources]."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output directory: results.csv, error_vs_n_train.png."),
+    address: str | None = Address,
+    resume: bool = typer.Option(False, "--resume", help="Keep the finished trials in OUT; run only the others."),
+    num_cpus: int | None = NumCpus,
+) -> None:
+    """Run every trial of a sweep file (each: `hykin fit` with its options + evaluation on the test set)
+    on Ray Tune. A failing trial is retried once, then recorded with its error; exit 1 if any failed."""
+    from ..distributed.sweep import run_sweep
+    from ..distributed.sweep_file import read_sweep
+
+    if out.exists() and not out.is_dir():
+        raise CLIError(f"{out}: -o must name a directory, got an existing file")
+    spec = read_sweep(sweep_file)
+    res = run_sweep(spec, out, address=address, resume=resume, num_cpus=num_cpus, log=typer.echo)
+    typer.echo(f"sweep: {len(res.rows) - len(res.failed)} of {len(res.rows)} trials ok ({res.ran} run now); "
+               f"results in {res.results_csv}" + (f", plot {res.plot}" if res.plot else ""))
+    _fail_lines([(f"trial {r['trial']}", r["error"] or r["status"]) for r in res.failed])
+
+
+@app.command("fleet")
+def fleet_cmd(
+    fleet_file: Path = typer.Argument(..., help="Fleet file (.toml): one [[robot]] entry per robot."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output directory: NAME.hykin models, summary.csv, summary.md."),
+    address: str | None = Address,
+    num_cpus: int | None = NumCpus,
+) -> None:
+    """Fit, evaluate and register every robot of a fleet file in parallel on Ray. A failing robot does
+    not stop the others; exit 1 with one line per failed robot."""
+    from ..distributed.fleet import run_fleet
+    from ..distributed.fleet_file import read_fleet
+
+    if out.exists() and not out.is_dir():
+        raise CLIError(f"{out}: -o must name a directory, got an existing file")
+    spec = read_fleet(fleet_file)
+    rows = run_fleet(spec, out, address=address, num_cpus=num_cpus, log=typer.echo)
+    ok = sum(r["status"] == "ok" for r in rows)
+    typer.echo(f"fleet: {ok} of {len(rows)} robots ok; summary in {out / 'summary.csv'} and {out / 'summary.md'}")
+    _fail_lines([(f"robot {r['name']}", r["error"]) for r in rows if r["status"] != "ok"])
+
+
+def _fail_lines(failed: list) -> None:
+    """One line per failure on stderr and exit status 1 when there is any."""
+    if failed:
+        for what, err in failed:
+            typer.echo(f"hykin: error: {what} failed: {err}", err=True)
+        raise typer.Exit(1)

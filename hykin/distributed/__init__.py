@@ -1,0 +1,12 @@
+"""Sweeps and fleets on Ray (issue #29): a layer above evaluation/measure/hybrid, below cli.
+
+Modules:
+
+* ``files`` — TOML reading, relative paths, one-line :class:`~hykin.distributed.files.SpecError`.
+* ``sweep_file`` — SWEEP.toml -> :class:`~hykin.distributed.sweep_file.SweepSpec` and its trials.
+* ``fleet_file`` — FLEET.toml -> :class:`~hykin.distributed.fleet_file.FleetSpec`.
+* ``trials`` — the one trial: `hykin fit` options -> fitted model -> test errors.
+* ``ray_session`` — Ray imported lazily (extra ``distributed``), a local or cluster session.
+* ``sweep`` — the Ray Tune driver: results.csv, the error-vs-size plot, retries, resume.
+* ``fleet`` — the Ray core driver: per-robot models, summary.csv and summary.md.
+"""

@@ -1,0 +1,117 @@
+"""`hykin fleet`: fit, evaluate and register many robots in parallel, one Ray task per robot.
+
+Each robot (:class:`hykin.distributed.fleet_file.FleetRobot`) is one task, :func:`robot_job`: fit
+(:func:`hykin.distributed.trials.fit_model`, the `hykin fit` path), write ``DIR/<name>.hykin``,
+evaluate on its test set (nominal / calibrated / hybrid), and where a series is given register it
+(:func:`hykin.measure.register.register_model`, the `hykin register` path) and write
+``DIR/<name>-registered.hykin``. A robot that fails is a row with its error; the others go on.
+Writes ``DIR/summary.csv`` (the one CSV writer) and ``DIR/summary.md`` (a markdown table).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from .fleet_file import FleetRobot, FleetSpec
+from .ray_session import ray_session
+from .trials import ERROR_COLUMNS, error_columns, fit_model
+
+__all__ = ["SUMMARY_COLUMNS", "robot_job", "run_fleet", "summary_markdown"]
+
+SUMMARY_COLUMNS = ("name", "status", "error", "n_train", "n_test", *ERROR_COLUMNS, "fit_s",
+                   "registered_hybrid_pos_mean_mm", "registered_hybrid_ang_mean_deg", "model", "registered_model")
+
+
+def _first_line(e: BaseException) -> str:
+    msg = [m for m in str(e).strip().splitlines() if m.strip()]
+    return f"{type(e).__name__}: {msg[0]}" if msg else type(e).__name__
+
+
+def robot_job(entry: FleetRobot, out_dir: str) -> dict:
+    """Fit / evaluate / register one robot; a summary row (status ``ok`` or ``failed`` with ``error``)."""
+    from ..evaluation.evaluate import evaluate_model
+    from ..io.dataset_files import read_dataset
+    from ..io.robot_file import load_robot
+    from ..measure.register import register_model
+
+    out = Path(out_dir)
+    row = {"name": entry.name, "status": "ok", "error": ""}
+    try:
+        rob = load_robot(entry.robot)
+        train = read_dataset(entry.train, robot=rob)
+        t0 = time.perf_counter()
+        model = fit_model(rob, train, entry.fit)
+        row.update(n_train=len(train), fit_s=time.perf_counter() - t0)
+        path = out / f"{entry.name}.hykin"
+        model.save(path)
+        row["model"] = path.name
+        if entry.test is not None:
+            test = read_dataset(entry.test, robot=rob)
+            row.update(n_test=len(test), **error_columns(evaluate_model(model, test)))
+        if entry.register is not None:
+            series = read_dataset(entry.register, robot=rob)
+            new, _ = register_model(model, series, n_poses=entry.poses)
+            rpath = out / f"{entry.name}-registered.hykin"
+            new.save(rpath)
+            ev = error_columns(evaluate_model(new, series))
+            row.update(registered_model=rpath.name, registered_hybrid_pos_mean_mm=ev["hybrid_pos_mean_mm"],
+                       registered_hybrid_ang_mean_deg=ev["hybrid_ang_mean_deg"])
+    except Exception as e:  # noqa: BLE001 - a failing robot is recorded; the fleet goes on
+        row.update(status="failed", error=_first_line(e))
+    return row
+
+
+def run_fleet(spec: FleetSpec, out_dir: str | Path, address: str | None = None, num_cpus: int | None = None,
+              log=print) -> list:
+    """Run every robot of ``spec`` as a Ray task (retried once if its worker dies); write the per-robot
+    model files, ``summary.csv`` and ``summary.md`` into ``out_dir``. Returns the rows in file order."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rows: dict = {}
+    t0 = time.perf_counter()
+    with ray_session(address, num_cpus) as ray:
+        job = ray.remote(num_cpus=spec.cpus_per_robot, num_gpus=spec.gpus_per_robot, max_retries=1)(robot_job)
+        pending = {job.remote(r, str(out.resolve())): r.name for r in spec.robots}
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            name = pending.pop(done[0])
+            try:
+                row = ray.get(done[0])
+            except Exception as e:  # noqa: BLE001 - the worker died twice: recorded, the others go on
+                row = {"name": name, "status": "failed", "error": _first_line(e)}
+            rows[name] = row
+            what = (f"hybrid {row.get('hybrid_pos_mean_mm', float('nan')):.4f} mm" if row["status"] == "ok"
+                    else f"FAILED: {row['error']}")
+            log(f"fleet: robot {len(rows)}/{len(spec.robots)} {name}: {what}; elapsed {time.perf_counter() - t0:.0f} s")
+    ordered = [rows[r.name] for r in spec.robots]
+    _write_summary(out / "summary.csv", ordered)
+    (out / "summary.md").write_text(summary_markdown(ordered), encoding="utf-8")
+    return ordered
+
+
+def _write_summary(path: Path, rows: list) -> None:
+    import numpy as np
+
+    from ..io.csv_writer import ROWS_STYLE, write_csv
+
+    write_csv(path, {c: np.array([r.get(c, "") for r in rows], dtype=object) for c in SUMMARY_COLUMNS}, ROWS_STYLE)
+
+
+def summary_markdown(rows: list) -> str:
+    """A markdown table of the fleet: robot, status, nominal / calibrated / hybrid mean errors (mm) on
+    its test set, the registered model's error on its new series, fit time, and the failures."""
+    def f(r, k, fmt="{:.4f}"):
+        v = r.get(k, "")
+        return "" if v == "" or v != v else fmt.format(v)
+
+    lines = ["# hykin fleet summary", "",
+             "| robot | status | nominal mm | calibrated mm | hybrid mm | registered hybrid mm | fit s |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['name']} | {r['status']} | {f(r, 'nominal_pos_mean_mm')} | {f(r, 'calibrated_pos_mean_mm')} | "
+                     f"{f(r, 'hybrid_pos_mean_mm')} | {f(r, 'registered_hybrid_pos_mean_mm')} | {f(r, 'fit_s', '{:.1f}')} |")
+    failed = [r for r in rows if r["status"] != "ok"]
+    if failed:
+        lines += ["", "Failures:", ""] + [f"- {r['name']}: {r['error']}" for r in failed]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,102 @@
+"""The fleet file (FLEET.toml, issue #29): one ``[[robot]]`` entry per robot; paths relative to the file.
+
+```toml
+[resources]                 # optional
+cpus_per_robot = 1
+gpus_per_robot = 0
+[[robot]]
+name = "cell-3"             # letters, digits, . _ -; unique; names the output files
+robot = "cell3.toml"        # a robot file or preset name
+train = "cell3_train.csv"
+test = "cell3_test.csv"     # optional
+register = "cell3_day2.csv" # optional: a new series, registered from `poses` of its rows
+poses = 30                  # optional (30)
+[robot.fit]                 # optional `hykin fit` options (names with underscores)
+min_steps = 5000
+```
+
+:func:`read_fleet` -> :class:`FleetSpec` (SpecError, one line naming the file, the entry and the key).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..hybrid.fit_options import FIT_OPTIONS, model_kwargs
+from .files import SpecError, check_keys, read_toml, rel_path, robot_spec
+
+__all__ = ["FleetRobot", "FleetSpec", "read_fleet"]
+
+ROBOT_KEYS = ("name", "robot", "train", "test", "register", "poses", "fit")
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+
+
+@dataclass
+class FleetRobot:
+    """One robot of a fleet: absolute paths (``test``/``register`` None when not given), fit options."""
+
+    name: str
+    robot: str
+    train: Path
+    test: Path | None = None
+    register: Path | None = None
+    poses: int = 30
+    fit: dict = field(default_factory=dict)
+
+
+@dataclass
+class FleetSpec:
+    """A parsed fleet file."""
+
+    path: Path
+    robots: list
+    cpus_per_robot: float = 1.0
+    gpus_per_robot: float = 0.0
+
+
+def read_fleet(path: str | Path) -> FleetSpec:
+    """Parse and check the fleet file ``path`` (SpecError naming the file, entry and key on a mistake)."""
+    p, t = read_toml(path)
+    check_keys(p, "", t, ("robot", "resources"))
+    entries = t.get("robot")
+    if not isinstance(entries, list) or not entries:
+        raise SpecError(f"{p}: no [[robot]] entries (give one per robot)")
+    robots, seen = [], set()
+    for i, e in enumerate(entries, 1):
+        where = f"[[robot]] #{i} "
+        if not isinstance(e, dict):
+            raise SpecError(f"{p}: {where}must be a table")
+        check_keys(p, where, e, ROBOT_KEYS)
+        name = e.get("name")
+        if not isinstance(name, str) or not _NAME.match(name):
+            raise SpecError(f"{p}: {where}name = {name!r}: expected letters, digits, '.', '_' or '-' (it names the output files)")
+        if name in seen:
+            raise SpecError(f"{p}: {where}name = {name!r} is used twice (names must be unique)")
+        seen.add(name)
+        where = f"[[robot]] {name!r} "
+        fit = e.get("fit", {})
+        if not isinstance(fit, dict):
+            raise SpecError(f"{p}: {where}fit must be a table [robot.fit]")
+        check_keys(p, where + "[robot.fit] ", fit, FIT_OPTIONS)
+        try:
+            model_kwargs(**{k: v for k, v in fit.items() if k != "device"})
+        except ValueError as err:
+            raise SpecError(f"{p}: {where}[robot.fit] {err}") from None
+        poses = e.get("poses", 30)
+        if isinstance(poses, bool) or not isinstance(poses, int) or poses < 3:
+            raise SpecError(f"{p}: {where}poses = {poses!r}: expected an integer >= 3")
+        robots.append(FleetRobot(
+            name=name, robot=robot_spec(p, where + "robot", e.get("robot")),
+            train=rel_path(p, where + "train", e.get("train")),
+            test=rel_path(p, where + "test", e.get("test"), optional=True),
+            register=rel_path(p, where + "register", e.get("register"), optional=True), poses=poses, fit=dict(fit)))
+    res = t.get("resources", {})
+    check_keys(p, "[resources] ", res, ("cpus_per_robot", "gpus_per_robot"))
+    vals = {k: res.get(k, d) for k, d in (("cpus_per_robot", 1), ("gpus_per_robot", 0))}
+    for k, v in vals.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0:
+            raise SpecError(f"{p}: [resources] {k} = {v!r}: expected a number >= 0")
+    return FleetSpec(path=p, robots=robots, cpus_per_robot=float(vals["cpus_per_robot"]),
+                     gpus_per_robot=float(vals["gpus_per_robot"]))

@@ -1,0 +1,49 @@
+"""Ray, imported lazily (hykin imports without it), and a session for one sweep or fleet run.
+
+* :func:`import_ray` — the ``ray`` module, or ImportError (one line naming the ``distributed`` extra).
+* :func:`ray_session` — context manager: joins ``address`` (a cluster) or starts a small local Ray
+  (CPUs of this machine, no dashboard); reuses a session already started in this process and shuts
+  down only what it started.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+
+__all__ = ["import_ray", "ray_session"]
+
+_MISSING = "Ray is not installed: pip install 'hykin[distributed]' (or pip install 'ray[tune]>=2')"
+
+
+def import_ray(tune: bool = False):
+    """``ray`` (and with ``tune=True`` also imports ``ray.tune``); ImportError naming the extra when missing."""
+    os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")  # hykin writes its own results
+    os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
+    try:
+        import ray
+
+        if tune:
+            import ray.tune  # noqa: F401
+    except ImportError:
+        raise ImportError(_MISSING) from None
+    return ray
+
+
+@contextlib.contextmanager
+def ray_session(address: str | None = None, num_cpus: int | None = None):
+    """A Ray session: ``address`` (e.g. ``"ray://head:10001"`` or ``"auto"``) joins a cluster; None
+    starts a local one with ``num_cpus`` CPUs (default: this machine's). Yields ``ray``."""
+    ray = import_ray()
+    started = False
+    if not ray.is_initialized():
+        kw = dict(include_dashboard=False, log_to_driver=True, logging_level="warning")
+        if address is None:
+            kw["num_cpus"] = num_cpus or os.cpu_count() or 1
+        ray.init(address=address, **kw)
+        started = True
+    try:
+        yield ray
+    finally:
+        if started:
+            ray.shutdown()

@@ -1,0 +1,227 @@
+"""`hykin sweep`: every trial of a sweep file on Ray Tune (local or a cluster), results.csv and a plot.
+
+:func:`run_sweep` reads the robot, training and test sets once and hands them to the trials by
+reference (``tune.with_parameters``: one copy in Ray's object store, not one per trial). Each trial
+is :func:`hykin.distributed.trials.run_trial` on CPUs/GPUs from the file's [resources]. A trial that
+raises (or whose worker dies) is retried once by Tune (``FailureConfig(max_failures=1)``), then
+recorded with its error; it never stops the sweep. Every finished trial is appended to
+``DIR/trials.jsonl`` and ``DIR/results.csv`` is rewritten, so an interrupted sweep keeps what
+finished and ``resume=True`` reruns only the trials without an ``ok`` record.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from .ray_session import import_ray, ray_session
+from .sweep_file import SweepSpec, trial_key
+from .trials import ERROR_COLUMNS, run_trial
+
+__all__ = ["SweepOutcome", "run_sweep", "write_results", "plot_results"]
+
+RESULT_COLUMNS = ("status", "error", "attempts", *ERROR_COLUMNS, "fit_s", "steps", "epochs")
+
+
+@dataclass
+class SweepOutcome:
+    """``rows``: one dict per trial in the file's order (status ``ok``, ``error`` or ``not run``);
+    ``ran``: trials run now (the others were kept from an earlier run); paths written."""
+
+    rows: list
+    ran: int
+    results_csv: Path
+    plot: Path | None
+
+    @property
+    def failed(self) -> list:
+        return [r for r in self.rows if r["status"] != "ok"]
+
+
+def _trainable(config, robot=None, train=None, test=None, subsample_seed=0):
+    """The Tune function trainable: one trial, reported once as JSON."""
+    from ray import tune
+
+    row = run_trial(robot, train, test, config["trial"]["options"], subsample_seed)
+    tune.report({"row_json": json.dumps(row), "done_trial": 1})
+
+
+def _first_line(e) -> str:
+    msg = str(e).strip().splitlines()
+    # Tune wraps the trial's exception; keep the innermost message line.
+    lines = [m for m in msg if m.strip() and not m.startswith(("Traceback", "  ", "ray."))]
+    line = (lines[-1] if lines else type(e).__name__).strip()
+    head, sep, rest = line.partition(": ")
+    return f"{head.rsplit('.', 1)[-1]}: {rest}" if sep and " " not in head else line  # a.b.CalibrationError -> CalibrationError
+
+
+def _recorder_class():
+    from ray import tune
+
+    class Recorder(tune.Callback):
+        """Driver side: record each finished trial (jsonl + results.csv) and print a progress line."""
+
+        def __init__(self, on_done):
+            self.on_done = on_done
+
+        def on_trial_complete(self, iteration, trials, trial, **info):
+            res = trial.last_result or {}
+            if "row_json" in res:
+                self.on_done(trial.config["trial"], {"status": "ok", "error": "", "attempts": trial.num_failures + 1,
+                                                     **json.loads(res["row_json"])})
+
+        def on_trial_error(self, iteration, trials, trial, **info):
+            err = trial.get_pickled_error() or trial.get_error()
+            self.on_done(trial.config["trial"], {"status": "error", "error": _first_line(err) if err else "failed",
+                                                 "attempts": trial.num_failures})
+
+    return Recorder
+
+
+def _read_records(path: Path) -> dict:
+    """key -> row of ``trials.jsonl`` (later lines win)."""
+    out = {}
+    if path.is_file():
+        for line in path.read_text(encoding="utf-8").splitlines():
+            if line.strip():
+                r = json.loads(line)
+                out[r["key"]] = r["row"]
+    return out
+
+
+def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, resume: bool = False,
+              num_cpus: int | None = None, log=print) -> SweepOutcome:
+    """Run the trials of ``spec`` (those without an ``ok`` record when ``resume``) and write
+    ``out_dir/results.csv`` and ``out_dir/error_vs_n_train.png``. ``log``: one progress line per call."""
+    from ..io.dataset_files import read_dataset
+    from ..io.robot_file import load_robot
+    from .files import SpecError
+
+    out = Path(out_dir)
+    records_path = out / "trials.jsonl"
+    if not resume and (records_path.exists() or (out / "results.csv").exists()):
+        raise ValueError(f"{out}: holds an earlier sweep (results.csv); use --resume to finish it or another -o")
+    trials = spec.trials()
+    keys = [trial_key(t) for t in trials]
+    records = _read_records(records_path) if resume else {}
+    todo = [i for i, k in enumerate(keys) if records.get(k, {}).get("status") != "ok"]
+    rob = load_robot(spec.robot)
+    train = read_dataset(spec.train, robot=rob)
+    test = read_dataset(spec.test, robot=rob)
+    n_max = max((t.get("n_train", 0) for t in trials), default=0)
+    if n_max > len(train):
+        raise SpecError(f"{spec.path}: n_train = {n_max} exceeds the {len(train)} rows of {spec.train}")
+    out.mkdir(parents=True, exist_ok=True)
+    columns = list(dict.fromkeys(k for t in trials for k in t))
+
+    def rows_now():
+        rows = []
+        for i, (t, k) in enumerate(zip(trials, keys)):
+            r = records.get(k) or {"status": "not run", "error": "", "attempts": 0}
+            rows.append({"trial": i, **t, **r})
+        return rows
+
+    t_start, n_done = time.perf_counter(), [0]
+
+    def on_done(trial, row):
+        i = trial["index"]
+        records[keys[i]] = row
+        with open(records_path, "a", encoding="utf-8") as fh:
+            fh.write(json.dumps({"key": keys[i], "row": row}) + "\n")
+        write_results(out / "results.csv", rows_now(), columns)
+        n_done[0] += 1
+        el = time.perf_counter() - t_start
+        eta = el / n_done[0] * (len(todo) - n_done[0])
+        opts = " ".join(f"{k}={v}" for k, v in trials[i].items())
+        what = (f"hybrid {row['hybrid_pos_mean_mm']:.4f} mm, fit {row['fit_s']:.1f} s" if row["status"] == "ok"
+                else f"FAILED after {row['attempts']} attempts: {row['error']}")
+        log(f"sweep: trial {n_done[0]}/{len(todo)} done (#{i} {opts}): {what}; elapsed {el:.0f} s, ETA {eta:.0f} s")
+
+    if resume:
+        log(f"sweep: {len(trials) - len(todo)} of {len(trials)} trials kept from {records_path}, {len(todo)} to run")
+    if todo:
+        ray = import_ray(tune=True)
+        from ray import tune
+
+        import logging
+
+        for name in ("ray.tune.execution.tune_controller", "ray.tune.tune", "ray.tune.analysis.experiment_analysis"):
+            logging.getLogger(name).setLevel(logging.CRITICAL)  # trial failures: hykin records them, one line each
+        with ray_session(address, num_cpus):
+            trainable = tune.with_resources(
+                tune.with_parameters(_trainable, robot=rob, train=train, test=test, subsample_seed=spec.subsample_seed),
+                {"cpu": spec.cpus_per_trial, "gpu": spec.gpus_per_trial})
+            storage = (out / ".tune").resolve()
+            tuner = tune.Tuner(
+                trainable,
+                param_space={"trial": tune.grid_search([{"index": i, "options": trials[i]} for i in todo])},
+                tune_config=tune.TuneConfig(reuse_actors=False),
+                run_config=tune.RunConfig(
+                    name=f"sweep-{time.strftime('%Y%m%d-%H%M%S')}", storage_path=str(storage), verbose=0,
+                    failure_config=tune.FailureConfig(max_failures=1), callbacks=[_recorder_class()(on_done)]))
+            tuner.fit()
+            del ray
+            shutil.rmtree(storage, ignore_errors=True)
+    rows = rows_now()
+    write_results(out / "results.csv", rows, columns)
+    plot = plot_results(rows, out / "error_vs_n_train.png")
+    return SweepOutcome(rows=rows, ran=len(todo), results_csv=out / "results.csv", plot=plot)
+
+
+def write_results(path: Path, rows: list, option_columns: list) -> None:
+    """``results.csv``: trial, the options, RESULT_COLUMNS (empty cells where a trial has no value),
+    written by the one CSV writer (:func:`hykin.io.csv_writer.write_csv`, rows style)."""
+    import numpy as np
+
+    from ..io.csv_writer import ROWS_STYLE, write_csv
+
+    names = ["trial", *option_columns, *(c for c in RESULT_COLUMNS if c not in option_columns)]
+    if any("n_train" in r for r in rows) and "n_train" not in names:
+        names.insert(1 + len(option_columns), "n_train")
+    cols = {}
+    for c in names:
+        vals = [r.get(c, "") for r in rows]
+        cols[c] = np.array(["" if v is None or (isinstance(v, float) and math.isnan(v) and c not in ERROR_COLUMNS)
+                            else v for v in vals], dtype=object)
+    tmp = path.with_suffix(".csv.tmp")
+    write_csv(tmp, cols, ROWS_STYLE)
+    tmp.replace(path)
+
+
+def plot_results(rows: list, path: Path) -> Path | None:
+    """Test error (hybrid, mean over the other options) against training-set size, one line per
+    architecture (log-log); the calibrated model's mean dashed. None when no trial finished."""
+    import numpy as np
+
+    ok = [r for r in rows if r["status"] == "ok"]
+    if not ok:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for arch in dict.fromkeys(str(r.get("arch", "default")) for r in ok):
+        sel = [r for r in ok if str(r.get("arch", "default")) == arch]
+        ns = sorted({int(r["n_train"]) for r in sel})
+        ys = [np.mean([r["hybrid_pos_mean_mm"] for r in sel if int(r["n_train"]) == n]) for n in ns]
+        ax.plot(ns, ys, "o-", label=arch)
+    ns = sorted({int(r["n_train"]) for r in ok})
+    cal = [np.nanmean([r["calibrated_pos_mean_mm"] for r in ok if int(r["n_train"]) == n]) for n in ns]
+    if np.isfinite(cal).any():
+        ax.plot(ns, cal, "k--", label="calibrated only")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("training samples")
+    ax.set_ylabel("test position error, mean (mm)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,171 @@
+"""The sweep file (SWEEP.toml, DESIGN of issue #29): one dataset, one test set, a grid of fit options.
+
+```toml
+robot = "robot.toml"        # a file relative to this one, or a preset name
+train = "train.csv"         # relative to this file
+test = "test.csv"
+subsample_seed = 0          # optional: the permutation the nested n_train subsets are prefixes of
+[grid]                      # `hykin fit` option names with underscores, plus n_train; every combination is a trial
+arch = ["default", "D1"]
+seed = [0, 1]
+min_steps = [2000]
+n_train = [1000, 4000]      # optional: nested subsets of train (the first n of one fixed permutation)
+[random]                    # optional: `samples` draws of these keys for each grid combination
+samples = 4
+seed = 0
+lr_key = ...                # a list (uniform choice) or {uniform = [lo, hi]} / {loguniform = [lo, hi]}
+[resources]
+cpus_per_trial = 1
+gpus_per_trial = 0
+```
+
+:func:`read_sweep` -> :class:`SweepSpec` (SpecError, one line naming the file and key, on any mistake);
+:meth:`SweepSpec.trials` -> the list of trial option dicts, in a fixed order.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..hybrid.fit_options import FIT_OPTIONS, model_kwargs
+from .files import SpecError, check_keys, read_toml, rel_path, robot_spec
+
+__all__ = ["SWEEP_KEYS", "SweepSpec", "read_sweep", "trial_key"]
+
+SWEEP_KEYS = ("robot", "train", "test", "subsample_seed", "grid", "random", "resources")
+GRID_KEYS = (*FIT_OPTIONS, "n_train")
+_TYPES = {"arch": str, "recipe": str, "calibrate": bool, "device": str, "seed": int, "max_minutes": (int, float),
+          "thermal": str, "min_steps": int, "max_epochs": int, "orientation_weight": (str, int, float),
+          "max_deviation": str, "region_cv": bool, "fade_cv": int, "n_train": int}
+
+
+@dataclass
+class SweepSpec:
+    """A parsed sweep file: ``robot`` (file path or preset), ``train``/``test`` absolute paths, ``grid``
+    option -> list of values, ``random`` option -> list or {uniform|loguniform: [lo, hi]},
+    ``samples``/``random_seed`` for the random part, resources per trial (CPUs, GPUs)."""
+
+    path: Path
+    robot: str
+    train: Path
+    test: Path
+    grid: dict
+    random: dict = field(default_factory=dict)
+    samples: int = 0
+    random_seed: int = 0
+    subsample_seed: int = 0
+    cpus_per_trial: float = 1.0
+    gpus_per_trial: float = 0.0
+
+    def trials(self) -> list[dict]:
+        """Every grid combination (last key fastest), times ``samples`` random draws when [random] is given."""
+        import numpy as np
+
+        keys = list(self.grid)
+        combos = [dict(zip(keys, vals)) for vals in itertools.product(*(self.grid[k] for k in keys))]
+        if not self.random:
+            return combos
+        rng = np.random.default_rng(self.random_seed)
+        out = []
+        for c in combos:
+            for _ in range(self.samples):
+                d = dict(c)
+                for k, v in self.random.items():
+                    if isinstance(v, list):
+                        d[k] = v[int(rng.integers(len(v)))]
+                    elif "uniform" in v:
+                        d[k] = float(rng.uniform(*v["uniform"]))
+                    else:
+                        lo, hi = v["loguniform"]
+                        d[k] = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+                    if _TYPES[k] is int:
+                        d[k] = int(round(d[k]))
+                out.append(d)
+        return out
+
+
+def trial_key(options: dict) -> str:
+    """A trial's identity for resuming: its options as sorted JSON."""
+    return json.dumps(options, sort_keys=True, default=str)
+
+
+def _check_value(path: Path, where: str, key: str, v) -> None:
+    t = _TYPES[key]
+    ok = isinstance(v, t) and not (t is int and isinstance(v, bool)) and not (t is not bool and isinstance(v, bool))
+    if not ok:
+        raise SpecError(f"{path}: {where}{key} = {v!r}: expected {getattr(t, '__name__', 'a number')}")
+    if key == "n_train" and v < 1:
+        raise SpecError(f"{path}: {where}n_train = {v!r}: must be >= 1")
+
+
+def read_sweep(path: str | Path) -> SweepSpec:
+    """Parse and check the sweep file ``path`` (SpecError naming the file and key on a mistake)."""
+    p, t = read_toml(path)
+    check_keys(p, "", t, SWEEP_KEYS)
+    grid = t.get("grid", {})
+    if not isinstance(grid, dict):
+        raise SpecError(f"{p}: grid must be a table [grid]")
+    check_keys(p, "[grid] ", grid, GRID_KEYS)
+    grid = {k: (v if isinstance(v, list) else [v]) for k, v in grid.items()}
+    for k, vals in grid.items():
+        if not vals:
+            raise SpecError(f"{p}: [grid] {k} is an empty list (give at least one value)")
+        for v in vals:
+            _check_value(p, "[grid] ", k, v)
+    rnd = dict(t.get("random", {}))
+    samples, rseed = int(rnd.pop("samples", 1 if rnd else 0)), rnd.pop("seed", 0)
+    check_keys(p, "[random] ", rnd, GRID_KEYS)
+    for k, v in rnd.items():
+        if k in grid:
+            raise SpecError(f"{p}: [random] {k} is also a [grid] key (give it in one of them)")
+        if isinstance(v, list):
+            if not v:
+                raise SpecError(f"{p}: [random] {k} is an empty list")
+            for x in v:
+                _check_value(p, "[random] ", k, x)
+        elif not (isinstance(v, dict) and len(v) == 1 and next(iter(v)) in ("uniform", "loguniform")
+                  and _TYPES[k] in (int, (int, float)) and len(next(iter(v.values()))) == 2):
+            raise SpecError(f"{p}: [random] {k} = {v!r}: expected a list or {{uniform = [lo, hi]}} / "
+                            "{loguniform = [lo, hi]} for a numeric option")
+        elif "loguniform" in v and min(v["loguniform"]) <= 0:
+            raise SpecError(f"{p}: [random] {k}: loguniform bounds must be > 0, got {v['loguniform']}")
+    if rnd and samples < 1:
+        raise SpecError(f"{p}: [random] samples = {samples}: must be >= 1")
+    res = t.get("resources", {})
+    check_keys(p, "[resources] ", res, ("cpus_per_trial", "gpus_per_trial"))
+    cpus, gpus = res.get("cpus_per_trial", 1), res.get("gpus_per_trial", 0)
+    for k, v, lo in (("cpus_per_trial", cpus, 0), ("gpus_per_trial", gpus, 0)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or v < lo:
+            raise SpecError(f"{p}: [resources] {k} = {v!r}: expected a number >= {lo}")
+    sseed = t.get("subsample_seed", 0)
+    if isinstance(sseed, bool) or not isinstance(sseed, int):
+        raise SpecError(f"{p}: subsample_seed = {sseed!r}: expected an integer")
+    spec = SweepSpec(path=p, robot=robot_spec(p, "robot", t.get("robot")), train=rel_path(p, "train", t.get("train")),
+                     test=rel_path(p, "test", t.get("test")), grid=grid, random=rnd, samples=samples if rnd else 0,
+                     random_seed=int(rseed), subsample_seed=sseed, cpus_per_trial=float(cpus), gpus_per_trial=float(gpus))
+    _check_options(spec)
+    return spec
+
+
+def _check_options(spec: SweepSpec) -> None:
+    """Every value maps to model settings (the same mapping as `hykin fit`); architectures and recipes exist."""
+    from ..hybrid.nets import list_architectures
+    from ..hybrid.train import RECIPES
+
+    p = spec.path
+    for k, vals in spec.grid.items():
+        for v in vals:
+            if k == "arch" and v not in list_architectures():
+                raise SpecError(f"{p}: [grid] arch = {v!r}: unknown architecture (known: {', '.join(list_architectures())})")
+            if k == "recipe" and v not in RECIPES:
+                raise SpecError(f"{p}: [grid] recipe = {v!r}: unknown recipe (known: {', '.join(RECIPES)})")
+            if k in ("n_train", "device"):
+                continue
+            try:
+                model_kwargs(**{k: v})
+            except ValueError as e:
+                raise SpecError(f"{p}: [grid] {k} = {v!r}: {e}") from None

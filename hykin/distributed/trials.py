@@ -1,0 +1,80 @@
+"""The one trial: ``HybridModel(robot, **model_kwargs(options)).fit(train)`` + evaluation on the test set.
+
+The same mapping of options to settings as `hykin fit` (:func:`hykin.hybrid.fit_options.model_kwargs`),
+so a trial and `hykin fit` with the same options, data and seed give the same model.
+
+* :func:`nested_subset` — the first ``n`` rows of one fixed permutation (``n_train``: nested subsets).
+* :func:`fit_model` — the fitted model for ``options`` (the `hykin fit` path).
+* :func:`error_columns` — ``{nominal,calibrated,hybrid}_{pos_mean_mm,pos_p95_mm,ang_mean_deg}`` of an evaluation.
+* :func:`run_trial` — one sweep trial -> one results row (raises on failure; the driver records it).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+__all__ = ["ERROR_COLUMNS", "error_columns", "fit_model", "nested_subset", "run_trial", "training_steps"]
+
+#: error columns of a results/summary row, in order (mm, deg; NaN where a row does not apply).
+ERROR_COLUMNS = tuple(f"{m}_{s}" for m in ("nominal", "calibrated", "hybrid")
+                      for s in ("pos_mean_mm", "pos_p95_mm", "ang_mean_deg"))
+
+
+def nested_subset(n_total: int, n: int, seed: int) -> np.ndarray:
+    """Row indices of a training subset of size ``n``: the first ``n`` of one permutation of
+    ``n_total`` rows drawn with ``seed`` (so smaller subsets are inside larger ones), sorted."""
+    if not 1 <= n <= n_total:
+        raise ValueError(f"n_train = {n} must be between 1 and the {n_total} training rows")
+    return np.sort(np.random.default_rng(seed).permutation(n_total)[:n])
+
+
+def fit_model(robot, train, options: dict, progress: bool = False):
+    """``HybridModel(robot, **model_kwargs(**options)).fit(train)``: the `hykin fit` path (``options``:
+    fit option names of :data:`hykin.hybrid.fit_options.FIT_OPTIONS`)."""
+    from ..hybrid.fit_options import model_kwargs
+    from ..hybrid.model import HybridModel
+    from ..io.plausibility import check_fit_size
+
+    check_fit_size(robot, train)
+    return HybridModel(robot, **model_kwargs(**options)).fit(train, None, progress=progress)
+
+
+def error_columns(res) -> dict:
+    """The :data:`ERROR_COLUMNS` of an :class:`hykin.evaluation.evaluate.EvalResult`."""
+    out = {}
+    for m in ("nominal", "calibrated", "hybrid"):
+        s = res.stats.get(m)
+        out[f"{m}_pos_mean_mm"] = float("nan") if s is None else s.pos_mean_mm
+        out[f"{m}_pos_p95_mm"] = float("nan") if s is None else s.pos_p95_mm
+        out[f"{m}_ang_mean_deg"] = float("nan") if s is None or s.ang_mean_deg is None else s.ang_mean_deg
+    return out
+
+
+def training_steps(model) -> tuple[int, int]:
+    """(optimiser steps, epochs) of the position network of a fitted ``model``."""
+    from ..hybrid.train import batch_and_epochs
+
+    meta = model.metadata
+    epochs = int(meta["train_results"]["pos"]["epochs"])
+    bs, _ = batch_and_epochs(model.recipe_, int(meta["n_train"]))
+    return epochs * math.ceil(int(meta["n_train"]) / bs), epochs
+
+
+def run_trial(robot, train, test, options: dict, subsample_seed: int = 0) -> dict:
+    """One sweep trial: fit on ``train`` (its nested subset of ``options["n_train"]`` rows when given)
+    and evaluate on ``test``. Returns the row: ``n_train`` (rows used), :data:`ERROR_COLUMNS`,
+    ``fit_s`` (wall seconds of fit), ``steps``, ``epochs``. Exceptions propagate."""
+    from ..evaluation.evaluate import evaluate_model
+
+    opts = dict(options)
+    n = opts.pop("n_train", None)
+    tr = train if n is None else train.subset(nested_subset(len(train), int(n), subsample_seed))
+    t0 = time.perf_counter()
+    model = fit_model(robot, tr, opts)
+    fit_s = time.perf_counter() - t0
+    steps, epochs = training_steps(model)
+    return {"n_train": len(tr), **error_columns(evaluate_model(model, test)), "fit_s": fit_s,
+            "steps": steps, "epochs": epochs}

@@ -1,0 +1,76 @@
+"""`hykin fit` options -> :class:`hykin.hybrid.model.HybridModel` settings (one mapping for the CLI,
+the sweep trials and the fleet, so the same options give the same model).
+
+* :data:`FIT_OPTIONS` — option name (the CLI's ``--option`` with underscores) -> default.
+* :func:`calibration_options` — ``--orientation-weight`` / ``--max-deviation`` -> ``calibrate`` kwargs.
+* :func:`model_kwargs` — all fit options -> ``HybridModel(robot, **kwargs)`` keyword arguments.
+
+Bad values raise ValueError with a one-line message naming the option.
+"""
+
+from __future__ import annotations
+
+__all__ = ["FIT_OPTIONS", "calibration_options", "model_kwargs"]
+
+#: `hykin fit` option -> default (None: the recipe's / unset).
+FIT_OPTIONS: dict = {
+    "arch": "default", "recipe": "default", "calibrate": True, "device": "cpu", "seed": 0,
+    "max_minutes": None, "thermal": "auto", "min_steps": None, "max_epochs": None,
+    "orientation_weight": "auto", "max_deviation": None, "region_cv": False, "fade_cv": 0,
+}
+
+_THERMAL = {"auto": "auto", "on": True, "off": False}
+
+
+def calibration_options(orientation_weight="auto", max_deviation: str | None = None) -> dict:
+    """``calibrate`` keyword arguments from ``--orientation-weight`` (m/rad or 'auto') and
+    ``--max-deviation`` (KIND=VALUE[,...]); ValueError on bad values."""
+    from ..calibration.checks import parse_max_deviation
+
+    kw: dict = {}
+    if orientation_weight != "auto":
+        try:
+            w = float(orientation_weight)
+        except (TypeError, ValueError):
+            raise ValueError(f"--orientation-weight must be a number (m/rad) or 'auto', got {orientation_weight!r}") from None
+        if not (w > 0 and w < float("inf")):
+            raise ValueError(f"--orientation-weight must be > 0, got {orientation_weight!r}")
+        kw["orientation_weight_m_per_rad"] = w
+    if max_deviation:
+        kw["max_deviation"] = parse_max_deviation(max_deviation)
+    return kw
+
+
+def model_kwargs(**options) -> dict:
+    """``HybridModel`` keyword arguments for the `hykin fit` ``options`` (names of :data:`FIT_OPTIONS`;
+    missing ones take their defaults). ``device="auto"`` resolves to cuda when available."""
+    unknown = sorted(set(options) - set(FIT_OPTIONS))
+    if unknown:
+        raise ValueError(f"unknown fit option {unknown[0]!r} (known: {', '.join(FIT_OPTIONS)})")
+    o = {**FIT_OPTIONS, **options}
+    kw: dict = {}
+    if o["max_minutes"] is not None:
+        kw["max_seconds"] = float(o["max_minutes"]) * 60
+    if o["min_steps"] is not None:
+        if int(o["min_steps"]) < 0:
+            raise ValueError(f"--min-steps must be >= 0, got {o['min_steps']}")
+        kw.setdefault("recipe_kw", {})["min_steps"] = int(o["min_steps"])
+    if o["max_epochs"] is not None:
+        if int(o["max_epochs"]) < 1:
+            raise ValueError(f"--max-epochs must be >= 1, got {o['max_epochs']}")
+        kw.setdefault("recipe_kw", {})["max_epochs"] = int(o["max_epochs"])
+    if o["thermal"] not in _THERMAL:
+        raise ValueError(f"--thermal must be auto, on or off, got {o['thermal']!r}")
+    fade_cv = int(o["fade_cv"])
+    if fade_cv == 1 or fade_cv < 0:
+        raise ValueError(f"--fade-cv must be 0 (off) or >= 2 regions, got {fade_cv}")
+    cal_kw = calibration_options(o["orientation_weight"], o["max_deviation"])
+    if o["region_cv"]:
+        cal_kw["select"] = "region-cv"
+    device = o["device"]
+    if device == "auto":
+        import torch
+
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    return dict(arch=o["arch"], recipe=o["recipe"], calibrate=bool(o["calibrate"]), device=device, seed=int(o["seed"]),
+                thermal=_THERMAL[o["thermal"]], calibrate_kw=cal_kw, fade_cv=fade_cv, **kw)
