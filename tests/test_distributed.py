@@ -1,0 +1,251 @@
+"""hykin sweep / hykin fleet (issue #29): file formats (one-line errors), the one trial path (= `hykin
+fit`), nested subsets, and end to end on a local Ray (slow: Ray's start-up alone takes 5-25 s)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+
+import numpy as np
+import pytest
+
+from cli_run import run
+from hykin.distributed.fleet_file import read_fleet
+from hykin.distributed.files import SpecError
+from hykin.distributed.sweep_file import read_sweep, trial_key
+from hykin.distributed.trials import fit_model, nested_subset, run_trial
+from hykin.geometry.se3 import rotvec_to_matrix
+from hykin.io.dataset import Dataset
+from hykin.io.dataset_files import write_dataset
+from hykin.io.robot_file import load_robot
+from hykin.kinematics.fk import fk
+
+
+def _data(robot, n, seed):
+    """Poses with a smooth residual the classical model cannot express (so calibration leaves > 0.01 mm)."""
+    q = robot.random_joints(n, seed, margin=0.1)
+    T = fk(robot, q)
+    T[:, :3, 3] += 2e-4 * np.stack([np.sin(q[:, 0]), np.cos(q[:, 1]), np.sin(q[:, 2] + q[:, 1])], 1)
+    T[:, :3, :3] = rotvec_to_matrix(1e-4 * np.stack([np.cos(q[:, 0]), np.sin(q[:, 3]), 0.5 * q[:, 1]], 1)) @ T[:, :3, :3]
+    return Dataset.from_poses(q, T, orientation=True)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("dist")
+    rob = load_robot("rx160")
+    write_dataset(_data(rob, 240, 1), d / "train.csv")
+    write_dataset(_data(rob, 80, 2), d / "test.csv")
+    write_dataset(_data(rob, 60, 3), d / "day2.csv")
+    return d
+
+
+def _write(path, text):
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+GOOD_SWEEP = 'robot = "rx160"\ntrain = "train.csv"\ntest = "test.csv"\n'
+FAST = "max_epochs = [2]\nmin_steps = [0]\n"
+
+
+# --------------------------------------------------------------------------- sweep file
+
+
+def test_sweep_file_every_combination_is_a_trial(files):
+    p = _write(files / "s.toml", GOOD_SWEEP + '[grid]\narch = ["default", "D1"]\nseed = [0, 1, 2]\nn_train = [100]\n'
+               "[resources]\ncpus_per_trial = 2\n")
+    spec = read_sweep(p)
+    trials = spec.trials()
+    assert len(trials) == 6 and spec.cpus_per_trial == 2.0 and spec.gpus_per_trial == 0.0
+    assert trials[1] == {"arch": "default", "seed": 1, "n_train": 100}  # last key fastest
+    assert len({trial_key(t) for t in trials}) == 6
+    assert spec.train == (files / "train.csv").resolve()
+
+
+def test_sweep_file_random_samples_are_reproducible(files):
+    p = _write(files / "r.toml", GOOD_SWEEP + '[grid]\narch = ["default", "D1"]\n'
+               '[random]\nsamples = 3\nseed = 7\nmin_steps = {loguniform = [100, 10000]}\nrecipe = ["paper", "default"]\n')
+    a, b = read_sweep(p).trials(), read_sweep(p).trials()
+    assert a == b and len(a) == 6
+    assert all(100 <= t["min_steps"] <= 10000 and isinstance(t["min_steps"], int) for t in a)
+    assert {t["arch"] for t in a} == {"default", "D1"}
+
+
+@pytest.mark.parametrize("text, key", [
+    (GOOD_SWEEP + "[grid]\nbogus = [1]\n", "bogus"),
+    (GOOD_SWEEP + '[grid]\narch = ["D9"]\n', "arch"),
+    (GOOD_SWEEP + "[grid]\nmin_steps = [-5]\n", "min_steps"),
+    (GOOD_SWEEP + '[grid]\nseed = ["a"]\n', "seed"),
+    (GOOD_SWEEP + "[grid]\nn_train = [0]\n", "n_train"),
+    (GOOD_SWEEP + '[grid]\nthermal = ["maybe"]\n', "thermal"),
+    (GOOD_SWEEP.replace("test.csv", "missing.csv"), "test"),
+    (GOOD_SWEEP.replace('"rx160"', '"no-such-robot"'), "robot"),
+    (GOOD_SWEEP + "[resources]\ncpus_per_trial = -1\n", "cpus_per_trial"),
+    (GOOD_SWEEP + "[resources]\ngpu = 1\n", "gpu"),
+    ('robot = "rx160"\ntrain = "train.csv"\n', "test"),
+    (GOOD_SWEEP + "[grid\n", "TOML"),
+])
+def test_sweep_file_mistakes_are_one_line_naming_file_and_key(files, text, key):
+    p = _write(files / "bad.toml", text)
+    with pytest.raises(SpecError) as e:
+        read_sweep(p)
+    msg = str(e.value)
+    assert "\n" not in msg and str(p) in msg and key in msg, msg
+
+
+def test_sweep_cli_refuses_a_bad_file_in_one_line_and_writes_nothing(files, capsys):
+    p = _write(files / "bad2.toml", GOOD_SWEEP + "[grid]\nmax_epochs = [0]\n")
+    code, out, err = run(["sweep", p, "-o", files / "never"], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "max_epochs" in err and str(p) in err
+    assert not (files / "never").exists()
+
+
+def test_nested_subsets_are_nested_and_seeded():
+    a, b = nested_subset(1000, 100, 3), nested_subset(1000, 400, 3)
+    assert len(a) == 100 and len(np.unique(a)) == 100 and set(a) <= set(b)
+    assert not np.array_equal(a, nested_subset(1000, 100, 4))
+    with pytest.raises(ValueError, match="n_train"):
+        nested_subset(10, 11, 0)
+
+
+# --------------------------------------------------------------------------- fleet file
+
+
+GOOD_FLEET = '[[robot]]\nname = "cell-1"\nrobot = "rx160"\ntrain = "train.csv"\n'
+
+
+def test_fleet_file_parses(files):
+    p = _write(files / "f.toml", GOOD_FLEET + 'test = "test.csv"\nregister = "day2.csv"\nposes = 20\n'
+               "[robot.fit]\nmin_steps = 0\nmax_epochs = 2\n"
+               '[[robot]]\nname = "cell-2"\nrobot = "rx160"\ntrain = "train.csv"\n')
+    spec = read_fleet(p)
+    assert [r.name for r in spec.robots] == ["cell-1", "cell-2"]
+    a, b = spec.robots
+    assert a.poses == 20 and a.fit == {"min_steps": 0, "max_epochs": 2} and a.register == (files / "day2.csv").resolve()
+    assert b.test is None and b.register is None and b.poses == 30
+
+
+@pytest.mark.parametrize("text, key", [
+    (GOOD_FLEET + GOOD_FLEET, "name"),
+    (GOOD_FLEET.replace("cell-1", "cell 1"), "name"),
+    (GOOD_FLEET + 'test = "nope.csv"\n', "test"),
+    (GOOD_FLEET + "poses = 1\n", "poses"),
+    (GOOD_FLEET + "[robot.fit]\nfade_cv = 1\n", "fade-cv"),
+    (GOOD_FLEET + "[robot.fit]\nlearning = 1\n", "learning"),
+    (GOOD_FLEET + "colour = 1\n", "colour"),
+    ("[resources]\ncpus_per_robot = 1\n", "[[robot]]"),
+])
+def test_fleet_file_mistakes_are_one_line_naming_file_and_key(files, text, key):
+    p = _write(files / "badf.toml", text)
+    with pytest.raises(SpecError) as e:
+        read_fleet(p)
+    msg = str(e.value)
+    assert "\n" not in msg and str(p) in msg and key in msg, msg
+
+
+# --------------------------------------------------------------------------- one path with `hykin fit`
+
+
+def test_a_trial_is_hykin_fit_with_the_same_options(files, capsys):
+    """`hykin fit` and the trial's fit give the same predictions; the trial's errors are the test errors
+    of that model (reference computed here from the poses)."""
+    from hykin.hybrid.model import HybridModel
+    from hykin.io.dataset_files import read_dataset
+
+    code, _, err = run(["fit", "rx160", files / "train.csv", "-o", files / "cli.hykin", "--seed", 3, "--max-epochs", 2,
+                        "--min-steps", 0, "--arch", "default", "--no-calibrate", "--force"], capsys)
+    assert code == 0, err
+    cli = HybridModel.load(files / "cli.hykin")
+    rob = load_robot("rx160")
+    train, test = read_dataset(files / "train.csv", robot=rob), read_dataset(files / "test.csv", robot=rob)
+    opts = {"seed": 3, "max_epochs": 2, "min_steps": 0, "arch": "default", "calibrate": False}
+    mine = fit_model(rob, train, opts)
+    np.testing.assert_array_equal(mine.predict(test.q), cli.predict(test.q))
+    row = run_trial(rob, train, test, opts)
+    ref = np.linalg.norm(cli.predict(test.q)[:, :3, 3] - test.xyz_m, axis=1).mean() * 1e3
+    assert row["hybrid_pos_mean_mm"] == pytest.approx(ref, rel=1e-12)
+    assert row["n_train"] == 240 and row["epochs"] >= 1 and row["steps"] >= row["epochs"] and row["fit_s"] > 0
+    assert np.isnan(row["calibrated_pos_mean_mm"])
+
+
+def test_missing_ray_is_one_line_naming_the_extra(monkeypatch):
+    from hykin.distributed.ray_session import import_ray
+
+    monkeypatch.setitem(sys.modules, "ray", None)
+    with pytest.raises(ImportError, match=r"hykin\[distributed\]"):
+        import_ray()
+
+
+# --------------------------------------------------------------------------- end to end on local Ray (slow)
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    """One local Ray for the module (2 CPUs, no dashboard); the CLI reuses it."""
+    ray = pytest.importorskip("ray", reason="Ray not installed (pip install 'hykin[distributed]')")
+    pytest.importorskip("ray.tune", reason="Ray Tune not installed (pip install 'hykin[distributed]')")
+    if not ray.is_initialized():
+        ray.init(num_cpus=2, include_dashboard=False, logging_level="warning")
+    yield ray
+    ray.shutdown()
+
+
+def _csv(path):
+    with open(path, newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.mark.slow
+def test_sweep_end_to_end_failure_retry_and_resume(files, local_ray, capsys):
+    p = _write(files / "sweep.toml", GOOD_SWEEP + "[grid]\nn_train = [150]\n" + FAST +
+               'max_deviation = ["residual_mm=0.00001", "residual_mm=3"]\n')
+    out = files / "sweep-out"
+    code, o, err = run(["sweep", p, "-o", out], capsys)
+    assert code == 1, err
+    assert [line for line in err.splitlines() if line.startswith("hykin: error:")] == [
+        line for line in err.splitlines() if "trial 0 failed: CalibrationError" in line]
+    assert "trial 2/2 done" in o and "ETA" in o
+    rows = _csv(out / "results.csv")
+    assert [r["status"] for r in rows] == ["error", "ok"]
+    assert rows[0]["attempts"] == "2" and "CalibrationError" in rows[0]["error"]  # retried once, then recorded
+    assert rows[1]["n_train"] == "150" and float(rows[1]["hybrid_pos_mean_mm"]) > 0 and float(rows[1]["fit_s"]) > 0
+    assert (out / "error_vs_n_train.png").stat().st_size > 1000
+    # --resume reruns only the failed trial; the finished one is kept as it was
+    code, o, err = run(["sweep", p, "-o", out, "--resume"], capsys)
+    assert code == 1 and "1 of 2 trials kept" in o and "1 to run" in o
+    again = _csv(out / "results.csv")
+    assert again[1] == rows[1] and again[0]["status"] == "error"
+    # an interrupted sweep (the finished record lost) resumed gives the same numbers for the same seed
+    recs = (out / "trials.jsonl").read_text().splitlines()
+    (out / "trials.jsonl").write_text("\n".join(r for r in recs if json.loads(r)["row"]["status"] != "ok") + "\n")
+    code, o, err = run(["sweep", p, "-o", out, "--resume"], capsys)
+    assert "0 of 2 trials kept" in o
+    third = _csv(out / "results.csv")
+    assert third[1]["hybrid_pos_mean_mm"] == rows[1]["hybrid_pos_mean_mm"]
+    # without --resume an earlier sweep is not overwritten
+    code, o, err = run(["sweep", p, "-o", out], capsys)
+    assert code == 2 and "--resume" in err
+
+
+@pytest.mark.slow
+def test_fleet_end_to_end_one_robot_fails(files, local_ray, capsys):
+    p = _write(files / "fleet.toml",
+               GOOD_FLEET + 'test = "test.csv"\nregister = "day2.csv"\nposes = 20\n[robot.fit]\nmin_steps = 0\nmax_epochs = 2\n'
+               '[[robot]]\nname = "cell-2"\nrobot = "rx160"\ntrain = "train.csv"\n'
+               '[robot.fit]\nmin_steps = 0\nmax_epochs = 2\nmax_deviation = "residual_mm=0.00001"\n')
+    out = files / "fleet-out"
+    code, o, err = run(["fleet", p, "-o", out], capsys)
+    assert code == 1
+    fails = [line for line in err.splitlines() if line.startswith("hykin: error:")]
+    assert len(fails) == 1 and "cell-2" in fails[0] and "CalibrationError" in fails[0]
+    assert (out / "cell-1.hykin").is_file() and (out / "cell-1-registered.hykin").is_file()
+    assert not (out / "cell-2.hykin").exists()
+    rows = _csv(out / "summary.csv")
+    assert [(r["name"], r["status"]) for r in rows] == [("cell-1", "ok"), ("cell-2", "failed")]
+    ok = rows[0]
+    assert float(ok["hybrid_pos_mean_mm"]) < float(ok["nominal_pos_mean_mm"])
+    assert float(ok["registered_hybrid_pos_mean_mm"]) > 0
+    md = (out / "summary.md").read_text()
+    assert "| cell-1 | ok |" in md and "cell-2: CalibrationError" in md
