@@ -249,3 +249,22 @@ def test_fleet_end_to_end_one_robot_fails(files, local_ray, capsys):
     assert float(ok["registered_hybrid_pos_mean_mm"]) > 0
     md = (out / "summary.md").read_text()
     assert "| cell-1 | ok |" in md and "cell-2: CalibrationError" in md
+
+
+def test_shipped_paper_table1_sweep_parses(files, tmp_path):
+    """examples/sweeps/paper-table1.toml: the paper's six architectures with its recipe, networks alone,
+    plus hykin's default, at two training-set sizes (two [[grid]] tables)."""
+    import shutil
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[1] / "examples" / "sweeps" / "paper-table1.toml"
+    shutil.copy(src, tmp_path)
+    for name in ("rx160-train.csv", "rx160-test.csv"):
+        shutil.copy(files / "train.csv", tmp_path / name)
+    trials = read_sweep(tmp_path / "paper-table1.toml").trials()
+    paper = [t for t in trials if t["recipe"] == "paper"]
+    assert sorted({t["arch"] for t in paper}) == sorted(["D1", "D4", "D4w", "D4W", "Rw", "Rd"])
+    assert all(t["calibrate"] is False for t in paper) and len(paper) == 12
+    assert [t for t in trials if t["recipe"] == "default"] == [
+        {"arch": "default", "recipe": "default", "calibrate": True, "max_minutes": 10, "n_train": n, "seed": 0}
+        for n in (5000, 20000)]

@@ -19,6 +19,9 @@ cpus_per_trial = 1
 gpus_per_trial = 0
 ```
 
+Several grids: ``[[grid]]`` tables instead of one ``[grid]``; the trials are those of each grid, in order
+(e.g. the paper's architectures with the paper recipe, plus hykin's default with its own).
+
 :func:`read_sweep` -> :class:`SweepSpec` (SpecError, one line naming the file and key, on any mistake);
 :meth:`SweepSpec.trials` -> the list of trial option dicts, in a fixed order.
 """
@@ -45,15 +48,15 @@ _TYPES = {"arch": str, "recipe": str, "calibrate": bool, "device": str, "seed": 
 
 @dataclass
 class SweepSpec:
-    """A parsed sweep file: ``robot`` (file path or preset), ``train``/``test`` absolute paths, ``grid``
-    option -> list of values, ``random`` option -> list or {uniform|loguniform: [lo, hi]},
+    """A parsed sweep file: ``robot`` (file path or preset), ``train``/``test`` absolute paths, ``grids``
+    (a list of option -> list of values), ``random`` option -> list or {uniform|loguniform: [lo, hi]},
     ``samples``/``random_seed`` for the random part, resources per trial (CPUs, GPUs)."""
 
     path: Path
     robot: str
     train: Path
     test: Path
-    grid: dict
+    grids: list
     random: dict = field(default_factory=dict)
     samples: int = 0
     random_seed: int = 0
@@ -62,11 +65,10 @@ class SweepSpec:
     gpus_per_trial: float = 0.0
 
     def trials(self) -> list[dict]:
-        """Every grid combination (last key fastest), times ``samples`` random draws when [random] is given."""
+        """Every combination of each grid (last key fastest), times ``samples`` random draws when [random] is given."""
         import numpy as np
 
-        keys = list(self.grid)
-        combos = [dict(zip(keys, vals)) for vals in itertools.product(*(self.grid[k] for k in keys))]
+        combos = [dict(zip(g, vals)) for g in self.grids for vals in itertools.product(*g.values())]
         if not self.random:
             return combos
         rng = np.random.default_rng(self.random_seed)
@@ -106,16 +108,19 @@ def read_sweep(path: str | Path) -> SweepSpec:
     """Parse and check the sweep file ``path`` (SpecError naming the file and key on a mistake)."""
     p, t = read_toml(path)
     check_keys(p, "", t, SWEEP_KEYS)
-    grid = t.get("grid", {})
-    if not isinstance(grid, dict):
-        raise SpecError(f"{p}: grid must be a table [grid]")
-    check_keys(p, "[grid] ", grid, GRID_KEYS)
-    grid = {k: (v if isinstance(v, list) else [v]) for k, v in grid.items()}
-    for k, vals in grid.items():
-        if not vals:
-            raise SpecError(f"{p}: [grid] {k} is an empty list (give at least one value)")
-        for v in vals:
-            _check_value(p, "[grid] ", k, v)
+    grids = t.get("grid", {})
+    grids = [grids] if isinstance(grids, dict) else grids
+    if not isinstance(grids, list) or not all(isinstance(g, dict) for g in grids):
+        raise SpecError(f"{p}: grid must be a table [grid] or tables [[grid]]")
+    grids = [{k: (v if isinstance(v, list) else [v]) for k, v in g.items()} for g in grids]
+    for g in grids:
+        check_keys(p, "[grid] ", g, GRID_KEYS)
+        for k, vals in g.items():
+            if not vals:
+                raise SpecError(f"{p}: [grid] {k} is an empty list (give at least one value)")
+            for v in vals:
+                _check_value(p, "[grid] ", k, v)
+    grid = {k: v for g in grids for k, v in g.items()}
     rnd = dict(t.get("random", {}))
     samples, rseed = int(rnd.pop("samples", 1 if rnd else 0)), rnd.pop("seed", 0)
     check_keys(p, "[random] ", rnd, GRID_KEYS)
@@ -145,7 +150,7 @@ def read_sweep(path: str | Path) -> SweepSpec:
     if isinstance(sseed, bool) or not isinstance(sseed, int):
         raise SpecError(f"{p}: subsample_seed = {sseed!r}: expected an integer")
     spec = SweepSpec(path=p, robot=robot_spec(p, "robot", t.get("robot")), train=rel_path(p, "train", t.get("train")),
-                     test=rel_path(p, "test", t.get("test")), grid=grid, random=rnd, samples=samples if rnd else 0,
+                     test=rel_path(p, "test", t.get("test")), grids=grids, random=rnd, samples=samples if rnd else 0,
                      random_seed=int(rseed), subsample_seed=sseed, cpus_per_trial=float(cpus), gpus_per_trial=float(gpus))
     _check_options(spec)
     return spec
@@ -157,7 +162,7 @@ def _check_options(spec: SweepSpec) -> None:
     from ..hybrid.train import RECIPES
 
     p = spec.path
-    for k, vals in spec.grid.items():
+    for k, vals in ((k, v) for g in spec.grids for k, v in g.items()):
         for v in vals:
             if k == "arch" and v not in list_architectures():
                 raise SpecError(f"{p}: [grid] arch = {v!r}: unknown architecture (known: {', '.join(list_architectures())})")
