@@ -1,10 +1,11 @@
 """`hykin fleet`: fit, evaluate and register many robots in parallel, one Ray task per robot.
 
 Each robot (:class:`hykin.distributed.fleet_file.FleetRobot`) is one task, :func:`robot_job`: fit
-(:func:`hykin.distributed.trials.fit_model`, the `hykin fit` path), write ``DIR/<name>.hykin``,
+(:func:`hykin.distributed.trials.fit_model`, the `hykin fit` path), the model file ``DIR/<name>.hykin``,
 evaluate on its test set (nominal / calibrated / hybrid), and where a series is given register it
 (:func:`hykin.measure.register.register_model`, the `hykin register` path) and write
-``DIR/<name>-registered.hykin``. A robot that fails is a row with its error; the others go on.
+``DIR/<name>-registered.hykin`` (the files come back to the driver as bytes, which writes them, so the
+output folder need not be shared with the workers). A robot that fails is a row with its error; the others go on.
 Writes ``DIR/summary.csv`` (the one CSV writer) and ``DIR/summary.md`` (a markdown table).
 """
 
@@ -28,37 +29,46 @@ def _first_line(e: BaseException) -> str:
     return f"{type(e).__name__}: {msg[0]}" if msg else type(e).__name__
 
 
-def robot_job(entry: FleetRobot, out_dir: str) -> dict:
-    """Fit / evaluate / register one robot; a summary row (status ``ok`` or ``failed`` with ``error``)."""
+def _model_bytes(model) -> bytes:
+    """The model file's bytes (written on the worker, sent to the driver that writes the output folder)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "model.hykin"
+        model.save(path)
+        return path.read_bytes()
+
+
+def robot_job(entry: FleetRobot) -> dict:
+    """Fit / evaluate / register one robot; a summary row (status ``ok`` or ``failed`` with ``error``).
+    The model files come back as bytes in ``files`` (file name -> bytes) for the driver to write."""
     from ..evaluation.evaluate import evaluate_model
     from ..io.dataset_files import read_dataset
     from ..io.robot_file import load_robot
     from ..measure.register import register_model
 
-    out = Path(out_dir)
-    row = {"name": entry.name, "status": "ok", "error": ""}
+    row = {"name": entry.name, "status": "ok", "error": "", "files": {}}
     try:
         rob = load_robot(entry.robot)
         train = read_dataset(entry.train, robot=rob)
         t0 = time.perf_counter()
         model = fit_model(rob, train, entry.fit)
         row.update(n_train=len(train), fit_s=time.perf_counter() - t0)
-        path = out / f"{entry.name}.hykin"
-        model.save(path)
-        row["model"] = path.name
+        row["model"] = f"{entry.name}.hykin"
+        row["files"][row["model"]] = _model_bytes(model)
         if entry.test is not None:
             test = read_dataset(entry.test, robot=rob)
             row.update(n_test=len(test), **error_columns(evaluate_model(model, test)))
         if entry.register is not None:
             series = read_dataset(entry.register, robot=rob)
             new, _ = register_model(model, series, n_poses=entry.poses)
-            rpath = out / f"{entry.name}-registered.hykin"
-            new.save(rpath)
+            row["registered_model"] = f"{entry.name}-registered.hykin"
+            row["files"][row["registered_model"]] = _model_bytes(new)
             ev = error_columns(evaluate_model(new, series))
-            row.update(registered_model=rpath.name, registered_hybrid_pos_mean_mm=ev["hybrid_pos_mean_mm"],
+            row.update( registered_hybrid_pos_mean_mm=ev["hybrid_pos_mean_mm"],
                        registered_hybrid_ang_mean_deg=ev["hybrid_ang_mean_deg"])
     except Exception as e:  # noqa: BLE001 - a failing robot is recorded; the fleet goes on
-        row.update(status="failed", error=_first_line(e))
+        row.update(status="failed", error=_first_line(e), files={})
     return row
 
 
@@ -72,7 +82,7 @@ def run_fleet(spec: FleetSpec, out_dir: str | Path, address: str | None = None, 
     t0 = time.perf_counter()
     with ray_session(address, num_cpus) as ray:
         job = ray.remote(num_cpus=spec.cpus_per_robot, num_gpus=spec.gpus_per_robot, max_retries=1)(robot_job)
-        pending = {job.remote(r, str(out.resolve())): r.name for r in spec.robots}
+        pending = {job.remote(r): r.name for r in spec.robots}
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
             name = pending.pop(done[0])
@@ -80,6 +90,8 @@ def run_fleet(spec: FleetSpec, out_dir: str | Path, address: str | None = None, 
                 row = ray.get(done[0])
             except Exception as e:  # noqa: BLE001 - the worker died twice: recorded, the others go on
                 row = {"name": name, "status": "failed", "error": _first_line(e)}
+            for fname, data in row.pop("files", {}).items():
+                (out / fname).write_bytes(data)
             rows[name] = row
             what = (f"hybrid {row.get('hybrid_pos_mean_mm', float('nan')):.4f} mm" if row["status"] == "ok"
                     else f"FAILED: {row['error']}")
