@@ -88,11 +88,16 @@ def test_sweep_file_random_samples_are_reproducible(files):
     (GOOD_SWEEP + "[grid\n", "TOML"),
 ])
 def test_sweep_file_mistakes_are_one_line_naming_file_and_key(files, text, key):
-    p = _write(files / "bad.toml", text)
+    _refused_in_one_line(read_sweep, files / "bad.toml", text, key)
+
+
+def _refused_in_one_line(reader, path, text, key):
+    """``reader`` refuses the file ``text`` with one line naming the file and ``key``."""
+    _write(path, text)
     with pytest.raises(SpecError) as e:
-        read_sweep(p)
+        reader(path)
     msg = str(e.value)
-    assert "\n" not in msg and str(p) in msg and key in msg, msg
+    assert "\n" not in msg and str(path) in msg and key in msg, msg
 
 
 def test_sweep_cli_refuses_a_bad_file_in_one_line_and_writes_nothing(files, capsys):
@@ -138,11 +143,7 @@ def test_fleet_file_parses(files):
     ("[resources]\ncpus_per_robot = 1\n", "[[robot]]"),
 ])
 def test_fleet_file_mistakes_are_one_line_naming_file_and_key(files, text, key):
-    p = _write(files / "badf.toml", text)
-    with pytest.raises(SpecError) as e:
-        read_fleet(p)
-    msg = str(e.value)
-    assert "\n" not in msg and str(p) in msg and key in msg, msg
+    _refused_in_one_line(read_fleet, files / "badf.toml", text, key)
 
 
 # --------------------------------------------------------------------------- one path with `hykin fit`
