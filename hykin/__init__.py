@@ -137,6 +137,12 @@ _EXPORTS = {
     "Plan": "planning",
     "PlanningError": "planning",
     "forecast_accuracy": "planning",
+    # sweeps and fleets on Ray (extra `distributed`)
+    "read_sweep": "distributed.sweep_file",
+    "run_sweep": "distributed.sweep",
+    "read_fleet": "distributed.fleet_file",
+    "run_fleet": "distributed.fleet",
+    "run_trial": "distributed.trials",
 }
 
 __all__ = sorted(_EXPORTS) + ["__version__"]
