@@ -269,3 +269,63 @@ def test_shipped_paper_table1_sweep_parses(files, tmp_path):
     assert [t for t in trials if t["recipe"] == "default"] == [
         {"arch": "default", "recipe": "default", "calibrate": True, "max_minutes": 10, "n_train": n, "seed": 0}
         for n in (5000, 20000)]
+
+
+def _descendants(pid: int) -> list[int]:
+    """Process ids below ``pid`` (from /proc; Linux)."""
+    import os
+
+    parent = {}
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                stat = open(f"/proc/{d}/stat", encoding="utf-8").read()
+                parent[int(d)] = int(stat[stat.rindex(")") + 2:].split()[1])
+            except (OSError, ValueError):
+                pass
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        kids = [c for c, pp in parent.items() if pp == p]
+        out += kids
+        todo += kids
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds the trial's worker in /proc (Linux)")
+def test_a_worker_killed_mid_trial_is_retried_and_the_sweep_completes(files, local_ray):
+    """Fault injection: the worker process of the running trial (one this test's Ray started) is killed
+    with SIGKILL; Tune retries the trial once and it finishes."""
+    import os
+    import signal
+    import threading
+    import time
+
+    from hykin.distributed.sweep import run_sweep
+
+    p = _write(files / "kill.toml", GOOD_SWEEP + "[grid]\nmax_epochs = [40]\nmin_steps = [0]\ncalibrate = [false]\n")
+    killed = []
+
+    def killer():
+        t_end = time.time() + 300
+        while not killed and time.time() < t_end:
+            for pid in _descendants(os.getpid()):
+                try:
+                    cmd = open(f"/proc/{pid}/cmdline", "rb").read()
+                except OSError:
+                    continue
+                if b"ImplicitFunc.train" in cmd:
+                    time.sleep(1.0)  # mid-trial
+                    os.kill(pid, signal.SIGKILL)
+                    killed.append(pid)
+                    return
+            time.sleep(0.1)
+
+    th = threading.Thread(target=killer, daemon=True)
+    th.start()
+    res = run_sweep(read_sweep(p), files / "kill-out", log=print)
+    th.join(timeout=1)
+    assert killed, "no trial worker was found to kill"
+    (row,) = res.rows
+    assert row["status"] == "ok" and row["attempts"] == 2, row

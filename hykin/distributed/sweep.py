@@ -212,8 +212,10 @@ def plot_results(rows: list, path: Path) -> Path | None:
         ys = [np.mean([r["hybrid_pos_mean_mm"] for r in sel if int(r["n_train"]) == n]) for n in ns]
         ax.plot(ns, ys, "o-", label=arch)
     ns = sorted({int(r["n_train"]) for r in ok})
-    cal = [np.nanmean([r["calibrated_pos_mean_mm"] for r in ok if int(r["n_train"]) == n]) for n in ns]
-    if np.isfinite(cal).any():
+    cal = [[r["calibrated_pos_mean_mm"] for r in ok if int(r["n_train"]) == n and math.isfinite(r["calibrated_pos_mean_mm"])]
+           for n in ns]
+    if all(cal):  # every size has calibrated trials
+        cal = [np.mean(c) for c in cal]
         ax.plot(ns, cal, "k--", label="calibrated only")
     ax.set_xscale("log")
     ax.set_yscale("log")
