@@ -329,3 +329,11 @@ def test_a_worker_killed_mid_trial_is_retried_and_the_sweep_completes(files, loc
     assert killed, "no trial worker was found to kill"
     (row,) = res.rows
     assert row["status"] == "ok" and row["attempts"] == 2, row
+
+
+@pytest.mark.slow
+def test_more_gpus_per_trial_than_the_local_ray_has_is_refused_in_one_line(files, local_ray, capsys):
+    p = _write(files / "gpu.toml", GOOD_SWEEP + "[grid]\nseed = [0]\n[resources]\ngpus_per_trial = 64\n")
+    code, _, err = run(["sweep", p, "-o", files / "gpu-out"], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "gpus_per_trial" in err and str(p) in err
+    assert not (files / "gpu-out").exists()

@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from .fleet_file import FleetRobot, FleetSpec
-from .ray_session import ray_session
+from .ray_session import check_resources, ray_session
 from .trials import ERROR_COLUMNS, error_columns, fit_model
 
 __all__ = ["SUMMARY_COLUMNS", "robot_job", "run_fleet", "summary_markdown"]
@@ -77,10 +77,12 @@ def run_fleet(spec: FleetSpec, out_dir: str | Path, address: str | None = None, 
     """Run every robot of ``spec`` as a Ray task (retried once if its worker dies); write the per-robot
     model files, ``summary.csv`` and ``summary.md`` into ``out_dir``. Returns the rows in file order."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     rows: dict = {}
     t0 = time.perf_counter()
     with ray_session(address, num_cpus) as ray:
+        check_resources(ray, str(spec.path), {"cpus_per_robot": spec.cpus_per_robot,
+                                              "gpus_per_robot": spec.gpus_per_robot}, address)
+        out.mkdir(parents=True, exist_ok=True)  # after every check: a refused fleet writes nothing
         job = ray.remote(num_cpus=spec.cpus_per_robot, num_gpus=spec.gpus_per_robot, max_retries=1)(robot_job)
         pending = {job.remote(r): r.name for r in spec.robots}
         while pending:

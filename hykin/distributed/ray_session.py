@@ -47,3 +47,17 @@ def ray_session(address: str | None = None, num_cpus: int | None = None):
     finally:
         if started:
             ray.shutdown()
+
+
+def check_resources(ray, where: str, need: dict, address: str | None) -> None:
+    """ValueError (one line) when a local Ray has fewer CPUs/GPUs than one trial needs (Tune would wait
+    for them forever); ``need``: e.g. ``{"cpus_per_trial": 1, "gpus_per_trial": 0}``; ``where``: the
+    file. A cluster (``address``) may add nodes, so it is not checked."""
+    if address is not None:
+        return
+    have = ray.cluster_resources()
+    for key, n in need.items():
+        kind = "GPU" if key.startswith("gpus") else "CPU"
+        if n > have.get(kind, 0):
+            raise ValueError(f"{where}: [resources] {key} = {n:g} but this machine's Ray has {have.get(kind, 0):g} "
+                             f"{kind}s (lower it, or join a cluster with --address)")

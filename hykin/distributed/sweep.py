@@ -12,13 +12,14 @@ finished and ``resume=True`` reruns only the trials without an ``ok`` record.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .ray_session import import_ray, ray_session
+from .ray_session import check_resources, import_ray, ray_session
 from .sweep_file import SweepSpec, trial_key
 from .trials import ERROR_COLUMNS, run_trial
 
@@ -115,7 +116,6 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
     n_max = max((t.get("n_train", 0) for t in trials), default=0)
     if n_max > len(train):
         raise SpecError(f"{spec.path}: n_train = {n_max} exceeds the {len(train)} rows of {spec.train}")
-    out.mkdir(parents=True, exist_ok=True)
     columns = list(dict.fromkeys(k for t in trials for k in t))
 
     def rows_now():
@@ -147,11 +147,12 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
         ray = import_ray(tune=True)
         from ray import tune
 
-        import logging
-
         for name in ("ray.tune.execution.tune_controller", "ray.tune.tune", "ray.tune.analysis.experiment_analysis"):
             logging.getLogger(name).setLevel(logging.CRITICAL)  # trial failures: hykin records them, one line each
         with ray_session(address, num_cpus):
+            check_resources(ray, str(spec.path), {"cpus_per_trial": spec.cpus_per_trial,
+                                                  "gpus_per_trial": spec.gpus_per_trial}, address)
+            out.mkdir(parents=True, exist_ok=True)  # after every check: a refused sweep writes nothing
             trainable = tune.with_resources(
                 tune.with_parameters(_trainable, robot=rob, train=train, test=test, subsample_seed=spec.subsample_seed),
                 {"cpu": spec.cpus_per_trial, "gpu": spec.gpus_per_trial})
@@ -159,14 +160,14 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
             tuner = tune.Tuner(
                 trainable,
                 param_space={"trial": tune.grid_search([{"index": i, "options": trials[i]} for i in todo])},
-                tune_config=tune.TuneConfig(reuse_actors=False),
+                tune_config=tune.TuneConfig(reuse_actors=True),  # one worker (torch import) serves many trials
                 run_config=tune.RunConfig(
                     name=f"sweep-{time.strftime('%Y%m%d-%H%M%S')}", storage_path=str(storage), verbose=0,
                     failure_config=tune.FailureConfig(max_failures=1), callbacks=[_recorder_class()(on_done)]))
             tuner.fit()
-            del ray
             shutil.rmtree(storage, ignore_errors=True)
     rows = rows_now()
+    out.mkdir(parents=True, exist_ok=True)
     write_results(out / "results.csv", rows, columns)
     plot = plot_results(rows, out / "error_vs_n_train.png")
     return SweepOutcome(rows=rows, ran=len(todo), results_csv=out / "results.csv", plot=plot)
