@@ -60,6 +60,24 @@ def _first_line(e) -> str:
     return f"{head.rsplit('.', 1)[-1]}: {rest}" if sep and " " not in head else line  # a.b.CalibrationError -> CalibrationError
 
 
+def _trial_error(trial):
+    """The trial's last error: the pickled exception or the traceback text Tune wrote next to the
+    trial (local files first, then Tune's storage); None when there is none."""
+    import pickle
+
+    for path, text in ((trial.pickled_error_file, False), (trial.error_file, True)):
+        try:
+            if path and Path(path).is_file():
+                data = Path(path).read_bytes()
+                return data.decode("utf-8", "replace") if text else pickle.loads(data)
+        except Exception:  # noqa: BLE001 - an unreadable error file: try the next source
+            continue
+    try:
+        return trial.get_pickled_error() or trial.get_error()
+    except Exception:  # noqa: BLE001
+        return None
+
+
 def _recorder_class():
     from ray import tune
 
@@ -76,7 +94,7 @@ def _recorder_class():
                                                      **json.loads(res["row_json"])})
 
         def on_trial_error(self, iteration, trials, trial, **info):
-            err = trial.get_pickled_error() or trial.get_error()
+            err = _trial_error(trial)
             self.on_done(trial.config["trial"], {"status": "error", "error": _first_line(err) if err else "failed",
                                                  "attempts": trial.num_failures})
 
