@@ -156,7 +156,7 @@ def jacobian_chunk(state: ModelState, specs: list[ParamSpec], q_eff: np.ndarray,
     origin = None
     if robot.convention == "urdf" and any(s.group == "origin" for s in specs):
         O = se3.xyzrpy_to_transform(robot.origin_xyz_m, robot.origin_rpy_rad)
-        origin = [_rmul(prev[:, i], O[i]) for i in range(robot.dof)]
+        origin = [_rmul(prev[:, i], O[i]) for i in range(robot.n_chain)]
     for k, s in enumerate(specs):
         if s.group == "point":  # a further reflector's offset along a TCP axis: moves that point only
             Jp[k, :, s.joint] = -tcp[:, :3, TWIST.index(s.field)]

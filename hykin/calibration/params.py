@@ -70,7 +70,7 @@ def candidate_specs(robot: Robot, *, base: bool, tool: bool, compliance: bool, n
         out += tw("base", -1, "base")
     if tool:
         out += tw("tool", -1, "tool")
-    n = robot.dof
+    n = robot.n_chain  # per chain joint (a mimic joint's origin is calibrated like any other)
     for i in range(n):
         k = i + 1
         if robot.convention == "urdf":
@@ -145,7 +145,7 @@ def apply_step(state: ModelState, specs: list[ParamSpec], delta: np.ndarray) -> 
     r = state.robot
     geom = {"a": r.a_m.copy(), "alpha": r.alpha_rad.copy(), "d": r.d_m.copy(), "theta": r.theta_rad.copy(), "beta": r.beta_rad.copy()}
     base6, tool6 = np.zeros(6), np.zeros(6)
-    orig6 = np.zeros((r.dof, 6))
+    orig6 = np.zeros((r.n_chain, 6))
     c = state.c.copy()
     pts = state.pts.copy()
     for s, v in zip(specs, delta):
@@ -166,7 +166,7 @@ def apply_step(state: ModelState, specs: list[ParamSpec], delta: np.ndarray) -> 
     changes["tool"] = r.tool @ _E(tool6)
     if r.convention == "urdf" and np.any(orig6):
         O = se3.xyzrpy_to_transform(r.origin_xyz_m, r.origin_rpy_rad)
-        O = np.stack([O[i] @ _E(orig6[i]) for i in range(r.dof)])
+        O = np.stack([O[i] @ _E(orig6[i]) for i in range(r.n_chain)])
         xyz, rpy = se3.transform_to_xyzrpy(O)
         changes.update(origin_xyz_m=xyz, origin_rpy_rad=rpy)
     new = robot_with_compliance(r.copy(**changes), c)
@@ -183,7 +183,7 @@ def apply_deviations(robot: Robot, deviations: dict[str, float]) -> Robot:
     """
     specs = {s.name: s for s in candidate_specs(robot, base=True, tool=True, compliance=True)}
     for name in ("beta",):  # beta is a candidate only for near-parallel axes; allow it everywhere here
-        for i in range(robot.dof):
+        for i in range(robot.n_chain):
             specs.setdefault(f"{name}{i + 1}", ParamSpec(f"{name}{i + 1}", "geom", i, name, "rad"))
     unknown = [k for k in deviations if k not in specs]
     if unknown:

@@ -83,7 +83,7 @@ def plan_cmd(
             reflector_axis=_vec3(reflector_axis, "--reflector-axis"),
             keep_out_m=[parse_box(b, f"--keep-out {k + 1}", length_unit) for k, b in enumerate(keep_out or [])],
         ).check(rob)
-        speeds = np.where(np.array([t == "revolute" for t in rob.joint_type]), np.radians(speed), speed * 1e-3)
+        speeds = np.where(np.array([t == "revolute" for t in rob.independent_joint_type]), np.radians(speed), speed * 1e-3)
         if model is not None:
             p = active_poses(model, n, c, seed=seed, pool=pool, speeds=speeds, dwell_s=dwell)
         else:

@@ -122,7 +122,7 @@ def candidate_solutions(robot: Robot, T_world: np.ndarray) -> tuple[np.ndarray, 
 
     br = ik(robot, T_world, all_branches=True)
     q, ok = br.q, br.success.copy()
-    rev = np.array([t == "revolute" for t in robot.joint_type])
+    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
     wide = np.flatnonzero(rev & (robot.upper - robot.lower > TWO_PI - 1e-9))
     if wide.size:
         # shifts of -2π, 0, +2π on each joint with a range over 360°: at most 3^k representations

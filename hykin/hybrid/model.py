@@ -254,7 +254,7 @@ class HybridModel:
         timings["calibrate_s"] = time.perf_counter() - t0
 
         dp, dr, _ = fitting.residual_targets(self.robot_, train)
-        revolute = np.array([t == "revolute" for t in self.robot.joint_type], dtype=bool)
+        revolute = np.array([t == "revolute" for t in self.robot.independent_joint_type], dtype=bool)
         self.wrap_centre_ = inputs.seam_centres(q, revolute) if self.periodic == "wrap" else np.full(n, np.nan)
         if self.joint1 == "frame":
             if not revolute[0]:

@@ -89,7 +89,7 @@ def check_position_scale(robot: Robot, q, xyz_m, *, where: str = "<data>", lengt
     s = float(spread / spread_hat)
     if 1.0 / SCALE_LIMIT <= s <= SCALE_LIMIT:
         return s
-    rev = np.array([t == "revolute" for t in robot.joint_type])
+    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
     if s < 1.0 / SCALE_LIMIT:
         if length_unit == "mm":
             cause = "the positions look like metres declared --length-unit mm (use --length-unit m)"
@@ -196,7 +196,7 @@ def check_joint_unit(robot: Robot, q, *, where: str = "<joints>", angle_unit: st
     """Joints only: radians declared as degrees leave every revolute joint within ±6.3°; refuse that
     when the robot's ranges are wide and there are several rows (``q`` ``(N, dof)`` in rad as read)."""
     q = np.asarray(q, dtype=np.float64)
-    rev = np.array([t == "revolute" for t in robot.joint_type])
+    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
     if angle_unit != "deg" or len(q) < 5 or not rev.any():
         return
     wide = (robot.upper - robot.lower)[rev] > np.radians(60.0)

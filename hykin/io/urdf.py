@@ -2,12 +2,19 @@
 
 * :func:`load_urdf` reads a URDF (standard library XML parser, no ROS needed) and returns a
   :class:`~hykin.kinematics.robot.Robot` with ``convention="urdf"``. The chain runs from ``base_link`` (default:
-  the root link) to ``tip_link`` (default: the leaf at the end of the chain with the most movable
-  joints). Revolute, continuous and prismatic joints become robot joints; fixed joints are folded into
+  the root link) to ``tip_link`` (default: the one tip; a URDF with several tips is refused naming
+  them, see :func:`_default_tip`). Revolute, continuous and prismatic joints become robot joints; fixed joints are folded into
   the next movable joint's origin, or into ``tool`` after the last movable joint. Link frame i is the
   child link of movable joint i; its mass and centre of mass (``mass_kg``, ``com_m``, link frame i)
   combine that link's ``<inertial>`` with every link fixed to it further down the chain.
-  Continuous joints get limits ``[-pi, pi]`` (every orientation once).
+  Continuous joints get limits ``[-pi, pi]`` (every orientation once): sampling, network input
+  normalisation and IK use that range (IK answers within it); measured joints outside it are
+  accepted (the FK is 2π-periodic).
+  ``<mimic joint multiplier offset>`` joints stay in the chain but are no robot input: their value is
+  ``multiplier · leader + offset`` (:attr:`Robot.mimic`); ``Robot.dof`` counts the independent joints
+  and ``lower``/``upper`` are theirs (a mimic joint's own ``<limit>`` is not used). The URDF text,
+  base and tip links are kept in ``Robot.urdf`` so that :func:`calibrated_urdf_xml` can write a
+  calibrated robot back into the maker's file.
 * :func:`robot_to_urdf` writes any robot (DH, MDH or URDF) as a URDF serial chain with the same
   forward kinematics: ``base`` and ``tool`` become fixed joints, each joint i becomes a movable joint
   (child link ``joint_i_frame``, z = joint axis) followed by a fixed joint to ``link_i`` (hykin link
@@ -158,6 +165,13 @@ def load_urdf_string(
                 if lo > hi:
                     raise RobotFileError(f"{w} <limit>: lower > upper")
                 info["limits"] = (lo, hi)
+            mim = el.find("mimic")
+            if mim is not None:
+                _check_attrs(mim, ("joint", "multiplier", "offset"), f"{w} <mimic>")
+                if not mim.get("joint"):
+                    raise RobotFileError(f"{w} <mimic>: missing attribute 'joint'")
+                info["mimic"] = (mim.get("joint"), _float_attr(mim, "multiplier", f"{w} <mimic>", False, 1.0),
+                                 _float_attr(mim, "offset", f"{w} <mimic>", False, 0.0))
         joints[child] = info
 
     children: dict[str, list[str]] = {}
@@ -181,19 +195,7 @@ def load_urdf_string(
         return chain[::-1]
 
     if tip_link is None:
-        leaves, stack = [], [base_link]
-        while stack:  # depth-first over the tree below base_link
-            ln = stack.pop()
-            kids = children.get(ln, [])
-            if not kids:
-                leaves.append(ln)
-            stack.extend(kids)
-        score = {lf: (sum(j["type"] in _MOVABLE for j in path_to(lf)), len(path_to(lf))) for lf in leaves}
-        best = max(score.values())
-        cands = sorted(lf for lf, s in score.items() if s == best)
-        if len(cands) > 1:
-            raise RobotFileError(f"{where}: several chain ends {cands} are equally long; name tip_link")
-        tip_link = cands[0]
+        tip_link = _default_tip(base_link, children, joints, path_to, where)
     elif tip_link not in links:
         raise RobotFileError(f"{where}: tip_link '{tip_link}' is not a link")
     chain = path_to(tip_link)
@@ -234,6 +236,10 @@ def load_urdf_string(
         names.append(j["name"])
     if not origins:
         raise RobotFileError(f"{where}: no movable joint between '{base_link}' and '{tip_link}'")
+    mimic = _mimic_table([j for j in chain if j["type"] != "fixed"], {j["name"]: j for j in joints.values()},
+                         base_link, tip_link, where)
+    indep = [i for i in range(len(names)) if mimic[i, 0] < 0]
+    lower, upper = [lower[i] for i in indep], [upper[i] for i in indep]
     origins = np.array(origins)
     xyz, rpy = se3.transform_to_xyzrpy(origins)
     n = len(origins)
@@ -254,7 +260,78 @@ def load_urdf_string(
         com_m=np.array(coms),
         tool=pending,
         source=f"URDF {where}: chain {base_link} -> {tip_link}, joints {', '.join(names)}",
+        mimic=mimic,
+        joint_names=tuple(names),
+        urdf={"xml": text, "base_link": base_link, "tip_link": tip_link},
     )
+
+
+def _default_tip(base_link: str, children: dict, joints: dict, path_to, where: str) -> str:
+    """The chain end below ``base_link`` when no tip is named: the one tip, where a *tip* is a leaf
+    link whose own branch (from the last link with several children) holds a movable joint; a
+    dead-end branch of fixed joints only (a camera or sensor frame bolted to a link) is no tip.
+    Several tips: refused in one line naming them. Only dead ends: the one with most movable joints."""
+    leaves, stack = [], [base_link]
+    while stack:  # depth-first over the tree below base_link
+        ln = stack.pop()
+        kids = children.get(ln, [])
+        if not kids:
+            leaves.append(ln)
+        stack.extend(kids)
+    if len(leaves) == 1:
+        return leaves[0]
+
+    def own_branch_moves(leaf: str) -> bool:
+        ln = leaf
+        while ln != base_link and len(children.get(joints[ln]["parent"], [])) == 1:
+            if joints[ln]["type"] in _MOVABLE:
+                return True
+            ln = joints[ln]["parent"]
+        return ln != base_link and joints[ln]["type"] in _MOVABLE
+
+    tips = sorted(lf for lf in leaves if own_branch_moves(lf))
+    if len(tips) == 1:
+        return tips[0]
+    if len(tips) > 1:
+        raise RobotFileError(f"{where}: several tips ({', '.join(tips)}) below '{base_link}'; name tip_link "
+                             f"(--tip LINK on the command line)")
+    score = {lf: (sum(j["type"] in _MOVABLE for j in path_to(lf)), len(path_to(lf))) for lf in leaves}
+    best = max(score.values())
+    cands = sorted(lf for lf, s in score.items() if s == best)
+    if len(cands) > 1:
+        raise RobotFileError(f"{where}: several chain ends ({', '.join(cands)}) are equally long; name tip_link "
+                             f"(--tip LINK on the command line)")
+    return cands[0]
+
+
+def _mimic_table(movable: list[dict], by_name: dict, base_link: str, tip_link: str, where: str) -> np.ndarray:
+    """``(n, 3)`` ``[leader chain index or -1, multiplier, offset]`` of the chain's movable joints
+    (:attr:`Robot.mimic`). A mimic of a mimic is resolved to the independent joint at its root; a
+    leader off the chain, an unknown joint or a cycle is refused naming the joint."""
+    index = {j["name"]: i for i, j in enumerate(movable)}
+    out = np.zeros((len(movable), 3))
+    out[:, 0] = -1.0
+    for i, j in enumerate(movable):
+        mult, off, cur, seen = 1.0, 0.0, j, {j["name"]}
+        while "mimic" in cur:
+            lead, m, o = cur["mimic"]
+            w = f"{where}: joint '{cur['name']}' <mimic joint='{lead}'>"
+            if lead not in by_name:
+                raise RobotFileError(f"{w}: no joint of that name")
+            if lead in seen:
+                raise RobotFileError(f"{w}: mimic joints form a cycle")
+            if by_name[lead]["type"] not in _MOVABLE:
+                raise RobotFileError(f"{w}: the leader is a fixed joint")
+            mult, off = mult * m, mult * o + off  # q = m (m_l q_root + o_l) + o
+            cur = by_name[lead]
+            seen.add(lead)
+        if cur is j:
+            continue
+        if cur["name"] not in index:
+            raise RobotFileError(f"{where}: joint '{j['name']}' mimics '{cur['name']}', which is not on the chain "
+                                 f"'{base_link}' -> '{tip_link}' (choose --base/--tip to include it)")
+        out[i] = (index[cur["name"]], mult, off)
+    return out
 
 
 def _fmt(v) -> str:

@@ -24,6 +24,10 @@ Everything is vectorised over ``(N, n)`` joint arrays and float64; numpy and tor
 numbers to rounding. The numpy path runs compiled (numba) per-sample kernels, ~0.5 M torque
 evaluations/s per core; the array-namespace code (:func:`_gravity_torques_xp`) serves torch and
 is the numpy fallback without numba.
+
+Mimic joints (URDF ``<mimic>``): each chain joint is a spring of its own, so torques, compliance,
+stiffness and deflected joints are per chain joint (``n = robot.n_chain``); the joints given may be
+the independent ones (expanded by :func:`hykin.kinematics.walk.expand_joints`) or chain joints.
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ import numpy as np
 from .chain import Chain, chain_of
 from .fk import HAVE_NUMBA, fk, fk_torch
 from .robot import Robot
-from .walk import chain_walk
+from .walk import chain_walk, expand_joints
 
 if HAVE_NUMBA:
     import numba
@@ -257,9 +261,9 @@ def _check_q(robot: Robot, q, xp):
         q = np.asarray(q, dtype=np.float64)
     elif not _is_torch(q):
         q = xp.as_tensor(np.array(q, dtype=np.float64))
-    if q.ndim != 2 or q.shape[1] != robot.dof:
+    if q.ndim != 2 or q.shape[1] not in (robot.dof, robot.n_chain):
         raise ComplianceError(f"joints must have shape (N, {robot.dof}), got {tuple(q.shape)}")
-    return q
+    return expand_joints(xp, chain_of(robot), q)  # chain joints (mimic joints expanded)
 
 
 def _mass_terms(robot: Robot, links, tcp, base, xp, like, payload=None):
@@ -323,7 +327,7 @@ def _gravity_torques_xp(robot: Robot, q, chain: Chain | None, xp, payload=None):
             M = xp.cross(c, F, dim=-1)
             Fs = xp.flip(xp.cumsum(xp.flip(F, [1]), 1), [1])
             Ms = xp.flip(xp.cumsum(xp.flip(M, [1]), 1), [1])
-        Fs_n = Fs[:, : robot.dof]
+        Fs_n = Fs[:, : robot.n_chain]
     else:
         F = m[:, None] * g[None, :]  # (n+1, 3) forces
         if xp is np:
@@ -334,8 +338,8 @@ def _gravity_torques_xp(robot: Robot, q, chain: Chain | None, xp, payload=None):
             M = xp.cross(c, F[None].expand_as(c), dim=-1)
             Fs = xp.flip(xp.cumsum(xp.flip(F, [0]), 0), [0])
             Ms = xp.flip(xp.cumsum(xp.flip(M, [1]), 1), [1])
-        Fs_n = Fs[None, : robot.dof]  # (1, n, 3)
-    n = robot.dof
+        Fs_n = Fs[None, : robot.n_chain]  # (1, n, 3)
+    n = robot.n_chain
     z = joints[..., :3, 2]  # (N, n, 3)
     o = joints[..., :3, 3]
     # moment about o_i of the forces beyond joint i: sum (c_j - o_i) x F_j = Ms_i - o_i x Fs_i
@@ -397,16 +401,16 @@ def deflected_joints(robot: Robot, q, compliance=None, chain: Chain | None = Non
         compliance = compliance_of(robot)
     if xp is np:
         C = np.asarray(compliance, dtype=np.float64)
-        if C.shape != (robot.dof,) or not np.all(np.isfinite(C)) or np.any(C < 0):
-            raise ComplianceError(f"compliance must be ({robot.dof},) finite and >= 0, got {C}")
+        if C.shape != (robot.n_chain,) or not np.all(np.isfinite(C)) or np.any(C < 0):
+            raise ComplianceError(f"compliance must be ({robot.n_chain},) finite and >= 0, got {C}")
         if not np.any(C):
             return q.copy()
     else:
         C = compliance if _is_torch(compliance) else xp.as_tensor(
             np.array(compliance, dtype=np.float64), dtype=q.dtype, device=q.device
         )
-        if C.shape != (robot.dof,):
-            raise ComplianceError(f"compliance must have shape ({robot.dof},), got {tuple(C.shape)}")
+        if C.shape != (robot.n_chain,):
+            raise ComplianceError(f"compliance must have shape ({robot.n_chain},), got {tuple(C.shape)}")
         if not C.requires_grad and not bool((C != 0).any()):
             return q.clone()
     if xp is np and HAVE_NUMBA:

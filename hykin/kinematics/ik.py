@@ -301,9 +301,9 @@ def solve_lm(robot: Robot, T_world, q0, position_only: bool = False, tol_m: floa
     if not bounded:
         rev = _revolute(robot)
         lo, hi = np.where(rev, -np.inf, lo), np.where(rev, np.inf, hi)
-    if not HAVE_NUMBA:
-        return _lm_numpy(robot, T, q, position_only, tol_m, tol_rad, max_iter, lambda0, lo, hi)
     ch = chain_of(robot)
+    if not HAVE_NUMBA or ch.expand is not None:  # the kernel walks chain joints; mimic robots use numpy
+        return _lm_numpy(robot, T, q, position_only, tol_m, tol_rad, max_iter, lambda0, lo, hi)
     N = len(T)
     pe, ae, it = np.empty(N), np.empty(N), np.empty(N, np.int64)
     args = (np.ascontiguousarray(ch.fixed), np.ascontiguousarray(ch.prismatic, dtype=np.bool_),
@@ -376,7 +376,7 @@ def ik_numeric(robot: Robot, T_world, q_seed=None, position_only: bool = False, 
 
 
 def _revolute(robot):
-    return np.array([t == "revolute" for t in robot.joint_type])
+    return np.array([t == "revolute" for t in robot.independent_joint_type])
 
 
 def ik_all_numeric(robot: Robot, T_world, n_seeds: int = 200, position_only: bool = False,

@@ -226,7 +226,7 @@ def _candidate_names(model, series_has_temperature: bool) -> list[str]:
     rob = model.robot_
     out = []
     if rob.convention in ("dh", "mdh"):
-        out += [f"q{j + 1}.zero" for j in range(rob.dof) if rob.joint_type[j] == "revolute"]
+        out += [f"q{j + 1}.zero" for j in range(rob.dof) if rob.independent_joint_type[j] == "revolute"]
     out.append("thermal.scale")
     return out
 

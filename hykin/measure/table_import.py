@@ -250,7 +250,7 @@ def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool 
                       f"has {want} joints")
     if jn:
         _check_further_joints(t, jn, set(used), m)
-    rev = np.array([jt == "revolute" for jt in robot.joint_type], bool) if robot is not None else np.ones(len(jn), bool)
+    rev = np.array([jt == "revolute" for jt in robot.independent_joint_type], bool) if robot is not None else np.ones(len(jn), bool)
     q_raw = _stack(t, jn, d) if jn else None
     xyz_raw = _stack(t, m.position, d, allow_missing) if m.position else None
     ang_raw = ang_unit = None

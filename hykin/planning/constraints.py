@@ -204,7 +204,7 @@ def parse_region(robot: Robot, text: str, angle_unit: str = "deg") -> tuple[np.n
         if ":" not in s:
             raise PlanningError(f"region: joint {j + 1}: expected lo:hi, got {s!r}")
         a, b = s.split(":", 1)
-        f = np.pi / 180 if angle_unit == "deg" and robot.joint_type[j] == "revolute" else 1.0
+        f = np.pi / 180 if angle_unit == "deg" and robot.independent_joint_type[j] == "revolute" else 1.0
         try:
             if a.strip():
                 lo[j] = float(a) * f
