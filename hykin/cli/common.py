@@ -38,6 +38,10 @@ AngleUnit = typer.Option("rad", "--angle-unit", help="Unit of joint columns in t
 
 
 Force = typer.Option(False, "--force", help="Overwrite the output file if it exists.")
+BaseLink = typer.Option(None, "--base", metavar="LINK",
+                        help="URDF robot: the chain's base link (default: the root link).")
+TipLink = typer.Option(None, "--tip", metavar="LINK",
+                       help="URDF robot: the chain's tip link (needed when the URDF has several tips).")
 
 
 class CLIError(Exception):
@@ -125,19 +129,37 @@ def is_model_file(spec: str) -> bool:
     return 0 < n < 100_000_000 and p.suffix.lower() not in (".toml", ".urdf", ".csv")
 
 
-def load_model_or_robot(spec: str):
-    """Return ``(model_or_None, robot)`` for a model file, a robot file or a preset name."""
-    from ..io.robot_file import load_robot
-
+def load_model_or_robot(spec: str, base: str | None = None, tip: str | None = None):
+    """Return ``(model_or_None, robot)`` for a model file, a robot file or a preset name; ``base`` /
+    ``tip`` (``--base``/``--tip``): the chain of a URDF file. A model file keeps the chain it was
+    fitted on; naming other links for it is refused."""
     if is_model_file(spec):
         from ..hybrid.model import HybridModel
 
         model = HybridModel.load(spec)
+        _check_links(spec, model.robot, base, tip)
         return model, model.robot
     p = Path(spec)
     if p.is_file() and p.suffix.lower() not in (".toml", ".urdf"):
         raise CLIError(f"{spec}: not a hykin model file, robot file (.toml/.urdf) or preset name")
-    return None, load_robot(spec)
+    return None, load_robot_spec(spec, base, tip)
+
+
+def load_robot_spec(spec, base: str | None = None, tip: str | None = None):
+    """A robot file, URDF (chain ``--base`` -> ``--tip``) or preset; the one robot loader of the CLI."""
+    from ..io.robot_file import load_robot
+
+    return load_robot(spec, base_link=base, tip_link=tip)
+
+
+def _check_links(spec, robot, base: str | None, tip: str | None) -> None:
+    if base is None and tip is None:
+        return
+    u = robot.urdf or {}
+    for opt, given, key in (("--base", base, "base_link"), ("--tip", tip, "tip_link")):
+        if given is not None and given != u.get(key):
+            have = f"the chain {u.get('base_link')} -> {u.get('tip_link')}" if u else "a robot that is not a URDF"
+            raise CLIError(f"{spec}: {opt} {given}: the model was fitted on {have}; it cannot change")
 
 
 def load_model(spec) -> object:

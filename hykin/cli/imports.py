@@ -12,7 +12,7 @@ from pathlib import Path
 
 import typer
 
-from .common import CLIError, Force, app, check_output
+from .common import BaseLink, CLIError, Force, TipLink, app, check_output
 
 import_app = typer.Typer(no_args_is_help=True, help="Import measured data into the standard dataset format.")
 app.add_typer(import_app, name="import")
@@ -116,12 +116,14 @@ def _build_map(map_path: Path | None, opts: dict):
     return table_map_from_dict(opts, "command line")
 
 
-def _robot(spec: str | None):
+def _robot(spec: str | None, base: str | None = None, tip: str | None = None):
     if spec is None:
+        if base is not None or tip is not None:
+            raise CLIError("--base/--tip name links of the --robot URDF; give --robot")
         return None
     from .common import load_model_or_robot
 
-    return load_model_or_robot(spec)[1]
+    return load_model_or_robot(spec, base, tip)[1]
 
 
 @import_app.command("table")
@@ -161,6 +163,8 @@ def import_table_cmd(
     encoding: str | None = typer.Option(None, "--encoding", help="Text encoding (default UTF-8, falling back to cp1252)."),
     dof: int | None = DofOpt,
     robot: str | None = RobotOpt,
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     unit_check: bool | None = UnitCheckOpt,
     force: bool = Force,
 ) -> None:
@@ -187,7 +191,7 @@ def import_table_cmd(
 
     check_output(out, (path, map_path), force)
     m = _build_map(map_path, opts)
-    ds = import_table(path, m, _robot(robot))
+    ds = import_table(path, m, _robot(robot, base_link, tip_link))
     _write(ds, out, [path, map_path], f", orientation from {m.orientation}" if m.orientation else "")
 
 
@@ -248,6 +252,8 @@ def import_three_smr_cmd(
     comment: str | None = CommentOpt,
     dof: int | None = DofOpt,
     robot: str | None = RobotOpt,
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     force: bool = Force,
 ) -> None:
     """Full poses from three reflectors per pose (a rigid fit of the known nest onto the three points).
@@ -274,7 +280,7 @@ def import_three_smr_cmd(
     m = _build_map(map_path, opts)
     if m.nest is None:
         raise CLIError("import three-smr: give the reflector nest (--nest 'x1,y1,z1; x2,y2,z2; x3,y3,z3' or nest = [...] in --map)")
-    ds = import_table(path, m, _robot(robot))
+    ds = import_table(path, m, _robot(robot, base_link, tip_link))
     rms = ds.extra["smr_fit_rms_m"]
     _write(ds, out, [path, map_path], f", nest fit RMS mean {rms.mean() * 1e3:.4f} mm, max {rms.max() * 1e3:.4f} mm")
 
@@ -288,6 +294,8 @@ def import_stream_cmd(
     tracker_stream: Path = typer.Argument(..., help="Tracker stream: a time column and positions (empty cells = beam lost)."),
     out: Path = Out,
     robot: str = typer.Option(..., "--robot", help="Robot file/preset (or model file): FK of the logged joints for the clock fit."),
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     robot_map: Path | None = typer.Option(None, "--robot-map", help="Mapping TOML of the robot log (time, joints, angle_unit, layout)."),
     tracker_map: Path | None = typer.Option(None, "--tracker-map", help="Mapping TOML of the tracker stream (time, position, orientation, units, layout)."),
     robot_time: str | None = typer.Option(None, "--robot-time", help="Time column of the robot log (default t)."),
@@ -314,7 +322,7 @@ def import_stream_cmd(
 
     if frame not in ("tracker", "fit"):
         raise CLIError(f"import stream: --frame must be tracker or fit, got {frame!r}")
-    rob = _robot(robot)
+    rob = _robot(robot, base_link, tip_link)
     check_output(out, (robot_log, tracker_stream, robot_map, tracker_map), force)
     r_opts = dict(time=robot_time, joints=_joint_spec(joints), angle_unit=angle_unit, time_unit=robot_time_unit)
     t_opts = dict(time=tracker_time, position=_csv_names(position), quaternion=_csv_names(quaternion),

@@ -9,13 +9,16 @@ import typer
 
 from .common import (
     AngleUnit,
+    BaseLink,
     CLIError,
     Force,
     LengthUnit,
+    TipLink,
     app,
     check_output,
     load_model,
     load_model_or_robot,
+    load_robot_spec,
 )
 
 OrientationWeight = typer.Option(
@@ -53,6 +56,8 @@ def _calibration_options(orientation_weight: str, max_deviation: str | None) -> 
 def fit_cmd(
     robot: str = typer.Argument(..., help="Robot file (.toml), URDF, or preset name."),
     train: Path = typer.Argument(..., help="Training dataset (.csv/.parquet)."),
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     out: Path = typer.Option(..., "-o", "--out", help="Output model file (one safetensors file)."),
     val: Path | None = typer.Option(None, "--val", help="Validation dataset (default: 10% of TRAIN held out)."),
     arch: str = typer.Option("default", "--arch", help="Network architecture: default, D1, D4, D4w, D4W, Rw, Rd, B1..B4."),
@@ -80,7 +85,6 @@ def fit_cmd(
     from ..hybrid.model import HybridModel
     from ..io.dataset_files import read_dataset
     from ..io.plausibility import check_fit_size
-    from ..io.robot_file import load_robot
 
     kw = {}
     if max_minutes is not None:
@@ -98,7 +102,7 @@ def fit_cmd(
         raise CLIError(f"--thermal must be auto, on or off, got {thermal!r}")
     check_output(out, (robot, train, val), force)  # before any long work
     cal_kw = _calibration_options(orientation_weight, max_deviation)
-    rob = load_robot(robot)
+    rob = load_robot_spec(robot, base_link, tip_link)
     tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
     check_fit_size(rob, tr)
     va = None
@@ -143,6 +147,8 @@ def _print_metrics(model) -> None:
 def evaluate_cmd(
     model: str = typer.Argument(..., help="Model file (or a robot: classical only)."),
     test: Path = typer.Argument(..., help="Test dataset (.csv/.parquet)."),
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     as_json: bool = typer.Option(False, "--json", help="Print the table as JSON."),
     report: Path | None = typer.Option(None, "--report", help="Write an HTML report with plots to this directory."),
     length_unit: str = LengthUnit,
@@ -156,7 +162,7 @@ def evaluate_cmd(
         raise CLIError(f"{report}: --report must name a directory, got an existing file")
     if report is not None:
         check_output(report, (model, test), force=True, directory=True)
-    mdl, rob = load_model_or_robot(model)
+    mdl, rob = load_model_or_robot(model, base_link, tip_link)
     ds = read_dataset(test, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
     res = evaluate_model(mdl if mdl is not None else rob, ds)
     if as_json:
@@ -172,7 +178,9 @@ def evaluate_cmd(
 def calibrate_cmd(
     robot: str = typer.Argument(..., help="Robot file (.toml), URDF, or preset name."),
     data: Path = typer.Argument(..., help="Measured dataset (.csv/.parquet)."),
-    out: Path = typer.Option(..., "-o", "--out", help="Calibrated robot file (.toml)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Calibrated robot file: .toml (DH/MDH robots) or .urdf (URDF robots)."),
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     compliance: bool = typer.Option(True, "--compliance/--no-compliance", help="Identify joint compliance under gravity."),
     orientation_weight: str = OrientationWeight,
     max_deviation: str | None = MaxDeviation,
@@ -187,15 +195,37 @@ def calibrate_cmd(
     (--max-deviation) or leaves an implausible residual is refused (exit 2, nothing written)."""
     from ..calibration.calibrate import calibrate
     from ..io.dataset_files import read_dataset
-    from ..io.robot_file import load_robot
-    from ..io.robot_toml import save_robot_toml
 
     check_output(out, (robot, data), force)
-    rob = load_robot(robot)
+    rob = load_robot_spec(robot, base_link, tip_link)
+    _check_robot_out(rob, out)
     ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
     res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation))
     typer.echo(res.report())
-    save_robot_toml(res.robot, out)
+    _write_calibrated(res.robot, out)
+
+
+def _check_robot_out(rob, out: Path) -> None:
+    """Refuse, before calibrating, an output a robot cannot be written as (a URDF robot as TOML)."""
+    suf = out.suffix.lower()
+    if suf not in (".toml", ".urdf"):
+        raise CLIError(f"{out}: the calibrated robot is written as .toml or .urdf; got {out.suffix or 'no suffix'}")
+    if suf == ".toml" and rob.convention == "urdf":
+        raise CLIError(f"{out}: a URDF robot is written as URDF; name the output {out.with_suffix('.urdf').name}")
+
+
+def _write_calibrated(robot, out: Path) -> None:
+    """The calibrated robot as TOML or URDF (the maker's URDF with calibrated joint origins)."""
+    if out.suffix.lower() == ".urdf":
+        from ..io.urdf import calibrated_robot_urdf
+
+        text, left = calibrated_robot_urdf(robot)
+        out.write_text(text, encoding="utf-8")
+        typer.echo(f"calibrated robot written to {out}" + (f" (a URDF cannot carry {left}: not written)" if left else ""))
+        return
+    from ..io.robot_toml import save_robot_toml
+
+    save_robot_toml(robot, out)
     typer.echo(f"calibrated robot written to {out}")
 
 

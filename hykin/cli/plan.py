@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from .common import CLIError, Force, app, check_output, load_model_or_robot, write_rows
+from .common import BaseLink, CLIError, Force, TipLink, app, check_output, load_model_or_robot, write_rows
 
 
 def _vec3(text: str | None, what: str, factor: float = 1.0) -> np.ndarray | None:
@@ -26,6 +26,8 @@ def _vec3(text: str | None, what: str, factor: float = 1.0) -> np.ndarray | None
 def plan_cmd(
     robot: str | None = typer.Argument(None, help="Robot file, URDF or preset name (not with --for-model)."),
     n: int = typer.Option(..., "-n", help="Number of poses to plan.", min=1),
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     out: Path | None = typer.Option(None, "-o", "--out", help="Output joints CSV (q1..qN rad, step, core, incidence_deg)."),
     for_model: str | None = typer.Option(None, "--for-model", help="Fitted model file: plan the next poses where its training data are thinnest, weighted by its uncertainty."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the candidate pool."),
@@ -69,11 +71,11 @@ def plan_cmd(
     f = 1e-3 if length_unit == "mm" else 1.0
     model = None
     if for_model is not None:
-        model, rob = load_model_or_robot(for_model)
+        model, rob = load_model_or_robot(for_model, base_link, tip_link)
         if model is None:
             raise CLIError(f"--for-model {for_model}: not a hykin model file")
     else:
-        _, rob = load_model_or_robot(robot)
+        _, rob = load_model_or_robot(robot, base_link, tip_link)
     try:
         lo, hi = parse_region(rob, region) if region else (None, None)
         c = Constraints(

@@ -9,9 +9,11 @@ import typer
 
 from .common import (
     AngleUnit,
+    BaseLink,
     CLIError,
     Force,
     LengthUnit,
+    TipLink,
     app,
     check_output,
     console,
@@ -26,7 +28,9 @@ PAYLOAD_HELP = ("Payload mass (kg, at the TCP) for a file without a payload_kg c
 @app.command("fk")
 def fk_cmd(
     model: str = typer.Argument(..., help="Model file, robot file, URDF or preset (nominal FK)."),
-    joints: Path = typer.Argument(..., help="CSV/Parquet with columns q1..qN."),
+    joints: Path = typer.Argument(..., help="CSV/Parquet with columns q1..qN (or a URDF's joint names)."),
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     out: Path = typer.Option(..., "-o", "--out", help="Output poses (dataset columns q…, x,y,z,qw,qx,qy,qz)."),
     angle_unit: str = AngleUnit,
     no_fade: bool = typer.Option(False, "--no-fade", help="Apply the network correction even outside the training region."),
@@ -40,7 +44,7 @@ def fk_cmd(
     from ..kinematics.fk import fk
 
     check_output(out, (model, joints), force)
-    mdl, rob = load_model_or_robot(model)
+    mdl, rob = load_model_or_robot(model, base_link, tip_link)
     q, extra = read_joints(joints, dof=rob.dof, angle_unit=angle_unit, robot=rob)
     check_joint_unit(rob, q, where=str(joints), angle_unit=angle_unit)
     if mdl is None:
@@ -66,6 +70,8 @@ def fk_cmd(
 def ik_cmd(
     model: str = typer.Argument(..., help="Model file (hybrid IK) or robot file / preset (classical IK)."),
     poses: Path = typer.Argument(..., help="Target poses: x,y,z[,qw,qx,qy,qz] (m)."),
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     out: Path = typer.Option(..., "-o", "--out", help="Output joints CSV: target, branch, q…, errors."),
     all_branches: bool = typer.Option(False, "--all-branches", help="Every solution branch, not only the nearest one."),
     seed_joints: Path | None = typer.Option(None, "--seed-joints", help="CSV of current joints (one row per target, or one row)."),
@@ -83,7 +89,7 @@ def ik_cmd(
     from ..io.plausibility import check_target_reach
 
     check_output(out, (model, poses, seed_joints), force)
-    mdl, rob = load_model_or_robot(model)
+    mdl, rob = load_model_or_robot(model, base_link, tip_link)
     T, has_rot, pose_extra = read_poses(poses, length_unit=length_unit, extras=True)
     check_target_reach(mdl.robot_ if mdl is not None else rob, T, where=str(poses), length_unit=length_unit,
                        frame=None if mdl is None else mdl.frame_pre_)

@@ -35,7 +35,7 @@ import numpy as np
 from ..geometry import se3
 from ..kinematics.robot import Robot, RobotFileError
 
-__all__ = ["calibrated_urdf", "load_urdf", "load_urdf_string", "robot_to_urdf"]
+__all__ = ["calibrated_robot_urdf", "calibrated_urdf", "load_urdf", "load_urdf_string", "robot_to_urdf"]
 
 _MOVABLE = ("revolute", "continuous", "prismatic")
 
@@ -353,6 +353,11 @@ def robot_to_urdf(robot: Robot) -> str:
     from ..kinematics.chain import chain_of
 
     ch = chain_of(robot)
+    lo, hi, mim = robot.lower, robot.upper, ""
+    ex = robot.expansion()
+    if ex is not None:  # chain-joint limits of mimic joints from their leaders'
+        idx, mult, off = ex
+        lo, hi = np.minimum(mult * lo[idx], mult * hi[idx]) + off, np.maximum(mult * lo[idx], mult * hi[idx]) + off
     out = [f'<?xml version="1.0"?>\n<robot name="{robot.name}">', '  <link name="world"/>', '  <link name="base_link"/>']
     out.append(
         f'  <joint name="base_joint" type="fixed"><parent link="world"/><child link="base_link"/>'
@@ -370,10 +375,15 @@ def robot_to_urdf(robot: Robot) -> str:
                 '<inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial>'
             )
         out.append(f'  <link name="link_{k}">{inert}</link>')
+        if robot.mimic is not None and robot.mimic[i, 0] >= 0:
+            mim = (f'<mimic joint="joint_{int(robot.mimic[i, 0]) + 1}" multiplier="{float(robot.mimic[i, 1])!r}" '
+                   f'offset="{float(robot.mimic[i, 2])!r}"/>')
+        else:
+            mim = ""
         out.append(
             f'  <joint name="joint_{k}" type="{jt}"><parent link="{parent}"/><child link="joint_{k}_frame"/>'
             f'{_origin_xml(ch.pre[i])}<axis xyz="0 0 1"/>'
-            f'<limit lower="{float(robot.lower[i])!r}" upper="{float(robot.upper[i])!r}" effort="0" velocity="0"/></joint>'
+            f'<limit lower="{float(lo[i])!r}" upper="{float(hi[i])!r}" effort="0" velocity="0"/>{mim}</joint>'
         )
         out.append(
             f'  <joint name="link_{k}_fixed" type="fixed"><parent link="joint_{k}_frame"/><child link="link_{k}"/>'
@@ -389,17 +399,94 @@ def robot_to_urdf(robot: Robot) -> str:
     return "\n".join(out)
 
 
+def calibrated_robot_urdf(robot: Robot) -> tuple[str, str]:
+    """URDF text of a calibrated ``robot`` and what a URDF cannot carry (``""`` when nothing).
+
+    A robot read from a URDF (``robot.urdf`` set) is written back into the maker's file: every joint,
+    link, mimic tag, limit and side branch is kept; only the origins change: movable chain joint i gets
+    ``inv(P_i) · O_i`` (``O_i`` the calibrated origin, ``P_i`` the fixed joints folded into it on
+    loading), the last fixed joint before the tip takes the calibrated tool (a fixed joint to a new
+    link ``<tip>_tcp`` when the chain ends in a movable joint), and a calibrated base frame becomes a
+    fixed joint from a new root link ``measurement_frame`` (when ``base_link`` is the URDF's root).
+    Loading the result with the same tip gives the same FK to rounding. Any other robot:
+    :func:`robot_to_urdf`. Joint compliance (finite stiffness) cannot be carried; it is named.
+    """
+    left = "joint compliance" if robot.has_compliance else ""
+    if robot.convention != "urdf" or not robot.urdf or robot.joint_names is None:
+        return robot_to_urdf(robot.copy(stiffness_nm_per_rad=np.full(robot.n_chain, np.inf))), left
+    return _patched_urdf(robot), left
+
+
+def _set_origin(el: ET.Element, T: np.ndarray) -> None:
+    o = el.find("origin")
+    if o is None:
+        o = ET.SubElement(el, "origin")
+    xyz, rpy = se3.transform_to_xyzrpy(np.asarray(T, dtype=np.float64))
+    o.attrib.clear()
+    o.set("xyz", _fmt(xyz))
+    o.set("rpy", _fmt(rpy))
+
+
+def _patched_urdf(robot: Robot) -> str:
+    u = robot.urdf
+    root = ET.fromstring(u["xml"])
+    by_child = {}
+    for el in root.findall("joint"):
+        by_child[el.find("child").get("link")] = el
+    path, ln = [], u["tip_link"]
+    while ln != u["base_link"]:
+        path.append(by_child[ln])
+        ln = path[-1].find("parent").get("link")
+    path = path[::-1]
+    O = se3.xyzrpy_to_transform(robot.origin_xyz_m, robot.origin_rpy_rad)
+    names = list(robot.joint_names)
+    pending, tail = np.eye(4), []
+    for el in path:
+        if el.get("type") == "fixed":
+            pending = pending @ _origin(el, "")
+            tail.append(el)
+            continue
+        i = names.index(el.get("name"))
+        _set_origin(el, se3.invert(pending) @ O[i])
+        pending, tail = np.eye(4), []
+    if not np.allclose(robot.tool, pending, rtol=0.0, atol=0.0):
+        if tail:
+            before = np.eye(4)
+            for el in tail[:-1]:
+                before = before @ _origin(el, "")
+            _set_origin(tail[-1], se3.invert(before) @ robot.tool)
+        else:
+            tcp = f"{u['tip_link']}_tcp"
+            ET.SubElement(root, "link", name=tcp)
+            j = ET.SubElement(root, "joint", name=f"{tcp}_joint", type="fixed")
+            ET.SubElement(j, "parent", link=u["tip_link"])
+            ET.SubElement(j, "child", link=tcp)
+            _set_origin(j, robot.tool)
+    if not np.array_equal(robot.base, np.eye(4)):
+        if u["base_link"] in by_child:
+            raise RobotFileError(f"robot {robot.name!r}: the calibrated base frame cannot be written above "
+                                 f"'{u['base_link']}', which is not the URDF's root")
+        ET.SubElement(root, "link", name="measurement_frame")
+        j = ET.SubElement(root, "joint", name="measurement_frame_to_base", type="fixed")
+        ET.SubElement(j, "parent", link="measurement_frame")
+        ET.SubElement(j, "child", link=u["base_link"])
+        _set_origin(j, robot.base)
+    ET.indent(root)
+    return '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
 def calibrated_urdf(model) -> tuple[str, str]:
     """URDF of a fitted hybrid model's calibrated classical robot, and what a URDF cannot carry.
 
-    The calibrated geometry and joint offsets go into the joint origins (:func:`robot_to_urdf`), the
-    calibrated base (with the model's registration frame ``frame_pre``) into ``base_joint`` and the
-    tool (with ``frame_post``) into ``tool_joint``. Joint compliance, thermal expansion and the
+    The calibrated geometry and joint offsets go into the joint origins (:func:`calibrated_robot_urdf`:
+    the maker's URDF for a robot read from one, else :func:`robot_to_urdf`), the calibrated base (with
+    the model's registration frame ``frame_pre``) into a fixed joint above the base link and the tool
+    (with ``frame_post``) into the last fixed joint. Joint compliance, thermal expansion and the
     residual networks are not representable; the second item names those the model has.
     """
     rob = model.robot_
     rob = rob.copy(base=model.frame_pre_ @ rob.base, tool=rob.tool @ model.frame_post_, name=f"{rob.name}-calibrated",
-                   stiffness_nm_per_rad=np.full(rob.dof, np.inf))
+                   stiffness_nm_per_rad=np.full(rob.n_chain, np.inf))
     left = []
     if model.robot_.has_compliance:
         left.append("joint compliance")
@@ -408,4 +495,4 @@ def calibrated_urdf(model) -> tuple[str, str]:
         left.append("thermal expansion")
     if getattr(model, "net_pos_", None) is not None:
         left.append("the residual networks")
-    return robot_to_urdf(rob), ", ".join(left) or "nothing"
+    return calibrated_robot_urdf(rob)[0], ", ".join(left) or "nothing"
