@@ -79,10 +79,9 @@ def _check_mimic_columns(t, robot, q: np.ndarray, angle: float, length: float) -
         if bad.any():
             r = int(np.argmax(bad))
             lead = robot.joint_names[int(robot.mimic[i, 0])]
-            raise DatasetError(
-                f"{t.where}: row {r + 1 + t.line_offset}: column '{name}' = {v[r]:.6g} but the URDF's <mimic> gives "
-                f"{mult[i]:g}·{lead} + {off[i]:g} = {mult[i] * q[r, idx[i]] + off[i]:.6g}; the data do not follow the "
-                f"URDF's mimic joint", file=t.where, column=name)
+            raise row_error(t.where, f"{v[r]:.6g} but the URDF's <mimic> gives {mult[i]:g}·{lead} + {off[i]:g} = "
+                            f"{mult[i] * q[r, idx[i]] + off[i]:.6g}: the data do not follow the URDF's mimic joint",
+                            row=r, column=name, line_offset=t.line_offset)
 
 
 def _dof_from_header(where: str, header: Sequence[str], robot, dof: int | None) -> int:

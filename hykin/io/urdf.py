@@ -364,7 +364,7 @@ def robot_to_urdf(robot: Robot) -> str:
         f"{_origin_xml(robot.base)}</joint>"
     )
     parent = "base_link"
-    for i in range(robot.dof):
+    for i in range(robot.n_chain):
         k = i + 1
         jt = "prismatic" if robot.joint_type[i] == "prismatic" else "revolute"
         out.append(f'  <link name="joint_{k}_frame"/>')
