@@ -285,9 +285,10 @@ def validate_joints(
     qn = joint_columns(dof)
     check_finite(where, q, qn, line_offset)
     rev = revolute_mask(dof, robot)
-    if rev.any():
-        qr = q[:, rev]
-        names = [c for c, m in zip(qn, rev) if m]
+    cont = robot.continuous if robot is not None else np.zeros(dof, dtype=bool)  # any value is valid
+    if (rev & ~cont).any():
+        qr = q[:, rev & ~cont]
+        names = [c for c, m in zip(qn, rev & ~cont) if m]
         hint = ("declare angle_unit='deg' (CLI: --angle-unit deg)" if angle_unit == "rad"
                 else "check the file: the values were declared in degrees")
         big = np.abs(qr) > 2 * math.pi + DEG_AS_RAD_MARGIN
@@ -302,7 +303,7 @@ def validate_joints(
                        f"passed as radians; {hint}", r, names[c], line_offset)
     if robot is not None:
         lo, hi = robot.lower - limit_tol, robot.upper + limit_tol
-        out = (q < lo) | (q > hi)
+        out = ((q < lo) | (q > hi)) & ~cont
         if out.any():
             r, c = np.argwhere(out)[0]
             conv = np.degrees if rev[c] else (lambda v: v)

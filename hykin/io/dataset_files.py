@@ -217,6 +217,9 @@ def _joints_of(t: _Table, robot, dof, angle_unit: str, length_unit: str) -> np.n
     rev = revolute_mask(len(qn), robot)
     factor = np.where(rev, ANGLE_UNITS[angle_unit], LENGTH_UNITS[length_unit])
     q = q * factor
+    if robot is not None and robot.continuous.any():  # continuous joints: into [-pi, pi) (same poses)
+        c = robot.continuous
+        q[:, c] = np.mod(q[:, c] + np.pi, 2 * np.pi) - np.pi
     _check_mimic_columns(t, robot, q, ANGLE_UNITS[angle_unit], LENGTH_UNITS[length_unit])
     return q
 

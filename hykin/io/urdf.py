@@ -262,7 +262,8 @@ def load_urdf_string(
         source=f"URDF {where}: chain {base_link} -> {tip_link}, joints {', '.join(names)}",
         mimic=mimic,
         joint_names=tuple(names),
-        urdf={"xml": text, "base_link": base_link, "tip_link": tip_link},
+        urdf={"xml": text, "base_link": base_link, "tip_link": tip_link,
+              "continuous": " ".join(j["name"] for j in chain if j["type"] == "continuous")},
     )
 
 

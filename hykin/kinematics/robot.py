@@ -71,8 +71,9 @@ class Robot:
     source: where the numbers come from (free text, kept in saved files).
     mimic: ``(n_chain, 3)`` ``[leader chain index or -1, multiplier, offset]`` or None (no mimic joints).
     joint_names: ``(n_chain,)`` joint names (URDF joint names) or None (``q1..qN``).
-    urdf: for robots read from a URDF, ``{"xml": text, "base_link": ..., "tip_link": ...}`` (so that a
-        calibrated robot can be written back as the maker's URDF), else None.
+    urdf: for robots read from a URDF, ``{"xml": text, "base_link": ..., "tip_link": ..., "continuous":
+        space-separated names of continuous joints}`` (so that a calibrated robot can be written back as
+        the maker's URDF), else None.
     """
 
     name: str
@@ -186,6 +187,19 @@ class Robot:
         if self.joint_names is None:
             return None
         return tuple(self.joint_names[i] for i in self.independent)
+
+    @property
+    def continuous(self) -> np.ndarray:
+        """``(dof,)`` bool: independent joints that are URDF ``continuous`` (revolute without limits).
+
+        hykin gives them the range ``[-pi, pi]`` (sampling, network input normalisation, IK answers);
+        measured values outside it are valid (the FK is 2π-periodic): the dataset readers wrap them
+        into it and the joint checks accept them."""
+        names = self.independent_joint_names
+        cont = set((self.urdf or {}).get("continuous", "").split())
+        if not cont or names is None:
+            return np.zeros(self.dof, dtype=bool)
+        return np.array([n in cont for n in names], dtype=bool)
 
     def expansion(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """``(index (n_chain,) into the independent joints, multiplier (n_chain,), offset (n_chain,))``:
