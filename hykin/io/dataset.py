@@ -246,6 +246,7 @@ def validate(
     limit_tol: float = 1e-6,
     angle_unit: str = "rad",
     line_offset: int | None = 1,
+    joint_names: Sequence[str] | None = None,
 ) -> None:
     """Check a dataset (SI units) and raise :class:`DatasetError` naming file, row and column.
 
@@ -256,10 +257,12 @@ def validate(
 
     ``where`` names the file in messages (default ``ds.source``); ``angle_unit`` is the unit the user
     declared, only used to phrase the hint; ``line_offset`` = file line minus data row (1 for a CSV
-    with one header line, ``None`` for sources without lines).
+    with one header line, ``None`` for sources without lines); ``joint_names``: the file's joint
+    columns when not ``q1..qN`` (URDF joint names), used in messages.
     """
     where = where or ds.source or "<dataset>"
-    validate_joints(ds.q, robot, where=where, limit_tol=limit_tol, angle_unit=angle_unit, line_offset=line_offset)
+    validate_joints(ds.q, robot, where=where, limit_tol=limit_tol, angle_unit=angle_unit, line_offset=line_offset,
+                    joint_names=joint_names)
     validate_poses(ds.xyz_m, ds.quat_wxyz, where=where, line_offset=line_offset)
 
 
@@ -271,8 +274,10 @@ def validate_joints(
     limit_tol: float = 1e-6,
     angle_unit: str = "rad",
     line_offset: int | None = 1,
+    joint_names: Sequence[str] | None = None,
 ) -> None:
-    """Joint part of :func:`validate` for ``q`` ``(N, dof)`` in rad/m."""
+    """Joint part of :func:`validate` for ``q`` ``(N, dof)`` in rad/m (``joint_names``: the columns' names
+    in messages, default ``q1..qN``)."""
     n, dof = q.shape
     if n == 0:
         raise DatasetError(f"{where}: the dataset is empty (no data rows)", file=where)
@@ -282,7 +287,7 @@ def validate_joints(
             f"(expected columns {', '.join(joint_columns(robot.dof))})",
             file=where,
         )
-    qn = joint_columns(dof)
+    qn = list(joint_names) if joint_names is not None and len(joint_names) == dof else joint_columns(dof)
     check_finite(where, q, qn, line_offset)
     rev = revolute_mask(dof, robot)
     cont = robot.continuous if robot is not None else np.zeros(dof, dtype=bool)  # any value is valid

@@ -294,7 +294,8 @@ def read_dataset(
         from .reflectors import with_reflector_unit
 
         ds = with_reflector_unit(ds, length_unit)  # further reflectors x2,y2,z2, ... in metres like x,y,z
-        validate(ds, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset)
+        validate(ds, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset,
+                 joint_names=_joint_header(where, t.header, robot, dof))
         if robot is not None and plausibility:
             from .plausibility import check_dataset
 
@@ -323,7 +324,8 @@ def read_joints(
         q = _joints_of(t, robot, dof, angle_unit, length_unit)
         if q.shape[0] == 0:
             raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
-        validate_joints(q, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset)
+        validate_joints(q, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset,
+                        joint_names=_joint_header(where, t.header, robot, dof))
         return q, t.extras(_standard_columns(t, robot))
 
 
