@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from hykin.calibration.jacobian import identification_jacobian
@@ -62,9 +64,7 @@ def _ref_fk(xml: str, tip: str, values: dict[str, float]) -> np.ndarray:
         T = T @ O
         if j.get("type") == "fixed":
             continue
-        m = j.find("mimic")
-        v = values[j.get("name")] if m is None else \
-            float(m.get("multiplier", 1)) * values[m.get("joint")] + float(m.get("offset", 0))
+        v = _ref_value(by_name, values, j.get("name"))
         ax = np.array([float(a) for a in j.find("axis").get("xyz").split()])
         ax /= np.linalg.norm(ax)
         M = np.eye(4)
@@ -73,8 +73,15 @@ def _ref_fk(xml: str, tip: str, values: dict[str, float]) -> np.ndarray:
         else:
             M[:3, :3] = Rotation.from_rotvec(v * ax).as_matrix()
         T = T @ M
-    assert by_name  # the file has joints
     return T
+
+
+def _ref_value(by_name: dict, values: dict, name: str) -> float:
+    """A joint's value: its own, or (mimic, also of a mimic) multiplier · leader's value + offset."""
+    m = by_name[name].find("mimic")
+    if m is None:
+        return values[name]
+    return float(m.get("multiplier", 1)) * _ref_value(by_name, values, m.get("joint")) + float(m.get("offset", 0))
 
 
 def test_mimic_robot_has_independent_joints_only(robot):
@@ -240,3 +247,68 @@ def test_joint_columns_by_urdf_name(robot, tmp_path):
         read_dataset(tmp_path / "t.csv", robot=robot)
     msg = str(e.value)
     assert "\n" not in msg and "'colum_lift'" in msg and "column_lift, a1, a2" in msg
+
+
+# --------------------------------------------------------------------------- generated chains (Hypothesis)
+
+
+@st.composite
+def _mimic_chains(draw):
+    """URDF text of a random serial chain: 2-7 movable joints (revolute / prismatic / continuous),
+    fixed joints between some of them, random origins and axes, and mimic joints (of any joint,
+    before or after their leader, mimic of a mimic) with random multipliers and offsets."""
+    n = draw(st.integers(2, 7))
+    f = st.floats(-1.0, 1.0, allow_nan=False)
+    kinds = [draw(st.sampled_from(["revolute", "prismatic", "continuous"])) for _ in range(n)]
+    lead = [None] * n
+    for i in range(n):
+        if draw(st.booleans()) and draw(st.booleans()):  # about a quarter are mimic joints
+            lead[i] = draw(st.integers(0, n - 1).filter(lambda k, i=i: k != i))
+    for i in range(n):  # break cycles: follow leaders; a cycle makes its first joint independent
+        seen, k = {i}, lead[i]
+        while k is not None and k not in seen:
+            seen.add(k)
+            k = lead[k]
+        if k is not None:
+            lead[i] = None
+    links = ['<link name="l0"/>']
+    joints, parent = [], "l0"
+    for i in range(n):
+        if draw(st.booleans()):
+            links.append(f'<link name="f{i}"/>')
+            joints.append(f'<joint name="fix{i}" type="fixed"><parent link="{parent}"/><child link="f{i}"/>'
+                          f'<origin xyz="{draw(f)} {draw(f)} {draw(f)}" rpy="{draw(f)} {draw(f)} {draw(f)}"/></joint>')
+            parent = f"f{i}"
+        ax = [draw(f) for _ in range(3)]
+        if np.linalg.norm(ax) < 0.1:
+            ax = [0.0, 0.0, 1.0]
+        lim = "" if kinds[i] == "continuous" else '<limit lower="-1.5" upper="1.5"/>'
+        mim = "" if lead[i] is None else \
+            f'<mimic joint="j{lead[i]}" multiplier="{draw(st.floats(-2, 2))}" offset="{draw(st.floats(-0.5, 0.5))}"/>'
+        links.append(f'<link name="l{i + 1}"/>')
+        joints.append(f'<joint name="j{i}" type="{kinds[i]}"><parent link="{parent}"/><child link="l{i + 1}"/>'
+                      f'<origin xyz="{draw(f)} {draw(f)} {draw(f)}" rpy="{draw(f)} {draw(f)} {draw(f)}"/>'
+                      f'<axis xyz="{ax[0]} {ax[1]} {ax[2]}"/>{lim}{mim}</joint>')
+        parent = f"l{i + 1}"
+    return f'<robot name="gen">{"".join(links)}{"".join(joints)}</robot>', f"l{n}"
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(_mimic_chains(), st.integers(0, 2**31 - 1))
+def test_generated_mimic_chains_against_reference(chain, seed):
+    xml, tip = chain
+    r = load_urdf_string(xml)
+    names = r.independent_joint_names
+    q = r.random_joints(4, rng=seed)
+    T = fk(r, q)
+    for k in range(len(q)):
+        np.testing.assert_allclose(T[k], _ref_fk(xml, tip, dict(zip(names, q[k]))), atol=1e-12)
+    h = 1e-6
+    J = jacobian(r, q)
+    for j in range(r.dof):
+        dq = np.zeros(r.dof)
+        dq[j] = h
+        fd = (fk(r, q + dq)[:, :3, 3] - fk(r, q - dq)[:, :3, 3]) / (2 * h)
+        np.testing.assert_allclose(J[:, :3, j], fd, atol=1e-7)
+    back = load_urdf_string(calibrated_robot_urdf(r)[0])  # the maker's file written back unchanged in FK
+    np.testing.assert_allclose(fk(back, q), T, atol=1e-12)
