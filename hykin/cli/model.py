@@ -178,7 +178,7 @@ def evaluate_cmd(
 def calibrate_cmd(
     robot: str = typer.Argument(..., help="Robot file (.toml), URDF, or preset name."),
     data: Path = typer.Argument(..., help="Measured dataset (.csv/.parquet)."),
-    out: Path = typer.Option(..., "-o", "--out", help="Calibrated robot file: .toml (DH/MDH robots) or .urdf (URDF robots)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Calibrated robot file: .urdf (any robot; a URDF robot is written into its own URDF) or .toml (DH/MDH robots)."),
     base_link: str | None = BaseLink,
     tip_link: str | None = TipLink,
     compliance: bool = typer.Option(True, "--compliance/--no-compliance", help="Identify joint compliance under gravity."),
@@ -207,15 +207,13 @@ def calibrate_cmd(
 
 def _check_robot_out(rob, out: Path) -> None:
     """Refuse, before calibrating, an output a robot cannot be written as (a URDF robot as TOML)."""
-    suf = out.suffix.lower()
-    if suf not in (".toml", ".urdf"):
-        raise CLIError(f"{out}: the calibrated robot is written as .toml or .urdf; got {out.suffix or 'no suffix'}")
-    if suf == ".toml" and rob.convention == "urdf":
+    if rob.convention == "urdf" and out.suffix.lower() != ".urdf":
         raise CLIError(f"{out}: a URDF robot is written as URDF; name the output {out.with_suffix('.urdf').name}")
 
 
 def _write_calibrated(robot, out: Path) -> None:
-    """The calibrated robot as TOML or URDF (the maker's URDF with calibrated joint origins)."""
+    """The calibrated robot as URDF (``.urdf``: the maker's URDF with calibrated joint origins, or any
+    robot as a URDF chain) or else as a TOML robot file."""
     if out.suffix.lower() == ".urdf":
         from ..io.urdf import calibrated_robot_urdf
 
