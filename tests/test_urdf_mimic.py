@@ -199,6 +199,12 @@ def test_calibrated_urdf_round_trip(robot):
     np.testing.assert_array_equal(back.mimic, robot.mimic)
     soft = cal.copy(stiffness_nm_per_rad=np.full(9, 1e6))
     assert calibrated_robot_urdf(soft)[1] == "joint compliance"
+    # a chain that ends in a movable joint: the calibrated tool goes to a new link <tip>_tcp
+    arm = load_urdf(URDF, base_link="arm_mount", tip_link="a_link6")
+    arm_cal = arm.copy(tool=se3.xyzrpy_to_transform([0.01, 0.02, 0.15], [0.1, 0.0, 0.0]))
+    back = load_urdf_string(calibrated_robot_urdf(arm_cal)[0], base_link="arm_mount", tip_link="a_link6_tcp")
+    qa = arm.random_joints(20, rng=5)
+    np.testing.assert_allclose(fk(back, qa), fk(arm_cal, qa), atol=1e-12)
 
 
 def test_generic_urdf_export_keeps_mimic(robot):
