@@ -49,6 +49,7 @@ class Chain:
     tool: Any
     prismatic: np.ndarray
     expand: tuple | None = None
+    n_independent: int | None = None  # the robot's independent joints (``Robot.dof``)
 
     @property
     def dof(self) -> int:
@@ -152,7 +153,8 @@ def build_chain(robot: Robot, geom: dict | None = None, xp=np) -> Chain:
     base, tool = g["base"], g["tool"]
     cat = np.concatenate if xp is np else xp.cat
     fixed = cat([(base @ pre[0])[None], post[:-1] @ pre[1:], (post[n - 1] @ tool)[None]], 0)
-    return Chain(pre=pre, post=post, fixed=fixed, base=base, tool=tool, prismatic=prism, expand=robot.expansion())
+    return Chain(pre=pre, post=post, fixed=fixed, base=base, tool=tool, prismatic=prism, expand=robot.expansion(),
+                 n_independent=robot.dof)
 
 
 def _as(xp, mask: np.ndarray, like):

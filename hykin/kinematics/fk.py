@@ -107,6 +107,8 @@ def fk(robot: Robot, q) -> np.ndarray:
     ch = chain_of(robot)
     if HAVE_NUMBA and type(q) is np.ndarray and q.ndim == 1 and q.dtype == _F64:
         fixed = ch.fixed
+        if q.shape[0] + 1 != fixed.shape[0] and ch.expand is not None and q.shape[0] == ch.n_independent:
+            q = expand_joints(np, ch, q)  # mimic joints: chain joints, then the same fast path
         if q.shape[0] + 1 == fixed.shape[0]:
             out = np.empty((4, 4))
             if q.strides[0] == 8 and _ONE_ENTRY:
@@ -199,6 +201,6 @@ def fk_torch(robot: Robot, q, chain: Chain | None = None, frames: bool = False):
         conv = lambda x: torch.as_tensor(x, dtype=q.dtype, device=q.device)
         chain = Chain(
             pre=conv(ch.pre), post=conv(ch.post), fixed=conv(ch.fixed), base=conv(ch.base),
-            tool=conv(ch.tool), prismatic=ch.prismatic, expand=ch.expand,
+            tool=conv(ch.tool), prismatic=ch.prismatic, expand=ch.expand, n_independent=ch.n_independent,
         )
     return chain_walk(torch, chain, q, frames=frames)
