@@ -60,7 +60,7 @@ class Robot:
     a_m, alpha_rad, d_m, theta_rad, beta_rad: ``(n,)`` DH/MDH parameters (zeros for URDF robots).
     origin_xyz_m, origin_rpy_rad, axis: ``(n, 3)`` URDF joint origins and unit axes (URDF only).
     joint_type: ``(n,)`` strings ``"revolute"`` or ``"prismatic"``.
-    lower, upper: ``(n,)`` joint limits (rad, or m for prismatic joints).
+    lower, upper: ``(dof,)`` limits of the independent joints (rad, or m for prismatic joints).
     mass_kg: ``(n,)`` link masses (zeros if unknown).
     com_m: ``(n, 3)`` centre of mass of link i in link frame i.
     stiffness_nm_per_rad: ``(n,)`` joint stiffness; ``inf`` = rigid.
