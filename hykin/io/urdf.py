@@ -430,7 +430,7 @@ def _set_origin(el: ET.Element, T: np.ndarray) -> None:
 
 def _patched_urdf(robot: Robot) -> str:
     u = robot.urdf
-    root = ET.fromstring(u["xml"])
+    root = ET.fromstring(u["xml"], parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True)))  # keep comments
     by_child = {}
     for el in root.findall("joint"):
         by_child[el.find("child").get("link")] = el
