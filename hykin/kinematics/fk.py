@@ -107,8 +107,6 @@ def fk(robot: Robot, q) -> np.ndarray:
     ch = chain_of(robot)
     if HAVE_NUMBA and type(q) is np.ndarray and q.ndim == 1 and q.dtype == _F64:
         fixed = ch.fixed
-        if q.shape[0] + 1 != fixed.shape[0] and ch.expand is not None and q.shape[0] == ch.n_independent:
-            q = expand_joints(np, ch, q)  # mimic joints: chain joints, then the same fast path
         if q.shape[0] + 1 == fixed.shape[0]:
             out = np.empty((4, 4))
             if q.strides[0] == 8 and _ONE_ENTRY:
@@ -118,6 +116,8 @@ def fk(robot: Robot, q) -> np.ndarray:
                 if not _ONE_ENTRY and q.strides[0] == 8:
                     _ONE_ENTRY.extend(_native_entry(fixed, ch.prismatic, q, out))
             return out
+        if ch.expand is not None and q.shape[0] == ch.n_independent:  # mimic joints: the same fast path
+            return fk(robot, expand_joints(np, ch, q))
     q2, single = _as_joints(robot, q)
     T = fk_chain(ch, q2)
     return T[0] if single else T
