@@ -12,6 +12,7 @@ from .common import (
     CLIError,
     Force,
     LengthUnit,
+    UnitCheck,
     app,
     check_output,
     load_model,
@@ -70,6 +71,7 @@ def fit_cmd(
     fade_cv: int = typer.Option(0, "--fade-cv", help="Measure the fade by leave-one-region-out over this many regions (>= 2; 0 = fixed fade)."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    unit_check: bool = UnitCheck,
     force: bool = Force,
 ) -> None:
     """Fit a hybrid model: calibrate the classical model, then train the residual networks.
@@ -99,11 +101,11 @@ def fit_cmd(
     check_output(out, (robot, train, val), force)  # before any long work
     cal_kw = _calibration_options(orientation_weight, max_deviation)
     rob = load_robot(robot)
-    tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+    tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     check_fit_size(rob, tr)
     va = None
     if val is not None:
-        va = read_dataset(val, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+        va = read_dataset(val, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     if device == "auto":
         import torch
 
@@ -147,6 +149,7 @@ def evaluate_cmd(
     report: Path | None = typer.Option(None, "--report", help="Write an HTML report with plots to this directory."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    unit_check: bool = UnitCheck,
 ) -> None:
     """Before/after error table (mean, std, p95, max; position mm, orientation deg)."""
     from ..evaluation.evaluate import evaluate_model, evaluation_report
@@ -157,7 +160,7 @@ def evaluate_cmd(
     if report is not None:
         check_output(report, (model, test), force=True, directory=True)
     mdl, rob = load_model_or_robot(model)
-    ds = read_dataset(test, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+    ds = read_dataset(test, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     res = evaluate_model(mdl if mdl is not None else rob, ds)
     if as_json:
         typer.echo(json.dumps(res.to_dict(), indent=2))
@@ -178,6 +181,7 @@ def calibrate_cmd(
     max_deviation: str | None = MaxDeviation,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    unit_check: bool = UnitCheck,
     force: bool = Force,
 ) -> None:
     """Parametric calibration only (geometry, base, tool, joint compliance); writes a robot file.
@@ -192,7 +196,7 @@ def calibrate_cmd(
 
     check_output(out, (robot, data), force)
     rob = load_robot(robot)
-    ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+    ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation))
     typer.echo(res.report())
     save_robot_toml(res.robot, out)

@@ -280,8 +280,11 @@ def check_fit_size(robot: Robot, data, what: str = "fit") -> None:
 def check_fit_data(robot: Robot, data) -> None:
     """What :meth:`hykin.HybridModel.fit` checks first: enough poses (:func:`check_fit_size`), and
     positions / orientations consistent with the robot (:func:`check_dataset`; units are those of
-    the in-memory data, SI)."""
+    the in-memory data, SI), unless the data were read with the unit checks off
+    (``data.meta["unit_check"]`` False: :func:`hykin.io.dataset_files.read_dataset`'s ``unit_check``)."""
     check_fit_size(robot, data)
+    if not (getattr(data, "meta", None) or {}).get("unit_check", True):
+        return
     if np.isfinite(np.asarray(data.q)).all() and np.isfinite(np.asarray(data.xyz_m)).all():
         check_dataset(robot, data)
 
