@@ -47,6 +47,9 @@ MAX_ROWS = 500
 # A spread ratio outside [1/SCALE_LIMIT, SCALE_LIMIT] cannot come from tool offsets or calibration
 # errors (those stay within a factor ~2); a unit slip is a factor 1000 (tens for rad read as deg).
 SCALE_LIMIT = 10.0
+# With every revolute joint within ±6.3° under --angle-unit deg (radians read as degrees), a spread
+# ratio above this is a unit slip (a real small-angle sweep in degrees gives s ~ 1).
+RAD_AS_DEG_SCALE = 2.0
 # Median misfit (deg) of the relative rotation vectors after the frame fit above which orientations do
 # not belong to the robot's rotations. Real rotation errors of a robot (calibration, compliance) are
 # below 1° (measured 0.11° on UR10 series B, tracker frame).
@@ -87,19 +90,24 @@ def check_position_scale(robot: Robot, q, xyz_m, *, where: str = "<data>", lengt
     if spread_hat < 1e-9 or spread < 1e-12:
         return None  # no motion to compare
     s = float(spread / spread_hat)
+    rev = np.array([t == "revolute" for t in robot.joint_type])
+    # radians declared degrees leave every revolute joint within ±6.3° and shrink the nominal motion:
+    # with that joint pattern, positions spreading clearly more than the nominal motion are evidence
+    # enough (a robot with short links, e.g. a UR5, gives s ~ 3-5 rather than tens)
+    small_q = rev.any() and np.abs(q[:, rev]).max() < np.radians(6.3) * 1.01
+    if angle_unit == "deg" and small_q and s > RAD_AS_DEG_SCALE:
+        raise PlausibilityError(
+            f"{where}: measured positions span {s:.3g}x what robot {robot.name!r} moves at these joints while every "
+            "joint is within ±6.3°: the joints look like radians declared --angle-unit deg (use --angle-unit rad)")
     if 1.0 / SCALE_LIMIT <= s <= SCALE_LIMIT:
         return s
-    rev = np.array([t == "revolute" for t in robot.joint_type])
     if s < 1.0 / SCALE_LIMIT:
         if length_unit == "mm":
             cause = "the positions look like metres declared --length-unit mm (use --length-unit m)"
         else:
             cause = "wrong --length-unit, or data of another robot"
     else:
-        small_q = rev.any() and np.abs(q[:, rev]).max() < np.radians(6.3) * 1.01
-        if angle_unit == "deg" and small_q:
-            cause = "the joints look like radians declared --angle-unit deg (use --angle-unit rad)"
-        elif length_unit == "m":
+        if length_unit == "m":
             cause = "the positions look like millimetres declared metres (use --length-unit mm)"
         else:
             cause = "wrong --length-unit or --angle-unit, or data of another robot"
