@@ -205,33 +205,59 @@ def calibrate_cmd(
 
 @app.command("register")
 def register_cmd(
-    model: str = typer.Argument(..., help="Model file trained on an earlier series."),
+    model: str = typer.Argument(..., help="Model file trained on an earlier series, or a robot file (e.g. written by "
+                                           "`hykin calibrate`), URDF or preset."),
     series: Path = typer.Argument(..., help="New measurement series (.csv/.parquet)."),
-    out: Path = typer.Option(..., "-o", "--out", help="Output model file with re-fitted base and tool."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output model file (a robot file .toml for a robot input)."),
     poses: int = typer.Option(30, "--poses", help="Number of poses of the series used to register (spread over it)."),
     frames_only: bool = typer.Option(False, "--frames-only", help="Re-fit base and tool only (no joint zeros / thermal state)."),
     orientation_weight: str = typer.Option(
         "auto", "--orientation-weight",
         help="Weight of orientation residuals in the registration, m/rad, or 'auto': sigma_pos / sigma_rot of a "
              "first fit on the registration poses."),
+    alpha: float = typer.Option(1e-3, "--alpha", help="Significance of the consistency test (chi-square of the residuals "
+                                                       "normalised by noise and the model's bands); 0 never refuses."),
+    tolerance: float = typer.Option(3.0, "--tolerance", help="Factor on the expected error scale the test allows."),
+    noise_mm: float = typer.Option(0.05, "--noise-mm", help="Measurement noise per coordinate, mm (orientation: "
+                                                             "0.005 deg), added to the model's uncertainty."),
+    nominal_check: bool = typer.Option(True, "--nominal-check/--no-nominal-check",
+                                       help="Fall back to the nominal model + frames when it predicts the registration "
+                                            "poses better (leave-one-pose-out)."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    unit_check: bool = UnitCheck,
     force: bool = Force,
 ) -> None:
     """Re-fit base and tool frames for a new series (tracker moved, tool changed) and, where the poses
     identify them and they are significant, joint zero offsets and a thermal state; keep the learned errors.
-    Refuses (exit 2, one line) when the residual shows the series does not fit the model."""
+    Refuses (exit 2, one line) when a chi-square test shows the series does not fit the model; falls
+    back to the nominal model with fitted frames where that predicts the series better."""
     from ..io.dataset_files import read_dataset
     from ..measure.register import register_model
 
     check_output(out, (model, series), force)
+    if not (0.0 <= alpha < 1.0) or not tolerance > 0 or not noise_mm >= 0:
+        raise CLIError(f"--alpha must be in [0, 1), --tolerance > 0, --noise-mm >= 0 (got {alpha}, {tolerance}, {noise_mm})")
     w = _calibration_options(orientation_weight, None).get("orientation_weight_m_per_rad", "auto")
-    mdl = load_model(model)
-    ds = read_dataset(series, length_unit=length_unit, angle_unit=angle_unit, robot=mdl.robot)
-    new, info = register_model(mdl, ds, n_poses=poses, refit="frames" if frames_only else "auto", orientation_weight=w)
-    new.save(out)
+    mdl, rob = load_model_or_robot(model)
+    if mdl is None:
+        from ..measure.robot_model import RobotModel
+
+        if rob.convention not in ("dh", "mdh"):
+            raise CLIError(f"{model}: a registered {rob.convention} robot cannot be written as a robot file yet; "
+                           "register a model file instead")
+        mdl = RobotModel(rob)
+    ds = read_dataset(series, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
+    new, info = register_model(mdl, ds, n_poses=poses, refit="frames" if frames_only else "auto", orientation_weight=w,
+                               alpha=alpha, tolerance=tolerance, noise_mm=noise_mm, check_nominal=nominal_check)
+    if hasattr(new, "to_robot"):
+        from ..io.robot_toml import save_robot_toml
+
+        save_robot_toml(new.to_robot(), out)
+    else:
+        new.save(out)
     typer.echo(info.report())
-    typer.echo(f"registered model written to {out}")
+    typer.echo(f"registered {'robot' if hasattr(new, 'to_robot') else 'model'} written to {out}")
 
 
 @app.command("export")
