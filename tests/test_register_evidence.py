@@ -99,9 +99,9 @@ def test_wrong_robot_refused_one_line_alpha_zero_forces(model, rx160):
     T = B_TRUE @ fk(load_robot("ur10"), ds.q)  # another robot's poses for the same joints
     wrong = Dataset(q=ds.q, xyz_m=T[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T[:, :3, :3]), source="wrong.csv")
     with pytest.raises(RegistrationError, match=r"^wrong\.csv: the series does not fit the model.*chi-square") as e:
-        register_model(model, wrong, n_poses=30)
+        register_model(model, wrong, n_poses=30, refit="frames")  # (auto: refused for a 58 deg joint zero)
     assert "\n" not in str(e.value)
-    _, info = register_model(model, wrong, n_poses=30, alpha=0.0)  # forced
+    _, info = register_model(model, wrong, n_poses=30, refit="frames", alpha=0.0)  # forced
     assert "fails" not in info.consistency
 
 
@@ -175,3 +175,17 @@ def test_register_calibrated_robot_api_and_cli(rx160, tmp_path, capsys):
         main(["register", str(rob_file), str(tmp_path / "w.csv"), "-o", str(bad_out)])
     assert e.value.code == 2 and not bad_out.exists()
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_linearised_loo_matches_the_refitted_one(rx160):
+    """The nominal check's leave-one-pose-out (one fit + hat matrix) against n refits."""
+    from hykin.measure.register_checks import loo_errors, loo_errors_linear
+
+    ds = _series(rx160, n=25, noise_mm=0.05, noise_deg=0.005, seed=7)
+    T_model = fk(_bent(rx160, 0.5), ds.q)
+    for pos_only in (False, True):
+        pe, ae = loo_errors(T_model, ds.poses(), pos_only)
+        pl, al = loo_errors_linear(T_model, ds.poses(), pos_only)
+        np.testing.assert_allclose(pl, pe, rtol=0.02, atol=2e-7)
+        if not pos_only:
+            np.testing.assert_allclose(al, ae, rtol=0.05, atol=1e-7)

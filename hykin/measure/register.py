@@ -464,11 +464,20 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
     prob = _Problem(new, series.q[idx], T_model[idx], T_meas[idx], extra, pos_only, w) if has_rob else None
     x = x0
     params: list[RegisteredParameter] = []
+    implausible = None  # a zero / scale no drift explains: frames only, the tests below decide
     if extra:
-        sol = least_squares(lambda v: prob.resid(v).ravel(), np.concatenate([x0, np.zeros(len(extra))]),
-                            jac=lambda v: prob.jac(v).reshape(-1, len(v)), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
-        x = sol.x
-        check_extra_plausible(series, extra, x[12:])
+        sol_x = least_squares(lambda v: prob.resid(v).ravel(), np.concatenate([x0, np.zeros(len(extra))]),
+                              jac=lambda v: prob.jac(v).reshape(-1, len(v)), method="lm", xtol=1e-15, ftol=1e-15,
+                              gtol=1e-15)
+        try:
+            check_extra_plausible(series, extra, sol_x.x[12:])
+        except RegistrationError as e:
+            implausible = str(e)
+            not_fitted.update({c: "implausible value (" + implausible.split(": ", 1)[-1] + ")" for c in extra})
+            extra = []
+            prob = _Problem(new, series.q[idx], T_model[idx], T_meas[idx], [], pos_only, w)
+    if extra:
+        sol, x = sol_x, sol_x.x
         new.robot_ = _robot_with(new.robot_, extra, x[12:])
         T_model = new.predict(series.q, temperature_c=temp, **pl_kw)
         B = pose_from_vector6(x[:6])
@@ -527,7 +536,8 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         from ..kinematics.classical import classical_fk
 
         T_nom = classical_fk(model.robot, series.q, **pl_kw)
-        keep, info.nominal_check, info.nominal_figures = nominal_comparison(T_model[idx], T_nom[idx], T_meas[idx], pos_only)
+        keep, info.nominal_check, info.nominal_figures = nominal_comparison(T_model[idx], T_nom[idx], T_meas[idx],
+                                                                            pos_only, w)
         if not keep:
             T_reg, test = fall_back_to_nominal(new, model, T_model, T_nom, T_meas, idx, pos_only, w, sp, sa, alpha, tolerance, src)
             p, a = pose_error(T_reg, T_meas)
@@ -540,5 +550,5 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
             info.rest_ang_mean_deg = None if pos_only or not len(rest) else float(a[rest].mean())
     info.consistency = test.line()
     if not test.passed:
-        raise RegistrationError(f"{getattr(series, 'source', 'series')}: {MISMATCH_SHORT}: {test.line()}")
+        raise RegistrationError(implausible or f"{getattr(series, 'source', 'series')}: {MISMATCH_SHORT}: {test.line()}")
     return new, info
