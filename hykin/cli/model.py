@@ -220,9 +220,10 @@ def register_cmd(
     tolerance: float = typer.Option(3.0, "--tolerance", help="Factor on the expected error scale the test allows."),
     noise_mm: float = typer.Option(0.05, "--noise-mm", help="Measurement noise per coordinate, mm (orientation: "
                                                              "0.005 deg), added to the model's uncertainty."),
-    nominal_check: bool = typer.Option(True, "--nominal-check/--no-nominal-check",
-                                       help="Fall back to the nominal model + frames when it predicts the registration "
-                                            "poses better (leave-one-pose-out)."),
+    nominal_check: str = typer.Option("pose", "--nominal-check",
+                                      help="Fall back to the nominal model + frames when it predicts the registration poses "
+                                           "better (leave-one-pose-out): pose (worse in position or orientation), "
+                                           "position (position only) or off."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     unit_check: bool = UnitCheck,
@@ -236,6 +237,8 @@ def register_cmd(
     from ..measure.register import register_model
 
     check_output(out, (model, series), force)
+    if nominal_check not in ("pose", "position", "off"):
+        raise CLIError(f"--nominal-check must be pose, position or off, got {nominal_check!r}")
     if not (0.0 <= alpha < 1.0) or not tolerance > 0 or not noise_mm >= 0:
         raise CLIError(f"--alpha must be in [0, 1), --tolerance > 0, --noise-mm >= 0 (got {alpha}, {tolerance}, {noise_mm})")
     w = _calibration_options(orientation_weight, None).get("orientation_weight_m_per_rad", "auto")
@@ -249,7 +252,8 @@ def register_cmd(
         mdl = RobotModel(rob)
     ds = read_dataset(series, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     new, info = register_model(mdl, ds, n_poses=poses, refit="frames" if frames_only else "auto", orientation_weight=w,
-                               alpha=alpha, tolerance=tolerance, noise_mm=noise_mm, check_nominal=nominal_check)
+                               alpha=alpha, tolerance=tolerance, noise_mm=noise_mm,
+                               check_nominal=False if nominal_check == "off" else nominal_check)
     if hasattr(new, "to_robot"):
         from ..io.robot_toml import save_robot_toml
 

@@ -332,7 +332,7 @@ def _select_extra(prob: _Problem, x0: np.ndarray, cands: list[str]) -> tuple[lis
 def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, select: str = "representative",
                    refit: str | tuple = "auto", max_residual_ratio: float | None = None, check_networks: bool = True,
                    orientation_weight: float | str = "auto", alpha: float = 1e-3, tolerance: float = 3.0,
-                   noise_mm: float = NOISE_MM, noise_deg: float = NOISE_DEG, check_nominal: bool = True):
+                   noise_mm: float = NOISE_MM, noise_deg: float = NOISE_DEG, check_nominal: bool | str = True):
     """Register ``series`` to ``model`` from ``n_poses`` poses; returns ``(new_model, info)``.
 
     ``orientation_weight``: m/rad weight of the orientation residuals, or ``"auto"`` (default):
@@ -361,9 +361,10 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
     uncertainty band at each pose, at significance ``alpha`` with ``tolerance``
     (:mod:`hykin.measure.register_checks`; ``alpha=0`` never refuses). ``max_residual_ratio``
     (default None): the former fixed rule instead (mean residual above that many times the model's
-    calibrated training error). Nominal check (``check_nominal``, :func:`nominal_comparison`): when
-    the registered model predicts the registration poses worse than the nominal model with frames
-    (leave-one-pose-out), the returned model is the nominal one with those frames
+    calibrated training error). Nominal check (``check_nominal``: True / ``"pose"``, ``"position"``
+    or False; :func:`nominal_comparison`): when the registered model predicts the registration poses
+    worse than the nominal model with frames (leave-one-pose-out; in position or orientation, or in
+    position only), the returned model is the nominal one with those frames
     (``info.fell_back``); ``info.consistency`` / ``info.nominal_check`` give the evidence.
 
     The returned model is a copy (the input model is never changed). Poses are chosen where the model is validated:
@@ -537,7 +538,8 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
 
         T_nom = classical_fk(model.robot, series.q, **pl_kw)
         keep, info.nominal_check, info.nominal_figures = nominal_comparison(T_model[idx], T_nom[idx], T_meas[idx],
-                                                                            pos_only, w)
+                                                                            pos_only, w,
+                                                                            "position" if check_nominal == "position" else "pose")
         if not keep:
             T_reg, test = fall_back_to_nominal(new, model, T_model, T_nom, T_meas, idx, pos_only, w, sp, sa, alpha, tolerance, src)
             p, a = pose_error(T_reg, T_meas)

@@ -179,11 +179,13 @@ def loo_errors_linear(T_model: np.ndarray, T_meas: np.ndarray, position_only: bo
 
 
 def nominal_comparison(T_reg: np.ndarray, T_nom: np.ndarray, T_meas: np.ndarray,
-                       position_only: bool, orientation_weight_m_per_rad: float = 1.0) -> tuple[bool, str, dict]:
+                       position_only: bool, orientation_weight_m_per_rad: float = 1.0,
+                       components: str = "pose") -> tuple[bool, str, dict]:
     """Keep the registered model (predictions ``T_reg`` ``(n, 4, 4)`` in the model frame) or fall back
     to the nominal model (``T_nom``)? Leave-one-pose-out on the registration poses ``T_meas``; the
-    registered model is kept unless its mean LOO error is larger in position or (full pose) in
-    orientation. Returns ``(keep, report line, figures)`` (figures: mean LOO mm / deg)."""
+    registered model is kept unless its mean LOO error is larger in position or (full pose data,
+    ``components="pose"``) in orientation; ``components="position"`` judges position only.
+    Returns ``(keep, report line, figures)`` (figures: mean LOO mm / deg)."""
     pr, ar = loo_errors_linear(T_reg, T_meas, position_only, orientation_weight_m_per_rad)
     pn, an = loo_errors_linear(T_nom, T_meas, position_only, orientation_weight_m_per_rad)
     fig = {"registered_loo_mm": float(pr.mean() * 1e3), "nominal_loo_mm": float(pn.mean() * 1e3)}
@@ -192,7 +194,8 @@ def nominal_comparison(T_reg: np.ndarray, T_nom: np.ndarray, T_meas: np.ndarray,
     if ar is not None:
         fig.update(registered_loo_deg=float(np.degrees(ar.mean())), nominal_loo_deg=float(np.degrees(an.mean())))
         worse.append(f"orientation {fig['registered_loo_deg']:.4f} against {fig['nominal_loo_deg']:.4f} deg")
-        keep &= ar.mean() <= an.mean() + TIE_RAD
+        if components == "pose":
+            keep &= ar.mean() <= an.mean() + TIE_RAD
     what = (f"on the {len(T_meas)} registration poses, leave-one-pose-out registered model vs nominal model + frames: "
             + ", ".join(worse))
     if keep:
@@ -306,7 +309,7 @@ def fall_back_to_nominal(new, model, T_model, T_nom, T_meas, idx, pos_only, w, s
     """Turn ``new`` into the nominal model with frames fitted on the poses ``idx`` (networks off, no
     thermal state, no bands); returns its poses ``(N, 4, 4)`` and its consistency test, the expected
     scale widened by the calibrated-minus-nominal difference at those poses (after a rigid fit)."""
-    B, E = fit_frames(T_nom[idx], T_meas[idx], position_only=pos_only, orientation_weight_m_per_rad=w)
+    B, E = fit_frames(T_nom[idx], T_meas[idx], position_only=pos_only)  # exactly "nominal + frames on these poses"
     Bc, Ec = fit_frames(T_nom[idx], T_model[idx], position_only=pos_only, orientation_weight_m_per_rad=w)
     T_d = Bc @ T_nom[idx] @ Ec
     dp = np.linalg.norm(T_d[:, :3, 3] - T_model[idx][:, :3, 3], axis=1) / np.sqrt(3.0)
