@@ -46,7 +46,7 @@ from .table_map import (
     table_map_from_dict,
 )
 
-__all__ = ["MappedTable", "guess_layout", "import_table", "read_mapped", "read_text_table"]
+__all__ = ["MappedTable", "check_lever_arms", "guess_layout", "import_table", "read_mapped", "read_text_table"]
 
 RAD_LOOKS_LIKE_DEG = 2 * math.pi * 1.2  # |angle| above this, declared rad: degrees
 # Length units are judged by the RMS spread of the positions about their centroid, never by absolute
@@ -221,6 +221,40 @@ def _unit_checks(t: TextTable, m: TableMap, q_raw, rev, xyz_raw, ang_raw, ang_un
                           f"declare {key} = \"deg\"" + hint_off)
 
 
+LEVER_ARM_VARIATION = (1e-3, 0.02)  # m, fraction: a lever arm stays within max(1 mm, 2 %) of its median ...
+LEVER_ARM_OFF_ROWS = 0.2  # ... in all but this fraction of the rows (a swapped or lost reflector in a few rows is
+#                           named per row by the later checks, e.g. the nest fit)
+
+
+def check_lever_arms(t: TextTable, m: TableMap, xyz_m: np.ndarray, P_m: np.ndarray) -> None:
+    """Refuse a further reflector (``points``) that is not one: on a rigid tool its distance from the
+    first reflector lies in ``m.lever_arm_m`` (default 3 mm - 2 m; it would otherwise be a duplicate of
+    the first, or millimetres read as metres) and is constant over the rows: within
+    :data:`LEVER_ARM_VARIATION` (``max(1 mm, 2 %)``) of its median in at least 80 % of the rows (an
+    uncertainty, accelerometer or index column is not). ``xyz_m`` ``(N, 3)``, ``P_m`` ``(N, K, 3)``
+    in metres; rows with a missing value are skipped. One line naming the columns."""
+    lo, hi = m.lever_arm_m
+    for k in range(P_m.shape[1]):
+        ok = np.isfinite(P_m[:, k]).all(1) & np.isfinite(xyz_m).all(1)
+        if ok.sum() < 1:
+            continue
+        d = np.linalg.norm(P_m[ok, k] - xyz_m[ok], axis=1)
+        med = float(np.median(d))
+        tol = max(LEVER_ARM_VARIATION[0], LEVER_ARM_VARIATION[1] * med)
+        off = np.abs(d - med) > tol
+        cols = ", ".join(f"'{c}'" for c in m.points[k])
+        why = None
+        if not lo <= med <= hi:
+            why = (f"lies {med * 1e3:.4g} mm (median) from the first reflector, outside the lever arm of a second reflector "
+                   f"on the same tool ({lo * 1e3:g} mm - {hi:g} m; lever_arm_m)")
+        elif off.mean() > LEVER_ARM_OFF_ROWS:
+            why = (f"changes its distance from the first reflector by more than {tol * 1e3:.3g} mm in {off.sum()} of "
+                   f"{off.size} rows (median {med * 1e3:.4g} mm): not on the same rigid tool")
+        if why:
+            raise TableMapError(f"{t.where}, columns {cols}: reflector {k + 2} {why}; an uncertainty, sensor or index "
+                                "column is not a reflector: leave it out of points", file=t.where, column=m.points[k][0])
+
+
 def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool = True, need_position: bool = True,
                 allow_missing: bool = False, dof: int | None = None) -> MappedTable:
     """Read ``path`` with mapping ``m`` into SI arrays (:class:`MappedTable`).
@@ -278,15 +312,8 @@ def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool 
     xyz = None if xyz_raw is None else xyz_raw * L
     quat = _orientation(t, m, ori, ang_raw, allow_missing)
     P = np.stack([_stack(t, p, d, allow_missing) * L for p in m.points], axis=1) if m.points else np.zeros((len(t.rows), 0, 3))
-    if pts and m.check_units and m.length_unit == "m" and xyz is not None:
-        from ..io.dataset import spread_limit_m
-
-        ok = np.isfinite(P).all(2) & np.isfinite(xyz)[:, None, :].all(2)
-        for k in range(P.shape[1]):  # a reflector's distance from the first is a lever arm (m), not millimetres
-            lever = np.linalg.norm(P[ok[:, k], k] - xyz[ok[:, k]], axis=1)
-            if len(lever) and np.median(lever) > spread_limit_m(robot):
-                raise t.error(int(np.argmax(ok[:, k])), m.points[k][0], f"reflector {k + 2} lies {np.median(lever):.6g} m "
-                              "(median) from the first, declared m: looks like millimetres; declare length_unit = \"mm\"")
+    if pts and xyz is not None:
+        check_lever_arms(t, m, xyz, P)
     time_s = _time_column(t, m) if m.time else None
     extra: dict[str, np.ndarray] = {}
     if m.temperature:
