@@ -9,8 +9,11 @@ new day changes inside the arm: joint zero offsets (an encoder re-referenced, a 
 and a thermal state (a uniform length scale); the choice is made from the data (QR of the
 registration Jacobian, then backward elimination by leave-one-pose-out error and t-statistics) and
 reported with standard deviations (:meth:`RegistrationInfo.report`). A registration whose residual
-is far above the model's own error is refused (:class:`RegistrationError`): the series does not fit
-the model. On a virtual robot measured on two days (tracker moved, tool re-mounted by 0.5 mm /
+is inconsistent with the measurement noise and the model's uncertainty at those poses (a chi-square
+test, :mod:`hykin.measure.register_checks`) is refused (:class:`RegistrationError`): the series does
+not fit the model; where the nominal robot with frames fitted on the same poses predicts them better
+(leave-one-pose-out), the registration falls back to it. A robot file without a model registers
+through :class:`hykin.measure.robot_model.RobotModel`. On a virtual robot measured on two days (tracker moved, tool re-mounted by 0.5 mm /
 0.05°, joint zeros drifted by 0.01°; benchmarks/bench_transfer.py, default recipe) the 30-pose
 registration recovers the drifts of joints 2-5 to within 0.0002-0.0007° (std 0.0015-0.0024°) and
 predicts day 2 at 1.23× (position) / 1.04× (orientation) day 1's own held-out error (0.0216 mm /
