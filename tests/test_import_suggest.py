@@ -78,3 +78,21 @@ def test_implausible_second_reflector_refused_at_import(tmp_path, lever_m, noise
     # the limit is an option
     if lever_m > 1:
         import_table(_table(tmp_path / "t.csv", lever_m, noise_m), dict(MAP, lever_arm_m=[0.003, 10.0]))
+
+
+@pytest.mark.parametrize("offset_m", [60.0, 2500.0])
+def test_import_far_instrument_by_spread_not_coordinates(tmp_path, offset_m):
+    """A total station / tracker far from the robot: coordinates of tens of metres or kilometres are
+    metres (judged by the spread, not the distance from the origin); the same table in mm declared m
+    is refused, and declared mm it is read."""
+    rng = np.random.default_rng(1)
+    q = rng.uniform(-1, 1, (30, 6))
+    p = rng.uniform(-0.8, 0.8, (30, 3)) + offset_m
+    head = "J1,J2,J3,J4,J5,J6,X,Y,Z"
+    m = {"joints": ["J1", "J2", "J3", "J4", "J5", "J6"], "position": ["X", "Y", "Z"]}
+    np.savetxt(tmp_path / "m.csv", np.c_[q, p], delimiter=",", header=head, comments="", fmt="%.17g")
+    np.testing.assert_allclose(import_table(tmp_path / "m.csv", m).xyz_m, p, rtol=1e-12)
+    np.savetxt(tmp_path / "mm.csv", np.c_[q, p * 1e3], delimiter=",", header=head, comments="", fmt="%.17g")
+    with pytest.raises(Exception, match="looks like millimetres"):
+        import_table(tmp_path / "mm.csv", m)
+    np.testing.assert_allclose(import_table(tmp_path / "mm.csv", dict(m, length_unit="mm")).xyz_m, p, rtol=1e-12)
