@@ -189,3 +189,18 @@ def test_linearised_loo_matches_the_refitted_one(rx160):
         np.testing.assert_allclose(pl, pe, rtol=0.02, atol=2e-7)
         if not pos_only:
             np.testing.assert_allclose(al, ae, rtol=0.05, atol=1e-7)
+
+
+def test_register_robot_written_as_urdf(rx160, tmp_path):
+    """A registered robot file may be written as URDF (the loader reads it back with the same FK)."""
+    from hykin.cli import main
+    from hykin.io.dataset_files import write_dataset
+
+    ds = _series(rx160, seed=8)
+    write_dataset(ds, tmp_path / "s.csv")
+    out = tmp_path / "reg.urdf"
+    with pytest.raises(SystemExit) as e:
+        main(["register", "rx160", str(tmp_path / "s.csv"), "-o", str(out)])
+    assert e.value.code in (0, None)
+    reg = load_robot(str(out))
+    assert se3.pose_error(fk(reg, ds.q), ds.poses())[0].mean() < 0.06

@@ -208,7 +208,7 @@ def register_cmd(
     model: str = typer.Argument(..., help="Model file trained on an earlier series, or a robot file (e.g. written by "
                                            "`hykin calibrate`), URDF or preset."),
     series: Path = typer.Argument(..., help="New measurement series (.csv/.parquet)."),
-    out: Path = typer.Option(..., "-o", "--out", help="Output model file (a robot file .toml for a robot input)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output model file (for a robot input: a robot file, .toml or .urdf)."),
     poses: int = typer.Option(30, "--poses", help="Number of poses of the series used to register (spread over it)."),
     frames_only: bool = typer.Option(False, "--frames-only", help="Re-fit base and tool only (no joint zeros / thermal state)."),
     orientation_weight: str = typer.Option(
@@ -246,15 +246,18 @@ def register_cmd(
     if mdl is None:
         from ..measure.robot_model import RobotModel
 
-        if rob.convention not in ("dh", "mdh"):
-            raise CLIError(f"{model}: a registered {rob.convention} robot cannot be written as a robot file yet; "
-                           "register a model file instead")
+        if rob.convention not in ("dh", "mdh") and out.suffix.lower() != ".urdf":
+            raise CLIError(f"{out}: a registered {rob.convention} robot is written as URDF: name the output .urdf")
         mdl = RobotModel(rob)
     ds = read_dataset(series, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     new, info = register_model(mdl, ds, n_poses=poses, refit="frames" if frames_only else "auto", orientation_weight=w,
                                alpha=alpha, tolerance=tolerance, noise_mm=noise_mm,
                                check_nominal=False if nominal_check == "off" else nominal_check)
-    if hasattr(new, "to_robot"):
+    if hasattr(new, "to_robot") and out.suffix.lower() == ".urdf":
+        from ..io.urdf import robot_to_urdf
+
+        out.write_text(robot_to_urdf(new.to_robot()), encoding="utf-8")
+    elif hasattr(new, "to_robot"):
         from ..io.robot_toml import save_robot_toml
 
         save_robot_toml(new.to_robot(), out)
