@@ -115,6 +115,7 @@ def test_region_cv_failure(data, tmp_path, monkeypatch):
     _kept(m, tmp_path, "region-blocked parameter selection")
 
 
+@pytest.mark.slow
 def test_cli_fit_survives_a_failing_optional_step(data, tmp_path, monkeypatch, capsys):
     """The reported crash through the CLI: exit 0, one warning line, the model written and usable."""
     from hykin.cli import main

@@ -191,6 +191,7 @@ def test_linearised_loo_matches_the_refitted_one(rx160):
             np.testing.assert_allclose(al, ae, rtol=0.05, atol=1e-7)
 
 
+@pytest.mark.slow
 def test_register_robot_written_as_urdf(rx160, tmp_path):
     """A registered robot file may be written as URDF (the loader reads it back with the same FK)."""
     from hykin.cli import main
