@@ -101,6 +101,8 @@ _EXPORTS = {
     "extrapolation_growth": "hybrid.uncertainty",
     "register_model": "measure.register",
     "RegistrationError": "measure.register",
+    "RobotModel": "measure.robot_model",
+    "OptionalStepWarning": "hybrid.optional",
     "calibrate_fade": "hybrid.fade",
     "select_calibration": "hybrid.region_cv",
     "export_onnx": "hybrid.export",

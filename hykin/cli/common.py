@@ -37,6 +37,12 @@ LengthUnit = typer.Option("m", "--length-unit", help="Unit of x,y,z in the input
 AngleUnit = typer.Option("rad", "--angle-unit", help="Unit of joint columns in the input files: rad or deg.")
 
 
+UnitCheck = typer.Option(
+    True, "--unit-check/--no-unit-check",
+    help="Refuse data that look like another unit (mm read as m, rad read as deg; judged against the robot's reach "
+         "and motion, not absolute coordinates). --no-unit-check when the values are right.")
+
+
 Force = typer.Option(False, "--force", help="Overwrite the output file if it exists.")
 BaseLink = typer.Option(None, "--base", metavar="LINK",
                         help="URDF robot: the chain's base link (default: the root link).")

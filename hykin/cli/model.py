@@ -14,6 +14,7 @@ from .common import (
     Force,
     LengthUnit,
     TipLink,
+    UnitCheck,
     app,
     check_output,
     load_model,
@@ -75,6 +76,7 @@ def fit_cmd(
     fade_cv: int = typer.Option(0, "--fade-cv", help="Measure the fade by leave-one-region-out over this many regions (>= 2; 0 = fixed fade)."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    unit_check: bool = UnitCheck,
     force: bool = Force,
 ) -> None:
     """Fit a hybrid model: calibrate the classical model, then train the residual networks.
@@ -103,11 +105,11 @@ def fit_cmd(
     check_output(out, (robot, train, val), force)  # before any long work
     cal_kw = _calibration_options(orientation_weight, max_deviation)
     rob = load_robot_spec(robot, base_link, tip_link)
-    tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+    tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     check_fit_size(rob, tr)
     va = None
     if val is not None:
-        va = read_dataset(val, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+        va = read_dataset(val, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     if device == "auto":
         import torch
 
@@ -153,6 +155,7 @@ def evaluate_cmd(
     report: Path | None = typer.Option(None, "--report", help="Write an HTML report with plots to this directory."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    unit_check: bool = UnitCheck,
 ) -> None:
     """Before/after error table (mean, std, p95, max; position mm, orientation deg)."""
     from ..evaluation.evaluate import evaluate_model, evaluation_report
@@ -163,7 +166,7 @@ def evaluate_cmd(
     if report is not None:
         check_output(report, (model, test), force=True, directory=True)
     mdl, rob = load_model_or_robot(model, base_link, tip_link)
-    ds = read_dataset(test, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+    ds = read_dataset(test, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     res = evaluate_model(mdl if mdl is not None else rob, ds)
     if as_json:
         typer.echo(json.dumps(res.to_dict(), indent=2))
@@ -186,6 +189,7 @@ def calibrate_cmd(
     max_deviation: str | None = MaxDeviation,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    unit_check: bool = UnitCheck,
     force: bool = Force,
 ) -> None:
     """Parametric calibration only (geometry, base, tool, joint compliance); writes a robot file.
@@ -199,7 +203,7 @@ def calibrate_cmd(
     check_output(out, (robot, data), force)
     rob = load_robot_spec(robot, base_link, tip_link)
     _check_robot_out(rob, out)
-    ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+    ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation))
     typer.echo(res.report())
     _write_calibrated(res.robot, out)
@@ -229,33 +233,66 @@ def _write_calibrated(robot, out: Path) -> None:
 
 @app.command("register")
 def register_cmd(
-    model: str = typer.Argument(..., help="Model file trained on an earlier series."),
+    model: str = typer.Argument(..., help="Model file trained on an earlier series, or a robot file (e.g. written by "
+                                           "`hykin calibrate`), URDF or preset."),
     series: Path = typer.Argument(..., help="New measurement series (.csv/.parquet)."),
-    out: Path = typer.Option(..., "-o", "--out", help="Output model file with re-fitted base and tool."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output model file (for a robot input: a robot file, .toml or .urdf)."),
     poses: int = typer.Option(30, "--poses", help="Number of poses of the series used to register (spread over it)."),
     frames_only: bool = typer.Option(False, "--frames-only", help="Re-fit base and tool only (no joint zeros / thermal state)."),
     orientation_weight: str = typer.Option(
         "auto", "--orientation-weight",
         help="Weight of orientation residuals in the registration, m/rad, or 'auto': sigma_pos / sigma_rot of a "
              "first fit on the registration poses."),
+    alpha: float = typer.Option(1e-3, "--alpha", help="Significance of the consistency test (chi-square of the residuals "
+                                                       "normalised by noise and the model's bands); 0 never refuses."),
+    tolerance: float = typer.Option(3.0, "--tolerance", help="Factor on the expected error scale the test allows."),
+    noise_mm: float = typer.Option(0.05, "--noise-mm", help="Measurement noise per coordinate, mm (orientation: "
+                                                             "0.005 deg), added to the model's uncertainty."),
+    nominal_check: str = typer.Option("pose", "--nominal-check",
+                                      help="Fall back to the nominal model + frames when it predicts the registration poses "
+                                           "better (leave-one-pose-out): pose (worse in position or orientation), "
+                                           "position (position only) or off."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    unit_check: bool = UnitCheck,
     force: bool = Force,
 ) -> None:
     """Re-fit base and tool frames for a new series (tracker moved, tool changed) and, where the poses
     identify them and they are significant, joint zero offsets and a thermal state; keep the learned errors.
-    Refuses (exit 2, one line) when the residual shows the series does not fit the model."""
+    Refuses (exit 2, one line) when a chi-square test shows the series does not fit the model; falls
+    back to the nominal model with fitted frames where that predicts the series better."""
     from ..io.dataset_files import read_dataset
     from ..measure.register import register_model
 
     check_output(out, (model, series), force)
+    if nominal_check not in ("pose", "position", "off"):
+        raise CLIError(f"--nominal-check must be pose, position or off, got {nominal_check!r}")
+    if not (0.0 <= alpha < 1.0) or not tolerance > 0 or not noise_mm >= 0:
+        raise CLIError(f"--alpha must be in [0, 1), --tolerance > 0, --noise-mm >= 0 (got {alpha}, {tolerance}, {noise_mm})")
     w = _calibration_options(orientation_weight, None).get("orientation_weight_m_per_rad", "auto")
-    mdl = load_model(model)
-    ds = read_dataset(series, length_unit=length_unit, angle_unit=angle_unit, robot=mdl.robot)
-    new, info = register_model(mdl, ds, n_poses=poses, refit="frames" if frames_only else "auto", orientation_weight=w)
-    new.save(out)
+    mdl, rob = load_model_or_robot(model)
+    if mdl is None:
+        from ..measure.robot_model import RobotModel
+
+        if rob.convention not in ("dh", "mdh") and out.suffix.lower() != ".urdf":
+            raise CLIError(f"{out}: a registered {rob.convention} robot is written as URDF: name the output .urdf")
+        mdl = RobotModel(rob)
+    ds = read_dataset(series, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
+    new, info = register_model(mdl, ds, n_poses=poses, refit="frames" if frames_only else "auto", orientation_weight=w,
+                               alpha=alpha, tolerance=tolerance, noise_mm=noise_mm,
+                               check_nominal=False if nominal_check == "off" else nominal_check)
+    if hasattr(new, "to_robot") and out.suffix.lower() == ".urdf":
+        from ..io.urdf import robot_to_urdf
+
+        out.write_text(robot_to_urdf(new.to_robot()), encoding="utf-8")
+    elif hasattr(new, "to_robot"):
+        from ..io.robot_toml import save_robot_toml
+
+        save_robot_toml(new.to_robot(), out)
+    else:
+        new.save(out)
     typer.echo(info.report())
-    typer.echo(f"registered model written to {out}")
+    typer.echo(f"registered {'robot' if hasattr(new, 'to_robot') else 'model'} written to {out}")
 
 
 @app.command("export")

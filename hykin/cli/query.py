@@ -14,6 +14,7 @@ from .common import (
     Force,
     LengthUnit,
     TipLink,
+    UnitCheck,
     app,
     check_output,
     console,
@@ -35,6 +36,7 @@ def fk_cmd(
     angle_unit: str = AngleUnit,
     no_fade: bool = typer.Option(False, "--no-fade", help="Apply the network correction even outside the training region."),
     payload_kg: float | None = typer.Option(None, "--payload-kg", help=PAYLOAD_HELP),
+    unit_check: bool = UnitCheck,
     force: bool = Force,
 ) -> None:
     """Forward kinematics: full hybrid model for a model file, classical FK for a robot."""
@@ -45,8 +47,9 @@ def fk_cmd(
 
     check_output(out, (model, joints), force)
     mdl, rob = load_model_or_robot(model, base_link, tip_link)
-    q, extra = read_joints(joints, dof=rob.dof, angle_unit=angle_unit, robot=rob)
-    check_joint_unit(rob, q, where=str(joints), angle_unit=angle_unit)
+    q, extra = read_joints(joints, dof=rob.dof, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
+    if unit_check:
+        check_joint_unit(rob, q, where=str(joints), angle_unit=angle_unit)
     if mdl is None:
         T = fk(rob, q)
     else:
@@ -58,10 +61,11 @@ def fk_cmd(
         T = mdl.predict(q, temperature_c=temp, **payload_kwargs(payload_from_columns(extra, len(q), str(joints), payload_kg)))
         extra = dict(extra)
         extra["support_distance"] = mdl.support_distance(q)
-        band_mm, band_deg = mdl.predict_uncertainty(q, temperature_c=temp)
-        extra["pos_band95_mm"] = band_mm
-        if band_deg is not None:
-            extra["ang_band95_deg"] = band_deg
+        if mdl.unc_ is not None:  # an optional step of fit: a model may have no bands
+            band_mm, band_deg = mdl.predict_uncertainty(q, temperature_c=temp)
+            extra["pos_band95_mm"] = band_mm
+            if band_deg is not None:
+                extra["ang_band95_deg"] = band_deg
     write_dataset(Dataset.from_poses(q, T, extra=extra, source=str(joints)), out)
     typer.echo(f"wrote {len(q)} poses to {out}")
 
@@ -79,6 +83,7 @@ def ik_cmd(
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     payload_kg: float | None = typer.Option(None, "--payload-kg", help=PAYLOAD_HELP),
+    unit_check: bool = UnitCheck,
     force: bool = Force,
 ) -> None:
     """Inverse kinematics: every branch (or the one nearest the seed joints), failures reported.
@@ -90,13 +95,14 @@ def ik_cmd(
 
     check_output(out, (model, poses, seed_joints), force)
     mdl, rob = load_model_or_robot(model, base_link, tip_link)
-    T, has_rot, pose_extra = read_poses(poses, length_unit=length_unit, extras=True)
-    check_target_reach(mdl.robot_ if mdl is not None else rob, T, where=str(poses), length_unit=length_unit,
-                       frame=None if mdl is None else mdl.frame_pre_)
+    T, has_rot, pose_extra = read_poses(poses, length_unit=length_unit, extras=True, unit_check=unit_check)
+    if unit_check:
+        check_target_reach(mdl.robot_ if mdl is not None else rob, T, where=str(poses), length_unit=length_unit,
+                           frame=None if mdl is None else mdl.frame_pre_)
     position_only = position_only or not has_rot
     q_cur = None
     if seed_joints is not None:
-        q_cur, _ = read_joints(seed_joints, dof=rob.dof, angle_unit=angle_unit, robot=rob)
+        q_cur, _ = read_joints(seed_joints, dof=rob.dof, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
         if len(q_cur) == 1:
             q_cur = np.repeat(q_cur, len(T), axis=0)
         elif len(q_cur) != len(T):

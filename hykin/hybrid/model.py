@@ -72,11 +72,13 @@ from . import bands, fitting, inputs, persistence
 from . import support as sup_
 from .errors import HybridError, OutOfRangeWarning
 from .nets import ResidualNet
+from .optional import optional_step
 from .rotations import rotate_poses
 from .settings import check_settings, empty_fitted_state
 from .support import Support, support_report
 from .thermal_fit import apply_thermal, fit_thermal, targets_at_reference
 from .train import Recipe, get_recipe
+from .uncertainty import fit_bands
 
 __all__ = ["HybridError", "HybridModel", "OutOfRangeWarning", "classical_fk", "classical_fk_torch", "support_report"]
 
@@ -238,13 +240,20 @@ class HybridModel:
         kg_all = np.full(len(q), self.robot.payload_kg) if pl_train is None else pl_train[0]
         if val is not None:
             payload_of(val)
+        self._skipped = {}  # optional steps that failed (hykin.hybrid.optional): name -> cause
         self._calibrate_on(train)
         temp = None if self.thermal is False else temperature_of(train)
         if self.thermal is True and temp is None:
             raise HybridError(f"thermal=True but the training data have no temperature column ({', '.join(TEMPERATURE_COLUMNS)})")
         if temp is not None and np.ptp(temp) > 0:
-            self.robot_, self.calibration_, self.thermal_, train, val = fit_thermal(
-                train, val, temp, self.robot_, self.calibration_, self._calibrate_on if self.calibrate else None)
+            first = (self.robot_, self.calibration_)
+            args = (train, val, temp, self.robot_, self.calibration_, self._calibrate_on if self.calibrate else None)
+            got = fit_thermal(*args) if self.thermal is True else optional_step("thermal expansion", self._skipped,
+                                                                              fit_thermal, *args)
+            if got is None:  # failed (auto): the calibration at the measured temperatures
+                self.robot_, self.calibration_ = first
+            else:
+                self.robot_, self.calibration_, self.thermal_, train, val = got
         calib = None
         if self.calibration_ is not None:
             try:
@@ -291,22 +300,27 @@ class HybridModel:
         self.meta_ = fitting.training_metadata(self, train_in, val_in, n_split=(len(qt), len(qv), len(q)),
                                        has_orientation=dr is not None, timings=timings, results=results, calib=calib)
         iv, iv_cal, val_cal, cal_rows = sp["iv"], sp["iv_cal"], sp["val_cal"], sp["cal_rows"]
+        # optional from here on (hykin.hybrid.optional): a failure warns once and keeps the model
         if val is None:
             rows = iv_cal if iv_cal is not None else iv
-            self._fit_uncertainty(train, None, rows)
             raw = train_in.subset(np.asarray(rows)) if len(rows) >= 10 else train_in
+            self.unc_ = optional_step("uncertainty bands", self._skipped, fit_bands, self, train, None, rows, raw,
+                                      self._skipped)
         else:
-            self._fit_uncertainty(train, val_cal if val_cal is not None else val, None)
             raw = val_in.subset(cal_rows) if cal_rows is not None else val_in
-        if self.thermal_ is not None and self.thermal_.coefficient_per_k != 0.0:
-            T_c, T_h = self._predict_unframed(raw.q, payload_of(raw))
-            self.unc_.update(bands.notemp_quantiles(self.unc_, raw, T_c, T_h))
+            self.unc_ = optional_step("uncertainty bands", self._skipped, fit_bands, self, train,
+                                      val_cal if val_cal is not None else val, None, raw, self._skipped)
         if int(self.fade_cv) >= 2 and self.fade is not False:  # hykin.hybrid.fade: fade measured by leave-one-region-out
             from .fade import calibrate_fade
 
-            self.fade_calibration_ = calibrate_fade(self, train, n_blocks=int(self.fade_cv), seed=int(self.seed))
-            self.fade_offset_, self.fade_width_ = self.fade_calibration_.offset, self.fade_calibration_.width
-            self.meta_["fade_calibration"] = persistence.json_safe(self.fade_calibration_.to_dict())
+            fc = optional_step("fade calibration", self._skipped, calibrate_fade, self, train, n_blocks=int(self.fade_cv),
+                               seed=int(self.seed))
+            if fc is not None:
+                self.fade_calibration_ = fc
+                self.fade_offset_, self.fade_width_ = fc.offset, fc.width
+                self.meta_["fade_calibration"] = persistence.json_safe(fc.to_dict())
+        if self._skipped:
+            self.meta_["optional_steps_failed"] = dict(self._skipped)
         self.meta_["metrics"]["train"] = self._metrics(train_in)
         if val_in is not None:
             self.meta_["metrics"]["val"] = self._metrics(val_in)
@@ -324,8 +338,10 @@ class HybridModel:
             if kw.pop("select", None) == "region-cv":  # parameter set by region-blocked validation
                 from .region_cv import select_calibration
 
-                self.calibration_cv_ = select_calibration(self.robot, ds, base_kw=kw)
-                kw.update(self.calibration_cv_.kwargs)
+                self.calibration_cv_ = optional_step("region-blocked parameter selection", getattr(self, "_skipped", {}),
+                                                     select_calibration, self.robot, ds, base_kw=kw)
+                if self.calibration_cv_ is not None:
+                    kw.update(self.calibration_cv_.kwargs)
             res = _calibrate(self.robot, ds, **kw)
             self.robot_, self.calibration_ = res.robot, res
         else:
@@ -366,22 +382,6 @@ class HybridModel:
         pkw = payload_kwargs(payload)
         return classical_fk(self.robot_, q2, **pkw), self._hybrid_poses(q2, warn=False, **pkw)
 
-    def _fit_uncertainty(self, train, val, held_out_index) -> None:
-        """Quantiles of the hybrid and classical error norms on held-out samples (split conformal,
-        :mod:`hykin.hybrid.bands`) and the calibrated model's extrapolation growth."""
-        ds, src = bands.band_source(train, val, held_out_index)
-        T_c, T_h = self._predict_unframed(ds.q, payload_of(ds))
-        unc = {"levels": bands.UNC_LEVELS, "n": len(ds), "source": src}
-        unc.update(bands.error_quantiles(ds, T_c, T_h, with_rot=ds.has_orientation and self.net_rot_ is not None))
-        # how the calibrated model's band widens beyond the trained ranges (emulated extrapolation)
-        from .uncertainty import extrapolation_growth
-
-        g = extrapolation_growth(self.robot, train, self._netq(np.asarray(train.q, dtype=np.float64)), self.input_mask_,
-                                 bands.UNC_LEVELS, calibrate_kw=dict(self.calibrate_kw or {}) if self.calibrate else None,
-                                 with_rot="classical_ang_deg" in unc, seed=int(self.seed))
-        unc.update(bands.growth_entries(g))
-        self.unc_ = unc
-
     def predict_uncertainty(self, q, level: float = 0.95, temperature_c=None) -> tuple[np.ndarray, np.ndarray | None]:
         """Radii of the ``level`` prediction band per query: ``(pos_mm (N,), ang_deg (N,) or None)``.
 
@@ -396,7 +396,9 @@ class HybridModel:
         """
         self._check_fitted()
         if self.unc_ is None:
-            raise HybridError("this model has no uncertainty calibration (saved by an older hykin): refit it")
+            why = (self.metadata.get("optional_steps_failed") or {}).get("uncertainty bands")
+            raise HybridError("this model has no uncertainty bands (" + (f"fit skipped them: {why}" if why else
+                              "saved by an older hykin") + "): refit it")
         if not (0.5 <= level <= 0.995):
             raise HybridError(f"level must be in [0.5, 0.995], got {level}")
         q2, single = self._q(q)

@@ -51,7 +51,14 @@ LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
 
 QUAT_NORM_TOL = 1e-3  # |‖q‖ - 1| above this is an error; below, the quaternion is renormalised
-MAX_POSITION_M = 10.0  # a TCP farther than this from the base is almost surely mm read as m
+# RMS spread (m) of the measured positions about their centroid above which, with no robot to compare
+# with, millimetres were read as metres (any serial arm of up to ~50 m reach; a 0.5 m arm read in mm
+# spreads ~200 "m"). Frame independent: a tracker or total station may stand kilometres away. With a
+# robot the limit is ``SPREAD_PER_REACH`` x its reach; the exact check against the robot's own motion
+# is :func:`hykin.io.plausibility.check_position_scale`.
+MAX_SPREAD_M = 50.0
+SPREAD_PER_REACH = 10.0
+MAX_POSITION_M = MAX_SPREAD_M  # former name (an absolute distance limit, now a spread limit)
 DEG_AS_RAD_MARGIN = 0.1  # rad beyond 2π before revolute joints are called "degrees"
 
 
@@ -247,13 +254,17 @@ def validate(
     angle_unit: str = "rad",
     line_offset: int | None = 1,
     joint_names: Sequence[str] | None = None,
+    unit_check: bool = True,
 ) -> None:
     """Check a dataset (SI units) and raise :class:`DatasetError` naming file, row and column.
 
-    Checks: not empty; dof matches ``robot``; every value finite; revolute joints look like radians
-    (no ``|q| > 2π + 0.1``; not all whole numbers with some ``|q| > π``); joints within ``robot``
-    limits ± ``limit_tol``; quaternions unit (``|‖q‖ − 1| > 1e-3`` is an error, smaller deviations
-    are **renormalised in place**); positions look like metres (no ``‖xyz‖ > 10 m``).
+    Checks: not empty; dof matches ``robot``; every value finite; joints within ``robot`` limits ±
+    ``limit_tol``; quaternions unit (``|‖q‖ − 1| > 1e-3`` is an error, smaller deviations are
+    **renormalised in place**). Unit checks (``unit_check``, the CLI's ``--no-unit-check`` turns them
+    off): revolute joints look like radians (no ``|q| > 2π + 0.1``; not all whole numbers with some
+    ``|q| > π``); positions look like metres: their RMS spread about the centroid is at most
+    :data:`SPREAD_PER_REACH` x the robot's reach (:data:`MAX_SPREAD_M` without a robot). The spread,
+    not the distance from the origin: data in a tracker frame far away are fine.
 
     ``where`` names the file in messages (default ``ds.source``); ``angle_unit`` is the unit the user
     declared, only used to phrase the hint; ``line_offset`` = file line minus data row (1 for a CSV
@@ -262,8 +273,19 @@ def validate(
     """
     where = where or ds.source or "<dataset>"
     validate_joints(ds.q, robot, where=where, limit_tol=limit_tol, angle_unit=angle_unit, line_offset=line_offset,
-                    joint_names=joint_names)
-    validate_poses(ds.xyz_m, ds.quat_wxyz, where=where, line_offset=line_offset)
+                    joint_names=joint_names, unit_check=unit_check)
+    validate_poses(ds.xyz_m, ds.quat_wxyz, where=where, line_offset=line_offset,
+                   max_spread_m=spread_limit_m(robot) if unit_check else None)
+
+
+def spread_limit_m(robot=None) -> float:
+    """RMS position spread (m) above which data declared in metres look like millimetres:
+    :data:`SPREAD_PER_REACH` x the reach of ``robot`` (:data:`MAX_SPREAD_M` without one)."""
+    if robot is None:
+        return MAX_SPREAD_M
+    from ..kinematics.robot import robot_reach_m
+
+    return SPREAD_PER_REACH * max(float(robot_reach_m(robot)), 1e-3)
 
 
 def validate_joints(
@@ -275,9 +297,10 @@ def validate_joints(
     angle_unit: str = "rad",
     line_offset: int | None = 1,
     joint_names: Sequence[str] | None = None,
+    unit_check: bool = True,
 ) -> None:
     """Joint part of :func:`validate` for ``q`` ``(N, dof)`` in rad/m (``joint_names``: the columns' names
-    in messages, default ``q1..qN``)."""
+    in messages, default ``q1..qN``; ``unit_check``: the degrees-as-radians checks)."""
     n, dof = q.shape
     if n == 0:
         raise DatasetError(f"{where}: the dataset is empty (no data rows)", file=where)
@@ -291,7 +314,7 @@ def validate_joints(
     check_finite(where, q, qn, line_offset)
     rev = revolute_mask(dof, robot)
     cont = robot.continuous if robot is not None else np.zeros(dof, dtype=bool)  # any value is valid
-    if (rev & ~cont).any():
+    if (rev & ~cont).any() and unit_check:
         qr = q[:, rev & ~cont]
         names = [c for c, m in zip(qn, rev & ~cont) if m]
         hint = ("declare angle_unit='deg' (CLI: --angle-unit deg)" if angle_unit == "rad"
@@ -324,8 +347,10 @@ def validate_poses(
     *,
     where: str = "<poses>",
     line_offset: int | None = 1,
+    max_spread_m: float | None = MAX_SPREAD_M,
 ) -> None:
-    """Pose part of :func:`validate`: finite, unit quaternions (renormalised in place), metres."""
+    """Pose part of :func:`validate`: finite, unit quaternions (renormalised in place), metres: the RMS
+    spread of ``xyz_m`` about its centroid at most ``max_spread_m`` (None: no unit check)."""
     if xyz_m.shape[0] == 0:
         raise DatasetError(f"{where}: the dataset is empty (no data rows)", file=where)
     check_finite(where, xyz_m, POSITION_COLUMNS, line_offset)
@@ -339,12 +364,16 @@ def validate_poses(
                        "qw,qx,qy,qz must be a unit quaternion, scalar first", r, "qw,qx,qy,qz", line_offset)
         fix = np.abs(norm - 1.0) > 1e-12  # leave exact-to-rounding rows bit-identical (stable hashes)
         quat_wxyz[fix] /= norm[fix, None]
-    dist = np.linalg.norm(xyz_m, axis=1)
-    far = dist > MAX_POSITION_M
-    if far.any():
-        r = int(np.argmax(far))
-        raise row_error(where, f"TCP position is {dist[r]:.6g} m from the base (> {MAX_POSITION_M:g} m): likely millimetres "
-                   "passed as metres; declare length_unit='mm' (CLI: --length-unit mm)", r, "x,y,z", line_offset)
+    if max_spread_m is None or len(xyz_m) < 2:
+        return
+    d = np.linalg.norm(xyz_m - xyz_m.mean(0), axis=1)
+    spread = float(np.sqrt(np.mean(d**2)))
+    if spread > max_spread_m:
+        r = int(np.argmax(np.abs(xyz_m).max(1)))  # the largest value (as a pointer; the test is the spread)
+        raise row_error(where, f"TCP positions spread {spread:.6g} m (RMS about their centroid; > {max_spread_m:.3g} m, "
+                        f"far more than the arm moves): likely millimetres "
+                        "passed as metres; declare length_unit='mm' (CLI: --length-unit mm; --no-unit-check if the "
+                        "values are right)", r, "x,y,z", line_offset)
 
 
 

@@ -267,6 +267,7 @@ def read_dataset(
     robot=None,
     dof: int | None = None,
     plausibility: bool = True,
+    unit_check: bool = True,
 ) -> Dataset:
     """Read a dataset file (``.csv`` or ``.parquet``, DESIGN.md §3) into SI units and validate it.
 
@@ -276,7 +277,9 @@ def read_dataset(
     the joint-limit check and (``plausibility``) the unit and quaternion-order checks of
     :func:`hykin.io.plausibility.check_dataset` (positions vs the robot's motion, orientations vs its
     rotations); ``dof`` fixes the number of joints without a robot. Without either the joints are the
-    contiguous ``q1, q2, ...`` columns of the header.
+    contiguous ``q1, q2, ...`` columns of the header. ``unit_check=False`` (the CLI's
+    ``--no-unit-check``) turns every unit heuristic off (:func:`hykin.io.dataset.validate`'s and the
+    plausibility checks); declared units are still applied.
     """
     where = str(path)
     check_units(where, length_unit, angle_unit)
@@ -290,13 +293,13 @@ def read_dataset(
         if q.shape[0] == 0:
             raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
         ds = Dataset(q=q, xyz_m=xyz, quat_wxyz=quat, extra=t.extras(_standard_columns(t, robot)), source=where,
-                     meta={"length_unit_read": length_unit, "angle_unit_read": angle_unit})
+                     meta={"length_unit_read": length_unit, "angle_unit_read": angle_unit, "unit_check": bool(unit_check)})
         from .reflectors import with_reflector_unit
 
         ds = with_reflector_unit(ds, length_unit)  # further reflectors x2,y2,z2, ... in metres like x,y,z
         validate(ds, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset,
-                 joint_names=_joint_header(where, t.header, robot, dof))
-        if robot is not None and plausibility:
+                 joint_names=_joint_header(where, t.header, robot, dof), unit_check=unit_check)
+        if robot is not None and plausibility and unit_check:
             from .plausibility import check_dataset
 
             check_dataset(robot, ds, where=where, length_unit=length_unit, angle_unit=angle_unit)
@@ -310,6 +313,7 @@ def read_joints(
     angle_unit: str = "rad",
     length_unit: str = "m",
     robot=None,
+    unit_check: bool = True,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Read joints ``q1..qN`` from a CSV/Parquet file: ``(q (N, dof) rad/m, extras)``.
 
@@ -325,11 +329,11 @@ def read_joints(
         if q.shape[0] == 0:
             raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
         validate_joints(q, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset,
-                        joint_names=_joint_header(where, t.header, robot, dof))
+                        joint_names=_joint_header(where, t.header, robot, dof), unit_check=unit_check)
         return q, t.extras(_standard_columns(t, robot))
 
 
-def read_poses(path: str | Path, *, length_unit: str = "m", extras: bool = False):
+def read_poses(path: str | Path, *, length_unit: str = "m", extras: bool = False, unit_check: bool = True):
     """Read target poses ``x,y,z[,qw,qx,qy,qz]`` from a CSV/Parquet file: ``(T (N, 4, 4) m, has_orientation)``.
 
     Joint and other columns are ignored (returned as a third item ``{name: (N,)}`` with
@@ -344,7 +348,7 @@ def read_poses(path: str | Path, *, length_unit: str = "m", extras: bool = False
         xyz, quat = _poses_of(t, length_unit, "x, y, z and optionally qw, qx, qy, qz")
         if xyz.shape[0] == 0:
             raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
-        validate_poses(xyz, quat, where=where, line_offset=t.line_offset)
+        validate_poses(xyz, quat, where=where, line_offset=t.line_offset, **({} if unit_check else {"max_spread_m": None}))
         if quat is None:
             T = np.tile(np.eye(4), (len(xyz), 1, 1))
             T[:, :3, 3] = xyz

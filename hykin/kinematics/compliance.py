@@ -58,6 +58,12 @@ __all__ = [
 
 TOL_RAD = 1e-13
 MAX_ITER = 12
+# Acceptance after MAX_ITER steps (the 1e-13 target can sit below the rounding floor of large
+# torques or of a prismatic column's metres): the last update is at most CONVERGED_ATOL (rad, or m
+# for a prismatic joint: 1 nrad moves a 3 m arm's TCP by 3 nm) plus CONVERGED_RTOL times the
+# deflection itself. A joint too soft for an equilibrium diverges by orders of magnitude more.
+CONVERGED_ATOL = 1e-9
+CONVERGED_RTOL = 1e-6
 
 
 class ComplianceError(ValueError):
@@ -420,7 +426,10 @@ def deflected_joints(robot: Robot, q, compliance=None, chain: Chain | None = Non
             *_kernel_args(robot, chain, q.shape[0], payload), np.ascontiguousarray(C), np.ascontiguousarray(q), int(iterations), MAX_ITER,
             TOL_RAD, out, steps,
         )
-        _check_converged(robot, float(steps.max()) if steps.size else 0.0)
+        if steps.size:
+            excess = steps - CONVERGED_RTOL * np.abs(out - q).max(axis=1)
+            k = int(np.argmax(excess))
+            _check_converged(robot, float(steps[k]), float(np.abs(out[k] - q[k]).max()))
         return out
     q_eff = q
     step = float("inf")
@@ -433,16 +442,20 @@ def deflected_joints(robot: Robot, q, compliance=None, chain: Chain | None = Non
         q_eff = new
         if it + 1 >= iterations and step < TOL_RAD:
             return q_eff
-    _check_converged(robot, step)
+    defl = q_eff - q
+    _check_converged(robot, step, float(np.max(np.abs(defl))) if xp is np else float(defl.detach().abs().max()))
     return q_eff
 
 
-def _check_converged(robot: Robot, step: float) -> None:
-    if step < 1e-10:  # the 1e-13 target can sit below the rounding floor of very large torques
+def _check_converged(robot: Robot, step: float, deflection: float = 0.0) -> None:
+    """Raise unless the last fixed-point update ``step`` is negligible: at most
+    :data:`CONVERGED_ATOL` + :data:`CONVERGED_RTOL` x ``deflection`` (the largest joint deflection of
+    that sample, rad or m)."""
+    if step <= CONVERGED_ATOL + CONVERGED_RTOL * deflection:
         return
     raise ComplianceError(
-        f"robot {robot.name!r}: joint deflection did not converge (last update {step:.3g} rad); "
-        "the joints are too soft for a static equilibrium near the commanded pose"
+        f"robot {robot.name!r}: joint deflection did not converge (last update {step:.3g} rad or m for a "
+        f"deflection of {deflection:.3g}); the joints are too soft for a static equilibrium near the commanded pose"
     )
 
 
