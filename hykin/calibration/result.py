@@ -84,6 +84,8 @@ class CalibrationResult:
     sigma_rot_rad: float = float("nan")
     seconds: float = 0.0
     point_offsets_m: np.ndarray | None = None
+    #: several stations / tools: every station's and tool's frame (:class:`hykin.calibration.stations.StationFrames`)
+    station_frames: object | None = None
 
     @property
     def identified_names(self) -> list[str]:
@@ -152,6 +154,7 @@ class CalibrationResult:
             "message": self.message,
             "seconds": self.seconds,
             "point_offsets_m": None if self.point_offsets_m is None else np.asarray(self.point_offsets_m).tolist(),
+            "station_frames": None if self.station_frames is None else self.station_frames.to_dict(),
         }
 
 
