@@ -43,8 +43,11 @@ __all__ = [
     "StationFrames",
     "check_groups",
     "frame_starts",
+    "add_station",
+    "apply_row_transforms",
     "row_groups",
     "row_transforms",
+    "single_station",
     "to_reference",
 ]
 
@@ -286,3 +289,37 @@ def to_reference(ds: Dataset, frames: StationFrames, flange_rot: np.ndarray | No
         extra.update({c: p[:, i] for i, c in enumerate(names)})
     meta = dict(ds.meta, frame=f"station {frames.reference_station!r} (reference), tool {frames.tool_labels[0]!r}")
     return Dataset(q=ds.q, xyz_m=xyz, quat_wxyz=quat, extra=extra, source=ds.source, meta=meta)
+
+
+def single_station(ds: Dataset) -> str | None:
+    """The one station label of a series to register (None without a ``station`` column). Several
+    labels, or a ``tool`` column with several tools, are a :class:`DatasetError`: a registration fits
+    one station frame and one tool frame (register each station's rows as its own series)."""
+    lab = row_labels(ds, STATION_COLUMN)
+    tools = row_labels(ds, TOOL_COLUMN)
+    where = ds.source or "<dataset>"
+    for col, v in ((STATION_COLUMN, lab), (TOOL_COLUMN, tools)):
+        if v is not None and len(set(v.tolist())) > 1:
+            u = sorted(set(v.tolist()))
+            raise DatasetError(f"{where}: the series has {len(u)} {col}s ({', '.join(u[:6])}); a registration fits one "
+                               f"{col} frame: register each {col}'s rows as its own series", file=where, column=col)
+    if lab is None:
+        return None
+    return str(lab[0])
+
+
+def add_station(frames: StationFrames | None, label: str, pre: np.ndarray, robot) -> StationFrames:
+    """``frames`` with station ``label``'s frame set from a registration ``T_meas ≈ pre · T_model``
+    (``T_model`` in the reference frame of ``robot``): ``B = pre · B_0``. A model fitted from one station
+    gets ``frames`` whose reference is named ``"training"``."""
+    if frames is None:
+        frames = StationFrames(("training",), np.asarray(robot.base, dtype=np.float64)[None].copy(), ("training",),
+                               np.asarray(robot.tool, dtype=np.float64)[None].copy())
+    out = frames.synced(robot)
+    B = np.asarray(pre, dtype=np.float64) @ out.station_bases[0]
+    if label in out.station_labels:
+        out.station_bases[out.station_labels.index(label)] = B
+    else:
+        out.station_labels = (*out.station_labels, label)
+        out.station_bases = np.concatenate([out.station_bases, B[None]])
+    return out

@@ -31,6 +31,11 @@ def fk_cmd(
     angle_unit: str = AngleUnit,
     no_fade: bool = typer.Option(False, "--no-fade", help="Apply the network correction even outside the training region."),
     payload_kg: float | None = typer.Option(None, "--payload-kg", help=PAYLOAD_HELP),
+    station: str | None = typer.Option(
+        None, "--station",
+        help="Poses in this station's frame (a model fitted on data with a station column). Default: the model's own "
+             "frame, i.e. that of its robot's [base] (with several stations: the reference station's, the one with "
+             "the most training rows)."),
     force: bool = Force,
 ) -> None:
     """Forward kinematics: full hybrid model for a model file, classical FK for a robot."""
@@ -44,14 +49,19 @@ def fk_cmd(
     q, extra = read_joints(joints, dof=rob.dof, angle_unit=angle_unit, robot=rob)
     check_joint_unit(rob, q, where=str(joints), angle_unit=angle_unit)
     if mdl is None:
+        if station is not None:
+            raise CLIError(f"--station {station!r}: {model} is a robot, not a model fitted on data with stations")
         T = fk(rob, q)
     else:
+        from ..hybrid.stations import station_transform
+
+        L = station_transform(mdl, station)  # ValueError naming the model's stations
         if no_fade:
             mdl.fade = False
         temp = temperature_of(mdl, extra, joints)
         from ..io.payload import payload_from_columns, payload_kwargs
 
-        T = mdl.predict(q, temperature_c=temp, **payload_kwargs(payload_from_columns(extra, len(q), str(joints), payload_kg)))
+        T = L @ mdl.predict(q, temperature_c=temp, **payload_kwargs(payload_from_columns(extra, len(q), str(joints), payload_kg)))
         extra = dict(extra)
         extra["support_distance"] = mdl.support_distance(q)
         band_mm, band_deg = mdl.predict_uncertainty(q, temperature_c=temp)
@@ -59,7 +69,7 @@ def fk_cmd(
         if band_deg is not None:
             extra["ang_band95_deg"] = band_deg
     write_dataset(Dataset.from_poses(q, T, extra=extra, source=str(joints)), out)
-    typer.echo(f"wrote {len(q)} poses to {out}")
+    typer.echo(f"wrote {len(q)} poses to {out}" + (f" (frame of station {station!r})" if station is not None else ""))
 
 
 @app.command("ik")

@@ -90,7 +90,13 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
     """Errors of the nominal, calibrated and hybrid predictions of ``model`` against ``data``.
 
     ``model`` is a :class:`hykin.hybrid.model.HybridModel` or a plain :class:`Robot` (nominal FK only).
+    A model fitted on several stations / tools compares each row in its own station's and tool's frame
+    (the data are mapped into the model's frame, :func:`hykin.hybrid.stations.in_model_frame`).
     """
+    if getattr(model, "station_frames_", None) is not None:  # several stations / tools: each row's own frame
+        from ..hybrid.stations import in_model_frame
+
+        data = in_model_frame(model, data)
     T_meas = data.poses()
     pos_only = not data.has_orientation
     preds: dict[str, np.ndarray] = {}
