@@ -260,7 +260,7 @@ def to_reference(ds: Dataset, frames: StationFrames, flange_rot: np.ndarray | No
         known = np.isin(lab, np.array(labels, dtype=str))
         if not known.all():
             r = int(np.argmin(known))
-            raise row_error(where, f"{col} {lab[r]!r} is not in the model (its {col}s: {', '.join(labels)}); "
+            raise row_error(where, f"{col} {str(lab[r])!r} is not in the model (its {col}s: {', '.join(labels)}); "
                             f"register a series measured with it (hykin register) first", r, col, line_offset)
         arr = np.array(labels, dtype=str)
         order = np.argsort(arr)

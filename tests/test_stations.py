@@ -1,0 +1,190 @@
+"""Several stations / tools in one dataset (issue 24; hykin.calibration.stations, hybrid.stations).
+
+Virtual data of our own: a 6R DH arm (not a preset), a true robot with geometric deviations, simulated
+by hykin.sim in its base frame, then measured from two stations 5 m apart and turned (the measured
+pose is ``B_s · T``). The true frames are known, so a fit "given the true frames by hand" is the same
+data transformed into the robot base by the test itself.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hykin.calibration.calibrate import CalibrationError, calibrate
+from hykin.calibration.stations import StationFrames, row_groups, to_reference
+from hykin.geometry import se3
+from hykin.io.dataset import Dataset, DatasetError, row_labels
+from hykin.kinematics.robot import Robot
+from hykin.sim.simulate import VirtualRobot, geometric_deviation, simulate
+
+D2R = np.pi / 180
+
+
+def arm6() -> Robot:
+    return Robot(name="arm6-stations", convention="dh",
+                 a_m=[0.12, 0.55, 0.10, 0.0, 0.0, 0.0], alpha_rad=np.array([-90, 0, -90, 90, -90, 0]) * D2R,
+                 d_m=[0.45, 0.0, 0.0, 0.50, 0.0, 0.09], theta_rad=[0, -np.pi / 2, 0, 0, 0, 0],
+                 lower=np.array([-170, -120, -150, -180, -120, -350]) * D2R,
+                 upper=np.array([170, 120, 150, 180, 120, 350]) * D2R, tool=se3.trans(0.01, 0.02, 0.12))
+
+
+#: station frames (station -> robot base): 5 m apart and turned (A by 40° about z, B by ~138° and tilted)
+STATIONS = {
+    "A": se3.make_transform(se3.rotvec_to_matrix(np.array([0.0, 0.0, 0.7])), np.array([2.0, 0.0, 0.5])),
+    "B": se3.make_transform(se3.rotvec_to_matrix(np.array([0.05, -0.03, 2.4])), np.array([-1.0, 4.0, 0.7])),
+}
+
+
+def campaign(n=300, seed=0, orientation=True, noise_m=20e-6, tools=None):
+    """(nominal, data with a station column, the same data in the robot base frame, station of each row).
+    ``tools``: ``{label: flange -> TCP}`` alternating over the rows (a ``tool`` column) or None."""
+    rng = np.random.default_rng(seed)
+    nom = arm6()
+    truth = geometric_deviation(nom, rng, 0.5e-3, 0.5e-3, 0, 0).copy(base=np.eye(4))
+    q = nom.random_joints(n, rng)
+    extra = {}
+    if tools is None:
+        vr = VirtualRobot("v", nom, truth, noise_position_m=noise_m, noise_orientation_rad=noise_m / 0.5)
+        T = simulate(vr, q, rng=rng).poses()
+    else:
+        labels = list(tools)
+        which = np.arange(n) % len(labels)
+        T = np.empty((n, 4, 4))
+        for k, lab in enumerate(labels):
+            vr = VirtualRobot("v", nom, truth.copy(tool=tools[lab]), noise_position_m=noise_m, noise_orientation_rad=noise_m / 0.5)
+            T[which == k] = simulate(vr, q[which == k], rng=rng).poses()
+        extra["tool"] = np.array(labels)[which]
+    st = np.where(np.arange(n) % 5 < 3, "A", "B")  # A: 60 % of the rows (the reference)
+    Tm = np.stack([STATIONS[s] for s in st]) @ T
+    data = Dataset.from_poses(q, Tm, extra={"station": st, **extra}, orientation=orientation, source="two-stations.csv")
+    base = Dataset.from_poses(q, T, extra=dict(extra), orientation=orientation, source="base-frame.csv")
+    return nom, data, base, st
+
+
+def relative(fr: StationFrames, a: str, b: str) -> np.ndarray:
+    """``B_b · B_a⁻¹``: station a's frame -> station b's frame (free of the base/DH gauge)."""
+    return fr.base_of(b) @ np.linalg.inv(fr.base_of(a))
+
+
+@pytest.mark.parametrize("orientation", [False, True])
+def test_bundle_matches_true_frames_by_hand(orientation):
+    nom, data, base, _ = campaign(orientation=orientation)
+    res = calibrate(nom, data)
+    ref = calibrate(nom, base)  # the same rows, transformed into the robot base with the true frames
+    fr = res.station_frames
+    assert fr.station_labels == ("A", "B")  # reference: the station with the most rows
+    assert res.after["pos_rms_mm"] <= 1.2 * ref.after["pos_rms_mm"]
+    true_rel = STATIONS["B"] @ np.linalg.inv(STATIONS["A"])
+    pe, ae = se3.pose_error(relative(fr, "A", "B")[None], true_rel[None])
+    assert pe[0] < 0.1 and ae[0] < 0.005  # mm, deg
+    assert np.allclose(fr.station_bases[0], res.robot.base)
+    assert {f"station[B].{f}" for f in ("x", "y", "z", "rx", "ry", "rz")} <= set(res.identified_names)
+    # the data mapped into the reference frame by the fitted frames agree with the model of the robot
+    T = to_reference(data, fr).poses()
+    from hykin.kinematics.classical import classical_fk
+
+    err = np.linalg.norm(T[:, :3, 3] - classical_fk(res.robot, data.q)[:, :3, 3], axis=1)
+    assert np.sqrt(np.mean(err**2)) * 1e3 == pytest.approx(res.after["pos_rms_mm"], rel=1e-3)
+
+
+def test_one_row_station_refused():
+    nom, data, _, st = campaign(n=200, orientation=False)
+    lab = st.copy()
+    lab[7] = "C"
+    d = Dataset(q=data.q, xyz_m=data.xyz_m, extra={"station": lab}, source="one-row.csv")
+    with pytest.raises(CalibrationError) as e:
+        calibrate(nom, d)
+    msg = str(e.value)
+    assert "\n" not in msg and "station 'C' has 1 row" in msg and "at least 3" in msg and "one-row.csv" in msg
+    # 6-D rows: one row fixes the frame exactly (no redundancy); two are needed
+    d6 = Dataset(q=data.q, xyz_m=data.xyz_m, quat_wxyz=campaign(n=200)[1].quat_wxyz, extra={"station": lab})
+    with pytest.raises(CalibrationError, match="station 'C' has 1 row; .* at least 2 6-D rows"):
+        calibrate(nom, d6)
+
+
+def test_collinear_station_refused_and_three_spread_points_accepted():
+    nom, data, _, st = campaign(n=200, orientation=False)
+    g = row_groups(Dataset(q=data.q, xyz_m=data.xyz_m, extra={"station": st}), len(st))
+    from hykin.calibration.stations import check_groups
+
+    xyz = data.xyz_m.copy()
+    lab = st.copy()
+    lab[:3] = "C"
+    xyz[:3] = np.array([1.0, 2.0, 0.5]) + np.outer([0.0, 0.3, 0.7], [1.0, 0.5, 0.0])  # three points on a line
+    g = row_groups(Dataset(q=data.q, xyz_m=xyz, extra={"station": lab}, source="line.csv"), len(lab))
+    with pytest.raises(CalibrationError, match="station 'C' has 3 rows but its points lie on a line"):
+        check_groups(g, xyz, position_only=True)
+    xyz[2] += [0.0, 0.0, 0.2]  # off the line: a frame is fixed
+    check_groups(g, xyz, position_only=True)
+
+
+def test_wrong_station_detected():
+    """Half of station B's rows labelled A (their frames swapped): no robot explains that; refused."""
+    nom, data, _, st = campaign(n=150, orientation=False)
+    lab = st.copy()
+    b_rows = np.flatnonzero(st == "B")
+    lab[b_rows[::2]] = "A"
+    with pytest.raises(CalibrationError, match="mm RMS|did not converge|deviates"):
+        calibrate(nom, Dataset(q=data.q, xyz_m=data.xyz_m, extra={"station": lab}, source="swapped.csv"))
+
+
+@pytest.mark.parametrize("orientation", [False, True])
+def test_tool_column_two_tools(orientation):
+    tools = {"T1": se3.trans(0.01, 0.02, 0.12), "T2": se3.make_transform(se3.rotvec_to_matrix(np.array([0.0, 0.3, 0.0])),
+                                                                          np.array([0.06, -0.03, 0.18]))}
+    nom, data, base, _ = campaign(n=300, orientation=orientation, tools=tools)
+    res = calibrate(nom, data)
+    fr = res.station_frames
+    assert set(fr.tool_labels) == {"T1", "T2"} and np.allclose(fr.tool_frames[0], res.robot.tool)
+    E = dict(zip(fr.tool_labels, fr.tool_frames))
+    rel, true_rel = np.linalg.inv(E["T1"]) @ E["T2"], np.linalg.inv(tools["T1"]) @ tools["T2"]
+    assert np.linalg.norm(rel[:3, 3] - true_rel[:3, 3]) * 1e3 < 0.1  # mm
+    if orientation:
+        assert se3.pose_error(rel[None], true_rel[None])[1][0] < 0.01  # deg
+    assert res.after["pos_rms_mm"] < 0.06  # noise 20 µm per axis: 35 µm RMS
+    # one tool with one row is refused like a station
+    lab = data.extra["tool"].copy()
+    lab[5] = "T3"
+    d = Dataset(q=data.q, xyz_m=data.xyz_m, quat_wxyz=data.quat_wxyz, extra={"station": data.extra["station"], "tool": lab})
+    with pytest.raises(CalibrationError, match="tool 'T3' has 1 row"):
+        calibrate(nom, d)
+
+
+def test_labels_any_type_and_reference_choice():
+    ds = Dataset(q=np.zeros((5, 1)), xyz_m=np.zeros((5, 3)), extra={"station": np.array([2.0, 1.0, 1.0, 2.0, 1.0])})
+    assert row_labels(ds, "station").tolist() == ["2", "1", "1", "2", "1"]
+    g = row_groups(ds, 5)
+    assert g.station_labels == ("1", "2") and g.station.tolist() == [1, 0, 0, 1, 0]  # most rows first
+    tie = Dataset(q=np.zeros((4, 1)), xyz_m=np.zeros((4, 3)), extra={"station": np.array(["east", "west", "west", "east"])})
+    assert row_groups(tie, 4).station_labels == ("east", "west")  # tie: the first to appear
+    one = Dataset(q=np.zeros((2, 1)), xyz_m=np.zeros((2, 3)), extra={"station": np.array(["x", "x"])})
+    assert row_groups(one, 2) is None  # one station: the plain case
+    bad = Dataset(q=np.zeros((2, 1)), xyz_m=np.zeros((2, 3)), extra={"station": np.array(["x", " "])}, source="f.csv")
+    with pytest.raises(DatasetError, match="f.csv, row 2 .*column 'station': empty station label"):
+        row_labels(bad, "station")
+
+
+def test_station_column_read_from_csv_and_parquet(tmp_path):
+    from hykin.io.dataset_files import read_dataset, write_dataset
+
+    _, data, _, st = campaign(n=20, orientation=False)
+    for suffix in ("csv", "parquet"):
+        p = tmp_path / f"d.{suffix}"
+        write_dataset(data, p)
+        back = read_dataset(p)
+        assert row_labels(back, "station").tolist() == st.tolist()
+
+
+def test_to_reference_unknown_station_names_row():
+    _, data, _, st = campaign(n=20, orientation=True)
+    fr = StationFrames(("A", "B"), np.stack([STATIONS["A"], STATIONS["B"]]), ("-",), np.eye(4)[None])
+    lab = st.copy()
+    lab[4] = "Z"
+    d = Dataset(q=data.q, xyz_m=data.xyz_m, quat_wxyz=data.quat_wxyz, extra={"station": lab}, source="t.csv")
+    with pytest.raises(DatasetError, match="t.csv, row 5 .*column 'station': station 'Z' is not in the model"):
+        to_reference(d, fr)
+    # known stations: every row lands in station A's frame (checked against the frames by hand)
+    T = to_reference(data, fr).poses()
+    Tb = np.stack([np.linalg.inv(STATIONS[s]) for s in st]) @ data.poses()  # robot base frame
+    assert np.allclose(T, STATIONS["A"] @ Tb, atol=1e-12)
