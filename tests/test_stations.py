@@ -188,3 +188,62 @@ def test_to_reference_unknown_station_names_row():
     T = to_reference(data, fr).poses()
     Tb = np.stack([np.linalg.inv(STATIONS[s]) for s in st]) @ data.poses()  # robot base frame
     assert np.allclose(T, STATIONS["A"] @ Tb, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_cli_fit_stations_vs_true_frames_by_hand_and_model_file(tmp_path, capsys):
+    """``hykin fit`` on two-station data (no station option: the column is enough) against the same fit
+    on the data transformed by hand into the robot base with the true frames; held-out error within
+    1.2x. Then the model file keeps the frames: evaluate per row's station, fk --station, register of
+    a series from a new station C."""
+    import json
+
+    from cli_run import run
+
+    from hykin.hybrid.model import HybridModel
+    from hykin.io.dataset_files import read_dataset, write_dataset
+    from hykin.io.robot_toml import save_robot_toml
+
+    nom, data, base, st = campaign(n=700, orientation=False, seed=3)
+    save_robot_toml(nom, tmp_path / "arm.toml")
+    tr, te = np.arange(500), np.arange(500, 700)
+    for name, d in (("train", data.subset(tr)), ("test", data.subset(te)), ("train_hand", base.subset(tr)),
+                    ("test_hand", base.subset(te))):
+        write_dataset(d, tmp_path / f"{name}.csv")
+    budget = ["--max-minutes", "0.3"]  # the same budget for both fits (a test-time limit, not a station option)
+    err = {}
+    for tag, tr_f, te_f in (("bundle", "train", "test"), ("hand", "train_hand", "test_hand")):
+        code, out, _ = run(["fit", tmp_path / "arm.toml", tmp_path / f"{tr_f}.csv", "-o", tmp_path / f"{tag}.hykin", *budget], capsys)
+        assert code == 0, out
+        code, out, _ = run(["evaluate", tmp_path / f"{tag}.hykin", tmp_path / f"{te_f}.csv", "--json"], capsys)
+        assert code == 0
+        err[tag] = json.loads(out)
+    h_b, h_h = (err[k]["stats"]["hybrid"]["pos_mean_mm"] for k in ("bundle", "hand"))
+    assert h_b <= 1.2 * h_h, (h_b, h_h)
+    m = HybridModel.load(tmp_path / "bundle.hykin")
+    assert m.station_frames_.station_labels == ("A", "B")
+    true_rel = STATIONS["B"] @ np.linalg.inv(STATIONS["A"])
+    assert se3.pose_error(relative(m.station_frames_, "A", "B")[None], true_rel[None])[0][0] < 0.1
+    # fk in station B's frame reproduces station B's measured test rows
+    write_dataset(Dataset(q=data.q[te], xyz_m=np.zeros((len(te), 3))), tmp_path / "joints.csv")
+    code, out, _ = run(["fk", tmp_path / "bundle.hykin", tmp_path / "joints.csv", "-o", tmp_path / "fkB.csv", "--station", "B"], capsys)
+    assert code == 0 and "frame of station 'B'" in out
+    fkB = read_dataset(tmp_path / "fkB.csv")
+    rows_b = st[te] == "B"
+    assert np.mean(np.linalg.norm(fkB.xyz_m[rows_b] - data.xyz_m[te][rows_b], axis=1)) * 1e3 < 2 * h_b + 0.02
+    code, _, errout = run(["fk", tmp_path / "bundle.hykin", tmp_path / "joints.csv", "-o", tmp_path / "fkC.csv", "--station", "C"], capsys)
+    assert code != 0 and "station 'C' is not in the model (its stations: A, B)" in errout
+    assert not (tmp_path / "fkC.csv").exists()
+    # a series from a new station C: register fits its frame; fk --station C then reproduces it
+    C = se3.make_transform(se3.rotvec_to_matrix(np.array([0.0, 0.02, -1.2])), np.array([3.0, -2.5, 0.3]))
+    Tb = base.poses()[te]
+    series = Dataset.from_poses(data.q[te], C @ Tb, extra={"station": np.array(["C"] * len(te))}, orientation=False)
+    write_dataset(series, tmp_path / "seriesC.csv")
+    code, out, _ = run(["register", tmp_path / "bundle.hykin", tmp_path / "seriesC.csv", "-o", tmp_path / "reg.hykin"], capsys)
+    assert code == 0, out
+    code, out, _ = run(["fk", tmp_path / "reg.hykin", tmp_path / "joints.csv", "-o", tmp_path / "fkC.csv", "--station", "C"], capsys)
+    assert code == 0
+    fkC = read_dataset(tmp_path / "fkC.csv")
+    assert np.mean(np.linalg.norm(fkC.xyz_m - series.xyz_m, axis=1)) * 1e3 < 2 * h_b + 0.05
+    code, out, _ = run(["evaluate", tmp_path / "reg.hykin", tmp_path / "seriesC.csv", "--json"], capsys)
+    assert code == 0
