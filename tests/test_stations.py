@@ -247,3 +247,17 @@ def test_cli_fit_stations_vs_true_frames_by_hand_and_model_file(tmp_path, capsys
     assert np.mean(np.linalg.norm(fkC.xyz_m - series.xyz_m, axis=1)) * 1e3 < 2 * h_b + 0.05
     code, out, _ = run(["evaluate", tmp_path / "reg.hykin", tmp_path / "seriesC.csv", "--json"], capsys)
     assert code == 0
+
+
+def test_plausibility_checks_each_station_and_tool_on_its_own_rows():
+    """6-D rows of two turned stations and two tools: no single frame rotation fits them all, each
+    station's own rows do (the data checks of fit / read_dataset must not refuse a correct campaign)."""
+    from hykin.io.plausibility import PlausibilityError, check_dataset
+
+    tools = {"T1": se3.trans(0.0, 0.0, 0.1), "T2": se3.make_transform(se3.rotvec_to_matrix(np.array([1.2, 0.0, 0.0])),
+                                                                       np.array([0.0, 0.05, 0.1]))}
+    nom, data, _, _ = campaign(n=120, orientation=True, tools=tools)
+    check_dataset(nom, data)
+    one = Dataset(q=data.q, xyz_m=data.xyz_m, quat_wxyz=data.quat_wxyz)  # the labels dropped: one frame cannot fit
+    with pytest.raises(PlausibilityError, match="orientations do not match"):
+        check_dataset(nom, one)
