@@ -261,3 +261,18 @@ def test_plausibility_checks_each_station_and_tool_on_its_own_rows():
     one = Dataset(q=data.q, xyz_m=data.xyz_m, quat_wxyz=data.quat_wxyz)  # the labels dropped: one frame cannot fit
     with pytest.raises(PlausibilityError, match="orientations do not match"):
         check_dataset(nom, one)
+
+
+def test_no_calibrate_fits_only_the_further_stations_frames():
+    """``fit --no-calibrate``: the robot file stays as is (its base = the reference station's frame);
+    the other stations' frames are still fitted, from the nominal model (so to within its errors)."""
+    from hykin.hybrid.model import HybridModel
+    from hykin.hybrid.stations import fit_station_frames
+
+    nom, data, base, st = campaign(n=200, orientation=False)
+    Tm = np.where((st == "A")[:, None, None], base.poses(), STATIONS["B"] @ base.poses())  # A = the robot base
+    d = Dataset.from_poses(data.q, Tm, extra={"station": st}, orientation=False)
+    fr = fit_station_frames(HybridModel(nom, calibrate=False), d)
+    assert np.array_equal(fr.station_bases[0], nom.base)
+    pe, ae = se3.pose_error(relative(fr, "A", "B")[None], STATIONS["B"][None])
+    assert pe[0] < 3.0 and ae[0] < 0.2  # mm, deg: the nominal geometry is ~1 mm off

@@ -556,7 +556,12 @@ def calibrate(
             q_eff = effective_joints(state1, q, pl)
             tau = gravity_torques(state1.robot, np.ascontiguousarray(q_eff), **payload_kwargs(pl))
             defl = np.max(np.abs(state1.c * tau), axis=0)
-        check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl)
+        try:
+            check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl)
+        except CalibrationError as e:
+            if groups is None:
+                raise
+            raise CalibrationError(f"{e}; or a wrong station/tool label on some rows") from None
     return res
 
 
