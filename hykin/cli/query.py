@@ -69,7 +69,9 @@ def fk_cmd(
         if band_deg is not None:
             extra["ang_band95_deg"] = band_deg
     write_dataset(Dataset.from_poses(q, T, extra=extra, source=str(joints)), out)
-    typer.echo(f"wrote {len(q)} poses to {out}" + (f" (frame of station {station!r})" if station is not None else ""))
+    fr = None if mdl is None else getattr(mdl, "station_frames_", None)
+    typer.echo(f"wrote {len(q)} poses to {out}" + (f" (frame of station {station!r})" if station is not None else
+                                                     f" (frame of the reference station {fr.reference_station!r})" if fr else ""))
 
 
 @app.command("ik")
