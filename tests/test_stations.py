@@ -276,3 +276,31 @@ def test_no_calibrate_fits_only_the_further_stations_frames():
     assert np.array_equal(fr.station_bases[0], nom.base)
     pe, ae = se3.pose_error(relative(fr, "A", "B")[None], STATIONS["B"][None])
     assert pe[0] < 3.0 and ae[0] < 0.2  # mm, deg: the nominal geometry is ~1 mm off
+
+
+def test_cli_calibrate_refuses_one_row_station_in_one_line(tmp_path, capsys):
+    from cli_run import run
+
+    from hykin.io.dataset_files import write_dataset
+    from hykin.io.robot_toml import save_robot_toml
+
+    nom, data, _, st = campaign(n=120, orientation=False)
+    lab = st.astype("<U8")
+    lab[-1] = "north"
+    write_dataset(Dataset(q=data.q, xyz_m=data.xyz_m, extra={"station": lab}), tmp_path / "d.csv")
+    save_robot_toml(nom, tmp_path / "arm.toml")
+    code, _, err = run(["calibrate", tmp_path / "arm.toml", tmp_path / "d.csv", "-o", tmp_path / "cal.toml"], capsys)
+    assert code != 0 and not (tmp_path / "cal.toml").exists()
+    line = err.strip()
+    assert "\n" not in line and "station 'north' has 1 row" in line and "d.csv" in line
+
+
+def test_station_frames_dict_round_trip():
+    """What the model file's header holds (JSON) gives back the same frames, bit for bit."""
+    import json
+
+    fr = StationFrames(("A", "B", "7"), np.stack([STATIONS["A"], STATIONS["B"], np.eye(4)]), ("T1", "T2"),
+                       np.stack([se3.trans(0, 0, 0.1), se3.trans(0.05, 0, 0.1)]))
+    back = StationFrames.from_dict(json.loads(json.dumps(fr.to_dict())))
+    assert back.station_labels == fr.station_labels and back.tool_labels == fr.tool_labels
+    assert np.array_equal(back.station_bases, fr.station_bases) and np.array_equal(back.tool_frames, fr.tool_frames)
