@@ -561,7 +561,11 @@ def calibrate(
         except CalibrationError as e:
             if groups is None:
                 raise
-            raise CalibrationError(f"{e}; or a wrong station/tool label on some rows") from None
+            rp, _ = residual(model_poses(state1, q, pl, groups), xyz, None, 1.0, state1.pts)
+            e2 = np.sum(rp.reshape(q.shape[0], -1) ** 2, 1) / (rp.size // q.shape[0] // 3)
+            rms = np.sqrt(np.bincount(groups.station, e2) / np.bincount(groups.station)) * 1e3
+            per = ", ".join(f"{lab} {v:.3g} mm" for lab, v in zip(groups.station_labels, rms))
+            raise CalibrationError(f"{e}; or a wrong station/tool label on some rows (RMS per station: {per})") from None
     return res
 
 
