@@ -227,7 +227,7 @@ def test_cli_fit_stations_vs_true_frames_by_hand_and_model_file(tmp_path, capsys
     # fk in station B's frame reproduces station B's measured test rows
     write_dataset(Dataset(q=data.q[te], xyz_m=np.zeros((len(te), 3))), tmp_path / "joints.csv")
     code, out, _ = run(["fk", tmp_path / "bundle.hykin", tmp_path / "joints.csv", "-o", tmp_path / "fkB.csv", "--station", "B"], capsys)
-    assert code == 0 and "frame of station 'B'" in out
+    assert code == 0 and "(frame of station 'B')" in out
     fkB = read_dataset(tmp_path / "fkB.csv")
     rows_b = st[te] == "B"
     assert np.mean(np.linalg.norm(fkB.xyz_m[rows_b] - data.xyz_m[te][rows_b], axis=1)) * 1e3 < 2 * h_b + 0.02
@@ -304,3 +304,31 @@ def test_station_frames_dict_round_trip():
     back = StationFrames.from_dict(json.loads(json.dumps(fr.to_dict())))
     assert back.station_labels == fr.station_labels and back.tool_labels == fr.tool_labels
     assert np.array_equal(back.station_bases, fr.station_bases) and np.array_equal(back.tool_frames, fr.tool_frames)
+
+
+def test_registration_adds_station_and_tool_frames():
+    """A registration ``T_meas = pre · T_model · post`` of a series from new station C with new tool T9:
+    the frames recorded map that series back onto the model (to_reference), the registration frames
+    they took over become identity, and a series with two stations is refused in one line."""
+    from hykin.calibration.stations import add_frames, series_labels
+
+    robot = arm6().copy(base=STATIONS["A"])
+    fr = StationFrames(("A", "B"), np.stack([STATIONS["A"], STATIONS["B"]]), ("T1",), robot.tool[None])
+    pre = se3.make_transform(se3.rotvec_to_matrix(np.array([0.0, 0.1, 1.0])), np.array([3.0, -1.0, 0.2]))
+    post = se3.make_transform(se3.rotvec_to_matrix(np.array([0.2, 0.0, 0.0])), np.array([0.01, 0.0, 0.03]))
+    q = robot.random_joints(10, 1)
+    from hykin.kinematics.fk import fk
+
+    T_model = fk(robot, q)
+    n = len(q)
+    series = Dataset.from_poses(q, pre @ T_model @ post, extra={"station": np.array(["C"] * n), "tool": np.array(["T9"] * n)})
+    labels = series_labels(series)
+    assert labels == ("C", "T9")
+    fr2, pre2, post2 = add_frames(fr, labels, pre, post, robot)
+    assert fr2.station_labels == ("A", "B", "C") and fr2.tool_labels == ("T1", "T9")
+    assert np.array_equal(pre2, np.eye(4)) and np.array_equal(post2, np.eye(4))
+    assert np.allclose(to_reference(series, fr2).poses(), T_model, atol=1e-12)
+    assert fr.station_labels == ("A", "B")  # the input frames are not changed
+    two = Dataset(q=q, xyz_m=np.zeros((n, 3)), extra={"station": np.array(["C", "D"] * (n // 2))}, source="s.csv")
+    with pytest.raises(DatasetError, match="s.csv: the series has 2 stations \\(C, D\\); a registration fits one station frame"):
+        series_labels(two)

@@ -43,11 +43,11 @@ __all__ = [
     "StationFrames",
     "check_groups",
     "frame_starts",
-    "add_station",
+    "add_frames",
     "apply_row_transforms",
     "row_groups",
     "row_transforms",
-    "single_station",
+    "series_labels",
     "to_reference",
 ]
 
@@ -153,10 +153,18 @@ class StationFrames:
 
     def base_of(self, label: str, where: str = "station") -> np.ndarray:
         """``(4, 4)`` frame of station ``label`` (ValueError naming the known ones)."""
-        if label not in self.station_labels:
-            raise ValueError(f"{where}: station {label!r} is not in the model (its stations: "
-                             f"{', '.join(self.station_labels)}); register a series measured from it (hykin register) first")
-        return self.station_bases[self.station_labels.index(label)]
+        return self._of(label, where, "station", self.station_labels, self.station_bases)
+
+    def tool_of(self, label: str, where: str = "tool") -> np.ndarray:
+        """``(4, 4)`` frame of tool ``label`` (ValueError naming the known ones)."""
+        return self._of(label, where, "tool", self.tool_labels, self.tool_frames)
+
+    @staticmethod
+    def _of(label, where, kind, labels, frames) -> np.ndarray:
+        if label not in labels:
+            raise ValueError(f"{where}: {kind} {label!r} is not in the model (its {kind}s: {', '.join(labels)}); "
+                             f"register a series measured {'from' if kind == 'station' else 'with'} it (hykin register) first")
+        return frames[labels.index(label)]
 
     def to_dict(self) -> dict:
         return {"station_labels": list(self.station_labels), "station_bases": self.station_bases.tolist(),
@@ -291,35 +299,44 @@ def to_reference(ds: Dataset, frames: StationFrames, flange_rot: np.ndarray | No
     return Dataset(q=ds.q, xyz_m=xyz, quat_wxyz=quat, extra=extra, source=ds.source, meta=meta)
 
 
-def single_station(ds: Dataset) -> str | None:
-    """The one station label of a series to register (None without a ``station`` column). Several
-    labels, or a ``tool`` column with several tools, are a :class:`DatasetError`: a registration fits
-    one station frame and one tool frame (register each station's rows as its own series)."""
-    lab = row_labels(ds, STATION_COLUMN)
-    tools = row_labels(ds, TOOL_COLUMN)
+def series_labels(ds: Dataset) -> tuple[str | None, str | None]:
+    """The one station label and the one tool label of a series to register (None where it has no
+    such column). Several labels in a column are a :class:`DatasetError`: a registration fits one
+    station frame and one tool frame (register each station's / tool's rows as its own series)."""
+    out = []
     where = ds.source or "<dataset>"
-    for col, v in ((STATION_COLUMN, lab), (TOOL_COLUMN, tools)):
-        if v is not None and len(set(v.tolist())) > 1:
-            u = sorted(set(v.tolist()))
+    for col in (STATION_COLUMN, TOOL_COLUMN):
+        v = row_labels(ds, col)
+        u = [] if v is None else sorted(set(v.tolist()))
+        if len(u) > 1:
             raise DatasetError(f"{where}: the series has {len(u)} {col}s ({', '.join(u[:6])}); a registration fits one "
                                f"{col} frame: register each {col}'s rows as its own series", file=where, column=col)
-    if lab is None:
-        return None
-    return str(lab[0])
+        out.append(u[0] if u else None)
+    return out[0], out[1]
 
 
-def add_station(frames: StationFrames | None, label: str, pre: np.ndarray, robot) -> StationFrames:
-    """``frames`` with station ``label``'s frame set from a registration ``T_meas ≈ pre · T_model``
-    (``T_model`` in the reference frame of ``robot``): ``B = pre · B_0``. A model fitted from one station
-    gets ``frames`` whose reference is named ``"training"``."""
+def add_frames(frames: StationFrames | None, labels: tuple[str | None, str | None], pre: np.ndarray, post: np.ndarray,
+               robot) -> tuple[StationFrames | None, np.ndarray, np.ndarray]:
+    """Record a registration ``T_meas ≈ pre · T_model · post`` of a series from station / with tool
+    ``labels`` (:func:`series_labels`; ``T_model`` in the reference frame of ``robot``, reference tool):
+    the station's frame ``B = pre · B_0`` and the tool's ``E = E_0 · post`` are added (or replaced), and
+    what they took over leaves the registration frames. Returns ``(frames, pre, post)``. A model fitted
+    from one station and tool gets frames whose reference is named ``"training"``."""
+    station, tool = labels
+    if station is None and tool is None:
+        return frames, pre, post
     if frames is None:
         frames = StationFrames(("training",), np.asarray(robot.base, dtype=np.float64)[None].copy(), ("training",),
                                np.asarray(robot.tool, dtype=np.float64)[None].copy())
     out = frames.synced(robot)
-    B = np.asarray(pre, dtype=np.float64) @ out.station_bases[0]
-    if label in out.station_labels:
-        out.station_bases[out.station_labels.index(label)] = B
-    else:
-        out.station_labels = (*out.station_labels, label)
-        out.station_bases = np.concatenate([out.station_bases, B[None]])
-    return out
+    for lab, attr_l, attr_f, F in ((station, "station_labels", "station_bases", None if station is None else pre @ out.station_bases[0]),
+                                   (tool, "tool_labels", "tool_frames", None if tool is None else out.tool_frames[0] @ post)):
+        if lab is None:
+            continue
+        labels_now = getattr(out, attr_l)
+        if lab in labels_now:
+            getattr(out, attr_f)[labels_now.index(lab)] = F
+        else:
+            setattr(out, attr_l, (*labels_now, lab))
+            setattr(out, attr_f, np.concatenate([getattr(out, attr_f), F[None]]))
+    return out, (np.eye(4) if station is not None else pre), (np.eye(4) if tool is not None else post)

@@ -36,6 +36,9 @@ def fk_cmd(
         help="Poses in this station's frame (a model fitted on data with a station column). Default: the model's own "
              "frame, i.e. that of its robot's [base] (with several stations: the reference station's, the one with "
              "the most training rows)."),
+    tool: str | None = typer.Option(
+        None, "--tool", help="Poses of this tool's TCP (a model fitted on data with a tool column). Default: the "
+                             "model's own tool (with several tools: the reference tool, the one with the most training rows)."),
     force: bool = Force,
 ) -> None:
     """Forward kinematics: full hybrid model for a model file, classical FK for a robot."""
@@ -49,19 +52,19 @@ def fk_cmd(
     q, extra = read_joints(joints, dof=rob.dof, angle_unit=angle_unit, robot=rob)
     check_joint_unit(rob, q, where=str(joints), angle_unit=angle_unit)
     if mdl is None:
-        if station is not None:
-            raise CLIError(f"--station {station!r}: {model} is a robot, not a model fitted on data with stations")
+        if station is not None or tool is not None:
+            raise CLIError(f"--station/--tool: {model} is a robot, not a model fitted on data with stations or tools")
         T = fk(rob, q)
     else:
         from ..hybrid.stations import station_transform
 
-        L = station_transform(mdl, station)  # ValueError naming the model's stations
+        L, Rt = station_transform(mdl, station, tool)  # ValueError naming the model's stations / tools
         if no_fade:
             mdl.fade = False
         temp = temperature_of(mdl, extra, joints)
         from ..io.payload import payload_from_columns, payload_kwargs
 
-        T = L @ mdl.predict(q, temperature_c=temp, **payload_kwargs(payload_from_columns(extra, len(q), str(joints), payload_kg)))
+        T = L @ mdl.predict(q, temperature_c=temp, **payload_kwargs(payload_from_columns(extra, len(q), str(joints), payload_kg))) @ Rt
         extra = dict(extra)
         extra["support_distance"] = mdl.support_distance(q)
         band_mm, band_deg = mdl.predict_uncertainty(q, temperature_c=temp)
@@ -70,8 +73,9 @@ def fk_cmd(
             extra["ang_band95_deg"] = band_deg
     write_dataset(Dataset.from_poses(q, T, extra=extra, source=str(joints)), out)
     fr = None if mdl is None else getattr(mdl, "station_frames_", None)
-    typer.echo(f"wrote {len(q)} poses to {out}" + (f" (frame of station {station!r})" if station is not None else
-                                                     f" (frame of the reference station {fr.reference_station!r})" if fr else ""))
+    where = (f"station {station!r}" if station is not None else f"the reference station {fr.reference_station!r}") if fr else ""
+    where += f", tool {tool!r}" if tool is not None else f", reference tool {fr.tool_labels[0]!r}" if fr and len(fr.tool_labels) > 1 else ""
+    typer.echo(f"wrote {len(q)} poses to {out}" + (f" (frame of {where})" if where else ""))
 
 
 @app.command("ik")

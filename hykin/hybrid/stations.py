@@ -4,7 +4,8 @@ The calibration fits every station's and tool's frame jointly with the robot; th
 (``station_frames_``, saved in the model file) and its networks learn from the training data
 expressed in ONE frame: the reference station's (the calibrated robot's ``base``), with the
 reference tool. :func:`in_model_frame` does that for training, validation and test data;
-:func:`station_transform` maps the model's poses into a named station's frame (``hykin fk --station``).
+:func:`station_transform` maps the model's poses into a named station's frame and onto a named tool
+(``hykin fk --station / --tool``).
 """
 
 from __future__ import annotations
@@ -47,14 +48,18 @@ def in_model_frame(model, ds, *, line_offset: int | None = 1):
     return to_reference(ds, fr, flange, line_offset=line_offset)
 
 
-def station_transform(model, station: str | None) -> np.ndarray:
-    """``(4, 4)`` map from the model's frame (the reference station's, where :meth:`predict` works)
-    to station ``station``'s frame: ``B_s · B_0⁻¹`` (identity for None or the reference). ValueError
-    naming the model's stations for an unknown one."""
-    if station is None:
-        return np.eye(4)
+def station_transform(model, station: str | None, tool: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``(L, Rt)`` ``(4, 4)`` each, so that ``L · T · Rt`` is a pose ``T`` of the model (the reference
+    station's frame and tool, where :meth:`predict` works) in station ``station``'s frame with tool
+    ``tool``: ``L = B_s · B_0⁻¹``, ``Rt = E_0⁻¹ · E_t`` (identity for None). ValueError naming the
+    model's stations / tools for an unknown one."""
+    if station is None and tool is None:
+        return np.eye(4), np.eye(4)
     fr = getattr(model, "station_frames_", None)
     if fr is None:
-        raise ValueError(f"--station {station!r}: this model was fitted from one station (no station column); "
-                         "its poses are in the frame of its robot base")
-    return fr.base_of(str(station), "--station") @ se3.invert(fr.station_bases[0])
+        opt = "--station" if station is not None else "--tool"
+        raise ValueError(f"{opt} {station if station is not None else tool!r}: this model was fitted with one station and "
+                         "one tool (no station / tool column); its poses are in the frame of its robot base")
+    L = np.eye(4) if station is None else fr.base_of(str(station), "--station") @ se3.invert(fr.station_bases[0])
+    Rt = np.eye(4) if tool is None else se3.invert(fr.tool_frames[0]) @ fr.tool_of(str(tool), "--tool")
+    return L, Rt

@@ -55,7 +55,7 @@ from ..calibration.frames import (
     select_spread,
 )
 from ..calibration.result import orientation_weight_from_sigmas
-from ..calibration.stations import add_station, single_station
+from ..calibration.stations import add_frames, series_labels
 from ..geometry.se3 import (
     pose_error,
     rotation_difference_rotvec,
@@ -453,7 +453,7 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         idx = select_spread(series.q, n_poses, seed)
     else:
         idx = select_representative(series.poses(), n_poses, seed, position_only=pos_only)
-    station = single_station(series)  # a named station: its frame is added (hykin.calibration.stations)
+    labels = series_labels(series)  # a named station / tool: its frame joins the model's (hykin.calibration.stations)
     new = copy.deepcopy(model)
     new.frame_pre_ = np.eye(4)
     new.frame_post_ = np.eye(4)
@@ -561,8 +561,8 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         network_check=net_line,
     )
     _check_plausible(model, info, series, max_residual_ratio)
-    if station is not None:  # a series from one named station: its frame joins the model's stations
-        new.station_frames_, new.frame_pre_ = add_station(new.station_frames_, station, B, new.robot_), np.eye(4)
+    if labels != (None, None):  # a series from one named station / tool: its frame joins the model's
+        new.station_frames_, new.frame_pre_, new.frame_post_ = add_frames(new.station_frames_, labels, B, E, new.robot_)
     return new, info
 
 
