@@ -239,8 +239,8 @@ def test_cli_fit_stations_vs_true_frames_by_hand_and_model_file(tmp_path, capsys
     Tb = base.poses()[te]
     series = Dataset.from_poses(data.q[te], C @ Tb, extra={"station": np.array(["C"] * len(te))}, orientation=False)
     write_dataset(series, tmp_path / "seriesC.csv")
-    code, out, _ = run(["register", tmp_path / "bundle.hykin", tmp_path / "seriesC.csv", "-o", tmp_path / "reg.hykin"], capsys)
-    assert code == 0, out
+    code, out, errout = run(["register", tmp_path / "bundle.hykin", tmp_path / "seriesC.csv", "-o", tmp_path / "reg.hykin"], capsys)
+    assert code == 0, errout
     code, out, _ = run(["fk", tmp_path / "reg.hykin", tmp_path / "joints.csv", "-o", tmp_path / "fkC.csv", "--station", "C"], capsys)
     assert code == 0
     fkC = read_dataset(tmp_path / "fkC.csv")

@@ -453,7 +453,7 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         idx = select_spread(series.q, n_poses, seed)
     else:
         idx = select_representative(series.poses(), n_poses, seed, position_only=pos_only)
-    labels = series_labels(series)  # a named station / tool: its frame joins the model's (hykin.calibration.stations)
+    named = series_labels(series)  # a named station / tool: its frame joins the model's (hykin.calibration.stations)
     new = copy.deepcopy(model)
     new.frame_pre_ = np.eye(4)
     new.frame_post_ = np.eye(4)
@@ -561,8 +561,8 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         network_check=net_line,
     )
     _check_plausible(model, info, series, max_residual_ratio)
-    if labels != (None, None):  # a series from one named station / tool: its frame joins the model's
-        new.station_frames_, new.frame_pre_, new.frame_post_ = add_frames(new.station_frames_, labels, B, E, new.robot_)
+    if named != (None, None):  # a series from one named station / tool: its frame joins the model's
+        new.station_frames_, new.frame_pre_, new.frame_post_ = add_frames(new.station_frames_, named, B, E, new.robot_)
     return new, info
 
 
