@@ -14,8 +14,11 @@ with the true frames. Held-out errors (mean position, mm; test rows from both st
    those files cannot be read by the CLI yet.
 
 ``--min-steps`` (default 3000) keeps network training short; both fits of a pair use the same settings.
+The times (``s``) are not compared: the machine is shared.
 
-Usage: ``python benchmarks/bench_stations.py [--min-steps 3000] [--n 1500]``
+``--min-steps 0``: no override at all (``hykin fit ROBOT TRAIN -o MODEL``, the recipe's 30,000 steps).
+
+Usage: ``python benchmarks/bench_stations.py [--min-steps 3000] [--n 1500] [--cases near-pos,near-6d,far]``
 """
 
 from __future__ import annotations
@@ -92,7 +95,8 @@ def near_case(tmp: Path, orientation: bool, n: int, min_steps: int) -> dict:
         write_dataset(d.subset(np.arange(ntr)), tmp / f"{tag}_train.csv")
         write_dataset(d.subset(np.arange(ntr, n)), tmp / f"{tag}_test.csv")
         t0 = time.perf_counter()
-        cli("fit", tmp / "arm7.toml", tmp / f"{tag}_train.csv", "-o", tmp / f"{tag}.hykin", "--min-steps", min_steps, "--force")
+        steps = ["--min-steps", min_steps] if min_steps else []  # 0: no override (the recipe's default)
+        cli("fit", tmp / "arm7.toml", tmp / f"{tag}_train.csv", "-o", tmp / f"{tag}.hykin", *steps, "--force")
         ev = json.loads(cli("evaluate", tmp / f"{tag}.hykin", tmp / f"{tag}_test.csv", "--json"))["stats"]
         out[tag] = {k: ev[k]["pos_mean_mm"] for k in ("calibrated", "hybrid")} | {"s": time.perf_counter() - t0}
     return out
@@ -107,7 +111,7 @@ def far_case(n: int, min_steps: int) -> dict:
     out = {}
     for tag, d in (("bundle", data), ("hand", hand)):
         t0 = time.perf_counter()
-        m = HybridModel(nom, recipe_kw={"min_steps": min_steps}).fit(d.subset(np.arange(ntr)), progress=False)
+        m = HybridModel(nom, recipe_kw={"min_steps": min_steps} if min_steps else None).fit(d.subset(np.arange(ntr)), progress=False)
         ev = evaluate_model(m, d.subset(np.arange(ntr, n))).stats
         out[tag] = {k: ev[k].pos_mean_mm for k in ("calibrated", "hybrid")} | {"s": time.perf_counter() - t0}
     return out
@@ -117,12 +121,17 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--min-steps", type=int, default=3000)
     ap.add_argument("--n", type=int, default=1500)
+    ap.add_argument("--cases", default="near-pos,near-6d,far", help="Comma-separated: near-pos, near-6d, far.")
     a = ap.parse_args()
+    names = {"near-pos": "two stations 5 m apart, positions only (CLI)", "near-6d": "two stations 5 m apart, 6-D (CLI)",
+             "far": "positions only, 12 m and 45 m from the stations (API)"}
+    rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        rows = [("two stations 5 m apart, positions only (CLI)", near_case(Path(tmp), False, a.n, a.min_steps)),
-                ("two stations 5 m apart, 6-D (CLI)", near_case(Path(tmp), True, a.n, a.min_steps)),
-                ("positions only, 12 m and 45 m from the stations (API)", far_case(a.n, a.min_steps))]
-    print(f"held-out mean position error (mm), {a.n} rows (80 % train), --min-steps {a.min_steps}")
+        for c in a.cases.split(","):
+            r = far_case(a.n, a.min_steps) if c == "far" else near_case(Path(tmp), c == "near-6d", a.n, a.min_steps)
+            rows.append((names[c], r))
+    print(f"held-out mean position error (mm), {a.n} rows (80 % train), "
+          + (f"--min-steps {a.min_steps}" if a.min_steps else "no training override (recipe default)"))
     print(f"{'case':<56} {'bundle cal':>10} {'bundle hyb':>10} {'hand cal':>9} {'hand hyb':>9} {'hyb ratio':>9}")
     for name, r in rows:
         b, h = r["bundle"], r["hand"]
