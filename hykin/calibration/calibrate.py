@@ -44,6 +44,10 @@ Raw data (a tracker's frame, unknown tool, robot file without ``[base]``) run in
    bound, or a residual no correct robot file leaves -> :class:`CalibrationError`, one line that says
    what to check (robot file, units, tool, joint order).
 
+Several stations / tools (a ``station`` / ``tool`` column, :mod:`hykin.calibration.stations`): every
+further station's and tool's frame is one more 6-D group (``station[B].x`` ..., ``tool[T2].x`` ...)
+fitted in the same LM (a bundle); the reference station's frame is ``base``, the reference tool's ``tool``.
+
 Identifiability: the identification Jacobian is scaled by physical units (1 mm, 1 mrad,
 1e-6 rad/N·m) and factorised by Householder QR in a fixed priority order (base, tool, joints
 base-to-tip, compliance). ``|R_kk|`` is how much of column k is not explained by the columns before
@@ -93,13 +97,13 @@ from .params import (
     scale_of,
     select_specs,
 )
-from .stations import check_groups, frame_starts, row_groups
 from .result import (
     CalibrationError,
     CalibrationResult,
     orientation_weight_from_sigmas,
     residual_stats,
 )
+from .stations import check_groups, frame_starts, row_groups
 
 __all__ = [
     "CalibrationError",
