@@ -197,6 +197,11 @@ def calibrate_cmd(
     typer.echo(res.report())
     save_robot_toml(res.robot, out)
     typer.echo(f"calibrated robot written to {out}")
+    if res.station_frames is not None:  # several stations / tools: the file holds the reference's frames
+        fr = res.station_frames
+        parts = ([f"its [base] is station {fr.reference_station!r}'s frame"] if len(fr.station_labels) > 1 else []) + (
+            [f"its [tool] is tool {fr.tool_labels[0]!r}'s"] if len(fr.tool_labels) > 1 else [])
+        typer.echo(f"note: {' and '.join(parts)} (the reference: most rows); the others' frames are listed above")
 
 
 @app.command("register")
