@@ -82,6 +82,8 @@ _EXPORTS = {
     "InitialRegistration": "calibration.initial_registration",
     "reflector_points": "io.reflectors",
     "DEFAULT_MAX_DEVIATION": "calibration.checks",
+    "StationFrames": "calibration.stations",
+    "to_reference": "calibration.stations",
     "HybridModel": "hybrid.model",
     "OutOfRangeWarning": "hybrid.errors",
     "ModelFileError": "io.modelfile",

@@ -5,6 +5,7 @@
 model, residuals, analytic identification Jacobian), :mod:`.result` (:class:`CalibrationResult`),
 :mod:`.checks` (refusals: not converged, implausible deviation or residual), :mod:`.initial_registration`
 (closed-form start in any tracker frame), :mod:`.frames` (base/tool frame fit ``T_meas ≈ B·T·E`` and
-the choice of registration poses), :mod:`.thermal` (uniform thermal expansion). Depends on
+the choice of registration poses), :mod:`.thermal` (uniform thermal expansion), :mod:`.stations` (several stations / tools in one
+dataset: row groups, their frames, data in the reference frame). Depends on
 :mod:`hykin.io`, :mod:`hykin.kinematics`, :mod:`hykin.geometry`.
 """

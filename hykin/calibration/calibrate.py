@@ -44,6 +44,10 @@ Raw data (a tracker's frame, unknown tool, robot file without ``[base]``) run in
    bound, or a residual no correct robot file leaves -> :class:`CalibrationError`, one line that says
    what to check (robot file, units, tool, joint order).
 
+Several stations / tools (a ``station`` / ``tool`` column, :mod:`hykin.calibration.stations`): every
+further station's and tool's frame is one more 6-D group (``station[B].x`` ..., ``tool[T2].x`` ...)
+fitted in the same LM (a bundle); the reference station's frame is ``base``, the reference tool's ``tool``.
+
 Identifiability: the identification Jacobian is scaled by physical units (1 mm, 1 mrad,
 1e-6 rad/N·m) and factorised by Householder QR in a fixed priority order (base, tool, joints
 base-to-tip, compliance). ``|R_kk|`` is how much of column k is not explained by the columns before
@@ -75,6 +79,7 @@ from ..kinematics.lm import next_lambda, normal_equations_step
 from ..kinematics.robot import Robot
 from .jacobian import (
     effective_joints,
+    framed,
     identification_jacobian,
     linearize,
     model_poses,
@@ -98,6 +103,7 @@ from .result import (
     orientation_weight_from_sigmas,
     residual_stats,
 )
+from .stations import check_groups, frame_starts, row_groups
 
 __all__ = [
     "CalibrationError",
@@ -167,6 +173,14 @@ def _as_data(robot: Robot, data, position_only):
     return np.ascontiguousarray(q), xyz, R
 
 
+def _reference_rows(groups) -> np.ndarray:
+    """Rows of the reference station (with the reference tool where it has 12 or more of those): the
+    closed-form start of the robot's own base and tool."""
+    st = groups.rows_of("station", 0)
+    both = st & groups.rows_of("tool", 0)
+    return np.flatnonzero(both if both.sum() >= 12 else st)
+
+
 # --------------------------------------------------------------------------- identifiability
 
 
@@ -224,10 +238,12 @@ def _lm_step(lin: dict, act: np.ndarray, lam: float, is_comp: np.ndarray, c: np.
 def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: float, max_iter: int, tol: float,
                     rank_tol: float, negligible_tol: float, progress,
                     prefer: np.ndarray | None = None, pts0: np.ndarray | None = None,
-                    pl=None) -> tuple[CalibrationResult, float]:
+                    pl=None, groups=None, frames0=None) -> tuple[CalibrationResult, float]:
     """One identifiability selection at ``robot`` plus one LM run on the parameters ``specs``.
 
     pl: per-row payload ``(kg (N,), com (N, 3) | None)`` deflecting the joints, or None (the robot's).
+    groups / frames0: the rows' stations and tools and the start of their frames
+    (:mod:`hykin.calibration.stations`), or None.
     prefer: bool mask of parameters put first in the QR order (an identified set chosen earlier
     stays chosen where it is still identifiable; others are added where they became so).
     Returns the result (deviations relative to ``robot``) and the relative cost decrease of the
@@ -238,7 +254,8 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
     last = {"rel": 0.0}
     P = len(specs)
     scale = np.array([scale_of(s) for s in specs])
-    state0 = ModelState(robot=robot.copy(), c=compliance_of(robot), pts=np.zeros((xyz.shape[1], 3)) if pts0 is None else pts0)
+    state0 = ModelState(robot=robot.copy(), c=compliance_of(robot), pts=np.zeros((xyz.shape[1], 3)) if pts0 is None else pts0,
+                        frames=None if frames0 is None else frames0.synced(robot))
     rows_per = 3 * xyz.shape[1] + (0 if R_meas is None else 3)
     from ..io.plausibility import check_calibration_size
 
@@ -246,16 +263,16 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
     is_comp = np.array([sp.group == "comp" for sp in specs])
     comp_joint = np.array([sp.joint for sp in specs])
 
-    def cost_of(st: ModelState, qd, xyzd, Rd, pld):
+    def cost_of(st: ModelState, qd, xyzd, Rd, pld, gd=None):
         q_eff = effective_joints(st, qd, pld)
-        rp, ro = residual(fk(st.robot, q_eff), xyzd, Rd, w, st.pts)
+        rp, ro = residual(framed(st, fk(st.robot, q_eff), gd), xyzd, Rd, w, st.pts)
         cost = 0.5 * (float(np.sum(rp * rp)) + (0.0 if ro is None else float(np.sum(ro * ro))))
         return cost, rp, ro, q_eff
 
-    def run_lm(state, qd, xyzd, Rd, act, max_it, id_rows=None, pld=None):
+    def run_lm(state, qd, xyzd, Rd, act, max_it, id_rows=None, pld=None, gd=None):
         """Relinearising LM on the samples ``qd``; returns (state, rp, ro, lin, it, converged, message)."""
-        cost, rp, ro, q_eff = cost_of(state, qd, xyzd, Rd, pld)
-        lin = linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows, payload=pld)
+        cost, rp, ro, q_eff = cost_of(state, qd, xyzd, Rd, pld, gd)
+        lin = linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows, payload=pld, groups=gd)
         if act is None:
             return state, rp, ro, lin, 0, False, ""
         lam = 1e-6
@@ -273,7 +290,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
                 delta[free] = step_s * scale[free]
                 trial = apply_step(state, specs, delta)
                 try:
-                    new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd, pld)
+                    new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd, pld, gd)
                 except ComplianceError:  # the step made the joints too soft for an equilibrium: reject it
                     new_cost = math.inf
                 accepted = new_cost < cost
@@ -290,7 +307,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
             state, cost, q_eff, rp, ro = trial, new_cost, new_q_eff, new_rp, new_ro
             if progress is not None:
                 progress(it, cost)
-            lin = linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows, payload=pld)
+            lin = linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows, payload=pld, groups=gd)
             if rel <= tol:
                 converged, message = True, f"relative cost decrease {rel:.2g} <= tol"
                 break
@@ -301,8 +318,9 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
     id_rows = np.unique(np.linspace(0, N - 1, min(N, _ID_SAMPLES)).astype(np.int64))
     sub = lambda a, idx: None if a is None else a[idx]
     sub_pl = lambda idx: None if pl is None else (pl[0][idx], sub(pl[1], idx))
+    sub_g = lambda idx: None if groups is None else groups.subset(idx)
     _, rp0, ro0, lin0, _, _, _ = run_lm(state0, q[id_rows], xyz[id_rows], sub(R_meas, id_rows), None, 0,
-                                        id_rows=np.arange(id_rows.size), pld=sub_pl(id_rows))
+                                        id_rows=np.arange(id_rows.size), pld=sub_pl(id_rows), gd=sub_g(id_rows))
     order = np.arange(P) if prefer is None else np.concatenate([np.flatnonzero(prefer), np.flatnonzero(~prefer)])
     mask = np.zeros(P, bool)
     m_o, ratio_o = _identifiable(lin0["J_id"][:, order], rank_tol, negligible_tol)
@@ -317,12 +335,13 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
     it_sub = 0
     if N > 2 * _COARSE_SAMPLES:  # coarse-to-fine: converge on a spread subset, finish on all samples
         sel = np.unique(np.linspace(0, N - 1, _COARSE_SAMPLES).astype(np.int64))
-        state, _, _, _, it_sub, _, _ = run_lm(state0, q[sel], xyz[sel], sub(R_meas, sel), act, max_iter, pld=sub_pl(sel))
+        state, _, _, _, it_sub, _, _ = run_lm(state0, q[sel], xyz[sel], sub(R_meas, sel), act, max_iter, pld=sub_pl(sel),
+                                              gd=sub_g(sel))
     state, rp0, ro0, lin, it, converged, message = run_lm(
-        state, q, xyz, R_meas, act, max(max_iter - it_sub, 1), id_rows=id_rows, pld=pl
+        state, q, xyz, R_meas, act, max(max_iter - it_sub, 1), id_rows=id_rows, pld=pl, gd=groups
     )
     it += it_sub
-    before = residual_stats(*residual(model_poses(state0, q, pl), xyz, R_meas, w, state0.pts), w)
+    before = residual_stats(*residual(model_poses(state0, q, pl, groups), xyz, R_meas, w, state0.pts), w)
     # recheck at the solution: the identified set must still have full rank there
     final = mask.copy()
     if act.size:
@@ -371,7 +390,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
         correlation_names=[specs[k].name for k in fa],
         position_only=R_meas is None, orientation_weight_m_per_rad=w, sigma_pos_m=math.sqrt(sig2_p),
         sigma_rot_rad=math.sqrt(sig2_o) / w if R_meas is not None else float("nan"),
-        seconds=time.perf_counter() - t0, point_offsets_m=state.pts.copy(),
+        seconds=time.perf_counter() - t0, point_offsets_m=state.pts.copy(), station_frames=state.frames,
     ), last["rel"]
 
 
@@ -449,33 +468,43 @@ def calibrate(
     pl = payload_of(data, payload_kg, payload_com_m, n_rows=q.shape[0])
     w = 1.0 if auto_w else float(orientation_weight_m_per_rad)
     K = 1 if xyz.ndim == 2 else xyz.shape[1]
-    specs = select_specs(candidate_specs(robot, base=base, tool=tool, compliance=compliance, n_points=K), params)
+    groups = row_groups(data, q.shape[0])  # several stations / tools (hykin.calibration.stations)
+    if groups is not None:
+        check_groups(groups, xyz, R_meas is None)
+    specs = select_specs(candidate_specs(robot, base=base, tool=tool, compliance=compliance, n_points=K,
+                                         stations=groups.station_labels[1:] if groups else (),
+                                         tools=groups.tool_labels[1:] if groups else ()), params)
     names = {s.name for s in specs}
-    frames = [s for s in specs if s.group in ("base", "tool", "point")]
-    run = lambda rob, sp, ww, it, pref=None, pts=None: _calibrate_pass(
-        rob, q, xyz, R_meas, sp, ww, it, tol, rank_tol, negligible_tol, progress, prefer=pref, pts0=pts, pl=pl)
+    frames = [s for s in specs if s.group in ("base", "tool", "point", "station", "tools")]
+    run = lambda rob, sp, ww, it, pref=None, pts=None, fr=None: _calibrate_pass(
+        rob, q, xyz, R_meas, sp, ww, it, tol, rank_tol, negligible_tol, progress, prefer=pref, pts0=pts, pl=pl,
+        groups=groups, frames0=fr)
     pts_zero = np.zeros((K, 3))
-    starts = [(robot, pts_zero)]
+    fr_of = lambda rob: None if groups is None else frame_starts(rob, fk(rob.copy(base=np.eye(4), tool=np.eye(4)), q),
+                                                                 xyz, R_meas, groups)
+    starts = [(robot, pts_zero, fr_of(robot))]
     reg = None
     full_frames = all(f"base.{f}" in names for f in TWIST) and all(f"tool.{f}" in names for f in ("x", "y", "z"))
     if initial and full_frames:
-        reg = initial_registration(robot, q, xyz, R_meas)
+        ref = np.arange(q.shape[0]) if groups is None else _reference_rows(groups)
+        reg = initial_registration(robot, q[ref], xyz[ref], None if R_meas is None else R_meas[ref])
         if reg.rms_m < reg.rms_before_m:
             # further reflectors: offsets from reflector 1 in the TCP frame
             pts = (reg.offsets_m - reg.offsets_m[0]) @ reg.tool[:3, :3]
-            starts.insert(0, (robot.copy(base=reg.base, tool=reg.tool), pts))
+            start = robot.copy(base=reg.base, tool=reg.tool)
+            starts.insert(0, (start, pts, fr_of(start)))
 
     # the set identifiable at the robot file (kept first in the QR order at later estimates)
-    nominal_set = run(robot, specs, w, 0, pts=starts[0][1])[0].identifiable if len(starts) > 1 else None
+    nominal_set = run(robot, specs, w, 0, pts=starts[0][1], fr=starts[-1][2])[0].identifiable if len(starts) > 1 else None
 
     def chain(start):
         """frames, then everything (identifiability at the estimate), then again at the solution."""
         iters, ww = 0, w
-        cur, pts = start
+        cur, pts, fr = start
         if nominal_set is not None and frames and len(frames) < len(specs):
-            r, _ = run(cur, frames, ww, max_iter, pts=pts)
-            cur, pts, iters = r.robot, r.point_offsets_m, iters + r.iterations
-        res, rel = run(cur, specs, ww, max_iter, nominal_set, pts=pts)
+            r, _ = run(cur, frames, ww, max_iter, pts=pts, fr=fr)
+            cur, pts, fr, iters = r.robot, r.point_offsets_m, r.station_frames, iters + r.iterations
+        res, rel = run(cur, specs, ww, max_iter, nominal_set, pts=pts, fr=fr)
         iters += res.iterations
         if auto_w and R_meas is not None and res.sigma_rot_rad > 0 and math.isfinite(res.sigma_rot_rad):
             ww = orientation_weight_from_sigmas(res.sigma_pos_m, res.sigma_rot_rad)
@@ -485,7 +514,7 @@ def calibrate(
             if not again:
                 break
             res, rel = run(res.robot, specs, ww, max_iter, res.identifiable | (nominal_set if nominal_set is not None else False),
-                           pts=res.point_offsets_m)
+                           pts=res.point_offsets_m, fr=res.station_frames)
             iters += res.iterations
         return res, rel, iters
 
@@ -499,7 +528,7 @@ def calibrate(
             continue
         cost = res.after["pos_rms_mm"] ** 2 + (res.after.get("rot_rms_deg", 0.0) * 0.0)
         if best is None or cost < best[3]:
-            best = (res, rel, iters, cost)
+            best = (res, rel, iters, cost, start[2])
         plausible = res.after["pos_rms_mm"] <= lim["residual_mm"] and (res.converged or rel <= _STALLED_REL)
         if plausible:
             break
@@ -508,15 +537,16 @@ def calibrate(
 
         raise CalibrationError(f"calibration of {robot.name!r} diverged ({str(diverged).splitlines()[0]}); the data do "
                                f"not fit this robot file: {ADVICE}")
-    res, rel, iters, _ = best
+    res, rel, iters, _, fr0 = best
     if not res.converged and rel <= _STALLED_REL:  # the cap stopped a cost that no longer moves
         res.converged = True
         res.message += f"; iteration cap reached with the cost changing by {rel:.2g} (relative) per iteration"
-    state0 = ModelState(robot=robot.copy(), c=compliance_of(robot), pts=pts_zero)
-    state1 = ModelState(robot=res.robot, c=compliance_of(res.robot), pts=res.point_offsets_m)
+    state0 = ModelState(robot=robot.copy(), c=compliance_of(robot), pts=pts_zero, frames=fr0)  # further stations: their start
+    state1 = ModelState(robot=res.robot, c=compliance_of(res.robot), pts=res.point_offsets_m, frames=res.station_frames)
     res.values = deviations_between(state0, state1, specs)
     # before: the robot file as given (further reflectors at its TCP: their offsets are unknown)
-    res.before = residual_stats(*residual(model_poses(state0, q, pl), xyz, R_meas, res.orientation_weight_m_per_rad,
+    s_file = ModelState(robot=state0.robot, c=state0.c, pts=pts_zero, frames=starts[-1][2])  # robot file's frames
+    res.before = residual_stats(*residual(model_poses(s_file, q, pl, groups), xyz, R_meas, res.orientation_weight_m_per_rad,
                                            pts_zero), res.orientation_weight_m_per_rad)
     res.iterations = iters
     res.seconds = time.perf_counter() - t0
@@ -530,7 +560,16 @@ def calibrate(
             q_eff = effective_joints(state1, q, pl)
             tau = gravity_torques(state1.robot, np.ascontiguousarray(q_eff), **payload_kwargs(pl))
             defl = np.max(np.abs(state1.c * tau), axis=0)
-        check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl)
+        try:
+            check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl)
+        except CalibrationError as e:
+            if groups is None:
+                raise
+            rp, _ = residual(model_poses(state1, q, pl, groups), xyz, None, 1.0, state1.pts)
+            e2 = np.sum(rp.reshape(q.shape[0], -1) ** 2, 1) / (rp.size // q.shape[0] // 3)
+            rms = np.sqrt(np.bincount(groups.station, e2) / np.bincount(groups.station)) * 1e3
+            per = ", ".join(f"{lab} {v:.3g} mm" for lab, v in zip(groups.station_labels, rms))
+            raise CalibrationError(f"{e}; or a wrong station/tool label on some rows (RMS per station: {per})") from None
     return res
 
 

@@ -87,7 +87,7 @@ def resolve_max_deviation(overrides: Mapping[str, float] | None) -> dict[str, fl
 
 def _limit_of(name: str, unit: str, group: str, field: str, lim: dict) -> tuple[float, float, str] | None:
     """(bound in SI, display factor, display unit) for one parameter, None when unbounded."""
-    if group in ("base", "tool", "point"):  # frames and reflector offsets: unknown, found by the fit
+    if group in ("base", "tool", "point", "station", "tools"):  # frames and reflector offsets: unknown, found by the fit
         return None
     if group == "comp":  # bounded through the deflection it causes (check_calibration)
         return None

@@ -84,6 +84,8 @@ class CalibrationResult:
     sigma_rot_rad: float = float("nan")
     seconds: float = 0.0
     point_offsets_m: np.ndarray | None = None
+    #: several stations / tools: every station's and tool's frame (:class:`hykin.calibration.stations.StationFrames`)
+    station_frames: object | None = None
 
     @property
     def identified_names(self) -> list[str]:
@@ -122,6 +124,17 @@ class CalibrationResult:
             if key in self.before:
                 lines.append(f"{lab:<14} {self.before[key]:10.6f} {self.after[key]:12.6f}")
         lines.append("identified at the solution: " + (", ".join(self.identified_names) or "none"))
+        fr = self.station_frames
+        if fr is not None:  # several stations / tools: every frame (hykin.calibration.stations)
+            from ..geometry.se3 import transform_to_xyzrpy
+
+            for kind, labels, Ts in (("station", fr.station_labels, fr.station_bases), ("tool", fr.tool_labels, fr.tool_frames)):
+                if len(labels) > 1:
+                    xyz, rpy = transform_to_xyzrpy(np.asarray(Ts))
+                    lines.append(f"{kind} frames (xyz m, rpy deg; {'station -> robot base' if kind == 'station' else 'flange -> TCP'}"
+                                 f", first = reference): " + "; ".join(
+                                     f"{lab}: [{', '.join(f'{v:.6f}' for v in p)}] [{', '.join(f'{v:.4f}' for v in np.degrees(r))}]"
+                                     for lab, p, r in zip(labels, xyz, rpy)))
         if self.strong_correlations:
             lines.append("strong correlations (|rho| > 0.9): " + ", ".join(
                 f"{a}~{b} {r:+.3f}" for a, b, r in self.strong_correlations))
@@ -152,6 +165,7 @@ class CalibrationResult:
             "message": self.message,
             "seconds": self.seconds,
             "point_offsets_m": None if self.point_offsets_m is None else np.asarray(self.point_offsets_m).tolist(),
+            "station_frames": None if self.station_frames is None else self.station_frames.to_dict(),
         }
 
 

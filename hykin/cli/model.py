@@ -207,6 +207,11 @@ def calibrate_cmd(
     res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation))
     typer.echo(res.report())
     _write_calibrated(res.robot, out)
+    if res.station_frames is not None:  # several stations / tools: the file holds the reference's frames
+        fr = res.station_frames
+        parts = ([f"its [base] is station {fr.reference_station!r}'s frame"] if len(fr.station_labels) > 1 else []) + (
+            [f"its [tool] is tool {fr.tool_labels[0]!r}'s"] if len(fr.tool_labels) > 1 else [])
+        typer.echo(f"note: {' and '.join(parts)} (the reference: most rows); the others' frames are listed above")
 
 
 def _check_robot_out(rob, out: Path) -> None:

@@ -37,6 +37,14 @@ def fk_cmd(
     no_fade: bool = typer.Option(False, "--no-fade", help="Apply the network correction even outside the training region."),
     payload_kg: float | None = typer.Option(None, "--payload-kg", help=PAYLOAD_HELP),
     unit_check: bool = UnitCheck,
+    station: str | None = typer.Option(
+        None, "--station",
+        help="Poses in this station's frame (a model fitted on data with a station column). Default: the model's own "
+             "frame, i.e. that of its robot's [base] (with several stations: the reference station's, the one with "
+             "the most training rows)."),
+    tool: str | None = typer.Option(
+        None, "--tool", help="Poses of this tool's TCP (a model fitted on data with a tool column). Default: the "
+                             "model's own tool (with several tools: the reference tool, the one with the most training rows)."),
     force: bool = Force,
 ) -> None:
     """Forward kinematics: full hybrid model for a model file, classical FK for a robot."""
@@ -51,14 +59,19 @@ def fk_cmd(
     if unit_check:
         check_joint_unit(rob, q, where=str(joints), angle_unit=angle_unit)
     if mdl is None:
+        if station is not None or tool is not None:
+            raise CLIError(f"--station/--tool: {model} is a robot, not a model fitted on data with stations or tools")
         T = fk(rob, q)
     else:
+        from ..hybrid.stations import station_transform
+
+        L, Rt = station_transform(mdl, station, tool)  # ValueError naming the model's stations / tools
         if no_fade:
             mdl.fade = False
         temp = temperature_of(mdl, extra, joints)
         from ..io.payload import payload_from_columns, payload_kwargs
 
-        T = mdl.predict(q, temperature_c=temp, **payload_kwargs(payload_from_columns(extra, len(q), str(joints), payload_kg)))
+        T = L @ mdl.predict(q, temperature_c=temp, **payload_kwargs(payload_from_columns(extra, len(q), str(joints), payload_kg))) @ Rt
         extra = dict(extra)
         extra["support_distance"] = mdl.support_distance(q)
         if mdl.unc_ is not None:  # an optional step of fit: a model may have no bands
@@ -67,7 +80,10 @@ def fk_cmd(
             if band_deg is not None:
                 extra["ang_band95_deg"] = band_deg
     write_dataset(Dataset.from_poses(q, T, extra=extra, source=str(joints)), out)
-    typer.echo(f"wrote {len(q)} poses to {out}")
+    fr = None if mdl is None else getattr(mdl, "station_frames_", None)
+    where = (f"station {station!r}" if station is not None else f"the reference station {fr.reference_station!r}") if fr else ""
+    where += f", tool {tool!r}" if tool is not None else f", reference tool {fr.tool_labels[0]!r}" if fr and len(fr.tool_labels) > 1 else ""
+    typer.echo(f"wrote {len(q)} poses to {out}" + (f" (frame of {where})" if where else ""))
 
 
 @app.command("ik")

@@ -126,7 +126,13 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
     ``model`` is a :class:`hykin.hybrid.model.HybridModel` or a plain :class:`Robot` (nominal FK only).
     The nominal row (:func:`nominal_row`) is labelled ``"nominal + fitted frames"`` where its frames
     were fitted to the data (tracker-frame data, registered models); its key stays ``"nominal"``.
+    A model fitted on several stations / tools compares each row in its own station's and tool's frame
+    (the data are mapped into the model's frame, :func:`hykin.hybrid.stations.in_model_frame`).
     """
+    if getattr(model, "station_frames_", None) is not None:  # several stations / tools: each row's own frame
+        from ..hybrid.stations import in_model_frame
+
+        data = in_model_frame(model, data)
     T_meas = data.poses()
     pos_only = not data.has_orientation
     preds: dict[str, np.ndarray] = {}

@@ -68,7 +68,7 @@ from ..io.payload import payload_kwargs, payload_of, payload_range_of
 from ..io.robot_file import load_robot
 from ..kinematics.classical import classical_fk, classical_fk_torch
 from ..kinematics.robot import Robot
-from . import bands, fitting, inputs, persistence
+from . import bands, fitting, inputs, persistence, stations
 from . import support as sup_
 from .errors import HybridError, OutOfRangeWarning
 from .nets import ResidualNet
@@ -242,6 +242,8 @@ class HybridModel:
             payload_of(val)
         self._skipped = {}  # optional steps that failed (hykin.hybrid.optional): name -> cause
         self._calibrate_on(train)
+        self.station_frames_ = stations.fit_station_frames(self, train)  # several stations: data in one frame
+        train_in, val_in = train, val = tuple(stations.in_model_frame(self, d) for d in (train, val))
         temp = None if self.thermal is False else temperature_of(train)
         if self.thermal is True and temp is None:
             raise HybridError(f"thermal=True but the training data have no temperature column ({', '.join(TEMPERATURE_COLUMNS)})")

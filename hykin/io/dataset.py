@@ -39,6 +39,7 @@ __all__ = [
     "joint_columns",
     "revolute_mask",
     "row_error",
+    "row_labels",
     "split",
     "validate",
     "validate_joints",
@@ -47,6 +48,8 @@ __all__ = [
 
 POSITION_COLUMNS = ("x", "y", "z")
 QUAT_COLUMNS = ("qw", "qx", "qy", "qz")
+#: optional label columns: rows of one instrument placement / one tool (or reflector mount) share a frame
+STATION_COLUMN, TOOL_COLUMN = "station", "tool"
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
 
@@ -224,6 +227,30 @@ def concat(datasets: Sequence[Dataset], source: str | None = None) -> Dataset:
         source=source if source is not None else " + ".join(d.source for d in datasets if d.source),
         meta=datasets[0].meta,
     )
+
+
+def row_labels(ds: Dataset, column: str, *, line_offset: int | None = 1) -> np.ndarray | None:
+    """``(N,)`` str labels of the label column ``column`` (``"station"``, ``"tool"``) of ``ds``, or None
+    without it. Any label is accepted: text as read (stripped), numbers as written (``2.0`` -> ``"2"``).
+    An empty or non-finite cell is a :class:`DatasetError` naming the row and the column."""
+    if column not in ds.extra:
+        return None
+    v = np.asarray(ds.extra[column])
+    where = ds.source or "<dataset>"
+    if v.dtype.kind in "fiub":
+        f = v.astype(np.float64)
+        bad = ~np.isfinite(f)
+        if bad.any():
+            raise row_error(where, f"label {f[bad][0]!r} is not a {column} name (every row needs one)",
+                            int(np.argmax(bad)), column, line_offset)
+        whole = np.all(f == np.round(f))
+        return np.array([str(int(x)) if whole else repr(float(x)) for x in f], dtype=str)
+    out = np.char.strip(v.astype(str))
+    empty = out == ""
+    if empty.any():
+        raise row_error(where, f"empty {column} label (every row needs one when the column is given)",
+                        int(np.argmax(empty)), column, line_offset)
+    return out
 
 
 # --------------------------------------------------------------------------- validation

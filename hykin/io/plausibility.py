@@ -247,6 +247,12 @@ def check_dataset(robot: Robot, ds, *, where: str | None = None, length_unit: st
     q = np.asarray(ds.q, dtype=np.float64)
     if q.ndim != 2 or q.shape[1] != robot.dof or len(q) < 4:
         return
+    groups = _frame_groups(ds)
+    if groups is not None:  # several stations / tools: each has its own frames, checked on its own rows
+        for key in dict.fromkeys(groups.tolist()):
+            check_dataset(robot, ds.subset(groups == key), where=f"{where} ({key})", length_unit=length_unit,
+                          angle_unit=angle_unit)
+        return
     idx = _rows(len(q))
     T_hat = np.full((len(q), 4, 4), np.nan)
     T_hat[idx] = _nominal(robot, q[idx])
@@ -254,6 +260,19 @@ def check_dataset(robot: Robot, ds, *, where: str | None = None, length_unit: st
                          T_nominal=T_hat)
     if getattr(ds, "quat_wxyz", None) is not None:
         check_orientation_order(robot, q, ds.quat_wxyz, where=where, T_nominal=T_hat)
+
+
+def _frame_groups(ds) -> np.ndarray | None:
+    """``(N,)`` "station 'A', tool 'T1'" of each row when ``ds`` names several stations or tools, else None."""
+    from .dataset import STATION_COLUMN, TOOL_COLUMN, row_labels
+
+    if not isinstance(getattr(ds, "extra", None), dict) or not hasattr(ds, "subset"):
+        return None
+    parts = [(c, row_labels(ds, c)) for c in (STATION_COLUMN, TOOL_COLUMN)]
+    parts = [(c, v) for c, v in parts if v is not None and len(set(v.tolist())) > 1]
+    if not parts:
+        return None
+    return np.array([", ".join(f"{c} {x!r}" for (c, _), x in zip(parts, row)) for row in zip(*(v.tolist() for _, v in parts))])
 
 
 # --------------------------------------------------------------------------- tiny data

@@ -57,6 +57,7 @@ from ..calibration.frames import (
     select_spread,
 )
 from ..calibration.result import orientation_weight_from_sigmas
+from ..calibration.stations import add_frames, series_labels
 from ..geometry.se3 import (
     pose_error,
     rotation_difference_rotvec,
@@ -413,6 +414,7 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         idx = select_spread(series.q, n_poses, seed)
     else:
         idx = select_representative(series.poses(), n_poses, seed, position_only=pos_only)
+    named = series_labels(series)  # a named station / tool: its frame joins the model's (hykin.calibration.stations)
     new = copy.deepcopy(model)
     new.frame_pre_ = np.eye(4)
     new.frame_post_ = np.eye(4)
@@ -556,4 +558,6 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
     info.consistency = test.line()
     if not test.passed:
         raise RegistrationError(implausible or f"{getattr(series, 'source', 'series')}: {MISMATCH_SHORT}: {test.line()}")
+    if named != (None, None):  # a series from one named station / tool: its frame joins the model's
+        new.station_frames_, new.frame_pre_, new.frame_post_ = add_frames(new.station_frames_, named, B, E, new.robot_)
     return new, info
