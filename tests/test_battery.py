@@ -40,7 +40,7 @@ from cli_run import run_captured
 # Families that pass on main (measured with benchmarks/bench_battery.py, see the PR note).
 PASSING = ["dh", "mdh", "prismatic", "data-units", "tracker", "position-only", "reflectors3", "noise", "payload",
            "thermal", "subregion", "few-poses", "urdf", "sweeps", "wrong-swap", "wrong-length", "slip-mm",
-           "slip-deg", "slip-xyzw", "slip-file-mm"]
+           "slip-deg", "slip-xyzw", "slip-file-mm", "slip-file-deg"]
 # Families that fail on main today, and the branch of issue #24 that addresses them.
 KNOWN_FAILING = {
     "tracker-far": "misc24: positions over 10 m refused as millimetres passed as metres",
@@ -49,7 +49,7 @@ KNOWN_FAILING = {
     "constant-orientation": "calib-priors: the unexcited tool/base direction walks; refused as a wrong robot file",
     "stations": "stations: no station column, one frame fitted to all stations",
 }
-FAST = ["dh", "mdh", "tracker", "position-only", "urdf", "slip-mm", "slip-deg", "slip-xyzw", "slip-file-mm"]
+FAST = ["tracker", "dh", "mdh", "position-only", "urdf", "slip-mm", "slip-deg", "slip-xyzw", "slip-file-mm", "slip-file-deg"]
 SLOW_DRAWS = int(os.environ.get("HYKIN_BATTERY_DRAWS", "500"))
 
 seeds = st.integers(min_value=0, max_value=100_000)
@@ -161,12 +161,12 @@ def test_special_campaigns_measure_what_they_say():
 # --------------------------------------------------------------------------- the CLI property
 
 
-@settings(max_examples=2, phases=[Phase.explicit, Phase.generate], suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=1, phases=[Phase.explicit, Phase.generate], suppress_health_check=[HealthCheck.too_slow])
 @given(family=st.sampled_from(FAST), seed=seeds)
 @example(family="tracker", seed=1)
-@example(family="urdf", seed=2)
 @example(family="position-only", seed=3)
 @example(family="slip-xyzw", seed=4)
+@example(family="slip-file-deg", seed=5)
 def test_battery_fast_slice(family, seed, tmp_path_factory):
     _check(family, seed, tmp_path_factory.mktemp(f"battery-{family}-{seed}"))
 

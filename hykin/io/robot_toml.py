@@ -148,6 +148,15 @@ def robot_from_dict(doc: dict, where: str = "<robot>") -> Robot:
         other = "mm" if lu == "m" else "m"
         raise RobotFileError(f"{where}: link lengths and tool add up to {size_m:.6g} m, implausible for a robot arm: "
                              f"the values look like {other} under length_unit = '{lu}' (set length_unit = '{other}')")
+    # Twists and joint offsets in degrees under angle_unit = 'rad' read as dozens of turns: no DH
+    # table needs a fixed angle beyond a full turn (a twist of 90 rad is 90 degrees written as rad).
+    if au == "rad":
+        fixed = np.abs(np.concatenate([cols["alpha"], cols["theta"], cols["beta"]]))
+        if fixed.size and fixed.max() > 2 * math.pi + 1e-9:
+            k = int(np.argmax(fixed)) % len(joints)
+            raise RobotFileError(f"{where}: joints[{k + 1}]: a twist or joint offset of {fixed.max():.6g} rad (more than "
+                                 f"a full turn) is implausible: the values look like degrees under angle_unit = 'rad' "
+                                 f"(set angle_unit = 'deg')")
     payload = _number(doc.get("payload", 0.0), f"{where}: payload")
     gravity = _vec3(doc["gravity"], f"{where}: gravity") if "gravity" in doc else np.array([0.0, 0.0, -9.81])
     return Robot(

@@ -67,6 +67,7 @@ FAMILIES: dict[str, str] = {
     "slip-deg": "joints written in degrees, no --angle-unit",
     "slip-xyzw": "quaternions written scalar-last (x,y,z,w) under the qw,qx,qy,qz header",
     "slip-file-mm": "robot file in mm that says length_unit = \"m\"",
+    "slip-file-deg": "robot file in degrees that says angle_unit = \"rad\"",
 }
 
 _UNIT_CAUSES = ("mm", "millimet", "length-unit", "length unit", "length_unit", "unit")
@@ -201,8 +202,8 @@ def _family_robot(family: str, rng) -> RandomRobot:
         return draw_robot(rng, "urdf", two_tips=True)
     if family == "constant-orientation":
         return draw_robot(rng, "dh", dof=6, template=True)
-    if family in ("wrong-swap", "wrong-length", "slip-file-mm"):
-        return draw_robot(rng, "dh", units=("mm", "deg") if family == "slip-file-mm" else None)
+    if family in ("wrong-swap", "wrong-length", "slip-file-mm", "slip-file-deg"):
+        return draw_robot(rng, "dh", units={"slip-file-mm": ("mm", "deg"), "slip-file-deg": ("m", "deg")}.get(family))
     return draw_robot(rng, str(rng.choice(["dh", "mdh", "urdf"])) if family in ("tracker", "noise", "sweeps") else "dh")
 
 
@@ -323,4 +324,7 @@ def _mistake(c: Campaign, rng, has_rot: bool) -> None:
         c.expect, c.causes = "refuse", ("scalar", "xyzw", "quaternion", "order")
     elif f == "slip-file-mm":
         c.robot_text = rr.file_text.replace('length_unit = "mm"', 'length_unit = "m"')
-        c.expect, c.causes = "refuse", ("length_unit", "mm", "unit")
+        c.expect, c.causes = "refuse", ("length_unit", "robot file")
+    elif f == "slip-file-deg":
+        c.robot_text = rr.file_text.replace('angle_unit = "deg"', 'angle_unit = "rad"')
+        c.expect, c.causes = "refuse", ("angle_unit", "robot file")
