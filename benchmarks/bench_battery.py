@@ -76,13 +76,15 @@ def main(argv=None) -> int:
     total = sum(len(v) for v in results.values())
     passed = sum(x.ok for v in results.values() for x in v)
     print(f"\n{total} draws in {dt:.0f} s ({dt / max(total, 1):.2f} s per draw), seeds from {a.seed}")
-    print(f"{'family':22s} {'pass':>9s}  failures (seed: cause)")
+    print(f"{'family':22s} {'pass':>9s}  {'models':>6s} {'max err/floor':>13s}  (failures below: seed: cause)")
     for fam in fams:
         vs = results.get(fam, [])
         if not vs:
             continue
         ok = sum(v.ok for v in vs)
-        print(f"{fam:22s} {ok:4d}/{len(vs):<4d}  {FAMILIES[fam]}")
+        ratios = [v.error_mm / v.floor_mm for v in vs if v.error_mm == v.error_mm and v.floor_mm > 0]
+        worst = f"{max(ratios):13.2f}" if ratios else f"{'-':>13s}"
+        print(f"{fam:22s} {ok:4d}/{len(vs):<4d}  {len(ratios):6d} {worst}  {FAMILIES[fam]}")
         for v in vs:
             if not v.ok:
                 print(f"{'':28s} seed {v.seed}: {v.cause}")

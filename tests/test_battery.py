@@ -2,7 +2,7 @@
 
 Property: for every draw, ``hykin fit ROBOT train.csv -o model.hykin`` then ``hykin evaluate model.hykin
 test.csv --json`` (files on disk, in-process CLI) either gives a model whose held-out mean position
-error is within ``FLOOR_FACTOR`` (2) × the truth's noise floor + 0.01 mm, or refuses with one line
+error is within ``FLOOR_FACTOR`` (1.5) × the truth's noise floor + 0.01 mm, or refuses with one line
 naming the cause; a correct input is never refused (:mod:`hykin.sim.battery`).
 
 * generator checks (default suite): the files describe the drawn robots (TOML in every unit, URDF

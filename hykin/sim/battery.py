@@ -31,7 +31,7 @@ from .random_campaigns import Campaign
 
 __all__ = ["FIT_FAST", "FLOOR_FACTOR", "FLOOR_SLACK_MM", "Verdict", "judge", "run_campaign"]
 
-FLOOR_FACTOR = 2.0
+FLOOR_FACTOR = 1.5
 """A model passes when its held-out mean position error is within this factor of the noise floor..."""
 FLOOR_SLACK_MM = 0.01
 """... plus this much (mm): the floor of a 0.005 mm-noise campaign is below what 100 poses identify."""

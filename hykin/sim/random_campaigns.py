@@ -46,10 +46,10 @@ FAMILIES: dict[str, str] = {
     "mdh": "modified-DH arm (file in m/mm, deg/rad), 6-D data in the robot base frame",
     "prismatic": "DH arm on a linear column (prismatic joint 1), 6-D data",
     "data-units": "data written in mm and degrees, declared with --length-unit mm --angle-unit deg",
-    "tracker": "tracker frame 1-8 m away and turned, robot file without [base], 6-D",
+    "tracker": "tracker frame 1-6 m away and turned, robot file without [base], 6-D",
     "tracker-far": "tracker frame 10 m to 2 km away and turned, 6-D",
-    "position-only": "tracker frame 1-8 m away, positions only (one reflector)",
-    "reflectors3": "tracker frame 1-8 m away, three reflectors (x,y,z, x2..z3), no orientation",
+    "position-only": "tracker frame 1-6 m away, positions only (one reflector)",
+    "reflectors3": "tracker frame 1-6 m away, three reflectors (x,y,z, x2..z3), no orientation",
     "noise": "measurement noise 0.005-0.2 mm / 0.001-0.02 deg",
     "payload": "file with masses and stiffness, compliant truth, 2-3 payloads (payload_kg column)",
     "thermal": "steel/aluminium arm warming up 4-10 K (temperature_c column)",
@@ -220,7 +220,7 @@ def draw_campaign(family: str, seed: int) -> Campaign:
         n_train = int(math.ceil(minimum_fit_rows(rr.nominal, True) * rng.uniform(1.0, 1.5)))
     meas: dict = {"noise_m": float(rng.uniform(0.01, 0.03)) * 1e-3, "noise_rad": float(rng.uniform(0.001, 0.003)) * _DEG}
     if family in ("tracker", "position-only", "reflectors3", "stations", "constant-orientation"):
-        meas["frame"] = _tracker_frame(rng, 1.0, 8.0)
+        meas["frame"] = _tracker_frame(rng, 1.0, 6.0)  # every TCP < 10 m from the tracker
     elif family == "tracker-far":
         meas["frame"] = _tracker_frame(rng, 10.0, 2000.0)
     if family == "position-only":
