@@ -258,7 +258,8 @@ def _urdf_robot(chain: list[dict]) -> Robot:
                  origin_xyz_m=xyz, origin_rpy_rad=rpy, axis=np.array(axes), joint_type=tuple(types), tool=pending)
 
 
-def _mimic_map(chain: list[dict]) -> tuple[np.ndarray, np.ndarray]:
+def _mimic_map(chain: list[dict]) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """``(M, c, rows)``: ``q_all = q_ind @ M.T + c`` and the rows of the independent joints in ``q_all``."""
     movable = [j for j in chain if j["type"] != "fixed"]
     ind = [j["name"] for j in movable if not j.get("mimic")]
     M, c = np.zeros((len(movable), len(ind))), np.zeros(len(movable))
@@ -268,7 +269,7 @@ def _mimic_map(chain: list[dict]) -> tuple[np.ndarray, np.ndarray]:
             M[r, ind.index(leader)], c[r] = mult, off
         else:
             M[r, ind.index(j["name"])] = 1.0
-    return M, c
+    return M, c, [r for r, j in enumerate(movable) if not j.get("mimic")]
 
 
 # --------------------------------------------------------------------------- truth
@@ -319,11 +320,8 @@ def draw_robot(rng: np.random.Generator, kind: str = "dh", dof: int | None = Non
     elif kind == "urdf":
         text, chain, tip = random_urdf(rng, dof, n_mimic=n_mimic, branches=branches, two_tips=two_tips)
         nominal = _urdf_robot(chain)
-        M, c = _mimic_map(chain)
-        ind = np.abs(M).sum(0) > 0
-        rows = [int(np.argmax(M[:, k] == 1.0)) for k in range(M.shape[1])]
+        M, c, rows = _mimic_map(chain)
         lower, upper = nominal.lower[rows], nominal.upper[rows]
-        assert ind.all()
         suffix, units = ".urdf", ("m", "rad")
         desc = f"urdf {dof} independent joints, {n_mimic} mimic" + (", branches" if branches else "") + (
             ", two tips" if two_tips else "")
