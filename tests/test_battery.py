@@ -40,7 +40,7 @@ from cli_run import run_captured
 # Families that pass on main (measured with benchmarks/bench_battery.py, see the PR note).
 PASSING = ["dh", "mdh", "prismatic", "data-units", "tracker", "position-only", "reflectors3", "noise", "payload",
            "thermal", "subregion", "few-poses", "urdf", "sweeps", "wrong-swap", "wrong-length", "slip-mm",
-           "slip-deg", "slip-xyzw", "slip-file-mm", "slip-file-deg"]
+           "slip-deg", "slip-xyzw", "slip-file-mm", "slip-file-deg", "urdf-prismatic"]
 # Families that fail on main today, and the branch of issue #24 that addresses them.
 KNOWN_FAILING = {
     "tracker-far": "misc24: positions over 10 m refused as millimetres passed as metres",
@@ -84,12 +84,13 @@ def test_toml_files_describe_the_drawn_robot_in_every_unit(seed, kind, lu, au):
 
 
 @settings(max_examples=10)
-@given(seed=seeds, two_tips=st.booleans())
-def test_urdf_files_describe_the_drawn_robot(seed, two_tips):
-    """Fixed joints, dead-end branches, rpy origins: hykin's URDF reader (naming the tip where there
-    are two) gives the FK of the chain the generator built."""
+@given(seed=seeds, two_tips=st.booleans(), column=st.booleans())
+def test_urdf_files_describe_the_drawn_robot(seed, two_tips, column):
+    """Fixed joints, dead-end branches, rpy origins, a prismatic column: hykin's URDF reader (naming
+    the tip where there are two) gives the FK of the chain the generator built."""
     rng = np.random.default_rng(seed)
-    rr = draw_robot(rng, "urdf", two_tips=two_tips)
+    rr = draw_robot(rng, "urdf", two_tips=two_tips, column=column)
+    assert (rr.nominal.joint_type[0] == "prismatic") == column
     assert (rr.tip is not None) == two_tips
     read = load_urdf_string(rr.file_text, tip_link=rr.tip)
     q = rr.random_joints(20, rng)

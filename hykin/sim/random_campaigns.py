@@ -68,6 +68,7 @@ FAMILIES: dict[str, str] = {
     "slip-xyzw": "quaternions written scalar-last (x,y,z,w) under the qw,qx,qy,qz header",
     "slip-file-mm": "robot file in mm that says length_unit = \"m\"",
     "slip-file-deg": "robot file in degrees that says angle_unit = \"rad\"",
+    "urdf-prismatic": "URDF of an arm on a lifting column (prismatic joint 1, no mimic), 6-D",
 }
 
 _UNIT_CAUSES = ("mm", "millimet", "length-unit", "length unit", "length_unit", "unit")
@@ -198,6 +199,8 @@ def _family_robot(family: str, rng) -> RandomRobot:
         return draw_robot(rng, "urdf")
     if family == "urdf-mimic":
         return draw_robot(rng, "urdf", dof=int(rng.integers(5, 8)), n_mimic=int(rng.integers(1, 3)))
+    if family == "urdf-prismatic":
+        return draw_robot(rng, "urdf", column=True)
     if family == "urdf-two-tips":
         return draw_robot(rng, "urdf", two_tips=True)
     if family == "constant-orientation":

@@ -155,11 +155,12 @@ def _urdf_joint_xml(j: dict) -> str:
 
 
 def random_urdf(rng: np.random.Generator, dof: int, n_mimic: int = 0, branches: bool = True,
-                two_tips: bool = False) -> tuple[str, list[dict], str | None]:
+                two_tips: bool = False, column: bool = False) -> tuple[str, list[dict], str | None]:
     """A maker-style URDF of an arm with ``dof`` independent joints: joint origins with rpy of 0 / ±90°,
     axes along ±x/±y/±z, fixed joints inside the chain and at the flange / TCP, dead-end branches
     (a camera on a fixed joint, a cable guide), and with ``n_mimic`` > 0 a lifting column whose
-    actuated prismatic joint drives ``n_mimic`` telescopic stages through ``<mimic>``. With
+    actuated prismatic joint drives ``n_mimic`` telescopic stages through ``<mimic>`` (``column``: the
+    lifting column without stages). With
     ``two_tips`` a second TCP hangs off the flange as far from the base as ``tool0`` (the user must
     name the tip). Returns ``(urdf_text, chain_joints, tip_to_name)``; ``chain_joints`` lists the main
     chain base -> tip (dicts: name, type, origin 4x4, axis, lower, upper, mimic)."""
@@ -181,7 +182,7 @@ def random_urdf(rng: np.random.Generator, dof: int, n_mimic: int = 0, branches: 
     if rng.random() < 0.5:  # a mounting plate
         add("fixed", se3.xyzrpy_to_transform([0, 0, rng.uniform(0.0, 0.2)], [0, 0, rng.choice(rpy_choices)]), name="mount")
     n_rev = dof
-    if n_mimic > 0:
+    if n_mimic > 0 or column:
         lead = add("prismatic", se3.xyzrpy_to_transform([0, 0, rng.uniform(0.3, 0.8)], [0, 0, 0]), [0, 0, 1.0],
                    0.0, rng.uniform(0.3, 0.8), name="column")
         for _ in range(n_mimic):
@@ -299,7 +300,7 @@ def perturb(robot: Robot, rng: np.random.Generator, sigma_m: float, sigma_rad: f
 def draw_robot(rng: np.random.Generator, kind: str = "dh", dof: int | None = None, *, units=None,
                prismatic: bool = False, masses: bool = False, n_mimic: int = 0, branches: bool = True,
                two_tips: bool = False, sigma_m: float | None = None, sigma_rad: float | None = None,
-               template: bool | None = None) -> RandomRobot:
+               template: bool | None = None, column: bool = False) -> RandomRobot:
     """Draw a robot of ``kind`` ("dh", "mdh", "urdf") with ``dof`` independent joints (default 4–7),
     its file (TOML in ``units`` = (length, angle) unit, default drawn from m/mm × deg/rad; URDF in
     m/rad as URDF requires) and its truth (geometry σ default drawn in 0.1–2 mm, 0.01–0.2°)."""
@@ -318,12 +319,12 @@ def draw_robot(rng: np.random.Generator, kind: str = "dh", dof: int | None = Non
         lower, upper = nominal.lower, nominal.upper
         desc = f"{kind} {dof} joints" + (" prismatic-first" if prismatic else "") + (" masses" if masses else "")
     elif kind == "urdf":
-        text, chain, tip = random_urdf(rng, dof, n_mimic=n_mimic, branches=branches, two_tips=two_tips)
+        text, chain, tip = random_urdf(rng, dof, n_mimic=n_mimic, branches=branches, two_tips=two_tips, column=column)
         nominal = _urdf_robot(chain)
         M, c, rows = _mimic_map(chain)
         lower, upper = nominal.lower[rows], nominal.upper[rows]
         suffix, units = ".urdf", ("m", "rad")
-        desc = f"urdf {dof} independent joints, {n_mimic} mimic" + (", branches" if branches else "") + (
+        desc = f"urdf {dof} independent joints, {n_mimic} mimic" + (", prismatic column" if column or n_mimic else "") + (", branches" if branches else "") + (
             ", two tips" if two_tips else "")
     else:
         raise ValueError(f"robot kind must be dh, mdh or urdf, got {kind!r}")
