@@ -37,7 +37,10 @@ from hykin.sim.random_robots import draw_robot
 
 from cli_run import run_captured
 
-# Families that pass on main (measured with benchmarks/bench_battery.py, see the PR note).
+# Families that pass on main (benchmarks/bench_battery.py --draws 520 --seed 1000: 20 draws each; two
+# rare failures remain that the slow slice can meet: "tracker" 1/20 (a 4-joint arm whose tool offset
+# walks to 2.2 m: calibration priors) and "slip-xyzw" 1/20 (a planar arm: the misread rotations are
+# those of a tool turned 180°, and the fit settles at 2.4 mm, 55x the noise floor, without a word).
 PASSING = ["dh", "mdh", "prismatic", "data-units", "tracker", "position-only", "reflectors3", "noise", "payload",
            "thermal", "subregion", "few-poses", "urdf", "sweeps", "wrong-swap", "wrong-length", "slip-mm",
            "slip-deg", "slip-xyzw", "slip-file-mm", "slip-file-deg", "urdf-prismatic"]
@@ -46,8 +49,9 @@ KNOWN_FAILING = {
     "tracker-far": "misc24: positions over 10 m refused as millimetres passed as metres",
     "urdf-mimic": "urdf: <mimic> ignored, the data's independent joints refused as missing columns",
     "urdf-two-tips": "urdf: no --tip on the CLI",
-    "constant-orientation": "calib-priors: the unexcited tool/base direction walks; refused as a wrong robot file",
-    "stations": "stations: no station column, one frame fitted to all stations",
+    "constant-orientation": "calib-priors: the unexcited tool/base direction walks to metres; refused as a wrong "
+                            "robot file (16 of 20 draws)",
+    "stations": "stations: no station column; refused by the orientation check (one frame for all stations)",
 }
 FAST = ["tracker", "dh", "mdh", "position-only", "urdf", "slip-mm", "slip-deg", "slip-xyzw", "slip-file-mm", "slip-file-deg"]
 SLOW_DRAWS = int(os.environ.get("HYKIN_BATTERY_DRAWS", "500"))
