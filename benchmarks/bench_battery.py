@@ -10,6 +10,7 @@ failure with its family, seed, cause and the command that reproduces it.
     python benchmarks/bench_battery.py --draws 500 --seed 0
     python benchmarks/bench_battery.py --families tracker,urdf --draws 40
     python benchmarks/bench_battery.py --families slip-mm --seed 17 --draws 1   # one draw
+    python benchmarks/bench_battery.py --draws 2000 --jobs 16                    # a many-core machine
 
 Draws are spread round-robin over the families; draw ``k`` of a family uses seed ``SEED + k``.
 """
@@ -17,6 +18,7 @@ Draws are spread round-robin over the families; draw ``k`` of a family uses seed
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 import tempfile
@@ -31,17 +33,19 @@ for _v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
 
 
 def run_draw(family: str, seed: int, folder: Path):
-    """Draw and run one campaign; a failure to even draw it is reported as a crash of the generator."""
+    """Draw and run one campaign -> Verdict; a failure to even draw it is a crash of the generator."""
+    import warnings
+
     from hykin.sim.battery import Verdict, run_campaign
     from hykin.sim.random_campaigns import draw_campaign
+    from tests.cli_run import run_captured
 
+    warnings.simplefilter("ignore")
     try:
         c = draw_campaign(family, seed)
     except Exception as e:
-        return Verdict(family, seed, False, "crash", f"generator failed: {type(e).__name__}: {e}"), None
-    from tests.cli_run import run_captured
-
-    return run_campaign(c, folder, run_captured), c
+        return Verdict(family, seed, False, "crash", f"generator failed: {type(e).__name__}: {e}")
+    return run_campaign(c, folder, run_captured)
 
 
 def main(argv=None) -> int:
@@ -55,6 +59,7 @@ def main(argv=None) -> int:
     ap.add_argument("--families", default="all", help="comma-separated families (default all): " + ", ".join(FAMILIES))
     ap.add_argument("--keep", type=Path, default=None, help="keep each draw's files under this folder")
     ap.add_argument("--verbose", action="store_true", help="print every draw's verdict")
+    ap.add_argument("--jobs", type=int, default=1, help="draws run in this many processes (same verdicts)")
     a = ap.parse_args(argv)
     fams = list(FAMILIES) if a.families == "all" else [f.strip() for f in a.families.split(",") if f.strip()]
     bad = [f for f in fams if f not in FAMILIES]
@@ -65,13 +70,16 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         root = a.keep or Path(tmp)
-        for k in range(a.draws):
-            fam = fams[k % len(fams)]
-            seed = a.seed + k // len(fams)
-            v, _ = run_draw(fam, seed, root / f"{fam}-{seed}")
-            results[fam].append(v)
-            if a.verbose or not v.ok:
-                print(v.summary(), flush=True)
+        todo = [(fams[k % len(fams)], a.seed + k // len(fams)) for k in range(a.draws)]
+        todo = [(f, s, root / f"{f}-{s}") for f, s in todo]
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max(a.jobs, 1)) if a.jobs > 1 else contextlib.nullcontext() as pool:
+            verdicts = pool.map(run_draw, *zip(*todo)) if pool else (run_draw(*t) for t in todo)
+            for v in verdicts:
+                results[v.family].append(v)
+                if a.verbose or not v.ok:
+                    print(v.summary(), flush=True)
     dt = time.perf_counter() - t0
     total = sum(len(v) for v in results.values())
     passed = sum(x.ok for v in results.values() for x in v)
