@@ -197,7 +197,8 @@ def check_orientation_order(robot: Robot, q, quat_wxyz, *, where: str = "<data>"
     raise PlausibilityError(
         f"{where}: measured orientations do not match the rotations of robot {robot.name!r} at these joints "
         f"(median misfit {mis['wxyz']:.2g}° after the best frame rotation): check the quaternion convention "
-        "(unit, scalar first, base->tool rotation), the joint order, or drop the orientation columns")
+        "(unit, scalar first, base->tool rotation), the joint order, the robot file (twists, joint order, "
+        "angle_unit), or drop the orientation columns")
 
 
 def check_joint_unit(robot: Robot, q, *, where: str = "<joints>", angle_unit: str = "rad") -> None:
