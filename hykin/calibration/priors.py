@@ -156,18 +156,20 @@ def prior_tolerances(specs, pri: Mapping[str, float], torque_max_nm=None) -> np.
     """``(P,)`` prior standard deviation of each parameter, SI (m, rad, rad/N·m; ``inf``: uninformative).
 
     torque_max_nm: ``(n,)`` largest gravity torque of each joint over the data (N·m), which turns the
-    compliance tolerance (a deflection) into a compliance; None or 0: that compliance is uninformative.
+    compliance tolerance (a deflection) into a compliance; None, or below 1e-3 of the largest joint's:
+    that compliance is uninformative (inf).
     """
     rad = math.pi / 180
     per = {"length": pri["length_mm"] * 1e-3, "angle": pri["angle_deg"] * rad, "joint_zero": pri["joint_zero_deg"] * rad,
            "base_len": pri["base_mm"] * 1e-3, "base_ang": pri["base_deg"] * rad, "tool_len": pri["tool_mm"] * 1e-3,
            "tool_ang": pri["tool_deg"] * rad}
     out = np.empty(len(specs))
+    t_all = 0.0 if torque_max_nm is None or len(torque_max_nm) == 0 else float(np.max(torque_max_nm))
     for k, s in enumerate(specs):
         kind = kind_of(s)
-        if kind == "compliance":
+        if kind == "compliance":  # a joint with next to no gravity torque: its compliance has no meaningful prior
             tm = 0.0 if torque_max_nm is None else float(torque_max_nm[s.joint])
-            out[k] = pri["compliance_deg"] * rad / tm if tm > 0 else math.inf
+            out[k] = pri["compliance_deg"] * rad / tm if tm > 1e-3 * t_all and tm > 0 else math.inf
         else:
             out[k] = per[kind]
     return out

@@ -118,6 +118,15 @@ class CalibrationResult:
         """Identified deviation of parameter ``name`` (SI)."""
         return float(self.values[self.names.index(name)])
 
+    def summary(self) -> str:
+        """One line: how many parameters are identified / correlated / held at prior, and which are held."""
+        st = self.status or ["identified" if m else "held at prior" for m in self.identifiable]
+        held = [n for n, s in zip(self.names, st) if s == "held at prior"]
+        cor = [n for n, s in zip(self.names, st) if s == "correlated"]
+        return (f"calibration: {len(self.identified_names)} identified, {len(cor)} correlated"
+                + (f" ({', '.join(cor)})" if cor else "") + f", {len(held)} held at prior"
+                + (f" ({', '.join(held)})" if held else "") + f"; {self.after['pos_rms_mm']:.4g} mm RMS")
+
     def report(self) -> str:
         """Human-readable table (lengths in mm, angles in deg, compliance in µrad/(N·m)): deviation from
         the robot file, posterior std, prior tolerance and status of every parameter."""

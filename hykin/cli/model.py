@@ -28,9 +28,19 @@ MaxDeviation = typer.Option(
          "deflection_deg (1), tool_m (2), residual_mm (3), residual_deg (1).")
 
 
-def _calibration_options(orientation_weight: str, max_deviation: str | None) -> dict:
+def _prior_help() -> str:
+    from ..calibration.priors import PRIOR_HELP
+
+    return PRIOR_HELP
+
+
+Prior = typer.Option(None, "--prior", help=_prior_help())
+
+
+def _calibration_options(orientation_weight: str, max_deviation: str | None, prior: list[str] | None = None) -> dict:
     """``calibrate`` keyword arguments from the CLI options (CLIError on bad values)."""
     from ..calibration.checks import parse_max_deviation
+    from ..calibration.priors import DEFAULT_PRIORS, parse_priors
 
     kw: dict = {}
     if orientation_weight != "auto":
@@ -46,6 +56,12 @@ def _calibration_options(orientation_weight: str, max_deviation: str | None) -> 
             kw["max_deviation"] = parse_max_deviation(max_deviation)
         except ValueError as e:
             raise CLIError(str(e)) from None
+    if prior:
+        try:
+            pri = parse_priors(prior)
+        except ValueError as e:
+            raise CLIError(str(e)) from None
+        kw["priors"] = {k: v for k, v in pri.items() if v != DEFAULT_PRIORS[k]}
     return kw
 
 
@@ -66,6 +82,7 @@ def fit_cmd(
     max_epochs: int | None = typer.Option(None, "--max-epochs", help="Most training epochs per network (default: the recipe's)."),
     orientation_weight: str = OrientationWeight,
     max_deviation: str | None = MaxDeviation,
+    prior: list[str] | None = Prior,
     region_cv: bool = typer.Option(False, "--region-cv", help="Choose the calibration's parameter set by region-blocked validation."),
     fade_cv: int = typer.Option(0, "--fade-cv", help="Measure the fade by leave-one-region-out over this many regions (>= 2; 0 = fixed fade)."),
     length_unit: str = LengthUnit,
@@ -97,7 +114,7 @@ def fit_cmd(
     if thermal not in modes:
         raise CLIError(f"--thermal must be auto, on or off, got {thermal!r}")
     check_output(out, (robot, train, val), force)  # before any long work
-    cal_kw = _calibration_options(orientation_weight, max_deviation)
+    cal_kw = _calibration_options(orientation_weight, max_deviation, prior)
     rob = load_robot(robot)
     tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
     check_fit_size(rob, tr)
@@ -116,6 +133,8 @@ def fit_cmd(
                         thermal=modes[thermal], calibrate_kw=cal_kw, fade_cv=fade_cv, **kw)
     model.fit(tr, va, progress=True)
     model.save(out)
+    if model.calibration_ is not None:
+        typer.echo(model.calibration_.summary())
     if model.thermal_ is not None:
         typer.echo(f"thermal expansion: {model.thermal_.note} (reference {model.thermal_.reference_c:.2f} °C)")
     if model.fade_calibration_ is not None:
@@ -176,6 +195,7 @@ def calibrate_cmd(
     compliance: bool = typer.Option(True, "--compliance/--no-compliance", help="Identify joint compliance under gravity."),
     orientation_weight: str = OrientationWeight,
     max_deviation: str | None = MaxDeviation,
+    prior: list[str] | None = Prior,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     force: bool = Force,
@@ -183,8 +203,10 @@ def calibrate_cmd(
     """Parametric calibration only (geometry, base, tool, joint compliance); writes a robot file.
 
     The data may be in any frame (a tracker's) with an unknown tool offset: base and tool are found
-    first. A calibration that does not converge, bends a parameter beyond its plausible bound
-    (--max-deviation) or leaves an implausible residual is refused (exit 2, nothing written)."""
+    first. Every parameter has a prior (the robot file's value, a tolerance per kind: --prior); what the
+    data do not excite is held there and reported so. A calibration that does not converge, puts a
+    parameter beyond its tolerances (--prior refuse_tolerances, --max-deviation) or leaves an
+    implausible residual is refused (exit 2, nothing written)."""
     from ..calibration.calibrate import calibrate
     from ..io.dataset_files import read_dataset
     from ..io.robot_file import load_robot
@@ -193,7 +215,7 @@ def calibrate_cmd(
     check_output(out, (robot, data), force)
     rob = load_robot(robot)
     ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
-    res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation))
+    res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation, prior))
     typer.echo(res.report())
     save_robot_toml(res.robot, out)
     typer.echo(f"calibrated robot written to {out}")

@@ -244,7 +244,8 @@ class HybridModel:
             raise HybridError(f"thermal=True but the training data have no temperature column ({', '.join(TEMPERATURE_COLUMNS)})")
         if temp is not None and np.ptp(temp) > 0:
             self.robot_, self.calibration_, self.thermal_, train, val = fit_thermal(
-                train, val, temp, self.robot_, self.calibration_, self._calibrate_on if self.calibrate else None)
+                train, val, temp, self.robot_, self.calibration_, self._calibrate_on if self.calibrate else None,
+                tolerance_per_k=((self.calibrate_kw or {}).get("priors") or {}).get("thermal_per_k"))
         calib = None
         if self.calibration_ is not None:
             try:
