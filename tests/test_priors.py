@@ -70,13 +70,27 @@ def _random_arm(draw_a, draw_d, tool_z) -> Robot:
                  upper=np.radians([170, 100, 150, 190, 125, 360]), tool=se3.trans(0.0, 0.0, tool_z))
 
 
-@settings(max_examples=3, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(a=st.tuples(st.floats(0.05, 0.3), st.floats(0.4, 0.9), st.floats(0.0, 0.2)),
-       d=st.tuples(st.floats(0.3, 0.7), st.floats(0.5, 1.0), st.floats(0.08, 0.15)),
-       tool_z=st.floats(0.05, 0.25), dist=st.floats(1.0, 2000.0), seed=st.integers(0, 2 ** 16))
+_ARMS = dict(a=st.tuples(st.floats(0.05, 0.3), st.floats(0.4, 0.9), st.floats(0.0, 0.2)),
+             d=st.tuples(st.floats(0.3, 0.7), st.floats(0.5, 1.0), st.floats(0.08, 0.15)),
+             tool_z=st.floats(0.05, 0.25), dist=st.floats(1.0, 2000.0), seed=st.integers(0, 2 ** 16))
+
+
+@settings(max_examples=2, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(**_ARMS)
 def test_unexcited_tool_offset_stays_at_prior(a, d, tool_z, dist, seed):
     """Random robots, tracker 1 m - 2 km away and turned, the tool at exactly one orientation: the tool
     offset is not excited; it stays at the robot file's value and its posterior std is its tolerance."""
+    _check_unexcited_tool(a, d, tool_z, dist, seed)
+
+
+@pytest.mark.slow
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(**_ARMS)
+def test_unexcited_tool_offset_stays_at_prior_many(a, d, tool_z, dist, seed):
+    _check_unexcited_tool(a, d, tool_z, dist, seed)
+
+
+def _check_unexcited_tool(a, d, tool_z, dist, seed):
     rng = np.random.default_rng(seed)
     nom = _random_arm(a, d, tool_z)
     true = apply_deviations(nom, {"a2": 4e-4, "alpha3": 5e-4, "theta4": -6e-4, "d4": -3e-4, "tool.x": 2e-3, "tool.z": -1e-3})
@@ -87,7 +101,7 @@ def test_unexcited_tool_offset_stays_at_prior(a, d, tool_z, dist, seed):
     T = np.tile(np.eye(4), (len(p), 1, 1))
     T[:, :3, :3], T[:, :3, 3] = R0, p
     sol = ik_numeric(true, T, q_seed=np.radians([0, 10, 20, 0, 60, 0]), restarts=2)
-    q = np.asarray(sol.q)[np.asarray(sol.success)][:80]
+    q = np.asarray(sol.q)[np.asarray(sol.success)][:60]
     if len(q) < 40:
         return  # this draw reaches too few points pointing down: nothing to test
     u = rng.normal(size=3)

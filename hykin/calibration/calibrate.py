@@ -28,30 +28,38 @@ standard deviations per coordinate, and the fit is repeated at ``w = σ_pos / σ
 kind of row counts by its noise (a fixed 1 m/rad over-weights orientations that come from reflectors
 0.1 m apart by 10×: measured, the held-out error of every reflector doubled, benchmarks/bench_reflectors.py).
 
+Priors (:mod:`hykin.calibration.priors`): every candidate parameter starts at the robot file's value
+with a tolerance per kind (length, angle, joint zero, base, tool, compliance; the base is
+uninformative by default: a tracker's frame comes from the data). A parameter the data do not excite
+beyond a model-error floor is **held at its prior** (the robot file's value, posterior std = its
+tolerance), e.g. the tool offset measured with the tool at one orientation, a joint never moved,
+``theta1`` against the base; the others are the maximum a posteriori: prior rows ``(σ/τ) δ`` added to
+the normal equations of the one LM (:func:`hykin.kinematics.lm.normal_equations_step`), ``σ`` the
+residual noise per coordinate (re-estimated at the solution) or ``noise_m``.
+
 Raw data (a tracker's frame, unknown tool, robot file without ``[base]``) run in stages:
 
 1. closed-form base and tool offset(s) from the nominal kinematics
    (:func:`hykin.calibration.initial_registration.initial_registration`: linear in the offsets for a fixed base
    rotation, Kabsch for the rotation, a few alternations, joint Gauss–Newton; several tool
-   guesses), kept where it explains the data better than the robot file's own frames;
-2. LM on base and tool (and reflector offsets) only, from that start;
-3. identifiability decided at this estimate (the set identifiable at the robot file first in the
-   QR order, so a choice between redundant parameters does not flip), LM on everything;
-4. identifiability re-checked at the solution; a further pass when the set changed, when the
+   guesses; offset directions the data do not excite stay at the file's tool), kept where it
+   explains the data better than the robot file's own frames;
+2. MAP LM on base and tool (and reflector offsets) only, from that start;
+3. excitation decided at this estimate, MAP LM on everything excited;
+4. excitation re-checked at the solution; a further pass when the excited set changed, when the
    orientation weight was re-estimated, or when the iteration cap stopped a still-falling cost;
 5. if the fit is still implausible, a restart from the robot file's own frames; the best is kept;
-6. refusals (:mod:`hykin.calibration.checks`): not converged, a parameter beyond its plausible
-   bound, or a residual no correct robot file leaves -> :class:`CalibrationError`, one line that says
-   what to check (robot file, units, tool, joint order).
+6. refusals (:mod:`hykin.calibration.checks`): not converged, an estimated parameter beyond its
+   tolerances, or a residual no correct robot file leaves -> :class:`CalibrationError`, one line that
+   says what to check (robot file, units, tool, joint order).
 
-Identifiability: the identification Jacobian is scaled by physical units (1 mm, 1 mrad,
-1e-6 rad/N·m) and factorised by Householder QR in a fixed priority order (base, tool, joints
-base-to-tip, compliance). ``|R_kk|`` is how much of column k is not explained by the columns before
-it: a parameter whose ``|R_kk| / ‖column‖`` is below ``rank_tol`` (redundant, e.g. DH ``theta1`` and
-``d1`` with a full base frame) or whose column is negligible (tool rotation for position-only data,
-the compliance of a vertical joint 1) is fixed at zero. The check is repeated at the solution.
-Standard deviations come from the sandwich covariance ``(JᵀJ)⁻¹ Jᵀ Σ J (JᵀJ)⁻¹`` with separate
-residual variances for position and orientation rows (plain ``σ² (JᵀJ)⁻¹`` for one kind of row).
+Excitation: the identification Jacobian (evenly spread samples) scaled by the tolerances, each row
+by its floor, factorised by a greedy column-pivoted QR (rank-revealing) after the uninformative
+columns: ``|R_kk| / sqrt(N)`` is the RMS effect of a one-tolerance change that no other parameter
+explains (:func:`hykin.calibration.priors.excitation`). Reported per parameter (:class:`CalibrationResult`):
+identified, correlated (|posterior correlation| >= 0.99 with named others), held at prior, at bound 0.
+Standard deviations come from the posterior covariance ``(Jᵀ Σ⁻¹ J + diag(τ⁻²))⁻¹`` with separate
+residual variances for position and orientation rows.
 """
 
 from __future__ import annotations
@@ -59,7 +67,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -93,7 +100,7 @@ from .params import (
     scale_of,
     select_specs,
 )
-from .posterior import noise_variances, posterior, prior_system, prior_weight, reset_held
+from .posterior import PriorContext, noise_variances, posterior, prior_system, prior_weight, reset_held
 from .priors import excitation, prior_tolerances, resolve_priors
 from .result import (
     CalibrationError,
@@ -220,28 +227,11 @@ def _lm_step(lin: dict, act: np.ndarray, lam: float, is_comp: np.ndarray, c: np.
     return free, None
 
 
-@dataclass
-class _Priors:
-    """The priors of one calibration: the robot file's state (prior mean), tolerances by parameter
-    name (SI), the excitation floors (m, rad), the given noise (m or None) and the rank tolerances."""
-
-    file_state: ModelState
-    tol_by_name: dict
-    floor_m: float
-    floor_rad: float
-    noise_m: float | None
-    rank_tol: float
-    negligible_tol: float
-
-    def tol(self, specs) -> np.ndarray:
-        return np.array([self.tol_by_name[s.name] for s in specs])
-
-
 # --------------------------------------------------------------------------- main entry
 
 
 def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: float, max_iter: int, tol: float,
-                    progress, pri: _Priors, pts0: np.ndarray | None = None, pl=None):
+                    progress, pri: PriorContext, pts0: np.ndarray | None = None, pl=None):
     """One excitation test at ``robot``, the held parameters put back at the robot file, one MAP LM
     on the excited ones (:mod:`hykin.calibration.priors`), the excitation re-tested at the solution.
 
@@ -284,7 +274,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
     def run_lm(state, qd, xyzd, Rd, act, max_it, id_rows=None, pld=None):
         """Relinearising MAP LM on the samples ``qd``; returns (state, rp, ro, lin, it, converged, message).
         The prior rows are weighted by the residual σ per coordinate (or the given noise); when σ at the
-        solution differs from the σ used by more than 0.1 %, the LM goes on with the new weights (so the
+        solution differs from the σ used by more than 10 %, the LM goes on with the new weights (so the
         end point is the MAP at the σ of its own residual, whatever the path)."""
         prior["act"] = act
         cost, rp, ro, q_eff = cost_of(state, qd, xyzd, Rd, pld)
@@ -328,7 +318,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
                 converged, message = True, "no further decrease of the cost"
             if converged:
                 s_new = sigma_of(rp, ro)
-                if pri.noise_m is not None or abs(s_new / sig - 1) <= 1e-3 or reweights >= 8:
+                if pri.noise_m is not None or abs(s_new / sig - 1) <= 0.1 or reweights >= 8:
                     break
                 reweights += 1
                 sig, converged, lam = s_new, False, 1e-6  # re-weight the prior rows and go on
@@ -498,7 +488,7 @@ def calibrate(
         pl_rows = None if pl is None else (pl[0][rows], None if pl[1] is None else pl[1][rows])
         tau_max = np.abs(gravity_torques(robot, np.ascontiguousarray(q[rows]), **payload_kwargs(pl_rows))).max(0)
     tol_si = prior_tolerances(specs, pri_kinds, tau_max)
-    pri = _Priors(file_state=state0, tol_by_name={s.name: t for s, t in zip(specs, tol_si)},
+    pri = PriorContext(file_state=state0, tol_by_name={s.name: t for s, t in zip(specs, tol_si)},
                   floor_m=pri_kinds["excitation_mm"] * 1e-3, floor_rad=math.radians(pri_kinds["excitation_deg"]),
                   noise_m=noise_m, rank_tol=rank_tol,
                   negligible_tol=negligible_tol)

@@ -63,19 +63,9 @@ ADVICE = "check the robot file (right robot, DH table), units (--length-unit/--a
 
 def parse_max_deviation(text: str | None) -> dict[str, float]:
     """``"length_mm=30,angle_deg=3"`` -> ``{"length_mm": 30.0, "angle_deg": 3.0}`` (ValueError on bad keys)."""
-    out: dict[str, float] = {}
-    for part in str(text or "").split(","):
-        part = part.strip()
-        if not part:
-            continue
-        if "=" not in part:
-            raise ValueError(f"--max-deviation: {part!r} is not KIND=VALUE (kinds: {', '.join(DEFAULT_MAX_DEVIATION)})")
-        k, v = (s.strip() for s in part.split("=", 1))
-        try:
-            out[k] = float(v)
-        except ValueError:
-            raise ValueError(f"--max-deviation: {k}={v!r} is not a number") from None
-    return resolve_max_deviation(out)
+    from .priors import parse_kind_values
+
+    return resolve_max_deviation(parse_kind_values(text, "--max-deviation", DEFAULT_MAX_DEVIATION))
 
 
 def resolve_max_deviation(overrides: Mapping[str, float] | None) -> dict[str, float]:

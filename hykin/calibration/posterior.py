@@ -12,17 +12,36 @@ deviations, correlations and the status of every parameter.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .params import ModelState, ParamSpec, apply_step, deviations_between
 
-__all__ = ["ADDITIVE_GROUPS", "CORRELATED", "noise_variances", "posterior", "prior_system", "prior_weight", "reset_held"]
+__all__ = ["ADDITIVE_GROUPS", "CORRELATED", "PriorContext", "noise_variances", "posterior", "prior_system", "prior_weight", "reset_held"]
 
 #: groups whose deviation from the file is the sum of the steps (derivative 1)
 ADDITIVE_GROUPS = ("geom", "comp", "point")
 #: |posterior correlation| at which two estimated parameters are reported "correlated" (not "identified")
 CORRELATED = 0.99
 _FD = 1e-4  # finite-difference step, in scaled units (1e-7 m / 1e-7 rad)
+
+
+@dataclass
+class PriorContext:
+    """The priors of one calibration: the robot file's state (prior mean), tolerances by parameter
+    name (SI), the excitation floors (m, rad), the given noise (m or None) and the rank tolerances."""
+
+    file_state: ModelState
+    tol_by_name: dict
+    floor_m: float
+    floor_rad: float
+    noise_m: float | None
+    rank_tol: float
+    negligible_tol: float
+
+    def tol(self, specs) -> np.ndarray:
+        return np.array([self.tol_by_name[s.name] for s in specs])
 
 
 def _dev_jacobian(file_state: ModelState, state: ModelState, specs: list[ParamSpec], cols: np.ndarray,

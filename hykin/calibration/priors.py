@@ -64,6 +64,7 @@ __all__ = [
     "Excitation",
     "excitation",
     "kind_of",
+    "parse_kind_values",
     "parse_priors",
     "prior_tolerances",
     "resolve_priors",
@@ -132,24 +133,30 @@ def resolve_priors(overrides: Mapping[str, float] | None) -> dict[str, float]:
     return out
 
 
-def parse_priors(items: Iterable[str] | str | None) -> dict[str, float]:
-    """``["length_mm=2", "base_mm=inf"]`` (or one comma-separated string) -> resolved priors (ValueError)."""
-    if isinstance(items, str):
-        items = [items]
+def parse_kind_values(items: Iterable[str] | str | None, option: str, kinds) -> dict[str, float]:
+    """``["a=1,b=2", "c=inf"]`` (or one string) -> ``{"a": 1.0, ...}``; ValueError naming ``option`` on
+    an item that is not KIND=VALUE or a value that is not a number (the kinds are checked by the caller)."""
+    if isinstance(items, str) or items is None:
+        items = [items or ""]
     out: dict[str, float] = {}
-    for item in items or ():
+    for item in items:
         for part in str(item).split(","):
             part = part.strip()
             if not part:
                 continue
             if "=" not in part:
-                raise ValueError(f"--prior: {part!r} is not KIND=VALUE (kinds: {', '.join(DEFAULT_PRIORS)})")
+                raise ValueError(f"{option}: {part!r} is not KIND=VALUE (kinds: {', '.join(kinds)})")
             k, v = (s.strip() for s in part.split("=", 1))
             try:
                 out[k] = float(v)
             except ValueError:
-                raise ValueError(f"--prior: {k}={v!r} is not a number") from None
-    return resolve_priors(out)
+                raise ValueError(f"{option}: {k}={v!r} is not a number") from None
+    return out
+
+
+def parse_priors(items: Iterable[str] | str | None) -> dict[str, float]:
+    """``["length_mm=2", "base_mm=inf"]`` (or one comma-separated string) -> resolved priors (ValueError)."""
+    return resolve_priors(parse_kind_values(items, "--prior", DEFAULT_PRIORS))
 
 
 def prior_tolerances(specs, pri: Mapping[str, float], torque_max_nm=None) -> np.ndarray:

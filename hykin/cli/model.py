@@ -52,8 +52,11 @@ def _calibration_options(orientation_weight: str, max_deviation: str | None, pri
             raise CLIError(f"--orientation-weight must be > 0, got {orientation_weight!r}")
         kw["orientation_weight_m_per_rad"] = w
     if max_deviation:
+        from ..calibration.priors import parse_kind_values
+
         try:
-            kw["max_deviation"] = parse_max_deviation(max_deviation)
+            parse_max_deviation(max_deviation)  # validated; only the kinds given bound their kind
+            kw["max_deviation"] = parse_kind_values(max_deviation, "--max-deviation", ())
         except ValueError as e:
             raise CLIError(str(e)) from None
     if prior:
@@ -61,7 +64,7 @@ def _calibration_options(orientation_weight: str, max_deviation: str | None, pri
             pri = parse_priors(prior)
         except ValueError as e:
             raise CLIError(str(e)) from None
-        kw["priors"] = {k: v for k, v in pri.items() if v != DEFAULT_PRIORS[k]}
+        kw["priors"] = {k: v for k, v in pri.items() if v != DEFAULT_PRIORS[k]}  # kinds given (resolved: valid)
     return kw
 
 
