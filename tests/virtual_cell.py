@@ -59,8 +59,13 @@ def region_joints(nom: Robot, n: int, rng, half_range_deg: float = 12.0) -> np.n
     return centre + rng.uniform(-1, 1, (n, 6)) * np.radians(half_range_deg)
 
 
-def measure(truth: Robot, q: np.ndarray, rng, noise_m: float = 1e-5, noise_rad: float = 2e-5) -> np.ndarray:
-    """Poses ``(N, 4, 4)`` the tracker's 6-D probe reports (tracker frame, noisy)."""
+def measure(truth: Robot, q: np.ndarray, rng, noise_m: float = 1e-5, noise_rad: float = 2e-5,
+            gear_rad: float = 0.0) -> np.ndarray:
+    """Poses ``(N, 4, 4)`` the tracker's 6-D probe reports (tracker frame, noisy). ``gear_rad``: amplitude
+    of a gear transmission error ``gear_rad sin(3 q_i + i)`` on every joint, an error no geometric
+    model represents (a few hundredths of a mm at 1e-5 rad)."""
+    if gear_rad:
+        q = q + gear_rad * np.sin(3.0 * q + np.arange(q.shape[1]))
     T = TRACKER @ compliant_fk(truth, q)
     T[:, :3, 3] += rng.normal(0, noise_m, (len(q), 3))
     T[:, :3, :3] = se3.rotvec_to_matrix(rng.normal(0, noise_rad, (len(q), 3))) @ T[:, :3, :3]
