@@ -82,6 +82,7 @@ _EXPORTS = {
     "InitialRegistration": "calibration.initial_registration",
     "reflector_points": "io.reflectors",
     "DEFAULT_MAX_DEVIATION": "calibration.checks",
+    "DEFAULT_PRIORS": "calibration.priors",
     "HybridModel": "hybrid.model",
     "OutOfRangeWarning": "hybrid.errors",
     "ModelFileError": "io.modelfile",

@@ -227,6 +227,18 @@ def _lm_step(lin: dict, act: np.ndarray, lam: float, is_comp: np.ndarray, c: np.
     return free, None
 
 
+def _moves(lin: dict, act: np.ndarray, sigma_m: float) -> bool:
+    """Whether the Gauss-Newton step of the normal equations ``lin`` (prior rows included) moves any
+    parameter of ``act`` by more than 1e-3 of its posterior standard deviation (``sigma_m`` noise)."""
+    A = (lin["JtJ_p"] + lin["JtJ_o"] + lin["A_prior"])[np.ix_(act, act)]
+    g = (lin["Jtr"] + lin["g_prior"])[act]
+    step = normal_equations_step(A, g, 0.0)
+    D = np.sqrt(np.diag(A))
+    D[D == 0] = 1.0
+    sd = sigma_m * np.sqrt(np.clip(np.diag(np.linalg.pinv(A / np.outer(D, D), hermitian=True)), 0, None)) / D
+    return bool(np.any(np.abs(step) > 1e-3 * sd))
+
+
 # --------------------------------------------------------------------------- main entry
 
 
@@ -321,10 +333,13 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
                 if pri.noise_m is not None or abs(s_new / sig - 1) <= 0.1 or reweights >= 8:
                     break
                 reweights += 1
-                sig, converged, lam = s_new, False, 1e-6  # re-weight the prior rows and go on
+                sig = s_new  # re-weight the prior rows (same data linearization) ...
                 prior["weight"] = prior_weight(tol_si, sig)
                 cost, rp, ro, q_eff = cost_of(state, qd, xyzd, Rd, pld)
-                lin = lin_at(state, q_eff, xyzd, Rd, id_rows, pld)
+                _, lin["A_prior"], lin["g_prior"] = prior_system(pri.file_state, state, specs, act, prior["weight"], scale)
+                if not _moves(lin, act, sig):
+                    break
+                converged, lam = False, 1e-6  # ... and go on where the new weights move the MAP
         return state, rp, ro, lin, it, converged, message
 
     def excited_at(lin):
