@@ -84,6 +84,7 @@ _EXPORTS = {
     "DEFAULT_MAX_DEVIATION": "calibration.checks",
     "StationFrames": "calibration.stations",
     "to_reference": "calibration.stations",
+    "DEFAULT_PRIORS": "calibration.priors",
     "HybridModel": "hybrid.model",
     "OutOfRangeWarning": "hybrid.errors",
     "ModelFileError": "io.modelfile",

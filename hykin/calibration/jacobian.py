@@ -239,13 +239,13 @@ def linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=CHUNK, keep_
     ``groups``: the rows' stations and tools or None).
 
     Returns dict with JtJ_p, JtJ_o (P,P), Jtr (P,), sse_p, sse_o, and (if keep_rows) the scaled
-    Jacobian rows ``(rows, P)`` of the samples ``keep_rows``.
+    Jacobian rows ``J_id`` ``(rows, P)`` of the samples ``keep_rows`` (``J_id_rot``: which are orientation rows).
     """
     P = len(specs)
     with_rot = R_meas is not None
     out = {"JtJ_p": np.zeros((P, P)), "JtJ_o": np.zeros((P, P)), "Jtr": np.zeros(P), "sse_p": 0.0, "sse_o": 0.0}
     need_tau = any(s.group == "comp" for s in specs)
-    kept = []
+    kept, kept_rot = [], []
     sc = scale[:, None, None]
     for lo in range(0, q_eff_all.shape[0], chunk):
         sl = slice(lo, lo + chunk)
@@ -271,8 +271,10 @@ def linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=CHUNK, keep_
                 if with_rot:
                     rows.append(Jo[:, idx].reshape(P, -1).T)
                 kept.append(np.concatenate(rows, 0))
+                kept_rot.append(np.arange(kept[-1].shape[0]) >= rows[0].shape[0])
     if keep_rows is not None:
         out["J_id"] = np.concatenate(kept, 0) if kept else np.zeros((0, P))
+        out["J_id_rot"] = np.concatenate(kept_rot) if kept else np.zeros(0, bool)  # orientation rows
     return out
 
 

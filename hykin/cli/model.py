@@ -32,9 +32,19 @@ MaxDeviation = typer.Option(
          "deflection_deg (1), tool_m (2), residual_mm (3), residual_deg (1).")
 
 
-def _calibration_options(orientation_weight: str, max_deviation: str | None) -> dict:
+def _prior_help() -> str:
+    from ..calibration.priors import PRIOR_HELP
+
+    return PRIOR_HELP
+
+
+Prior = typer.Option(None, "--prior", help=_prior_help())
+
+
+def _calibration_options(orientation_weight: str, max_deviation: str | None, prior: list[str] | None = None) -> dict:
     """``calibrate`` keyword arguments from the CLI options (CLIError on bad values)."""
     from ..calibration.checks import parse_max_deviation
+    from ..calibration.priors import DEFAULT_PRIORS, parse_priors
 
     kw: dict = {}
     if orientation_weight != "auto":
@@ -46,10 +56,19 @@ def _calibration_options(orientation_weight: str, max_deviation: str | None) -> 
             raise CLIError(f"--orientation-weight must be > 0, got {orientation_weight!r}")
         kw["orientation_weight_m_per_rad"] = w
     if max_deviation:
+        from ..calibration.priors import parse_kind_values
+
         try:
-            kw["max_deviation"] = parse_max_deviation(max_deviation)
+            parse_max_deviation(max_deviation)  # validated; only the kinds given bound their kind
+            kw["max_deviation"] = parse_kind_values(max_deviation, "--max-deviation", ())
         except ValueError as e:
             raise CLIError(str(e)) from None
+    if prior:
+        try:
+            pri = parse_priors(prior)
+        except ValueError as e:
+            raise CLIError(str(e)) from None
+        kw["priors"] = {k: v for k, v in pri.items() if v != DEFAULT_PRIORS[k]}  # kinds given (resolved: valid)
     return kw
 
 
@@ -72,6 +91,7 @@ def fit_cmd(
     max_epochs: int | None = typer.Option(None, "--max-epochs", help="Most training epochs per network (default: the recipe's)."),
     orientation_weight: str = OrientationWeight,
     max_deviation: str | None = MaxDeviation,
+    prior: list[str] | None = Prior,
     region_cv: bool = typer.Option(False, "--region-cv", help="Choose the calibration's parameter set by region-blocked validation."),
     fade_cv: int = typer.Option(0, "--fade-cv", help="Measure the fade by leave-one-region-out over this many regions (>= 2; 0 = fixed fade)."),
     length_unit: str = LengthUnit,
@@ -103,7 +123,7 @@ def fit_cmd(
     if thermal not in modes:
         raise CLIError(f"--thermal must be auto, on or off, got {thermal!r}")
     check_output(out, (robot, train, val), force)  # before any long work
-    cal_kw = _calibration_options(orientation_weight, max_deviation)
+    cal_kw = _calibration_options(orientation_weight, max_deviation, prior)
     rob = load_robot_spec(robot, base_link, tip_link)
     tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     check_fit_size(rob, tr)
@@ -122,6 +142,8 @@ def fit_cmd(
                         thermal=modes[thermal], calibrate_kw=cal_kw, fade_cv=fade_cv, **kw)
     model.fit(tr, va, progress=True)
     model.save(out)
+    if model.calibration_ is not None:
+        typer.echo(model.calibration_.summary())
     if model.thermal_ is not None:
         typer.echo(f"thermal expansion: {model.thermal_.note} (reference {model.thermal_.reference_c:.2f} °C)")
     if model.fade_calibration_ is not None:
@@ -187,6 +209,7 @@ def calibrate_cmd(
     compliance: bool = typer.Option(True, "--compliance/--no-compliance", help="Identify joint compliance under gravity."),
     orientation_weight: str = OrientationWeight,
     max_deviation: str | None = MaxDeviation,
+    prior: list[str] | None = Prior,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     unit_check: bool = UnitCheck,
@@ -195,8 +218,10 @@ def calibrate_cmd(
     """Parametric calibration only (geometry, base, tool, joint compliance); writes a robot file.
 
     The data may be in any frame (a tracker's) with an unknown tool offset: base and tool are found
-    first. A calibration that does not converge, bends a parameter beyond its plausible bound
-    (--max-deviation) or leaves an implausible residual is refused (exit 2, nothing written)."""
+    first. Every parameter has a prior (the robot file's value, a tolerance per kind: --prior); what the
+    data do not excite is held there and reported so. A calibration that does not converge, puts a
+    parameter beyond its tolerances (--prior refuse_tolerances, --max-deviation) or leaves an
+    implausible residual is refused (exit 2, nothing written)."""
     from ..calibration.calibrate import calibrate
     from ..io.dataset_files import read_dataset
 
@@ -204,7 +229,7 @@ def calibrate_cmd(
     rob = load_robot_spec(robot, base_link, tip_link)
     _check_robot_out(rob, out)
     ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
-    res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation))
+    res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation, prior))
     typer.echo(res.report())
     _write_calibrated(res.robot, out)
     if res.station_frames is not None:  # several stations / tools: the file holds the reference's frames

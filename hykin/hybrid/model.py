@@ -250,8 +250,9 @@ class HybridModel:
         if temp is not None and np.ptp(temp) > 0:
             first = (self.robot_, self.calibration_)
             args = (train, val, temp, self.robot_, self.calibration_, self._calibrate_on if self.calibrate else None)
-            got = fit_thermal(*args) if self.thermal is True else optional_step("thermal expansion", self._skipped,
-                                                                              fit_thermal, *args)
+            tol_k = ((self.calibrate_kw or {}).get("priors") or {}).get("thermal_per_k")
+            got = fit_thermal(*args, tolerance_per_k=tol_k) if self.thermal is True else optional_step(
+                "thermal expansion", self._skipped, fit_thermal, *args, tolerance_per_k=tol_k)
             if got is None:  # failed (auto): the calibration at the measured temperatures
                 self.robot_, self.calibration_ = first
             else:
