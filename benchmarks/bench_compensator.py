@@ -7,7 +7,8 @@ Robots (our own virtual robots; hykin.sim with perturbations drawn here):
   2 kg tool + 5 kg payload, tracker noise 20 µm / 100 µrad);
 * ``kuka-like``: nominal ``kuka-kr6-r900`` with link masses added here, truth = our geometric
   deviations (0.5 mm, 0.06°) + mass deviations + joint springs (compliance);
-* ``7-dof``: nominal ``kuka-iiwa14``, truth = our geometric deviations (0.5 mm, 0.06°).
+* ``7-dof``: nominal ``kuka-iiwa14`` (massless), truth = our geometric deviations (0.5 mm, 0.06°) plus
+  link masses, a 2 kg payload and joint springs that only the truth has (errors for the networks).
 
 Each gets a HybridModel fitted on 2,000 simulated poses (noise as the robot has; few epochs).
 Targets: TRUE poses at 1,200 joint configurations — uniform over the whole joint range, one joint
@@ -59,6 +60,10 @@ def robots() -> list[VirtualRobot]:
     kt = kt.copy(stiffness_nm_per_rad=[3e5, 2e5, 1.5e5, 4e4, 4e4, 3e4], name="kuka-like-truth")
     iiwa = load_robot("kuka-iiwa14")
     it = geometric_deviation(iiwa, np.random.default_rng(8), 5e-4, np.radians(0.06), 5e-4, np.radians(0.06))
+    # masses and joint springs only the truth has (the nominal model is massless): for the networks
+    it = it.copy(mass_kg=[4.0, 4.0, 3.0, 2.7, 1.7, 1.8, 0.3], com_m=[[0, -0.03, 0.12], [0, 0.06, 0.02], [0, 0.03, 0.13],
+                 [0, 0.07, 0.03], [0, 0.02, 0.08], [0, 0.0, 0.0], [0, 0, 0.02]], payload_kg=2.0,
+                 stiffness_nm_per_rad=[5e4, 5e4, 3e4, 3e4, 1e4, 1e4, 1e4])
     return [VirtualRobot("ur-like", ur.nominal, ur.truth, noise_position_m=20e-6, noise_orientation_rad=100e-6),
             VirtualRobot("kuka-like", kr, kt), VirtualRobot("7-dof", iiwa, it.copy(name="7-dof-truth"))]
 
@@ -138,6 +143,7 @@ def latency(vr, m, n_path: int) -> None:
     T = true_poses(vr, q_path)  # 10,000 targets along a smooth path (~0.3 mm apart)
     C = hykin.Compensator(m)
     C.step(T[0], q_path[0])
+    load_probe(nom)
     lat = np.empty(n_path)
     Q = np.empty((n_path, nom.dof))
     cmd = np.empty((n_path, 4, 4))
@@ -172,7 +178,16 @@ def latency(vr, m, n_path: int) -> None:
           f"the default walk: {n_path / tw:,.0f} targets/s, {cw.success.sum()} compensated")
 
 
+def load_probe(robot) -> None:
+    """Single-pose classical FK here vs on the idle machine: how inflated the timings around it are."""
+    q0 = robot.random_joints(1, 0)[0]
+    probe = timeit(lambda: hykin.fk(robot, q0), 5000)
+    print(f"  machine load probe: single-pose classical fk {probe * 1e6:.2f} µs now vs 1.48 µs on the idle machine "
+          f"(benchmarks/RESULTS.md): timings here inflated ~x{probe / 1.48e-6:.1f}")
+
+
 def fk_speed(m) -> None:
+    load_probe(m.robot)
     q = m.robot.random_joints(100_000, 3)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -66,3 +66,54 @@ def test_fast_net_paper_sizes(name):
     with torch.inference_mode():
         ref = net_float64(net)(torch.from_numpy(q)).numpy()
     assert np.abs(fast_net(net)(q) - ref).max() * 1e3 < 1e-9
+
+
+@pytest.mark.parametrize("name", ["default", "B2", "B3"])
+def test_compiled_network_equals_fast_net(name):
+    from hykin.hybrid import fast_fk
+
+    if not fast_fk.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    net = _randomised(name, 6, 4)
+    fn = fast_net(net)
+    packed = fast_fk.pack_net(fn)
+    q = np.random.default_rng(3).uniform(-3, 3, (20, 6))
+    buf = np.empty((4, int(packed[5][2])))
+    out = np.empty(3)
+    ref = fn(q)
+    for k in range(len(q)):
+        fast_fk.net_one(*packed, q[k], 6, buf, out)
+        assert np.abs(out - ref[k]).max() * 1e3 < 1e-9
+
+
+def test_compiled_hybrid_fk_equals_numpy_path():
+    """HybridModel.predict: the compiled path (small batches) against the numpy path (the same model with
+    the compiled kernel switched off), with and without registration frames."""
+    import copy
+    import warnings
+
+    from comp_models import tiny_model_file
+
+    from hykin.geometry import se3
+    from hykin.hybrid import fast_fk
+    from hykin.hybrid.model import HybridModel
+
+    if not fast_fk.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    m = HybridModel.load(tiny_model_file())
+    q = m.nominal.random_joints(40, 9, margin=-0.3)  # partly outside the trained range: the fade acts
+    m2 = copy.deepcopy(m)
+    m2.frame_pre_ = se3.trans(0.1, -0.2, 0.3) @ se3.rotz(0.3)
+    m2.frame_post_ = se3.trans(0, 0, 0.05)
+    for mm in (m, m2):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fast = mm.predict(q)  # 40 < COMPILED_MAX: compiled
+            ref = mm.predict(np.repeat(q, 2, axis=0))[::2]  # 80 rows: the numpy path
+        assert np.abs(fast - ref).max() < 1e-12  # m and dimensionless: 1e-9 mm
+        tt = mm.predict_torch(torch.from_numpy(q)).numpy()  # the torch path: float64 copies of the nets
+        assert np.abs(tt - fast).max() < 1e-12
+        assert fast_fk.kernel_of(mm) is not None
+    k = fast_fk.kernel_of(m)
+    T, ex, gap = fast_fk.predict_fast(k, q)
+    assert np.allclose(ex, m.range_excess(q), atol=1e-15) and np.allclose(gap, m.pair_gap(q), atol=1e-15)

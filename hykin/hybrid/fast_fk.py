@@ -6,7 +6,7 @@ networks, the correction and the registration frames), with no per-call Python o
 model and rebuilt when its weights, robot, frames or fade change). ``hybrid_one`` is the compiled
 per-pose function that :mod:`hykin.hybrid.fast_ik` (hybrid LM) calls; :func:`predict_fast` the
 batched one that ``HybridModel.predict`` (and so ``hykin fk``, ``hykin ik``, hybrid IK and the
-compensation) uses.
+compensation) uses for batches under :data:`COMPILED_MAX` poses.
 
 Same operations and numbers as the numpy path: deflection with
 :func:`hykin.kinematics.compliance.deflect_one`, the chain walk of :mod:`hykin.kinematics.walk`, the
@@ -28,7 +28,11 @@ import numpy as np
 from ..kinematics.fk import HAVE_NUMBA
 from . import fast_nets
 
-__all__ = ["HybridKernel", "kernel_of", "pack_net", "predict_fast"]
+__all__ = ["COMPILED_MAX", "HybridKernel", "kernel_of", "pack_net", "predict_fast"]
+
+#: batches at least this large predict through the numpy path (the networks as BLAS matrix products
+#: of :mod:`hykin.hybrid.fast_nets` beat per-pose matrix-vector products there; same numbers to rounding)
+COMPILED_MAX = 64
 
 _ACT = {None: 0, "relu": 1, "silu": 2, "gelu": 3, "tanh": 4, "sigmoid": 5}
 _DENSE, _ADD, _ACTOP, _COPY = 0, 1, 2, 3

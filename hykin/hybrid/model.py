@@ -499,9 +499,10 @@ class HybridModel:
 
     def _hybrid_poses(self, q2: np.ndarray, payload_kg=None, payload_com_m=None, warn: bool = True) -> np.ndarray:
         """Hybrid poses ``(N, 4, 4)`` of checked joints ``q2`` ``(N, n)`` at the reference temperature,
-        without registration frames; ``warn``: :class:`OutOfRangeWarning` for queries outside. Compiled
-        (:mod:`hykin.hybrid.fast_fk`) unless a payload is given or the model cannot run compiled."""
-        kern = fast_fk.kernel_of(self) if payload_kg is None and payload_com_m is None else None
+        without registration frames; ``warn``: :class:`OutOfRangeWarning` for queries outside. Small batches
+        run compiled (:mod:`hykin.hybrid.fast_fk`) unless a payload is given; large ones use BLAS."""
+        small = len(q2) < fast_fk.COMPILED_MAX and payload_kg is None and payload_com_m is None
+        kern = fast_fk.kernel_of(self) if small else None
         if kern is not None:
             T, ex, gap = fast_fk.predict_fast(kern, q2)
             if warn:
