@@ -41,9 +41,8 @@ payload and only the physics changes with payload. Measured (benchmarks/bench_pa
 rows, 6000 steps; decided on kr-payload-virtual, rows at 0 and 12 kg): payload-agnostic networks
 0.0325 / 0.0289 / 0.0322 / 0.0439 mm at 0 / 6 / 12 / 20 kg, payload as input 0.0289 / 0.0284 /
 0.0290 / 0.0355 mm (holding beats fading to the payload-agnostic correction at 20 kg). Held-out
-robot (rx160-nongeo): 0.0279 / 0.0279 / 0.0280 / 0.0280 mm with payload as input vs 0.0282 /
-0.0278 / 0.0276 / 0.0276 mm agnostic (equal within seed noise: no harm where the physics leaves
-no payload dependence). With one payload the networks stay payload-agnostic and the physics
+robot (rx160-nongeo): 0.0279 / 0.0279 / 0.0280 / 0.0280 mm with payload as input vs 0.0282 / 0.0278
+/ 0.0276 / 0.0276 mm agnostic (equal within seed noise: no harm where physics leaves no payload dependence). With one payload the networks stay payload-agnostic and the physics
 carries every other payload. ``predict`` warns (:class:`OutOfRangeWarning`) for payloads outside
 the trained ones. Not payload-aware yet: :meth:`predict_uncertainty` (bands of the trained
 payloads) and the extrapolation growth of :mod:`hykin.hybrid.uncertainty` (robot file's payload).
