@@ -191,17 +191,38 @@ def serve_cmd(
     model: str = typer.Argument(..., help="Model file (hykin fit)."),
     host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on (default: this machine only)."),
     port: int = typer.Option(8000, "--port", help="TCP port."),
+    token_file: Path | None = typer.Option(None, "--token-file", help="File holding a bearer token: every request but "
+                                    "GET /health must then send 'Authorization: Bearer <token>' (401 / WebSocket 403 otherwise)."),
+    max_targets: int = typer.Option(10_000, "--max-targets", help="Targets (rows) in one HTTP request (422 above)."),
+    max_body_kb: int = typer.Option(4096, "--max-body-kb", help="Size of one HTTP request body, KiB (413 above)."),
+    max_message_bytes: int = typer.Option(4096, "--max-message-bytes", help="Size of one WebSocket message, bytes "
+                                          "(the stream is closed with 1009 above)."),
+    queue: int = typer.Option(64, "--queue", help="Model calls waiting or running, all clients together (503 / a "
+                              "busy reply above)."),
+    max_connections: int = typer.Option(64, "--max-connections", help="Open connections (503 above)."),
 ) -> None:
-    """Serve fk / ik / compensate over HTTP (JSON batches; GET /health)."""
+    """Serve fk / ik / compensate over HTTP (JSON batches), a WebSocket stream of single targets (/stream) and GET /health."""
+    from ..compensation.service import serve
+    from ..compensation.service_guard import ServiceLimits, model_identity, read_token_file
+
     if not 0 < port < 65536:
         raise CLIError(f"--port must be 1..65535, got {port}")
+    for name, v in (("--max-targets", max_targets), ("--max-body-kb", max_body_kb), ("--max-message-bytes", max_message_bytes),
+                    ("--queue", queue), ("--max-connections", max_connections)):
+        if v < 1:
+            raise CLIError(f"{name} must be at least 1, got {v}")
+    try:
+        token = read_token_file(token_file) if token_file is not None else None
+    except ValueError as e:
+        raise CLIError(str(e)) from None
+    limits = ServiceLimits(max_targets=max_targets, max_body_bytes=max_body_kb * 1024, max_message_bytes=max_message_bytes,
+                           queue=queue, max_connections=max_connections, token=token)
     mdl = load_model(model)
-    import uvicorn
-
-    from ..compensation.service import create_app
-
-    typer.echo(f"hykin serve: {mdl.nominal.name} on http://{host}:{port} (GET /health, POST /fk /ik /compensate)")
-    uvicorn.run(create_app(mdl), host=host, port=port, log_level="warning")
+    identity = model_identity(model)
+    typer.echo(f"hykin serve: {mdl.nominal.name} (sha256 {identity['model_sha256'] or identity['file_sha256']}) on "
+               f"http://{host}:{port} (GET /health, POST /fk /ik /compensate, WebSocket /stream"
+               f"{'; bearer token required' if token else ''})")
+    serve(mdl, host, port, limits, identity)
 
 
 @app.command("export-urdf")
