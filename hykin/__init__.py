@@ -107,6 +107,7 @@ _EXPORTS = {
     "calibrated_urdf": "io.urdf",
     "compensate": "compensation",
     "Compensation": "compensation",
+    "Compensator": "compensation",
     "evaluate_model": "evaluation.evaluate",
     "evaluate_per_payload": "evaluation.evaluate",
     # payload per row

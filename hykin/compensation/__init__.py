@@ -1,5 +1,6 @@
 """Getting accuracy into a controller that runs its nominal model (DESIGN.md §6).
 
+* :mod:`.compensator` — :class:`Compensator`: loads a model once, compensates one target or a batch.
 * :mod:`.targets` — :func:`compensate`: hybrid IK on the meant branch → nominal FK = the command.
 * :mod:`.branches` — KUKA ``S``/``T`` status, ABB ``confdata``, and the nominal solution they mean.
 * :mod:`.programs` — shared rewriting machinery: targets found in a program text, replaced in place.
@@ -11,6 +12,7 @@
 
 from __future__ import annotations
 
+from .compensator import Compensator, StepResult
 from .targets import Compensation, compensate, resolve_frame
 
-__all__ = ["Compensation", "compensate", "resolve_frame"]
+__all__ = ["Compensation", "Compensator", "StepResult", "compensate", "resolve_frame"]
