@@ -142,6 +142,7 @@ def test_load_loop_2000(server):
 # An in-process server (uvicorn in a thread, the model already loaded) with a token and small limits.
 
 TOKEN = "s3cret-Token_42"
+DELAY_S = 0.05
 
 
 @pytest.fixture(scope="module")
@@ -157,7 +158,7 @@ def guarded():
     mp = tiny_model_file()
     m = HybridModel.load(mp)
     port = _free_port()
-    limits = ServiceLimits(max_body_bytes=64 * 1024, max_message_bytes=1024, token=TOKEN)
+    limits = ServiceLimits(max_body_bytes=64 * 1024, max_message_bytes=1024, token=TOKEN, refusal_delay_s=DELAY_S)
     t_load = time.time()
     srv = uvicorn.Server(uvicorn_config(m, "127.0.0.1", port, limits, model_identity(mp)))
     th = threading.Thread(target=srv.run, daemon=True)
@@ -195,7 +196,9 @@ def test_health_reports_the_model_files_hash_and_load_time(guarded):
 def test_bearer_token_and_body_limit(guarded):
     c, m, *_ = guarded
     body = {"q": m.nominal.random_joints(2, 1, margin=0.2).tolist()}
+    t = time.perf_counter()
     r = c.post("/fk", json=body)
+    assert time.perf_counter() - t >= DELAY_S  # refusals are answered after the refusal delay
     assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer" and "token" in r.json()["detail"]
     assert c.post("/fk", json=body, headers=_auth("wrong")).status_code == 401
     assert c.post("/fk", json=body, headers={"Authorization": TOKEN}).status_code == 401  # no scheme

@@ -200,6 +200,8 @@ def serve_cmd(
     queue: int = typer.Option(64, "--queue", help="Model calls waiting or running, all clients together (503 / a "
                               "busy reply above)."),
     max_connections: int = typer.Option(64, "--max-connections", help="Open connections (503 above)."),
+    refusal_delay_ms: float = typer.Option(100.0, "--refusal-delay-ms", help="Every refused request is answered after "
+                                           "this delay, which slows a client flooding bad requests (0: at once)."),
 ) -> None:
     """Serve fk / ik / compensate over HTTP (JSON batches), a WebSocket stream of single targets (/stream) and GET /health."""
     from ..compensation.service import serve
@@ -211,12 +213,14 @@ def serve_cmd(
                     ("--queue", queue), ("--max-connections", max_connections)):
         if v < 1:
             raise CLIError(f"{name} must be at least 1, got {v}")
+    if not 0 <= refusal_delay_ms <= 60_000:
+        raise CLIError(f"--refusal-delay-ms must be in 0..60000, got {refusal_delay_ms}")
     try:
         token = read_token_file(token_file) if token_file is not None else None
     except ValueError as e:
         raise CLIError(str(e)) from None
     limits = ServiceLimits(max_targets=max_targets, max_body_bytes=max_body_kb * 1024, max_message_bytes=max_message_bytes,
-                           queue=queue, max_connections=max_connections, token=token)
+                           queue=queue, max_connections=max_connections, refusal_delay_s=refusal_delay_ms / 1e3, token=token)
     mdl = load_model(model)
     identity = model_identity(model)
     typer.echo(f"hykin serve: {mdl.nominal.name} (sha256 {identity['model_sha256'] or identity['file_sha256']}) on "

@@ -26,15 +26,18 @@ Refusals (:mod:`.service_guard`; limits in :class:`~hykin.compensation.service_g
 400 malformed JSON or header, 401 missing/wrong bearer token (``WWW-Authenticate: Bearer``), 413 body
 over the size limit (refused from its ``Content-Length`` before it is read; the connection is closed),
 422 wrong fields/shapes/values, 503 the model queue is full (``Retry-After: 1``) or too many open
-connections. WebSocket: the handshake is refused with 403 (close code 1008) on a wrong token or
-frame; a message over the size limit closes the stream with 1009. Every HTTP refusal is a JSON
-``{"detail": reason}``. Checks run on the event loop and never wait for the model; model calls run
-on one thread, streaming steps before queued batches.
+connections (uvicorn's own, at once). Every HTTP refusal is a JSON ``{"detail": reason}`` answered
+after ``refusal_delay_s`` (0.1 s): a client flooding bad requests is slowed to ``max_connections /
+refusal_delay_s`` requests/s. WebSocket: the handshake is refused with 403 (close code 1008) on a
+wrong token or frame; a message over the size limit closes the stream with 1009. Checks run on the
+event loop and never wait for the model. Model calls run on one thread, streaming steps before
+queued batches; a streaming step runs at once on the event loop when the model is idle.
 
 (No ``from __future__ import annotations``: FastAPI reads the endpoints' ``Request`` annotations at
 run time, and ``Request`` is imported inside :func:`create_app`.)
 """
 
+import asyncio
 import collections
 import contextlib
 import json
@@ -86,8 +89,10 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
 
     app = FastAPI(title="hykin compensation service", version=__version__, lifespan=lifespan)
 
-    def _refuse(status: int, detail: str, kind: str, headers: dict | None = None):
+    async def _refuse(status: int, detail: str, kind: str, headers: dict | None = None):
         counts[f"refused_{kind}"] += 1
+        if limits.refusal_delay_s:
+            await asyncio.sleep(limits.refusal_delay_s)
         return Response(_dumps({"detail": detail}), status_code=status, media_type="application/json", headers=headers)
 
     def _parse(raw: bytes, parse):
@@ -98,26 +103,26 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
 
     async def _run(request: Request, parse, compute):
         if not token_ok(request.headers, limits.token):
-            return _refuse(401, "missing or wrong bearer token (Authorization: Bearer <token>)", "auth",
+            return await _refuse(401, "missing or wrong bearer token (Authorization: Bearer <token>)", "auth",
                            {"WWW-Authenticate": "Bearer"})
         try:
             raw = await read_body(request, limits.max_body_bytes)
         except BodyTooLarge as e:
-            return _refuse(413, str(e), "size", {"Connection": "close"})
+            return await _refuse(413, str(e), "size", {"Connection": "close"})
         except ValueError as e:
-            return _refuse(400, str(e), "malformed", {"Connection": "close"})
+            return await _refuse(400, str(e), "malformed", {"Connection": "close"})
         try:
             args = _parse(raw, parse) if len(raw) <= _INLINE_BYTES else await run_in_threadpool(_parse, raw, parse)
         except RequestError as e:
-            return _refuse(e.status, str(e), "invalid")
+            return await _refuse(e.status, str(e), "invalid")
         except (ValueError, UnicodeDecodeError, RecursionError) as e:  # json's errors are ValueErrors
-            return _refuse(400, f"malformed JSON: {_first_line(e)}", "malformed")
+            return await _refuse(400, f"malformed JSON: {_first_line(e)}", "malformed")
         try:
             out = await worker.submit(BATCH, compute, *args)
         except QueueFull as e:
-            return _refuse(503, str(e), "busy", {"Retry-After": "1"})
+            return await _refuse(503, str(e), "busy", {"Retry-After": "1"})
         except ValueError as e:  # the model's own input checks (one line)
-            return _refuse(422, _first_line(e), "invalid")
+            return await _refuse(422, _first_line(e), "invalid")
         counts["answered_http"] += 1
         return Response(out, media_type="application/json")
 
@@ -145,6 +150,8 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
         frame = ws.query_params.get("frame", "measurement")
         if not token_ok(ws.headers, limits.token) or frame not in h.frames:
             counts["refused_stream_handshake"] += 1
+            if limits.refusal_delay_s:
+                await asyncio.sleep(limits.refusal_delay_s)
             await ws.close(code=1008)
             return
         await ws.accept()
@@ -163,7 +170,7 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
                     if isinstance(body, dict) and "id" in body:
                         reply["id"] = body["id"]
                     T, q_prev = h.parse_step(body, q_last)
-                    out = await worker.submit(STREAM, h.step, T, q_prev, frame)
+                    out = await worker.run(STREAM, h.step, T, q_prev, frame)
                     reply.update(out)
                     if out["success"]:
                         q_last = np.asarray(out["q"], dtype=np.float64)

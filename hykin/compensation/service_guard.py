@@ -38,7 +38,11 @@ class ServiceLimits:
     max_targets: rows in one HTTP request [10,000]. max_body_bytes: one HTTP body [4 MiB, enough for
     10,000 seven-number rows]. max_message_bytes: one WebSocket message [4 KiB: one target]. queue:
     model calls waiting or running at once, all clients together [64]. max_connections: open
-    connections (HTTP and WebSocket) before new ones get 503 [64]. token: the bearer token, or None.
+    connections (HTTP and WebSocket) before new ones get 503 [64]. refusal_delay_s: every refused
+    HTTP request is answered after this delay [0.1 s], so that a client sending bad requests as fast
+    as it is answered sends at most ``max_connections / refusal_delay_s`` of them per second and
+    leaves the event loop to the others (a waiting refusal costs a timer, not CPU); 0 answers at
+    once. token: the bearer token, or None.
     """
 
     max_targets: int = 10_000
@@ -46,6 +50,7 @@ class ServiceLimits:
     max_message_bytes: int = 4096
     queue: int = 64
     max_connections: int = 64
+    refusal_delay_s: float = 0.1
     token: str | None = None
 
     def __post_init__(self):
@@ -53,6 +58,8 @@ class ServiceLimits:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        if not 0 <= self.refusal_delay_s <= 60:
+            raise ValueError(f"refusal_delay_s must be in [0, 60] s, got {self.refusal_delay_s!r}")
 
 
 class QueueFull(RuntimeError):
@@ -69,7 +76,8 @@ class ModelWorker:
 
     :meth:`submit` returns an awaitable for the call's result (or its exception) and raises
     :class:`QueueFull` when ``capacity`` calls are waiting or running: a flood is refused at once
-    instead of growing a queue that delays everybody.
+    instead of growing a queue that delays everybody. :meth:`run` runs a short call at once in the
+    caller's thread when the model is idle (no thread hand-over: the streaming path), else submits it.
     """
 
     def __init__(self, capacity: int):
@@ -78,6 +86,7 @@ class ModelWorker:
         self._order = itertools.count()
         self._count = 0
         self._lock = threading.Lock()
+        self._model = threading.Lock()  # held while a call runs (on the thread or inline)
         self._thread = threading.Thread(target=self._run, name="hykin-model", daemon=True)
         self._thread.start()
 
@@ -97,6 +106,15 @@ class ModelWorker:
         self._q.put((priority, next(self._order), fn, args, loop, fut))
         return fut
 
+    async def run(self, priority: int, fn, *args):
+        """``fn(*args)`` now, in this thread, when nothing is queued or running; else :meth:`submit`."""
+        if self._count == 0 and self._model.acquire(blocking=False):
+            try:
+                return fn(*args)
+            finally:
+                self._model.release()
+        return await self.submit(priority, fn, *args)
+
     def close(self) -> None:
         """Stop the thread after the calls already queued."""
         self._q.put((99, next(self._order), None, (), None, None))
@@ -107,7 +125,8 @@ class ModelWorker:
             if fn is None:
                 return
             try:
-                out, err = fn(*args), None
+                with self._model:
+                    out, err = fn(*args), None
             except BaseException as e:  # noqa: BLE001 - handed to the awaiting request
                 out, err = None, e
             with self._lock:

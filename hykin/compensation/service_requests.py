@@ -17,6 +17,8 @@ import warnings
 import numpy as np
 
 from ..geometry import se3
+from .compensator import Compensator
+from .targets import FRAMES, resolve_frame
 
 __all__ = ["Handlers", "RequestError", "step", "warm_compensator"]
 
@@ -29,18 +31,30 @@ class RequestError(ValueError):
         self.status = status
 
 
-def warm_compensator(model):
-    """The compensator the service holds (built once, at start)."""
-    from .targets import compensate
+class _Compensators:
+    """The service's warm :class:`hykin.compensation.compensator.Compensator`: one for the default frame,
+    built at start; one more for the other frame built on its first request and kept."""
 
-    return lambda T, q_branch=None, frame="measurement": compensate(model, T, q_branch=q_branch, frame=frame)
+    def __init__(self, model):
+        self.model = model
+        self._by_frame = {"measurement": Compensator(model, frame="measurement")}
+
+    def __call__(self, frame: str):
+        key = resolve_frame(self.model, frame)
+        if key not in self._by_frame:
+            self._by_frame[key] = Compensator(self.model, frame=key)
+        return self._by_frame[key]
 
 
-def step(comp, T: np.ndarray, q_prev: np.ndarray, frame: str) -> dict:
+def warm_compensator(model) -> _Compensators:
+    """The compensators the service holds for its lifetime (built once, at start)."""
+    return _Compensators(model)
+
+
+def step(comps: _Compensators, T: np.ndarray, q_prev: np.ndarray, frame: str) -> dict:
     """One streamed target ``T`` ``(4, 4)`` from the joints ``q_prev`` ``(n,)`` -> the reply fields."""
-    c = comp(T[None], q_branch=q_prev[None], frame=frame)
-    return _step_reply(bool(c.success[0]), c.command[0], c.q[0], float(c.pos_err_mm[0]), float(c.ang_err_deg[0]),
-                       str(c.reason[0]))
+    r = comps(frame).step(T, q_prev)
+    return _step_reply(r.success, r.command, r.q, r.pos_err_mm, r.ang_err_deg, r.reason)
 
 
 def _step_reply(ok: bool, command, q, pos_err_mm: float, ang_err_deg: float, reason: str) -> dict:
@@ -120,8 +134,6 @@ class Handlers:
     """
 
     def __init__(self, model, max_targets: int = 10_000):
-        from .targets import FRAMES
-
         self.model = model
         self.dof = model.nominal.dof
         self.max_targets = int(max_targets)
@@ -183,7 +195,7 @@ class Handlers:
         return T, qc, self._frame(body.get("frame", "measurement"))
 
     def compensate(self, T, qc, frame) -> dict:
-        c = self.comp(T, q_branch=qc, frame=frame)
+        c = self.comp(frame)(T, q_branch=qc)
         return {"commands": pose_rows(c.command, c.success), "q": [r if k else None for r, k in zip(c.q.tolist(), c.success.tolist())],
                 "success": c.success.tolist(), "pos_err_mm": _floats(c.pos_err_mm), "ang_err_deg": _floats(c.ang_err_deg),
                 "shift_mm": _floats(c.shift_mm), "status": ["ok" if k else r for r, k in zip(c.reason.tolist(), c.success.tolist())],
