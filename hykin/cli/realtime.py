@@ -1,4 +1,4 @@
-"""Real-time bridges: ``hykin rsi`` (KUKA RSI Ethernet)."""
+"""Real-time bridges: ``hykin rsi`` (KUKA RSI Ethernet), ``hykin egm`` (ABB Externally Guided Motion)."""
 
 from __future__ import annotations
 
@@ -95,3 +95,35 @@ def rsi_cmd(
     with sock:
         st = run_bridge(sock, h, period_s=period_ms / 1e3, max_failures=max_failures, controller=ctrl, idle_exit_s=idle_exit_s)
     _finish("rsi", st)
+
+
+@app.command("egm")
+def egm_cmd(
+    model: str = typer.Argument(..., help="Model file (hykin fit)."),
+    listen: str = _LISTEN,
+    controller: str | None = _CONTROLLER,
+    frame: str = _FRAME,
+    axis_signs: str | None = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint (default: +1 each)."),
+    period_ms: float = typer.Option(4.0, "--period-ms", help="EGM cycle, ms: answers later than this count as late."),
+    max_failures: int = _MAX_FAILURES,
+    max_correction_mm: float = typer.Option(50.0, "--max-correction-mm", help="A larger correction is a failure (planned pose sent)."),
+    max_correction_deg: float = typer.Option(5.0, "--max-correction-deg", help="A larger rotation correction is a failure."),
+    idle_exit_s: float = _IDLE,
+) -> None:
+    """ABB EGM peer (pose guidance): answers each EgmRobot with the pose that puts the real robot on the planned one."""
+    from ..compensation.branches import default_axis_signs
+    from ..realtime.egm import EgmHandler
+    from ..realtime.udp_bridge import run_bridge
+    from .compensate import _axis_signs
+
+    mdl, comp, sock, ctrl = _bridge_setup(model, listen, controller, frame, max_failures, period_ms)
+    import numpy as np
+
+    signs = _axis_signs(axis_signs, mdl.nominal.dof)
+    signs = default_axis_signs(mdl.nominal) if signs is None else signs
+    base = mdl.nominal.base if comp.frame == "measurement" else np.eye(4)
+    h = EgmHandler(comp.step, base, mdl.nominal.dof, signs, max_correction_mm, max_correction_deg)
+    typer.echo(f"hykin egm: {mdl.nominal.name} on udp://{listen} (pose guidance, frame {comp.frame})")
+    with sock:
+        st = run_bridge(sock, h, period_s=period_ms / 1e3, max_failures=max_failures, controller=ctrl, idle_exit_s=idle_exit_s)
+    _finish("egm", st)
