@@ -2,8 +2,9 @@
 
 One socket, one controller. Per datagram: drop it when it is over the size limit (truncated by the
 kernel), when it comes from another sender than the controller (the first sender whose message was
-valid, or the address given), or when the protocol handler calls it invalid or stale; else answer
-it at once with the handler's reply. Counted: answered, failures (the handler could not compute
+valid, or the address given), when a newer one of the controller is already waiting (superseded:
+its cycle is over), or when the protocol handler calls it invalid or stale; else answer it at once
+with the handler's reply. Counted: answered, failures (the handler could not compute
 and answered a neutral message), late answers (sent more than one period after the datagram
 arrived, by the kernel's receive time stamp), cycles the controller skipped (by its stamps) and
 every kind of dropped datagram. After ``max_failures`` consecutive failures the loop stops
@@ -13,6 +14,7 @@ answering and returns, so that the controller's own timeout stops the robot.
 from __future__ import annotations
 
 import logging
+import select
 import socket
 import struct
 import time
@@ -22,6 +24,7 @@ from dataclasses import dataclass, field
 __all__ = ["BridgeStats", "Outcome", "bind_udp", "parse_listen", "run_bridge"]
 
 _log = logging.getLogger("hykin.realtime")
+_DRAIN = 256  # datagrams read at most per turn when behind
 
 
 @dataclass
@@ -92,26 +95,44 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
     consecutive = 0
     last_valid = None
     last_log = time.monotonic()
-    sock.settimeout(0.1)
+    sock.setblocking(False)
     cmsg = socket.CMSG_SPACE(16)
     while stop is None or not stop.is_set():
+        if idle_exit_s and last_valid is not None and time.monotonic() - last_valid > idle_exit_s:
+            st.stopped = f"no valid datagram for {idle_exit_s:g} s"
+            break
         try:
+            select.select([sock], [], [], 0.1)
             data, anc, flags, addr = sock.recvmsg(max_packet + 1, cmsg)
-        except socket.timeout:
-            if idle_exit_s and last_valid is not None and time.monotonic() - last_valid > idle_exit_s:
-                st.stopped = f"no valid datagram for {idle_exit_s:g} s"
+        except (BlockingIOError, InterruptedError, ConnectionRefusedError):  # nothing (or an ICMP error) to read
+            continue
+        # when behind, answer only the newest datagram of the controller: older cycles are over
+        best = None
+        for _ in range(_DRAIN):
+            t_in = _arrival(anc) or time.time()
+            if len(data) > max_packet or flags & socket.MSG_TRUNC:
+                st.ignored["oversized"] += 1
+            elif peer is not None and addr[:2] != tuple(peer)[:2]:
+                st.ignored["other sender"] += 1
+            else:
+                if best is not None:
+                    st.ignored["superseded"] += 1
+                best = (data, addr, t_in)
+                if peer is None:
+                    break  # no controller yet: one datagram at a time
+            try:
+                data, anc, flags, addr = sock.recvmsg(max_packet + 1, cmsg)
+            except (BlockingIOError, InterruptedError, ConnectionRefusedError):
                 break
+        if best is None:
             continue
-        t_in = _arrival(anc) or time.time()
-        if len(data) > max_packet or flags & socket.MSG_TRUNC:
-            st.ignored["oversized"] += 1
-            continue
-        if peer is not None and addr[:2] != tuple(peer)[:2]:
-            st.ignored["other sender"] += 1
-            continue
+        data, addr, t_in = best
         out = handle(data)
         if out.reply is not None:
-            sock.sendto(out.reply, addr)
+            try:
+                sock.sendto(out.reply, addr)
+            except (BlockingIOError, ConnectionRefusedError):  # buffer full / nobody listening: the cycle is lost
+                st.ignored["send failed"] += 1
             delay = time.time() - t_in
             if keep_latency:
                 st.latency_s.append(delay)
