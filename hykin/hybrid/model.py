@@ -68,7 +68,7 @@ from ..io.payload import payload_kwargs, payload_of, payload_range_of
 from ..io.robot_file import load_robot
 from ..kinematics.classical import classical_fk, classical_fk_torch
 from ..kinematics.robot import Robot
-from . import bands, fitting, inputs, persistence
+from . import bands, fast_fk, fast_nets, fitting, inputs, persistence
 from . import support as sup_
 from .errors import HybridError, OutOfRangeWarning
 from .nets import ResidualNet
@@ -475,15 +475,9 @@ class HybridModel:
         T = self._framed(apply_thermal(T, self.thermal_, self.robot_.base[:3, 3], temperature_c))
         return T[0] if single else T
 
-    @torch.inference_mode()
     def _net_np(self, net: ResidualNet, q2: np.ndarray) -> np.ndarray:
-        dev = next(net.parameters()).device
-        x = torch.from_numpy(q2).to(dev)
-        out = np.empty((len(q2), 3))
-        B = 16384
-        for i in range(0, len(q2), B):
-            out[i : i + B] = net(x[i : i + B]).to(torch.float64).cpu().numpy()
-        return out
+        """Network residuals ``(N, 3)``: float32 weights in float64 arithmetic (:mod:`hykin.hybrid.fast_nets`)."""
+        return fast_nets.cached(self, net).fast(q2)
 
     def predict(self, q, temperature_c=None, payload_kg=None, payload_com_m=None) -> np.ndarray:
         """Hybrid poses ``(N, 4, 4)`` float64 (``(4, 4)`` for one ``(n,)`` query), world frame, m.
@@ -505,7 +499,15 @@ class HybridModel:
 
     def _hybrid_poses(self, q2: np.ndarray, payload_kg=None, payload_com_m=None, warn: bool = True) -> np.ndarray:
         """Hybrid poses ``(N, 4, 4)`` of checked joints ``q2`` ``(N, n)`` at the reference temperature,
-        without registration frames; ``warn``: :class:`OutOfRangeWarning` for queries outside."""
+        without registration frames; ``warn``: :class:`OutOfRangeWarning` for queries outside. Small batches
+        run compiled (:mod:`hykin.hybrid.fast_fk`) unless a payload is given; large ones use BLAS."""
+        small = len(q2) < fast_fk.COMPILED_MAX and payload_kg is None and payload_com_m is None
+        kern = fast_fk.kernel_of(self) if small else None
+        if kern is not None:
+            T, ex, gap = fast_fk.predict_fast(kern, q2)
+            if warn:
+                sup_.warn_outside(ex, gap, bool(self.fade), self.payload_range_, payload_kg, stacklevel=3)
+            return T
         T = classical_fk(self.robot_, q2, payload_kg, payload_com_m)
         s, qn = self.support, self._netq(q2)
         ex = sup_.range_excess(s, qn)
@@ -546,13 +548,14 @@ class HybridModel:
         if self.fade is not False:
             w = sup_.fade_weight(sup_.fade_distance_torch(self.support, qn, self.fade), self.fade_offset_,
                                  self.fade_width_)[:, None]
-        dp = inputs.from_net_frame(self.j1_axis_, q, self.net_pos_(qd).to(device=q.device, dtype=torch.float64))
+        net_p, net_r = (None if n is None else fast_nets.torch64(self, n) for n in (self.net_pos_, self.net_rot_))
+        dp = inputs.from_net_frame(self.j1_axis_, q, net_p(qd).to(device=q.device, dtype=torch.float64))
         if w is not None:
             dp = dp * w
         p = T_hat[:, :3, 3] + dp
         R = T_hat[:, :3, :3]
         if self.net_rot_ is not None:
-            dr = inputs.from_net_frame(self.j1_axis_, q, self.net_rot_(qd).to(device=q.device, dtype=torch.float64))
+            dr = inputs.from_net_frame(self.j1_axis_, q, net_r(qd).to(device=q.device, dtype=torch.float64))
             if w is not None:
                 dr = dr * w
             R = se3.so3_exp_torch(dr) @ R

@@ -178,6 +178,9 @@ if HAVE_NUMBA:
                            b * chunk, min(N, (b + 1) * chunk))
 
 
+    #: public name of the one-sample deflection kernel (the fast hybrid kernel of hykin.hybrid calls it)
+    deflect_one = _deflect_one
+
 _PARALLEL_MIN = 5_000  # below this, starting threads costs more than it saves
 
 
@@ -367,6 +370,12 @@ def potential_energy(robot: Robot, q, payload_kg=None, payload_com_m=None) -> np
     if payload is not None:
         return -np.einsum("nji,nj,i->n", c, m, g)
     return -np.einsum("nji,j,i->n", c, m, g)
+
+
+def kernel_args(robot: Robot, N: int = 1) -> tuple:
+    """Arguments ``(fixed, post, ppt (N, 3), prismatic, com, mass, payload_kg (N,), g)`` of the compiled
+    gravity and deflection kernels for the robot's own payload."""
+    return _kernel_args(robot, None, N)
 
 
 def compliance_of(robot: Robot) -> np.ndarray:

@@ -130,6 +130,10 @@ if HAVE_NUMBA:
             dq[a] = s / L[a, a]
         return True
 
+    #: public names of the one-target residual and damped solve (the hybrid LM kernel of hykin.hybrid uses them)
+    pose_residual_one = _residual
+    masked_solve = _masked_solve
+
     # The rule of hykin.kinematics.lm.lm_solve (damping="identity", active-set projection, accept on a
     # cost decrease, λ/10 floored at 1e-12 or 10 λ, stop at λ > 1e10), compiled per target: a rejected
     # step is retried with the larger λ at once (same Jacobian), so `it` counts Jacobians, not trials.
