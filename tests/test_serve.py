@@ -55,7 +55,11 @@ def server():
     yield client, HybridModel.load(mp), proc
     client.close()
     proc.terminate()
-    proc.wait(10)
+    try:
+        proc.wait(60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(10)
 
 
 def _rows(T):
