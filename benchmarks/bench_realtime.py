@@ -60,7 +60,7 @@ def fit(vr: VirtualRobot, n: int) -> tuple[HybridModel, float]:
         warnings.simplefilter("ignore")
         own = se3.pose_error(m.predict(qv), true_poses(vr, qv))[0]
     print(f"  fitted {vr.name}: {n} poses, {time.perf_counter() - t:.0f} s; model error on 1,000 other poses: "
-          f"mean {own.mean():.4f} mm, max {own.max():.4f} mm")
+          f"mean {own.mean():.2e} mm, max {own.max():.2e} mm")
     return m, float(own.max())
 
 
@@ -140,7 +140,7 @@ def run_protocol(proto: str, a, tmp: Path) -> None:
     answered = np.isfinite(run.reply_s)
     print(f"  path error through hykin {proto}: mean {e_pos.mean():.4f} mm, max {e_pos.max():.4f} mm, "
           f"max {e_ang.max():.5f} deg (without the bridge: mean {b_pos.mean():.3f} mm, max {b_pos.max():.3f} mm; "
-          f"model's own max error {own_max:.4f} mm)")
+          f"model's own max error {own_max:.2e} mm)")
     print(f"  answered within 4 ms: {run.in_time.mean() * 100:.2f} % of cycles; answered late: {int((answered & ~run.in_time).sum())}; "
           f"no answer: {int((~answered).sum())}; answer delay p50 {np.nanpercentile(run.reply_s, 50) * 1e3:.2f} ms, "
           f"p99 {np.nanpercentile(run.reply_s, 99) * 1e3:.2f} ms; simulator cycles started late: {run.slipped}; "
