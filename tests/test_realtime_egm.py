@@ -10,30 +10,21 @@ import threading
 
 import numpy as np
 import pytest
-from comp_models import deviate
-from test_realtime_rsi import _bridge_thread, exact_step
+from test_realtime_rsi import _bridge_thread, exact_step, line_arc, virtual
 
-from hykin import fk, load_robot
 from hykin.geometry import se3
 from hykin.kinematics.ik import ik
 from hykin.realtime.egm import EgmHandler, format_robot, format_sensor, parse_robot, parse_sensor
 from hykin.realtime.simulated import SimulatedEgm, path_errors
-from hykin.sim.simulate import VirtualRobot
 
 
 @pytest.fixture(scope="module")
 def abb():
-    nom = load_robot("abb-irb2400")
-    return VirtualRobot("abb-test", nom, deviate(nom, 27, sigma_m=8e-4, sigma_rad=np.radians(0.1)))
+    return virtual("abb-irb2400", 27)
 
 
 def _path(nom, n, q0):
-    T0 = se3.invert(nom.base) @ fk(nom, q0[None])[0]
-    s = np.linspace(0, 1, n)
-    P = np.repeat(T0[None], n, 0)
-    P[:, 0, 3] += 0.06 * s
-    P[:, 2, 3] += 0.03 * np.sin(np.pi * s)
-    return P
+    return line_arc(nom, n, q0, up=2)
 
 
 def test_protobuf_round_trip():

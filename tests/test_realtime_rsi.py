@@ -54,20 +54,32 @@ def exact_step(vr):
     return step
 
 
+def virtual(preset: str, seed: int) -> VirtualRobot:
+    """``preset`` with our own geometric deviations: several mm of nominal error."""
+    nom = load_robot(preset)
+    return VirtualRobot(preset + "-test", nom, deviate(nom, seed, sigma_m=8e-4, sigma_rad=np.radians(0.1)))
+
+
 @pytest.fixture(scope="module")
 def kuka():
-    nom = load_robot("kuka-kr6-r900")
-    return VirtualRobot("kuka-test", nom, deviate(nom, 26, sigma_m=8e-4, sigma_rad=np.radians(0.1)))
+    return virtual("kuka-kr6-r900", 26)
 
 
-def _path(nom, n, q0):
-    """A smooth path of setpoints (X..C) around the nominal pose at q0: a line and an arc."""
+def line_arc(nom, n: int, q0, up: int = 1) -> np.ndarray:
+    """``(n, 4, 4)`` controller-frame poses around the nominal pose at q0: 50 mm along x while a 40 mm
+    arch rises along axis ``up``."""
     T0 = se3.invert(nom.base) @ fk(nom, q0[None])[0]
     s = np.linspace(0, 1, n)
     P = np.repeat(T0[None], n, 0)
     P[:, 0, 3] += 0.05 * s
-    P[:, 1, 3] += 0.04 * np.sin(np.pi * s)
-    a0 = xyzabc_of(T0)[3]
+    P[:, up, 3] += 0.04 * np.sin(np.pi * s)
+    return P
+
+
+def _path(nom, n, q0):
+    """:func:`line_arc` as RSI setpoints (X..C)."""
+    P = line_arc(nom, n, q0)
+    a0 = xyzabc_of(P[0])[3]
     return np.array([xyzabc_of(T, a0) for T in P])
 
 

@@ -47,14 +47,19 @@ def _set_pose(p, T: np.ndarray) -> None:
     p.orient.u0, p.orient.u1, p.orient.u2, p.orient.u3 = (float(v) for v in q)
 
 
-def parse_robot(data: bytes, dof: int):
-    """``(seqno, tm, planned (4, 4) m, joints_deg (dof,))`` of an ``EgmRobot``; ValueError otherwise."""
+def _parse(kind: str, data: bytes):
     pb, DecodeError = _pb()
-    m = pb.EgmRobot()
+    m = getattr(pb, kind)()
     try:
         m.ParseFromString(data)
     except (DecodeError, RuntimeError) as e:
-        raise ValueError(f"not an EgmRobot message ({e})") from None
+        raise ValueError(f"not an {kind} message ({e})") from None
+    return m
+
+
+def parse_robot(data: bytes, dof: int):
+    """``(seqno, tm, planned (4, 4) m, joints_deg (dof,))`` of an ``EgmRobot``; ValueError otherwise."""
+    m = _parse("EgmRobot", data)
     if not m.HasField("header") or not m.header.HasField("seqno"):
         raise ValueError("no header.seqno")
     if not m.HasField("planned") or not m.planned.HasField("cartesian") or not m.planned.cartesian.HasField("pos") \
@@ -91,12 +96,7 @@ def format_robot(seqno: int, tm: int, planned: np.ndarray, joints_deg: np.ndarra
 
 def parse_sensor(data: bytes) -> tuple[int, int, np.ndarray]:
     """``(seqno, tm, pose (4, 4) m)`` of an ``EgmSensor`` (the simulated controller's side)."""
-    pb, DecodeError = _pb()
-    m = pb.EgmSensor()
-    try:
-        m.ParseFromString(data)
-    except (DecodeError, RuntimeError) as e:
-        raise ValueError(f"not an EgmSensor message ({e})") from None
+    m = _parse("EgmSensor", data)
     if not m.planned.HasField("cartesian"):
         raise ValueError("no planned.cartesian")
     return m.header.seqno, m.header.tm, _pose(m.planned.cartesian)

@@ -120,9 +120,10 @@ def ipoc_of(data: bytes) -> int | None:
     return int(m.group(1)) if m else None
 
 
-def _cart(el, tag: str) -> np.ndarray:
+def _numbers(el, tag: str, names) -> np.ndarray:
+    """The attributes ``names`` of element ``el`` as finite floats (RsiMessageError otherwise)."""
     try:
-        v = np.array([float(el.attrib[k]) for k in _CART])
+        v = np.array([float(el.attrib[k]) for k in names])
     except KeyError as e:
         raise RsiMessageError(f"<{tag}> lacks attribute {e.args[0]}") from None
     except ValueError as e:
@@ -130,6 +131,10 @@ def _cart(el, tag: str) -> np.ndarray:
     if not np.isfinite(v).all():
         raise RsiMessageError(f"<{tag}> holds NaN or inf")
     return v
+
+
+def _cart(el, tag: str) -> np.ndarray:
+    return _numbers(el, tag, _CART)
 
 
 def parse_rob(data: bytes, cfg: RsiConfig, dof: int) -> RobMessage:
@@ -151,14 +156,7 @@ def parse_rob(data: bytes, cfg: RsiConfig, dof: int) -> RobMessage:
     ax = root.find(cfg.axes_tag)
     if ax is None:
         raise RsiMessageError(f"no <{cfg.axes_tag}> (axis positions) element")
-    try:
-        axes = np.array([float(ax.attrib[f"A{j + 1}"]) for j in range(dof)])
-    except KeyError as e:
-        raise RsiMessageError(f"<{cfg.axes_tag}> lacks attribute {e.args[0]}") from None
-    except ValueError as e:
-        raise RsiMessageError(f"<{cfg.axes_tag}>: {e}") from None
-    if not np.isfinite(axes).all():
-        raise RsiMessageError(f"<{cfg.axes_tag}> holds NaN or inf")
+    axes = _numbers(ax, cfg.axes_tag, [f"A{j + 1}" for j in range(dof)])
     act = root.find(cfg.actual_tag)
     return RobMessage(int(ipoc_t), _cart(sp, cfg.setpoint_tag), None if act is None else _cart(act, cfg.actual_tag), axes)
 
