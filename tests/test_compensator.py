@@ -132,3 +132,12 @@ def test_generic_models_run_the_same_interface():
     r = C.step(T[0], q[0])
     c = C(T, q_branch=q)
     assert r.success and c.success.all() and np.abs(r.q - c.q[0]).max() < 1e-9
+
+
+def test_hint_a_turn_outside_the_limits(model):
+    m = model
+    q = np.array([0.3, -1.4, 1.5, -1.7, -1.5, 0.4])
+    T = _predict(m, q[None])[0]
+    hint = q + np.array([2 * np.pi, 0, 0, 0, 0, 0])  # 6.58 rad: beyond the +2π limit, the same branch
+    r = hykin.Compensator(m).step(T, hint)
+    assert r.success and np.abs(r.q - q).max() < 1e-6

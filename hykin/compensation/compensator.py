@@ -15,10 +15,10 @@ the previous joints themselves. The nominal model only hints: a target it cannot
 solved on the hybrid model.
 
 Solving (compiled models; :mod:`hykin.hybrid.fast_ik`): LM from the hint in ``hint ± max_move_rad``
-(within the joint limits) with the classical Jacobian; rows that miss the tolerance are re-solved from
-the hint with the hybrid (finite-difference) Jacobian within the joint limits, then from the
-calibrated robot's closed-form/numerical solutions nearest the hint (all branches, boundary seeds at
-the workspace edge). Models that cannot run compiled (e.g. any object with ``predict``) use
+(within the joint limits) with the classical Jacobian; rows that stop above 1e-9 m / 1e-9 rad are
+re-solved from where they stopped with the hybrid (finite-difference) Jacobian within the joint
+limits; rows still missing the tolerance from the calibrated robot's closed-form/numerical solutions
+nearest the hint (all branches, boundary seeds at the workspace edge). Models that cannot run compiled (e.g. any object with ``predict``) use
 :func:`hykin.hybrid.ik.hybrid_ik` seeded by the hint.
 
 Success tolerance (``tolerance_mm``, ``tolerance_deg``): by default ``tolerance_fraction`` (0.5) of the
@@ -40,12 +40,14 @@ import numpy as np
 
 from ..geometry import se3
 from ..kinematics.fk import fk
+from ..kinematics.ik_solutions import nearest_representation
 from .frames import fitted_base, parse_targets, resolve_frame
 from .result import Compensation, first_row_per_target
 
 __all__ = ["Compensator", "StepResult", "compensate", "model_tolerance"]
 
 _FLOOR_MM, _FLOOR_DEG = 1e-4, 1e-4
+_POLISH_M = 1e-9  # rows the first solve leaves above this (m, rad) are re-solved with the hybrid Jacobian
 
 
 @dataclass
@@ -104,6 +106,7 @@ class Compensator:
         self.ik_kw = ik_kw
         self.lower = np.asarray(self.robot.lower, dtype=np.float64)
         self.upper = np.asarray(self.robot.upper, dtype=np.float64)
+        self._rev = np.array([t == "revolute" for t in self.robot.joint_type])
         self._base_fit = fitted_base(model) if self.frame == "base" else None
         self._nom_base_inv = se3.invert(self.nominal.base)
         self._pre_inv = se3.invert(np.asarray(model.frame_pre_, dtype=np.float64))
@@ -175,7 +178,10 @@ class Compensator:
         idx = np.flatnonzero(has)
         if idx.size:
             if self.kernel is not None:
-                qi, pi, ai, ri = self._solve_compiled(Tm[idx], np.clip(hint[idx], self.lower, self.upper), pos_only)
+                h = hint[idx]
+                if ((h < self.lower) | (h > self.upper)).any():  # outside the limits by a turn: the representation inside
+                    h = np.where(self._rev, nearest_representation(h, h, self.lower, self.upper), h)
+                qi, pi, ai, ri = self._solve_compiled(Tm[idx], np.clip(h, self.lower, self.upper), pos_only)
             else:
                 qi, pi, ai, ri = self._solve_generic(Tm[idx], hint[idx], pos_only)
             q[idx], pe[idx], ae[idx], reason[idx] = qi, pi, ai, ri
@@ -198,10 +204,10 @@ class Compensator:
         lo = np.maximum(lo_j, hint - self.max_move_rad)
         hi = np.minimum(hi_j, hint + self.max_move_rad)
         q, pe, ae, _ = solve(k, Tm, hint, lo, hi, position_only=pos_only)
-        bad = ~self._ok(pe, ae)
-        if bad.any():  # the hybrid Jacobian, from the hint, within the joint limits
+        bad = (pe > _POLISH_M) | (ae > _POLISH_M)  # stalled (even within the tolerance): polish
+        if bad.any():  # the hybrid Jacobian, from where they stopped, within the joint limits
             i = np.flatnonzero(bad)
-            q2, p2, a2, _ = solve(k, Tm[i], hint[i], lo_j, hi_j, position_only=pos_only, fd=True)
+            q2, p2, a2, _ = solve(k, Tm[i], q[i], lo_j, hi_j, position_only=pos_only, fd=True)
             self._keep_better(i, q, pe, ae, q2, p2, a2)
             bad = ~self._ok(pe, ae)
         if bad.any() and not pos_only:  # the calibrated robot's solutions nearest the hint

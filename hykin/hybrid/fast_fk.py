@@ -74,29 +74,35 @@ def pack_net(fn: fast_nets.FastNet) -> tuple:
 @dataclass
 class HybridKernel:
     """A fitted model packed for the compiled kernels. ``P``: the tuple ``hybrid_one`` takes; ``dof``;
-    ``key``: what it was built from (:func:`kernel_of`)."""
+    ``refs``/``vals``/``tensors``/``versions``: what it was built from (:func:`kernel_of`)."""
 
     P: tuple
     dof: int
-    key: tuple
+    refs: tuple
+    vals: tuple
+    tensors: list
+    versions: tuple
 
 
-def _key(model) -> tuple:
-    nets = tuple(None if n is None else id(fast_nets.cached(model, n).fast) for n in (model.net_pos_, model.net_rot_))
-    return (nets, id(model.robot_), model.frame_pre_.tobytes(), model.frame_post_.tobytes(), model.fade,
-            float(model.fade_offset_), float(model.fade_width_), id(model.pair_gap_), id(model.wrap_centre_),
-            id(model.support_lower_), bool(model.payload_input_), getattr(model, "payload_default_kg_", None),
-            None if model.j1_axis_ is None else model.j1_axis_.tobytes())
+def _refs(model) -> tuple:
+    return (model.net_pos_, model.net_rot_, model.robot_, model.frame_pre_, model.frame_post_, model.pair_gap_,
+            model.wrap_centre_, model.support_lower_, model.support_upper_, model.j1_axis_, model.payload_range_)
+
+
+def _vals(model) -> tuple:
+    return (model.fade, model.fade_offset_, model.fade_width_, model.payload_input_,
+            getattr(model, "payload_default_kg_", None))
 
 
 def kernel_of(model) -> HybridKernel | None:
-    """The :class:`HybridKernel` of a fitted :class:`hykin.HybridModel` (cached on it), or None when
-    the model cannot run compiled (module docstring)."""
+    """The :class:`HybridKernel` of a fitted :class:`hykin.HybridModel` (cached on it; rebuilt when one
+    of its networks, robot, frames, support or fade settings is replaced or a network's weights change
+    in place), or None when the model cannot run compiled (module docstring)."""
     if not HAVE_NUMBA or model.fade == "full" or getattr(model, "net_pos_", None) is None:
         return None
-    key = _key(model)
     k = model.__dict__.get("_fast_kernel")
-    if k is not None and k.key == key:
+    if (k is not None and all(a is b for a, b in zip(_refs(model), k.refs)) and _vals(model) == k.vals
+            and all(t._version == v for t, v in zip(k.tensors, k.versions))):
         return k
     from ..kinematics.chain import chain_of
     from ..kinematics.compliance import compliance_of, kernel_args
@@ -137,7 +143,9 @@ def kernel_of(model) -> HybridKernel | None:
         *pos, has_rot, *rot,
         framed, c(model.frame_pre_), c(model.frame_post_),
     )
-    k = HybridKernel(P=P, dof=n, key=key)
+    tensors = [t for net in (model.net_pos_, model.net_rot_) if net is not None for t in (*net.parameters(), *net.buffers())]
+    k = HybridKernel(P=P, dof=n, refs=_refs(model), vals=_vals(model), tensors=tensors,
+                     versions=tuple(t._version for t in tensors))
     model.__dict__["_fast_kernel"] = k
     return k
 

@@ -6,7 +6,7 @@ The rule is the one of :mod:`hykin.kinematics.lm` (``damping="scaled"``: ``(Jᵀ
 with ``s`` the mean diagonal of ``JᵀJ``; active-set projection onto the box; a step is accepted iff the
 cost decreases, then ``λ ← max(λ/10, 1e-12)``, else ``λ ← 10 λ``; stop at convergence, ``λ > lam_max`` or
 ``max_iter`` Jacobians), compiled per target like the classical kernel of :mod:`hykin.kinematics.ik`
-(same solve, :func:`hykin.kinematics.ik.masked_solve`, and residual,
+(same normal equations and projected solve, :func:`hykin.kinematics.ik.projected_solve`, and residual,
 :func:`hykin.kinematics.ik.pose_residual_one`: position ``p_t − p`` (m) and ``log(R_t Rᵀ)`` (rad, times
 ``w_rot`` m)).
 
@@ -29,7 +29,7 @@ __all__ = ["solve"]
 if HAVE_NUMBA:
     import numba
 
-    from ..kinematics.ik import masked_solve, pose_residual_one
+    from ..kinematics.ik import normal_equations_one, pose_residual_one, projected_solve
     from ..kinematics.walk import axes_one
     from .fast_fk import hybrid_one
 
@@ -134,41 +134,10 @@ if HAVE_NUMBA:
                     for i in range(n):
                         J[r, i] += D[r, i]
             it += 1
-            tr = 0.0
-            for a in range(n):
-                s = 0.0
-                for r in range(m):
-                    s += J[r, a] * e[r]
-                g[a] = s
-                for b in range(a + 1):
-                    s = 0.0
-                    for r in range(m):
-                        s += J[r, a] * J[r, b]
-                    A[a, b] = s
-                tr += A[a, a]
-            scale = max(tr / n, 1e-12)
+            scale = max(normal_equations_one(J, e, m, A, g) / n, 1e-12)
             accepted = False
             while not accepted:
-                for i in range(n):
-                    frozen[i] = False
-                okc = True
-                for _pass in range(n + 1):
-                    okc = masked_solve(A, g, lam * scale, frozen, dq, L, rhs)
-                    if not okc:
-                        break
-                    new = False
-                    for i in range(n):
-                        if not frozen[i]:
-                            if q[i] + dq[i] > hi[i]:
-                                frozen[i] = True
-                                dq[i] = hi[i] - q[i]
-                                new = True
-                            elif q[i] + dq[i] < lo[i]:
-                                frozen[i] = True
-                                dq[i] = lo[i] - q[i]
-                                new = True
-                    if not new:
-                        break
+                okc = projected_solve(A, g, lam * scale, q, lo, hi, frozen, dq, L, rhs)
                 if not okc:
                     lam *= 10.0
                     if lam > lam_max:

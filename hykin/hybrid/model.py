@@ -493,19 +493,20 @@ class HybridModel:
         """
         self._check_fitted()
         q2, single = self._q(q)
-        T = self._hybrid_poses(q2, payload_kg, payload_com_m, warn=True)
-        T = self._framed(apply_thermal(T, self.thermal_, self.robot_.base[:3, 3], temperature_c))
+        fr = temperature_c is None or self.thermal_ is None  # no thermal scaling: frame the poses at once
+        T = self._hybrid_poses(q2, payload_kg, payload_com_m, warn=True, framed=fr)
+        T = T if fr else self._framed(apply_thermal(T, self.thermal_, self.robot_.base[:3, 3], temperature_c))
         return T[0] if single else T
 
-    def _hybrid_poses(self, q2: np.ndarray, payload_kg=None, payload_com_m=None, warn: bool = True) -> np.ndarray:
-        """Hybrid poses ``(N, 4, 4)`` of checked joints ``q2`` ``(N, n)`` at the reference temperature,
-        without registration frames; ``warn``: :class:`OutOfRangeWarning` for queries outside. Small batches
-        run compiled (:mod:`hykin.hybrid.fast_fk`) unless a payload is given; large ones use BLAS."""
-        small = len(q2) < fast_fk.COMPILED_MAX and payload_kg is None and payload_com_m is None
-        kern = fast_fk.kernel_of(self) if small else None
+    def _hybrid_poses(self, q2: np.ndarray, payload_kg=None, payload_com_m=None, warn: bool = True,
+                      framed: bool = False) -> np.ndarray:
+        """Hybrid poses ``(N, 4, 4)`` of checked joints ``q2`` ``(N, n)`` at the reference temperature, with
+        the registration frames when ``framed``; ``warn``: :class:`OutOfRangeWarning` for queries outside.
+        Small batches run compiled (:mod:`hykin.hybrid.fast_fk`) unless a payload is given; large ones BLAS."""
+        kern = fast_fk.kernel_of(self) if len(q2) < fast_fk.COMPILED_MAX and payload_kg is None is payload_com_m else None
         if kern is not None:
-            T, ex, gap = fast_fk.predict_fast(kern, q2)
-            if warn:
+            T, ex, gap = fast_fk.predict_fast(kern, q2, framed)
+            if warn and (ex.any() or gap.max() > 0):
                 sup_.warn_outside(ex, gap, bool(self.fade), self.payload_range_, payload_kg, stacklevel=3)
             return T
         T = classical_fk(self.robot_, q2, payload_kg, payload_com_m)
@@ -529,7 +530,7 @@ class HybridModel:
             if w is not None:
                 dr *= w[:, None]
             rotate_poses(dr, T)
-        return T
+        return self._framed(T) if framed else T
 
     def predict_torch(self, q, payload_kg=None, payload_com_m=None):
         """Differentiable hybrid poses: float64 tensor ``(N, n)`` -> ``(N, 4, 4)`` (autograd w.r.t. q).
