@@ -6,11 +6,10 @@ flood from a second sender. Reference compensator and timing rules as in ``test_
 from __future__ import annotations
 
 import socket
-import threading
 
 import numpy as np
 import pytest
-from test_realtime_rsi import _bridge_thread, exact_step, line_arc, virtual
+from test_realtime_rsi import _bridge_thread, exact_step, flooded, line_arc, virtual
 
 from hykin.geometry import se3
 from hykin.kinematics.ik import ik
@@ -65,29 +64,10 @@ def test_simulated_egm_follows_the_path_under_a_flood(abb):
     addr = sock.getsockname()
     ctrl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     SimulatedEgm(nom, P[:1], q0, addr, period_s=0.004, deadline_s=5.0, seq0=1).run(ctrl)  # locks the bridge onto it
-    got, flood_stop = [], threading.Event()
-
-    def flood():
-        f = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        f.settimeout(0.001)
-        far = P[0].copy()
-        far[0, 3] += 0.03
-        msgs = [b"\x00" * 50, format_robot(10**6, 0, far, np.degrees(q0), far), b"\x0a" * 9000]
-        k = 0
-        while not flood_stop.is_set():
-            f.sendto(msgs[k % len(msgs)], addr)
-            k += 1
-            try:
-                got.append(f.recv(65536))
-            except (socket.timeout, ConnectionRefusedError):
-                pass
-        f.close()
-
-    ft = threading.Thread(target=flood, daemon=True)
-    ft.start()
-    run = SimulatedEgm(nom, P, q0, addr, period_s=0.004, deadline_s=1.0, seq0=2).run(ctrl)
-    flood_stop.set()
-    ft.join(5)
+    far = P[0].copy()
+    far[0, 3] += 0.03
+    msgs = [b"\x00" * 50, format_robot(10**6, 0, far, np.degrees(q0), far), b"\x0a" * 9000]
+    run, got = flooded(addr, msgs, lambda: SimulatedEgm(nom, P, q0, addr, period_s=0.004, deadline_s=1.0, seq0=2).run(ctrl))
     ctrl.close()
     stop.set()
     th.join(5)

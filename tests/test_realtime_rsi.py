@@ -153,6 +153,33 @@ def _bridge_thread(handler, **kw):
     return sock, stop, th, box
 
 
+def flooded(addr, msgs: list, run):
+    """``run()`` while a second sender floods ``addr`` with ``msgs`` in turn; ``(run's result, the
+    datagrams the flooder got back)``."""
+    got, stop = [], threading.Event()
+
+    def flood():
+        f = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        f.settimeout(0.001)
+        k = 0
+        while not stop.is_set():
+            f.sendto(msgs[k % len(msgs)], addr)
+            k += 1
+            try:
+                got.append(f.recv(65536))
+            except (socket.timeout, ConnectionRefusedError):
+                pass
+        f.close()
+
+    ft = threading.Thread(target=flood, daemon=True)
+    ft.start()
+    try:
+        return run(), got
+    finally:
+        stop.set()
+        ft.join(5)
+
+
 @pytest.mark.parametrize("mode", ["absolute", "incremental"])
 def test_simulated_controller_follows_the_path_through_the_bridge_under_a_flood(kuka, mode):
     nom = kuka.nominal
@@ -163,35 +190,15 @@ def test_simulated_controller_follows_the_path_through_the_bridge_under_a_flood(
     addr = sock.getsockname()
     sim = SimulatedRsi(nom, sp, q0, addr, SIGNS, cfg, period_s=0.004, deadline_s=1.0, ipoc0=200_000)
     ctrl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    got = []
-    flood_stop = threading.Event()
-
-    def flood():  # a second sender: garbage, truncated, and well-formed messages with other setpoints
-        f = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        f.settimeout(0.001)
-        far = sp[0] + [30, 0, 0, 0, 0, 0]
-        msgs = [b"\x00" * 100, b"<Rob><IPOC>99999999</IPOC>", format_rob(10**9, far, far, np.zeros(6), cfg), b"x" * 9000]
-        k = 0
-        while not flood_stop.is_set():
-            f.sendto(msgs[k % len(msgs)], addr)
-            k += 1
-            try:
-                got.append(f.recv(65536))
-            except (socket.timeout, ConnectionRefusedError):
-                pass
-        f.close()
-
     # the controller's first cycle locks the bridge onto it (without --controller)
     first = SimulatedRsi(nom, sp[:1], q0, addr, SIGNS, cfg, period_s=0.004, deadline_s=5.0)
     warm = first.run(ctrl)
     if mode == "incremental":
         sim.held0 = first.held_last
-    ft = threading.Thread(target=flood, daemon=True)
-    ft.start()
-    run = sim.run(ctrl)
+    far = sp[0] + [30, 0, 0, 0, 0, 0]  # a second sender: garbage, truncated, and well-formed messages with other setpoints
+    msgs = [b"\x00" * 100, b"<Rob><IPOC>99999999</IPOC>", format_rob(10**9, far, far, np.zeros(6), cfg), b"x" * 9000]
+    run, got = flooded(addr, msgs, lambda: sim.run(ctrl))
     ctrl.close()
-    flood_stop.set()
-    ft.join(5)
     stop.set()
     th.join(5)
     st = box["stats"]
