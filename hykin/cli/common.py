@@ -182,6 +182,19 @@ def load_model(spec) -> object:
 # --------------------------------------------------------------------------- commands
 
 
+def parse_axis_signs(text: str | None, dof: int):
+    """``--axis-signs`` (comma-separated 1 / -1 per joint) -> ``(dof,)`` array, or None when not given."""
+    if text is None:
+        return None
+    try:
+        s = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        raise CLIError(f"--axis-signs: expected {dof} comma-separated values of 1 or -1, got {text!r}") from None
+    if s.shape != (dof,) or not np.all(np.abs(s) == 1):
+        raise CLIError(f"--axis-signs: expected {dof} comma-separated values of 1 or -1, got {text!r}")
+    return s
+
+
 def temperature_of(mdl, extra: dict, path) -> np.ndarray | None:
     """The file's temperature column for a model with a thermal coefficient (note when it is missing)."""
     from ..calibration.thermal import temperature_from

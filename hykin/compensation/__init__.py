@@ -6,7 +6,9 @@
 * :mod:`.branches` — KUKA ``S``/``T`` status, ABB ``confdata``, and the nominal solution they mean.
 * :mod:`.programs` — shared rewriting machinery: targets found in a program text, replaced in place.
 * :mod:`.urscript`, :mod:`.krl`, :mod:`.rapid` — the three program formats.
-* :mod:`.service` — the FastAPI app of ``hykin serve`` (imports FastAPI only when used).
+* :mod:`.service` — the FastAPI app of ``hykin serve``: HTTP batches and a WebSocket stream (imports FastAPI only when used).
+* :mod:`.service_requests` — its requests: checks, the model calls, replies.
+* :mod:`.service_guard` — its limits: bearer token, body size, the one bounded model queue, /health identity.
 """
 
 from __future__ import annotations
