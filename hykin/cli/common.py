@@ -125,6 +125,19 @@ def is_model_file(spec: str) -> bool:
     return 0 < n < 100_000_000 and p.suffix.lower() not in (".toml", ".urdf", ".csv")
 
 
+def parse_axis_signs(text: str | None, dof: int):
+    """``--axis-signs`` (controller axis = sign × joint): ``(dof,)`` of ±1, or None when not given."""
+    if text is None:
+        return None
+    try:
+        s = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        raise CLIError(f"--axis-signs: expected {dof} comma-separated values of 1 or -1, got {text!r}") from None
+    if s.shape != (dof,) or not np.all(np.abs(s) == 1):
+        raise CLIError(f"--axis-signs: expected {dof} comma-separated values of 1 or -1, got {text!r}")
+    return s
+
+
 def load_model_or_robot(spec: str):
     """Return ``(model_or_None, robot)`` for a model file, a robot file or a preset name."""
     from ..io.robot_file import load_robot

@@ -16,6 +16,7 @@ from .common import (
     check_output,
     console,
     load_model,
+    parse_axis_signs,
     write_rows,
 )
 
@@ -36,18 +37,6 @@ def _format_of(path: Path, fmt: str | None) -> str:
         if suf in mod.SUFFIXES:
             return name
     raise CLIError(f"{path}: unknown input type {suf!r}; give --format ({', '.join(_FORMATS)})")
-
-
-def _axis_signs(text: str | None, dof: int):
-    if text is None:
-        return None
-    try:
-        s = np.array([float(v) for v in text.split(",")])
-    except ValueError:
-        raise CLIError(f"--axis-signs: expected {dof} comma-separated values of 1 or -1, got {text!r}") from None
-    if s.shape != (dof,) or not np.all(np.abs(s) == 1):
-        raise CLIError(f"--axis-signs: expected {dof} comma-separated values of 1 or -1, got {text!r}")
-    return s
 
 
 @app.command("compensate")
@@ -85,7 +74,7 @@ def compensate_cmd(
                             f"({rng.lower_kg:g}-{rng.upper_kg:g} kg): the physics carries it, the networks hold their "
                             "nearest trained payload", highlight=False)
         mdl = model_with_payload(mdl, payload_kg)
-    signs = _axis_signs(axis_signs, mdl.nominal.dof)
+    signs = parse_axis_signs(axis_signs, mdl.nominal.dof)
     th = getattr(mdl, "thermal_", None)
     if th is not None and th.coefficient_per_k != 0.0:
         console().print(f"note: the model has thermal expansion; targets are compensated at its reference "
