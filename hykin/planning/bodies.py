@@ -114,14 +114,19 @@ def _default_radii(robot: Robot) -> np.ndarray:
 
 
 def _pair_distances(seg: np.ndarray, body: np.ndarray, radii: np.ndarray, pairs: np.ndarray) -> np.ndarray:
-    """``(N, P)`` clearance (m; < 0: touching) of each body pair: min over their segments."""
-    out = np.full((seg.shape[0], len(pairs)), np.inf)
-    for p, (i, j) in enumerate(pairs):  # pairs are a few tens; each is vectorised over N and segments
+    """``(N, P)`` clearance (m; < 0: touching) of each body pair: min over their segments (one
+    vectorised distance over every segment combination, reduced per pair)."""
+    if len(pairs) == 0:
+        return np.zeros((seg.shape[0], 0))
+    sa, sb, starts = [], [], []
+    for i, j in pairs:
         si, sj = np.flatnonzero(body == i), np.flatnonzero(body == j)
-        A, B = seg[:, si][:, :, None], seg[:, sj][:, None, :]
-        d = segment_distance(A[..., 0, :], A[..., 1, :], B[..., 0, :], B[..., 1, :])
-        out[:, p] = d.reshape(len(seg), -1).min(axis=1) - radii[i] - radii[j]
-    return out
+        starts.append(len(sa))
+        sa += list(np.repeat(si, len(sj)))
+        sb += list(np.tile(sj, len(si)))
+    sa, sb = np.array(sa), np.array(sb)
+    d = segment_distance(seg[:, sa, 0], seg[:, sa, 1], seg[:, sb, 0], seg[:, sb, 1])  # (N, C)
+    return np.minimum.reduceat(d, np.array(starts), axis=1) - radii[pairs[:, 0]] - radii[pairs[:, 1]]
 
 
 def _floor_clearance(seg: np.ndarray, body: np.ndarray, radii: np.ndarray, floor_z_m: float) -> np.ndarray:

@@ -106,8 +106,11 @@ def order_path(q: np.ndarray, speeds, start=None, max_passes: int = 50, clear=No
         if i + 1 < N:
             d = np.where(visited, np.inf, D[cur])
             near = np.argsort(d)[: min(n_near, N - i - 1)]
-            good = np.flatnonzero(ok(np.full(len(near), cur), near))
-            cur = int(near[good[0]] if good.size else near[0])
+            if ok([cur], near[:1])[0]:  # most nearest moves are clear: check the others only when not
+                cur = int(near[0])
+            else:
+                good = np.flatnonzero(ok(np.full(len(near) - 1, cur), near[1:]))
+                cur = int(near[1 + good[0]] if good.size else near[0])
     # 2-opt on an open path with the first pose fixed: reverse path[i+1..k]
     # gain = d(a,b) + d(c,e) - d(a,c) - d(b,e), a=path[i], b=path[i+1], c=path[k], e=path[k+1] (0 past the end)
     for _ in range(max_passes):
