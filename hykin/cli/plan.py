@@ -50,6 +50,10 @@ def plan_cmd(
     axis_signs: str | None = typer.Option(None, "--axis-signs", help="Programs: controller axis = sign × joint + offset, signs e.g. -1,1,1,-1,1,-1 (default: from the robot preset)."),
     axis_offsets: str | None = typer.Option(None, "--axis-offsets", help="Programs: controller axis zero offsets (deg), comma-separated (default 0)."),
     krl_vel_percent: float = typer.Option(20.0, "--krl-vel-percent", help="KRL programs: $VEL_AXIS in percent of each axis' maximum speed.", min=0.1, max=100.0),
+    trajectory: bool = typer.Option(False, "--trajectory", help="Dynamic collection: a continuous joint trajectory through the N poses as waypoints (the tracker streams): .csv gets t_s and joints at --rate, programs the waypoints."),
+    max_speed: float | None = typer.Option(None, "--max-joint-speed", help="Trajectory: joint speed limit (deg/s; mm/s prismatic; default --speed).", min=1e-6),
+    max_accel: float | None = typer.Option(None, "--max-joint-accel", help="Trajectory: joint acceleration limit (deg/s²; mm/s² prismatic; default 2 × the speed limit per s).", min=1e-6),
+    rate: float = typer.Option(250.0, "--rate", help="Trajectory: sample rate of the .csv output (Hz).", min=1.0),
     report: bool = typer.Option(False, "--report", help="Print predicted accuracy against the number of poses."),
     noise_mm: float = typer.Option(0.01, "--noise-mm", help="Report: tracker noise per axis (mm).", min=0.0),
     unmodelled_mm: float | None = typer.Option(None, "--unmodelled-mm", help="Report: RMS error a calibration cannot model (mm; default 0.15, or the model's own)."),
@@ -137,7 +141,10 @@ def plan_cmd(
         cr = p.criteria
         con.print(f"identifiability: log det M {cr['logdet']:.2f}, O1 {cr['O1']:.4g}, O3 {cr['O3']:.4g}, "
                   f"condition {cr['condition']:.4g}; coverage min spacing {cr['min_spacing']:.4f}")
-    if out is not None:
+    if trajectory and out is not None:
+        _write_trajectory(out, kind, rob, robot, p, angle_unit, speed if max_speed is None else max_speed,
+                          max_accel, rate, axis_signs, axis_offsets, krl_vel_percent)
+    elif out is not None:
         _write_plan(out, kind, rob, robot, p, c, angle_unit, speed, dwell, trigger, settle, axis_signs, axis_offsets,
                     krl_vel_percent)
     if report:
@@ -166,21 +173,74 @@ def _declared_angle_unit(spec: str | None) -> str:
         return "rad"
 
 
+def _joint_columns(rob, q: np.ndarray, unit: str) -> dict:
+    rev = np.array([t == "revolute" for t in rob.joint_type])
+    return {f"q{j + 1}{'_deg' if unit == 'deg' and rev[j] else ''}": q[:, j] * (np.degrees(1.0) if unit == "deg" and rev[j] else 1.0)
+            for j in range(rob.dof)}
+
+
+def _program_settings(out: Path, rob, axis_signs, axis_offsets, **kw):
+    from ..planning.programs import ProgramSettings
+    from .common import parse_axis_signs
+
+    signs = parse_axis_signs(axis_signs, rob.dof)
+    if signs is None:
+        from ..compensation.branches import default_axis_signs
+
+        signs = default_axis_signs(rob)
+    offs = None if axis_offsets is None else np.radians(_floats(axis_offsets, "--axis-offsets"))
+    if offs is not None and offs.shape != (rob.dof,):
+        raise CLIError(f"--axis-offsets: expected {rob.dof} comma-separated values (deg), got {axis_offsets!r}")
+    name = "".join(ch if ch.isalnum() or ch == "_" else "_" for ch in out.stem)[:24]
+    name = name if name[:1].isalpha() else ("p" + name)[:24]
+    return ProgramSettings(axis_signs=signs, axis_offsets_rad=offs, name=name, **kw)
+
+
+def _write_programs(out: Path, kind: str, q, meas, rob, s) -> None:
+    from ..planning.programs import ProgramError, plan_program
+
+    try:
+        texts = plan_program(kind, q, meas, rob, s)
+    except ProgramError as e:
+        raise CLIError(str(e)) from None
+    out.parent.mkdir(parents=True, exist_ok=True)
+    for suf, text in texts.items():
+        path = out.with_suffix(suf) if kind == "krl" else out
+        path.write_text(text, encoding="utf-8", newline="\n" if kind != "krl" else "\r\n")
+        typer.echo(f"wrote {path}")
+
+
+def _write_trajectory(out: Path, kind: str, rob, robot_spec, p, angle_unit, speed, accel, rate, axis_signs, axis_offsets,
+                      krl_vel_percent) -> None:
+    from ..planning.trajectory import min_jerk_trajectory
+
+    rev = np.array([t == "revolute" for t in rob.joint_type])
+    v = np.where(rev, np.radians(speed), speed * 1e-3)
+    a = 2.0 * v if accel is None else np.where(rev, np.radians(accel), accel * 1e-3)
+    tr = min_jerk_trajectory(p.moves.q, v, a)
+    if kind == "csv":
+        t, q = tr.sample(rate)
+        unit = angle_unit or _declared_angle_unit(robot_spec)
+        write_rows({"t_s": t, **_joint_columns(rob, q, unit)}, out)
+        typer.echo(f"wrote a {tr.duration_s / 60:.1f} min trajectory through {len(tr.waypoints)} waypoints: {len(t)} samples "
+                   f"at {rate:g} Hz to {out}" + (" (joint angles in degrees)" if unit == "deg" else " (joint angles in rad)"))
+        return
+    s = _program_settings(out, rob, axis_signs, axis_offsets, speed_rad_s=float(np.radians(speed)), dwell_s=0.0,
+                          krl_vel_percent=krl_vel_percent, expected_s=tr.duration_s, stream=True)
+    _write_programs(out, kind, tr.waypoints, np.zeros(len(tr.waypoints), bool), rob, s)
+    typer.echo(f"{len(tr.waypoints)} waypoints, expected duration {tr.duration_s / 60:.1f} min at the joint limits given")
+
+
 def _write_plan(out: Path, kind: str, rob, robot_spec, p, c, angle_unit, speed, dwell, trigger, settle, axis_signs,
                 axis_offsets, krl_vel_percent) -> None:
     from ..planning.constraints import incidence_deg, reflector_pose
-    from ..planning.programs import ProgramError, ProgramSettings, plan_program
-    from .common import parse_axis_signs
 
     mv = p.moves
     q, meas = mv.q, mv.measure
     n_meas = int(meas.sum())
     if kind == "csv":
         unit = angle_unit or _declared_angle_unit(robot_spec)
-        rev = np.array([t == "revolute" for t in rob.joint_type])
-        fac = np.where(rev, np.degrees(1.0) if unit == "deg" else 1.0, 1.0)
-        suffix = "_deg" if unit == "deg" else ""
-        rows = {f"q{j + 1}{suffix if rev[j] else ''}": q[:, j] * fac[j] for j in range(rob.dof)}
+        rows = _joint_columns(rob, q, unit)
         step = np.zeros(len(q), np.int64)
         step[meas] = np.arange(1, n_meas + 1)
         rows["step"] = step
@@ -199,28 +259,10 @@ def _write_plan(out: Path, kind: str, rob, robot_spec, p, c, angle_unit, speed, 
         typer.echo(f"wrote {n_meas} poses ({int((~meas).sum())} via moves) to {out}"
                    + (" (joint angles in degrees: columns q<i>_deg)" if unit == "deg" else " (joint angles in rad)"))
         return
-    signs = parse_axis_signs(axis_signs, rob.dof)
-    if signs is None:
-        from ..compensation.branches import default_axis_signs
-
-        signs = default_axis_signs(rob)
-    offs = None if axis_offsets is None else np.radians(_floats(axis_offsets, "--axis-offsets"))
-    if offs is not None and offs.shape != (rob.dof,):
-        raise CLIError(f"--axis-offsets: expected {rob.dof} comma-separated values (deg), got {axis_offsets!r}")
-    name = "".join(ch if ch.isalnum() or ch == "_" else "_" for ch in out.stem)[:24]
-    name = name if name[:1].isalpha() else ("p" + name)[:24]
-    s = ProgramSettings(speed_rad_s=float(np.radians(speed)), dwell_s=dwell, trigger=trigger, settle_s=settle,
-                        krl_vel_percent=krl_vel_percent, axis_signs=signs, axis_offsets_rad=offs, name=name,
-                        expected_s=float(p.travel["total_s"]))
-    try:
-        texts = plan_program(kind, q, meas, rob, s)
-    except ProgramError as e:
-        raise CLIError(str(e)) from None
-    out.parent.mkdir(parents=True, exist_ok=True)
-    for suf, text in texts.items():
-        path = out.with_suffix(suf) if kind == "krl" else out
-        path.write_text(text, encoding="utf-8", newline="\n" if kind != "krl" else "\r\n")
-        typer.echo(f"wrote {path}")
+    s = _program_settings(out, rob, axis_signs, axis_offsets, speed_rad_s=float(np.radians(speed)), dwell_s=dwell,
+                          trigger=trigger, settle_s=settle, krl_vel_percent=krl_vel_percent,
+                          expected_s=float(p.travel["total_s"]))
+    _write_programs(out, kind, q, meas, rob, s)
     typer.echo(f"{n_meas} poses, {int((~meas).sum())} via moves, expected measuring time {p.travel['total_s'] / 60:.1f} min")
 
 

@@ -58,7 +58,8 @@ class ProgramSettings:
     ``a``. krl_vel_percent: KRL ``$VEL_AXIS``. dwell_s: wait per measured pose. settle_s: wait before
     a trigger. trigger: ``"wait"``, ``"do:X"`` or ``"di:X"``. axis_signs / axis_offsets_rad:
     ``(dof,)`` controller axes ``A = sign · q + offset``. name: program name. expected_s: the
-    measuring time stated in the header."""
+    measuring time stated in the header. stream: a trajectory for dynamic collection: the robot
+    moves through every row without stopping to measure (no dwell, no trigger; the tracker streams)."""
 
     speed_rad_s: float
     dwell_s: float
@@ -70,6 +71,7 @@ class ProgramSettings:
     axis_offsets_rad: np.ndarray | None = None
     name: str = "hykin_plan"
     expected_s: float = 0.0
+    stream: bool = False
 
 
 def program_kind(path: str | Path) -> str:
@@ -103,6 +105,11 @@ def _axes(q: np.ndarray, s: ProgramSettings) -> np.ndarray:
 
 
 def _header(comment: str, robot_name: str, n_meas: int, n_via: int, s: ProgramSettings, speed: str) -> list[str]:
+    if s.stream:
+        return [f"{comment} hykin measuring trajectory for robot {robot_name!r}: {n_meas + n_via} waypoints, the tracker streams",
+                f"{comment} joint moves at {speed}; no stop to measure",
+                f"{comment} expected measuring time: {s.expected_s / 60:.1f} min ({s.expected_s:.0f} s)",
+                f"{comment} controller axes = sign * q + offset (signs and offsets as given to hykin plan)"]
     return [f"{comment} hykin measurement plan for robot {robot_name!r}: {n_meas} poses to measure, {n_via} via moves",
             f"{comment} joint moves at {speed}; {s.dwell_s:g} s dwell per pose; trigger: {s.trigger}",
             f"{comment} expected measuring time: {s.expected_s / 60:.1f} min ({s.expected_s:.0f} s)",
@@ -126,7 +133,7 @@ def urscript(q: np.ndarray, measure: np.ndarray, robot_name: str, s: ProgramSett
             k += 1
             lines.append(f"  # pose {k}")
         else:
-            lines.append("  # via (not measured)")
+            lines.append("  # waypoint" if s.stream else "  # via (not measured)")
         lines.append(f"  movej([{', '.join(_num(x, 8) for x in a)}], a={s.accel_rad_s2:g}, v={s.speed_rad_s:.6g})")
         if not m:
             continue
@@ -158,7 +165,7 @@ def krl(q: np.ndarray, measure: np.ndarray, robot_name: str, s: ProgramSettings)
             k += 1
             src.append(f"; pose {k}")
         else:
-            src.append("; via (not measured)")
+            src.append("; waypoint" if s.stream else "; via (not measured)")
         src.append(f"PTP XP{i}")
         if not m:
             continue
@@ -186,7 +193,7 @@ def rapid(q: np.ndarray, measure: np.ndarray, robot_name: str, s: ProgramSetting
             k += 1
             lines.append(f"    ! pose {k}")
         else:
-            lines.append("    ! via (not measured)")
+            lines.append("    ! waypoint" if s.stream else "    ! via (not measured)")
         lines.append(f"    MoveAbsJ [[{','.join(_num(x, 5) for x in a)}],[9E9,9E9,9E9,9E9,9E9,9E9]]\\NoEOffs, vPlan, fine, tool0;")
         if not m:
             continue
@@ -202,8 +209,11 @@ def rapid(q: np.ndarray, measure: np.ndarray, robot_name: str, s: ProgramSetting
 
 def plan_program(kind: str, q: np.ndarray, measure: np.ndarray, robot, s: ProgramSettings) -> dict[str, str]:
     """Program texts by suffix (``{".script": text}``, KRL ``{".src": …, ".dat": …}``) for the moves
-    ``q`` ``(M, dof)`` (rad) with ``measure`` ``(M,)`` bool (module docstring)."""
+    ``q`` ``(M, dof)`` (rad) with ``measure`` ``(M,)`` bool (module docstring; with ``s.stream`` every
+    row is a waypoint passed without measuring)."""
     q = np.asarray(q, dtype=np.float64)
+    if s.stream:
+        measure = np.zeros(len(q), bool)
     if robot.dof != 6 or any(t != "revolute" for t in robot.joint_type):
         raise ProgramError(f"{kind} programs are written for 6-axis arms with revolute joints; robot {robot.name!r} "
                            f"has {robot.dof} joints ({', '.join(robot.joint_type)}): write -o PLAN.csv instead")
