@@ -283,9 +283,13 @@ def estimate_clock(t_robot, q_robot, t_tracker, p_tracker, robot=None, *, p_robo
             for k in range(K):
                 i0, i1 = edges[k], edges[k + 1]
                 tc[k] = t_r[0] + dt * 0.5 * (i0 + i1 - 1)
+                # only the tracker profile this window can reach (its span, shifted by coarse ± 0.1 s): each
+                # window costs its own length, not the whole stream's
+                ja = max(int(np.floor((t_r[0] + i0 * dt + coarse - 0.2 - t_t[0]) / dt)), 0)
+                jb = min(int(np.ceil((t_r[0] + i1 * dt + coarse + 0.2 - t_t[0]) / dt)), a.size)
                 try:  # a window mostly without beam (fast moves, dropouts) has no timing of its own: skip it
-                    ok_[k], _ = _ncc_offset(a, m_t, t_t[0], b[i0:i1], m_r[i0:i1], t_r[0] + i0 * dt, dt, coarse, 0.1,
-                                            0.25 * m_r[i0:i1].sum())
+                    ok_[k], _ = _ncc_offset(a[ja:jb], m_t[ja:jb], t_t[0] + ja * dt, b[i0:i1], m_r[i0:i1],
+                                            t_r[0] + i0 * dt, dt, coarse, 0.1, 0.25 * m_r[i0:i1].sum())
                 except StreamError:
                     pass
             good = np.isfinite(ok_)
