@@ -288,6 +288,31 @@ def import_three_smr_cmd(
 # --------------------------------------------------------------------------- streams
 
 
+def _read_streams(robot_log, tracker_stream, robot_map, tracker_map, r_opts, t_opts, rob):
+    """Robot log and tracker stream as arrays: the plain layout (CSV with plain names, Parquet) in
+    chunks (:mod:`hykin.measure.stream_files`), anything else through the mapping reader."""
+    from ..measure.stream_files import plain_layout, read_robot_log, read_tracker_stream
+    from ..measure.table_import import read_mapped
+
+    plain = robot_map is None and tracker_map is None and r_opts.get("joints") == "q*" \
+        and plain_layout(robot_log) and plain_layout(tracker_stream)
+    if plain:
+        rev = [t == "revolute" for t in getattr(rob, "independent_joint_type", rob.joint_type)]
+        t_r, q_r = read_robot_log(robot_log, dof=rob.dof, revolute=rev, time=r_opts["time"],
+                                  angle_unit=r_opts.get("angle_unit") or "rad", time_unit=r_opts.get("time_unit") or "s")
+        t_t, p_t, quat_t = read_tracker_stream(tracker_stream, time=t_opts["time"], position=t_opts["position"],
+                                               quaternion=t_opts.get("quaternion"),
+                                               length_unit=t_opts.get("length_unit") or "m",
+                                               time_unit=t_opts.get("time_unit") or "s")
+        return t_r, q_r, t_t, p_t, quat_t
+    rm = read_mapped(robot_log, _build_map(robot_map, r_opts), rob, need_position=False)
+    tm = read_mapped(tracker_stream, _build_map(tracker_map, t_opts), need_joints=False, allow_missing=True)
+    for mt, name in ((rm, robot_log), (tm, tracker_stream)):
+        if mt.time_s is None:
+            raise CLIError(f"{name}: no time column mapped (time = \"...\" in the map, or --robot-time / --tracker-time)")
+    return rm.time_s, rm.q, tm.time_s, tm.xyz_m, tm.quat_wxyz
+
+
 @import_app.command("stream")
 def import_stream_cmd(
     robot_log: Path = typer.Argument(..., help="Robot joint log: a time column and the joints."),
@@ -318,7 +343,6 @@ def import_stream_cmd(
 ) -> None:
     """Align a robot joint log with a tracker stream (clock offset, interpolation) into a dataset."""
     from ..measure.streams import align_streams
-    from ..measure.table_import import read_mapped
 
     if frame not in ("tracker", "fit"):
         raise CLIError(f"import stream: --frame must be tracker or fit, got {frame!r}")
@@ -331,12 +355,8 @@ def import_stream_cmd(
         r_opts = {"time": "t", "joints": "q*", **{k: v for k, v in r_opts.items() if v is not None}}
     if tracker_map is None:
         t_opts = {"time": "t", "position": ["x", "y", "z"], **{k: v for k, v in t_opts.items() if v is not None}}
-    rm = read_mapped(robot_log, _build_map(robot_map, r_opts), rob, need_position=False)
-    tm = read_mapped(tracker_stream, _build_map(tracker_map, t_opts), need_joints=False, allow_missing=True)
-    for mt, name in ((rm, robot_log), (tm, tracker_stream)):
-        if mt.time_s is None:
-            raise CLIError(f"{name}: no time column mapped (time = \"...\" in the map, or --robot-time / --tracker-time)")
-    a = align_streams(rm.time_s, rm.q, tm.time_s, tm.xyz_m, tm.quat_wxyz, rob, clock=offset,
+    t_r, q_r, t_t, p_t, quat_t = _read_streams(robot_log, tracker_stream, robot_map, tracker_map, r_opts, t_opts, rob)
+    a = align_streams(t_r, q_r, t_t, p_t, quat_t, rob, clock=offset,
                       max_speed_m_s=max_speed or None, max_gap_s=max_gap, fit_drift=fit_drift,
                       T_base_tracker="fit" if frame == "fit" else None,
                       **({} if offset is not None else {"method": method, "max_offset_s": max_offset}))
