@@ -164,7 +164,14 @@ def evaluate_cmd(
     else:
         typer.echo(res.table())
     if report is not None:
-        path = evaluation_report(res, report)
+        import warnings
+
+        from ..hybrid.model import OutOfRangeWarning
+
+        with warnings.catch_warnings():  # the report counts the poses outside the training data itself
+            warnings.simplefilter("ignore", OutOfRangeWarning)
+            path = evaluation_report(res, report, model=mdl if mdl is not None else rob, data=ds,
+                                     model_path=model if mdl is not None else None, test_path=test)
         typer.echo(f"report written to {path}")
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..geometry.se3 import pose_error
+from ..geometry.se3 import pose_error, rotation_difference_rotvec
 from ..io.dataset import Dataset
 from ..io.payload import (
     errors_per_payload,
@@ -19,7 +19,8 @@ from ..io.payload import (
 from ..kinematics.fk import fk
 from ..kinematics.robot import Robot
 from .metrics import ErrorStats, error_stats, format_table
-from .report import Report, error_histograms
+from .report import Report
+from .report_figures import error_histograms
 
 __all__ = ["EvalResult", "evaluate_model", "evaluate_per_payload", "evaluation_report", "joint_region_rows"]
 
@@ -41,6 +42,11 @@ class EvalResult:
     support_distance: np.ndarray | None = field(repr=False, default=None)
     per_payload: dict | None = None  # errors_per_payload(...) when the data carry a payload_kg column
     regions: list = field(default_factory=list)  # per joint-quartile region rows (registered models), region_table
+    #: row name -> ``(dp_mm (N, 3), dr_deg (N, 3) or None)``: predicted minus measured position (base x, y, z)
+    #: and the rotation vector of ``R_pred R_measᵀ`` (about base x, y, z); their norms are ``errors``
+    vectors: dict[str, tuple[np.ndarray, np.ndarray | None]] = field(repr=False, default_factory=dict)
+    #: row name -> ``(N, 4, 4)`` predicted poses, m (for ISO 9283 and the report)
+    predicted: dict[str, np.ndarray] = field(repr=False, default_factory=dict)
 
     def region_table(self) -> str:
         """Per joint-region mean errors (mm / deg): hybrid vs calibrated vs nominal + rigid fit (registered models)."""
@@ -113,11 +119,13 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
         preds["hybrid"] = model.predict(data.q, temperature_c=temp, **pkw)
         if hasattr(model, "support_distance"):
             dist = np.asarray(model.support_distance(data.q))
-    stats, errors = {}, {}
+    stats, errors, vectors = {}, {}, {}
     for name, T in preds.items():
         stats[name] = error_stats(T, T_meas, position_only=pos_only)
         p, a = pose_error(T, T_meas)
         errors[name] = (p, None if pos_only else a)
+        vectors[name] = ((T[:, :3, 3] - T_meas[:, :3, 3]) * 1e3,
+                         None if pos_only else np.degrees(rotation_difference_rotvec(T[:, :3, :3], T_meas[:, :3, :3])))
     regions = []
     registered = not isinstance(model, Robot) and not (
         np.array_equal(getattr(model, "frame_pre_", np.eye(4)), np.eye(4)) and np.array_equal(getattr(model, "frame_post_", np.eye(4)), np.eye(4)))
@@ -131,7 +139,7 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
         regions = joint_region_rows(data.q, {k: errors[k] for k in ("hybrid", "calibrated", "nominal + rigid fit") if k in errors})
     return EvalResult(
         dataset=data.source, n=len(data), position_only=pos_only, stats=stats, errors=errors, support_distance=dist,
-        per_payload=evaluate_per_payload(errors, data), regions=regions,
+        per_payload=evaluate_per_payload(errors, data), regions=regions, vectors=vectors, predicted=preds,
     )
 
 
@@ -163,20 +171,20 @@ def joint_region_rows(q: np.ndarray, errors: dict, n_quantiles: int = 4) -> list
     return out
 
 
-def evaluation_report(res: EvalResult, out_dir: str | Path, title: str = "hykin evaluation") -> Path:
-    """Write ``out_dir/report.html`` with the table and before/after error distributions."""
-    out_dir = Path(out_dir)
-    rep = Report(title)
-    rep.text(f"Dataset: {res.dataset} ({res.n} samples{', position only' if res.position_only else ''}).")
-    rep.heading("Errors")
-    rep.pre(res.table())
-    names = list(res.errors)
-    first, last = names[0], names[-1]
-    b, a = res.errors[first], res.errors[last]
-    rep.figure(
-        error_histograms(b[0], a[0], b[1], a[1], labels=(first, last)),
-        caption=f"Error distributions, {first} vs {last}.",
-    )
-    (out_dir).mkdir(parents=True, exist_ok=True)
-    (out_dir / "evaluation.json").write_text(res.json(), encoding="utf-8")
-    return rep.write(out_dir / "report.html")
+def evaluation_report(res: EvalResult, out_dir: str | Path, title: str | None = None, *, model=None, data=None,
+                      model_path=None, test_path=None, ik_targets: int = 20) -> Path:
+    """Write ``out_dir/report.html`` (the report of :func:`hykin.evaluation.report_build.build_report`)
+    and ``out_dir/evaluation.json``. ``model`` and ``data``: the model and test Dataset ``res`` was
+    computed from (without them only the error tables and distributions of ``res`` are shown)."""
+    from .report_build import build_report, write_report
+
+    if model is None or data is None:
+        rep = Report(title or "hykin evaluation")
+        rep.text(f"Dataset: {res.dataset} ({res.n} samples{', position only' if res.position_only else ''}).")
+        names = list(res.errors)
+        b, a = res.errors[names[0]], res.errors[names[-1]]
+        rep.figure(error_histograms(b[0], a[0], b[1], a[1], labels=(names[0], names[-1])),
+                   caption=f"Error distributions, {names[0]} vs {names[-1]}.")
+        return write_report(rep, out_dir, res)
+    rep, _ = build_report(model, data, model_path=model_path, test_path=test_path, title=title, res=res, ik_targets=ik_targets)
+    return write_report(rep, out_dir, res)

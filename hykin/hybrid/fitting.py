@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from ..geometry import se3
+from ..io.fingerprint import file_fingerprint
 from ..io.payload import payload_kwargs, payload_of
 from ..kinematics.classical import classical_fk
 from .inputs import TWO_PI, to_net_frame
@@ -133,6 +134,8 @@ def training_metadata(model, train, val, *, n_split: tuple[int, int, int], has_o
     return {
         "data_hash": data_hash(train),
         "val_hash": data_hash(val) if val is not None else None,
+        "train_file": file_fingerprint(getattr(train, "source", "")),
+        "val_file": None if val is None else file_fingerprint(getattr(val, "source", "")),
         "n_train": n_split[0], "n_val": n_split[1], "n_total": n_split[2],
         "has_orientation": has_orientation,
         "seed": int(model.seed), "timings": timings, "versions": versions(),
