@@ -22,9 +22,9 @@ PAPER_TABLE_IV = {"hybrid IK": (6.0e-6, 4.9e-4), "Wang et al.": (4.52, 0.397)}
 
 
 def _say(msg: str) -> None:
-    from rich.console import Console
+    from .common import console
 
-    Console(stderr=True).print(msg)
+    console().print(msg)  # one line also in a log file (soft wrap)
 
 
 def run_demo(out_dir: str | Path = "hykin-demo", n_train: int = 10_000, quick: bool = False, seed: int = 0) -> Path:

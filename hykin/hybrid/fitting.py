@@ -106,6 +106,8 @@ def train_networks(targets: dict, Xt, Xv, *, arch: str, n_in: int, in_lower, in_
             use_val = Xv is not None and yv is not None
             results[key] = train_net(net, Xt, yt, Xv if use_val else None, yv if use_val else None, recipe,
                                      seed=seed, device=device, max_seconds=max_seconds, callback=cb_ctx.callback(key))
+            cb_ctx.stage_done(f"training {key}", f"{results[key].steps:,} steps")
+            cb_ctx.budget_cut(key, results[key])
             timings[f"train_{key}_s"] = time.perf_counter() - t1
             nets[key] = net
     return nets, results, timings

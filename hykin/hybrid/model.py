@@ -72,6 +72,7 @@ from . import bands, fitting, inputs, persistence
 from . import support as sup_
 from .errors import HybridError, OutOfRangeWarning
 from .nets import ResidualNet
+from .progress import Progress
 from .rotations import rotate_poses
 from .settings import check_settings, empty_fitted_state
 from .support import Support, support_report
@@ -238,7 +239,7 @@ class HybridModel:
         kg_all = np.full(len(q), self.robot.payload_kg) if pl_train is None else pl_train[0]
         if val is not None:
             payload_of(val)
-        self._calibrate_on(train)
+        self._calibrate_on(train, progress=progress)
         temp = None if self.thermal is False else temperature_of(train)
         if self.thermal is True and temp is None:
             raise HybridError(f"thermal=True but the training data have no temperature column ({', '.join(TEMPERATURE_COLUMNS)})")
@@ -315,8 +316,9 @@ class HybridModel:
             self.meta_["metrics"]["held_out"] = self._metrics(train_in.subset(held))
         return self
 
-    def _calibrate_on(self, ds) -> tuple[Robot, object]:
-        """Set (and return) ``robot_`` and ``calibration_`` from ``ds``: calibrated, or the nominal robot."""
+    def _calibrate_on(self, ds, progress: bool = False) -> tuple[Robot, object]:
+        """Set (and return) ``robot_`` and ``calibration_`` from ``ds``: calibrated, or the nominal robot.
+        ``progress``: report the calibration as a stage (:mod:`hykin.hybrid.progress`)."""
         if self.calibrate:
             from ..calibration.calibrate import calibrate as _calibrate
 
@@ -326,7 +328,9 @@ class HybridModel:
 
                 self.calibration_cv_ = select_calibration(self.robot, ds, base_kw=kw)
                 kw.update(self.calibration_cv_.kwargs)
-            res = _calibrate(self.robot, ds, **kw)
+            prog = Progress(bool(progress))
+            res = _calibrate(self.robot, ds, **{"progress": prog.calibration(len(ds.q)), **kw})
+            prog.stage_done("calibration", f"{int(np.sum(res.identifiable))} parameters identified")
             self.robot_, self.calibration_ = res.robot, res
         else:
             self.robot_, self.calibration_ = self.robot.copy(), None

@@ -172,8 +172,9 @@ def train_net(
     Sets the net's output scaling from ``y_train`` (mean, RMS norm). The weights of the epoch with
     the lowest validation loss (training loss without validation data) are restored at the end.
     ``max_seconds`` stops training early (the best weights so far are kept).
-    ``callback(step, total_steps, train_loss, val_loss)`` is called after each epoch with the optimiser
-    steps taken so far and the recipe's budget of steps.
+    ``callback(step, total_steps, train_loss, val_loss)`` is called after each epoch (and every 16 steps
+    within a longer one, with the epoch's running training loss and the last validation loss) with the
+    optimiser steps taken so far and the recipe's budget of steps.
     Initial weights are the caller's: seed torch before :func:`hykin.hybrid.nets.make_net` for full
     reproducibility (:class:`hykin.hybrid.model.HybridModel` does).
     """
@@ -232,7 +233,7 @@ def train_net(
         for epoch in range(1, max_epochs + 1):
             net.train()
             perm = torch.randperm(N, generator=gen).to(device)
-            tot = 0.0
+            tot, seen = 0.0, 0
             for k in range(steps_per_epoch):
                 idx = perm[k * bs : (k + 1) * bs]
                 if idx.numel() < 2 and any(isinstance(m, torch.nn.BatchNorm1d) for m in net.modules()):
@@ -242,9 +243,12 @@ def train_net(
                 loss.backward()
                 opt.step()
                 steps += 1
+                tot += float(loss.detach()) * idx.numel()
+                seen += idx.numel()
+                if callback is not None and steps % 16 == 0 and k < steps_per_epoch - 1:  # long epochs: progress within
+                    callback(steps, total, tot / seen * float(scale), history[-1][2] if history else math.nan)
                 if sched is not None:
                     sched.step()
-                tot += float(loss.detach()) * idx.numel()
             net.eval()
             train_loss = tot / N * float(scale)
             val_loss = _eval(net, Xv, Yv) if has_val else train_loss
