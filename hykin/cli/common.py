@@ -18,6 +18,32 @@ app = typer.Typer(
     help="hykin: high-accuracy hybrid kinematics for serial robot arms (classical model + calibration + residual networks).",
 )
 
+def _plain_help() -> None:
+    """Help as the README writes it: arguments upper-case (``ROBOT``, ``[TEST]``, not ``{robot}``) and no
+    ``<bool>`` type placeholder on flags. Typer 0.2x renders these itself; this adjusts its two hooks."""
+    from typer import core as tc
+
+    opt_type = getattr(tc.TyperOption, "display_type_rich", None)
+    if opt_type is not None and not getattr(opt_type, "_hykin", False):
+        def display_type_rich(self, ctx):
+            return None if getattr(self, "is_flag", False) else opt_type(self, ctx)
+
+        display_type_rich._hykin = True
+        tc.TyperOption.display_type_rich = display_type_rich
+    if hasattr(tc.TyperArgument, "_usage_display_name"):
+        def usage_name(self):
+            name = self.metavar or (self.name or "").upper()
+            if not self.required and not name.startswith("["):
+                name = f"[{name}]"
+            return name + ("..." if self.nargs != 1 else "")
+
+        tc.TyperArgument._usage_display_name = usage_name
+        tc.TyperArgument.display_name_raw = property(lambda self: self.metavar or (self.name or "").upper())
+
+
+_plain_help()
+
+
 def _version(value: bool) -> None:
     if value:
         from .. import __version__

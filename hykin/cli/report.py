@@ -12,7 +12,7 @@ from .common import AngleUnit, CLIError, LengthUnit, app, check_output, load_mod
 @app.command("report")
 def report_cmd(
     model: str = typer.Argument(..., metavar="MODEL", help="Model file (or a robot file / preset: classical model only)."),
-    test: Path | None = typer.Argument(None, metavar="[TEST]", help="Test dataset (.csv/.parquet); without it the report "
+    test: Path | None = typer.Argument(None, metavar="TEST", help="Test dataset (.csv/.parquet); without it the report "
                                        "shows the model card, calibration and the model's own held-out errors."),
     out: Path = typer.Option(..., "-o", "--out", help="Output directory; the report is DIR/report.html."),
     ik_targets: int = typer.Option(20, "--ik-targets", help="Targets for the warm hybrid-IK timing (count; 0 = no timing)."),

@@ -19,10 +19,8 @@ from ..io.payload import (
 from ..kinematics.fk import fk
 from ..kinematics.robot import Robot
 from .metrics import ErrorStats, error_stats, format_table
-from .report import Report
-from .report_figures import error_histograms
 
-__all__ = ["EvalResult", "evaluate_model", "evaluate_per_payload", "evaluation_report", "joint_region_rows"]
+__all__ = ["EvalResult", "evaluate_model", "evaluate_per_payload", "joint_region_rows"]
 
 
 @dataclass
@@ -169,22 +167,3 @@ def joint_region_rows(q: np.ndarray, errors: dict, n_quantiles: int = 4) -> list
             row[k] = (float(p[sel].mean()), None if a is None else float(a[sel].mean()))
         out.append(row)
     return out
-
-
-def evaluation_report(res: EvalResult, out_dir: str | Path, title: str | None = None, *, model=None, data=None,
-                      model_path=None, test_path=None, ik_targets: int = 20) -> Path:
-    """Write ``out_dir/report.html`` (the report of :func:`hykin.evaluation.report_build.build_report`)
-    and ``out_dir/evaluation.json``. ``model`` and ``data``: the model and test Dataset ``res`` was
-    computed from (without them only the error tables and distributions of ``res`` are shown)."""
-    from .report_build import build_report, write_report
-
-    if model is None or data is None:
-        rep = Report(title or "hykin evaluation")
-        rep.text(f"Dataset: {res.dataset} ({res.n} samples{', position only' if res.position_only else ''}).")
-        names = list(res.errors)
-        b, a = res.errors[names[0]], res.errors[names[-1]]
-        rep.figure(error_histograms(b[0], a[0], b[1], a[1], labels=(names[0], names[-1])),
-                   caption=f"Error distributions, {names[0]} vs {names[-1]}.")
-        return write_report(rep, out_dir, res)
-    rep, _ = build_report(model, data, model_path=model_path, test_path=test_path, title=title, res=res, ik_targets=ik_targets)
-    return write_report(rep, out_dir, res)

@@ -88,18 +88,20 @@ def reach_hotspot(xyz_m: np.ndarray, err_mm: np.ndarray, n_bins: int = 6) -> Hot
 
 
 def iso_rows(data, predicted: dict) -> tuple[list[list], str]:
-    """ISO 9283 AP per model and RP, when ``data`` carries a ``pose_id`` column with every pose measured
-    at least twice at the same joints. Returns ``(rows, note)``; no rows and the reason otherwise.
+    """ISO 9283 AP per model and RP, when ``data`` carries a ``pose_id`` (or ``pose``) column: the poses
+    whose id occurs at least twice (blank / NaN ids: ordinary test poses) must share their joints. Returns ``(rows, note)``; no rows and the reason otherwise.
     Commanded pose: each model's prediction at the pose's joints; attained: the measurement."""
     from .iso9283 import ISOError, iso9283_pose
 
-    ids = (getattr(data, "extra", None) or {}).get("pose_id")
+    extra = getattr(data, "extra", None) or {}
+    ids = extra.get("pose_id", extra.get("pose"))  # `hykin simulate --plan iso-cube` labels its poses in "pose"
     if ids is None:
         return [], ("not computed: the test data have no pose_id column (ISO 9283 needs each test pose "
                     "approached repeatedly, e.g. 30 cycles of the poses P1 … P5, labelled in a pose_id column).")
     ids = np.asarray(ids)
-    uniq, inv, cnt = np.unique(ids, return_inverse=True, return_counts=True)
-    sel = cnt[inv] >= 2  # poses measured once are ordinary test poses, not ISO cycles
+    ok = np.isfinite(ids) if ids.dtype.kind == "f" else np.ones(len(ids), bool)  # blank ids: ordinary test poses
+    uniq, inv, cnt = np.unique(np.where(ok, ids, ids[ok][0] if ok.any() else 0), return_inverse=True, return_counts=True)
+    sel = ok & (cnt[inv] >= 2)  # poses measured once are ordinary test poses, not ISO cycles
     if not sel.any():
         return [], "not computed: no pose_id in the test data occurs more than once (ISO 9283 needs repeated cycles)."
     T_meas = data.poses()[sel]

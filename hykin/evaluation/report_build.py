@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from . import report_accuracy as acc
+from .evaluate import evaluate_model
 from .report import Report
 from .report_calibration import HEADER as CAL_HEADER
 from .report_calibration import calibration_rows, calibration_summary
@@ -24,7 +25,7 @@ from .report_ik import HEADER as IK_HEADER
 from .report_ik import time_hybrid_ik
 from .report_summary import accuracy_sentences, final_model, metadata_sentences
 
-__all__ = ["build_report", "write_report"]
+__all__ = ["build_report", "evaluation_report", "write_report"]
 
 
 def _revolute(robot) -> np.ndarray:
@@ -44,8 +45,6 @@ def build_report(model, test=None, *, model_path=None, test_path=None, title: st
     """The report of ``model`` (a fitted :class:`hykin.hybrid.model.HybridModel` or a :class:`Robot`),
     evaluated on ``test`` (a Dataset, optional; ``res``: its :func:`evaluate_model` result when already
     computed). ``ik_targets``: targets for the warm IK timing (0: none). Returns ``(report, res)``."""
-    from .evaluate import evaluate_model
-
     robot = getattr(model, "nominal", None) or model
     rev = _revolute(robot)
     if test is not None and res is None:
@@ -173,3 +172,20 @@ def write_report(rep: Report, out_dir, res=None) -> Path:
     if res is not None:
         (out / "evaluation.json").write_text(res.json(), encoding="utf-8")
     return rep.write(out / "report.html")
+
+
+def evaluation_report(res, out_dir: str | Path, title: str | None = None, *, model=None, data=None,
+                      model_path=None, test_path=None, ik_targets: int = 20) -> Path:
+    """Write ``out_dir/report.html`` (the report of :func:`build_report`)
+    and ``out_dir/evaluation.json``. ``model`` and ``data``: the model and test Dataset ``res`` was
+    computed from (without them only the error tables and distributions of ``res`` are shown)."""
+    if model is None or data is None:
+        rep = Report(title or "hykin evaluation")
+        rep.text(f"Dataset: {res.dataset} ({res.n} samples{', position only' if res.position_only else ''}).")
+        names = list(res.errors)
+        b, a = res.errors[names[0]], res.errors[names[-1]]
+        rep.figure(error_histograms(b[0], a[0], b[1], a[1], labels=(names[0], names[-1])),
+                   caption=f"Error distributions, {names[0]} vs {names[-1]}.")
+        return write_report(rep, out_dir, res)
+    rep, _ = build_report(model, data, model_path=model_path, test_path=test_path, title=title, res=res, ik_targets=ik_targets)
+    return write_report(rep, out_dir, res)
