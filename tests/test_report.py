@@ -54,7 +54,7 @@ def fitted(tmp_path_factory):
     d = tmp_path_factory.mktemp("rep")
     vr = virtual_preset("rx160-geometric", seed=0)
     rng = np.random.default_rng(1)
-    train = simulate(vr, sample("uniform", vr.nominal, 800, rng), noise=False, rng=rng)
+    train = simulate(vr, sample("uniform", vr.nominal, 600, rng), noise=False, rng=rng)
     write_dataset(train, d / "train.csv")
     train = read_dataset(d / "train.csv")
     q = sample("random", vr.nominal, 150, rng)
@@ -67,7 +67,7 @@ def fitted(tmp_path_factory):
     test = read_dataset(d / "test.csv")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        m = HybridModel(vr.nominal, seed=0, recipe_kw={"max_epochs": 4}).fit(train, progress=False)
+        m = HybridModel(vr.nominal, seed=0, recipe_kw={"max_epochs": 3}).fit(train, progress=False)
     m.save(d / "model.hykin")
     return HybridModel.load(d / "model.hykin"), test, d
 
@@ -258,7 +258,7 @@ def test_model_report_in_chromium_fits_loads_and_prints_a4(fitted, tmp_path):
     model, test, d = fitted
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        rep, res = build_report(model, test, model_path=d / "model.hykin", test_path=d / "test.csv", ik_targets=0)
+        rep, res = build_report(model, test, model_path=d / "model.hykin", test_path=d / "test.csv", ik_targets=2)
     path = write_report(rep, tmp_path / "out", res)
     chk = browser_check(path, tmp_path)
     assert chk["images"] == rep.n_figures >= 4 and chk["broken"] == 0, chk
@@ -275,3 +275,31 @@ def test_model_report_in_chromium_fits_loads_and_prints_a4(fitted, tmp_path):
     pages = pdf_pages(data)
     assert data[:5] == b"%PDF-" and len(pages) >= 3
     assert all(abs(w - 595.3) < 2 and abs(h - 841.9) < 2 for w, h in pages), pages  # A4 portrait
+
+
+@pytest.mark.slow  # four reports (about 20 s); the builder itself is covered by the default tests above
+def test_cli_report_and_evaluate_report(fitted, tmp_path, capsys):
+    """`hykin report` (a model with test data; a preset robot: classical only) and `hykin evaluate --report`
+    write the same kind of report; a file given as -o is refused with one line."""
+    from hykin.cli import main
+
+    model, test, d = fitted
+
+    def run(*args):
+        with pytest.raises(SystemExit) as e:
+            main(list(args))
+        return e.value.code or 0
+
+    assert run("report", str(d / "model.hykin"), str(d / "test.csv"), "-o", str(tmp_path / "r1"), "--ik-targets", "0") == 0
+    html = (tmp_path / "r1" / "report.html").read_text()
+    assert "Calibration" in html and "ISO 9283" in html and "removes" in html
+    assert run("report", "rx160", str(d / "test.csv"), "-o", str(tmp_path / "r2"), "--ik-targets", "0") == 0
+    html = (tmp_path / "r2" / "report.html").read_text()
+    assert "On 170 test poses the nominal model" in html and "Calibration" not in html
+    assert run("evaluate", str(d / "model.hykin"), str(d / "test.csv"), "--report", str(tmp_path / "r3")) == 0
+    assert "Where the error is" in (tmp_path / "r3" / "report.html").read_text()
+    (tmp_path / "f").write_text("x")
+    capsys.readouterr()
+    assert run("report", str(d / "model.hykin"), "-o", str(tmp_path / "f")) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "must name a directory" in err[0]

@@ -35,7 +35,9 @@ def simulate_cmd(
     n: int = typer.Option(10_000, "-n", help="Number of samples.", min=1),
     out: Path = typer.Option(..., "-o", "--out", help="Output dataset (.csv or .parquet); the truth (NAME.truth.json) and "
                              "the nominal robot to fit with (NAME.nominal.toml) are written beside it."),
-    seed: int = typer.Option(0, "--seed", help="Random seed (reproducible)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the virtual robot's deviations, the poses and the noise (same "
+                             "seed, same files). For more data from the SAME robot, pass its truth file (NAME.truth.json) "
+                             "as PRESET: the seed then draws only poses and noise."),
     plan: str = typer.Option("uniform", "--plan", help="Sampling plan: uniform, random, zigzag, iso-cube, restricted."),
     noise: bool = typer.Option(True, "--noise/--no-noise", help="Add tracker-like measurement noise."),
     payloads: str | None = typer.Option(None, "--payloads", help="Payload masses in kg, e.g. 0,12: rows cycle through them (column payload_kg)."),

@@ -24,7 +24,7 @@ __all__ = ["Report", "deg", "error_histograms", "fmt", "mm"]
 _CSS = """
 *{box-sizing:border-box}
 body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,"DejaVu Sans",sans-serif;max-width:1100px;margin:1.5em auto;
-padding:0 1em;color:#222;line-height:1.4;overflow-wrap:anywhere}
+padding:0 1em;color:#222;line-height:1.4;overflow-wrap:break-word}
 h1{border-bottom:2px solid #246;padding-bottom:.3em;font-size:1.6em}h2{color:#246;margin-top:1.5em;font-size:1.25em}
 h3{font-size:1.05em;margin-bottom:.3em}
 .summary{background:#f3f7fb;border-left:4px solid #246;padding:.5em 1em;margin:1em 0}
@@ -62,13 +62,18 @@ def fmt(v, digits: int = 4) -> str:
 
 
 def mm(v: float) -> str:
-    """A length in mm, as µm below 0.01 mm (3 significant digits)."""
-    return f"{v:.3g} mm" if abs(v) >= 0.01 or v == 0 else f"{v * 1e3:.3g} µm"
+    """A length in mm for a sentence: as µm below 0.01 mm, "< 1 nm" below a nanometre (rounding level;
+    tables keep the exact figure); 3 significant digits."""
+    if abs(v) >= 0.01 or v == 0:
+        return f"{v:.3g} mm"
+    return f"{v * 1e3:.3g} µm" if abs(v) >= 1e-6 else "< 1 nm"
 
 
 def deg(v: float) -> str:
-    """An angle in degrees, as arc-seconds below 0.01° (3 significant digits)."""
-    return f"{v:.3g}°" if abs(v) >= 0.01 or v == 0 else f"{v * 3600:.3g}″"
+    """An angle in degrees for a sentence: as arc-seconds below 0.01°, "< 0.001″" below that (rounding level)."""
+    if abs(v) >= 0.01 or v == 0:
+        return f"{v:.3g}°"
+    return f"{v * 3600:.3g}″" if abs(v) * 3600 >= 1e-3 else "< 0.001″"
 
 
 @dataclass

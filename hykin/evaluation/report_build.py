@@ -41,10 +41,11 @@ def _calibration(model) -> dict | None:
 
 
 def build_report(model, test=None, *, model_path=None, test_path=None, title: str | None = None,
-                 res=None, ik_targets: int = 20, seed: int = 0) -> tuple[Report, object]:
+                 res=None, ik_targets: int = 20, seed: int = 0, intro: list[str] | None = None) -> tuple[Report, object]:
     """The report of ``model`` (a fitted :class:`hykin.hybrid.model.HybridModel` or a :class:`Robot`),
     evaluated on ``test`` (a Dataset, optional; ``res``: its :func:`evaluate_model` result when already
-    computed). ``ik_targets``: targets for the warm IK timing (0: none). Returns ``(report, res)``."""
+    computed). ``ik_targets``: targets for the warm IK timing (0: none). ``intro``: paragraphs placed
+    after the summary (what the data are). Returns ``(report, res)``."""
     robot = getattr(model, "nominal", None) or model
     rev = _revolute(robot)
     if test is not None and res is None:
@@ -63,6 +64,8 @@ def build_report(model, test=None, *, model_path=None, test_path=None, title: st
         summary.append(f"Trained on {meta.get('n_total', '?')} measured poses (seed {meta.get('seed', '?')}); "
                        "the model card below lists the files and their hashes.")
     rep.summary(summary)
+    for p in intro or []:
+        rep.text(p)
 
     rep.heading("Model card")
     rep.table(["item", "value"], card_rows(model, model_path), text_cols=2)
@@ -159,7 +162,7 @@ def _ik_section(rep: Report, model, test, n: int, seed: int) -> None:
     if t is None:
         return
     rep.heading("Inverse kinematics timing")
-    rep.table(IK_HEADER, t.rows(), text_cols=1)
+    rep.table(IK_HEADER, t.rows(), text_cols={0, 4})
     rep.note(f"Warm figures: one untimed call first (imports, compiled kernels), then the best of 2 calls on {t.n_targets} "
              "targets (the model's own poses at test joints), divided by the number of targets, on this machine while "
              "it wrote the report. A first, cold call costs more.")

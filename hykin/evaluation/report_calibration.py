@@ -27,6 +27,8 @@ __all__ = ["CalibrationRow", "calibration_rows", "calibration_summary", "UNIT_SC
 UNIT_SCALE = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg"), "c": (1e6, "µrad/(N·m)")}
 _KNOWN = {"name", "unit", "value", "std", "identifiable", "status", "posterior_std"}
 SIGNIFICANT_SIGMA = 3.0
+#: deviations below these (SI: m, rad, rad/(N·m)) are at the level of floating-point rounding
+NEGLIGIBLE = {"m": 1e-11, "rad": 1e-11, "c": 1e-14}
 
 
 @dataclass
@@ -109,6 +111,8 @@ def calibration_rows(calib: dict, nominal: Robot, calibrated: Robot | None = Non
             status = "held at nominal (not identifiable from these poses)"
         elif std is None:
             status = "identified, at a bound (no std)"
+        elif abs(dev) < NEGLIGIBLE.get(unit, 0.0):
+            status = "identified, equals nominal (deviation at rounding level)"
         else:
             sig = abs(dev) > SIGNIFICANT_SIGMA * std if std > 0 else dev != 0
             status = "identified, differs from nominal" if sig else "identified, agrees with nominal (< 3 σ)"
@@ -132,7 +136,8 @@ def calibration_summary(calib: dict, rows: list[CalibrationRow]) -> list[str]:
     """Sentences on the calibration: what was identified, what was held, how well, what correlates."""
     n = len(rows)
     held = [r.name for r in rows if r.held]
-    sig = [r for r in rows if not r.held and r.std is not None and r.std > 0 and abs(r.deviation) > SIGNIFICANT_SIGMA * r.std]
+    sig = [r for r in rows if not r.held and r.std is not None and r.std > 0 and abs(r.deviation) > SIGNIFICANT_SIGMA * r.std
+           and "equals nominal" not in r.status]
     sig.sort(key=lambda r: -abs(r.deviation) / r.std)
     b, a = calib.get("before") or {}, calib.get("after") or {}
     out = [f"Calibration: {n - len(held)} of {n} parameters identified from {calib.get('n_samples', '?')} poses"

@@ -88,8 +88,9 @@ def data_rows(model, test=None, test_path=None) -> list[list]:
             role = f"training ({meta.get('n_train')} for the networks, {meta.get('n_val')} held out for validation)"
         if fp:
             rows.append([role, Path(fp["path"]).name, n, fp["bytes"], f"file {fp['sha256'][:16]}…"])
-        else:
-            rows.append([role, "(file not recorded)", n, None, f"data {str(meta.get(hkey))[:16]}…"])
+        else:  # a dataset built in memory, or a model fitted before hykin recorded its files
+            rows.append([role, "(in memory, not a file)" if fkey in meta else "(not recorded)", n, None,
+                         f"data {str(meta.get(hkey))[:16]}…"])
     if test is not None:
         fp = file_fingerprint(test_path if test_path is not None else getattr(test, "source", ""))
         name = Path(fp["path"]).name if fp else (getattr(test, "source", "") or "(in memory)")

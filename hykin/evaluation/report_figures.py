@@ -73,7 +73,7 @@ def joint_error_figure(q: np.ndarray, errors: dict, revolute=None):
     nrow = -(-n // ncol)
     fig, axes = plt.subplots(nrow, ncol, figsize=(3.4 * ncol, 2.5 * nrow), squeeze=False, sharey=True)
     names = list(errors)
-    floor = max(min(float(np.min(v)) for v in errors.values()), 1e-9)
+    floor = max(min(float(np.min(v)) for v in errors.values()), 1e-15)  # log axis: exact zeros drawn at the floor
     for j in range(n):
         ax = axes[j // ncol, j % ncol]
         x = np.degrees(q[:, j]) if revolute[j] else q[:, j] * 1e3
@@ -99,7 +99,7 @@ def spatial_error_figure(xyz_m: np.ndarray, err_mm: np.ndarray, label: str):
     xyz, e = np.asarray(xyz_m, float), np.asarray(err_mm, float)
     order = np.argsort(e)
     xyz, e = xyz[order], e[order]
-    fig, axes = plt.subplots(1, 3, figsize=(11, 3.6))
+    fig, axes = plt.subplots(1, 3, figsize=(11.5, 3.8), layout="constrained")
     vmax = float(np.percentile(e, 99)) if len(e) else 1.0
     sc = None
     for ax, (i, j) in zip(axes, ((0, 1), (0, 2), (1, 2))):
@@ -107,7 +107,7 @@ def spatial_error_figure(xyz_m: np.ndarray, err_mm: np.ndarray, label: str):
         ax.set_xlabel("xyz"[i] + " [m]")
         ax.set_ylabel("xyz"[j] + " [m]")
         ax.set_aspect("equal", adjustable="datalim")
-    cb = fig.colorbar(sc, ax=list(axes), shrink=0.85, pad=0.02)
+    cb = fig.colorbar(sc, ax=list(axes), shrink=0.85)
     cb.set_label(f"{label} position error [mm]")
     return fig
 
