@@ -80,3 +80,13 @@ def test_fit_cli_logs_stages_and_eta(tmp_path, monkeypatch, capsys):
     assert steps and all("ETA" in s for s in steps)
     assert any(s.startswith("training rot net: done in") for s in err)
 
+
+
+def test_terminal_bar_counts_steps():
+    """On a terminal: a rich bar per network in optimiser steps with its total from the first update."""
+    p = Progress(True, tty=True)
+    with p:
+        cb = p.callback("rot")
+        cb(32, 640, 1e-3, 2e-3)
+        task = p.prog.tasks[0]
+        assert (task.completed, task.total) == (32, 640) and "train 0.0573 deg" in task.fields["info"]

@@ -116,8 +116,40 @@ def console():
     return Console(stderr=True, soft_wrap=True)
 
 
+class _LogProgress:
+    """The :func:`progress` interface (``add_task`` / ``update``) as plain log lines (stderr not a
+    terminal): a line per task when it starts and ends, and one at least every 10 s with an ETA."""
+
+    def __init__(self):
+        self.tasks = {}
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        for log, _ in self.tasks.values():
+            log.done()
+
+    def add_task(self, description: str, total=None, **_):
+        from ..hybrid.progress import LogLines
+
+        k = len(self.tasks)
+        self.tasks[k] = (LogLines(description, unit="samples"), [0, total])
+        return k
+
+    def update(self, task, completed=None, total=None, **_):
+        log, st = self.tasks[task]
+        st[0] = st[0] if completed is None else completed
+        st[1] = st[1] if total is None else total
+        log.update(int(st[0]), st[1])
+
+
 def progress():
-    """A rich progress bar writing to stderr (disabled when stderr is not a terminal and CI is set)."""
+    """A rich progress bar writing to stderr on a terminal; plain log lines otherwise (:class:`_LogProgress`)."""
+    import sys
+
+    if not sys.stderr.isatty():
+        return _LogProgress()
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,

@@ -122,10 +122,12 @@ class Progress:
         desc = f"training {key} net"
         info = lambda tl, vl: f"train {tl * f:.4g} {unit}, val {vl * f:.4g} {unit}"
         if self.prog is not None:
-            task = self.prog.add_task(desc, total=None, info="")
+            task = []  # created at the first call, when the total is known (no "0/None" bar)
 
             def cb(step, total, train_loss, val_loss):
-                self.prog.update(task, completed=step, total=total, info=info(train_loss, val_loss))
+                if not task:
+                    task.append(self.prog.add_task(desc, total=total, info=""))
+                self.prog.update(task[0], completed=step, total=total, info=info(train_loss, val_loss))
 
             return cb
         log = self._lines(desc)
