@@ -70,10 +70,8 @@ def mm(v: float) -> str:
 
 
 def deg(v: float) -> str:
-    """An angle in degrees for a sentence: as arc-seconds below 0.01°, "< 0.001″" below that (rounding level)."""
-    if abs(v) >= 0.01 or v == 0:
-        return f"{v:.3g}°"
-    return f"{v * 3600:.3g}″" if abs(v) * 3600 >= 1e-3 else "< 0.001″"
+    """An angle in degrees for a sentence (3 significant digits), "< 1e-9°" below that (rounding level)."""
+    return f"{v:.3g}°" if abs(v) >= 1e-9 or v == 0 else "< 1e-9°"
 
 
 @dataclass

@@ -85,7 +85,8 @@ def data_rows(model, test=None, test_path=None) -> list[list]:
             continue
         fp = meta.get(fkey)
         if role == "training" and meta.get("val_hash") is None and meta.get("n_val"):
-            role = f"training ({meta.get('n_train')} for the networks, {meta.get('n_val')} held out for validation)"
+            role = (f"training (calibration on all rows; networks on {meta.get('n_train')}, validated on "
+                    f"{meta.get('n_val')} held out)")
         if fp:
             rows.append([role, Path(fp["path"]).name, n, fp["bytes"], f"file {fp['sha256'][:16]}…"])
         else:  # a dataset built in memory, or a model fitted before hykin recorded its files

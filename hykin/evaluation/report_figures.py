@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["correlation_figure", "error_histograms", "joint_bins", "joint_error_figure", "spatial_error_figure"]
+__all__ = ["correlation_figure", "distributions_figure", "error_histograms", "joint_bins", "joint_error_figure", "spatial_error_figure"]
 
 
 def _plt():
@@ -27,19 +27,25 @@ def _plt():
 def error_histograms(before_mm, after_mm, before_deg=None, after_deg=None, labels=("before", "after")):
     """Figure with position (and orientation) error distributions before vs after (paper Fig. 4/8 style),
     on log-spaced bins (before and after differ by orders of magnitude)."""
+    errors = {labels[0]: (before_mm, before_deg), labels[1]: (after_mm, after_deg)}
+    return distributions_figure(errors)
+
+
+def distributions_figure(errors: dict):
+    """Position (and orientation) error distributions of every model in ``errors`` (name -> ``(pos_mm (N,),
+    ang_deg (N,) or None)``), overlaid on shared log-spaced bins."""
     plt = _plt()
-    ncol = 2 if before_deg is not None else 1
+    names = list(errors)
+    ncol = 2 if all(errors[k][1] is not None for k in names) else 1
     fig, axes = plt.subplots(1, ncol, figsize=(5.2 * ncol, 3.4), squeeze=False)
-    for ax, b, a, unit in (
-        (axes[0, 0], before_mm, after_mm, "position error [mm]"),
-        *(((axes[0, 1], before_deg, after_deg, "orientation error [deg]"),) if ncol == 2 else ()),
-    ):
-        b, a = np.asarray(b), np.asarray(a)
-        lo = max(min(b.min(), a.min()), 1e-15)
-        hi = max(b.max(), a.max(), lo * 10)
+    for c, unit in enumerate(("position error [mm]", "orientation error [deg]")[:ncol]):
+        ax = axes[0, c]
+        vals = [np.asarray(errors[k][c]) for k in names]
+        lo = max(min(v.min() for v in vals), 1e-15)
+        hi = max(max(v.max() for v in vals), lo * 10)
         bins = np.geomspace(lo, hi * 1.01, 50)
-        ax.hist(np.maximum(b, lo), bins=bins, alpha=0.6, label=labels[0])
-        ax.hist(np.maximum(a, lo), bins=bins, alpha=0.6, label=labels[1])
+        for k, v in zip(names, vals):
+            ax.hist(np.maximum(v, lo), bins=bins, alpha=0.6 if len(names) <= 2 else 0.5, label=k)
         ax.set_xscale("log")
         ax.set_xlabel(unit)
         ax.set_ylabel("samples")
