@@ -28,8 +28,9 @@ def test_log_lines_every_interval_with_eta():
     assert lines[0] == "training pos net: started"
     gaps = np.diff([0.0, *written_at])
     assert gaps.max() <= 12.0 and len(written_at) >= 120 / 12  # a line at least every 10 s (+ one step)
-    # the first update writes at once; then 12 s later, at step 5 (15 s): ETA = 15 / 5 * 35 = 105 s
-    assert "1/40 steps (2 %), 3 s elapsed, ETA 1 min 57 s" in lines[1]
+    # the first update writes at once (no rate yet); 12 s later, at step 5 (15 s), the rate since then
+    # (4 steps in 12 s) gives ETA = 35 / (4 / 12) = 105 s
+    assert "1/40 steps (2 %), 3 s elapsed, ETA estimating" in lines[1]
     assert "5/40 steps (12 %), 15 s elapsed, ETA 1 min 45 s" in lines[2]
     assert lines[-1].endswith("ETA 0 s")
 
@@ -44,9 +45,12 @@ def test_progress_callbacks_and_budget_cut():
     clock, lines = FakeClock(), []
     p = Progress(True, tty=False, interval_s=10, clock=clock, write=lines.append)
     cb = p.callback("pos")
-    clock.t += 11
-    cb(100, 1000, 1e-4, 2e-4)  # losses in m, shown in mm
-    assert "100/1,000 steps (10 %)" in lines[-1] and "ETA 1 min 39 s" in lines[-1] and "train 0.1 mm, val 0.2 mm" in lines[-1]
+    clock.t += 1
+    cb(10, 1000, 1e-4, float("nan"))  # before the first validation
+    assert lines[-1].endswith("ETA estimating, train 0.1 mm")
+    clock.t += 10
+    cb(100, 1000, 1e-4, 2e-4)  # losses in m, shown in mm; 90 steps in 10 s
+    assert "100/1,000 steps (10 %)" in lines[-1] and "ETA 1 min 40 s" in lines[-1] and "train 0.1 mm, val 0.2 mm" in lines[-1]
     cal = p.calibration(500)
     clock.t += 10
     cal(3, 0.5)

@@ -46,6 +46,7 @@ class LogLines:
         self.write = write or (lambda s: print(s, file=sys.stderr, flush=True))
         self.t0 = self.clock()
         self.last = -math.inf
+        self.first = None  # (time, done) of the first update: the ETA's rate excludes start-up work
         self.write(f"{stage}: started")
 
     def update(self, done: int, total: int | None, info: str = "", final: bool = False) -> bool:
@@ -56,11 +57,16 @@ class LogLines:
             return False
         self.last = now
         el = now - self.t0
+        if self.first is None:
+            self.first = (now, done)
         if total:
             frac = done / total
-            eta = el / done * (total - done) if done > 0 else math.inf
+            t1, d1 = self.first
+            eta = (now - t1) / (done - d1) * (total - done) if done > d1 and now > t1 else None
             line = (f"{self.stage}: {done:,}/{total:,} {self.unit} ({100 * frac:.0f} %), {format_duration(el)} elapsed, "
-                    f"ETA {format_duration(eta)}")
+                    f"ETA {format_duration(eta) if eta is not None else 'estimating'}"
+                    if done < total else
+                    f"{self.stage}: {done:,}/{total:,} {self.unit} (100 %), {format_duration(el)} elapsed, ETA 0 s")
         else:
             line = f"{self.stage}: {done:,} {self.unit}, {format_duration(el)} elapsed, ETA unknown"
         self.write(line + (f", {info}" if info else ""))
@@ -120,7 +126,7 @@ class Progress:
             return None
         unit, f = ("mm", 1e3) if key == "pos" else ("deg", 180 / math.pi)
         desc = f"training {key} net"
-        info = lambda tl, vl: f"train {tl * f:.4g} {unit}, val {vl * f:.4g} {unit}"
+        info = lambda tl, vl: f"train {tl * f:.4g} {unit}" + (f", val {vl * f:.4g} {unit}" if vl == vl else "")
         if self.prog is not None:
             task = []  # created at the first call, when the total is known (no "0/None" bar)
 
