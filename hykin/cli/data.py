@@ -21,10 +21,12 @@ def presets_cmd() -> None:
     try:
         from ..sim.presets import list_virtual_presets, virtual_preset
 
-        typer.echo("virtual robots (use with `hykin simulate`):")
+        typer.echo("virtual robots (use with `hykin simulate`; it writes the nominal robot to fit with, "
+                   "NAME.nominal.toml, beside the data):")
         for name in list_virtual_presets():
-            desc = (virtual_preset(name).description or "").strip().splitlines()
-            typer.echo(f"  {name:16s} {desc[0] if desc else ''}")
+            vr = virtual_preset(name)
+            desc = (vr.description or "").strip().splitlines()
+            typer.echo(f"  {name:16s} {desc[0] if desc else ''} [nominal: {vr.nominal.name}, payload {vr.nominal.payload_kg:g} kg]")
     except ImportError:  # pragma: no cover
         pass
 

@@ -36,4 +36,5 @@ def load_robot(spec: str | Path | Robot) -> Robot:
         return load_urdf(p)
     if p.suffix.lower() == ".toml" or p.exists():
         return load_robot_toml(p)
-    raise RobotFileError(f"{s}: not a preset ({', '.join(list_presets())}), and no such file")
+    raise RobotFileError(f"{s}: not a preset ({', '.join(list_presets())}), and no such file (for a virtual robot, "
+                         "use the NAME.nominal.toml that `hykin simulate` writes beside its data)")
