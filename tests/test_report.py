@@ -54,7 +54,7 @@ def fitted(tmp_path_factory):
     d = tmp_path_factory.mktemp("rep")
     vr = virtual_preset("rx160-geometric", seed=0)
     rng = np.random.default_rng(1)
-    train = simulate(vr, sample("uniform", vr.nominal, 600, rng), noise=False, rng=rng)
+    train = simulate(vr, sample("uniform", vr.nominal, 500, rng), noise=False, rng=rng)
     write_dataset(train, d / "train.csv")
     train = read_dataset(d / "train.csv")
     q = sample("random", vr.nominal, 150, rng)
@@ -151,18 +151,30 @@ def test_calibration_rows_values_and_status():
     assert "2 of 4 parameters identified" in text and "a2 +0.2 mm" in text
 
 
-def test_full_report_contents(fitted, tmp_path):
-    """The one builder on a saved model with test data: every section, the summary's numbers
-    recomputed here, ISO 9283 AP against its closed form."""
-    from hykin.evaluation.evaluate import evaluate_model
+@pytest.fixture(scope="module")
+def built(fitted, tmp_path_factory):
+    """The report of the fitted model on its test data (built once for the content and browser tests)."""
     from hykin.evaluation.report_build import build_report, write_report
 
     model, test, d = fitted
+    out = tmp_path_factory.mktemp("built")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        rep, res = build_report(model, test, model_path=d / "model.hykin", test_path=d / "test.csv", ik_targets=3)
+        rep, res = build_report(model, test, model_path=d / "model.hykin", test_path=d / "test.csv", ik_targets=2)
+    return rep, write_report(rep, out, res)
+
+
+def test_full_report_contents(fitted, built):
+    """The one builder on a saved model with test data: every section, the summary's numbers
+    recomputed here, ISO 9283 AP against its closed form."""
+    from hykin.evaluation.evaluate import evaluate_model
+
+    model, test, d = fitted
+    _, path = built
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
         ref = evaluate_model(model, test)
-    html = write_report(rep, tmp_path, res).read_text()
+    html = path.read_text()
     for h in ("Summary", "Model card", "Accuracy on the test data", "Where the error is", "ISO 9283", "Training support",
               "Per payload and temperature", "Calibration", "Inverse kinematics timing"):
         assert h in html, h
@@ -175,7 +187,7 @@ def test_full_report_contents(fitted, tmp_path):
     sel = test.extra["pose_id"] == 1
     ap = np.linalg.norm((test.xyz_m[sel] - ref.predicted["hybrid"][sel][:, :3, 3]).mean(0)) * 1e3
     assert re.search(r"<td class='text'>hybrid</td><td class='text'>1</td><td>4</td><td>" + re.escape(f"{ap:.4g}"), html)
-    assert json.loads((tmp_path / "evaluation.json").read_text())["n"] == len(test.q)
+    assert json.loads((path.parent / "evaluation.json").read_text())["n"] == len(test.q)
 
 
 def test_report_without_test_data(fitted, tmp_path):
@@ -248,18 +260,12 @@ def test_report_renders_in_headless_chromium(tmp_path):
 
 @pytest.mark.browser
 @pytest.mark.skipif(CHROMIUM is None, reason=NO_BROWSER)
-def test_model_report_in_chromium_fits_loads_and_prints_a4(fitted, tmp_path):
+def test_model_report_in_chromium_fits_loads_and_prints_a4(built, tmp_path):
     """The full model report: no horizontal overflow at 1000 px, every figure decoded, a screenshot
     with content, and an A4 PDF."""
     import matplotlib.image as mpimg
 
-    from hykin.evaluation.report_build import build_report, write_report
-
-    model, test, d = fitted
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        rep, res = build_report(model, test, model_path=d / "model.hykin", test_path=d / "test.csv", ik_targets=2)
-    path = write_report(rep, tmp_path / "out", res)
+    rep, path = built
     chk = browser_check(path, tmp_path)
     assert chk["images"] == rep.n_figures >= 4 and chk["broken"] == 0, chk
     assert chk["scrollWidth"] <= chk["innerWidth"] and chk["tooWide"] == 0, chk
