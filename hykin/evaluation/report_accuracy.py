@@ -173,12 +173,13 @@ def per_temperature_rows(temp_c, errors: dict, n_bins: int = 4) -> list[list]:
     edges = np.unique(np.quantile(t, np.linspace(0, 1, n_bins + 1)))
     k = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, len(edges) - 2)
     rows = []
+    dec = max(1, int(np.ceil(-np.log10(np.min(np.diff(edges))))) + 1)  # enough decimals to tell the bins apart
     for b in range(len(edges) - 1):
         sel = k == b
         if not sel.any():
             continue
         for name, (p, a) in errors.items():
-            rows.append([f"{edges[b]:.1f} … {edges[b + 1]:.1f}", name, int(sel.sum()), float(p[sel].mean()),
+            rows.append([f"{edges[b]:.{dec}f} … {edges[b + 1]:.{dec}f}", name, int(sel.sum()), float(p[sel].mean()),
                          float(np.percentile(p[sel], 95)), None if a is None else float(a[sel].mean())])
     return rows
 
