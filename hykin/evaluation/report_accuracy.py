@@ -111,8 +111,9 @@ def iso_rows(data, predicted: dict) -> tuple[list[list], str]:
             r = iso9283_pose(T[sel], T_meas, ids[sel], tol_m=1e-9, tol_rad=1e-9)
             for i, pid in enumerate(r.pose_ids):
                 pid = int(pid) if isinstance(pid, float) and pid.is_integer() else pid
+                ang = [None] * 3 if not data.has_orientation else list(map(float, r.ap_abc_deg[i]))  # position-only data
                 rows.append([name, str(pid), int(r.n[i]), float(r.ap_mm[i]), *map(float, r.ap_xyz_mm[i]),
-                             *map(float, r.ap_abc_deg[i]), float(r.rp_mm[i])])
+                             *ang, float(r.rp_mm[i])])
     except ISOError as e:
         return [], f"not computed: {e}"
     return rows, ("AP: distance of the mean attained position from the commanded one (the model's prediction); "
