@@ -61,6 +61,7 @@ def test_progress_callbacks_and_budget_cut():
     assert Progress(False).callback("pos") is None and Progress(False).calibration(5) is None
 
 
+@pytest.mark.slow  # a real fit (about 6 s of CPU); the line logic is covered above with a fake clock
 def test_fit_cli_logs_stages_and_eta(tmp_path, monkeypatch, capsys):
     """`hykin fit` with stderr not a terminal: a stage line for the calibration and each network, and
     progress lines with steps and an ETA (interval 0 here: a line per callback)."""
