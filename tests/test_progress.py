@@ -95,3 +95,14 @@ def test_terminal_bar_counts_steps():
         cb(32, 640, 1e-3, 2e-3)
         task = p.prog.tasks[0]
         assert (task.completed, task.total) == (32, 640) and "train 0.0573 deg" in task.fields["info"]
+
+
+def test_stage_without_steps():
+    clock, lines = FakeClock(), []
+    p = Progress(True, tty=False, clock=clock, write=lines.append)
+    st = p.stage("prediction bands")
+    clock.t += 75
+    st.done()
+    assert lines == ["prediction bands: started", "prediction bands: done in 1 min 15 s"]
+    silent = Progress(False).stage("x")
+    silent.done()  # writes nothing, raises nothing

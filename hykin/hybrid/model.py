@@ -292,6 +292,7 @@ class HybridModel:
         self.meta_ = fitting.training_metadata(self, train_in, val_in, n_split=(len(qt), len(qv), len(q)),
                                        has_orientation=dr is not None, timings=timings, results=results, calib=calib)
         iv, iv_cal, val_cal, cal_rows = sp["iv"], sp["iv_cal"], sp["val_cal"], sp["cal_rows"]
+        bands_stage = Progress(progress).stage("prediction bands (held-out errors, extrapolation growth)")
         if val is None:
             rows = iv_cal if iv_cal is not None else iv
             self._fit_uncertainty(train, None, rows)
@@ -299,6 +300,7 @@ class HybridModel:
         else:
             self._fit_uncertainty(train, val_cal if val_cal is not None else val, None)
             raw = val_in.subset(cal_rows) if cal_rows is not None else val_in
+        bands_stage.done()
         if self.thermal_ is not None and self.thermal_.coefficient_per_k != 0.0:
             T_c, T_h = self._predict_unframed(raw.q, payload_of(raw))
             self.unc_.update(bands.notemp_quantiles(self.unc_, raw, T_c, T_h))

@@ -151,6 +151,10 @@ class Progress:
         log = self._lines(f"calibration ({n_poses:,} poses)", unit="LM iterations")
         return lambda it, cost: log.update(int(it), None, f"cost {cost:.4g}")
 
+    def stage(self, name: str) -> LogLines:
+        """A stage without steps: its "started" line now, ``.done()`` for its "done in" line (silent when disabled)."""
+        return self._lines(name, unit="") if self.enabled else LogLines(name, write=lambda s: None)
+
     def stage_done(self, prefix: str, info: str = "") -> None:
         for k, log in self.logs.items():
             if k.startswith(prefix):
