@@ -123,6 +123,8 @@ _EXPORTS = {
     "model_with_payload": "io.payload",
     "errors_per_payload": "io.payload",
     "Report": "evaluation.report",
+    "build_report": "evaluation.report_build",
+    "write_report": "evaluation.report_build",
     # evaluation, measurement
     "error_stats": "evaluation.metrics",
     "pose_errors": "evaluation.metrics",

@@ -18,6 +18,32 @@ app = typer.Typer(
     help="hykin: high-accuracy hybrid kinematics for serial robot arms (classical model + calibration + residual networks).",
 )
 
+def _plain_help() -> None:
+    """Help as the README writes it: arguments upper-case (``ROBOT``, ``[TEST]``, not ``{robot}``) and no
+    ``<bool>`` type placeholder on flags. Typer 0.2x renders these itself; this adjusts its two hooks."""
+    from typer import core as tc
+
+    opt_type = getattr(tc.TyperOption, "display_type_rich", None)
+    if opt_type is not None and not getattr(opt_type, "_hykin", False):
+        def display_type_rich(self, ctx):
+            return None if getattr(self, "is_flag", False) else opt_type(self, ctx)
+
+        display_type_rich._hykin = True
+        tc.TyperOption.display_type_rich = display_type_rich
+    if hasattr(tc.TyperArgument, "_usage_display_name"):
+        def usage_name(self):
+            name = self.metavar or (self.name or "").upper()
+            if not self.required and not name.startswith("["):
+                name = f"[{name}]"
+            return name + ("..." if self.nargs != 1 else "")
+
+        tc.TyperArgument._usage_display_name = usage_name
+        tc.TyperArgument.display_name_raw = property(lambda self: self.metavar or (self.name or "").upper())
+
+
+_plain_help()
+
+
 def _version(value: bool) -> None:
     if value:
         from .. import __version__
@@ -100,8 +126,40 @@ def console():
     return Console(stderr=True, soft_wrap=True)
 
 
+class _LogProgress:
+    """The :func:`progress` interface (``add_task`` / ``update``) as plain log lines (stderr not a
+    terminal): a line per task when it starts and ends, and one at least every 10 s with an ETA."""
+
+    def __init__(self):
+        self.tasks = {}
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        for log, _ in self.tasks.values():
+            log.done()
+
+    def add_task(self, description: str, total=None, **_):
+        from ..hybrid.progress import LogLines
+
+        k = len(self.tasks)
+        self.tasks[k] = (LogLines(description, unit="samples"), [0, total])
+        return k
+
+    def update(self, task, completed=None, total=None, **_):
+        log, st = self.tasks[task]
+        st[0] = st[0] if completed is None else completed
+        st[1] = st[1] if total is None else total
+        log.update(int(st[0]), st[1])
+
+
 def progress():
-    """A rich progress bar writing to stderr (disabled when stderr is not a terminal and CI is set)."""
+    """A rich progress bar writing to stderr on a terminal; plain log lines otherwise (:class:`_LogProgress`)."""
+    import sys
+
+    if not sys.stderr.isatty():
+        return _LogProgress()
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,

@@ -55,7 +55,7 @@ def compensate_cmd(
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
 ) -> None:
-    """Compensated targets for a controller that runs the nominal model (DESIGN.md §6)."""
+    """Compensated targets for a controller that runs the nominal model (see docs/compensation.md)."""
     kind = _format_of(inp, fmt)
     if frame not in ("auto", "measurement", "base"):
         raise CLIError(f"--frame must be auto, measurement or base, got {frame!r}")

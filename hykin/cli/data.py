@@ -22,10 +22,12 @@ def presets_cmd() -> None:
     try:
         from ..sim.presets import list_virtual_presets, virtual_preset
 
-        typer.echo("virtual robots (use with `hykin simulate`):")
+        typer.echo("virtual robots (use with `hykin simulate`; it writes the nominal robot to fit with, "
+                   "NAME.nominal.toml, beside the data):")
         for name in list_virtual_presets():
-            desc = (virtual_preset(name).description or "").strip().splitlines()
-            typer.echo(f"  {name:16s} {desc[0] if desc else ''}")
+            vr = virtual_preset(name)
+            desc = (vr.description or "").strip().splitlines()
+            typer.echo(f"  {name:16s} {desc[0] if desc else ''} [nominal: {vr.nominal.name}, payload {vr.nominal.payload_kg:g} kg]")
     except ImportError:  # pragma: no cover
         pass
 
@@ -34,8 +36,11 @@ def presets_cmd() -> None:
 def simulate_cmd(
     preset: str = typer.Argument(..., help="Virtual robot preset, e.g. rx160-virtual (see `hykin presets`)."),
     n: int = typer.Option(10_000, "-n", help="Number of samples.", min=1),
-    out: Path = typer.Option(..., "-o", "--out", help="Output dataset (.csv or .parquet); truth saved beside it."),
-    seed: int = typer.Option(0, "--seed", help="Random seed (reproducible)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output dataset (.csv or .parquet); the truth (NAME.truth.json) and "
+                             "the nominal robot to fit with (NAME.nominal.toml) are written beside it."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the virtual robot's deviations, the poses and the noise (same "
+                             "seed, same files). For more data from the SAME robot, pass its truth file (NAME.truth.json) "
+                             "as PRESET: the seed then draws only poses and noise."),
     plan: str = typer.Option("uniform", "--plan", help="Sampling plan: uniform, random, zigzag, iso-cube, restricted."),
     noise: bool = typer.Option(True, "--noise/--no-noise", help="Add tracker-like measurement noise."),
     payloads: str | None = typer.Option(None, "--payloads", help="Payload masses in kg, e.g. 0,12: rows cycle through them (column payload_kg)."),
@@ -63,12 +68,14 @@ def simulate_cmd(
     from ..sim.presets import virtual_preset
     from ..sim.simulate import load_truth, truth_path_for
 
+    nominal_path = out.with_name(out.stem + ".nominal.toml")  # the robot to fit with: hykin fit NOMINAL OUT
     check_output(out, (preset,), force)
     check_output(truth_path_for(out), (preset,), force)  # the truth file written beside it
+    check_output(nominal_path, (preset,), force)
     if preset.lower().endswith(".json"):
-        load_truth(preset)
+        vr = load_truth(preset)
     else:
-        virtual_preset(preset)  # an unknown name fails here, before the progress bar starts
+        vr = virtual_preset(preset, seed=seed)  # an unknown name fails here, before the progress bar starts
 
     pl = None
     if payloads is not None:
@@ -85,7 +92,12 @@ def simulate_cmd(
             preset, n, out, plan=plan.replace("-", "_"), seed=seed, noise=noise, payloads=pl,
             progress=lambda done, total: prog.update(task, completed=done, total=total),
         )
+    from ..io.robot_toml import save_robot_toml
+
+    save_robot_toml(vr.nominal, nominal_path)
     typer.echo(f"wrote {n} samples to {out}" + (f" (truth: {info})" if info else ""))
+    typer.echo(f"nominal robot of {vr.name} (payload {vr.nominal.payload_kg:g} kg): {nominal_path} "
+               f"(fit with: hykin fit {nominal_path} {out} -o model.hykin)")
 
 
 def _read_trajectory(path: Path, dof: int) -> tuple[np.ndarray, np.ndarray]:
@@ -154,7 +166,7 @@ def split_cmd(
     data: Path = typer.Argument(..., help="Dataset to split (.csv/.parquet)."),
     out_prefix: Path = typer.Option(..., "-o", "--out", help="Output prefix: writes PREFIX_train.csv and PREFIX_test.csv."),
     test: float = typer.Option(0.2, "--test", help="Fraction held out for testing.", min=0.01, max=0.99),
-    seed: int = typer.Option(0, "--seed"),
+    seed: int = typer.Option(0, "--seed", help="Random seed of the split (reproducible)."),
     group: str | None = typer.Option(None, "--group", help="Keep rows with the same value of this column together."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,

@@ -84,8 +84,10 @@ def fit_cmd(
     recipe: str = typer.Option("default", "--recipe", help="Training recipe: default or paper."),
     calibrate: bool = typer.Option(True, "--calibrate/--no-calibrate", help="Parametric calibration before the networks."),
     device: str = typer.Option("cpu", "--device", help="cpu, cuda, or auto."),
-    seed: int = typer.Option(0, "--seed"),
-    max_minutes: float | None = typer.Option(None, "--max-minutes", help="Time budget for network training."),
+    seed: int = typer.Option(0, "--seed", help="Random seed (validation split, network initialisation, batch order): "
+                             "same data, options and seed give the same model."),
+    max_minutes: float | None = typer.Option(None, "--max-minutes", help="Time budget for network training, minutes "
+                                             "(training stops there, keeps the best weights and says how far it got)."),
     thermal: str = typer.Option("auto", "--thermal", help="Thermal expansion from a temperature_c column: auto, on, off."),
     min_steps: int | None = typer.Option(None, "--min-steps", help="Least number of optimiser steps per network (default recipe: 30000)."),
     max_epochs: int | None = typer.Option(None, "--max-epochs", help="Most training epochs per network (default: the recipe's)."),
@@ -101,9 +103,9 @@ def fit_cmd(
 ) -> None:
     """Fit a hybrid model: calibrate the classical model, then train the residual networks.
 
-    Exactly the API path: ``HybridModel(robot, ...).fit(train, val)``; without ``--val`` the model
-    holds out its validation rows itself, so the same data, options and seed give the same model; the
-    calibration uses all of TRAIN (the networks' split must not change the calibrated robot)."""
+    The same path as the Python API (HybridModel(robot).fit(train, val)). Without --val the model holds
+    out 10 % of TRAIN for validation itself, so the same data, options and seed give the same model; the
+    calibration uses all of TRAIN."""
     from ..hybrid.model import HybridModel
     from ..io.dataset_files import read_dataset
     from ..io.plausibility import check_fit_size
@@ -180,7 +182,8 @@ def evaluate_cmd(
     unit_check: bool = UnitCheck,
 ) -> None:
     """Before/after error table (mean, std, p95, max; position mm, orientation deg)."""
-    from ..evaluation.evaluate import evaluate_model, evaluation_report
+    from ..evaluation.evaluate import evaluate_model
+    from ..evaluation.report_build import evaluation_report
     from ..io.dataset_files import read_dataset
 
     if report is not None and report.exists() and not report.is_dir():
@@ -195,7 +198,14 @@ def evaluate_cmd(
     else:
         typer.echo(res.table())
     if report is not None:
-        path = evaluation_report(res, report)
+        import warnings
+
+        from ..hybrid.model import OutOfRangeWarning
+
+        with warnings.catch_warnings():  # the report counts the poses outside the training data itself
+            warnings.simplefilter("ignore", OutOfRangeWarning)
+            path = evaluation_report(res, report, model=mdl if mdl is not None else rob, data=ds,
+                                     model_path=model if mdl is not None else None, test_path=test)
         typer.echo(f"report written to {path}")
 
 
@@ -349,7 +359,7 @@ def demo_cmd(
     out: Path = typer.Option(Path("hykin-demo"), "-o", "--out", help="Output directory for the report and files."),
     n_train: int = typer.Option(10_000, "--n-train", help="Training samples."),
     quick: bool = typer.Option(False, "--quick", help="A much smaller run (for smoke tests)."),
-    seed: int = typer.Option(0, "--seed"),
+    seed: int = typer.Option(0, "--seed", help="Random seed of the simulated data and of the fits."),
 ) -> None:
     """The main job on the embedded default: virtual RX160, calibrate, train, evaluate, IK, report."""
     from .demo import run_demo

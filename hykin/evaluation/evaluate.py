@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from ..geometry.se3 import pose_error
+from ..geometry.se3 import pose_error, rotation_difference_rotvec
 from ..io.dataset import Dataset
 from ..io.payload import (
     errors_per_payload,
@@ -19,10 +18,9 @@ from ..io.payload import (
 from ..kinematics.fk import fk
 from ..kinematics.robot import Robot
 from .metrics import ErrorStats, error_stats, format_table
-from .report import Report, error_histograms
 
-__all__ = ["NOMINAL_FITTED", "EvalResult", "evaluate_model", "evaluate_per_payload", "evaluation_report",
-           "joint_region_rows", "nominal_row"]
+__all__ = ["NOMINAL_FITTED", "EvalResult", "evaluate_model", "evaluate_per_payload", "joint_region_rows",
+           "nominal_row"]
 
 
 @dataclass
@@ -43,6 +41,11 @@ class EvalResult:
     per_payload: dict | None = None  # errors_per_payload(...) when the data carry a payload_kg column
     regions: list = field(default_factory=list)  # per joint-quartile region rows (registered models), region_table
     labels: dict = field(default_factory=dict)  # row name -> label in the table (e.g. "nominal + fitted frames")
+    #: row name -> ``(dp_mm (N, 3), dr_deg (N, 3) or None)``: predicted minus measured position (base x, y, z)
+    #: and the rotation vector of ``R_pred R_measᵀ`` (about base x, y, z); their norms are ``errors``
+    vectors: dict[str, tuple[np.ndarray, np.ndarray | None]] = field(repr=False, default_factory=dict)
+    #: row name -> ``(N, 4, 4)`` predicted poses, m (for ISO 9283 and the report)
+    predicted: dict[str, np.ndarray] = field(repr=False, default_factory=dict)
 
     def region_table(self) -> str:
         """Per joint-region mean errors (mm / deg): hybrid vs calibrated vs nominal + fitted frames (registered models)."""
@@ -156,18 +159,20 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
         preds["hybrid"] = model.predict(data.q, temperature_c=temp, **pkw)
         if hasattr(model, "support_distance"):
             dist = np.asarray(model.support_distance(data.q))
-    stats, errors = {}, {}
+    stats, errors, vectors = {}, {}, {}
     for name, T in preds.items():
         stats[name] = error_stats(T, T_meas, position_only=pos_only)
         p, a = pose_error(T, T_meas)
         errors[name] = (p, None if pos_only else a)
+        vectors[name] = ((T[:, :3, 3] - T_meas[:, :3, 3]) * 1e3,
+                         None if pos_only else np.degrees(rotation_difference_rotvec(T[:, :3, :3], T_meas[:, :3, :3])))
     regions = []
     if registered and "nominal" in preds:
         regions = joint_region_rows(data.q, {labels.get(k, k): errors[k] for k in ("hybrid", "calibrated", "nominal")
                                              if k in errors})
     return EvalResult(
         dataset=data.source, n=len(data), position_only=pos_only, stats=stats, errors=errors, support_distance=dist,
-        per_payload=evaluate_per_payload(errors, data), regions=regions, labels=labels,
+        per_payload=evaluate_per_payload(errors, data), regions=regions, labels=labels, vectors=vectors, predicted=preds,
     )
 
 
@@ -197,22 +202,3 @@ def joint_region_rows(q: np.ndarray, errors: dict, n_quantiles: int = 4) -> list
             row[k] = (float(p[sel].mean()), None if a is None else float(a[sel].mean()))
         out.append(row)
     return out
-
-
-def evaluation_report(res: EvalResult, out_dir: str | Path, title: str = "hykin evaluation") -> Path:
-    """Write ``out_dir/report.html`` with the table and before/after error distributions."""
-    out_dir = Path(out_dir)
-    rep = Report(title)
-    rep.text(f"Dataset: {res.dataset} ({res.n} samples{', position only' if res.position_only else ''}).")
-    rep.heading("Errors")
-    rep.pre(res.table())
-    names = list(res.errors)
-    first, last = names[0], names[-1]
-    b, a = res.errors[first], res.errors[last]
-    rep.figure(
-        error_histograms(b[0], a[0], b[1], a[1], labels=(first, last)),
-        caption=f"Error distributions, {first} vs {last}.",
-    )
-    (out_dir).mkdir(parents=True, exist_ok=True)
-    (out_dir / "evaluation.json").write_text(res.json(), encoding="utf-8")
-    return rep.write(out_dir / "report.html")

@@ -72,6 +72,7 @@ from . import support as sup_
 from .errors import HybridError, OutOfRangeWarning
 from .nets import ResidualNet
 from .optional import optional_step
+from .progress import Progress
 from .rotations import rotate_poses
 from .settings import check_settings, empty_fitted_state
 from .support import Support, support_report
@@ -240,7 +241,7 @@ class HybridModel:
         if val is not None:
             payload_of(val)
         self._skipped = {}  # optional steps that failed (hykin.hybrid.optional): name -> cause
-        self._calibrate_on(train)
+        self._calibrate_on(train, progress=progress)
         self.station_frames_ = stations.fit_station_frames(self, train)  # several stations: data in one frame
         train_in, val_in = train, val = tuple(stations.in_model_frame(self, d) for d in (train, val))
         temp = None if self.thermal is False else temperature_of(train)
@@ -303,6 +304,7 @@ class HybridModel:
                                        has_orientation=dr is not None, timings=timings, results=results, calib=calib)
         iv, iv_cal, val_cal, cal_rows = sp["iv"], sp["iv_cal"], sp["val_cal"], sp["cal_rows"]
         # optional from here on (hykin.hybrid.optional): a failure warns once and keeps the model
+        bands_stage = Progress(progress).stage("prediction bands (held-out errors, extrapolation growth)")
         if val is None:
             rows = iv_cal if iv_cal is not None else iv
             raw = train_in.subset(np.asarray(rows)) if len(rows) >= 10 else train_in
@@ -312,6 +314,7 @@ class HybridModel:
             raw = val_in.subset(cal_rows) if cal_rows is not None else val_in
             self.unc_ = optional_step("uncertainty bands", self._skipped, fit_bands, self, train,
                                       val_cal if val_cal is not None else val, None, raw, self._skipped)
+        bands_stage.done()
         if int(self.fade_cv) >= 2 and self.fade is not False:  # hykin.hybrid.fade: fade measured by leave-one-region-out
             from .fade import calibrate_fade
 
@@ -331,24 +334,9 @@ class HybridModel:
             self.meta_["metrics"]["held_out"] = self._metrics(train_in.subset(held))
         return self
 
-    def _calibrate_on(self, ds) -> tuple[Robot, object]:
-        """Set (and return) ``robot_`` and ``calibration_`` from ``ds``: calibrated, or the nominal robot."""
-        if self.calibrate:
-            from ..calibration.calibrate import calibrate as _calibrate
-
-            kw = dict(self.calibrate_kw or {})
-            if kw.pop("select", None) == "region-cv":  # parameter set by region-blocked validation
-                from .region_cv import select_calibration
-
-                self.calibration_cv_ = optional_step("region-blocked parameter selection", getattr(self, "_skipped", {}),
-                                                     select_calibration, self.robot, ds, base_kw=kw)
-                if self.calibration_cv_ is not None:
-                    kw.update(self.calibration_cv_.kwargs)
-            res = _calibrate(self.robot, ds, **kw)
-            self.robot_, self.calibration_ = res.robot, res
-        else:
-            self.robot_, self.calibration_ = self.robot.copy(), None
-        return self.robot_, self.calibration_
+    def _calibrate_on(self, ds, progress: bool = False) -> tuple[Robot, object]:
+        """Set (and return) ``robot_`` and ``calibration_`` from ``ds`` (:func:`fitting.calibrate_on`)."""
+        return fitting.calibrate_on(self, ds, progress)
 
     def targets_at_reference(self, T_target, temperature_c):
         """Targets measured at ``temperature_c`` (°C) mapped to the reference temperature, where

@@ -101,6 +101,11 @@ def write_model_file(path: str | Path, tensors: dict, meta: dict) -> None:
     md = {"format": FORMAT, "format_version": str(FORMAT_VERSION), "hykin": json.dumps(meta, allow_nan=False)}
     md["content_sha256"] = content_hash(t, md)
     save_file(t, str(path), metadata=md)
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(path, 0o666 & ~mask)  # safetensors writes 0600; a model file is shared like any data file (0644)
 
 
 def stored_content_hash(path: str | Path) -> str | None:

@@ -40,4 +40,5 @@ def load_robot(spec: str | Path | Robot, base_link: str | None = None, tip_link:
         return load_urdf(p, base_link, tip_link)
     if p.suffix.lower() == ".toml" or p.exists():
         return load_robot_toml(p)
-    raise RobotFileError(f"{s}: not a preset ({', '.join(list_presets())}), and no such file")
+    raise RobotFileError(f"{s}: not a preset ({', '.join(list_presets())}), and no such file (for a virtual robot, "
+                         "use the NAME.nominal.toml that `hykin simulate` writes beside its data)")

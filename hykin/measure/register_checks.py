@@ -267,8 +267,12 @@ def networks_transfer(w: np.ndarray, T_h: np.ndarray, T_c: np.ndarray, T_meas: n
     on = w > 0
     n = int(on.sum())
     if n < MIN_CHECK_POSES:
-        return True, (f"network correction: applies (weight > 0) at {n} of {len(w)} registration poses "
-                      f"(fewer than {MIN_CHECK_POSES}: not checked)")
+        if n == 0:
+            return True, (f"network correction: none of the {len(w)} registration poses lies inside the training data, "
+                          "so whether the learned correction carries over to this series cannot be checked; it is kept "
+                          "and applies wherever later poses fall inside the training data")
+        return True, (f"network correction: only {n} of {len(w)} registration poses lie inside the training data "
+                      f"(at least {MIN_CHECK_POSES} are needed to test whether it carries over): kept unchecked")
     ph, ah = loo_errors(T_h, T_meas, position_only)
     pc, ac = loo_errors(T_c, T_meas, position_only)
     pairs = [("mm", ph[on] * 1e3, pc[on] * 1e3)]
