@@ -17,7 +17,7 @@ LAYERS = [
     {"calibration"},
     {"sim", "measure", "hybrid"},
     {"evaluation", "planning", "compensation"},
-    {"distributed"},
+    {"realtime", "distributed"},
     {"cli"},
 ]
 LAYER_OF = {pkg: i for i, layer in enumerate(LAYERS) for pkg in layer}

@@ -21,6 +21,7 @@ def small_model():
     return HybridModel(vr.nominal, seed=0, recipe_kw={"max_epochs": 15}).fit(train, progress=False)
 
 
+@pytest.mark.filterwarnings("ignore::hykin.hybrid.errors.OutOfRangeWarning")  # random test poses a hair outside the training range
 def test_demo_quick_writes_report_and_beats_nominal(tmp_path):
     from hykin.cli.demo import run_demo
 
@@ -40,6 +41,7 @@ def test_demo_quick_writes_report_and_beats_nominal(tmp_path):
     assert json.loads((tmp_path / "demo" / "truth.json").read_text())
 
 
+@pytest.mark.filterwarnings("ignore::hykin.hybrid.errors.OutOfRangeWarning")  # random joints fall in holes of 1,500 samples
 def test_onnx_export_matches_hykin(tmp_path, small_model):
     pytest.importorskip("onnxruntime")
     from hykin.hybrid.export import export_onnx

@@ -55,7 +55,11 @@ def server():
     yield client, HybridModel.load(mp), proc
     client.close()
     proc.terminate()
-    proc.wait(10)
+    try:
+        proc.wait(60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(10)
 
 
 def _rows(T):
@@ -136,3 +140,186 @@ def test_load_loop_2000(server):
     c, m, proc = server
     _load(c, m, 2000, 300)
     assert proc.poll() is None
+
+
+# --------------------------------------------------------------------------- streaming, token, limits, health
+# An in-process server (uvicorn in a thread, the model already loaded) with a token and small limits.
+
+TOKEN = "s3cret-Token_42"
+DELAY_S = 0.05
+
+
+@pytest.fixture(scope="module")
+def guarded():
+    import threading
+
+    import uvicorn
+
+    from hykin.compensation.service import uvicorn_config
+    from hykin.compensation.service_guard import ServiceLimits, model_identity
+    from hykin.hybrid.model import HybridModel
+
+    mp = tiny_model_file()
+    m = HybridModel.load(mp)
+    port = _free_port()
+    limits = ServiceLimits(max_body_bytes=64 * 1024, max_message_bytes=1024, token=TOKEN, refusal_delay_s=DELAY_S)
+    t_load = time.time()
+    srv = uvicorn.Server(uvicorn_config(m, "127.0.0.1", port, limits, model_identity(mp)))
+    th = threading.Thread(target=srv.run, daemon=True)
+    th.start()
+    t0 = time.time()
+    while not srv.started:
+        assert th.is_alive() and time.time() - t0 < 60, "in-process server did not start"
+        time.sleep(0.05)
+    client = httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=60)
+    yield client, m, mp, port, t_load
+    client.close()
+    srv.should_exit = True
+    th.join(10)
+
+
+def _auth(token=TOKEN):
+    return {"Authorization": f"Bearer {token}"}
+
+
+def test_health_reports_the_model_files_hash_and_load_time(guarded):
+    import hashlib
+    from datetime import datetime
+
+    from safetensors import safe_open
+
+    c, m, mp, _, t_load = guarded
+    h = c.get("/health").json()  # open without the token
+    with safe_open(str(mp), framework="pt") as f:
+        assert h["model_sha256"] == f.metadata()["content_sha256"]
+    assert h["file_sha256"] == hashlib.sha256(Path(mp).read_bytes()).hexdigest()
+    loaded = datetime.fromisoformat(h["loaded_at"]).timestamp()
+    assert t_load - 1 <= loaded <= time.time() and h["dof"] == 6 and h["model"] == m.nominal.name
+
+
+def test_bearer_token_and_body_limit(guarded):
+    c, m, *_ = guarded
+    body = {"q": m.nominal.random_joints(2, 1, margin=0.2).tolist()}
+    t = time.perf_counter()
+    r = c.post("/fk", json=body)
+    assert time.perf_counter() - t >= DELAY_S  # refusals are answered after the refusal delay
+    assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer" and "token" in r.json()["detail"]
+    assert c.post("/fk", json=body, headers=_auth("wrong")).status_code == 401
+    assert c.post("/fk", json=body, headers={"Authorization": TOKEN}).status_code == 401  # no scheme
+    assert c.post("/fk", json=body, headers=_auth()).status_code == 200
+    big = b'{"q": [' + b",".join([b"[0,0,0,0,0,0]"] * 6000) + b"]}"  # 84 KB > 64 KiB
+    r = httpx.post(f"{str(c.base_url).rstrip('/')}/fk", content=big, headers={**_auth(), "content-type": "application/json"})
+    assert r.status_code == 413 and "65536" in r.json()["detail"]
+    counts = c.get("/health").json()["counts"]
+    assert counts["refused_auth"] == 3 and counts["refused_size"] == 1
+    assert c.post("/fk", json=body, headers=_auth()).status_code == 200  # still answering
+
+
+def _stream_url(port, frame=None):
+    return f"ws://127.0.0.1:{port}/stream" + (f"?frame={frame}" if frame else "")
+
+
+def test_stream_replies_in_order_and_survives_bad_messages(guarded):
+    import json
+
+    from websockets.sync.client import connect
+
+    _, m, _, port, _ = guarded
+    nom = m.nominal
+    q = nom.random_joints(5, 11, margin=0.3)
+    T = m.predict(q)
+    rows = _rows(T)
+    msgs = [json.dumps({"target": rows[0], "id": "first"}),  # no q yet: refused
+            json.dumps({"target": rows[0], "q": q[0].tolist(), "id": 0}),
+            "{not json",
+            json.dumps({"target": rows[1], "id": 1}),  # q from the last answer
+            json.dumps({"target": rows[2], "q": q[2].tolist(), "id": 2, "extra": 1}),
+            json.dumps({"target": [4.0, 0, 0, 1, 0, 0, 0], "q": q[2].tolist(), "id": "far"}),
+            json.dumps({"target": rows[3][:3], "q": q[3].tolist()}),
+            json.dumps({"target": rows[4], "q": q[4].tolist(), "id": 4})]
+    with connect(_stream_url(port), additional_headers=_auth(), open_timeout=30) as ws:
+        for s in msgs:  # pipelined: all sent before the first reply is read
+            ws.send(s)
+        replies = [json.loads(ws.recv(timeout=60)) for _ in msgs]
+    assert [r["seq"] for r in replies] == list(range(1, len(msgs) + 1))
+    assert [r.get("id") for r in replies] == ["first", 0, None, 1, 2, "far", None, 4]
+    assert "'q'" in replies[0]["error"] and "malformed" in replies[2]["error"]
+    assert "unknown field" in replies[4]["error"] and "7 numbers" in replies[6]["error"]
+    assert replies[5]["success"] is False and replies[5]["command"] is None and replies[5]["reason"]
+    for r, k in zip((replies[1], replies[3], replies[7]), (0, 1, 4)):
+        assert r["success"] is True and r["reason"] == ""
+        qa = np.array(r["q"])
+        assert se3.pose_error(m.predict(qa[None]), T[k:k + 1])[0][0] < 1e-6  # the model reaches the target
+        cmd = np.array(r["command"])
+        ref = np.linalg.inv(nom.base) @ fk(nom, qa[None])[0]  # what a nominal controller is asked for
+        assert np.abs(cmd[:3] - ref[:3, 3]).max() < 1e-12
+        assert se3.pose_error(se3.pose_to_transform(cmd[None, :3], cmd[None, 3:]), ref[None])[1][0] < 1e-9
+
+
+def test_stream_refusals_close_codes(guarded):
+    import json
+
+    from websockets.exceptions import ConnectionClosed, InvalidStatus
+    from websockets.sync.client import connect
+
+    c, m, _, port, _ = guarded
+    for headers, frame in ((None, None), (_auth("nope"), None), (_auth(), "tool")):
+        with pytest.raises(InvalidStatus) as e:
+            connect(_stream_url(port, frame), additional_headers=headers, open_timeout=30)
+        assert e.value.response.status_code == 403
+    with connect(_stream_url(port), additional_headers=_auth(), open_timeout=30) as ws:
+        ws.send(json.dumps({"target": [0.5, 0, 0.5, 1, 0, 0, 0], "q": [0.0] * 6, "pad": "x" * 2000}))
+        with pytest.raises(ConnectionClosed) as e:
+            ws.recv(timeout=30)
+        assert e.value.rcvd.code == 1009
+    assert c.get("/health").status_code == 200
+
+
+def test_model_worker_bounded_queue_and_stream_priority():
+    import asyncio
+    import threading
+
+    from hykin.compensation.service_guard import BATCH, STREAM, ModelWorker, QueueFull
+
+    gate, order = threading.Event(), []
+
+    async def main():
+        w = ModelWorker(3)
+        first = w.submit(BATCH, gate.wait, 30)  # holds the thread
+        a = w.submit(BATCH, order.append, "batch")
+        b = w.submit(STREAM, order.append, "stream")
+        with pytest.raises(QueueFull, match="limit 3"):
+            w.submit(STREAM, order.append, "refused")
+        assert w.pending == 3
+        gate.set()
+        await asyncio.wait_for(asyncio.gather(first, a, b), 30)
+        bad = w.submit(STREAM, int, "x")  # an exception reaches the awaiting caller, the thread goes on
+        with pytest.raises(ValueError):
+            await asyncio.wait_for(bad, 30)
+        assert await asyncio.wait_for(w.submit(BATCH, sum, [1, 2]), 30) == 3 and w.pending == 0
+        w.close()
+
+    asyncio.run(main())
+    assert order == ["stream", "batch"]
+
+
+@pytest.mark.parametrize("text, word", [("", "empty"), ("two words", "spaces"), ("tøken", "read")])
+def test_cli_serve_refuses_a_bad_token_file(tmp_path, text, word):
+    from typer.testing import CliRunner
+
+    from hykin.cli import app
+
+    p = tmp_path / "token.txt"
+    p.write_bytes(text.encode())
+    r = CliRunner().invoke(app, ["serve", str(tiny_model_file()), "--token-file", str(p)])
+    msg = str(r.exception or r.output)
+    assert r.exit_code != 0 and str(p) in msg and word in msg
+
+
+def test_cli_serve_refuses_a_zero_limit():
+    from typer.testing import CliRunner
+
+    from hykin.cli import app
+
+    r = CliRunner().invoke(app, ["serve", str(tiny_model_file()), "--queue", "0"])
+    assert r.exit_code != 0 and "--queue" in str(r.exception or r.output)

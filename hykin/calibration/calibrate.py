@@ -28,30 +28,42 @@ standard deviations per coordinate, and the fit is repeated at ``w = σ_pos / σ
 kind of row counts by its noise (a fixed 1 m/rad over-weights orientations that come from reflectors
 0.1 m apart by 10×: measured, the held-out error of every reflector doubled, benchmarks/bench_reflectors.py).
 
+Priors (:mod:`hykin.calibration.priors`): every candidate parameter starts at the robot file's value
+with a tolerance per kind (length, angle, joint zero, base, tool, compliance; the base is
+uninformative by default: a tracker's frame comes from the data). A parameter the data do not excite
+beyond a model-error floor is **held at its prior** (the robot file's value, posterior std = its
+tolerance), e.g. the tool offset measured with the tool at one orientation, a joint never moved,
+``theta1`` against the base; the others are the maximum a posteriori: prior rows ``(σ/τ) δ`` added to
+the normal equations of the one LM (:func:`hykin.kinematics.lm.normal_equations_step`), ``σ`` the
+residual noise per coordinate (re-estimated at the solution) or ``noise_m``.
+
 Raw data (a tracker's frame, unknown tool, robot file without ``[base]``) run in stages:
 
 1. closed-form base and tool offset(s) from the nominal kinematics
    (:func:`hykin.calibration.initial_registration.initial_registration`: linear in the offsets for a fixed base
    rotation, Kabsch for the rotation, a few alternations, joint Gauss–Newton; several tool
-   guesses), kept where it explains the data better than the robot file's own frames;
-2. LM on base and tool (and reflector offsets) only, from that start;
-3. identifiability decided at this estimate (the set identifiable at the robot file first in the
-   QR order, so a choice between redundant parameters does not flip), LM on everything;
-4. identifiability re-checked at the solution; a further pass when the set changed, when the
+   guesses; offset directions the data do not excite stay at the file's tool), kept where it
+   explains the data better than the robot file's own frames;
+2. MAP LM on base and tool (and reflector offsets) only, from that start;
+3. excitation decided at this estimate, MAP LM on everything excited;
+4. excitation re-checked at the solution; a further pass when the excited set changed, when the
    orientation weight was re-estimated, or when the iteration cap stopped a still-falling cost;
 5. if the fit is still implausible, a restart from the robot file's own frames; the best is kept;
-6. refusals (:mod:`hykin.calibration.checks`): not converged, a parameter beyond its plausible
-   bound, or a residual no correct robot file leaves -> :class:`CalibrationError`, one line that says
-   what to check (robot file, units, tool, joint order).
+6. refusals (:mod:`hykin.calibration.checks`): not converged, an estimated parameter beyond its
+   tolerances, or a residual no correct robot file leaves -> :class:`CalibrationError`, one line that
+   says what to check (robot file, units, tool, joint order).
 
-Identifiability: the identification Jacobian is scaled by physical units (1 mm, 1 mrad,
-1e-6 rad/N·m) and factorised by Householder QR in a fixed priority order (base, tool, joints
-base-to-tip, compliance). ``|R_kk|`` is how much of column k is not explained by the columns before
-it: a parameter whose ``|R_kk| / ‖column‖`` is below ``rank_tol`` (redundant, e.g. DH ``theta1`` and
-``d1`` with a full base frame) or whose column is negligible (tool rotation for position-only data,
-the compliance of a vertical joint 1) is fixed at zero. The check is repeated at the solution.
-Standard deviations come from the sandwich covariance ``(JᵀJ)⁻¹ Jᵀ Σ J (JᵀJ)⁻¹`` with separate
-residual variances for position and orientation rows (plain ``σ² (JᵀJ)⁻¹`` for one kind of row).
+Several stations / tools (a ``station`` / ``tool`` column, :mod:`hykin.calibration.stations`): every
+further station's and tool's frame is one more 6-D group (``station[B].x`` ..., ``tool[T2].x`` ...)
+fitted in the same LM (a bundle); the reference station's frame is ``base``, the reference tool's ``tool``.
+
+Excitation: the identification Jacobian (evenly spread samples) scaled by the tolerances, each row
+by its floor, factorised by a greedy column-pivoted QR (rank-revealing) after the uninformative
+columns: ``|R_kk| / sqrt(N)`` is the RMS effect of a one-tolerance change that no other parameter
+explains (:func:`hykin.calibration.priors.excitation`). Reported per parameter (:class:`CalibrationResult`):
+identified, correlated (|posterior correlation| >= 0.99 with named others), held at prior, at bound 0.
+Standard deviations come from the posterior covariance ``(Jᵀ Σ⁻¹ J + diag(τ⁻²))⁻¹`` with separate
+residual variances for position and orientation rows.
 """
 
 from __future__ import annotations
@@ -62,7 +74,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..geometry import se3
 from ..io.payload import payload_kwargs
 from ..kinematics.compliance import (
     ComplianceError,
@@ -75,6 +86,7 @@ from ..kinematics.lm import next_lambda, normal_equations_step
 from ..kinematics.robot import Robot
 from .jacobian import (
     effective_joints,
+    framed,
     identification_jacobian,
     linearize,
     model_poses,
@@ -92,12 +104,16 @@ from .params import (
     scale_of,
     select_specs,
 )
+from .posterior import PriorContext, noise_variances, posterior, prior_system, prior_weight, reset_held
+from .priors import excitation, prior_tolerances, resolve_priors
 from .result import (
     CalibrationError,
     CalibrationResult,
     orientation_weight_from_sigmas,
     residual_stats,
 )
+from .inputs import calibration_inputs
+from .stations import check_groups, frame_starts, row_groups
 
 __all__ = [
     "CalibrationError",
@@ -117,54 +133,16 @@ _COARSE_SAMPLES = 20_000  # larger data sets first converge on this many evenly 
 #: converged (a flat valley, e.g. compliances creeping to their bound 0: 1e-5 of the cost is
 #: ~5e-6 of the RMS residual, far below anything that matters); above it the cost is still falling
 _STALLED_REL = 1e-5
-#: |R_kk| / ‖column‖ a parameter outside the set identifiable at the robot file needs to join it at
-#: a later estimate (rank_tol admits near-redundant ones, e.g. wrist offsets made "identifiable" by a
-#: tool 0.1 mm off the last axis, with correlations of ±1.000)
-_ADD_TOL = 1e-3
+#: smallest residual σ (m per coordinate) weighting the prior rows (noise-free data: the data decide)
+_SIGMA_FLOOR_M = 1e-9
 
 
-# --------------------------------------------------------------------------- data
-
-
-def _as_data(robot: Robot, data, position_only):
-    """-> q (N,n), xyz (N,3), R (N,3,3) or None."""
-    if hasattr(data, "q") and hasattr(data, "xyz_m"):
-        from ..io.reflectors import reflector_points
-
-        q = np.asarray(data.q, dtype=np.float64)
-        try:
-            xyz = reflector_points(data)
-        except ValueError as e:
-            raise CalibrationError(str(e)) from None
-        xyz = xyz[:, 0] if xyz.shape[1] == 1 else xyz
-        quat = getattr(data, "quat_wxyz", None)
-        R = None if quat is None else se3.quat_to_matrix(np.asarray(quat, dtype=np.float64))
-    elif isinstance(data, (tuple, list)) and len(data) == 2:
-        q = np.asarray(data[0], dtype=np.float64)
-        P = np.asarray(data[1], dtype=np.float64)
-        if P.ndim == 3 and P.shape[1:] == (4, 4):
-            xyz, R = P[:, :3, 3].copy(), P[:, :3, :3].copy()
-        elif P.ndim == 2 and P.shape[1] == 3 or P.ndim == 3 and P.shape[2] == 3 and P.shape[1] != 4:
-            xyz, R = P, None
-        else:
-            raise CalibrationError(f"data: measured poses must be (N, 4, 4) or positions (N, 3), got {P.shape}")
-    else:
-        raise CalibrationError("data: expected a Dataset or a tuple (q (N, n), poses (N, 4, 4) | positions (N, 3))")
-    if q.ndim != 2 or q.shape[1] != robot.dof:
-        raise CalibrationError(f"data: joints must be (N, {robot.dof}) for robot {robot.name!r}, got {q.shape}")
-    if xyz.shape[0] != q.shape[0] or xyz.shape[-1] != 3:
-        raise CalibrationError(f"data: positions must be ({q.shape[0]}, 3) or ({q.shape[0]}, K, 3), got {xyz.shape}")
-    for nm, arr in (("joints", q), ("positions", xyz)) + ((("orientations", R),) if R is not None else ()):
-        bad = ~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1)
-        if bad.any():
-            raise CalibrationError(f"data: row {int(np.argmax(bad)) + 1}: non-finite {nm}")
-    if position_only is None:
-        position_only = R is None
-    if position_only:
-        R = None
-    elif R is None:
-        raise CalibrationError("data: position_only=False but the data have no orientations")
-    return np.ascontiguousarray(q), xyz, R
+def _reference_rows(groups) -> np.ndarray:
+    """Rows of the reference station (with the reference tool where it has 12 or more of those): the
+    closed-form start of the robot's own base and tool."""
+    st = groups.rows_of("station", 0)
+    both = st & groups.rows_of("tool", 0)
+    return np.flatnonzero(both if both.sum() >= 12 else st)
 
 
 # --------------------------------------------------------------------------- identifiability
@@ -202,15 +180,16 @@ def identifiable_columns(J_scaled: np.ndarray, rank_tol: float = 1e-6, negligibl
 
 
 def _lm_step(lin: dict, act: np.ndarray, lam: float, is_comp: np.ndarray, c: np.ndarray, comp_joint: np.ndarray):
-    """Damped Gauss-Newton step (scaled units) on the free parameters.
+    """Damped Gauss-Newton step (scaled units) on the free parameters, prior rows included.
 
     Compliance is bounded below by 0: a compliance at its bound whose step points below it is held
     (active-set), then the system is solved again. Returns (free indices, step) or (.., None).
     """
     free = act.copy()
+    A_all = lin["JtJ_p"] + lin["JtJ_o"] + lin["A_prior"]
+    g_all = lin["Jtr"] + lin["g_prior"]
     while free.size:
-        A = (lin["JtJ_p"] + lin["JtJ_o"])[np.ix_(free, free)]
-        step = normal_equations_step(A, lin["Jtr"][free], lam)
+        step = normal_equations_step(A_all[np.ix_(free, free)], g_all[free], lam)
         held = is_comp[free] & (c[comp_joint[free]] <= 0) & (step < 0)
         if not held.any():
             return free, step
@@ -218,51 +197,82 @@ def _lm_step(lin: dict, act: np.ndarray, lam: float, is_comp: np.ndarray, c: np.
     return free, None
 
 
+def _moves(lin: dict, act: np.ndarray, sigma_m: float) -> bool:
+    """Whether the Gauss-Newton step of the normal equations ``lin`` (prior rows included) moves any
+    parameter of ``act`` by more than 1e-3 of its posterior standard deviation (``sigma_m`` noise)."""
+    A = (lin["JtJ_p"] + lin["JtJ_o"] + lin["A_prior"])[np.ix_(act, act)]
+    g = (lin["Jtr"] + lin["g_prior"])[act]
+    step = normal_equations_step(A, g, 0.0)
+    D = np.sqrt(np.diag(A))
+    D[D == 0] = 1.0
+    sd = sigma_m * np.sqrt(np.clip(np.diag(np.linalg.pinv(A / np.outer(D, D), hermitian=True)), 0, None)) / D
+    return bool(np.any(np.abs(step) > 1e-3 * sd))
+
+
 # --------------------------------------------------------------------------- main entry
 
 
 def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: float, max_iter: int, tol: float,
-                    rank_tol: float, negligible_tol: float, progress,
-                    prefer: np.ndarray | None = None, pts0: np.ndarray | None = None,
-                    pl=None) -> tuple[CalibrationResult, float]:
-    """One identifiability selection at ``robot`` plus one LM run on the parameters ``specs``.
+                    progress, pri: PriorContext, pts0: np.ndarray | None = None, pl=None, groups=None, frames0=None):
+    """One excitation test at ``robot``, the held parameters put back at the robot file, one MAP LM
+    on the excited ones (:mod:`hykin.calibration.priors`), the excitation re-tested at the solution.
 
     pl: per-row payload ``(kg (N,), com (N, 3) | None)`` deflecting the joints, or None (the robot's).
-    prefer: bool mask of parameters put first in the QR order (an identified set chosen earlier
-    stays chosen where it is still identifiable; others are added where they became so).
-    Returns the result (deviations relative to ``robot``) and the relative cost decrease of the
-    last accepted iteration (large when the iteration cap stopped a still-falling cost).
+    groups / frames0: the rows' stations and tools and the start of their frames
+    (:mod:`hykin.calibration.stations`), or None.
+    Returns ``(result, rel, changed)``: the result (deviations relative to ``robot``), the relative
+    cost decrease of the last accepted iteration (large when the iteration cap stopped a still-falling
+    cost) and whether the excited set differs at the solution.
     """
     t0 = time.perf_counter()
     N = q.shape[0]
     last = {"rel": 0.0}
     P = len(specs)
     scale = np.array([scale_of(s) for s in specs])
-    state0 = ModelState(robot=robot.copy(), c=compliance_of(robot), pts=np.zeros((xyz.shape[1], 3)) if pts0 is None else pts0)
+    tol_si = pri.tol(specs)
+    state0 = ModelState(robot=robot.copy(), c=compliance_of(robot), pts=np.zeros((xyz.shape[1], 3)) if pts0 is None else pts0,
+                        frames=None if frames0 is None else frames0.synced(robot))
     rows_per = 3 * xyz.shape[1] + (0 if R_meas is None else 3)
     from ..io.plausibility import check_calibration_size
 
     check_calibration_size(N, P, rows_per)  # fewer equations than unknowns would fit the noise exactly
     is_comp = np.array([sp.group == "comp" for sp in specs])
     comp_joint = np.array([sp.joint for sp in specs])
+    names = [s.name for s in specs]
+    prior = {"act": np.zeros(0, np.int64), "weight": np.zeros(P)}
 
-    def cost_of(st: ModelState, qd, xyzd, Rd, pld):
+    def cost_of(st: ModelState, qd, xyzd, Rd, pld, gd=None):
         q_eff = effective_joints(st, qd, pld)
-        rp, ro = residual(fk(st.robot, q_eff), xyzd, Rd, w, st.pts)
-        cost = 0.5 * (float(np.sum(rp * rp)) + (0.0 if ro is None else float(np.sum(ro * ro))))
+        rp, ro = residual(framed(st, fk(st.robot, q_eff), gd), xyzd, Rd, w, st.pts)
+        rpr = prior_system(pri.file_state, st, specs, prior["act"], prior["weight"], scale, jacobian=False)[0]
+        cost = 0.5 * (float(np.sum(rp * rp)) + (0.0 if ro is None else float(np.sum(ro * ro))) + float(rpr @ rpr))
         return cost, rp, ro, q_eff
 
-    def run_lm(state, qd, xyzd, Rd, act, max_it, id_rows=None, pld=None):
-        """Relinearising LM on the samples ``qd``; returns (state, rp, ro, lin, it, converged, message)."""
-        cost, rp, ro, q_eff = cost_of(state, qd, xyzd, Rd, pld)
-        lin = linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows, payload=pld)
-        if act is None:
-            return state, rp, ro, lin, 0, False, ""
-        lam = 1e-6
+    def lin_at(st, q_eff, xyzd, Rd, id_rows, pld, gd=None):
+        lin = linearize(st, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows, payload=pld, groups=gd)
+        _, lin["A_prior"], lin["g_prior"] = prior_system(pri.file_state, st, specs, prior["act"], prior["weight"], scale)
+        return lin
+
+    def sigma_of(rp, ro):
+        return max(math.sqrt(noise_variances(rp, ro, prior["act"].size, pri.noise_m)[0]), _SIGMA_FLOOR_M)
+
+    def run_lm(state, qd, xyzd, Rd, act, max_it, id_rows=None, pld=None, gd=None):
+        """Relinearising MAP LM on the samples ``qd``; returns (state, rp, ro, lin, it, converged, message).
+        The prior rows are weighted by the residual σ per coordinate (or the given noise); when σ at the
+        solution differs from the σ used by more than 10 %, the LM goes on with the new weights (so the
+        end point is the MAP at the σ of its own residual, whatever the path)."""
+        prior["act"] = act
+        cost, rp, ro, q_eff = cost_of(state, qd, xyzd, Rd, pld, gd)
+        sig = sigma_of(rp, ro)
+        prior["weight"] = prior_weight(tol_si, sig)
+        cost, rp, ro, q_eff = cost_of(state, qd, xyzd, Rd, pld, gd)
+        lin = lin_at(state, q_eff, xyzd, Rd, id_rows, pld, gd)
+        lam, reweights = 1e-6, 0
         converged, message, it = False, "maximum number of iterations reached", 0
         if act.size == 0:
-            return state, rp, ro, lin, 0, True, "no identifiable parameter"
-        for it in range(1, max_it + 1):
+            return state, rp, ro, lin, 0, True, "no excited parameter"
+        while it < max_it:
+            it += 1
             accepted = False
             for _ in range(12):
                 free, step_s = _lm_step(lin, act, lam, is_comp, state.c, comp_joint)
@@ -273,106 +283,102 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
                 delta[free] = step_s * scale[free]
                 trial = apply_step(state, specs, delta)
                 try:
-                    new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd, pld)
+                    new_cost, new_rp, new_ro, new_q_eff = cost_of(trial, qd, xyzd, Rd, pld, gd)
                 except ComplianceError:  # the step made the joints too soft for an equilibrium: reject it
                     new_cost = math.inf
                 accepted = new_cost < cost
                 lam = float(next_lambda(lam, accepted))
                 if accepted:
                     break
-            if converged:
-                break
-            if not accepted:
+            if accepted:
+                rel = (cost - new_cost) / max(cost, 1e-300)
+                last["rel"] = rel
+                state, cost, q_eff, rp, ro = trial, new_cost, new_q_eff, new_rp, new_ro
+                if progress is not None:
+                    progress(it, cost)
+                lin = lin_at(state, q_eff, xyzd, Rd, id_rows, pld, gd)
+                if rel <= tol:
+                    converged, message = True, f"relative cost decrease {rel:.2g} <= tol"
+            elif not converged:
                 converged, message = True, "no further decrease of the cost"
-                break
-            rel = (cost - new_cost) / max(cost, 1e-300)
-            last["rel"] = rel
-            state, cost, q_eff, rp, ro = trial, new_cost, new_q_eff, new_rp, new_ro
-            if progress is not None:
-                progress(it, cost)
-            lin = linearize(state, specs, scale, q_eff, xyzd, Rd, w, keep_rows=id_rows, payload=pld)
-            if rel <= tol:
-                converged, message = True, f"relative cost decrease {rel:.2g} <= tol"
-                break
+            if converged:
+                s_new = sigma_of(rp, ro)
+                if pri.noise_m is not None or abs(s_new / sig - 1) <= 0.1 or reweights >= 8:
+                    break
+                reweights += 1
+                sig = s_new  # re-weight the prior rows (same data linearization) ...
+                prior["weight"] = prior_weight(tol_si, sig)
+                cost, rp, ro, q_eff = cost_of(state, qd, xyzd, Rd, pld, gd)
+                _, lin["A_prior"], lin["g_prior"] = prior_system(pri.file_state, state, specs, act, prior["weight"], scale)
+                if not _moves(lin, act, sig):
+                    break
+                converged, lam = False, 1e-6  # ... and go on where the new weights move the MAP
         return state, rp, ro, lin, it, converged, message
 
-    # identifiability at the input robot, on evenly spread samples
-    state = state0
+    def excited_at(lin):
+        row_floor = np.where(lin["J_id_rot"], w * pri.floor_rad, pri.floor_m)
+        return excitation(lin["J_id"], id_rows.size, tol_si, scale, row_floor, pri.negligible_tol, pri.rank_tol).excited
+
+    # excitation at the start, on evenly spread samples
     id_rows = np.unique(np.linspace(0, N - 1, min(N, _ID_SAMPLES)).astype(np.int64))
     sub = lambda a, idx: None if a is None else a[idx]
     sub_pl = lambda idx: None if pl is None else (pl[0][idx], sub(pl[1], idx))
-    _, rp0, ro0, lin0, _, _, _ = run_lm(state0, q[id_rows], xyz[id_rows], sub(R_meas, id_rows), None, 0,
-                                        id_rows=np.arange(id_rows.size), pld=sub_pl(id_rows))
-    order = np.arange(P) if prefer is None else np.concatenate([np.flatnonzero(prefer), np.flatnonzero(~prefer)])
-    mask = np.zeros(P, bool)
-    m_o, ratio_o = _identifiable(lin0["J_id"][:, order], rank_tol, negligible_tol)
-    mask[order] = m_o
-    if prefer is not None:  # a parameter joins the earlier set only when clearly identifiable here
-        ratio = np.zeros(P)
-        ratio[order] = ratio_o
-        mask &= prefer | (ratio > _ADD_TOL)
+    sub_g = lambda idx: None if groups is None else groups.subset(idx)
+    q_id = effective_joints(state0, q[id_rows], sub_pl(id_rows))
+    lin0 = linearize(state0, specs, scale, q_id, xyz[id_rows], sub(R_meas, id_rows), w,
+                     keep_rows=np.arange(id_rows.size), payload=sub_pl(id_rows), groups=sub_g(id_rows))
+    mask = excited_at(lin0)
     if N * rows_per < mask.sum():
         raise CalibrationError(f"data: {N} samples give {N * rows_per} equations for {int(mask.sum())} parameters")
     act = np.flatnonzero(mask)
+    held = np.flatnonzero(~mask & np.isfinite(tol_si))
+    state = reset_held(pri.file_state, state0, specs, held, scale)  # what the data cannot tell: the robot file's
     it_sub = 0
     if N > 2 * _COARSE_SAMPLES:  # coarse-to-fine: converge on a spread subset, finish on all samples
         sel = np.unique(np.linspace(0, N - 1, _COARSE_SAMPLES).astype(np.int64))
-        state, _, _, _, it_sub, _, _ = run_lm(state0, q[sel], xyz[sel], sub(R_meas, sel), act, max_iter, pld=sub_pl(sel))
-    state, rp0, ro0, lin, it, converged, message = run_lm(
-        state, q, xyz, R_meas, act, max(max_iter - it_sub, 1), id_rows=id_rows, pld=pl
+        state, _, _, _, it_sub, _, _ = run_lm(state, q[sel], xyz[sel], sub(R_meas, sel), act, max_iter, pld=sub_pl(sel),
+                                              gd=sub_g(sel))
+    state, rp, ro, lin, it, converged, message = run_lm(
+        state, q, xyz, R_meas, act, max(max_iter - it_sub, 1), id_rows=id_rows, pld=pl, gd=groups
     )
     it += it_sub
-    before = residual_stats(*residual(model_poses(state0, q, pl), xyz, R_meas, w, state0.pts), w)
-    # recheck at the solution: the identified set must still have full rank there
-    final = mask.copy()
-    if act.size:
-        keep_end, _ = _identifiable(lin["J_id"][:, act[np.argsort(np.argsort(order)[act])]], rank_tol, negligible_tol)
-        keep_end = keep_end[np.argsort(np.argsort(np.argsort(order)[act]))]
-        lost = [specs[k].name for k in act[~keep_end]]
-        if lost:
-            message += f"; at the solution {', '.join(lost)} became unidentifiable (no std reported)"
-        final[act[~keep_end]] = False
-    at_bound = final & is_comp & (state.c[np.maximum(comp_joint, 0)] <= 0)
+    before = residual_stats(*residual(model_poses(state0, q, pl, groups), xyz, R_meas, w, state0.pts), w)
+    end = excited_at(lin)  # the excitation at the solution
+    changed = bool(np.any(end != mask))
+    if changed:
+        lost, new = [names[k] for k in np.flatnonzero(mask & ~end)], [names[k] for k in np.flatnonzero(end & ~mask)]
+        message += "; at the solution " + "; ".join(
+            x for x in (f"{', '.join(lost)} no longer excited" if lost else "", f"{', '.join(new)} excited" if new else "") if x)
+    at_bound = mask & is_comp & (state.c[np.maximum(comp_joint, 0)] <= 0)
     if at_bound.any():
-        message += "; " + ", ".join(specs[k].name for k in np.flatnonzero(at_bound)) + " at the bound 0 (rigid; no std)"
-    fa = np.flatnonzero(final & ~at_bound)
-    rp, ro = rp0, ro0  # residuals of the accepted state
-    after = residual_stats(rp, ro, w)
+        message += "; " + ", ".join(names[k] for k in np.flatnonzero(at_bound)) + " at the bound 0 (rigid; no std)"
+    est = np.flatnonzero(mask & ~at_bound)
+    sig2_p, sig2_o = noise_variances(rp, ro, est.size, pri.noise_m)
+    sd, corr, strong, partners = posterior(lin, est, tol_si, scale, sig2_p, sig2_o, names)
+    std = np.where(np.isfinite(tol_si), tol_si, np.nan)  # held at prior: the prior's std
+    std[at_bound] = np.nan
+    std[est] = sd
+    status = ["held at prior" if not m else "at bound 0" if b else "identified" for m, b in zip(mask, at_bound)]
+    corr_with = [[] for _ in specs]
+    for i, lst in partners.items():
+        status[est[i]] = "correlated"
+        corr_with[est[i]] = lst
+    values = deviations_between(state0, state, specs)
     m_p = rp.size
     m_o = 0 if ro is None else ro.size
-    m = m_p + m_o
-    dof_frac = max(m - fa.size, 1) / m
-    sig2_p = float(np.sum(rp * rp)) / max(m_p * dof_frac, 1e-300)
-    sig2_o = 0.0 if ro is None else float(np.sum(ro * ro)) / max(m_o * dof_frac, 1e-300)
-    std = np.full(P, np.nan)
-    corr = np.zeros((fa.size, fa.size))
-    strong: list[tuple[str, str, float]] = []
-    if fa.size:
-        Jp = lin["JtJ_p"][np.ix_(fa, fa)]
-        Jo = lin["JtJ_o"][np.ix_(fa, fa)]
-        A = Jp + Jo
-        D = np.sqrt(np.diag(A))
-        Ainv = np.linalg.pinv(A / np.outer(D, D), rcond=1e-15) / np.outer(D, D)
-        cov_s = Ainv @ (sig2_p * Jp + sig2_o * Jo) @ Ainv
-        sd_s = np.sqrt(np.clip(np.diag(cov_s), 0, None))
-        std[fa] = sd_s * scale[fa]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            corr = cov_s / np.outer(sd_s, sd_s)
-        corr = np.nan_to_num(corr)
-        for a_ in range(fa.size):
-            for b_ in range(a_ + 1, fa.size):
-                if abs(corr[a_, b_]) > 0.9:
-                    strong.append((specs[fa[a_]].name, specs[fa[b_]].name, float(corr[a_, b_])))
-    values = deviations_between(state0, state, specs)
+    dof_frac = max(m_p + m_o - est.size, 1) / (m_p + m_o)
+    s_p = float(np.sum(rp * rp)) / max(m_p * dof_frac, 1e-300)
+    s_o = 0.0 if ro is None else float(np.sum(ro * ro)) / max(m_o * dof_frac, 1e-300)
     return CalibrationResult(
-        robot=state.robot, names=[s.name for s in specs], values=values, std=std, identifiable=final,
-        correlation=corr, strong_correlations=strong, before=before, after=after, iterations=it,
+        robot=state.robot, names=names, values=values, std=std, identifiable=mask.copy(),
+        correlation=corr, strong_correlations=strong, before=before, after=residual_stats(rp, ro, w), iterations=it,
         converged=converged, message=message, units=[s.unit for s in specs], n_samples=N,
-        correlation_names=[specs[k].name for k in fa],
-        position_only=R_meas is None, orientation_weight_m_per_rad=w, sigma_pos_m=math.sqrt(sig2_p),
-        sigma_rot_rad=math.sqrt(sig2_o) / w if R_meas is not None else float("nan"),
-        seconds=time.perf_counter() - t0, point_offsets_m=state.pts.copy(),
-    ), last["rel"]
+        correlation_names=[names[k] for k in est],
+        position_only=R_meas is None, orientation_weight_m_per_rad=w, sigma_pos_m=math.sqrt(s_p),
+        sigma_rot_rad=math.sqrt(s_o) / w if R_meas is not None else float("nan"),
+        seconds=time.perf_counter() - t0, point_offsets_m=state.pts.copy(), status=status,
+        prior_std=tol_si, correlated_with=corr_with, station_frames=state.frames,
+    ), last["rel"], changed
 
 
 def calibrate(
@@ -396,6 +402,8 @@ def calibrate(
     checks: bool = True,
     payload_kg=None,
     payload_com_m=None,
+    priors: dict | None = None,
+    noise_m: float | None = None,
 ) -> CalibrationResult:
     """Identify geometry, base, tool and joint compliance of ``robot`` from measured poses.
 
@@ -410,8 +418,9 @@ def calibrate(
     weights orientation residuals (``w = 1``: 1 mrad counts like 1 mm); ``"auto"`` (default) takes
     ``w = σ_pos / σ_rot`` from the residuals of a first fit, so that each kind counts by its noise.
     max_iter / tol: LM iterations per pass and relative cost decrease at which it stops.
-    rank_tol: identifiability threshold on ``|R_kk| / ‖column‖``; negligible_tol: columns smaller
-    than this times the largest are fixed. progress: called as ``progress(iteration, cost)``.
+    rank_tol: a parameter whose column is explained by the others but for this fraction is held at its
+    prior; negligible_tol: columns smaller than this times the largest are held. progress: called as
+    ``progress(iteration, cost)``.
     initial: ``"auto"``/True: closed-form base + tool start when base and tool are calibrated
     (kept only where it explains the data better than the robot file's frames); False: start at
     the robot file. restarts: further LM passes when the iteration cap stopped a still-falling cost,
@@ -425,8 +434,14 @@ def calibrate(
     deflects the joints; by default read from the dataset's ``payload_kg``/``payload_com_*``
     columns (:mod:`hykin.io.payload`), else the robot's payload.
 
-    Identifiability is decided at the current estimate: after base and tool are found, and again at
-    the solution (a further pass runs when the identified set changed there).
+    priors: overrides of :data:`hykin.calibration.priors.DEFAULT_PRIORS` (tolerances per kind of the
+    robot file's values, ``{"length_mm": 2, "tool_mm": 50, "base_mm": 10}``; the excitation floor
+    ``excitation_mm``; ``refuse_tolerances``). noise_m: measurement noise per coordinate (m) that
+    weights the priors and gives the posterior covariance; None: estimated from the residuals.
+
+    Excitation (which parameters the data can tell; the others are held at the robot file's value,
+    :mod:`hykin.calibration.priors`) is decided at the current estimate: after base and tool are
+    found, and again at the solution (a further pass runs when the excited set changed there).
     """
     from .checks import check_calibration, resolve_max_deviation
     from .initial_registration import initial_registration
@@ -437,11 +452,14 @@ def calibrate(
         raise CalibrationError(f"orientation_weight_m_per_rad must be a positive number or 'auto', got {orientation_weight_m_per_rad!r}")
     if not auto_w and not (orientation_weight_m_per_rad > 0 and math.isfinite(orientation_weight_m_per_rad)):
         raise CalibrationError(f"orientation_weight_m_per_rad must be a positive number, got {orientation_weight_m_per_rad}")
+    if noise_m is not None and not (noise_m > 0 and math.isfinite(noise_m)):
+        raise CalibrationError(f"noise_m must be a positive number (m) or None, got {noise_m}")
     try:
         lim = resolve_max_deviation(max_deviation)
+        pri_kinds = resolve_priors(priors)
     except ValueError as e:
         raise CalibrationError(str(e)) from None
-    q, xyz, R_meas = _as_data(robot, data, position_only)
+    q, xyz, R_meas = calibration_inputs(robot, data, position_only)
     if q.shape[0] == 0:
         raise CalibrationError("data: no samples")
     from ..io.payload import payload_of
@@ -449,43 +467,60 @@ def calibrate(
     pl = payload_of(data, payload_kg, payload_com_m, n_rows=q.shape[0])
     w = 1.0 if auto_w else float(orientation_weight_m_per_rad)
     K = 1 if xyz.ndim == 2 else xyz.shape[1]
-    specs = select_specs(candidate_specs(robot, base=base, tool=tool, compliance=compliance, n_points=K), params)
+    groups = row_groups(data, q.shape[0])  # several stations / tools (hykin.calibration.stations)
+    if groups is not None:
+        check_groups(groups, xyz, R_meas is None)
+    specs = select_specs(candidate_specs(robot, base=base, tool=tool, compliance=compliance, n_points=K,
+                                         stations=groups.station_labels[1:] if groups else (),
+                                         tools=groups.tool_labels[1:] if groups else ()), params)
     names = {s.name for s in specs}
-    frames = [s for s in specs if s.group in ("base", "tool", "point")]
-    run = lambda rob, sp, ww, it, pref=None, pts=None: _calibrate_pass(
-        rob, q, xyz, R_meas, sp, ww, it, tol, rank_tol, negligible_tol, progress, prefer=pref, pts0=pts, pl=pl)
+    frames = [s for s in specs if s.group in ("base", "tool", "point", "station", "tools")]
     pts_zero = np.zeros((K, 3))
-    starts = [(robot, pts_zero)]
+    fr_of = lambda rob: None if groups is None else frame_starts(rob, fk(rob.copy(base=np.eye(4), tool=np.eye(4)), q),
+                                                                 xyz, R_meas, groups)
+    fr_file = fr_of(robot)  # further stations / tools: their start is their prior mean
+    state0 = ModelState(robot=robot.copy(), c=compliance_of(robot), pts=pts_zero, frames=fr_file)
+    tau_max = None
+    if any(s.group == "comp" for s in specs):  # the compliance tolerance is a deflection under these torques
+        rows = np.unique(np.linspace(0, q.shape[0] - 1, min(q.shape[0], 2000)).astype(np.int64))
+        pl_rows = None if pl is None else (pl[0][rows], None if pl[1] is None else pl[1][rows])
+        tau_max = np.abs(gravity_torques(robot, np.ascontiguousarray(q[rows]), **payload_kwargs(pl_rows))).max(0)
+    tol_si = prior_tolerances(specs, pri_kinds, tau_max)
+    pri = PriorContext(file_state=state0, tol_by_name={s.name: t for s, t in zip(specs, tol_si)},
+                  floor_m=pri_kinds["excitation_mm"] * 1e-3, floor_rad=math.radians(pri_kinds["excitation_deg"]),
+                  noise_m=noise_m, rank_tol=rank_tol,
+                  negligible_tol=negligible_tol)
+    run = lambda rob, sp, ww, it, pts=None, fr=None: _calibrate_pass(
+        rob, q, xyz, R_meas, sp, ww, it, tol, progress, pri, pts0=pts, pl=pl, groups=groups, frames0=fr)
+    starts = [(robot, pts_zero, fr_file)]
     reg = None
     full_frames = all(f"base.{f}" in names for f in TWIST) and all(f"tool.{f}" in names for f in ("x", "y", "z"))
     if initial and full_frames:
-        reg = initial_registration(robot, q, xyz, R_meas)
+        ref = np.arange(q.shape[0]) if groups is None else _reference_rows(groups)
+        reg = initial_registration(robot, q[ref], xyz[ref], None if R_meas is None else R_meas[ref], tool_tolerance_m=pri_kinds["tool_mm"] * 1e-3,
+                                   floor_m=pri.floor_m)
         if reg.rms_m < reg.rms_before_m:
             # further reflectors: offsets from reflector 1 in the TCP frame
             pts = (reg.offsets_m - reg.offsets_m[0]) @ reg.tool[:3, :3]
-            starts.insert(0, (robot.copy(base=reg.base, tool=reg.tool), pts))
-
-    # the set identifiable at the robot file (kept first in the QR order at later estimates)
-    nominal_set = run(robot, specs, w, 0, pts=starts[0][1])[0].identifiable if len(starts) > 1 else None
+            start = robot.copy(base=reg.base, tool=reg.tool)
+            starts.insert(0, (start, pts, fr_of(start)))
 
     def chain(start):
-        """frames, then everything (identifiability at the estimate), then again at the solution."""
+        """frames, then everything (excitation at the estimate), then again at the solution."""
         iters, ww = 0, w
-        cur, pts = start
-        if nominal_set is not None and frames and len(frames) < len(specs):
-            r, _ = run(cur, frames, ww, max_iter, pts=pts)
-            cur, pts, iters = r.robot, r.point_offsets_m, iters + r.iterations
-        res, rel = run(cur, specs, ww, max_iter, nominal_set, pts=pts)
+        cur, pts, fr = start
+        if len(starts) > 1 and frames and len(frames) < len(specs):
+            r, _, _ = run(cur, frames, ww, max_iter, pts=pts, fr=fr)
+            cur, pts, fr, iters = r.robot, r.point_offsets_m, r.station_frames, iters + r.iterations
+        res, rel, changed = run(cur, specs, ww, max_iter, pts=pts, fr=fr)
         iters += res.iterations
         if auto_w and R_meas is not None and res.sigma_rot_rad > 0 and math.isfinite(res.sigma_rot_rad):
             ww = orientation_weight_from_sigmas(res.sigma_pos_m, res.sigma_rot_rad)
         for _ in range(max(int(restarts), 0) + 1):
-            again = ww != res.orientation_weight_m_per_rad or "unidentifiable" in res.message or (
-                not res.converged and rel > _STALLED_REL)
+            again = ww != res.orientation_weight_m_per_rad or changed or (not res.converged and rel > _STALLED_REL)
             if not again:
                 break
-            res, rel = run(res.robot, specs, ww, max_iter, res.identifiable | (nominal_set if nominal_set is not None else False),
-                           pts=res.point_offsets_m)
+            res, rel, changed = run(res.robot, specs, ww, max_iter, pts=res.point_offsets_m, fr=res.station_frames)
             iters += res.iterations
         return res, rel, iters
 
@@ -497,7 +532,7 @@ def calibrate(
         except ComplianceError as e:  # the fit made joints too soft for an equilibrium: a bad start or file
             diverged = e
             continue
-        cost = res.after["pos_rms_mm"] ** 2 + (res.after.get("rot_rms_deg", 0.0) * 0.0)
+        cost = res.after["pos_rms_mm"] ** 2
         if best is None or cost < best[3]:
             best = (res, rel, iters, cost)
         plausible = res.after["pos_rms_mm"] <= lim["residual_mm"] and (res.converged or rel <= _STALLED_REL)
@@ -512,11 +547,10 @@ def calibrate(
     if not res.converged and rel <= _STALLED_REL:  # the cap stopped a cost that no longer moves
         res.converged = True
         res.message += f"; iteration cap reached with the cost changing by {rel:.2g} (relative) per iteration"
-    state0 = ModelState(robot=robot.copy(), c=compliance_of(robot), pts=pts_zero)
-    state1 = ModelState(robot=res.robot, c=compliance_of(res.robot), pts=res.point_offsets_m)
+    state1 = ModelState(robot=res.robot, c=compliance_of(res.robot), pts=res.point_offsets_m, frames=res.station_frames)
     res.values = deviations_between(state0, state1, specs)
     # before: the robot file as given (further reflectors at its TCP: their offsets are unknown)
-    res.before = residual_stats(*residual(model_poses(state0, q, pl), xyz, R_meas, res.orientation_weight_m_per_rad,
+    res.before = residual_stats(*residual(model_poses(state0, q, pl, groups), xyz, R_meas, res.orientation_weight_m_per_rad,
                                            pts_zero), res.orientation_weight_m_per_rad)
     res.iterations = iters
     res.seconds = time.perf_counter() - t0
@@ -530,9 +564,18 @@ def calibrate(
             q_eff = effective_joints(state1, q, pl)
             tau = gravity_torques(state1.robot, np.ascontiguousarray(q_eff), **payload_kwargs(pl))
             defl = np.max(np.abs(state1.c * tau), axis=0)
-        check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl)
+        try:
+            check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl,
+                              refuse_tolerances=pri_kinds["refuse_tolerances"], explicit=set(max_deviation or {}))
+        except CalibrationError as e:
+            if groups is None:
+                raise
+            rp, _ = residual(model_poses(state1, q, pl, groups), xyz, None, 1.0, state1.pts)
+            e2 = np.sum(rp.reshape(q.shape[0], -1) ** 2, 1) / (rp.size // q.shape[0] // 3)
+            rms = np.sqrt(np.bincount(groups.station, e2) / np.bincount(groups.station)) * 1e3
+            per = ", ".join(f"{lab} {v:.3g} mm" for lab, v in zip(groups.station_labels, rms))
+            raise CalibrationError(f"{e}; or a wrong station/tool label on some rows (RMS per station: {per})") from None
     return res
-
 
 
 def calibrated_fk(robot: Robot, q) -> np.ndarray:

@@ -5,14 +5,20 @@
 
 * the Levenberg–Marquardt did not converge (iteration cap reached while the cost still fell by
   more than ``1e-5`` relative per iteration, after the restarts);
-* an identified parameter deviates from the robot file beyond a physically plausible bound
-  (:data:`DEFAULT_MAX_DEVIATION`, per kind, overridable): a wrong robot file, units or joint order
-  make the fit bend the geometry by centimetres or degrees to absorb the mismatch;
+* a parameter the data excite (estimated, not held at its prior: :mod:`hykin.calibration.priors`)
+  deviates from the robot file beyond ``refuse_tolerances`` (4) of its prior tolerance, or beyond
+  the bound of :data:`DEFAULT_MAX_DEVIATION` given explicitly for its kind: a wrong robot file,
+  units or joint order make the fit bend the geometry by centimetres or degrees to absorb the
+  mismatch. A parameter held at its prior never triggers it (it stays at the robot file), so an
+  unexcited direction cannot cause a refusal;
 * the residual after the fit is larger than any correct robot file could leave (RMS position
   ``residual_mm``, RMS orientation ``residual_deg``): an industrial arm with the right file,
   calibrated geometry, base, tool and compliance is within a few tenths of a millimetre.
 
-Bounds (deviation from the robot file; SI in the code, mm/deg in the keys):
+Bounds (deviation from the robot file; SI in the code, mm/deg in the keys). ``length_mm``,
+``angle_deg`` and ``joint_offset_deg`` apply only when given (``max_deviation`` / ``--max-deviation``);
+by default the bound is ``refuse_tolerances`` x the prior tolerance, which is the same 20 mm /
+2 deg / 5 deg with the default priors:
 
 ==================  =======  ==========================================================
 key                 default  applies to
@@ -57,19 +63,9 @@ ADVICE = "check the robot file (right robot, DH table), units (--length-unit/--a
 
 def parse_max_deviation(text: str | None) -> dict[str, float]:
     """``"length_mm=30,angle_deg=3"`` -> ``{"length_mm": 30.0, "angle_deg": 3.0}`` (ValueError on bad keys)."""
-    out: dict[str, float] = {}
-    for part in str(text or "").split(","):
-        part = part.strip()
-        if not part:
-            continue
-        if "=" not in part:
-            raise ValueError(f"--max-deviation: {part!r} is not KIND=VALUE (kinds: {', '.join(DEFAULT_MAX_DEVIATION)})")
-        k, v = (s.strip() for s in part.split("=", 1))
-        try:
-            out[k] = float(v)
-        except ValueError:
-            raise ValueError(f"--max-deviation: {k}={v!r} is not a number") from None
-    return resolve_max_deviation(out)
+    from .priors import parse_kind_values
+
+    return resolve_max_deviation(parse_kind_values(text, "--max-deviation", DEFAULT_MAX_DEVIATION))
 
 
 def resolve_max_deviation(overrides: Mapping[str, float] | None) -> dict[str, float]:
@@ -85,26 +81,39 @@ def resolve_max_deviation(overrides: Mapping[str, float] | None) -> dict[str, fl
     return out
 
 
-def _limit_of(name: str, unit: str, group: str, field: str, lim: dict) -> tuple[float, float, str] | None:
+_FIELD_WORD = {"a": "length", "d": "offset", "alpha": "twist", "theta": "zero", "beta": "tilt"}
+
+
+def _limit_of(spec, lim: dict, tol: float, refuse_tolerances: float, explicit) -> tuple[float, float, str] | None:
     """(bound in SI, display factor, display unit) for one parameter, None when unbounded."""
-    if group in ("base", "tool", "point"):  # frames and reflector offsets: unknown, found by the fit
+    from .priors import kind_of
+
+    kind = kind_of(spec)
+    if kind.startswith(("base", "tool")) or kind == "compliance":  # frames: the tool length check; compliance: deflection
         return None
-    if group == "comp":  # bounded through the deflection it causes (check_calibration)
-        return None
-    if unit == "m":
-        return lim["length_mm"] * 1e-3, 1e3, "mm"
-    if group == "geom" and field == "theta":
-        return math.radians(lim["joint_offset_deg"]), 180 / math.pi, "deg"
-    return math.radians(lim["angle_deg"]), 180 / math.pi, "deg"
+    key = {"length": "length_mm", "joint_zero": "joint_offset_deg"}.get(kind, "angle_deg")
+    f, un = (1e3, "mm") if spec.unit == "m" else (180 / math.pi, "deg")
+    if key in explicit or not math.isfinite(tol):
+        return lim[key] / (1e3 if key == "length_mm" else 180 / math.pi), f, un
+    return refuse_tolerances * tol, f, un
 
 
-def check_calibration(res, specs, lim: dict, *, still_falling: bool, deflection_rad=None) -> None:
+def _label(spec) -> str:
+    if spec.group in ("geom", "origin") and spec.joint >= 0:
+        return f"joint {spec.joint + 1} {_FIELD_WORD.get(spec.field, 'origin')} {spec.name}"
+    return spec.name
+
+
+def check_calibration(res, specs, lim: dict, *, still_falling: bool, deflection_rad=None, refuse_tolerances: float = 4.0,
+                      explicit=()) -> None:
     """Raise :class:`~hykin.calibration.result.CalibrationError` when ``res`` cannot be a correct calibration.
 
     res: the :class:`~hykin.calibration.result.CalibrationResult` (values relative to the robot file);
     specs: its parameter specs (``name, group, field, unit``); lim: resolved bounds;
     still_falling: the cost still fell materially in the last iteration (not converged);
-    deflection_rad: ``(n,)`` largest gravity deflection of each joint over the data (or None).
+    deflection_rad: ``(n,)`` largest gravity deflection of each joint over the data (or None);
+    refuse_tolerances: tolerances beyond which an estimated parameter is refused; explicit: the kinds
+    of ``lim`` the user gave (they bound their kind instead).
     """
     from .result import CalibrationError
 
@@ -114,22 +123,24 @@ def check_calibration(res, specs, lim: dict, *, still_falling: bool, deflection_
             f"calibration of {name!r} did not converge in {res.iterations} iterations "
             f"(residual {res.after['pos_rms_mm']:.3g} mm RMS): {ADVICE}; or raise max_iter")
     worst = None
-    for s, v, m in zip(specs, res.values, res.identifiable):
-        if not m:
+    tols = res.prior_std if getattr(res, "prior_std", None) is not None else np.full(len(specs), np.inf)
+    for s, v, m, t in zip(specs, res.values, res.identifiable, tols):
+        if not m:  # held at its prior: the robot file's value, whatever the data
             continue
-        lb = _limit_of(s.name, s.unit, s.group, s.field, lim)
+        lb = _limit_of(s, lim, float(t), refuse_tolerances, set(explicit))
         if lb is None:
             continue
         bound, f, un = lb
         if s.unit == "rad":  # an angle 360° away is the same angle
             v = (v + math.pi) % (2 * math.pi) - math.pi
         if abs(v) > bound and (worst is None or abs(v) / bound > worst[0]):
-            worst = (abs(v) / bound, s.name, v * f, bound * f, un)
+            worst = (abs(v) / bound, s, v * f, bound * f, un, abs(v) / t if math.isfinite(t) else math.nan, t * f)
     if worst is not None:
-        _, nm, v, b, un = worst
+        _, sp, v, b, un, n_tol, t = worst
+        tol_txt = f", {n_tol:.1f} tolerances of {t:.3g} {un}" if math.isfinite(n_tol) else ""
         raise CalibrationError(
-            f"calibration of {name!r}: {nm} deviates {v:+.4g} {un} from the robot file (plausible: ±{b:.4g} {un}); "
-            f"the data do not fit this robot file: {ADVICE} (or widen --max-deviation)")
+            f"calibration of {name!r}: {_label(sp)} deviates {v:+.4g} {un} from the robot file{tol_txt} (plausible: "
+            f"±{b:.4g} {un}); the data do not fit this robot file: {ADVICE} (or widen --prior / --max-deviation)")
     if deflection_rad is not None and np.max(deflection_rad) > math.radians(lim["deflection_deg"]):
         j = int(np.argmax(deflection_rad))
         raise CalibrationError(

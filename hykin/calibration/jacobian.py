@@ -7,6 +7,10 @@
 :func:`jacobian_chunk` / :func:`linearize`: analytic derivatives with respect to every
 :class:`~hykin.calibration.params.ParamSpec`, accumulated as scaled normal equations in chunks;
 :func:`identification_jacobian`: the same Jacobian for one robot and joint set (SI units).
+
+Several stations / tools (``groups``, :mod:`hykin.calibration.stations`): each row's pose is
+``L · T_ref · Rt``; the Jacobian is computed in the reference frame at the row's own TCP and rotated by
+``L``; a frame's columns (``base``, ``station[..]``, ``tool``, ``tool[..]``) act on its own rows only.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from ..kinematics.fk import fk
 from ..kinematics.robot import Robot
 from ..kinematics.walk import chain_walk
 from .params import TWIST, ModelState, ParamSpec, candidate_specs
+from .stations import apply_row_transforms, row_transforms
 
 __all__ = [
     "CHUNK",
@@ -65,8 +70,17 @@ def _frames(chain, q: np.ndarray):
     return np.concatenate([base, link[:, :-1]], 1), joint, tcp
 
 
-def model_poses(state: ModelState, q: np.ndarray, payload=None) -> np.ndarray:
-    return fk(state.robot, effective_joints(state, q, payload))
+def model_poses(state: ModelState, q: np.ndarray, payload=None, groups=None) -> np.ndarray:
+    """Modelled TCP poses ``(N, 4, 4)``, each row in its own station's frame with its own tool when
+    ``groups`` (:class:`~hykin.calibration.stations.RowGroups` of these rows) is given."""
+    return framed(state, fk(state.robot, effective_joints(state, q, payload)), groups)
+
+
+def framed(state: ModelState, T: np.ndarray, groups) -> np.ndarray:
+    """Reference-frame poses ``T`` ``(N, 4, 4)`` in each row's station frame with its tool (``groups``; None: ``T``)."""
+    if groups is None or state.frames is None:
+        return T
+    return apply_row_transforms(T, *row_transforms(state.frames, groups))
 
 
 def effective_joints(state: ModelState, q: np.ndarray, payload=None) -> np.ndarray:
@@ -117,8 +131,8 @@ def _local_axes(robot: Robot, spec: ParamSpec):
     e = np.eye(3)
     zero = np.zeros(3)
     i = spec.joint
-    if spec.group in ("base", "tool", "origin"):
-        frame = {"base": "base", "tool": "tcp", "origin": "origin"}[spec.group]
+    if spec.group in ("base", "tool", "origin", "station", "tools"):
+        frame = {"base": "base", "tool": "tcp", "origin": "origin", "station": "base", "tools": "tcp"}[spec.group]
         j = TWIST.index(spec.field)
         return (frame, "trans", e[j], zero) if j < 3 else (frame, "rot", e[j - 3], zero)
     if spec.group == "comp":
@@ -143,12 +157,19 @@ def _local_axes(robot: Robot, spec: ParamSpec):
     }[spec.field]
 
 
-def jacobian_chunk(state: ModelState, specs: list[ParamSpec], q_eff: np.ndarray, tau, w: float, with_rot: bool):
+def jacobian_chunk(state: ModelState, specs: list[ParamSpec], q_eff: np.ndarray, tau, w: float, with_rot: bool,
+                   groups=None):
     """d(residual)/d(parameter) for one chunk, column-major: position rows ``(P, N, 3)`` and
-    weighted rotation rows ``(P, N, 3)`` (or None), plus the modelled TCP poses ``(N, 4, 4)``."""
+    weighted rotation rows ``(P, N, 3)`` (or None), plus the modelled TCP poses ``(N, 4, 4)``.
+    ``groups``: the rows' stations and tools (module docstring) or None."""
     robot = state.robot
     chain = build_chain(robot)
     prev, joint, tcp = _frames(chain, q_eff)
+    L = Rt = None
+    if groups is not None and state.frames is not None:
+        L, Rt = row_transforms(state.frames, groups)
+        if Rt is not None:
+            tcp = tcp @ Rt  # each row's own TCP, reference frame
     p_tcp = _points_of(tcp, state.pts)  # (N, K, 3)
     N, P, K = q_eff.shape[0], len(specs), p_tcp.shape[1]
     Jp = np.zeros((P, N, K, 3))
@@ -156,7 +177,7 @@ def jacobian_chunk(state: ModelState, specs: list[ParamSpec], q_eff: np.ndarray,
     origin = None
     if robot.convention == "urdf" and any(s.group == "origin" for s in specs):
         O = se3.xyzrpy_to_transform(robot.origin_xyz_m, robot.origin_rpy_rad)
-        origin = [_rmul(prev[:, i], O[i]) for i in range(robot.dof)]
+        origin = [_rmul(prev[:, i], O[i]) for i in range(robot.n_chain)]
     for k, s in enumerate(specs):
         if s.group == "point":  # a further reflector's offset along a TCP axis: moves that point only
             Jp[k, :, s.joint] = -tcp[:, :3, TWIST.index(s.field)]
@@ -186,26 +207,51 @@ def jacobian_chunk(state: ModelState, specs: list[ParamSpec], q_eff: np.ndarray,
                 Jo[k] = -w * uw if t is None else w * uw * t
         else:
             Jp[k] = -uw[:, None, :] if t is None else uw[:, None, :] * t[:, :, None]
+        own = None if L is None and Rt is None else _own_rows(s, groups)
+        if own is not None:
+            Jp[k, ~own] = 0.0
+            if with_rot:
+                Jo[k, ~own] = 0.0
+    if L is not None:  # into each row's station frame
+        RL = L[:, :3, :3]
+        Jp = np.einsum("nij,pnkj->pnki", RL, Jp)
+        if with_rot:
+            Jo = np.einsum("nij,pnj->pni", RL, Jo)
+        tcp = L @ tcp
     return Jp, Jo, tcp
 
 
-def linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=CHUNK, keep_rows=None, payload=None):
-    """Accumulate scaled normal equations over chunks (``q_eff_all``: deflected joints of ``state``).
+def _own_rows(spec: ParamSpec, groups) -> np.ndarray | None:
+    """``(N,)`` bool rows a frame parameter acts on (None: every row)."""
+    if spec.group == "base":
+        return groups.station == 0
+    if spec.group == "station":
+        return groups.station == spec.joint
+    if spec.group == "tool":
+        return groups.tool == 0
+    if spec.group == "tools":
+        return groups.tool == spec.joint
+    return None
+
+
+def linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=CHUNK, keep_rows=None, payload=None, groups=None):
+    """Accumulate scaled normal equations over chunks (``q_eff_all``: deflected joints of ``state``;
+    ``groups``: the rows' stations and tools or None).
 
     Returns dict with JtJ_p, JtJ_o (P,P), Jtr (P,), sse_p, sse_o, and (if keep_rows) the scaled
-    Jacobian rows ``(rows, P)`` of the samples ``keep_rows``.
+    Jacobian rows ``J_id`` ``(rows, P)`` of the samples ``keep_rows`` (``J_id_rot``: which are orientation rows).
     """
     P = len(specs)
     with_rot = R_meas is not None
     out = {"JtJ_p": np.zeros((P, P)), "JtJ_o": np.zeros((P, P)), "Jtr": np.zeros(P), "sse_p": 0.0, "sse_o": 0.0}
     need_tau = any(s.group == "comp" for s in specs)
-    kept = []
+    kept, kept_rot = [], []
     sc = scale[:, None, None]
     for lo in range(0, q_eff_all.shape[0], chunk):
         sl = slice(lo, lo + chunk)
         q_eff = np.ascontiguousarray(q_eff_all[sl])
         tau = gravity_torques(state.robot, q_eff, **payload_kwargs(payload, sl)) if need_tau else None
-        Jp, Jo, tcp = jacobian_chunk(state, specs, q_eff, tau, w, with_rot)
+        Jp, Jo, tcp = jacobian_chunk(state, specs, q_eff, tau, w, with_rot, None if groups is None else groups.subset(sl))
         rp, ro = residual(tcp, xyz[sl], None if R_meas is None else R_meas[sl], w, state.pts)
         Jp *= sc[..., None]
         Jp2 = Jp.reshape(P, -1)
@@ -225,8 +271,10 @@ def linearize(state, specs, scale, q_eff_all, xyz, R_meas, w, chunk=CHUNK, keep_
                 if with_rot:
                     rows.append(Jo[:, idx].reshape(P, -1).T)
                 kept.append(np.concatenate(rows, 0))
+                kept_rot.append(np.arange(kept[-1].shape[0]) >= rows[0].shape[0])
     if keep_rows is not None:
         out["J_id"] = np.concatenate(kept, 0) if kept else np.zeros((0, P))
+        out["J_id_rot"] = np.concatenate(kept_rot) if kept else np.zeros(0, bool)  # orientation rows
     return out
 
 

@@ -2,7 +2,8 @@
 
 A parameter is a :class:`ParamSpec` (group, joint, field, unit): per-joint geometry (a, alpha, d, theta,
 and beta where consecutive axes are near-parallel), base and tool frames (a 6-twist each), the joint
-origins of URDF chains, further reflector points, and joint compliances. :class:`ModelState` is a
+origins of URDF chains, further reflector points, joint compliances, and the frames of further
+stations and tools (``station[B].x`` ..., ``tool[T2].x`` ...; :mod:`hykin.calibration.stations`). :class:`ModelState` is a
 robot plus its compliances and reflector offsets; :func:`apply_step` applies a deviation vector to it
 and :func:`deviations_between` measures one between two states, both in SI units (m, rad, rad/N·m).
 """
@@ -20,6 +21,7 @@ from ..geometry import se3
 from ..kinematics.compliance import compliance_of
 from ..kinematics.robot import Robot
 from .result import CalibrationError
+from .stations import StationFrames
 
 __all__ = [
     "BETA_SIN_ALPHA",
@@ -50,8 +52,8 @@ BETA_SIN_ALPHA = 0.2  # beta is added for joints whose |sin(alpha)| is below thi
 @dataclass(frozen=True)
 class ParamSpec:
     name: str
-    group: str  # "base" | "tool" | "geom" | "origin" | "comp"
-    joint: int  # joint index (-1 for base/tool)
+    group: str  # "base" | "tool" | "geom" | "origin" | "comp" | "point" | "station" | "tools"
+    joint: int  # joint index (-1 for base/tool; station / tool index for "station" / "tools")
     field: str  # a alpha d theta beta | x y z rx ry rz | c
     unit: str  # "m" | "rad" | "c"
 
@@ -59,9 +61,11 @@ class ParamSpec:
 TWIST = ("x", "y", "z", "rx", "ry", "rz")
 
 
-def candidate_specs(robot: Robot, *, base: bool, tool: bool, compliance: bool, n_points: int = 1) -> list[ParamSpec]:
-    """All candidate parameters in priority order (base, tool, joints, compliance, further reflectors'
-    offsets ``p2.x`` ... in the TCP frame when ``n_points > 1``)."""
+def candidate_specs(robot: Robot, *, base: bool, tool: bool, compliance: bool, n_points: int = 1,
+                    stations: Sequence[str] = (), tools: Sequence[str] = ()) -> list[ParamSpec]:
+    """All candidate parameters in priority order (base, tool, further stations' and tools' frames,
+    joints, compliance, further reflectors' offsets ``p2.x`` ... in the TCP frame when ``n_points > 1``).
+    ``stations`` / ``tools``: labels of the stations / tools after the reference (index 1, 2, ...)."""
     out: list[ParamSpec] = []
     tw = lambda g, j, prefix: [
         ParamSpec(f"{prefix}.{f}", g, j, f, "m" if f in ("x", "y", "z") else "rad") for f in TWIST
@@ -70,7 +74,11 @@ def candidate_specs(robot: Robot, *, base: bool, tool: bool, compliance: bool, n
         out += tw("base", -1, "base")
     if tool:
         out += tw("tool", -1, "tool")
-    n = robot.dof
+    for k, lab in enumerate(stations, start=1):
+        out += tw("station", k, f"station[{lab}]")
+    for k, lab in enumerate(tools, start=1):
+        out += tw("tools", k, f"tool[{lab}]")
+    n = robot.n_chain  # per chain joint (a mimic joint's origin is calibrated like any other)
     for i in range(n):
         k = i + 1
         if robot.convention == "urdf":
@@ -121,6 +129,7 @@ class ModelState:
     robot: Robot
     c: np.ndarray  # (n,) compliance, rad/N·m
     pts: np.ndarray = field(default_factory=lambda: np.zeros((1, 3)))  # (K, 3) reflector offsets, TCP frame; row 0 = 0
+    frames: StationFrames | None = None  # several stations / tools: every frame (index 0 = robot base / tool)
 
 
 def robot_with_compliance(robot: Robot, c: np.ndarray) -> Robot:
@@ -145,11 +154,15 @@ def apply_step(state: ModelState, specs: list[ParamSpec], delta: np.ndarray) -> 
     r = state.robot
     geom = {"a": r.a_m.copy(), "alpha": r.alpha_rad.copy(), "d": r.d_m.copy(), "theta": r.theta_rad.copy(), "beta": r.beta_rad.copy()}
     base6, tool6 = np.zeros(6), np.zeros(6)
-    orig6 = np.zeros((r.dof, 6))
+    orig6 = np.zeros((r.n_chain, 6))
     c = state.c.copy()
     pts = state.pts.copy()
+    fr = None if state.frames is None else state.frames.copy()
+    st6 = {"station": {}, "tools": {}}
     for s, v in zip(specs, delta):
-        if s.group == "point":
+        if s.group in st6:
+            st6[s.group].setdefault(s.joint, np.zeros(6))[TWIST.index(s.field)] = v
+        elif s.group == "point":
             pts[s.joint, TWIST.index(s.field)] += v
         elif s.group == "geom":
             geom[s.field][s.joint] += v
@@ -161,16 +174,21 @@ def apply_step(state: ModelState, specs: list[ParamSpec], delta: np.ndarray) -> 
             orig6[s.joint, TWIST.index(s.field)] = v
         else:
             c[s.joint] = max(c[s.joint] + v, 0.0)  # compliance is physical only when >= 0
+    for k, v in st6["station"].items():
+        fr.station_bases[k] = fr.station_bases[k] @ _E(v)
+    for k, v in st6["tools"].items():
+        fr.tool_frames[k] = fr.tool_frames[k] @ _E(v)
     changes = dict(a_m=geom["a"], alpha_rad=geom["alpha"], d_m=geom["d"], theta_rad=geom["theta"], beta_rad=geom["beta"])
     changes["base"] = r.base @ _E(base6)
     changes["tool"] = r.tool @ _E(tool6)
     if r.convention == "urdf" and np.any(orig6):
         O = se3.xyzrpy_to_transform(r.origin_xyz_m, r.origin_rpy_rad)
-        O = np.stack([O[i] @ _E(orig6[i]) for i in range(r.dof)])
+        O = np.stack([O[i] @ _E(orig6[i]) for i in range(r.n_chain)])
         xyz, rpy = se3.transform_to_xyzrpy(O)
         changes.update(origin_xyz_m=xyz, origin_rpy_rad=rpy)
     new = robot_with_compliance(r.copy(**changes), c)
-    return ModelState(robot=new, c=c, pts=pts)
+    return ModelState(robot=new, c=c, pts=pts, frames=None if fr is None else fr.synced(new))
+
 
 
 def apply_deviations(robot: Robot, deviations: dict[str, float]) -> Robot:
@@ -183,7 +201,7 @@ def apply_deviations(robot: Robot, deviations: dict[str, float]) -> Robot:
     """
     specs = {s.name: s for s in candidate_specs(robot, base=True, tool=True, compliance=True)}
     for name in ("beta",):  # beta is a candidate only for near-parallel axes; allow it everywhere here
-        for i in range(robot.dof):
+        for i in range(robot.n_chain):
             specs.setdefault(f"{name}{i + 1}", ParamSpec(f"{name}{i + 1}", "geom", i, name, "rad"))
     unknown = [k for k in deviations if k not in specs]
     if unknown:
@@ -210,6 +228,10 @@ def deviations_between(s0: ModelState, s1: ModelState, specs: Sequence[ParamSpec
             out[k] = t[TWIST.index(s.field)]
         elif s.group == "origin":
             out[k] = _log6(np.linalg.inv(O0[s.joint]) @ O1[s.joint])[TWIST.index(s.field)]
+        elif s.group in ("station", "tools"):
+            F0, F1 = ((s0.frames.station_bases, s1.frames.station_bases) if s.group == "station"
+                      else (s0.frames.tool_frames, s1.frames.tool_frames))
+            out[k] = _log6(np.linalg.inv(F0[s.joint]) @ F1[s.joint])[TWIST.index(s.field)]
         elif s.group == "point":
             out[k] = s1.pts[s.joint, TWIST.index(s.field)] - s0.pts[s.joint, TWIST.index(s.field)]
         else:

@@ -50,9 +50,16 @@ class CalibrationResult:
     """Outcome of :func:`calibrate`.
 
     robot: the calibrated robot (geometry, base, tool, ``stiffness_nm_per_rad = 1 / c``).
-    names: parameter names (priority order); values: identified deviations from the input robot
-    (SI: m, rad, rad/N·m; base/tool/URDF-origin deviations as ``(x, y, z, rx, ry, rz)`` of
-    ``T0⁻¹ T``); std: standard deviations (nan where not identified); identifiable: bool mask.
+    names: parameter names (priority order); values: deviations from the input robot (SI: m, rad,
+    rad/N·m; base/tool/URDF-origin deviations as ``(x, y, z, rx, ry, rz)`` of ``T0⁻¹ T``); std:
+    posterior standard deviations (:mod:`hykin.calibration.priors`; a parameter held at its prior has
+    its prior tolerance, nan where that is uninformative or at a bound); identifiable: bool mask of
+    the parameters estimated from the data (the data excite them; ``status`` tells which of those are
+    ``"correlated"``). status: per parameter ``"identified"``, ``"correlated"`` (|posterior
+    correlation| >= 0.99 with the parameters in ``correlated_with``: the data tell their combination,
+    the priors the split), ``"held at prior"`` (not excited by the data: the robot file's value) or
+    ``"at bound 0"`` (a compliance held rigid). prior_std: ``(P,)`` prior tolerances (SI; inf =
+    uninformative). correlated_with: per parameter ``[(name, rho)]``.
     correlation: ``(k, k)`` among the estimated parameters, ``correlation_names`` order (identifiable
     ones that did not end at a bound: a compliance at 0 has no std).
     strong_correlations: ``(name_i, name_j, rho)`` with ``|rho| > 0.9``.
@@ -84,10 +91,22 @@ class CalibrationResult:
     sigma_rot_rad: float = float("nan")
     seconds: float = 0.0
     point_offsets_m: np.ndarray | None = None
+    #: several stations / tools: every station's and tool's frame (:class:`hykin.calibration.stations.StationFrames`)
+    station_frames: object | None = None
+    status: list[str] = field(default_factory=list)
+    prior_std: np.ndarray | None = None
+    correlated_with: list = field(default_factory=list)
 
     @property
     def identified_names(self) -> list[str]:
-        return [n for n, m in zip(self.names, self.identifiable) if m]
+        """Parameters identified by the data (excited and not correlated at >= 0.99 with another)."""
+        st = self.status or ["identified" if m else "held at prior" for m in self.identifiable]
+        return [n for n, s in zip(self.names, st) if s == "identified"]
+
+    @property
+    def held_names(self) -> list[str]:
+        """Parameters held at the robot file's value (the data do not excite them)."""
+        return [n for n, s in zip(self.names, self.status) if s == "held at prior"]
 
     @property
     def rms_before_mm(self) -> float:
@@ -101,27 +120,58 @@ class CalibrationResult:
         """Identified deviation of parameter ``name`` (SI)."""
         return float(self.values[self.names.index(name)])
 
+    def summary(self) -> str:
+        """One line: how many parameters are identified / correlated / held at prior, and which are held."""
+        st = self.status or ["identified" if m else "held at prior" for m in self.identifiable]
+        held = [n for n, s in zip(self.names, st) if s == "held at prior"]
+        cor = [n for n, s in zip(self.names, st) if s == "correlated"]
+        return (f"calibration: {len(self.identified_names)} identified, {len(cor)} correlated"
+                + (f" ({', '.join(cor)})" if cor else "") + f", {len(held)} held at prior"
+                + (f" ({', '.join(held)})" if held else "") + f"; {self.after['pos_rms_mm']:.4g} mm RMS")
+
     def report(self) -> str:
-        """Human-readable table (lengths in mm, angles in deg, compliance in µrad/(N·m))."""
+        """Human-readable table (lengths in mm, angles in deg, compliance in µrad/(N·m)): deviation from
+        the robot file, posterior std, prior tolerance and status of every parameter."""
+        n_id = len(self.identified_names)
+        n_est = int(np.sum(self.identifiable))
         lines = [
             f"Calibration of {self.robot.name!r}: {self.n_samples} samples, "
             f"{'position only' if self.position_only else f'full pose (w = {self.orientation_weight_m_per_rad:g} m/rad)'}, "
-            f"{int(self.identifiable.sum())}/{len(self.names)} parameters identified, "
+            f"{n_id} identified, {n_est - n_id} correlated, {len(self.names) - n_est} held at prior (of {len(self.names)}), "
             f"{self.iterations} iterations, {'converged' if self.converged else 'NOT converged'} ({self.message}), "
             f"{self.seconds:.2f} s",
-            f"{'parameter':<10} {'deviation':>14} {'std':>12}  unit",
+            f"{'parameter':<10} {'deviation':>14} {'std':>12} {'prior':>10}  {'unit':<9} status",
         ]
-        for n, v, s, u, m in zip(self.names, self.values, self.std, self.units, self.identifiable):
+        status = self.status or ["identified" if m else "held at prior" for m in self.identifiable]
+        prior = self.prior_std if self.prior_std is not None else np.full(len(self.names), np.nan)
+        cw = self.correlated_with or [[] for _ in self.names]
+        for n, v, s, u, st, p, c in zip(self.names, self.values, self.std, self.units, status, prior, cw):
             f, un = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg"), "c": (1e6, "µrad/N·m")}[u]
-            vs = f"{v * f:14.6f}" if m else f"{'fixed':>14}"
-            ss = f"{s * f:12.6f}" if m and np.isfinite(s) else f"{'-':>12}"
-            lines.append(f"{n:<10} {vs} {ss}  {un}")
+            ss = f"{s * f:12.6f}" if np.isfinite(s) else f"{'-':>12}"
+            ps = f"{p * f:10.4g}" if np.isfinite(p) else f"{'none':>10}"
+            if st == "correlated":
+                st = "correlated with " + ", ".join(f"{a} ({r:+.3f})" for a, r in c)
+            lines.append(f"{n:<10} {v * f:14.6f} {ss} {ps}  {un:<9} {st}")
         lines.append(f"{'':<10} {'before':>14} {'after':>12}")
         for key, lab in (("pos_mean_mm", "pos mean mm"), ("pos_p95_mm", "pos p95 mm"), ("pos_max_mm", "pos max mm"),
                          ("rot_mean_deg", "rot mean deg"), ("rot_p95_deg", "rot p95 deg"), ("rot_max_deg", "rot max deg")):
             if key in self.before:
                 lines.append(f"{lab:<14} {self.before[key]:10.6f} {self.after[key]:12.6f}")
         lines.append("identified at the solution: " + (", ".join(self.identified_names) or "none"))
+        fr = self.station_frames
+        if fr is not None:  # several stations / tools: every frame (hykin.calibration.stations)
+            from ..geometry.se3 import transform_to_xyzrpy
+
+            for kind, labels, Ts in (("station", fr.station_labels, fr.station_bases), ("tool", fr.tool_labels, fr.tool_frames)):
+                if len(labels) > 1:
+                    xyz, rpy = transform_to_xyzrpy(np.asarray(Ts))
+                    lines.append(f"{kind} frames (xyz m, rpy deg; {'station -> robot base' if kind == 'station' else 'flange -> TCP'}"
+                                 f", first = reference): " + "; ".join(
+                                     f"{lab}: [{', '.join(f'{v:.6f}' for v in p)}] [{', '.join(f'{v:.4f}' for v in np.degrees(r))}]"
+                                     for lab, p, r in zip(labels, xyz, rpy)))
+        held = [n for n, s in zip(self.names, status) if s == "held at prior"]
+        if held:
+            lines.append("held at prior (the data do not excite them; the robot file's value): " + ", ".join(held))
         if self.strong_correlations:
             lines.append("strong correlations (|rho| > 0.9): " + ", ".join(
                 f"{a}~{b} {r:+.3f}" for a, b, r in self.strong_correlations))
@@ -136,8 +186,13 @@ class CalibrationResult:
             "position_only": self.position_only,
             "orientation_weight_m_per_rad": self.orientation_weight_m_per_rad,
             "parameters": [
-                {"name": n, "unit": u, "value": float(v), "std": f(s), "identifiable": bool(m)}
-                for n, u, v, s, m in zip(self.names, self.units, self.values, self.std, self.identifiable)
+                {"name": n, "unit": u, "value": float(v), "std": f(s), "identifiable": bool(m), "status": st,
+                 "prior_std": f(p), "correlated_with": [[a, float(r)] for a, r in c]}
+                for n, u, v, s, m, st, p, c in zip(
+                    self.names, self.units, self.values, self.std, self.identifiable,
+                    self.status or ["identified" if m else "held at prior" for m in self.identifiable],
+                    self.prior_std if self.prior_std is not None else np.full(len(self.names), np.nan),
+                    self.correlated_with or [[] for _ in self.names])
             ],
             "identified_names": self.identified_names,
             "correlation_names": self.correlation_names,
@@ -152,6 +207,7 @@ class CalibrationResult:
             "message": self.message,
             "seconds": self.seconds,
             "point_offsets_m": None if self.point_offsets_m is None else np.asarray(self.point_offsets_m).tolist(),
+            "station_frames": None if self.station_frames is None else self.station_frames.to_dict(),
         }
 
 

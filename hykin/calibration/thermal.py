@@ -10,11 +10,21 @@ position scaled about the robot base origin ``b``,
 
     p(t) = b + (1 + alpha (t - t_ref)) (p(t_ref) - b),    orientation unchanged,
 
-``alpha`` (1/K) being identified by least squares together with the calibration (alternating: fit
-``alpha`` on the calibrated residuals, map the measurements to ``t_ref``, recalibrate). The
-coefficient is kept only when it is significant (``|alpha| >= 3 std``), physically plausible
-(``|alpha| <= 60e-6 /K``) and not negligible (``|alpha|`` x temperature std x RMS reach >= 0.5 µm);
-otherwise the model ignores temperature. On the real UR10 series A (laser tracker, 22.9-23.7 °C,
+``alpha`` (1/K) being identified together with the calibration (alternating: fit ``alpha`` on the
+calibrated residuals, map the measurements to ``t_ref``, recalibrate), as the maximum a posteriori
+under the prior ``0 ± thermal_per_k`` (:mod:`hykin.calibration.priors`: the robot file has no
+expansion). The coefficient is kept only when it is significant (``|alpha| >= 3 std``), physical
+(``0 < alpha <= 60e-6 /K``: a steel or aluminium arm expands, by 11.5e-6 or 23e-6 /K) and not
+negligible (``alpha`` x temperature std x RMS reach >= 0.5 µm); otherwise the model ignores
+temperature.
+
+**Physics with signs.** A significant coefficient outside ``(0, 60e-6]`` /K (a negative one: the arm
+"shrinking" as it warms; or three times aluminium's) is not the arm: it is the instrument drifting
+with the session (a laser tracker's frame or wavelength compensation), which a temperature column
+happens to track. Such a coefficient is dropped with ONE warning line saying so, and the model is
+fitted without temperature, never refused: the robot file and the data are correct, only the
+thermal term is not the arm's (a refusal would turn away a correct input). With ``thermal=True``
+the same holds (the column is required, a non-physical coefficient is still not applied). On the real UR10 series A (laser tracker, 22.9-23.7 °C,
 std 0.17 K) it is not significant (-1.5e-5 +- 1.3e-5 /K) and so not used.
 """
 
@@ -25,6 +35,7 @@ import dataclasses
 import numpy as np
 
 __all__ = [
+    "DRIFT_WARNING",
     "TEMPERATURE_COLUMNS",
     "ThermalFit",
     "fit_coefficient",
@@ -38,6 +49,9 @@ __all__ = [
 TEMPERATURE_COLUMNS = ("temperature_c", "temperature")
 #: largest plausible linear expansion coefficient (1/K); aluminium is 23e-6, magnesium 26e-6
 MAX_PLAUSIBLE_PER_K = 60e-6
+#: the one warning line when the data show a coefficient no arm has
+DRIFT_WARNING = ("thermal: the data show {alpha:.2g} /K ({why}): drift of the instrument, not expansion of the arm; "
+                 "temperature ignored")
 #: smallest effect worth a coefficient: alpha x temperature std x RMS reach (m)
 MIN_EFFECT_M = 0.5e-6
 
@@ -89,22 +103,26 @@ def scale_about(T: np.ndarray, origin_m: np.ndarray, factor: np.ndarray) -> np.n
 
 
 def fit_coefficient(xyz_meas_m: np.ndarray, xyz_model_m: np.ndarray, origin_m: np.ndarray, dtemp_k: np.ndarray,
-                    alpha0: float) -> tuple[float, float]:
-    """Least-squares update of ``alpha`` given model positions at the reference temperature.
+                    alpha0: float, tolerance_per_k: float = float("inf")) -> tuple[float, float]:
+    """Least-squares (MAP with a prior) update of ``alpha`` given model positions at the reference temperature.
 
     ``xyz_meas_m`` measured ``(N, 3)``; ``xyz_model_m`` the model's ``(N, 3)`` at ``t_ref`` when the
-    data were mapped with ``alpha0``; ``dtemp_k`` ``t - t_ref`` ``(N,)``. Returns ``(alpha, std)``.
+    data were mapped with ``alpha0``; ``dtemp_k`` ``t - t_ref`` ``(N,)``; ``tolerance_per_k``: prior
+    standard deviation of ``alpha`` about 0 (inf: plain least squares). Returns ``(alpha, std)``
+    (posterior std; the noise per coordinate from the least-squares residual).
     """
     g = dtemp_k[:, None] * (xyz_model_m - origin_m)  # d p / d alpha
     r = xyz_meas_m - (origin_m + (1.0 + alpha0 * dtemp_k)[:, None] * (xyz_model_m - origin_m))
     gg = float(np.sum(g * g))
     if gg <= 0:
         return 0.0, float("inf")
-    step = float(np.sum(g * r)) / gg
-    res = r - step * g
+    gr = float(np.sum(g * r))
+    res = r - (gr / gg) * g
     dof = max(r.size - 1, 1)
     sigma2 = float(np.sum(res * res)) / dof
-    return alpha0 + step, float(np.sqrt(sigma2 / gg))
+    prec = sigma2 / tolerance_per_k ** 2 if np.isfinite(tolerance_per_k) and tolerance_per_k > 0 else 0.0
+    step = (gr - prec * alpha0) / (gg + prec)  # pulls alpha0 + step toward the prior mean 0
+    return alpha0 + step, float(np.sqrt(sigma2 / (gg + prec)))
 
 
 def to_reference(ds, origin_m: np.ndarray, alpha: float, dtemp_k: np.ndarray):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 
-from . import compensate, data, imports, model, plan, query, scale  # noqa: F401  (register the commands)
+from . import compensate, data, imports, model, plan, query, realtime, report, scale  # noqa: F401  (register the commands)
 from .common import CLIError, app
 
 __all__ = ["CLIError", "app", "main"]

@@ -18,6 +18,32 @@ app = typer.Typer(
     help="hykin: high-accuracy hybrid kinematics for serial robot arms (classical model + calibration + residual networks).",
 )
 
+def _plain_help() -> None:
+    """Help as the README writes it: arguments upper-case (``ROBOT``, ``[TEST]``, not ``{robot}``) and no
+    ``<bool>`` type placeholder on flags. Typer 0.2x renders these itself; this adjusts its two hooks."""
+    from typer import core as tc
+
+    opt_type = getattr(tc.TyperOption, "display_type_rich", None)
+    if opt_type is not None and not getattr(opt_type, "_hykin", False):
+        def display_type_rich(self, ctx):
+            return None if getattr(self, "is_flag", False) else opt_type(self, ctx)
+
+        display_type_rich._hykin = True
+        tc.TyperOption.display_type_rich = display_type_rich
+    if hasattr(tc.TyperArgument, "_usage_display_name"):
+        def usage_name(self):
+            name = self.metavar or (self.name or "").upper()
+            if not self.required and not name.startswith("["):
+                name = f"[{name}]"
+            return name + ("..." if self.nargs != 1 else "")
+
+        tc.TyperArgument._usage_display_name = usage_name
+        tc.TyperArgument.display_name_raw = property(lambda self: self.metavar or (self.name or "").upper())
+
+
+_plain_help()
+
+
 def _version(value: bool) -> None:
     if value:
         from .. import __version__
@@ -37,7 +63,17 @@ LengthUnit = typer.Option("m", "--length-unit", help="Unit of x,y,z in the input
 AngleUnit = typer.Option("rad", "--angle-unit", help="Unit of joint columns in the input files: rad or deg.")
 
 
+UnitCheck = typer.Option(
+    True, "--unit-check/--no-unit-check",
+    help="Refuse data that look like another unit (mm read as m, rad read as deg; judged against the robot's reach "
+         "and motion, not absolute coordinates). --no-unit-check when the values are right.")
+
+
 Force = typer.Option(False, "--force", help="Overwrite the output file if it exists.")
+BaseLink = typer.Option(None, "--base", metavar="LINK",
+                        help="URDF robot: the chain's base link (default: the root link).")
+TipLink = typer.Option(None, "--tip", metavar="LINK",
+                       help="URDF robot: the chain's tip link (needed when the URDF has several tips).")
 
 
 class CLIError(Exception):
@@ -90,8 +126,40 @@ def console():
     return Console(stderr=True, soft_wrap=True)
 
 
+class _LogProgress:
+    """The :func:`progress` interface (``add_task`` / ``update``) as plain log lines (stderr not a
+    terminal): a line per task when it starts and ends, and one at least every 10 s with an ETA."""
+
+    def __init__(self):
+        self.tasks = {}
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        for log, _ in self.tasks.values():
+            log.done()
+
+    def add_task(self, description: str, total=None, **_):
+        from ..hybrid.progress import LogLines
+
+        k = len(self.tasks)
+        self.tasks[k] = (LogLines(description, unit="samples"), [0, total])
+        return k
+
+    def update(self, task, completed=None, total=None, **_):
+        log, st = self.tasks[task]
+        st[0] = st[0] if completed is None else completed
+        st[1] = st[1] if total is None else total
+        log.update(int(st[0]), st[1])
+
+
 def progress():
-    """A rich progress bar writing to stderr (disabled when stderr is not a terminal and CI is set)."""
+    """A rich progress bar writing to stderr on a terminal; plain log lines otherwise (:class:`_LogProgress`)."""
+    import sys
+
+    if not sys.stderr.isatty():
+        return _LogProgress()
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -125,19 +193,37 @@ def is_model_file(spec: str) -> bool:
     return 0 < n < 100_000_000 and p.suffix.lower() not in (".toml", ".urdf", ".csv")
 
 
-def load_model_or_robot(spec: str):
-    """Return ``(model_or_None, robot)`` for a model file, a robot file or a preset name."""
-    from ..io.robot_file import load_robot
-
+def load_model_or_robot(spec: str, base: str | None = None, tip: str | None = None):
+    """Return ``(model_or_None, robot)`` for a model file, a robot file or a preset name; ``base`` /
+    ``tip`` (``--base``/``--tip``): the chain of a URDF file. A model file keeps the chain it was
+    fitted on; naming other links for it is refused."""
     if is_model_file(spec):
         from ..hybrid.model import HybridModel
 
         model = HybridModel.load(spec)
+        _check_links(spec, model.robot, base, tip)
         return model, model.robot
     p = Path(spec)
     if p.is_file() and p.suffix.lower() not in (".toml", ".urdf"):
         raise CLIError(f"{spec}: not a hykin model file, robot file (.toml/.urdf) or preset name")
-    return None, load_robot(spec)
+    return None, load_robot_spec(spec, base, tip)
+
+
+def load_robot_spec(spec, base: str | None = None, tip: str | None = None):
+    """A robot file, URDF (chain ``--base`` -> ``--tip``) or preset; the one robot loader of the CLI."""
+    from ..io.robot_file import load_robot
+
+    return load_robot(spec, base_link=base, tip_link=tip)
+
+
+def _check_links(spec, robot, base: str | None, tip: str | None) -> None:
+    if base is None and tip is None:
+        return
+    u = robot.urdf or {}
+    for opt, given, key in (("--base", base, "base_link"), ("--tip", tip, "tip_link")):
+        if given is not None and given != u.get(key):
+            have = f"the chain {u.get('base_link')} -> {u.get('tip_link')}" if u else "a robot that is not a URDF"
+            raise CLIError(f"{spec}: {opt} {given}: the model was fitted on {have}; it cannot change")
 
 
 def load_model(spec) -> object:
@@ -152,6 +238,19 @@ def load_model(spec) -> object:
 
 
 # --------------------------------------------------------------------------- commands
+
+
+def parse_axis_signs(text: str | None, dof: int):
+    """``--axis-signs`` (comma-separated 1 / -1 per joint) -> ``(dof,)`` array, or None when not given."""
+    if text is None:
+        return None
+    try:
+        s = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        raise CLIError(f"--axis-signs: expected {dof} comma-separated values of 1 or -1, got {text!r}") from None
+    if s.shape != (dof,) or not np.all(np.abs(s) == 1):
+        raise CLIError(f"--axis-signs: expected {dof} comma-separated values of 1 or -1, got {text!r}")
+    return s
 
 
 def temperature_of(mdl, extra: dict, path) -> np.ndarray | None:

@@ -16,6 +16,7 @@ from .common import (
     check_output,
     console,
     load_model,
+    parse_axis_signs,
     write_rows,
 )
 
@@ -38,18 +39,6 @@ def _format_of(path: Path, fmt: str | None) -> str:
     raise CLIError(f"{path}: unknown input type {suf!r}; give --format ({', '.join(_FORMATS)})")
 
 
-def _axis_signs(text: str | None, dof: int):
-    if text is None:
-        return None
-    try:
-        s = np.array([float(v) for v in text.split(",")])
-    except ValueError:
-        raise CLIError(f"--axis-signs: expected {dof} comma-separated values of 1 or -1, got {text!r}") from None
-    if s.shape != (dof,) or not np.all(np.abs(s) == 1):
-        raise CLIError(f"--axis-signs: expected {dof} comma-separated values of 1 or -1, got {text!r}")
-    return s
-
-
 @app.command("compensate")
 def compensate_cmd(
     model: str = typer.Argument(..., help="Model file (hykin fit)."),
@@ -66,7 +55,7 @@ def compensate_cmd(
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
 ) -> None:
-    """Compensated targets for a controller that runs the nominal model (DESIGN.md §6)."""
+    """Compensated targets for a controller that runs the nominal model (see docs/compensation.md)."""
     kind = _format_of(inp, fmt)
     if frame not in ("auto", "measurement", "base"):
         raise CLIError(f"--frame must be auto, measurement or base, got {frame!r}")
@@ -85,7 +74,7 @@ def compensate_cmd(
                             f"({rng.lower_kg:g}-{rng.upper_kg:g} kg): the physics carries it, the networks hold their "
                             "nearest trained payload", highlight=False)
         mdl = model_with_payload(mdl, payload_kg)
-    signs = _axis_signs(axis_signs, mdl.nominal.dof)
+    signs = parse_axis_signs(axis_signs, mdl.nominal.dof)
     th = getattr(mdl, "thermal_", None)
     if th is not None and th.coefficient_per_k != 0.0:
         console().print(f"note: the model has thermal expansion; targets are compensated at its reference "
@@ -191,17 +180,42 @@ def serve_cmd(
     model: str = typer.Argument(..., help="Model file (hykin fit)."),
     host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on (default: this machine only)."),
     port: int = typer.Option(8000, "--port", help="TCP port."),
+    token_file: Path | None = typer.Option(None, "--token-file", help="File holding a bearer token: every request but "
+                                    "GET /health must then send 'Authorization: Bearer <token>' (401 / WebSocket 403 otherwise)."),
+    max_targets: int = typer.Option(10_000, "--max-targets", help="Targets (rows) in one HTTP request (422 above)."),
+    max_body_kb: int = typer.Option(4096, "--max-body-kb", help="Size of one HTTP request body, KiB (413 above)."),
+    max_message_bytes: int = typer.Option(4096, "--max-message-bytes", help="Size of one WebSocket message, bytes "
+                                          "(the stream is closed with 1009 above)."),
+    queue: int = typer.Option(64, "--queue", help="Model calls waiting or running, all clients together (503 / a "
+                              "busy reply above)."),
+    max_connections: int = typer.Option(64, "--max-connections", help="Open connections (503 above)."),
+    refusal_delay_ms: float = typer.Option(100.0, "--refusal-delay-ms", help="Every refused request is answered after "
+                                           "this delay, which slows a client flooding bad requests (0: at once)."),
 ) -> None:
-    """Serve fk / ik / compensate over HTTP (JSON batches; GET /health)."""
+    """Serve fk / ik / compensate over HTTP (JSON batches), a WebSocket stream of single targets (/stream) and GET /health."""
+    from ..compensation.service import serve
+    from ..compensation.service_guard import ServiceLimits, model_identity, read_token_file
+
     if not 0 < port < 65536:
         raise CLIError(f"--port must be 1..65535, got {port}")
+    for name, v in (("--max-targets", max_targets), ("--max-body-kb", max_body_kb), ("--max-message-bytes", max_message_bytes),
+                    ("--queue", queue), ("--max-connections", max_connections)):
+        if v < 1:
+            raise CLIError(f"{name} must be at least 1, got {v}")
+    if not 0 <= refusal_delay_ms <= 60_000:
+        raise CLIError(f"--refusal-delay-ms must be in 0..60000, got {refusal_delay_ms}")
+    try:
+        token = read_token_file(token_file) if token_file is not None else None
+    except ValueError as e:
+        raise CLIError(str(e)) from None
+    limits = ServiceLimits(max_targets=max_targets, max_body_bytes=max_body_kb * 1024, max_message_bytes=max_message_bytes,
+                           queue=queue, max_connections=max_connections, refusal_delay_s=refusal_delay_ms / 1e3, token=token)
     mdl = load_model(model)
-    import uvicorn
-
-    from ..compensation.service import create_app
-
-    typer.echo(f"hykin serve: {mdl.nominal.name} on http://{host}:{port} (GET /health, POST /fk /ik /compensate)")
-    uvicorn.run(create_app(mdl), host=host, port=port, log_level="warning")
+    identity = model_identity(model)
+    typer.echo(f"hykin serve: {mdl.nominal.name} (sha256 {identity['model_sha256'] or identity['file_sha256']}) on "
+               f"http://{host}:{port} (GET /health, POST /fk /ik /compensate, WebSocket /stream"
+               f"{'; bearer token required' if token else ''})")
+    serve(mdl, host, port, limits, identity)
 
 
 @app.command("export-urdf")

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import typer
 
-from .common import CLIError, Force, app, check_output
+from .common import BaseLink, CLIError, Force, TipLink, app, check_output
 
 import_app = typer.Typer(no_args_is_help=True, help="Import measured data into the standard dataset format.")
 app.add_typer(import_app, name="import")
@@ -116,12 +116,14 @@ def _build_map(map_path: Path | None, opts: dict):
     return table_map_from_dict(opts, "command line")
 
 
-def _robot(spec: str | None):
+def _robot(spec: str | None, base: str | None = None, tip: str | None = None):
     if spec is None:
+        if base is not None or tip is not None:
+            raise CLIError("--base/--tip name links of the --robot URDF; give --robot")
         return None
     from .common import load_model_or_robot
 
-    return load_model_or_robot(spec)[1]
+    return load_model_or_robot(spec, base, tip)[1]
 
 
 @import_app.command("table")
@@ -161,6 +163,8 @@ def import_table_cmd(
     encoding: str | None = typer.Option(None, "--encoding", help="Text encoding (default UTF-8, falling back to cp1252)."),
     dof: int | None = DofOpt,
     robot: str | None = RobotOpt,
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     unit_check: bool | None = UnitCheckOpt,
     force: bool = Force,
 ) -> None:
@@ -187,7 +191,7 @@ def import_table_cmd(
 
     check_output(out, (path, map_path), force)
     m = _build_map(map_path, opts)
-    ds = import_table(path, m, _robot(robot))
+    ds = import_table(path, m, _robot(robot, base_link, tip_link))
     _write(ds, out, [path, map_path], f", orientation from {m.orientation}" if m.orientation else "")
 
 
@@ -248,6 +252,8 @@ def import_three_smr_cmd(
     comment: str | None = CommentOpt,
     dof: int | None = DofOpt,
     robot: str | None = RobotOpt,
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     force: bool = Force,
 ) -> None:
     """Full poses from three reflectors per pose (a rigid fit of the known nest onto the three points).
@@ -274,12 +280,37 @@ def import_three_smr_cmd(
     m = _build_map(map_path, opts)
     if m.nest is None:
         raise CLIError("import three-smr: give the reflector nest (--nest 'x1,y1,z1; x2,y2,z2; x3,y3,z3' or nest = [...] in --map)")
-    ds = import_table(path, m, _robot(robot))
+    ds = import_table(path, m, _robot(robot, base_link, tip_link))
     rms = ds.extra["smr_fit_rms_m"]
     _write(ds, out, [path, map_path], f", nest fit RMS mean {rms.mean() * 1e3:.4f} mm, max {rms.max() * 1e3:.4f} mm")
 
 
 # --------------------------------------------------------------------------- streams
+
+
+def _read_streams(robot_log, tracker_stream, robot_map, tracker_map, r_opts, t_opts, rob):
+    """Robot log and tracker stream as arrays: the plain layout (CSV with plain names, Parquet) in
+    chunks (:mod:`hykin.measure.stream_files`), anything else through the mapping reader."""
+    from ..measure.stream_files import plain_layout, read_robot_log, read_tracker_stream
+    from ..measure.table_import import read_mapped
+
+    plain = robot_map is None and tracker_map is None and r_opts.get("joints") == "q*" \
+        and plain_layout(robot_log) and plain_layout(tracker_stream)
+    if plain:
+        rev = [t == "revolute" for t in getattr(rob, "independent_joint_type", rob.joint_type)]
+        t_r, q_r = read_robot_log(robot_log, dof=rob.dof, revolute=rev, time=r_opts["time"],
+                                  angle_unit=r_opts.get("angle_unit") or "rad", time_unit=r_opts.get("time_unit") or "s")
+        t_t, p_t, quat_t = read_tracker_stream(tracker_stream, time=t_opts["time"], position=t_opts["position"],
+                                               quaternion=t_opts.get("quaternion"),
+                                               length_unit=t_opts.get("length_unit") or "m",
+                                               time_unit=t_opts.get("time_unit") or "s")
+        return t_r, q_r, t_t, p_t, quat_t
+    rm = read_mapped(robot_log, _build_map(robot_map, r_opts), rob, need_position=False)
+    tm = read_mapped(tracker_stream, _build_map(tracker_map, t_opts), need_joints=False, allow_missing=True)
+    for mt, name in ((rm, robot_log), (tm, tracker_stream)):
+        if mt.time_s is None:
+            raise CLIError(f"{name}: no time column mapped (time = \"...\" in the map, or --robot-time / --tracker-time)")
+    return rm.time_s, rm.q, tm.time_s, tm.xyz_m, tm.quat_wxyz
 
 
 @import_app.command("stream")
@@ -288,6 +319,8 @@ def import_stream_cmd(
     tracker_stream: Path = typer.Argument(..., help="Tracker stream: a time column and positions (empty cells = beam lost)."),
     out: Path = Out,
     robot: str = typer.Option(..., "--robot", help="Robot file/preset (or model file): FK of the logged joints for the clock fit."),
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     robot_map: Path | None = typer.Option(None, "--robot-map", help="Mapping TOML of the robot log (time, joints, angle_unit, layout)."),
     tracker_map: Path | None = typer.Option(None, "--tracker-map", help="Mapping TOML of the tracker stream (time, position, orientation, units, layout)."),
     robot_time: str | None = typer.Option(None, "--robot-time", help="Time column of the robot log (default t)."),
@@ -310,11 +343,10 @@ def import_stream_cmd(
 ) -> None:
     """Align a robot joint log with a tracker stream (clock offset, interpolation) into a dataset."""
     from ..measure.streams import align_streams
-    from ..measure.table_import import read_mapped
 
     if frame not in ("tracker", "fit"):
         raise CLIError(f"import stream: --frame must be tracker or fit, got {frame!r}")
-    rob = _robot(robot)
+    rob = _robot(robot, base_link, tip_link)
     check_output(out, (robot_log, tracker_stream, robot_map, tracker_map), force)
     r_opts = dict(time=robot_time, joints=_joint_spec(joints), angle_unit=angle_unit, time_unit=robot_time_unit)
     t_opts = dict(time=tracker_time, position=_csv_names(position), quaternion=_csv_names(quaternion),
@@ -323,12 +355,8 @@ def import_stream_cmd(
         r_opts = {"time": "t", "joints": "q*", **{k: v for k, v in r_opts.items() if v is not None}}
     if tracker_map is None:
         t_opts = {"time": "t", "position": ["x", "y", "z"], **{k: v for k, v in t_opts.items() if v is not None}}
-    rm = read_mapped(robot_log, _build_map(robot_map, r_opts), rob, need_position=False)
-    tm = read_mapped(tracker_stream, _build_map(tracker_map, t_opts), need_joints=False, allow_missing=True)
-    for mt, name in ((rm, robot_log), (tm, tracker_stream)):
-        if mt.time_s is None:
-            raise CLIError(f"{name}: no time column mapped (time = \"...\" in the map, or --robot-time / --tracker-time)")
-    a = align_streams(rm.time_s, rm.q, tm.time_s, tm.xyz_m, tm.quat_wxyz, rob, clock=offset,
+    t_r, q_r, t_t, p_t, quat_t = _read_streams(robot_log, tracker_stream, robot_map, tracker_map, r_opts, t_opts, rob)
+    a = align_streams(t_r, q_r, t_t, p_t, quat_t, rob, clock=offset,
                       max_speed_m_s=max_speed or None, max_gap_s=max_gap, fit_drift=fit_drift,
                       T_base_tracker="fit" if frame == "fit" else None,
                       **({} if offset is not None else {"method": method, "max_offset_s": max_offset}))

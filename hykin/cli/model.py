@@ -9,13 +9,17 @@ import typer
 
 from .common import (
     AngleUnit,
+    BaseLink,
     CLIError,
     Force,
     LengthUnit,
+    TipLink,
+    UnitCheck,
     app,
     check_output,
     load_model,
     load_model_or_robot,
+    load_robot_spec,
 )
 
 OrientationWeight = typer.Option(
@@ -28,12 +32,21 @@ MaxDeviation = typer.Option(
          "deflection_deg (1), tool_m (2), residual_mm (3), residual_deg (1).")
 
 
-def _calibration_options(orientation_weight: str, max_deviation: str | None) -> dict:
+def _prior_help() -> str:
+    from ..calibration.priors import PRIOR_HELP
+
+    return PRIOR_HELP
+
+
+Prior = typer.Option(None, "--prior", help=_prior_help())
+
+
+def _calibration_options(orientation_weight: str, max_deviation: str | None, prior: list[str] | None = None) -> dict:
     """``calibrate`` keyword arguments from the CLI options (CLIError on bad values)."""
     from ..hybrid.fit_options import calibration_options
 
     try:
-        return calibration_options(orientation_weight, max_deviation)
+        return calibration_options(orientation_weight, max_deviation, prior)
     except ValueError as e:
         raise CLIError(str(e)) from None
 
@@ -42,53 +55,60 @@ def _calibration_options(orientation_weight: str, max_deviation: str | None) -> 
 def fit_cmd(
     robot: str = typer.Argument(..., help="Robot file (.toml), URDF, or preset name."),
     train: Path = typer.Argument(..., help="Training dataset (.csv/.parquet)."),
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     out: Path = typer.Option(..., "-o", "--out", help="Output model file (one safetensors file)."),
     val: Path | None = typer.Option(None, "--val", help="Validation dataset (default: 10% of TRAIN held out)."),
     arch: str = typer.Option("default", "--arch", help="Network architecture: default, D1, D4, D4w, D4W, Rw, Rd, B1..B4."),
     recipe: str = typer.Option("default", "--recipe", help="Training recipe: default or paper."),
     calibrate: bool = typer.Option(True, "--calibrate/--no-calibrate", help="Parametric calibration before the networks."),
     device: str = typer.Option("cpu", "--device", help="cpu, cuda, or auto."),
-    seed: int = typer.Option(0, "--seed"),
-    max_minutes: float | None = typer.Option(None, "--max-minutes", help="Time budget for network training."),
+    seed: int = typer.Option(0, "--seed", help="Random seed (validation split, network initialisation, batch order): "
+                             "same data, options and seed give the same model."),
+    max_minutes: float | None = typer.Option(None, "--max-minutes", help="Time budget for network training, minutes "
+                                             "(training stops there, keeps the best weights and says how far it got)."),
     thermal: str = typer.Option("auto", "--thermal", help="Thermal expansion from a temperature_c column: auto, on, off."),
     min_steps: int | None = typer.Option(None, "--min-steps", help="Least number of optimiser steps per network (default recipe: 30000)."),
     max_epochs: int | None = typer.Option(None, "--max-epochs", help="Most training epochs per network (default: the recipe's)."),
     orientation_weight: str = OrientationWeight,
     max_deviation: str | None = MaxDeviation,
+    prior: list[str] | None = Prior,
     region_cv: bool = typer.Option(False, "--region-cv", help="Choose the calibration's parameter set by region-blocked validation."),
     fade_cv: int = typer.Option(0, "--fade-cv", help="Measure the fade by leave-one-region-out over this many regions (>= 2; 0 = fixed fade)."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    unit_check: bool = UnitCheck,
     force: bool = Force,
 ) -> None:
     """Fit a hybrid model: calibrate the classical model, then train the residual networks.
 
-    Exactly the API path: ``HybridModel(robot, ...).fit(train, val)``; without ``--val`` the model
-    holds out its validation rows itself, so the same data, options and seed give the same model; the
-    calibration uses all of TRAIN (the networks' split must not change the calibrated robot)."""
+    The same path as the Python API (HybridModel(robot).fit(train, val)). Without --val the model holds
+    out 10 % of TRAIN for validation itself, so the same data, options and seed give the same model; the
+    calibration uses all of TRAIN."""
     from ..hybrid.fit_options import model_kwargs
     from ..hybrid.model import HybridModel
     from ..io.dataset_files import read_dataset
     from ..io.plausibility import check_fit_size
-    from ..io.robot_file import load_robot
 
     try:  # the one mapping of fit options to model settings (hykin.hybrid.fit_options, also used by sweeps)
         kw = model_kwargs(arch=arch, recipe=recipe, calibrate=calibrate, device=device, seed=seed,
                           max_minutes=max_minutes, thermal=thermal, min_steps=min_steps, max_epochs=max_epochs,
-                          orientation_weight=orientation_weight, max_deviation=max_deviation, region_cv=region_cv,
-                          fade_cv=fade_cv)
+                          orientation_weight=orientation_weight, max_deviation=max_deviation, prior=prior,
+                          region_cv=region_cv, fade_cv=fade_cv)
     except ValueError as e:
         raise CLIError(str(e)) from None
     check_output(out, (robot, train, val), force)  # before any long work
-    rob = load_robot(robot)
-    tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+    rob = load_robot_spec(robot, base_link, tip_link)
+    tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     check_fit_size(rob, tr)
     va = None
     if val is not None:
-        va = read_dataset(val, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+        va = read_dataset(val, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     model = HybridModel(rob, **kw)
     model.fit(tr, va, progress=True)
     model.save(out)
+    if model.calibration_ is not None:
+        typer.echo(model.calibration_.summary())
     if model.thermal_ is not None:
         typer.echo(f"thermal expansion: {model.thermal_.note} (reference {model.thermal_.reference_c:.2f} °C)")
     if model.fade_calibration_ is not None:
@@ -116,28 +136,39 @@ def _print_metrics(model) -> None:
 def evaluate_cmd(
     model: str = typer.Argument(..., help="Model file (or a robot: classical only)."),
     test: Path = typer.Argument(..., help="Test dataset (.csv/.parquet)."),
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     as_json: bool = typer.Option(False, "--json", help="Print the table as JSON."),
     report: Path | None = typer.Option(None, "--report", help="Write an HTML report with plots to this directory."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    unit_check: bool = UnitCheck,
 ) -> None:
     """Before/after error table (mean, std, p95, max; position mm, orientation deg)."""
-    from ..evaluation.evaluate import evaluate_model, evaluation_report
+    from ..evaluation.evaluate import evaluate_model
+    from ..evaluation.report_build import evaluation_report
     from ..io.dataset_files import read_dataset
 
     if report is not None and report.exists() and not report.is_dir():
         raise CLIError(f"{report}: --report must name a directory, got an existing file")
     if report is not None:
         check_output(report, (model, test), force=True, directory=True)
-    mdl, rob = load_model_or_robot(model)
-    ds = read_dataset(test, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
+    mdl, rob = load_model_or_robot(model, base_link, tip_link)
+    ds = read_dataset(test, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     res = evaluate_model(mdl if mdl is not None else rob, ds)
     if as_json:
         typer.echo(json.dumps(res.to_dict(), indent=2))
     else:
         typer.echo(res.table())
     if report is not None:
-        path = evaluation_report(res, report)
+        import warnings
+
+        from ..hybrid.model import OutOfRangeWarning
+
+        with warnings.catch_warnings():  # the report counts the poses outside the training data itself
+            warnings.simplefilter("ignore", OutOfRangeWarning)
+            path = evaluation_report(res, report, model=mdl if mdl is not None else rob, data=ds,
+                                     model_path=model if mdl is not None else None, test_path=test)
         typer.echo(f"report written to {path}")
 
 
@@ -145,62 +176,126 @@ def evaluate_cmd(
 def calibrate_cmd(
     robot: str = typer.Argument(..., help="Robot file (.toml), URDF, or preset name."),
     data: Path = typer.Argument(..., help="Measured dataset (.csv/.parquet)."),
-    out: Path = typer.Option(..., "-o", "--out", help="Calibrated robot file (.toml)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Calibrated robot file: .urdf (any robot; a URDF robot is written into its own URDF) or .toml (DH/MDH robots)."),
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     compliance: bool = typer.Option(True, "--compliance/--no-compliance", help="Identify joint compliance under gravity."),
     orientation_weight: str = OrientationWeight,
     max_deviation: str | None = MaxDeviation,
+    prior: list[str] | None = Prior,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    unit_check: bool = UnitCheck,
     force: bool = Force,
 ) -> None:
     """Parametric calibration only (geometry, base, tool, joint compliance); writes a robot file.
 
     The data may be in any frame (a tracker's) with an unknown tool offset: base and tool are found
-    first. A calibration that does not converge, bends a parameter beyond its plausible bound
-    (--max-deviation) or leaves an implausible residual is refused (exit 2, nothing written)."""
+    first. Every parameter has a prior (the robot file's value, a tolerance per kind: --prior); what the
+    data do not excite is held there and reported so. A calibration that does not converge, puts a
+    parameter beyond its tolerances (--prior refuse_tolerances, --max-deviation) or leaves an
+    implausible residual is refused (exit 2, nothing written)."""
     from ..calibration.calibrate import calibrate
     from ..io.dataset_files import read_dataset
-    from ..io.robot_file import load_robot
-    from ..io.robot_toml import save_robot_toml
 
     check_output(out, (robot, data), force)
-    rob = load_robot(robot)
-    ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
-    res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation))
+    rob = load_robot_spec(robot, base_link, tip_link)
+    _check_robot_out(rob, out)
+    ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
+    res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation, prior))
     typer.echo(res.report())
-    save_robot_toml(res.robot, out)
+    _write_calibrated(res.robot, out)
+    if res.station_frames is not None:  # several stations / tools: the file holds the reference's frames
+        fr = res.station_frames
+        parts = ([f"its [base] is station {fr.reference_station!r}'s frame"] if len(fr.station_labels) > 1 else []) + (
+            [f"its [tool] is tool {fr.tool_labels[0]!r}'s"] if len(fr.tool_labels) > 1 else [])
+        typer.echo(f"note: {' and '.join(parts)} (the reference: most rows); the others' frames are listed above")
+
+
+def _check_robot_out(rob, out: Path) -> None:
+    """Refuse, before calibrating, an output a robot cannot be written as (a URDF robot as TOML)."""
+    if rob.convention == "urdf" and out.suffix.lower() != ".urdf":
+        raise CLIError(f"{out}: a URDF robot is written as URDF; name the output {out.with_suffix('.urdf').name}")
+
+
+def _write_calibrated(robot, out: Path) -> None:
+    """The calibrated robot as URDF (``.urdf``: the maker's URDF with calibrated joint origins, or any
+    robot as a URDF chain) or else as a TOML robot file."""
+    if out.suffix.lower() == ".urdf":
+        from ..io.urdf import calibrated_robot_urdf
+
+        text, left = calibrated_robot_urdf(robot)
+        out.write_text(text, encoding="utf-8")
+        typer.echo(f"calibrated robot written to {out}" + (f" (a URDF cannot carry {left}: not written)" if left else ""))
+        return
+    from ..io.robot_toml import save_robot_toml
+
+    save_robot_toml(robot, out)
     typer.echo(f"calibrated robot written to {out}")
 
 
 @app.command("register")
 def register_cmd(
-    model: str = typer.Argument(..., help="Model file trained on an earlier series."),
+    model: str = typer.Argument(..., help="Model file trained on an earlier series, or a robot file (e.g. written by "
+                                           "`hykin calibrate`), URDF or preset."),
     series: Path = typer.Argument(..., help="New measurement series (.csv/.parquet)."),
-    out: Path = typer.Option(..., "-o", "--out", help="Output model file with re-fitted base and tool."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output model file (for a robot input: a robot file, .toml or .urdf)."),
     poses: int = typer.Option(30, "--poses", help="Number of poses of the series used to register (spread over it)."),
     frames_only: bool = typer.Option(False, "--frames-only", help="Re-fit base and tool only (no joint zeros / thermal state)."),
     orientation_weight: str = typer.Option(
         "auto", "--orientation-weight",
         help="Weight of orientation residuals in the registration, m/rad, or 'auto': sigma_pos / sigma_rot of a "
              "first fit on the registration poses."),
+    alpha: float = typer.Option(1e-3, "--alpha", help="Significance of the consistency test (chi-square of the residuals "
+                                                       "normalised by noise and the model's bands); 0 never refuses."),
+    tolerance: float = typer.Option(3.0, "--tolerance", help="Factor on the expected error scale the test allows."),
+    noise_mm: float = typer.Option(0.05, "--noise-mm", help="Measurement noise per coordinate, mm (orientation: "
+                                                             "0.005 deg), added to the model's uncertainty."),
+    nominal_check: str = typer.Option("pose", "--nominal-check",
+                                      help="Fall back to the nominal model + frames when it predicts the registration poses "
+                                           "better (leave-one-pose-out): pose (worse in position or orientation), "
+                                           "position (position only) or off."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    unit_check: bool = UnitCheck,
     force: bool = Force,
 ) -> None:
     """Re-fit base and tool frames for a new series (tracker moved, tool changed) and, where the poses
     identify them and they are significant, joint zero offsets and a thermal state; keep the learned errors.
-    Refuses (exit 2, one line) when the residual shows the series does not fit the model."""
+    Refuses (exit 2, one line) when a chi-square test shows the series does not fit the model; falls
+    back to the nominal model with fitted frames where that predicts the series better."""
     from ..io.dataset_files import read_dataset
     from ..measure.register import register_model
 
     check_output(out, (model, series), force)
+    if nominal_check not in ("pose", "position", "off"):
+        raise CLIError(f"--nominal-check must be pose, position or off, got {nominal_check!r}")
+    if not (0.0 <= alpha < 1.0) or not tolerance > 0 or not noise_mm >= 0:
+        raise CLIError(f"--alpha must be in [0, 1), --tolerance > 0, --noise-mm >= 0 (got {alpha}, {tolerance}, {noise_mm})")
     w = _calibration_options(orientation_weight, None).get("orientation_weight_m_per_rad", "auto")
-    mdl = load_model(model)
-    ds = read_dataset(series, length_unit=length_unit, angle_unit=angle_unit, robot=mdl.robot)
-    new, info = register_model(mdl, ds, n_poses=poses, refit="frames" if frames_only else "auto", orientation_weight=w)
-    new.save(out)
+    mdl, rob = load_model_or_robot(model)
+    if mdl is None:
+        from ..measure.robot_model import RobotModel
+
+        if rob.convention not in ("dh", "mdh") and out.suffix.lower() != ".urdf":
+            raise CLIError(f"{out}: a registered {rob.convention} robot is written as URDF: name the output .urdf")
+        mdl = RobotModel(rob)
+    ds = read_dataset(series, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
+    new, info = register_model(mdl, ds, n_poses=poses, refit="frames" if frames_only else "auto", orientation_weight=w,
+                               alpha=alpha, tolerance=tolerance, noise_mm=noise_mm,
+                               check_nominal=False if nominal_check == "off" else nominal_check)
+    if hasattr(new, "to_robot") and out.suffix.lower() == ".urdf":
+        from ..io.urdf import robot_to_urdf
+
+        out.write_text(robot_to_urdf(new.to_robot()), encoding="utf-8")
+    elif hasattr(new, "to_robot"):
+        from ..io.robot_toml import save_robot_toml
+
+        save_robot_toml(new.to_robot(), out)
+    else:
+        new.save(out)
     typer.echo(info.report())
-    typer.echo(f"registered model written to {out}")
+    typer.echo(f"registered {'robot' if hasattr(new, 'to_robot') else 'model'} written to {out}")
 
 
 @app.command("export")
@@ -227,7 +322,7 @@ def demo_cmd(
     out: Path = typer.Option(Path("hykin-demo"), "-o", "--out", help="Output directory for the report and files."),
     n_train: int = typer.Option(10_000, "--n-train", help="Training samples."),
     quick: bool = typer.Option(False, "--quick", help="A much smaller run (for smoke tests)."),
-    seed: int = typer.Option(0, "--seed"),
+    seed: int = typer.Option(0, "--seed", help="Random seed of the simulated data and of the fits."),
 ) -> None:
     """The main job on the embedded default: virtual RX160, calibrate, train, evaluate, IK, report."""
     from .demo import run_demo

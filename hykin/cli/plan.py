@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from .common import CLIError, Force, app, check_output, load_model_or_robot, write_rows
+from .common import BaseLink, CLIError, Force, TipLink, app, check_output, load_model_or_robot, write_rows
 
 
 def _vec3(text: str | None, what: str, factor: float = 1.0) -> np.ndarray | None:
@@ -26,7 +26,9 @@ def _vec3(text: str | None, what: str, factor: float = 1.0) -> np.ndarray | None
 def plan_cmd(
     robot: str | None = typer.Argument(None, help="Robot file, URDF or preset name (not with --for-model)."),
     n: int = typer.Option(..., "-n", help="Number of poses to plan.", min=1),
-    out: Path | None = typer.Option(None, "-o", "--out", help="Output joints CSV (q1..qN rad, step, core, incidence_deg)."),
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
+    out: Path | None = typer.Option(None, "-o", "--out", help="Output by its suffix: .csv (joints, the unit in the header), .script (URScript), .src/.dat (KUKA KRL, both written), .mod (ABB RAPID)."),
     for_model: str | None = typer.Option(None, "--for-model", help="Fitted model file: plan the next poses where its training data are thinnest, weighted by its uncertainty."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the candidate pool."),
     region: str | None = typer.Option(None, "--region", help="Joint ranges lo:hi per joint, comma-separated (deg; ':' keeps a limit)."),
@@ -41,6 +43,19 @@ def plan_cmd(
     speed: float = typer.Option(30.0, "--speed", help="Joint speed for ordering and the time estimate (deg/s; mm/s for prismatic joints).", min=1e-6),
     dwell: float = typer.Option(5.0, "--dwell", help="Settle + measure time per pose (s) for the time estimate.", min=0.0),
     pool: int = typer.Option(20_000, "--pool", help="Candidate poses drawn (scrambled Sobol) before the constraints.", min=100),
+    floor: float | None = typer.Option(None, "--floor", help="Floor height Z (world frame, --length-unit): no link, tool or move goes below it."),
+    link_radii: str | None = typer.Option(None, "--link-radii", help="Capsule radii (--length-unit) of base column, links 1..N and tool, comma-separated (default: estimated from the reach)."),
+    body_check: bool = typer.Option(True, "--body-check/--no-body-check", help="Check the robot's body (self-collision, floor, keep-out boxes) at the poses and along the moves."),
+    angle_unit: str | None = typer.Option(None, "--angle-unit", help="Joint unit of a .csv output: rad or deg (default: deg for a robot file declared in degrees, else rad)."),
+    trigger: str = typer.Option("wait", "--trigger", help="Programs: at each pose wait the dwell (wait), pulse a digital output (do:N, RAPID do:NAME) or await a digital input (di:N)."),
+    settle: float = typer.Option(0.5, "--settle", help="Programs: settle time (s) before a do:/di: trigger.", min=0.0),
+    axis_signs: str | None = typer.Option(None, "--axis-signs", help="Programs: controller axis = sign × joint + offset, signs e.g. -1,1,1,-1,1,-1 (default: from the robot preset)."),
+    axis_offsets: str | None = typer.Option(None, "--axis-offsets", help="Programs: controller axis zero offsets (deg), comma-separated (default 0)."),
+    krl_vel_percent: float = typer.Option(20.0, "--krl-vel-percent", help="KRL programs: $VEL_AXIS in percent of each axis' maximum speed.", min=0.1, max=100.0),
+    trajectory: bool = typer.Option(False, "--trajectory", help="Dynamic collection: a continuous joint trajectory through the N poses as waypoints (the tracker streams): .csv gets t_s and joints at --rate, programs the waypoints."),
+    max_speed: float | None = typer.Option(None, "--max-joint-speed", help="Trajectory: joint speed limit (deg/s; mm/s prismatic; default --speed).", min=1e-6),
+    max_accel: float | None = typer.Option(None, "--max-joint-accel", help="Trajectory: joint acceleration limit (deg/s²; mm/s² prismatic; default 2 × the speed limit per s).", min=1e-6),
+    rate: float = typer.Option(250.0, "--rate", help="Trajectory: sample rate of the .csv output (Hz).", min=1.0),
     report: bool = typer.Option(False, "--report", help="Print predicted accuracy against the number of poses."),
     noise_mm: float = typer.Option(0.01, "--noise-mm", help="Report: tracker noise per axis (mm).", min=0.0),
     unmodelled_mm: float | None = typer.Option(None, "--unmodelled-mm", help="Report: RMS error a calibration cannot model (mm; default 0.15, or the model's own)."),
@@ -51,15 +66,25 @@ def plan_cmd(
     """Plan which joint configurations to measure (I-optimal calibration core + space-filling for the
     networks, within the region and the tracker's line of sight), ordered for a short path."""
     from ..planning import Constraints, PlanningError, parse_box, parse_region
-    from ..planning.constraints import incidence_deg, reflector_pose
     from ..planning.select import active_poses, plan_poses
 
     if (robot is None) == (for_model is None):
         raise CLIError("plan: give either ROBOT or --for-model MODEL (exactly one)")
+    from ..planning.programs import ProgramError, program_kind
+
     if out is None and not report:
         raise CLIError("plan: give -o JOINTS.csv (and/or --report)")
+    kind = None
     if out is not None:
+        try:
+            kind = program_kind(out)
+        except ProgramError as e:
+            raise CLIError(str(e)) from None
         check_output(out, (robot, for_model), force)
+        if kind == "krl":
+            check_output(out.with_suffix(".dat" if out.suffix.lower() == ".src" else ".src"), (robot, for_model), force)
+    if angle_unit not in (None, "rad", "deg"):
+        raise CLIError(f"--angle-unit must be rad or deg, got {angle_unit!r}")
     if plot is not None:
         check_output(plot, (robot, for_model, out), force)
     if length_unit not in ("m", "mm"):
@@ -69,11 +94,11 @@ def plan_cmd(
     f = 1e-3 if length_unit == "mm" else 1.0
     model = None
     if for_model is not None:
-        model, rob = load_model_or_robot(for_model)
+        model, rob = load_model_or_robot(for_model, base_link, tip_link)
         if model is None:
             raise CLIError(f"--for-model {for_model}: not a hykin model file")
     else:
-        _, rob = load_model_or_robot(robot)
+        _, rob = load_model_or_robot(robot, base_link, tip_link)
     try:
         lo, hi = parse_region(rob, region) if region else (None, None)
         c = Constraints(
@@ -82,8 +107,10 @@ def plan_cmd(
             reflector_offset_m=_vec3(reflector_offset, "--reflector-offset", f),
             reflector_axis=_vec3(reflector_axis, "--reflector-axis"),
             keep_out_m=[parse_box(b, f"--keep-out {k + 1}", length_unit) for k, b in enumerate(keep_out or [])],
+            floor_z_m=None if floor is None else floor * f, body=body_check,
+            link_radii_m=None if link_radii is None else _floats(link_radii, "--link-radii") * f,
         ).check(rob)
-        speeds = np.where(np.array([t == "revolute" for t in rob.joint_type]), np.radians(speed), speed * 1e-3)
+        speeds = np.where(np.array([t == "revolute" for t in rob.independent_joint_type]), np.radians(speed), speed * 1e-3)
         if model is not None:
             p = active_poses(model, n, c, seed=seed, pool=pool, speeds=speeds, dwell_s=dwell)
         else:
@@ -93,6 +120,17 @@ def plan_cmd(
         raise CLIError(str(e)) from None
     con = _console()
     tr = p.travel
+    if c.tracker_m is None:
+        con.print("note: no --tracker given: the line of sight to the tracker was not checked", highlight=False)
+    if not body_check:
+        con.print("note: --no-body-check: self-collision, floor and keep-out boxes were not checked for the robot's body",
+                  highlight=False)
+    dropped, via = p.info.get("dropped", 0), p.info.get("via", 0)
+    if dropped:
+        con.print(f"[yellow]warning:[/] {dropped} of {n} poses were left out: no collision-free move reaches them "
+                  f"(relax --keep-out/--floor/--link-radii or plan more poses)", highlight=False)
+    if via:
+        con.print(f"{via} via poses (not measured) detour around collisions between consecutive poses", highlight=False)
     con.print(f"planned {n} poses from {p.n_feasible} feasible of {p.n_pool} candidates"
               + (f"; {p.info['criterion']}-optimal core of {p.info['core_size']} poses for {p.info['n_params']} identifiable "
                  f"parameters" if model is None else ""))
@@ -105,19 +143,129 @@ def plan_cmd(
         cr = p.criteria
         con.print(f"identifiability: log det M {cr['logdet']:.2f}, O1 {cr['O1']:.4g}, O3 {cr['O3']:.4g}, "
                   f"condition {cr['condition']:.4g}; coverage min spacing {cr['min_spacing']:.4f}")
-    if out is not None:
-        rows = {f"q{j + 1}": p.q[:, j] for j in range(rob.dof)}
-        rows["step"] = np.arange(1, n + 1)
-        rows["core"] = p.core
-        if c.tracker_m is not None:
-            pp, nn = reflector_pose(rob, p.q, c)
-            rows["incidence_deg"] = incidence_deg(pp, nn, c.tracker_m)
-        if p.score is not None:
-            rows["score_mm"] = p.score
-        write_rows(rows, out)
-        typer.echo(f"wrote {n} poses to {out}")
+    if trajectory and out is not None:
+        _write_trajectory(out, kind, rob, robot, p, angle_unit, speed if max_speed is None else max_speed,
+                          max_accel, rate, axis_signs, axis_offsets, krl_vel_percent)
+    elif out is not None:
+        _write_plan(out, kind, rob, robot, p, c, angle_unit, speed, dwell, trigger, settle, axis_signs, axis_offsets,
+                    krl_vel_percent)
     if report:
         _report(rob, model, p, c, n, noise_mm, unmodelled_mm, plot, measure, seed, pool, speeds, dwell, report_max)
+
+
+def _floats(text: str, what: str) -> np.ndarray:
+    try:
+        return np.array([float(x) for x in str(text).replace(";", ",").split(",")])
+    except ValueError:
+        raise CLIError(f"{what}: expected comma-separated numbers, got {text!r}") from None
+
+
+def _declared_angle_unit(spec: str | None) -> str:
+    """The ``angle_unit`` a robot TOML file declares ("rad" for presets, URDFs and models)."""
+    p = Path(spec) if spec else None
+    if p is None or not p.is_file() or p.suffix.lower() != ".toml":
+        return "rad"
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+    try:
+        return str(tomllib.loads(p.read_text(encoding="utf-8")).get("angle_unit", "rad"))
+    except (OSError, ValueError):
+        return "rad"
+
+
+def _joint_columns(rob, q: np.ndarray, unit: str) -> dict:
+    rev = np.array([t == "revolute" for t in rob.independent_joint_type])
+    return {f"q{j + 1}{'_deg' if unit == 'deg' and rev[j] else ''}": q[:, j] * (np.degrees(1.0) if unit == "deg" and rev[j] else 1.0)
+            for j in range(rob.dof)}
+
+
+def _program_settings(out: Path, rob, axis_signs, axis_offsets, **kw):
+    from ..planning.programs import ProgramSettings
+    from .common import parse_axis_signs
+
+    signs = parse_axis_signs(axis_signs, rob.dof)
+    if signs is None:
+        from ..compensation.branches import default_axis_signs
+
+        signs = default_axis_signs(rob)
+    offs = None if axis_offsets is None else np.radians(_floats(axis_offsets, "--axis-offsets"))
+    if offs is not None and offs.shape != (rob.dof,):
+        raise CLIError(f"--axis-offsets: expected {rob.dof} comma-separated values (deg), got {axis_offsets!r}")
+    name = "".join(ch if ch.isalnum() or ch == "_" else "_" for ch in out.stem)[:24]
+    name = name if name[:1].isalpha() else ("p" + name)[:24]
+    return ProgramSettings(axis_signs=signs, axis_offsets_rad=offs, name=name, **kw)
+
+
+def _write_programs(out: Path, kind: str, q, meas, rob, s) -> None:
+    from ..planning.programs import ProgramError, plan_program
+
+    try:
+        texts = plan_program(kind, q, meas, rob, s)
+    except ProgramError as e:
+        raise CLIError(str(e)) from None
+    out.parent.mkdir(parents=True, exist_ok=True)
+    for suf, text in texts.items():
+        path = out.with_suffix(suf) if kind == "krl" else out
+        path.write_text(text, encoding="utf-8", newline="\n" if kind != "krl" else "\r\n")
+        typer.echo(f"wrote {path}")
+
+
+def _write_trajectory(out: Path, kind: str, rob, robot_spec, p, angle_unit, speed, accel, rate, axis_signs, axis_offsets,
+                      krl_vel_percent) -> None:
+    from ..planning.trajectory import min_jerk_trajectory
+
+    rev = np.array([t == "revolute" for t in rob.independent_joint_type])
+    v = np.where(rev, np.radians(speed), speed * 1e-3)
+    a = 2.0 * v if accel is None else np.where(rev, np.radians(accel), accel * 1e-3)
+    tr = min_jerk_trajectory(p.moves.q, v, a)
+    if kind == "csv":
+        t, q = tr.sample(rate)
+        unit = angle_unit or _declared_angle_unit(robot_spec)
+        write_rows({"t_s": t, **_joint_columns(rob, q, unit)}, out)
+        typer.echo(f"wrote a {tr.duration_s / 60:.1f} min trajectory through {len(tr.waypoints)} waypoints: {len(t)} samples "
+                   f"at {rate:g} Hz to {out}" + (" (joint angles in degrees)" if unit == "deg" else " (joint angles in rad)"))
+        return
+    s = _program_settings(out, rob, axis_signs, axis_offsets, speed_rad_s=float(np.radians(speed)), dwell_s=0.0,
+                          krl_vel_percent=krl_vel_percent, expected_s=tr.duration_s, stream=True)
+    _write_programs(out, kind, tr.waypoints, np.zeros(len(tr.waypoints), bool), rob, s)
+    typer.echo(f"{len(tr.waypoints)} waypoints, expected duration {tr.duration_s / 60:.1f} min at the joint limits given")
+
+
+def _write_plan(out: Path, kind: str, rob, robot_spec, p, c, angle_unit, speed, dwell, trigger, settle, axis_signs,
+                axis_offsets, krl_vel_percent) -> None:
+    from ..planning.constraints import incidence_deg, reflector_pose
+
+    mv = p.moves
+    q, meas = mv.q, mv.measure
+    n_meas = int(meas.sum())
+    if kind == "csv":
+        unit = angle_unit or _declared_angle_unit(robot_spec)
+        rows = _joint_columns(rob, q, unit)
+        step = np.zeros(len(q), np.int64)
+        step[meas] = np.arange(1, n_meas + 1)
+        rows["step"] = step
+        rows["measure"] = meas
+        core = np.zeros(len(q), bool)
+        core[meas] = p.core
+        rows["core"] = core
+        if c.tracker_m is not None:
+            pp, nn = reflector_pose(rob, q, c)
+            rows["incidence_deg"] = incidence_deg(pp, nn, c.tracker_m)
+        if p.score is not None:
+            sc = np.full(len(q), np.nan)
+            sc[meas] = p.score
+            rows["score_mm"] = sc
+        write_rows(rows, out)
+        typer.echo(f"wrote {n_meas} poses ({int((~meas).sum())} via moves) to {out}"
+                   + (" (joint angles in degrees: columns q<i>_deg)" if unit == "deg" else " (joint angles in rad)"))
+        return
+    s = _program_settings(out, rob, axis_signs, axis_offsets, speed_rad_s=float(np.radians(speed)), dwell_s=dwell,
+                          trigger=trigger, settle_s=settle, krl_vel_percent=krl_vel_percent,
+                          expected_s=float(p.travel["total_s"]))
+    _write_programs(out, kind, q, meas, rob, s)
+    typer.echo(f"{n_meas} poses, {int((~meas).sum())} via moves, expected measuring time {p.travel['total_s'] / 60:.1f} min")
 
 
 def _console():

@@ -9,9 +9,12 @@ import typer
 
 from .common import (
     AngleUnit,
+    BaseLink,
     CLIError,
     Force,
     LengthUnit,
+    TipLink,
+    UnitCheck,
     app,
     check_output,
     console,
@@ -26,11 +29,22 @@ PAYLOAD_HELP = ("Payload mass (kg, at the TCP) for a file without a payload_kg c
 @app.command("fk")
 def fk_cmd(
     model: str = typer.Argument(..., help="Model file, robot file, URDF or preset (nominal FK)."),
-    joints: Path = typer.Argument(..., help="CSV/Parquet with columns q1..qN."),
+    joints: Path = typer.Argument(..., help="CSV/Parquet with columns q1..qN (or a URDF's joint names)."),
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     out: Path = typer.Option(..., "-o", "--out", help="Output poses (dataset columns q…, x,y,z,qw,qx,qy,qz)."),
     angle_unit: str = AngleUnit,
     no_fade: bool = typer.Option(False, "--no-fade", help="Apply the network correction even outside the training region."),
     payload_kg: float | None = typer.Option(None, "--payload-kg", help=PAYLOAD_HELP),
+    unit_check: bool = UnitCheck,
+    station: str | None = typer.Option(
+        None, "--station",
+        help="Poses in this station's frame (a model fitted on data with a station column). Default: the model's own "
+             "frame, i.e. that of its robot's [base] (with several stations: the reference station's, the one with "
+             "the most training rows)."),
+    tool: str | None = typer.Option(
+        None, "--tool", help="Poses of this tool's TCP (a model fitted on data with a tool column). Default: the "
+                             "model's own tool (with several tools: the reference tool, the one with the most training rows)."),
     force: bool = Force,
 ) -> None:
     """Forward kinematics: full hybrid model for a model file, classical FK for a robot."""
@@ -40,32 +54,44 @@ def fk_cmd(
     from ..kinematics.fk import fk
 
     check_output(out, (model, joints), force)
-    mdl, rob = load_model_or_robot(model)
-    q, extra = read_joints(joints, dof=rob.dof, angle_unit=angle_unit, robot=rob)
-    check_joint_unit(rob, q, where=str(joints), angle_unit=angle_unit)
+    mdl, rob = load_model_or_robot(model, base_link, tip_link)
+    q, extra = read_joints(joints, dof=rob.dof, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
+    if unit_check:
+        check_joint_unit(rob, q, where=str(joints), angle_unit=angle_unit)
     if mdl is None:
+        if station is not None or tool is not None:
+            raise CLIError(f"--station/--tool: {model} is a robot, not a model fitted on data with stations or tools")
         T = fk(rob, q)
     else:
+        from ..hybrid.stations import station_transform
+
+        L, Rt = station_transform(mdl, station, tool)  # ValueError naming the model's stations / tools
         if no_fade:
             mdl.fade = False
         temp = temperature_of(mdl, extra, joints)
         from ..io.payload import payload_from_columns, payload_kwargs
 
-        T = mdl.predict(q, temperature_c=temp, **payload_kwargs(payload_from_columns(extra, len(q), str(joints), payload_kg)))
+        T = L @ mdl.predict(q, temperature_c=temp, **payload_kwargs(payload_from_columns(extra, len(q), str(joints), payload_kg))) @ Rt
         extra = dict(extra)
         extra["support_distance"] = mdl.support_distance(q)
-        band_mm, band_deg = mdl.predict_uncertainty(q, temperature_c=temp)
-        extra["pos_band95_mm"] = band_mm
-        if band_deg is not None:
-            extra["ang_band95_deg"] = band_deg
+        if mdl.unc_ is not None:  # an optional step of fit: a model may have no bands
+            band_mm, band_deg = mdl.predict_uncertainty(q, temperature_c=temp)
+            extra["pos_band95_mm"] = band_mm
+            if band_deg is not None:
+                extra["ang_band95_deg"] = band_deg
     write_dataset(Dataset.from_poses(q, T, extra=extra, source=str(joints)), out)
-    typer.echo(f"wrote {len(q)} poses to {out}")
+    fr = None if mdl is None else getattr(mdl, "station_frames_", None)
+    where = (f"station {station!r}" if station is not None else f"the reference station {fr.reference_station!r}") if fr else ""
+    where += f", tool {tool!r}" if tool is not None else f", reference tool {fr.tool_labels[0]!r}" if fr and len(fr.tool_labels) > 1 else ""
+    typer.echo(f"wrote {len(q)} poses to {out}" + (f" (frame of {where})" if where else ""))
 
 
 @app.command("ik")
 def ik_cmd(
     model: str = typer.Argument(..., help="Model file (hybrid IK) or robot file / preset (classical IK)."),
     poses: Path = typer.Argument(..., help="Target poses: x,y,z[,qw,qx,qy,qz] (m)."),
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     out: Path = typer.Option(..., "-o", "--out", help="Output joints CSV: target, branch, q…, errors."),
     all_branches: bool = typer.Option(False, "--all-branches", help="Every solution branch, not only the nearest one."),
     seed_joints: Path | None = typer.Option(None, "--seed-joints", help="CSV of current joints (one row per target, or one row)."),
@@ -73,6 +99,7 @@ def ik_cmd(
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     payload_kg: float | None = typer.Option(None, "--payload-kg", help=PAYLOAD_HELP),
+    unit_check: bool = UnitCheck,
     force: bool = Force,
 ) -> None:
     """Inverse kinematics: every branch (or the one nearest the seed joints), failures reported.
@@ -83,14 +110,15 @@ def ik_cmd(
     from ..io.plausibility import check_target_reach
 
     check_output(out, (model, poses, seed_joints), force)
-    mdl, rob = load_model_or_robot(model)
-    T, has_rot, pose_extra = read_poses(poses, length_unit=length_unit, extras=True)
-    check_target_reach(mdl.robot_ if mdl is not None else rob, T, where=str(poses), length_unit=length_unit,
-                       frame=None if mdl is None else mdl.frame_pre_)
+    mdl, rob = load_model_or_robot(model, base_link, tip_link)
+    T, has_rot, pose_extra = read_poses(poses, length_unit=length_unit, extras=True, unit_check=unit_check)
+    if unit_check:
+        check_target_reach(mdl.robot_ if mdl is not None else rob, T, where=str(poses), length_unit=length_unit,
+                           frame=None if mdl is None else mdl.frame_pre_)
     position_only = position_only or not has_rot
     q_cur = None
     if seed_joints is not None:
-        q_cur, _ = read_joints(seed_joints, dof=rob.dof, angle_unit=angle_unit, robot=rob)
+        q_cur, _ = read_joints(seed_joints, dof=rob.dof, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
         if len(q_cur) == 1:
             q_cur = np.repeat(q_cur, len(T), axis=0)
         elif len(q_cur) != len(T):

@@ -1,14 +1,20 @@
 """Getting accuracy into a controller that runs its nominal model (DESIGN.md §6).
 
-* :mod:`.targets` — :func:`compensate`: hybrid IK on the meant branch → nominal FK = the command.
+* :mod:`.compensator` — :class:`Compensator` (loads a model once; one target or a batch) and
+  :func:`compensate`: hybrid IK on the meant branch → nominal FK = the command.
+* :mod:`.targets` — frames and commands of compensation (docs); :mod:`.frames`, :mod:`.result` hold them.
 * :mod:`.branches` — KUKA ``S``/``T`` status, ABB ``confdata``, and the nominal solution they mean.
 * :mod:`.programs` — shared rewriting machinery: targets found in a program text, replaced in place.
 * :mod:`.urscript`, :mod:`.krl`, :mod:`.rapid` — the three program formats.
-* :mod:`.service` — the FastAPI app of ``hykin serve`` (imports FastAPI only when used).
+* :mod:`.service` — the FastAPI app of ``hykin serve``: HTTP batches and a WebSocket stream (imports FastAPI only when used).
+* :mod:`.service_requests` — its requests: checks, the model calls, replies.
+* :mod:`.service_guard` — its limits: bearer token, body size, the one bounded model queue, /health identity.
 """
 
 from __future__ import annotations
 
-from .targets import Compensation, compensate, resolve_frame
+from .compensator import Compensator, StepResult, compensate
+from .frames import resolve_frame
+from .result import Compensation
 
-__all__ = ["Compensation", "compensate", "resolve_frame"]
+__all__ = ["Compensation", "Compensator", "StepResult", "compensate", "resolve_frame"]

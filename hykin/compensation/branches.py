@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..kinematics.ik_solutions import nearest_representation
 from ..kinematics.robot import Robot
 
 __all__ = [
@@ -41,6 +42,7 @@ __all__ = [
     "kuka_status",
     "match_abb_confdata",
     "match_kuka_status",
+    "nearest_candidate",
     "sequential_nearest",
 ]
 
@@ -122,7 +124,7 @@ def candidate_solutions(robot: Robot, T_world: np.ndarray) -> tuple[np.ndarray, 
 
     br = ik(robot, T_world, all_branches=True)
     q, ok = br.q, br.success.copy()
-    rev = np.array([t == "revolute" for t in robot.joint_type])
+    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
     wide = np.flatnonzero(rev & (robot.upper - robot.lower > TWO_PI - 1e-9))
     if wide.size:
         # shifts of -2π, 0, +2π on each joint with a range over 360°: at most 3^k representations
@@ -173,18 +175,34 @@ def match_abb_confdata(robot: Robot, T_world, conf, axis_signs=None) -> np.ndarr
     return _pick(q, ok, cost, cc[..., 3] == conf[..., 3])
 
 
+def nearest_candidate(robot: Robot, q: np.ndarray, ok: np.ndarray, cur: np.ndarray) -> np.ndarray | None:
+    """Of the solutions ``q`` ``(K, n)`` (valid where ``ok``), each in its 2π representation nearest
+    ``cur`` ``(n,)`` within the limits, the one nearest ``cur``; None when no valid one is within the limits."""
+    rev = np.array([t == "revolute" for t in robot.joint_type])
+    qq = np.where(rev, nearest_representation(np.nan_to_num(q), cur, robot.lower, robot.upper), q)
+    inside = ok & np.isfinite(q).all(1) & np.all((qq >= robot.lower - 1e-9) & (qq <= robot.upper + 1e-9), axis=1)
+    if not inside.any():
+        return None
+    d = np.where(inside, np.linalg.norm(np.nan_to_num(qq - cur), axis=1), np.inf)
+    return qq[int(np.argmin(d))]
+
+
 def sequential_nearest(robot: Robot, T_world, q_start=None) -> np.ndarray:
     """Joints ``(N, n)`` a controller moving through the targets in order would pick: each target's
     nominal solution nearest the previous one (the first nearest ``q_start``, default zero clipped into
-    the limits). NaN rows for unreachable targets (the walk continues from the last reached joints)."""
-    q, ok = candidate_solutions(robot, np.asarray(T_world, dtype=np.float64))
+    the limits), over every branch and 2π representation within the limits. NaN rows for unreachable
+    targets (the walk continues from the last reached joints)."""
+    from ..kinematics.ik import ik
+
+    br = ik(robot, np.asarray(T_world, dtype=np.float64), all_branches=True)
+    q = np.asarray(br.q, dtype=np.float64).reshape(len(br.q), -1, robot.dof)
+    ok = np.asarray(br.success, dtype=bool).reshape(len(q), -1)
     cur = np.clip(np.zeros(robot.dof), robot.lower, robot.upper) if q_start is None else np.asarray(q_start, float)
     out = np.full((len(q), robot.dof), np.nan)
-    # a walk: each choice depends on the previous one (N steps over K candidates each)
+    # a walk: each choice depends on the previous one (N steps over K branches each)
     for i in range(len(q)):
-        if not ok[i].any():
-            continue
-        d = np.where(ok[i], np.linalg.norm(np.nan_to_num(q[i] - cur), axis=1), np.inf)
-        cur = q[i, int(np.argmin(d))]
-        out[i] = cur
+        if ok[i].any():
+            pick = nearest_candidate(robot, q[i], ok[i], cur)
+            if pick is not None:
+                cur = out[i] = pick
     return out

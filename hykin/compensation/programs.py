@@ -10,8 +10,10 @@ byte to one character and back).
 Branches: a target with configuration data (KUKA ``S``/``T``, ABB ``confdata``) gets the nominal
 solution matching it; a target without gets the nominal solution nearest the previous target's
 (a controller moving through the program in text order), restarting from the joints of the last
-joint-space move before it when the format has those. Control flow (loops, branches, calls) is not
-followed: text order stands for execution order.
+joint-space move before it when the format has those. Where the nominal robot has no such solution,
+the calibrated robot's is taken (the nominal model only hints; the hybrid model is solved), and a
+target without configuration data that neither reaches starts from the previous joints. Control flow
+(loops, branches, calls) is not followed: text order stands for execution order.
 
 Unreachable targets: :class:`ProgramResult` lists them (line, reason); the caller refuses to write
 the program (default) or keeps their original literal and warns (``skip_unreachable``).
@@ -23,7 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .targets import Compensation, compensate
+from .compensator import compensate
+from .result import Compensation
 
 __all__ = ["NUMBER", "ProgramResult", "ProgramTarget", "comment_mask", "compensate_program", "line_of", "splice_numbers"]
 
@@ -100,26 +103,35 @@ def comment_mask(text: str, comment: str, quote: str = '"') -> np.ndarray:
     return mask
 
 
-def _branch_joints(model, targets: list, Tm: np.ndarray, axis_signs, fmt: str) -> np.ndarray:
-    """Nominal joints ``(N, n)`` choosing each target's branch (module docstring)."""
-    from .branches import candidate_solutions, match_abb_confdata, match_kuka_status
+def _branch_joints(model, targets: list, Tm: np.ndarray, T_cal: np.ndarray, axis_signs, fmt: str) -> np.ndarray:
+    """Joints ``(N, n)`` choosing each target's branch (module docstring): the nominal solution that the
+    configuration data (or the walk) mean; where the nominal robot has none, the calibrated robot's
+    (targets ``T_cal`` in its world); a target without configuration data and no solution on either
+    takes the previous joints (the hybrid model decides). NaN only where configuration data match nothing."""
+    from ..kinematics.ik import ik
+    from .branches import default_axis_signs, match_abb_confdata, match_kuka_status, nearest_candidate
 
     nom = model.nominal
     N, n = len(targets), nom.dof
     qb = np.full((N, n), np.nan)
     has_s = np.array(["S" in t.config for t in targets], dtype=bool)
     has_c = np.array(["conf" in t.config for t in targets], dtype=bool)
-    if has_s.any():
-        i = np.flatnonzero(has_s)
-        S = [targets[k].config["S"] for k in i]
-        T = [targets[k].config.get("T", -1) for k in i]
-        qb[i] = match_kuka_status(nom, Tm[i], S, T, axis_signs)
-    if has_c.any():
-        i = np.flatnonzero(has_c)
-        qb[i] = match_abb_confdata(nom, Tm[i], np.array([targets[k].config["conf"] for k in i]), axis_signs)
+    signs_cal = default_axis_signs(nom) if axis_signs is None else axis_signs
+    for rob, TT, signs in ((nom, Tm, axis_signs), (model.robot_, T_cal, signs_cal)):
+        i = np.flatnonzero(has_s & ~np.isfinite(qb).all(1))
+        if i.size:
+            qb[i] = match_kuka_status(rob, TT[i], [targets[k].config["S"] for k in i],
+                                      [targets[k].config.get("T", -1) for k in i], signs)
+        i = np.flatnonzero(has_c & ~np.isfinite(qb).all(1))
+        if i.size:
+            qb[i] = match_abb_confdata(rob, TT[i], np.array([targets[k].config["conf"] for k in i]), signs)
     free = np.flatnonzero(~has_s & ~has_c)
     if free.size:
-        q, ok = candidate_solutions(nom, Tm[free])
+        sols = []
+        for rob, TT in ((nom, Tm), (model.robot_, T_cal)):
+            br = ik(rob, TT[free], all_branches=True)
+            sols.append((rob, np.asarray(br.q, dtype=np.float64).reshape(free.size, -1, n),
+                         np.asarray(br.success, dtype=bool).reshape(free.size, -1)))
         cur = np.clip(np.zeros(n), nom.lower, nom.upper)
         # a walk in program order: each choice depends on the joints the previous target left
         for j, k in enumerate(free):
@@ -127,9 +139,12 @@ def _branch_joints(model, targets: list, Tm: np.ndarray, axis_signs, fmt: str) -
                 cur = np.asarray(targets[k].reset, dtype=np.float64)
             if k > 0 and np.isfinite(qb[k - 1]).all() and targets[k].reset is None:
                 cur = qb[k - 1]
-            if ok[j].any():
-                d = np.where(ok[j], np.linalg.norm(np.nan_to_num(q[j] - cur), axis=1), np.inf)
-                qb[k] = q[j, int(np.argmin(d))]
+            pick = None
+            for rob, q, ok in sols:
+                pick = nearest_candidate(rob, q[j], ok[j], cur) if ok[j].any() else None
+                if pick is not None:
+                    break
+            qb[k] = cur if pick is None else pick
     return qb
 
 
@@ -148,15 +163,17 @@ def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs
         return ProgramResult(text=text, targets=[], comp=None, failed=[], notes=notes)
     T = np.stack([t.pose for t in targets])
     D = np.stack([np.eye(4) if t.tool_delta is None else t.tool_delta for t in targets])
-    from .targets import resolve_frame
+    from .frames import resolve_frame
 
     fr = resolve_frame(model, frame)
     # branch from the nominal solutions of the uncompensated target, in the nominal robot's world
     # (= the measurement frame; the controller base sits at nominal.base in it)
     T_nom = (T if fr == "measurement" else model.nominal.base @ T) @ se3.invert(D)
-    qb = _branch_joints(model, targets, T_nom, axis_signs, fmt)
-    reason = "no nominal solution with the program's configuration data" if any(t.config for t in targets) else \
-        "not reachable by the nominal robot"
+    from .frames import to_model_frame
+
+    T_cal = se3.invert(model.frame_pre_) @ to_model_frame(model, T, fr) @ se3.invert(D) @ se3.invert(model.frame_post_)
+    qb = _branch_joints(model, targets, T_nom, T_cal, axis_signs, fmt)
+    reason = "no solution with the program's configuration data"
     comp = compensate(model, T, q_branch=qb, frame=fr, tool_delta=D, branch_reason=reason, **ik_kw)
     pieces, last, failed = [], 0, []
     for k, t in enumerate(targets):

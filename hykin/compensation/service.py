@@ -1,214 +1,207 @@
-"""The compensation service of ``hykin serve``: fk, ik and compensate over HTTP, JSON in and out.
+"""The compensation service of ``hykin serve``: fk, ik and compensate over HTTP (JSON batches) and
+a WebSocket stream of single targets. The model is loaded once; ONE warm compensator answers all.
 
-FastAPI app (:func:`create_app`); the model is loaded once. Endpoints (all batches; SI units: m, rad):
+Endpoints (SI units: m, rad; poses as ``[x, y, z, qw, qx, qy, qz]``):
 
-* ``GET /health`` → ``{"status": "ok", "model": name, "dof": n, "version": ...}``
-* ``POST /fk`` ``{"q": [[q1..qn], ...]}`` → ``{"poses": [[x,y,z,qw,qx,qy,qz], ...], "in_support": [...]}``
+* ``GET /health`` (no token needed) → ``status``, ``model`` (robot name), ``dof``, ``version``,
+  ``model_sha256`` (the model file's integrity hash, checked at load), ``file_sha256``,
+  ``model_path``, ``loaded_at`` (UTC ISO 8601), ``queued`` (model calls waiting or running),
+  ``counts`` (requests answered and refused, by kind).
+* ``POST /fk`` ``{"q": [[q1..qn], ...]}`` → ``{"poses": [...], "in_support": [...]}``
 * ``POST /ik`` ``{"targets": [[x,y,z,qw,qx,qy,qz] or [x,y,z], ...], "q_current": [[..]] or [..]}`` →
   per target the hybrid-IK solution nearest ``q_current`` (default zero): ``q`` (null when
   unreachable), ``success``, ``pos_err_mm``, ``ang_err_deg``, ``reason``.
 * ``POST /compensate`` ``{"targets": ..., "q_current": optional, "frame": "measurement"|"base"|"auto"}``
   → ``commands`` (controller base frame, null when unreachable), ``q``, ``success``, ``pos_err_mm``,
-  ``ang_err_deg``, ``shift_mm``, ``status`` (:func:`hykin.compensation.compensate`; without
-  ``q_current`` each target's branch is the nominal solution nearest the previous target's).
+  ``ang_err_deg``, ``shift_mm``, ``status``, ``frame``.
+* ``WebSocket /stream[?frame=...]``: one JSON message per target,
+  ``{"target": [x,y,z,qw,qx,qy,qz], "q": [..joints..], "id": any}`` (``q``: the robot's current
+  joints, which choose the branch; optional after the first answered target, then the last answer's
+  joints are used). One reply per message, in order: ``seq`` (1, 2, ... per connection), ``id``
+  (echoed), then ``success``, ``command``, ``q``, ``pos_err_mm``, ``ang_err_deg``, ``reason`` — or
+  ``error`` (a one-line reason) when the message was not a valid target or the queue was full. A bad
+  message never closes the stream.
 
-Bad requests (malformed JSON, wrong shapes, NaN/inf, unknown fields, too many targets) get 400/422
-with ``{"detail": reason}`` and never stop the server; model calls are serialised by a lock (the
-model is not re-entrant). FastAPI is imported only here.
+Refusals (:mod:`.service_guard`; limits in :class:`~hykin.compensation.service_guard.ServiceLimits`):
+400 malformed JSON or header, 401 missing/wrong bearer token (``WWW-Authenticate: Bearer``), 413 body
+over the size limit (refused from its ``Content-Length`` before it is read; the connection is closed),
+422 wrong fields/shapes/values, 503 the model queue is full (``Retry-After: 1``) or too many open
+connections (uvicorn's own, at once). Every HTTP refusal is a JSON ``{"detail": reason}`` answered
+after ``refusal_delay_s`` (0.1 s): a client flooding bad requests is slowed to ``max_connections /
+refusal_delay_s`` requests/s. WebSocket: the handshake is refused with 403 (close code 1008) on a
+wrong token or frame; a message over the size limit closes the stream with 1009. Checks run on the
+event loop and never wait for the model. Model calls run on one thread, streaming steps before
+queued batches; a streaming step runs at once on the event loop when the model is idle.
 
 (No ``from __future__ import annotations``: FastAPI reads the endpoints' ``Request`` annotations at
 run time, and ``Request`` is imported inside :func:`create_app`.)
 """
 
+import asyncio
+import collections
+import contextlib
 import json
-import math
-import threading
+import logging
 
 import numpy as np
 
-__all__ = ["MAX_TARGETS", "RequestError", "create_app"]
+from .service_guard import BATCH, STREAM, BodyTooLarge, ModelWorker, QueueFull, ServiceLimits, model_identity, read_body, token_ok
+from .service_requests import Handlers, RequestError
 
-MAX_TARGETS = 10_000
+__all__ = ["MAX_TARGETS", "RequestError", "create_app", "serve", "uvicorn_config"]
 
-
-class RequestError(ValueError):
-    """A request the service cannot answer: ``status`` (400/422) and a one-line reason."""
-
-    def __init__(self, reason: str, status: int = 422):
-        super().__init__(reason)
-        self.status = status
+MAX_TARGETS = ServiceLimits.max_targets
+_INLINE_BYTES = 64 * 1024  # bodies up to this size are parsed on the event loop, larger ones in a thread
+_log = logging.getLogger("hykin.serve")
 
 
-def _matrix(body: dict, key: str, widths: tuple, required: bool = True):
-    """``body[key]`` as a finite float64 ``(N, w)`` array, ``w`` in ``widths`` (one row may be flat)."""
-    if key not in body or body[key] is None:
-        if required:
-            raise RequestError(f"missing field '{key}'")
-        return None
-    v = body[key]
-    if not isinstance(v, list) or not v:
-        raise RequestError(f"'{key}' must be a non-empty list of rows")
-    if not isinstance(v[0], list):
-        v = [v]
-    if len(v) > MAX_TARGETS:
-        raise RequestError(f"'{key}': {len(v)} rows, at most {MAX_TARGETS} per request")
-    for i, row in enumerate(v):
-        if not isinstance(row, list) or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in row):
-            raise RequestError(f"'{key}' row {i}: expected a list of numbers")
-    lens = {len(r) for r in v}
-    if len(lens) != 1 or next(iter(lens)) not in widths:
-        raise RequestError(f"'{key}': every row must have {' or '.join(map(str, widths))} numbers, got lengths {sorted(lens)}")
-    a = np.asarray(v, dtype=np.float64)
-    bad = ~np.isfinite(a)
-    if bad.any():
-        i, j = np.argwhere(bad)[0]
-        raise RequestError(f"'{key}' row {i}, column {j}: not a finite number")
-    return a
+def _dumps(obj) -> bytes:
+    return json.dumps(obj, allow_nan=False, separators=(",", ":")).encode()
 
 
-def _poses(a: np.ndarray) -> np.ndarray:
-    """``(N, 7)`` rows ``x,y,z,qw,qx,qy,qz`` -> ``(N, 4, 4)``; ``(N, 3)`` positions kept."""
-    from ..geometry import se3
-
-    if a.shape[1] == 3:
-        return a
-    n = np.linalg.norm(a[:, 3:], axis=1)
-    if np.any(np.abs(n - 1) > 1e-3):
-        i = int(np.argmax(np.abs(n - 1) > 1e-3))
-        raise RequestError(f"'targets' row {i}: quaternion norm {n[i]:.6f}, expected 1")
-    return se3.pose_to_transform(a[:, :3], a[:, 3:] / n[:, None])
+def _first_line(e: Exception) -> str:
+    return str(e).splitlines()[0] if str(e) else type(e).__name__
 
 
-def _pose_rows(T: np.ndarray, ok: np.ndarray) -> list:
-    from ..geometry import se3
+def create_app(model, limits: ServiceLimits | None = None, identity: dict | None = None):
+    """The FastAPI app serving ``model`` (a fitted :class:`hykin.hybrid.model.HybridModel`).
 
-    xyz, quat = se3.transform_to_pose(np.where(np.isfinite(T), T, np.eye(4)))
-    rows = np.concatenate([xyz, quat], 1).tolist()
-    return [r if k else None for r, k in zip(rows, ok.tolist())]
-
-
-def _floats(a) -> list:
-    return [float(x) if math.isfinite(x) else None for x in np.asarray(a, dtype=np.float64).tolist()]
-
-
-def _check_keys(body, allowed: set) -> dict:
-    if not isinstance(body, dict):
-        raise RequestError("the body must be a JSON object")
-    extra = set(body) - allowed
-    if extra:
-        raise RequestError(f"unknown field(s): {', '.join(sorted(extra))}; allowed: {', '.join(sorted(allowed))}")
-    return body
-
-
-class Handlers:
-    """The computations behind the endpoints (plain functions of parsed JSON; testable without HTTP)."""
-
-    def __init__(self, model):
-        self.model = model
-        self.dof = model.nominal.dof
-        self.lock = threading.Lock()
-
-    def _q(self, body, key, required=True):
-        q = _matrix(body, key, (self.dof,), required)
-        return q
-
-    def fk(self, body) -> dict:
-        body = _check_keys(body, {"q"})
-        q = self._q(body, "q")
-        import warnings
-
-        with self.lock, warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            T = self.model.predict(q)
-            sup = self.model.support_distance(q) if hasattr(self.model, "support_distance") else np.zeros(len(q))
-        return {"poses": _pose_rows(T, np.ones(len(q), bool)), "in_support": (np.asarray(sup) <= 0).tolist()}
-
-    def ik(self, body) -> dict:
-        from ..hybrid.ik import hybrid_ik
-        from .targets import first_row_per_target
-
-        body = _check_keys(body, {"targets", "q_current"})
-        a = _matrix(body, "targets", (3, 7))
-        qc = self._q(body, "q_current", required=False)
-        if qc is not None and len(qc) not in (1, len(a)):
-            raise RequestError(f"'q_current': {len(qc)} rows, expected 1 or {len(a)}")
-        T = _poses(a)
-        nom = self.model.nominal
-        qc = np.broadcast_to(np.clip(np.zeros(self.dof), nom.lower, nom.upper) if qc is None else qc, (len(a), self.dof))
-        import warnings
-
-        with self.lock, warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            res = hybrid_ik(self.model, T, all_branches=True, q_current=np.ascontiguousarray(qc), nearest=True)
-        N = len(a)
-        q = np.full((N, self.dof), np.nan)
-        ok = np.zeros(N, bool)
-        pe, ae = np.full(N, np.nan), np.full(N, np.nan)
-        reason = np.array(["unreachable"] * N, dtype=object)
-        k = first_row_per_target(res)
-        t = res.target[k]
-        q[t], ok[t], pe[t], ae[t], reason[t] = res.q[k], res.success[k], res.pos_err_mm[k], res.ang_err_deg[k], res.reason[k]
-        return {"q": [r if k else None for r, k in zip(q.tolist(), ok.tolist())], "success": ok.tolist(),
-                "pos_err_mm": _floats(pe), "ang_err_deg": _floats(ae), "reason": ["" if k else str(r) for r, k in zip(reason.tolist(), ok.tolist())]}
-
-    def compensate(self, body) -> dict:
-        from .targets import FRAMES, compensate
-
-        body = _check_keys(body, {"targets", "q_current", "frame"})
-        a = _matrix(body, "targets", (3, 7))
-        qc = self._q(body, "q_current", required=False)
-        if qc is not None and len(qc) not in (1, len(a)):
-            raise RequestError(f"'q_current': {len(qc)} rows, expected 1 or {len(a)}")
-        frame = body.get("frame", "measurement")
-        if frame not in FRAMES:
-            raise RequestError(f"'frame' must be one of {', '.join(FRAMES)}, got {frame!r}")
-        T = _poses(a)
-        with self.lock:
-            c = compensate(self.model, T, q_branch=qc, frame=frame)
-        return {"commands": _pose_rows(c.command, c.success), "q": [r if k else None for r, k in zip(c.q.tolist(), c.success.tolist())],
-                "success": c.success.tolist(), "pos_err_mm": _floats(c.pos_err_mm), "ang_err_deg": _floats(c.ang_err_deg),
-                "shift_mm": _floats(c.shift_mm), "status": ["ok" if k else r for r, k in zip(c.reason.tolist(), c.success.tolist())],
-                "frame": c.frame}
-
-
-def create_app(model):
-    """The FastAPI app serving ``model`` (a fitted :class:`hykin.hybrid.model.HybridModel`)."""
-    from fastapi import FastAPI, Request
-    from fastapi.responses import JSONResponse
+    ``limits``: :class:`ServiceLimits` (defaults when None). ``identity``: ``/health``'s model record
+    (:func:`hykin.compensation.service_guard.model_identity`; built without a file path when None).
+    """
+    from fastapi import FastAPI, Request, WebSocket
+    from fastapi.responses import Response
     from starlette.concurrency import run_in_threadpool
+    from starlette.websockets import WebSocketDisconnect
 
     from .. import __version__
 
-    h = Handlers(model)
-    app = FastAPI(title="hykin compensation service", version=__version__)
+    limits = limits or ServiceLimits()
+    identity = identity or model_identity(None)
+    h = Handlers(model, limits.max_targets)
+    counts: collections.Counter = collections.Counter()
+    worker = ModelWorker(limits.queue)
 
-    async def _run(request: Request, fn):
-        raw = await request.body()
+    @contextlib.asynccontextmanager
+    async def lifespan(_app):
+        yield
+        worker.close()
+
+    app = FastAPI(title="hykin compensation service", version=__version__, lifespan=lifespan)
+
+    async def _refuse(status: int, detail: str, kind: str, headers: dict | None = None):
+        counts[f"refused_{kind}"] += 1
+        if limits.refusal_delay_s:
+            await asyncio.sleep(limits.refusal_delay_s)
+        return Response(_dumps({"detail": detail}), status_code=status, media_type="application/json", headers=headers)
+
+    def _parse(raw: bytes, parse):
+        return parse(json.loads(raw))
+
+    def _compute(fn):
+        return lambda *args: _dumps(fn(*args))
+
+    async def _run(request: Request, parse, compute):
+        if not token_ok(request.headers, limits.token):
+            return await _refuse(401, "missing or wrong bearer token (Authorization: Bearer <token>)", "auth",
+                           {"WWW-Authenticate": "Bearer"})
         try:
-            body = json.loads(raw)
-        except (ValueError, UnicodeDecodeError) as e:
-            return JSONResponse({"detail": f"malformed JSON: {e}"}, status_code=400)
+            raw = await read_body(request, limits.max_body_bytes)
+        except BodyTooLarge as e:
+            return await _refuse(413, str(e), "size", {"Connection": "close"})
+        except ValueError as e:
+            return await _refuse(400, str(e), "malformed", {"Connection": "close"})
         try:
-            return JSONResponse(await run_in_threadpool(fn, body))
+            args = _parse(raw, parse) if len(raw) <= _INLINE_BYTES else await run_in_threadpool(_parse, raw, parse)
         except RequestError as e:
-            return JSONResponse({"detail": str(e)}, status_code=e.status)
+            return await _refuse(e.status, str(e), "invalid")
+        except (ValueError, UnicodeDecodeError, RecursionError) as e:  # json's errors are ValueErrors
+            return await _refuse(400, f"malformed JSON: {_first_line(e)}", "malformed")
+        try:
+            out = await worker.submit(BATCH, compute, *args)
+        except QueueFull as e:
+            return await _refuse(503, str(e), "busy", {"Retry-After": "1"})
         except ValueError as e:  # the model's own input checks (one line)
-            return JSONResponse({"detail": str(e).splitlines()[0] if str(e) else type(e).__name__}, status_code=422)
+            return await _refuse(422, _first_line(e), "invalid")
+        counts["answered_http"] += 1
+        return Response(out, media_type="application/json")
 
     @app.get("/health")
     async def health():
-        return {"status": "ok", "model": model.nominal.name, "dof": h.dof, "version": __version__}
+        return {"status": "ok", "model": model.nominal.name, "dof": h.dof, "version": __version__, **identity,
+                "queued": worker.pending, "counts": dict(counts)}
+
+    fk_c, ik_c, comp_c = _compute(h.fk), _compute(h.ik), _compute(h.compensate)
 
     @app.post("/fk")
     async def fk(request: Request):
-        return await _run(request, h.fk)
+        return await _run(request, h.parse_fk, fk_c)
 
     @app.post("/ik")
     async def ik(request: Request):
-        return await _run(request, h.ik)
+        return await _run(request, h.parse_ik, ik_c)
 
     @app.post("/compensate")
     async def comp(request: Request):
-        return await _run(request, h.compensate)
+        return await _run(request, h.parse_compensate, comp_c)
+
+    @app.websocket("/stream")
+    async def stream(ws: WebSocket):
+        frame = ws.query_params.get("frame", "measurement")
+        if not token_ok(ws.headers, limits.token) or frame not in h.frames:
+            counts["refused_stream_handshake"] += 1
+            if limits.refusal_delay_s:
+                await asyncio.sleep(limits.refusal_delay_s)
+            await ws.close(code=1008)
+            return
+        await ws.accept()
+        counts["stream_connections"] += 1
+        q_last, seq = None, 0
+        try:
+            while True:
+                msg = await ws.receive()
+                if msg["type"] == "websocket.disconnect":
+                    break
+                seq += 1
+                reply = {"seq": seq}
+                try:
+                    raw = msg.get("text") if msg.get("text") is not None else msg.get("bytes")
+                    body = json.loads(raw)
+                    if isinstance(body, dict) and "id" in body:
+                        reply["id"] = body["id"]
+                    T, q_prev = h.parse_step(body, q_last)
+                    out = await worker.run(STREAM, h.step, T, q_prev, frame)
+                    reply.update(out)
+                    if out["success"]:
+                        q_last = np.asarray(out["q"], dtype=np.float64)
+                    counts["answered_stream"] += 1
+                except RequestError as e:
+                    reply["error"] = str(e)
+                except QueueFull as e:
+                    reply["error"] = str(e)
+                except (ValueError, TypeError, UnicodeDecodeError, RecursionError) as e:
+                    reply["error"] = f"malformed message: {_first_line(e)}"
+                if "error" in reply:
+                    counts["refused_stream_message"] += 1
+                await ws.send_text(json.dumps(reply, allow_nan=False))
+        except WebSocketDisconnect:
+            pass
 
     return app
+
+
+def uvicorn_config(model, host: str, port: int, limits: ServiceLimits | None = None, identity: dict | None = None):
+    """The ``uvicorn.Config`` of the service: the app, and uvicorn's own limits set from ``limits``
+    (open connections, WebSocket message size)."""
+    import uvicorn
+
+    limits = limits or ServiceLimits()
+    return uvicorn.Config(create_app(model, limits, identity), host=host, port=port, log_level="warning",
+                          limit_concurrency=limits.max_connections, ws_max_size=limits.max_message_bytes)
+
+
+def serve(model, host: str, port: int, limits: ServiceLimits | None = None, identity: dict | None = None) -> None:
+    """Run the service with uvicorn until interrupted (the ``hykin serve`` command)."""
+    import uvicorn
+
+    uvicorn.Server(uvicorn_config(model, host, port, limits, identity)).run()

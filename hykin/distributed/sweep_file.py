@@ -43,7 +43,7 @@ SWEEP_KEYS = ("robot", "train", "test", "subsample_seed", "grid", "random", "res
 GRID_KEYS = (*FIT_OPTIONS, "n_train")
 _TYPES = {"arch": str, "recipe": str, "calibrate": bool, "device": str, "seed": int, "max_minutes": (int, float),
           "thermal": str, "min_steps": int, "max_epochs": int, "orientation_weight": (str, int, float),
-          "max_deviation": str, "region_cv": bool, "fade_cv": int, "n_train": int}
+          "max_deviation": str, "prior": list, "region_cv": bool, "fade_cv": int, "n_train": int}
 
 
 @dataclass

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from ..geometry.se3 import pose_error
+from ..geometry.se3 import pose_error, rotation_difference_rotvec
 from ..io.dataset import Dataset
 from ..io.payload import (
     errors_per_payload,
@@ -19,9 +18,9 @@ from ..io.payload import (
 from ..kinematics.fk import fk
 from ..kinematics.robot import Robot
 from .metrics import ErrorStats, error_stats, format_table
-from .report import Report, error_histograms
 
-__all__ = ["EvalResult", "evaluate_model", "evaluate_per_payload", "evaluation_report", "joint_region_rows"]
+__all__ = ["NOMINAL_FITTED", "EvalResult", "evaluate_model", "evaluate_per_payload", "joint_region_rows",
+           "nominal_row"]
 
 
 @dataclass
@@ -41,9 +40,15 @@ class EvalResult:
     support_distance: np.ndarray | None = field(repr=False, default=None)
     per_payload: dict | None = None  # errors_per_payload(...) when the data carry a payload_kg column
     regions: list = field(default_factory=list)  # per joint-quartile region rows (registered models), region_table
+    labels: dict = field(default_factory=dict)  # row name -> label in the table (e.g. "nominal + fitted frames")
+    #: row name -> ``(dp_mm (N, 3), dr_deg (N, 3) or None)``: predicted minus measured position (base x, y, z)
+    #: and the rotation vector of ``R_pred R_measᵀ`` (about base x, y, z); their norms are ``errors``
+    vectors: dict[str, tuple[np.ndarray, np.ndarray | None]] = field(repr=False, default_factory=dict)
+    #: row name -> ``(N, 4, 4)`` predicted poses, m (for ISO 9283 and the report)
+    predicted: dict[str, np.ndarray] = field(repr=False, default_factory=dict)
 
     def region_table(self) -> str:
-        """Per joint-region mean errors (mm / deg): hybrid vs calibrated vs nominal + rigid fit (registered models)."""
+        """Per joint-region mean errors (mm / deg): hybrid vs calibrated vs nominal + fitted frames (registered models)."""
         if not self.regions:
             return ""
         names = [k for k in self.regions[0] if k not in ("region", "n")]
@@ -68,42 +73,83 @@ class EvalResult:
             d["per_payload"] = {f"{k:g}": v for k, v in self.per_payload.items()}
         if self.regions:
             d["regions"] = self.regions
+        if self.labels:
+            d["labels"] = dict(self.labels)
         return d
 
     def table(self) -> str:
-        t = format_table(self.stats)
+        t = format_table({self.labels.get(k, k): v for k, v in self.stats.items()})
+        if self.labels.get("nominal") == NOMINAL_FITTED:
+            t += f"\n{NOMINAL_FITTED}: the nominal robot with base and tool frames fitted to these poses (rigid fit)."
         if self.support_distance is not None:
             n_out = int(np.sum(self.support_distance > 0))
             t += f"\n{n_out} of {self.n} samples lie outside the training region (network correction faded there)."
         if self.per_payload is not None:
             t += "\nError per payload:\n" + format_payload_table(self.per_payload)
         if self.regions:
-            t += ("\n\nPer joint region (registered model; mean mm / deg; nominal + rigid fit = the nominal robot with "
-                  "base and tool fitted to all of these poses):\n" + self.region_table())
+            t += ("\n\nPer joint region (registered model; mean mm / deg; the nominal row of the table above):\n"
+                  + self.region_table())
         return t
 
     def json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)
 
 
+NOMINAL_FITTED = "nominal + fitted frames"
+#: the robot file's frames are kept for the nominal row unless fitting base and tool to the data
+#: lowers its mean position error by more than this factor (data in another frame, another tool)
+FRAME_FIT_FACTOR = 2.0
+_FIT_ROWS = 2000  # at most this many evenly spread rows fit the nominal row's frames
+
+
+def nominal_row(nominal: Robot, q: np.ndarray, T_meas: np.ndarray, position_only: bool,
+                always_fit: bool = False) -> tuple[np.ndarray, str]:
+    """The nominal row of an evaluation: poses ``(N, 4, 4)`` and label. One definition: the nominal
+    robot with the robot file's base and tool (label ``"nominal"``) when those frames fit the data, else
+    (data in a tracker's frame, another tool, ``always_fit`` for a registered model) the nominal robot
+    with base and tool fitted to these poses by a rigid fit (label :data:`NOMINAL_FITTED`)."""
+    from ..calibration.frames import fit_frames
+
+    T = fk(nominal, q)
+    if len(T) < 4:
+        return T, "nominal"
+    sel = np.unique(np.linspace(0, len(T) - 1, min(len(T), _FIT_ROWS)).astype(np.int64))
+    B, E = fit_frames(T[sel], T_meas[sel], position_only=position_only)
+    T_fit = B @ T @ E
+    if always_fit:
+        return T_fit, NOMINAL_FITTED
+    e_file = np.linalg.norm(T[:, :3, 3] - T_meas[:, :3, 3], axis=1).mean()
+    e_fit = np.linalg.norm(T_fit[:, :3, 3] - T_meas[:, :3, 3], axis=1).mean()
+    return (T_fit, NOMINAL_FITTED) if e_file > FRAME_FIT_FACTOR * e_fit else (T, "nominal")
+
+
 def evaluate_model(model, data: Dataset) -> EvalResult:
     """Errors of the nominal, calibrated and hybrid predictions of ``model`` against ``data``.
 
     ``model`` is a :class:`hykin.hybrid.model.HybridModel` or a plain :class:`Robot` (nominal FK only).
+    The nominal row (:func:`nominal_row`) is labelled ``"nominal + fitted frames"`` where its frames
+    were fitted to the data (tracker-frame data, registered models); its key stays ``"nominal"``.
+    A model fitted on several stations / tools compares each row in its own station's and tool's frame
+    (the data are mapped into the model's frame, :func:`hykin.hybrid.stations.in_model_frame`).
     """
+    if getattr(model, "station_frames_", None) is not None:  # several stations / tools: each row's own frame
+        from ..hybrid.stations import in_model_frame
+
+        data = in_model_frame(model, data)
     T_meas = data.poses()
     pos_only = not data.has_orientation
     preds: dict[str, np.ndarray] = {}
+    labels: dict[str, str] = {}
     dist = None
+    registered = not isinstance(model, Robot) and not (
+        np.array_equal(getattr(model, "frame_pre_", np.eye(4)), np.eye(4)) and np.array_equal(getattr(model, "frame_post_", np.eye(4)), np.eye(4)))
     if isinstance(model, Robot):
-        preds["nominal"] = fk(model, data.q)
+        preds["nominal"], labels["nominal"] = nominal_row(model, data.q, T_meas, pos_only)
     else:
         nominal = getattr(model, "nominal", None)
         if nominal is not None:
-            # A registered model carries the frames of its measurement series; the nominal row uses them too.
-            pre = getattr(model, "frame_pre_", np.eye(4))
-            post = getattr(model, "frame_post_", np.eye(4))
-            preds["nominal"] = pre @ fk(nominal, data.q) @ post
+            # a registered model's frames belong to it: the nominal row fits its own (one definition)
+            preds["nominal"], labels["nominal"] = nominal_row(nominal, data.q, T_meas, pos_only, always_fit=registered)
         from ..calibration.thermal import temperature_of
 
         temp = temperature_of(data)  # used by models that identified thermal expansion
@@ -113,25 +159,20 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
         preds["hybrid"] = model.predict(data.q, temperature_c=temp, **pkw)
         if hasattr(model, "support_distance"):
             dist = np.asarray(model.support_distance(data.q))
-    stats, errors = {}, {}
+    stats, errors, vectors = {}, {}, {}
     for name, T in preds.items():
         stats[name] = error_stats(T, T_meas, position_only=pos_only)
         p, a = pose_error(T, T_meas)
         errors[name] = (p, None if pos_only else a)
+        vectors[name] = ((T[:, :3, 3] - T_meas[:, :3, 3]) * 1e3,
+                         None if pos_only else np.degrees(rotation_difference_rotvec(T[:, :3, :3], T_meas[:, :3, :3])))
     regions = []
-    registered = not isinstance(model, Robot) and not (
-        np.array_equal(getattr(model, "frame_pre_", np.eye(4)), np.eye(4)) and np.array_equal(getattr(model, "frame_post_", np.eye(4)), np.eye(4)))
     if registered and "nominal" in preds:
-        from ..calibration.frames import fit_frames
-
-        Tn = fk(model.nominal, data.q)
-        Bn, En = fit_frames(Tn, T_meas, position_only=pos_only)
-        pn, an = pose_error(Bn @ Tn @ En, T_meas)
-        errors["nominal + rigid fit"] = (pn, None if pos_only else an)
-        regions = joint_region_rows(data.q, {k: errors[k] for k in ("hybrid", "calibrated", "nominal + rigid fit") if k in errors})
+        regions = joint_region_rows(data.q, {labels.get(k, k): errors[k] for k in ("hybrid", "calibrated", "nominal")
+                                             if k in errors})
     return EvalResult(
         dataset=data.source, n=len(data), position_only=pos_only, stats=stats, errors=errors, support_distance=dist,
-        per_payload=evaluate_per_payload(errors, data), regions=regions,
+        per_payload=evaluate_per_payload(errors, data), regions=regions, labels=labels, vectors=vectors, predicted=preds,
     )
 
 
@@ -161,22 +202,3 @@ def joint_region_rows(q: np.ndarray, errors: dict, n_quantiles: int = 4) -> list
             row[k] = (float(p[sel].mean()), None if a is None else float(a[sel].mean()))
         out.append(row)
     return out
-
-
-def evaluation_report(res: EvalResult, out_dir: str | Path, title: str = "hykin evaluation") -> Path:
-    """Write ``out_dir/report.html`` with the table and before/after error distributions."""
-    out_dir = Path(out_dir)
-    rep = Report(title)
-    rep.text(f"Dataset: {res.dataset} ({res.n} samples{', position only' if res.position_only else ''}).")
-    rep.heading("Errors")
-    rep.pre(res.table())
-    names = list(res.errors)
-    first, last = names[0], names[-1]
-    b, a = res.errors[first], res.errors[last]
-    rep.figure(
-        error_histograms(b[0], a[0], b[1], a[1], labels=(first, last)),
-        caption=f"Error distributions, {first} vs {last}.",
-    )
-    (out_dir).mkdir(parents=True, exist_ok=True)
-    (out_dir / "evaluation.json").write_text(res.json(), encoding="utf-8")
-    return rep.write(out_dir / "report.html")

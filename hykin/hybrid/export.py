@@ -28,14 +28,16 @@ def export_onnx(model, path: str | Path, n_check: int = 2000, opset: int = 17, s
     import torch
 
     from ..geometry.se3 import pose_error
+    from .fast_nets import torch64
 
     class _Wrapper(torch.nn.Module):
         def __init__(self, m):
             super().__init__()
             self.m = m
-            # register the nets so their weights are graph initialisers
-            self.net_pos = m.net_pos_
-            self.net_rot = m.net_rot_
+            # register the nets predict_torch runs (float64 copies, hykin.hybrid.fast_nets) so that
+            # their weights are graph initialisers
+            self.net_pos = torch64(m, m.net_pos_)
+            self.net_rot = None if m.net_rot_ is None else torch64(m, m.net_rot_)
 
         def forward(self, q):
             return self.m.predict_torch(q)

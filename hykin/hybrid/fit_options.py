@@ -16,16 +16,19 @@ __all__ = ["FIT_OPTIONS", "calibration_options", "model_kwargs"]
 FIT_OPTIONS: dict = {
     "arch": "default", "recipe": "default", "calibrate": True, "device": "cpu", "seed": 0,
     "max_minutes": None, "thermal": "auto", "min_steps": None, "max_epochs": None,
-    "orientation_weight": "auto", "max_deviation": None, "region_cv": False, "fade_cv": 0,
+    "orientation_weight": "auto", "max_deviation": None, "prior": None, "region_cv": False, "fade_cv": 0,
 }
 
 _THERMAL = {"auto": "auto", "on": True, "off": False}
 
 
-def calibration_options(orientation_weight="auto", max_deviation: str | None = None) -> dict:
-    """``calibrate`` keyword arguments from ``--orientation-weight`` (m/rad or 'auto') and
-    ``--max-deviation`` (KIND=VALUE[,...]); ValueError on bad values."""
+def calibration_options(orientation_weight="auto", max_deviation: str | None = None,
+                        prior: list[str] | None = None) -> dict:
+    """``calibrate`` keyword arguments from ``--orientation-weight`` (m/rad or 'auto'),
+    ``--max-deviation`` (KIND=VALUE[,...]; only the kinds given bound their kind) and ``--prior``
+    (KIND=VALUE strings); ValueError on bad values."""
     from ..calibration.checks import parse_max_deviation
+    from ..calibration.priors import DEFAULT_PRIORS, parse_kind_values, parse_priors
 
     kw: dict = {}
     if orientation_weight != "auto":
@@ -37,7 +40,11 @@ def calibration_options(orientation_weight="auto", max_deviation: str | None = N
             raise ValueError(f"--orientation-weight must be > 0, got {orientation_weight!r}")
         kw["orientation_weight_m_per_rad"] = w
     if max_deviation:
-        kw["max_deviation"] = parse_max_deviation(max_deviation)
+        parse_max_deviation(max_deviation)  # validated; only the kinds given bound their kind
+        kw["max_deviation"] = parse_kind_values(max_deviation, "--max-deviation", ())
+    if prior:
+        pri = parse_priors(prior)
+        kw["priors"] = {k: v for k, v in pri.items() if v != DEFAULT_PRIORS[k]}  # kinds given (resolved: valid)
     return kw
 
 
@@ -64,7 +71,7 @@ def model_kwargs(**options) -> dict:
     fade_cv = int(o["fade_cv"])
     if fade_cv == 1 or fade_cv < 0:
         raise ValueError(f"--fade-cv must be 0 (off) or >= 2 regions, got {fade_cv}")
-    cal_kw = calibration_options(o["orientation_weight"], o["max_deviation"])
+    cal_kw = calibration_options(o["orientation_weight"], o["max_deviation"], o["prior"])
     if o["region_cv"]:
         cal_kw["select"] = "region-cv"
     device = o["device"]

@@ -10,6 +10,7 @@ import numpy as np
 import torch
 
 from ..geometry import se3
+from ..io.fingerprint import file_fingerprint
 from ..io.payload import payload_kwargs, payload_of
 from ..kinematics.classical import classical_fk
 from .inputs import TWO_PI, to_net_frame
@@ -18,7 +19,8 @@ from .persistence import data_hash, json_safe, versions
 from .progress import Progress
 from .train import train_net
 
-__all__ = ["error_metrics", "input_range", "residual_targets", "split_validation", "train_networks", "training_metadata"]
+__all__ = ["calibrate_on", "error_metrics", "input_range", "residual_targets", "split_validation", "train_networks",
+           "training_metadata"]
 
 
 def residual_targets(robot, ds) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
@@ -105,6 +107,8 @@ def train_networks(targets: dict, Xt, Xv, *, arch: str, n_in: int, in_lower, in_
             use_val = Xv is not None and yv is not None
             results[key] = train_net(net, Xt, yt, Xv if use_val else None, yv if use_val else None, recipe,
                                      seed=seed, device=device, max_seconds=max_seconds, callback=cb_ctx.callback(key))
+            cb_ctx.stage_done(f"training {key}", f"{results[key].steps:,} steps")
+            cb_ctx.budget_cut(key, results[key])
             timings[f"train_{key}_s"] = time.perf_counter() - t1
             nets[key] = net
     return nets, results, timings
@@ -133,6 +137,8 @@ def training_metadata(model, train, val, *, n_split: tuple[int, int, int], has_o
     return {
         "data_hash": data_hash(train),
         "val_hash": data_hash(val) if val is not None else None,
+        "train_file": file_fingerprint(getattr(train, "source", "")),
+        "val_file": None if val is None else file_fingerprint(getattr(val, "source", "")),
         "n_train": n_split[0], "n_val": n_split[1], "n_total": n_split[2],
         "has_orientation": has_orientation,
         "seed": int(model.seed), "timings": timings, "versions": versions(),
@@ -145,3 +151,28 @@ def training_metadata(model, train, val, *, n_split: tuple[int, int, int], has_o
         "inputs": {"periodic": model.periodic, "joint1": model.joint1},
         "thermal": None if model.thermal_ is None else model.thermal_.to_dict(),
     }
+
+
+def calibrate_on(model, ds, progress: bool = False):
+    """Set (and return) ``model.robot_`` and ``model.calibration_`` from ``ds``: calibrated (with
+    region-blocked parameter selection when asked, an optional step), or the nominal robot.
+    ``progress``: report the calibration as a stage (:mod:`hykin.hybrid.progress`)."""
+    if model.calibrate:
+        from ..calibration.calibrate import calibrate as _calibrate
+        from .optional import optional_step
+
+        kw = dict(model.calibrate_kw or {})
+        if kw.pop("select", None) == "region-cv":  # parameter set by region-blocked validation
+            from .region_cv import select_calibration
+
+            model.calibration_cv_ = optional_step("region-blocked parameter selection", getattr(model, "_skipped", {}),
+                                                  select_calibration, model.robot, ds, base_kw=kw)
+            if model.calibration_cv_ is not None:
+                kw.update(model.calibration_cv_.kwargs)
+        prog = Progress(bool(progress))
+        res = _calibrate(model.robot, ds, **{"progress": prog.calibration(len(ds.q)), **kw})
+        prog.stage_done("calibration", f"{int(np.sum(res.identifiable))} parameters identified")
+        model.robot_, model.calibration_ = res.robot, res
+    else:
+        model.robot_, model.calibration_ = model.robot.copy(), None
+    return model.robot_, model.calibration_

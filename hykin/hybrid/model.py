@@ -41,9 +41,8 @@ payload and only the physics changes with payload. Measured (benchmarks/bench_pa
 rows, 6000 steps; decided on kr-payload-virtual, rows at 0 and 12 kg): payload-agnostic networks
 0.0325 / 0.0289 / 0.0322 / 0.0439 mm at 0 / 6 / 12 / 20 kg, payload as input 0.0289 / 0.0284 /
 0.0290 / 0.0355 mm (holding beats fading to the payload-agnostic correction at 20 kg). Held-out
-robot (rx160-nongeo): 0.0279 / 0.0279 / 0.0280 / 0.0280 mm with payload as input vs 0.0282 /
-0.0278 / 0.0276 / 0.0276 mm agnostic (equal within seed noise: no harm where the physics leaves
-no payload dependence). With one payload the networks stay payload-agnostic and the physics
+robot (rx160-nongeo): 0.0279 / 0.0279 / 0.0280 / 0.0280 mm with payload as input vs 0.0282 / 0.0278
+/ 0.0276 / 0.0276 mm agnostic (equal within seed noise: no harm where physics leaves no payload dependence). With one payload the networks stay payload-agnostic and the physics
 carries every other payload. ``predict`` warns (:class:`OutOfRangeWarning`) for payloads outside
 the trained ones. Not payload-aware yet: :meth:`predict_uncertainty` (bands of the trained
 payloads) and the extrapolation growth of :mod:`hykin.hybrid.uncertainty` (robot file's payload).
@@ -68,15 +67,18 @@ from ..io.payload import payload_kwargs, payload_of, payload_range_of
 from ..io.robot_file import load_robot
 from ..kinematics.classical import classical_fk, classical_fk_torch
 from ..kinematics.robot import Robot
-from . import bands, fitting, inputs, persistence
+from . import bands, fast_fk, fast_nets, fitting, inputs, persistence, stations
 from . import support as sup_
 from .errors import HybridError, OutOfRangeWarning
 from .nets import ResidualNet
+from .optional import optional_step
+from .progress import Progress
 from .rotations import rotate_poses
 from .settings import check_settings, empty_fitted_state
 from .support import Support, support_report
 from .thermal_fit import apply_thermal, fit_thermal, targets_at_reference
 from .train import Recipe, get_recipe
+from .uncertainty import fit_bands
 
 __all__ = ["HybridError", "HybridModel", "OutOfRangeWarning", "classical_fk", "classical_fk_torch", "support_report"]
 
@@ -238,13 +240,23 @@ class HybridModel:
         kg_all = np.full(len(q), self.robot.payload_kg) if pl_train is None else pl_train[0]
         if val is not None:
             payload_of(val)
-        self._calibrate_on(train)
+        self._skipped = {}  # optional steps that failed (hykin.hybrid.optional): name -> cause
+        self._calibrate_on(train, progress=progress)
+        self.station_frames_ = stations.fit_station_frames(self, train)  # several stations: data in one frame
+        train_in, val_in = train, val = tuple(stations.in_model_frame(self, d) for d in (train, val))
         temp = None if self.thermal is False else temperature_of(train)
         if self.thermal is True and temp is None:
             raise HybridError(f"thermal=True but the training data have no temperature column ({', '.join(TEMPERATURE_COLUMNS)})")
         if temp is not None and np.ptp(temp) > 0:
-            self.robot_, self.calibration_, self.thermal_, train, val = fit_thermal(
-                train, val, temp, self.robot_, self.calibration_, self._calibrate_on if self.calibrate else None)
+            first = (self.robot_, self.calibration_)
+            args = (train, val, temp, self.robot_, self.calibration_, self._calibrate_on if self.calibrate else None)
+            tol_k = ((self.calibrate_kw or {}).get("priors") or {}).get("thermal_per_k")
+            got = fit_thermal(*args, tolerance_per_k=tol_k) if self.thermal is True else optional_step(
+                "thermal expansion", self._skipped, fit_thermal, *args, tolerance_per_k=tol_k)
+            if got is None:  # failed (auto): the calibration at the measured temperatures
+                self.robot_, self.calibration_ = first
+            else:
+                self.robot_, self.calibration_, self.thermal_, train, val = got
         calib = None
         if self.calibration_ is not None:
             try:
@@ -254,7 +266,7 @@ class HybridModel:
         timings["calibrate_s"] = time.perf_counter() - t0
 
         dp, dr, _ = fitting.residual_targets(self.robot_, train)
-        revolute = np.array([t == "revolute" for t in self.robot.joint_type], dtype=bool)
+        revolute = np.array([t == "revolute" for t in self.robot.independent_joint_type], dtype=bool)
         self.wrap_centre_ = inputs.seam_centres(q, revolute) if self.periodic == "wrap" else np.full(n, np.nan)
         if self.joint1 == "frame":
             if not revolute[0]:
@@ -291,22 +303,29 @@ class HybridModel:
         self.meta_ = fitting.training_metadata(self, train_in, val_in, n_split=(len(qt), len(qv), len(q)),
                                        has_orientation=dr is not None, timings=timings, results=results, calib=calib)
         iv, iv_cal, val_cal, cal_rows = sp["iv"], sp["iv_cal"], sp["val_cal"], sp["cal_rows"]
+        # optional from here on (hykin.hybrid.optional): a failure warns once and keeps the model
+        bands_stage = Progress(progress).stage("prediction bands (held-out errors, extrapolation growth)")
         if val is None:
             rows = iv_cal if iv_cal is not None else iv
-            self._fit_uncertainty(train, None, rows)
             raw = train_in.subset(np.asarray(rows)) if len(rows) >= 10 else train_in
+            self.unc_ = optional_step("uncertainty bands", self._skipped, fit_bands, self, train, None, rows, raw,
+                                      self._skipped)
         else:
-            self._fit_uncertainty(train, val_cal if val_cal is not None else val, None)
             raw = val_in.subset(cal_rows) if cal_rows is not None else val_in
-        if self.thermal_ is not None and self.thermal_.coefficient_per_k != 0.0:
-            T_c, T_h = self._predict_unframed(raw.q, payload_of(raw))
-            self.unc_.update(bands.notemp_quantiles(self.unc_, raw, T_c, T_h))
+            self.unc_ = optional_step("uncertainty bands", self._skipped, fit_bands, self, train,
+                                      val_cal if val_cal is not None else val, None, raw, self._skipped)
+        bands_stage.done()
         if int(self.fade_cv) >= 2 and self.fade is not False:  # hykin.hybrid.fade: fade measured by leave-one-region-out
             from .fade import calibrate_fade
 
-            self.fade_calibration_ = calibrate_fade(self, train, n_blocks=int(self.fade_cv), seed=int(self.seed))
-            self.fade_offset_, self.fade_width_ = self.fade_calibration_.offset, self.fade_calibration_.width
-            self.meta_["fade_calibration"] = persistence.json_safe(self.fade_calibration_.to_dict())
+            fc = optional_step("fade calibration", self._skipped, calibrate_fade, self, train, n_blocks=int(self.fade_cv),
+                               seed=int(self.seed))
+            if fc is not None:
+                self.fade_calibration_ = fc
+                self.fade_offset_, self.fade_width_ = fc.offset, fc.width
+                self.meta_["fade_calibration"] = persistence.json_safe(fc.to_dict())
+        if self._skipped:
+            self.meta_["optional_steps_failed"] = dict(self._skipped)
         self.meta_["metrics"]["train"] = self._metrics(train_in)
         if val_in is not None:
             self.meta_["metrics"]["val"] = self._metrics(val_in)
@@ -315,22 +334,9 @@ class HybridModel:
             self.meta_["metrics"]["held_out"] = self._metrics(train_in.subset(held))
         return self
 
-    def _calibrate_on(self, ds) -> tuple[Robot, object]:
-        """Set (and return) ``robot_`` and ``calibration_`` from ``ds``: calibrated, or the nominal robot."""
-        if self.calibrate:
-            from ..calibration.calibrate import calibrate as _calibrate
-
-            kw = dict(self.calibrate_kw or {})
-            if kw.pop("select", None) == "region-cv":  # parameter set by region-blocked validation
-                from .region_cv import select_calibration
-
-                self.calibration_cv_ = select_calibration(self.robot, ds, base_kw=kw)
-                kw.update(self.calibration_cv_.kwargs)
-            res = _calibrate(self.robot, ds, **kw)
-            self.robot_, self.calibration_ = res.robot, res
-        else:
-            self.robot_, self.calibration_ = self.robot.copy(), None
-        return self.robot_, self.calibration_
+    def _calibrate_on(self, ds, progress: bool = False) -> tuple[Robot, object]:
+        """Set (and return) ``robot_`` and ``calibration_`` from ``ds`` (:func:`fitting.calibrate_on`)."""
+        return fitting.calibrate_on(self, ds, progress)
 
     def targets_at_reference(self, T_target, temperature_c):
         """Targets measured at ``temperature_c`` (°C) mapped to the reference temperature, where
@@ -366,22 +372,6 @@ class HybridModel:
         pkw = payload_kwargs(payload)
         return classical_fk(self.robot_, q2, **pkw), self._hybrid_poses(q2, warn=False, **pkw)
 
-    def _fit_uncertainty(self, train, val, held_out_index) -> None:
-        """Quantiles of the hybrid and classical error norms on held-out samples (split conformal,
-        :mod:`hykin.hybrid.bands`) and the calibrated model's extrapolation growth."""
-        ds, src = bands.band_source(train, val, held_out_index)
-        T_c, T_h = self._predict_unframed(ds.q, payload_of(ds))
-        unc = {"levels": bands.UNC_LEVELS, "n": len(ds), "source": src}
-        unc.update(bands.error_quantiles(ds, T_c, T_h, with_rot=ds.has_orientation and self.net_rot_ is not None))
-        # how the calibrated model's band widens beyond the trained ranges (emulated extrapolation)
-        from .uncertainty import extrapolation_growth
-
-        g = extrapolation_growth(self.robot, train, self._netq(np.asarray(train.q, dtype=np.float64)), self.input_mask_,
-                                 bands.UNC_LEVELS, calibrate_kw=dict(self.calibrate_kw or {}) if self.calibrate else None,
-                                 with_rot="classical_ang_deg" in unc, seed=int(self.seed))
-        unc.update(bands.growth_entries(g))
-        self.unc_ = unc
-
     def predict_uncertainty(self, q, level: float = 0.95, temperature_c=None) -> tuple[np.ndarray, np.ndarray | None]:
         """Radii of the ``level`` prediction band per query: ``(pos_mm (N,), ang_deg (N,) or None)``.
 
@@ -396,7 +386,9 @@ class HybridModel:
         """
         self._check_fitted()
         if self.unc_ is None:
-            raise HybridError("this model has no uncertainty calibration (saved by an older hykin): refit it")
+            why = (self.metadata.get("optional_steps_failed") or {}).get("uncertainty bands")
+            raise HybridError("this model has no uncertainty bands (" + (f"fit skipped them: {why}" if why else
+                              "saved by an older hykin") + "): refit it")
         if not (0.5 <= level <= 0.995):
             raise HybridError(f"level must be in [0.5, 0.995], got {level}")
         q2, single = self._q(q)
@@ -475,15 +467,9 @@ class HybridModel:
         T = self._framed(apply_thermal(T, self.thermal_, self.robot_.base[:3, 3], temperature_c))
         return T[0] if single else T
 
-    @torch.inference_mode()
     def _net_np(self, net: ResidualNet, q2: np.ndarray) -> np.ndarray:
-        dev = next(net.parameters()).device
-        x = torch.from_numpy(q2).to(dev)
-        out = np.empty((len(q2), 3))
-        B = 16384
-        for i in range(0, len(q2), B):
-            out[i : i + B] = net(x[i : i + B]).to(torch.float64).cpu().numpy()
-        return out
+        """Network residuals ``(N, 3)``: float32 weights in float64 arithmetic (:mod:`hykin.hybrid.fast_nets`)."""
+        return fast_nets.cached(self, net).fast(q2)
 
     def predict(self, q, temperature_c=None, payload_kg=None, payload_com_m=None) -> np.ndarray:
         """Hybrid poses ``(N, 4, 4)`` float64 (``(4, 4)`` for one ``(n,)`` query), world frame, m.
@@ -499,13 +485,22 @@ class HybridModel:
         """
         self._check_fitted()
         q2, single = self._q(q)
-        T = self._hybrid_poses(q2, payload_kg, payload_com_m, warn=True)
-        T = self._framed(apply_thermal(T, self.thermal_, self.robot_.base[:3, 3], temperature_c))
+        fr = temperature_c is None or self.thermal_ is None  # no thermal scaling: frame the poses at once
+        T = self._hybrid_poses(q2, payload_kg, payload_com_m, warn=True, framed=fr)
+        T = T if fr else self._framed(apply_thermal(T, self.thermal_, self.robot_.base[:3, 3], temperature_c))
         return T[0] if single else T
 
-    def _hybrid_poses(self, q2: np.ndarray, payload_kg=None, payload_com_m=None, warn: bool = True) -> np.ndarray:
-        """Hybrid poses ``(N, 4, 4)`` of checked joints ``q2`` ``(N, n)`` at the reference temperature,
-        without registration frames; ``warn``: :class:`OutOfRangeWarning` for queries outside."""
+    def _hybrid_poses(self, q2: np.ndarray, payload_kg=None, payload_com_m=None, warn: bool = True,
+                      framed: bool = False) -> np.ndarray:
+        """Hybrid poses ``(N, 4, 4)`` of checked joints ``q2`` ``(N, n)`` at the reference temperature, with
+        the registration frames when ``framed``; ``warn``: :class:`OutOfRangeWarning` for queries outside.
+        Small batches run compiled (:mod:`hykin.hybrid.fast_fk`) unless a payload is given; large ones BLAS."""
+        kern = fast_fk.kernel_of(self) if len(q2) < fast_fk.COMPILED_MAX and payload_kg is None is payload_com_m else None
+        if kern is not None:
+            T, ex, gap = fast_fk.predict_fast(kern, q2, framed)
+            if warn and (ex.any() or gap.max() > 0):
+                sup_.warn_outside(ex, gap, bool(self.fade), self.payload_range_, payload_kg, stacklevel=3)
+            return T
         T = classical_fk(self.robot_, q2, payload_kg, payload_com_m)
         s, qn = self.support, self._netq(q2)
         ex = sup_.range_excess(s, qn)
@@ -527,7 +522,7 @@ class HybridModel:
             if w is not None:
                 dr *= w[:, None]
             rotate_poses(dr, T)
-        return T
+        return self._framed(T) if framed else T
 
     def predict_torch(self, q, payload_kg=None, payload_com_m=None):
         """Differentiable hybrid poses: float64 tensor ``(N, n)`` -> ``(N, 4, 4)`` (autograd w.r.t. q).
@@ -546,13 +541,14 @@ class HybridModel:
         if self.fade is not False:
             w = sup_.fade_weight(sup_.fade_distance_torch(self.support, qn, self.fade), self.fade_offset_,
                                  self.fade_width_)[:, None]
-        dp = inputs.from_net_frame(self.j1_axis_, q, self.net_pos_(qd).to(device=q.device, dtype=torch.float64))
+        net_p, net_r = (None if n is None else fast_nets.torch64(self, n) for n in (self.net_pos_, self.net_rot_))
+        dp = inputs.from_net_frame(self.j1_axis_, q, net_p(qd).to(device=q.device, dtype=torch.float64))
         if w is not None:
             dp = dp * w
         p = T_hat[:, :3, 3] + dp
         R = T_hat[:, :3, :3]
         if self.net_rot_ is not None:
-            dr = inputs.from_net_frame(self.j1_axis_, q, self.net_rot_(qd).to(device=q.device, dtype=torch.float64))
+            dr = inputs.from_net_frame(self.j1_axis_, q, net_r(qd).to(device=q.device, dtype=torch.float64))
             if w is not None:
                 dr = dr * w
             R = se3.so3_exp_torch(dr) @ R

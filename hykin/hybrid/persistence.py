@@ -2,7 +2,8 @@
 
 Tensors: ``pos.*`` / ``rot.*`` network state, ``support.points`` ``(M, n)``, ``support.pair_gap``
 ``(P, G, G)``, ``support.pair_index`` ``(P, 2)``. Header: calibrated and nominal robot, settings
-(``config``), support range and spacing, registration frames, input representation, uncertainty
+(``config``), support range and spacing, registration frames, station and tool frames (``stations``:
+:class:`hykin.calibration.stations.StationFrames`, several stations / tools), input representation, uncertainty
 bands, thermal coefficient, payload range, training metadata. Files of older versions (keys absent)
 load with the behaviour of those versions.
 """
@@ -16,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..calibration.stations import StationFrames
 from ..calibration.thermal import ThermalFit
 from ..io.modelfile import robot_from_json_dict, robot_to_dict, write_model_file
 from ..io.payload import PayloadRange
@@ -118,6 +120,7 @@ def save_model(model, path: str | Path) -> None:
                     "spacing": model.support_spacing_, "gap_factor": GAP_FACTOR},
         "has_rot_net": model.net_rot_ is not None,
         "frames": {"pre": model.frame_pre_.tolist(), "post": model.frame_post_.tolist()},
+        "stations": None if model.station_frames_ is None else model.station_frames_.to_dict(),
         "inputs": {"wrap_centre": json_safe(model.wrap_centre_),
                    "j1_axis": None if model.j1_axis_ is None else model.j1_axis_.tolist()},
         "uncertainty": json_safe(model.unc_),
@@ -165,6 +168,8 @@ def restore_fitted(m, tensors: dict, meta: dict, path, device: str) -> None:
     if th is not None:
         m.thermal_ = ThermalFit(float(th["coefficient_per_k"]), float(th["std_per_k"]), float(th["reference_c"]),
                                 tuple(float(v) for v in th["range_c"]), str(th["note"]))
+    st = meta.get("stations")  # several stations / tools (absent in older files: one frame)
+    m.station_frames_ = None if st is None else StationFrames.from_dict(st)
     fr = meta.get("frames")
     if fr is not None:
         m.frame_pre_ = np.array(fr["pre"], dtype=np.float64).reshape(4, 4)

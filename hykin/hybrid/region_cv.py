@@ -81,8 +81,15 @@ def select_calibration(robot, ds, candidates: dict[str, dict] | None = None, n_b
     ``robot``: nominal Robot; ``ds``: Dataset in ``robot``'s world frame; ``candidates``: name ->
     extra :func:`hykin.calibration.calibrate.calibrate` keyword arguments (default :data:`CANDIDATES`);
     ``base_kw``: keyword arguments common to all (e.g. ``position_only``); ``max_rows``: each
-    calibration uses at most this many rows of the other regions (evenly spaced; cost)."""
+    calibration uses at most this many rows of the other regions (evenly spaced; cost). Data of
+    several stations / tools are refused (one frame per held-out region is all it fits)."""
     from ..calibration.calibrate import calibrate
+    from ..calibration.stations import row_groups
+
+    if row_groups(ds, len(ds)) is not None:
+        raise ValueError(f"{ds.source or 'training data'}: region-blocked selection of the calibration (--region-cv) "
+                         "fits one frame per held-out region and does not handle several stations / tools yet; "
+                         "drop --region-cv (the full calibration is used)")
     from ..calibration.frames import fit_frames, select_representative
     from ..geometry.se3 import pose_error
     from ..kinematics.classical import classical_fk

@@ -28,34 +28,38 @@ def rodrigues(rv: np.ndarray) -> np.ndarray:
 if HAVE_NUMBA:
     import numba
 
+    @numba.njit(cache=True, nogil=True)
+    def rotate_top(x, y, z, T):  # pragma: no cover
+        """In place ``T[:3, :3] = exp([x, y, z]) @ T[:3, :3]`` for one pose (same formula as :func:`rodrigues`)."""
+        th2 = x * x + y * y + z * z
+        if th2 < 1e-8:
+            A = 1 - th2 / 6
+            B = 0.5 - th2 / 24
+        else:
+            th = np.sqrt(th2)
+            A = np.sin(th) / th
+            B = (1 - np.cos(th)) / th2
+        # R = I + A K + B K^2, K = [[0, -z, y], [z, 0, -x], [-y, x, 0]]
+        r00 = 1 + B * (-z * z - y * y)
+        r01 = -A * z + B * (x * y)
+        r02 = A * y + B * (x * z)
+        r10 = A * z + B * (x * y)
+        r11 = 1 + B * (-z * z - x * x)
+        r12 = -A * x + B * (y * z)
+        r20 = -A * y + B * (x * z)
+        r21 = A * x + B * (y * z)
+        r22 = 1 + B * (-y * y - x * x)
+        for c in range(3):
+            t0, t1, t2 = T[0, c], T[1, c], T[2, c]
+            T[0, c] = r00 * t0 + r01 * t1 + r02 * t2
+            T[1, c] = r10 * t0 + r11 * t1 + r12 * t2
+            T[2, c] = r20 * t0 + r21 * t1 + r22 * t2
+
     @numba.njit(cache=True, nogil=True, parallel=True)
     def _rotate_poses_kernel(rv, T):  # pragma: no cover
-        """In place ``T[:, :3, :3] = exp(rv) @ T[:, :3, :3]`` (same formula as :func:`rodrigues`)."""
+        """In place ``T[:, :3, :3] = exp(rv) @ T[:, :3, :3]``."""
         for k in numba.prange(rv.shape[0]):
-            x, y, z = rv[k, 0], rv[k, 1], rv[k, 2]
-            th2 = x * x + y * y + z * z
-            if th2 < 1e-8:
-                A = 1 - th2 / 6
-                B = 0.5 - th2 / 24
-            else:
-                th = np.sqrt(th2)
-                A = np.sin(th) / th
-                B = (1 - np.cos(th)) / th2
-            # R = I + A K + B K^2, K = [[0, -z, y], [z, 0, -x], [-y, x, 0]]
-            r00 = 1 + B * (-z * z - y * y)
-            r01 = -A * z + B * (x * y)
-            r02 = A * y + B * (x * z)
-            r10 = A * z + B * (x * y)
-            r11 = 1 + B * (-z * z - x * x)
-            r12 = -A * x + B * (y * z)
-            r20 = -A * y + B * (x * z)
-            r21 = A * x + B * (y * z)
-            r22 = 1 + B * (-y * y - x * x)
-            for c in range(3):
-                t0, t1, t2 = T[k, 0, c], T[k, 1, c], T[k, 2, c]
-                T[k, 0, c] = r00 * t0 + r01 * t1 + r02 * t2
-                T[k, 1, c] = r10 * t0 + r11 * t1 + r12 * t2
-                T[k, 2, c] = r20 * t0 + r21 * t1 + r22 * t2
+            rotate_top(rv[k, 0], rv[k, 1], rv[k, 2], T[k])
 
 
 def rotate_poses(dr: np.ndarray, T: np.ndarray) -> None:

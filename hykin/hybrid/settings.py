@@ -61,4 +61,5 @@ def empty_fitted_state(n: int) -> dict:
         "payload_default_kg_": None,  # payload the networks see when predict gets none (None: robot_'s)
         "frame_pre_": np.eye(4),  # registration frames: T = frame_pre_ · T_model(q) · frame_post_
         "frame_post_": np.eye(4),
+        "station_frames_": None,  # StationFrames of several stations / tools (hykin.hybrid.stations)
     }

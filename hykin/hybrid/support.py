@@ -145,25 +145,30 @@ def range_excess_torch(sup: Support, qn):
 if HAVE_NUMBA:
     import numba
 
+    @numba.njit(cache=True, nogil=True)
+    def pair_gap_row(qk, lower, span, field, I, J):  # pragma: no cover
+        """:func:`pair_gap` of one query ``qk`` ``(n,)`` (compiled; the fast hybrid kernel calls it too)."""
+        G = field.shape[1]
+        top = G - 1.0
+        best = -np.inf
+        for p in range(I.shape[0]):
+            i, j = I[p], J[p]
+            ui = min(max((qk[i] - lower[i]) / span[i], 0.0), 1.0) * top
+            uj = min(max((qk[j] - lower[j]) / span[j], 0.0), 1.0) * top
+            i0 = min(max(np.floor(ui), 0.0), G - 2.0)
+            j0 = min(max(np.floor(uj), 0.0), G - 2.0)
+            fi, fj = ui - i0, uj - j0
+            a, b = int(i0), int(j0)
+            v = (field[p, a, b] * (1 - fi) * (1 - fj) + field[p, a + 1, b] * fi * (1 - fj)
+                 + field[p, a, b + 1] * (1 - fi) * fj + field[p, a + 1, b + 1] * fi * fj)
+            best = max(best, v)
+        return best
+
     @numba.njit(cache=True, nogil=True, parallel=True)
     def _pair_gap_kernel(qn, lower, span, field, I, J, out):  # pragma: no cover
         """Numpy-path :func:`pair_gap` (same operations, same numbers)."""
-        G = field.shape[1]
-        top = G - 1.0
         for k in numba.prange(qn.shape[0]):
-            best = -np.inf
-            for p in range(I.shape[0]):
-                i, j = I[p], J[p]
-                ui = min(max((qn[k, i] - lower[i]) / span[i], 0.0), 1.0) * top
-                uj = min(max((qn[k, j] - lower[j]) / span[j], 0.0), 1.0) * top
-                i0 = min(max(np.floor(ui), 0.0), G - 2.0)
-                j0 = min(max(np.floor(uj), 0.0), G - 2.0)
-                fi, fj = ui - i0, uj - j0
-                a, b = int(i0), int(j0)
-                v = (field[p, a, b] * (1 - fi) * (1 - fj) + field[p, a + 1, b] * fi * (1 - fj)
-                     + field[p, a, b + 1] * (1 - fi) * fj + field[p, a + 1, b + 1] * fi * fj)
-                best = max(best, v)
-            out[k] = best
+            out[k] = pair_gap_row(qn[k], lower, span, field, I, J)
 
 
 def pair_gap(sup: Support, qn: np.ndarray) -> np.ndarray:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..calibration.thermal import (
+    DRIFT_WARNING,
     MAX_PLAUSIBLE_PER_K,
     MIN_EFFECT_M,
     ThermalFit,
@@ -22,16 +23,25 @@ from .errors import HybridError
 __all__ = ["apply_thermal", "fit_thermal", "targets_at_reference", "thermal_factor"]
 
 
-def fit_thermal(train, val, temp: np.ndarray, robot, calibration, recalibrate=None, rounds: int = 3):
+def fit_thermal(train, val, temp: np.ndarray, robot, calibration, recalibrate=None, rounds: int = 3,
+                tolerance_per_k: float | None = None):
     """Identify the expansion coefficient (1/K) together with the calibration.
 
     ``train``/``val``: Datasets (``val`` may be None); ``temp``: ``(N,)`` °C of ``train``; ``robot`` /
     ``calibration``: the calibration at the measured temperatures; ``recalibrate(ds) -> (robot,
     calibration)``: calibrates on data mapped to the reference temperature (None: the model does not
-    calibrate, one round). Returns ``(robot, calibration, thermal, train, val)``: the coefficient is
-    kept only if significant, plausible and not negligible (else ``thermal`` records why, and robot,
-    calibration and data are returned as given); otherwise the data are mapped to the reference
+    calibrate, one round); ``tolerance_per_k``: prior standard deviation of the coefficient about 0
+    (default :data:`hykin.calibration.priors.DEFAULT_PRIORS` ``thermal_per_k``). Returns ``(robot,
+    calibration, thermal, train, val)``: the coefficient is kept only if significant, physical
+    (positive, at most 60e-6 /K) and not negligible (else ``thermal`` records why, robot, calibration
+    and data are returned as given, and a significant non-physical coefficient warns once: drift of
+    the instrument, :mod:`hykin.calibration.thermal`); otherwise the data are mapped to the reference
     temperature (mean of ``temp``)."""
+    import warnings
+
+    from ..calibration.priors import DEFAULT_PRIORS
+
+    tol = DEFAULT_PRIORS["thermal_per_k"] if tolerance_per_k is None else float(tolerance_per_k)
     ref = float(temp.mean())
     dt = temp - ref
     q = np.asarray(train.q, dtype=np.float64)
@@ -40,9 +50,9 @@ def fit_thermal(train, val, temp: np.ndarray, robot, calibration, recalibrate=No
     for _ in range(rounds):
         b = robot.base[:3, 3]
         alpha, std = fit_coefficient(train.xyz_m, classical_fk(robot, q, **payload_kwargs(payload_of(train)))[:, :3, 3],
-                                     b, dt, alpha)
-        if recalibrate is None:
-            break
+                                     b, dt, alpha, tol)
+        if recalibrate is None or abs(alpha) > 3.0 * std and not 0.0 < alpha <= MAX_PLAUSIBLE_PER_K:
+            break  # not the arm's expansion (below): no recalibration on data mapped with it
         robot, calibration = recalibrate(to_reference(train, b, alpha, dt))
     rng_c = (float(temp.min()), float(temp.max()))
     # size of the effect in the data: alpha x temperature spread x reach (RMS), metres
@@ -51,8 +61,10 @@ def fit_thermal(train, val, temp: np.ndarray, robot, calibration, recalibrate=No
     why = None
     if abs(alpha) < 3.0 * std:
         why = "not significant (|alpha| < 3 std)"
-    elif abs(alpha) > MAX_PLAUSIBLE_PER_K:
-        why = f"implausible (|alpha| > {MAX_PLAUSIBLE_PER_K:g} /K)"
+    elif alpha <= 0.0 or alpha > MAX_PLAUSIBLE_PER_K:
+        sign = "negative: no arm shrinks as it warms" if alpha <= 0 else f"beyond {MAX_PLAUSIBLE_PER_K:g} /K of any arm"
+        warnings.warn(DRIFT_WARNING.format(alpha=alpha, why=sign), UserWarning, stacklevel=2)
+        why = f"{sign}: drift of the instrument, not expansion of the arm"
     elif effect_m < MIN_EFFECT_M:
         why = f"negligible ({effect_m * 1e6:.2g} µm RMS in these data, below {MIN_EFFECT_M * 1e6:g} µm)"
     if why is not None:

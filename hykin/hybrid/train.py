@@ -134,6 +134,8 @@ class TrainResult:
     seconds: float
     stopped: str
     history: list = field(default_factory=list)  # (epoch, train_loss, val_loss)
+    steps: int = 0  # optimiser steps taken (first-order phase)
+    planned_steps: int = 0  # the recipe's budget: epochs x batches per epoch
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -170,7 +172,9 @@ def train_net(
     Sets the net's output scaling from ``y_train`` (mean, RMS norm). The weights of the epoch with
     the lowest validation loss (training loss without validation data) are restored at the end.
     ``max_seconds`` stops training early (the best weights so far are kept).
-    ``callback(epoch, max_epochs, train_loss, val_loss)`` is called after each epoch.
+    ``callback(step, total_steps, train_loss, val_loss)`` is called after each epoch (and every 16 steps
+    within a longer one, with the epoch's running training loss and the last validation loss) with the
+    optimiser steps taken so far and the recipe's budget of steps.
     Initial weights are the caller's: seed torch before :func:`hykin.hybrid.nets.make_net` for full
     reproducibility (:class:`hykin.hybrid.model.HybridModel` does).
     """
@@ -225,11 +229,11 @@ def train_net(
 
         best_val, best_epoch, best_state = math.inf, -1, None
         history, stopped, bad = [], "max_epochs", 0
-        epoch = 0
+        epoch = steps = 0
         for epoch in range(1, max_epochs + 1):
             net.train()
             perm = torch.randperm(N, generator=gen).to(device)
-            tot = 0.0
+            tot, seen = 0.0, 0
             for k in range(steps_per_epoch):
                 idx = perm[k * bs : (k + 1) * bs]
                 if idx.numel() < 2 and any(isinstance(m, torch.nn.BatchNorm1d) for m in net.modules()):
@@ -238,15 +242,19 @@ def train_net(
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
+                steps += 1
+                tot += float(loss.detach()) * idx.numel()
+                seen += idx.numel()
+                if callback is not None and steps % 16 == 0 and k < steps_per_epoch - 1:  # long epochs: progress within
+                    callback(steps, total, tot / seen * float(scale), history[-1][2] if history else math.nan)
                 if sched is not None:
                     sched.step()
-                tot += float(loss.detach()) * idx.numel()
             net.eval()
             train_loss = tot / N * float(scale)
             val_loss = _eval(net, Xv, Yv) if has_val else train_loss
             history.append((epoch, train_loss, val_loss))
             if callback is not None:
-                callback(epoch, max_epochs, train_loss, val_loss)
+                callback(steps, total, train_loss, val_loss)
             if val_loss < best_val:
                 best_val, best_epoch, bad = val_loss, epoch, 0
                 best_state = copy.deepcopy(net.state_dict())
@@ -284,5 +292,5 @@ def train_net(
         torch.set_num_threads(prev_threads)
     return TrainResult(
         epochs=epoch, best_epoch=best_epoch, best_val=float(best_val), final_train=final_train,
-        seconds=time.perf_counter() - t0, stopped=stopped, history=history,
+        seconds=time.perf_counter() - t0, stopped=stopped, history=history, steps=steps, planned_steps=total,
     )

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..geometry import se3
 
-__all__ = ["extrapolation_growth"]
+__all__ = ["extrapolation_growth", "fit_bands"]
 
 
 def _errors(predict, ds, idx, with_rot: bool):
@@ -111,3 +111,42 @@ def _fit_growth(d: np.ndarray, z: np.ndarray, levels: np.ndarray, n_bins: int) -
             ai, ki = 0.0, max(0.0, float(dm @ y / (dm @ dm)))
         a[i], k[i] = max(0.0, ai), ki
     return a, k
+
+
+def _calibration_kwargs(model) -> dict:
+    """The keyword arguments of :func:`hykin.calibration.calibrate.calibrate` the model was calibrated
+    with (a region-blocked selection replaced by the parameter set it chose)."""
+    kw = dict(model.calibrate_kw or {})
+    kw.pop("select", None)
+    if getattr(model, "calibration_cv_", None) is not None:
+        kw.update(model.calibration_cv_.kwargs)
+    return kw
+
+
+def fit_bands(model, train, val, held_out_index, raw, record: dict) -> dict:
+    """The band state ``unc`` of a just fitted ``model`` (:mod:`hykin.hybrid.bands`): quantiles of the
+    hybrid and classical error norms on held-out samples (split conformal: ``val`` when given, else the
+    ``held_out_index`` rows of ``train``), the calibrated model's extrapolation growth (an optional step
+    of its own: on failure one warning and bands without growth, ``record`` names it) and, for a model
+    with a thermal coefficient, the quantiles against the raw measurements ``raw`` (no temperature)."""
+    from ..io.payload import payload_of
+    from . import bands
+    from .optional import optional_step
+
+    ds, src = bands.band_source(train, val, held_out_index)
+    T_c, T_h = model._predict_unframed(ds.q, payload_of(ds))
+    unc = {"levels": bands.UNC_LEVELS, "n": len(ds), "source": src}
+    unc.update(bands.error_quantiles(ds, T_c, T_h, with_rot=ds.has_orientation and model.net_rot_ is not None))
+    # how the calibrated model's band widens beyond the trained ranges (emulated extrapolation)
+    g = optional_step(
+        "extrapolation growth of the uncertainty bands", record, extrapolation_growth, model.robot, train,
+        model._netq(np.asarray(train.q, dtype=np.float64)), model.input_mask_, bands.UNC_LEVELS,
+        calibrate_kw=_calibration_kwargs(model) if model.calibrate else None,
+        with_rot="classical_ang_deg" in unc, seed=int(model.seed))
+    if g is not None:
+        unc.update(bands.growth_entries(g))
+    th = model.thermal_
+    if th is not None and th.coefficient_per_k != 0.0:
+        T_c, T_h = model._predict_unframed(raw.q, payload_of(raw))
+        unc.update(bands.notemp_quantiles(unc, raw, T_c, T_h))
+    return unc

@@ -39,6 +39,7 @@ __all__ = [
     "joint_columns",
     "revolute_mask",
     "row_error",
+    "row_labels",
     "split",
     "validate",
     "validate_joints",
@@ -47,11 +48,20 @@ __all__ = [
 
 POSITION_COLUMNS = ("x", "y", "z")
 QUAT_COLUMNS = ("qw", "qx", "qy", "qz")
+#: optional label columns: rows of one instrument placement / one tool (or reflector mount) share a frame
+STATION_COLUMN, TOOL_COLUMN = "station", "tool"
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
 
 QUAT_NORM_TOL = 1e-3  # |‖q‖ - 1| above this is an error; below, the quaternion is renormalised
-MAX_POSITION_M = 10.0  # a TCP farther than this from the base is almost surely mm read as m
+# RMS spread (m) of the measured positions about their centroid above which, with no robot to compare
+# with, millimetres were read as metres (any serial arm of up to ~50 m reach; a 0.5 m arm read in mm
+# spreads ~200 "m"). Frame independent: a tracker or total station may stand kilometres away. With a
+# robot the limit is ``SPREAD_PER_REACH`` x its reach; the exact check against the robot's own motion
+# is :func:`hykin.io.plausibility.check_position_scale`.
+MAX_SPREAD_M = 50.0
+SPREAD_PER_REACH = 10.0
+MAX_POSITION_M = MAX_SPREAD_M  # former name (an absolute distance limit, now a spread limit)
 DEG_AS_RAD_MARGIN = 0.1  # rad beyond 2π before revolute joints are called "degrees"
 
 
@@ -219,6 +229,30 @@ def concat(datasets: Sequence[Dataset], source: str | None = None) -> Dataset:
     )
 
 
+def row_labels(ds: Dataset, column: str, *, line_offset: int | None = 1) -> np.ndarray | None:
+    """``(N,)`` str labels of the label column ``column`` (``"station"``, ``"tool"``) of ``ds``, or None
+    without it. Any label is accepted: text as read (stripped), numbers as written (``2.0`` -> ``"2"``).
+    An empty or non-finite cell is a :class:`DatasetError` naming the row and the column."""
+    if column not in ds.extra:
+        return None
+    v = np.asarray(ds.extra[column])
+    where = ds.source or "<dataset>"
+    if v.dtype.kind in "fiub":
+        f = v.astype(np.float64)
+        bad = ~np.isfinite(f)
+        if bad.any():
+            raise row_error(where, f"label {f[bad][0]!r} is not a {column} name (every row needs one)",
+                            int(np.argmax(bad)), column, line_offset)
+        whole = np.all(f == np.round(f))
+        return np.array([str(int(x)) if whole else repr(float(x)) for x in f], dtype=str)
+    out = np.char.strip(v.astype(str))
+    empty = out == ""
+    if empty.any():
+        raise row_error(where, f"empty {column} label (every row needs one when the column is given)",
+                        int(np.argmax(empty)), column, line_offset)
+    return out
+
+
 # --------------------------------------------------------------------------- validation
 
 
@@ -226,7 +260,7 @@ def revolute_mask(dof: int, robot) -> np.ndarray:
     """``(dof,)`` bool: which joints are revolute (all of them without a ``robot``)."""
     if robot is None:
         return np.ones(dof, dtype=bool)
-    return np.array([t == "revolute" for t in robot.joint_type], dtype=bool)
+    return np.array([t == "revolute" for t in robot.independent_joint_type], dtype=bool)
 
 
 def check_finite(where: str, arr: np.ndarray, names: Sequence[str], line_offset: int | None) -> None:
@@ -246,21 +280,39 @@ def validate(
     limit_tol: float = 1e-6,
     angle_unit: str = "rad",
     line_offset: int | None = 1,
+    joint_names: Sequence[str] | None = None,
+    unit_check: bool = True,
 ) -> None:
     """Check a dataset (SI units) and raise :class:`DatasetError` naming file, row and column.
 
-    Checks: not empty; dof matches ``robot``; every value finite; revolute joints look like radians
-    (no ``|q| > 2π + 0.1``; not all whole numbers with some ``|q| > π``); joints within ``robot``
-    limits ± ``limit_tol``; quaternions unit (``|‖q‖ − 1| > 1e-3`` is an error, smaller deviations
-    are **renormalised in place**); positions look like metres (no ``‖xyz‖ > 10 m``).
+    Checks: not empty; dof matches ``robot``; every value finite; joints within ``robot`` limits ±
+    ``limit_tol``; quaternions unit (``|‖q‖ − 1| > 1e-3`` is an error, smaller deviations are
+    **renormalised in place**). Unit checks (``unit_check``, the CLI's ``--no-unit-check`` turns them
+    off): revolute joints look like radians (no ``|q| > 2π + 0.1``; not all whole numbers with some
+    ``|q| > π``); positions look like metres: their RMS spread about the centroid is at most
+    :data:`SPREAD_PER_REACH` x the robot's reach (:data:`MAX_SPREAD_M` without a robot). The spread,
+    not the distance from the origin: data in a tracker frame far away are fine.
 
     ``where`` names the file in messages (default ``ds.source``); ``angle_unit`` is the unit the user
     declared, only used to phrase the hint; ``line_offset`` = file line minus data row (1 for a CSV
-    with one header line, ``None`` for sources without lines).
+    with one header line, ``None`` for sources without lines); ``joint_names``: the file's joint
+    columns when not ``q1..qN`` (URDF joint names), used in messages.
     """
     where = where or ds.source or "<dataset>"
-    validate_joints(ds.q, robot, where=where, limit_tol=limit_tol, angle_unit=angle_unit, line_offset=line_offset)
-    validate_poses(ds.xyz_m, ds.quat_wxyz, where=where, line_offset=line_offset)
+    validate_joints(ds.q, robot, where=where, limit_tol=limit_tol, angle_unit=angle_unit, line_offset=line_offset,
+                    joint_names=joint_names, unit_check=unit_check)
+    validate_poses(ds.xyz_m, ds.quat_wxyz, where=where, line_offset=line_offset,
+                   max_spread_m=spread_limit_m(robot) if unit_check else None)
+
+
+def spread_limit_m(robot=None) -> float:
+    """RMS position spread (m) above which data declared in metres look like millimetres:
+    :data:`SPREAD_PER_REACH` x the reach of ``robot`` (:data:`MAX_SPREAD_M` without one)."""
+    if robot is None:
+        return MAX_SPREAD_M
+    from ..kinematics.robot import robot_reach_m
+
+    return SPREAD_PER_REACH * max(float(robot_reach_m(robot)), 1e-3)
 
 
 def validate_joints(
@@ -271,8 +323,11 @@ def validate_joints(
     limit_tol: float = 1e-6,
     angle_unit: str = "rad",
     line_offset: int | None = 1,
+    joint_names: Sequence[str] | None = None,
+    unit_check: bool = True,
 ) -> None:
-    """Joint part of :func:`validate` for ``q`` ``(N, dof)`` in rad/m."""
+    """Joint part of :func:`validate` for ``q`` ``(N, dof)`` in rad/m (``joint_names``: the columns' names
+    in messages, default ``q1..qN``; ``unit_check``: the degrees-as-radians checks)."""
     n, dof = q.shape
     if n == 0:
         raise DatasetError(f"{where}: the dataset is empty (no data rows)", file=where)
@@ -282,12 +337,13 @@ def validate_joints(
             f"(expected columns {', '.join(joint_columns(robot.dof))})",
             file=where,
         )
-    qn = joint_columns(dof)
+    qn = list(joint_names) if joint_names is not None and len(joint_names) == dof else joint_columns(dof)
     check_finite(where, q, qn, line_offset)
     rev = revolute_mask(dof, robot)
-    if rev.any():
-        qr = q[:, rev]
-        names = [c for c, m in zip(qn, rev) if m]
+    cont = robot.continuous if robot is not None else np.zeros(dof, dtype=bool)  # any value is valid
+    if (rev & ~cont).any() and unit_check:
+        qr = q[:, rev & ~cont]
+        names = [c for c, m in zip(qn, rev & ~cont) if m]
         hint = ("declare angle_unit='deg' (CLI: --angle-unit deg)" if angle_unit == "rad"
                 else "check the file: the values were declared in degrees")
         big = np.abs(qr) > 2 * math.pi + DEG_AS_RAD_MARGIN
@@ -302,7 +358,7 @@ def validate_joints(
                        f"passed as radians; {hint}", r, names[c], line_offset)
     if robot is not None:
         lo, hi = robot.lower - limit_tol, robot.upper + limit_tol
-        out = (q < lo) | (q > hi)
+        out = ((q < lo) | (q > hi)) & ~cont
         if out.any():
             r, c = np.argwhere(out)[0]
             conv = np.degrees if rev[c] else (lambda v: v)
@@ -318,8 +374,10 @@ def validate_poses(
     *,
     where: str = "<poses>",
     line_offset: int | None = 1,
+    max_spread_m: float | None = MAX_SPREAD_M,
 ) -> None:
-    """Pose part of :func:`validate`: finite, unit quaternions (renormalised in place), metres."""
+    """Pose part of :func:`validate`: finite, unit quaternions (renormalised in place), metres: the RMS
+    spread of ``xyz_m`` about its centroid at most ``max_spread_m`` (None: no unit check)."""
     if xyz_m.shape[0] == 0:
         raise DatasetError(f"{where}: the dataset is empty (no data rows)", file=where)
     check_finite(where, xyz_m, POSITION_COLUMNS, line_offset)
@@ -333,12 +391,16 @@ def validate_poses(
                        "qw,qx,qy,qz must be a unit quaternion, scalar first", r, "qw,qx,qy,qz", line_offset)
         fix = np.abs(norm - 1.0) > 1e-12  # leave exact-to-rounding rows bit-identical (stable hashes)
         quat_wxyz[fix] /= norm[fix, None]
-    dist = np.linalg.norm(xyz_m, axis=1)
-    far = dist > MAX_POSITION_M
-    if far.any():
-        r = int(np.argmax(far))
-        raise row_error(where, f"TCP position is {dist[r]:.6g} m from the base (> {MAX_POSITION_M:g} m): likely millimetres "
-                   "passed as metres; declare length_unit='mm' (CLI: --length-unit mm)", r, "x,y,z", line_offset)
+    if max_spread_m is None or len(xyz_m) < 2:
+        return
+    d = np.linalg.norm(xyz_m - xyz_m.mean(0), axis=1)
+    spread = float(np.sqrt(np.mean(d**2)))
+    if spread > max_spread_m:
+        r = int(np.argmax(np.abs(xyz_m).max(1)))  # the largest value (as a pointer; the test is the spread)
+        raise row_error(where, f"TCP positions spread {spread:.6g} m (RMS about their centroid; > {max_spread_m:.3g} m, "
+                        f"far more than the arm moves): likely millimetres "
+                        "passed as metres; declare length_unit='mm' (CLI: --length-unit mm; --no-unit-check if the "
+                        "values are right)", r, "x,y,z", line_offset)
 
 
 

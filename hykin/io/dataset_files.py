@@ -43,6 +43,47 @@ from .text_table import float_column, lenient_column, read_delimited, with_file_
 __all__ = ["read_dataset", "read_joints", "read_poses", "write_dataset"]
 
 
+def _joint_header(where: str, header: Sequence[str], robot, dof: int | None) -> list[str]:
+    """The joint columns to read: ``q1..qN``, or (a robot from a URDF, no ``q1`` column) the URDF's
+    names of its independent joints, in chain order. A URDF-named file that lacks one of them is
+    refused in one line naming the column and the expected names."""
+    names = None if robot is None else robot.independent_joint_names
+    present = set(header)
+    if names and "q1" not in present and any(c in present for c in robot.joint_names):
+        missing = [c for c in names if c not in present]
+        if missing:
+            import difflib
+
+            others = [h for h in header if h not in robot.joint_names]
+            close = difflib.get_close_matches(missing[0], others, n=1, cutoff=0.6)
+            col = close[0] if close else missing[0]
+            why = f"column '{col}' is not a joint of the URDF (did you mean '{missing[0]}'?)" if close else \
+                f"missing joint column '{missing[0]}'"
+            raise DatasetError(f"{where}: {why}; expected the URDF's independent joints {', '.join(names)} "
+                               f"(or q1..q{len(names)})", file=where, column=col)
+        return list(names)
+    return joint_columns(_dof_from_header(where, header, robot, dof))
+
+
+def _check_mimic_columns(t, robot, q: np.ndarray, angle: float, length: float) -> None:
+    """Columns named after a URDF mimic joint (a ROS log has them) must equal ``multiplier · leader +
+    offset``; they are then redundant. Otherwise refused naming the column and row."""
+    if robot is None or robot.mimic is None or robot.joint_names is None:
+        return
+    idx, mult, off = robot.expansion()
+    for i, name in enumerate(robot.joint_names):
+        if robot.mimic[i, 0] < 0 or name not in t.header:
+            continue
+        v = t.numeric(name) * (angle if robot.joint_type[i] == "revolute" else length)
+        bad = np.abs(v - (mult[i] * q[:, idx[i]] + off[i])) > 1e-6 * np.maximum(1.0, np.abs(v))
+        if bad.any():
+            r = int(np.argmax(bad))
+            lead = robot.joint_names[int(robot.mimic[i, 0])]
+            raise row_error(t.where, f"{v[r]:.6g} but the URDF's <mimic> gives {mult[i]:g}·{lead} + {off[i]:g} = "
+                            f"{mult[i] * q[r, idx[i]] + off[i]:.6g}: the data do not follow the URDF's mimic joint",
+                            row=r, column=name, line_offset=t.line_offset)
+
+
 def _dof_from_header(where: str, header: Sequence[str], robot, dof: int | None) -> int:
     present = {h for h in header}
     k = 0
@@ -59,8 +100,10 @@ def _dof_from_header(where: str, header: Sequence[str], robot, dof: int | None) 
         raise DatasetError(f"{where}: dof={dof} given but robot {robot.name!r} has {robot.dof} joints", file=where)
     missing = [c for c in joint_columns(want) if c not in present]
     if missing:
+        names = None if robot is None else robot.independent_joint_names
+        alt = f" (or the URDF's joint names {', '.join(names)})" if names else ""
         raise DatasetError(
-            f"{where}: missing column(s) {', '.join(missing)}; expected {', '.join(joint_columns(want))}, x, y, z "
+            f"{where}: missing column(s) {', '.join(missing)}; expected {', '.join(joint_columns(want))}{alt}, x, y, z "
             f"and optionally qw, qx, qy, qz (found: {', '.join(header)})", file=where, column=missing[0])
     if f"q{want + 1}" in present:
         raise DatasetError(
@@ -168,12 +211,17 @@ def _check_declared_units(t: _Table, length_unit: str, angle_unit: str) -> None:
 
 
 def _joints_of(t: _Table, robot, dof, angle_unit: str, length_unit: str) -> np.ndarray:
-    n_dof = _dof_from_header(t.where, t.header, robot, dof)
-    qn = joint_columns(n_dof)
+    qn = _joint_header(t.where, t.header, robot, dof)
     q = np.stack([t.numeric(c) for c in qn], axis=1)
     check_finite(t.where, q, qn, t.line_offset)
-    rev = revolute_mask(n_dof, robot)
-    return q * np.where(rev, ANGLE_UNITS[angle_unit], LENGTH_UNITS[length_unit])
+    rev = revolute_mask(len(qn), robot)
+    factor = np.where(rev, ANGLE_UNITS[angle_unit], LENGTH_UNITS[length_unit])
+    q = q * factor
+    if robot is not None and robot.continuous.any():  # continuous joints: into [-pi, pi) (same poses)
+        c = robot.continuous
+        q[:, c] = np.mod(q[:, c] + np.pi, 2 * np.pi) - np.pi
+    _check_mimic_columns(t, robot, q, ANGLE_UNITS[angle_unit], LENGTH_UNITS[length_unit])
+    return q
 
 
 def _check_pose_header(t: _Table, expect: str) -> bool:
@@ -203,11 +251,12 @@ def _poses_of(t: _Table, length_unit: str, expect: str) -> tuple[np.ndarray, np.
     return xyz * LENGTH_UNITS[length_unit], quat
 
 
-def _standard_columns(t: _Table) -> set[str]:
+def _standard_columns(t: _Table, robot=None) -> set[str]:
     k = 0
     while f"q{k + 1}" in t.header:
         k += 1
-    return set(joint_columns(k)) | set(POSITION_COLUMNS) | set(QUAT_COLUMNS)
+    named = set(robot.joint_names) if robot is not None and robot.joint_names and not k else set()
+    return set(joint_columns(k)) | set(POSITION_COLUMNS) | set(QUAT_COLUMNS) | named
 
 
 def read_dataset(
@@ -218,35 +267,39 @@ def read_dataset(
     robot=None,
     dof: int | None = None,
     plausibility: bool = True,
+    unit_check: bool = True,
 ) -> Dataset:
     """Read a dataset file (``.csv`` or ``.parquet``, DESIGN.md §3) into SI units and validate it.
 
     ``length_unit`` (``"m"``/``"mm"``) and ``angle_unit`` (``"rad"``/``"deg"``) are the units *in the
-    file*. ``robot`` (optional) fixes the number of joints, which joints are prismatic, and enables
+    file*. Joint columns: ``q1..qN``, or for a robot read from a URDF its independent joints' names
+    (columns of mimic joints are checked against ``<mimic>`` and dropped). ``robot`` (optional) fixes the number of joints, which joints are prismatic, and enables
     the joint-limit check and (``plausibility``) the unit and quaternion-order checks of
     :func:`hykin.io.plausibility.check_dataset` (positions vs the robot's motion, orientations vs its
     rotations); ``dof`` fixes the number of joints without a robot. Without either the joints are the
-    contiguous ``q1, q2, ...`` columns of the header.
+    contiguous ``q1, q2, ...`` columns of the header. ``unit_check=False`` (the CLI's
+    ``--no-unit-check``) turns every unit heuristic off (:func:`hykin.io.dataset.validate`'s and the
+    plausibility checks); declared units are still applied.
     """
     where = str(path)
     check_units(where, length_unit, angle_unit)
     t = _open_table(path)
     with _file_lines(t):
         _check_declared_units(t, length_unit, angle_unit)
-        n_dof = _dof_from_header(where, t.header, robot, dof)
-        expect = f"{', '.join(joint_columns(n_dof))}, x, y, z and optionally qw, qx, qy, qz"
+        expect = f"{', '.join(_joint_header(where, t.header, robot, dof))}, x, y, z and optionally qw, qx, qy, qz"
         _check_pose_header(t, expect)  # name missing columns before reading any cell
         q = _joints_of(t, robot, dof, angle_unit, length_unit)
         xyz, quat = _poses_of(t, length_unit, expect)
         if q.shape[0] == 0:
             raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
-        ds = Dataset(q=q, xyz_m=xyz, quat_wxyz=quat, extra=t.extras(_standard_columns(t)), source=where,
-                     meta={"length_unit_read": length_unit, "angle_unit_read": angle_unit})
+        ds = Dataset(q=q, xyz_m=xyz, quat_wxyz=quat, extra=t.extras(_standard_columns(t, robot)), source=where,
+                     meta={"length_unit_read": length_unit, "angle_unit_read": angle_unit, "unit_check": bool(unit_check)})
         from .reflectors import with_reflector_unit
 
         ds = with_reflector_unit(ds, length_unit)  # further reflectors x2,y2,z2, ... in metres like x,y,z
-        validate(ds, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset)
-        if robot is not None and plausibility:
+        validate(ds, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset,
+                 joint_names=_joint_header(where, t.header, robot, dof), unit_check=unit_check)
+        if robot is not None and plausibility and unit_check:
             from .plausibility import check_dataset
 
             check_dataset(robot, ds, where=where, length_unit=length_unit, angle_unit=angle_unit)
@@ -260,6 +313,7 @@ def read_joints(
     angle_unit: str = "rad",
     length_unit: str = "m",
     robot=None,
+    unit_check: bool = True,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Read joints ``q1..qN`` from a CSV/Parquet file: ``(q (N, dof) rad/m, extras)``.
 
@@ -274,11 +328,12 @@ def read_joints(
         q = _joints_of(t, robot, dof, angle_unit, length_unit)
         if q.shape[0] == 0:
             raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
-        validate_joints(q, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset)
-        return q, t.extras(_standard_columns(t))
+        validate_joints(q, robot, where=where, angle_unit=angle_unit, line_offset=t.line_offset,
+                        joint_names=_joint_header(where, t.header, robot, dof), unit_check=unit_check)
+        return q, t.extras(_standard_columns(t, robot))
 
 
-def read_poses(path: str | Path, *, length_unit: str = "m", extras: bool = False):
+def read_poses(path: str | Path, *, length_unit: str = "m", extras: bool = False, unit_check: bool = True):
     """Read target poses ``x,y,z[,qw,qx,qy,qz]`` from a CSV/Parquet file: ``(T (N, 4, 4) m, has_orientation)``.
 
     Joint and other columns are ignored (returned as a third item ``{name: (N,)}`` with
@@ -293,7 +348,7 @@ def read_poses(path: str | Path, *, length_unit: str = "m", extras: bool = False
         xyz, quat = _poses_of(t, length_unit, "x, y, z and optionally qw, qx, qy, qz")
         if xyz.shape[0] == 0:
             raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
-        validate_poses(xyz, quat, where=where, line_offset=t.line_offset)
+        validate_poses(xyz, quat, where=where, line_offset=t.line_offset, **({} if unit_check else {"max_spread_m": None}))
         if quat is None:
             T = np.tile(np.eye(4), (len(xyz), 1, 1))
             T[:, :3, 3] = xyz

@@ -42,6 +42,7 @@ __all__ = [
     "read_model_file",
     "robot_from_json_dict",
     "robot_to_dict",
+    "stored_content_hash",
     "write_model_file",
 ]
 
@@ -100,6 +101,23 @@ def write_model_file(path: str | Path, tensors: dict, meta: dict) -> None:
     md = {"format": FORMAT, "format_version": str(FORMAT_VERSION), "hykin": json.dumps(meta, allow_nan=False)}
     md["content_sha256"] = content_hash(t, md)
     save_file(t, str(path), metadata=md)
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(path, 0o666 & ~mask)  # safetensors writes 0600; a model file is shared like any data file (0644)
+
+
+def stored_content_hash(path: str | Path) -> str | None:
+    """The ``content_sha256`` a model file carries in its header (None for files of hykin 0.1.0);
+    reads the header only. :func:`read_model_file` checks it against the content."""
+    from safetensors import SafetensorError, safe_open
+
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            return (f.metadata() or {}).get("content_sha256")
+    except (SafetensorError, OSError, ValueError, RuntimeError) as e:
+        raise ModelFileError(f"{path}: not a hykin model file (not readable as safetensors: {e})") from None
 
 
 def read_model_file(path: str | Path) -> tuple[dict, dict]:

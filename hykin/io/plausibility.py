@@ -47,6 +47,9 @@ MAX_ROWS = 500
 # A spread ratio outside [1/SCALE_LIMIT, SCALE_LIMIT] cannot come from tool offsets or calibration
 # errors (those stay within a factor ~2); a unit slip is a factor 1000 (tens for rad read as deg).
 SCALE_LIMIT = 10.0
+# With every revolute joint within ±6.3° under --angle-unit deg (radians read as degrees), a spread
+# ratio above this is a unit slip (a real small-angle sweep in degrees gives s ~ 1).
+RAD_AS_DEG_SCALE = 2.0
 # Median misfit (deg) of the relative rotation vectors after the frame fit above which orientations do
 # not belong to the robot's rotations. Real rotation errors of a robot (calibration, compliance) are
 # below 1° (measured 0.11° on UR10 series B, tracker frame).
@@ -87,19 +90,24 @@ def check_position_scale(robot: Robot, q, xyz_m, *, where: str = "<data>", lengt
     if spread_hat < 1e-9 or spread < 1e-12:
         return None  # no motion to compare
     s = float(spread / spread_hat)
+    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    # radians declared degrees leave every revolute joint within ±6.3° and shrink the nominal motion:
+    # with that joint pattern, positions spreading clearly more than the nominal motion are evidence
+    # enough (a robot with short links, e.g. a UR5, gives s ~ 3-5 rather than tens)
+    small_q = rev.any() and np.abs(q[:, rev]).max() < np.radians(6.3) * 1.01
+    if angle_unit == "deg" and small_q and s > RAD_AS_DEG_SCALE:
+        raise PlausibilityError(
+            f"{where}: measured positions span {s:.3g}x what robot {robot.name!r} moves at these joints while every "
+            "joint is within ±6.3°: the joints look like radians declared --angle-unit deg (use --angle-unit rad)")
     if 1.0 / SCALE_LIMIT <= s <= SCALE_LIMIT:
         return s
-    rev = np.array([t == "revolute" for t in robot.joint_type])
     if s < 1.0 / SCALE_LIMIT:
         if length_unit == "mm":
             cause = "the positions look like metres declared --length-unit mm (use --length-unit m)"
         else:
             cause = "wrong --length-unit, or data of another robot"
     else:
-        small_q = rev.any() and np.abs(q[:, rev]).max() < np.radians(6.3) * 1.01
-        if angle_unit == "deg" and small_q:
-            cause = "the joints look like radians declared --angle-unit deg (use --angle-unit rad)"
-        elif length_unit == "m":
+        if length_unit == "m":
             cause = "the positions look like millimetres declared metres (use --length-unit mm)"
         else:
             cause = "wrong --length-unit or --angle-unit, or data of another robot"
@@ -189,14 +197,15 @@ def check_orientation_order(robot: Robot, q, quat_wxyz, *, where: str = "<data>"
     raise PlausibilityError(
         f"{where}: measured orientations do not match the rotations of robot {robot.name!r} at these joints "
         f"(median misfit {mis['wxyz']:.2g}° after the best frame rotation): check the quaternion convention "
-        "(unit, scalar first, base->tool rotation), the joint order, or drop the orientation columns")
+        "(unit, scalar first, base->tool rotation), the joint order, the robot file (twists, joint order, "
+        "angle_unit), or drop the orientation columns")
 
 
 def check_joint_unit(robot: Robot, q, *, where: str = "<joints>", angle_unit: str = "rad") -> None:
     """Joints only: radians declared as degrees leave every revolute joint within ±6.3°; refuse that
     when the robot's ranges are wide and there are several rows (``q`` ``(N, dof)`` in rad as read)."""
     q = np.asarray(q, dtype=np.float64)
-    rev = np.array([t == "revolute" for t in robot.joint_type])
+    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
     if angle_unit != "deg" or len(q) < 5 or not rev.any():
         return
     wide = (robot.upper - robot.lower)[rev] > np.radians(60.0)
@@ -239,6 +248,12 @@ def check_dataset(robot: Robot, ds, *, where: str | None = None, length_unit: st
     q = np.asarray(ds.q, dtype=np.float64)
     if q.ndim != 2 or q.shape[1] != robot.dof or len(q) < 4:
         return
+    groups = _frame_groups(ds)
+    if groups is not None:  # several stations / tools: each has its own frames, checked on its own rows
+        for key in dict.fromkeys(groups.tolist()):
+            check_dataset(robot, ds.subset(groups == key), where=f"{where} ({key})", length_unit=length_unit,
+                          angle_unit=angle_unit)
+        return
     idx = _rows(len(q))
     T_hat = np.full((len(q), 4, 4), np.nan)
     T_hat[idx] = _nominal(robot, q[idx])
@@ -246,6 +261,19 @@ def check_dataset(robot: Robot, ds, *, where: str | None = None, length_unit: st
                          T_nominal=T_hat)
     if getattr(ds, "quat_wxyz", None) is not None:
         check_orientation_order(robot, q, ds.quat_wxyz, where=where, T_nominal=T_hat)
+
+
+def _frame_groups(ds) -> np.ndarray | None:
+    """``(N,)`` "station 'A', tool 'T1'" of each row when ``ds`` names several stations or tools, else None."""
+    from .dataset import STATION_COLUMN, TOOL_COLUMN, row_labels
+
+    if not isinstance(getattr(ds, "extra", None), dict) or not hasattr(ds, "subset"):
+        return None
+    parts = [(c, row_labels(ds, c)) for c in (STATION_COLUMN, TOOL_COLUMN)]
+    parts = [(c, v) for c, v in parts if v is not None and len(set(v.tolist())) > 1]
+    if not parts:
+        return None
+    return np.array([", ".join(f"{c} {x!r}" for (c, _), x in zip(parts, row)) for row in zip(*(v.tolist() for _, v in parts))])
 
 
 # --------------------------------------------------------------------------- tiny data
@@ -280,8 +308,11 @@ def check_fit_size(robot: Robot, data, what: str = "fit") -> None:
 def check_fit_data(robot: Robot, data) -> None:
     """What :meth:`hykin.HybridModel.fit` checks first: enough poses (:func:`check_fit_size`), and
     positions / orientations consistent with the robot (:func:`check_dataset`; units are those of
-    the in-memory data, SI)."""
+    the in-memory data, SI), unless the data were read with the unit checks off
+    (``data.meta["unit_check"]`` False: :func:`hykin.io.dataset_files.read_dataset`'s ``unit_check``)."""
     check_fit_size(robot, data)
+    if not (getattr(data, "meta", None) or {}).get("unit_check", True):
+        return
     if np.isfinite(np.asarray(data.q)).all() and np.isfinite(np.asarray(data.xyz_m)).all():
         check_dataset(robot, data)
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..kinematics.robot import Robot
 
-__all__ = ["REQUIRED_FIELDS", "ROBOT_ARRAYS", "RobotDictError", "robot_from_json", "robot_to_json"]
+__all__ = ["OPTIONAL_FIELDS", "REQUIRED_FIELDS", "ROBOT_ARRAYS", "RobotDictError", "robot_from_json", "robot_to_json"]
 
 #: The array fields of a Robot, in the order both formats write them.
 ROBOT_ARRAYS = (
@@ -73,7 +73,24 @@ def robot_to_json(robot: Robot, *, inf_as: str = "string") -> dict:
     head = {"name": robot.name, "convention": robot.convention, "joint_type": list(robot.joint_type)}
     arrays = {k: _encode(getattr(robot, k), inf_as) for k in ROBOT_ARRAYS}
     tail = {"payload_kg": float(robot.payload_kg), "source": robot.source}
-    return {**head, **tail, **arrays} if inf_as == "string" else {**head, **arrays, **tail}
+    out = {**head, **tail, **arrays} if inf_as == "string" else {**head, **arrays, **tail}
+    return {**out, **_optional_to_json(robot)}
+
+
+#: Optional fields, written only when set (files of robots without them stay as earlier versions
+#: wrote them): URDF mimic table, joint names, and the URDF text with its base and tip links.
+OPTIONAL_FIELDS = ("mimic", "joint_names", "urdf")
+
+
+def _optional_to_json(robot: Robot) -> dict:
+    out = {}
+    if robot.mimic is not None:
+        out["mimic"] = _encode(robot.mimic, "string")
+    if robot.joint_names is not None:
+        out["joint_names"] = list(robot.joint_names)
+    if robot.urdf is not None:
+        out["urdf"] = {k: str(v) for k, v in robot.urdf.items()}
+    return out
 
 
 def robot_from_json(d: dict, *, required=REQUIRED_FIELDS) -> Robot:
@@ -99,6 +116,14 @@ def robot_from_json(d: dict, *, required=REQUIRED_FIELDS) -> Robot:
             kw["payload_kg"] = float(d["payload_kg"])
         if "source" in d:
             kw["source"] = d["source"]
+        if d.get("mimic") is not None:
+            kw["mimic"] = np.array(_decode(d["mimic"]), dtype=np.float64)
+        if d.get("joint_names") is not None:
+            kw["joint_names"] = tuple(str(x) for x in d["joint_names"])
+        if d.get("urdf") is not None:
+            if not isinstance(d["urdf"], dict):
+                raise TypeError("'urdf' must be an object")
+            kw["urdf"] = {str(k): str(v) for k, v in d["urdf"].items()}
     except (TypeError, ValueError) as e:
         raise RobotDictError(f"{type(e).__name__}: {e}") from None
     try:

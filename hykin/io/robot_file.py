@@ -19,12 +19,16 @@ def list_presets() -> list[str]:
     return sorted(p.name[:-5] for p in files if p.name.endswith(".toml"))
 
 
-def load_robot(spec: str | Path | Robot) -> Robot:
+def load_robot(spec: str | Path | Robot, base_link: str | None = None, tip_link: str | None = None) -> Robot:
     """Load a robot from a preset name, a TOML robot file or a URDF file.
 
-    URDF files take their chain from the first to the last link of the longest serial chain;
-    use :func:`hykin.io.urdf.load_urdf` to name base and tip links explicitly.
+    URDF files take their chain from ``base_link`` (default: the root link) to ``tip_link`` (default:
+    the one tip; several tips are refused naming them), see :func:`hykin.io.urdf.load_urdf`.
+    ``base_link``/``tip_link`` given for a robot that is not a URDF file raise :class:`RobotFileError`.
     """
+    if (base_link is not None or tip_link is not None) and not str(spec).lower().endswith(".urdf"):
+        what = "a robot object" if isinstance(spec, Robot) else str(spec)
+        raise RobotFileError(f"{what}: --base/--tip (base_link/tip_link) name links of a URDF file; this is not one")
     if isinstance(spec, Robot):
         return spec
     s = str(spec)
@@ -33,7 +37,8 @@ def load_robot(spec: str | Path | Robot) -> Robot:
         return robot_from_toml_text(text, f"preset:{s.lower()}")
     p = Path(s)
     if p.suffix.lower() == ".urdf":
-        return load_urdf(p)
+        return load_urdf(p, base_link, tip_link)
     if p.suffix.lower() == ".toml" or p.exists():
         return load_robot_toml(p)
-    raise RobotFileError(f"{s}: not a preset ({', '.join(list_presets())}), and no such file")
+    raise RobotFileError(f"{s}: not a preset ({', '.join(list_presets())}), and no such file (for a virtual robot, "
+                         "use the NAME.nominal.toml that `hykin simulate` writes beside its data)")

@@ -148,6 +148,15 @@ def robot_from_dict(doc: dict, where: str = "<robot>") -> Robot:
         other = "mm" if lu == "m" else "m"
         raise RobotFileError(f"{where}: link lengths and tool add up to {size_m:.6g} m, implausible for a robot arm: "
                              f"the values look like {other} under length_unit = '{lu}' (set length_unit = '{other}')")
+    # Twists and joint offsets in degrees under angle_unit = 'rad' read as dozens of turns: no DH
+    # table needs a fixed angle beyond a full turn (a twist of 90 rad is 90 degrees written as rad).
+    if au == "rad":
+        fixed = np.abs(np.concatenate([cols["alpha"], cols["theta"], cols["beta"]]))
+        if fixed.size and fixed.max() > 2 * math.pi + 1e-9:
+            k = int(np.argmax(fixed)) % len(joints)
+            raise RobotFileError(f"{where}: joints[{k + 1}]: a twist or joint offset of {fixed.max():.6g} rad (more than "
+                                 f"a full turn) is implausible: the values look like degrees under angle_unit = 'rad' "
+                                 f"(set angle_unit = 'deg')")
     payload = _number(doc.get("payload", 0.0), f"{where}: payload")
     gravity = _vec3(doc["gravity"], f"{where}: gravity") if "gravity" in doc else np.array([0.0, 0.0, -9.81])
     return Robot(
@@ -191,23 +200,28 @@ def robot_from_toml_text(text: str, where: str) -> Robot:
     return robot_from_dict(doc, where)
 
 
-def robot_to_toml_string(robot: Robot) -> str:
-    """Serialise a DH/MDH robot to the TOML robot format (SI: m and deg for readability)."""
+def robot_to_toml_string(robot: Robot, length_unit: str = "m", angle_unit: str = "deg") -> str:
+    """Serialise a DH/MDH robot to the TOML robot format, lengths in ``length_unit`` ("m" or "mm"),
+    angles in ``angle_unit`` ("deg", the default for readability, or "rad")."""
     import tomli_w
+
+    if length_unit not in ("m", "mm") or angle_unit not in ("deg", "rad"):
+        raise RobotFileError(f"robot file units must be m/mm and deg/rad, got {length_unit!r}, {angle_unit!r}")
+    L = 1e3 if length_unit == "mm" else 1.0
+    deg = np.degrees if angle_unit == "deg" else (lambda x: x)
 
     if robot.convention not in ("dh", "mdh"):
         raise RobotFileError(f"robot {robot.name!r}: only DH/MDH robots can be saved as TOML (this one is {robot.convention})")
-    deg = np.degrees
     joints = []
     for i in range(robot.dof):
         prism = robot.joint_type[i] == "prismatic"
         j = {
-            "a": float(robot.a_m[i]),
+            "a": float(robot.a_m[i] * L),
             "alpha": float(deg(robot.alpha_rad[i])),
-            "d": float(robot.d_m[i]),
+            "d": float(robot.d_m[i] * L),
             "theta": float(deg(robot.theta_rad[i])),
-            "min": float(robot.lower[i] if prism else deg(robot.lower[i])),
-            "max": float(robot.upper[i] if prism else deg(robot.upper[i])),
+            "min": float(robot.lower[i] * L if prism else deg(robot.lower[i])),
+            "max": float(robot.upper[i] * L if prism else deg(robot.upper[i])),
         }
         if robot.beta_rad[i] != 0:
             j["beta"] = float(deg(robot.beta_rad[i]))
@@ -215,20 +229,20 @@ def robot_to_toml_string(robot: Robot) -> str:
             j["type"] = "prismatic"
         if robot.mass_kg[i] > 0:
             j["mass"] = float(robot.mass_kg[i])
-            j["com"] = [float(v) for v in robot.com_m[i]]
+            j["com"] = [float(v * L) for v in robot.com_m[i]]
         if np.isfinite(robot.stiffness_nm_per_rad[i]):
             j["stiffness"] = float(robot.stiffness_nm_per_rad[i])
         joints.append(j)
 
     def frame(T):
         xyz, rpy = se3.transform_to_xyzrpy(T)
-        return {"xyz": [float(v) for v in xyz], "rpy": [float(v) for v in np.degrees(rpy)]}
+        return {"xyz": [float(v * L) for v in xyz], "rpy": [float(v) for v in deg(rpy)]}
 
     doc = {
         "name": robot.name,
         "convention": robot.convention,
-        "length_unit": "m",
-        "angle_unit": "deg",
+        "length_unit": length_unit,
+        "angle_unit": angle_unit,
     }
     if robot.source:
         doc["source"] = robot.source

@@ -2,12 +2,19 @@
 
 * :func:`load_urdf` reads a URDF (standard library XML parser, no ROS needed) and returns a
   :class:`~hykin.kinematics.robot.Robot` with ``convention="urdf"``. The chain runs from ``base_link`` (default:
-  the root link) to ``tip_link`` (default: the leaf at the end of the chain with the most movable
-  joints). Revolute, continuous and prismatic joints become robot joints; fixed joints are folded into
+  the root link) to ``tip_link`` (default: the one tip; a URDF with several tips is refused naming
+  them, see :func:`_default_tip`). Revolute, continuous and prismatic joints become robot joints; fixed joints are folded into
   the next movable joint's origin, or into ``tool`` after the last movable joint. Link frame i is the
   child link of movable joint i; its mass and centre of mass (``mass_kg``, ``com_m``, link frame i)
   combine that link's ``<inertial>`` with every link fixed to it further down the chain.
-  Continuous joints get limits ``[-pi, pi]`` (every orientation once).
+  Continuous joints get limits ``[-pi, pi]`` (every orientation once): sampling, network input
+  normalisation and IK use that range (IK answers within it); measured joints outside it are
+  accepted (the FK is 2π-periodic).
+  ``<mimic joint multiplier offset>`` joints stay in the chain but are no robot input: their value is
+  ``multiplier · leader + offset`` (:attr:`Robot.mimic`); ``Robot.dof`` counts the independent joints
+  and ``lower``/``upper`` are theirs (a mimic joint's own ``<limit>`` is not used). The URDF text,
+  base and tip links are kept in ``Robot.urdf`` so that :func:`calibrated_urdf_xml` can write a
+  calibrated robot back into the maker's file.
 * :func:`robot_to_urdf` writes any robot (DH, MDH or URDF) as a URDF serial chain with the same
   forward kinematics: ``base`` and ``tool`` become fixed joints, each joint i becomes a movable joint
   (child link ``joint_i_frame``, z = joint axis) followed by a fixed joint to ``link_i`` (hykin link
@@ -28,7 +35,7 @@ import numpy as np
 from ..geometry import se3
 from ..kinematics.robot import Robot, RobotFileError
 
-__all__ = ["calibrated_urdf", "load_urdf", "load_urdf_string", "robot_to_urdf"]
+__all__ = ["calibrated_robot_urdf", "calibrated_urdf", "load_urdf", "load_urdf_string", "robot_to_urdf"]
 
 _MOVABLE = ("revolute", "continuous", "prismatic")
 
@@ -158,6 +165,13 @@ def load_urdf_string(
                 if lo > hi:
                     raise RobotFileError(f"{w} <limit>: lower > upper")
                 info["limits"] = (lo, hi)
+            mim = el.find("mimic")
+            if mim is not None:
+                _check_attrs(mim, ("joint", "multiplier", "offset"), f"{w} <mimic>")
+                if not mim.get("joint"):
+                    raise RobotFileError(f"{w} <mimic>: missing attribute 'joint'")
+                info["mimic"] = (mim.get("joint"), _float_attr(mim, "multiplier", f"{w} <mimic>", False, 1.0),
+                                 _float_attr(mim, "offset", f"{w} <mimic>", False, 0.0))
         joints[child] = info
 
     children: dict[str, list[str]] = {}
@@ -181,19 +195,7 @@ def load_urdf_string(
         return chain[::-1]
 
     if tip_link is None:
-        leaves, stack = [], [base_link]
-        while stack:  # depth-first over the tree below base_link
-            ln = stack.pop()
-            kids = children.get(ln, [])
-            if not kids:
-                leaves.append(ln)
-            stack.extend(kids)
-        score = {lf: (sum(j["type"] in _MOVABLE for j in path_to(lf)), len(path_to(lf))) for lf in leaves}
-        best = max(score.values())
-        cands = sorted(lf for lf, s in score.items() if s == best)
-        if len(cands) > 1:
-            raise RobotFileError(f"{where}: several chain ends {cands} are equally long; name tip_link")
-        tip_link = cands[0]
+        tip_link = _default_tip(base_link, children, joints, path_to, where)
     elif tip_link not in links:
         raise RobotFileError(f"{where}: tip_link '{tip_link}' is not a link")
     chain = path_to(tip_link)
@@ -234,6 +236,10 @@ def load_urdf_string(
         names.append(j["name"])
     if not origins:
         raise RobotFileError(f"{where}: no movable joint between '{base_link}' and '{tip_link}'")
+    mimic = _mimic_table([j for j in chain if j["type"] != "fixed"], {j["name"]: j for j in joints.values()},
+                         base_link, tip_link, where)
+    indep = [i for i in range(len(names)) if mimic[i, 0] < 0]
+    lower, upper = [lower[i] for i in indep], [upper[i] for i in indep]
     origins = np.array(origins)
     xyz, rpy = se3.transform_to_xyzrpy(origins)
     n = len(origins)
@@ -254,7 +260,79 @@ def load_urdf_string(
         com_m=np.array(coms),
         tool=pending,
         source=f"URDF {where}: chain {base_link} -> {tip_link}, joints {', '.join(names)}",
+        mimic=mimic,
+        joint_names=tuple(names),
+        urdf={"xml": text, "base_link": base_link, "tip_link": tip_link,
+              "continuous": " ".join(j["name"] for j in chain if j["type"] == "continuous")},
     )
+
+
+def _default_tip(base_link: str, children: dict, joints: dict, path_to, where: str) -> str:
+    """The chain end below ``base_link`` when no tip is named: the one tip, where a *tip* is a leaf
+    link whose own branch (from the last link with several children) holds a movable joint; a
+    dead-end branch of fixed joints only (a camera or sensor frame bolted to a link) is no tip.
+    Several tips: refused in one line naming them. Only dead ends: the one with most movable joints."""
+    leaves, stack = [], [base_link]
+    while stack:  # depth-first over the tree below base_link
+        ln = stack.pop()
+        kids = children.get(ln, [])
+        if not kids:
+            leaves.append(ln)
+        stack.extend(kids)
+    if len(leaves) == 1:
+        return leaves[0]
+
+    def own_branch_moves(leaf: str) -> bool:
+        ln = leaf
+        while ln != base_link and len(children.get(joints[ln]["parent"], [])) == 1:
+            if joints[ln]["type"] in _MOVABLE:
+                return True
+            ln = joints[ln]["parent"]
+        return ln != base_link and joints[ln]["type"] in _MOVABLE
+
+    tips = sorted(lf for lf in leaves if own_branch_moves(lf))
+    if len(tips) == 1:
+        return tips[0]
+    if len(tips) > 1:
+        raise RobotFileError(f"{where}: several tips ({', '.join(tips)}) below '{base_link}'; name tip_link "
+                             f"(--tip LINK on the command line)")
+    score = {lf: (sum(j["type"] in _MOVABLE for j in path_to(lf)), len(path_to(lf))) for lf in leaves}
+    best = max(score.values())
+    cands = sorted(lf for lf, s in score.items() if s == best)
+    if len(cands) > 1:
+        raise RobotFileError(f"{where}: several chain ends ({', '.join(cands)}) are equally long; name tip_link "
+                             f"(--tip LINK on the command line)")
+    return cands[0]
+
+
+def _mimic_table(movable: list[dict], by_name: dict, base_link: str, tip_link: str, where: str) -> np.ndarray:
+    """``(n, 3)`` ``[leader chain index or -1, multiplier, offset]`` of the chain's movable joints
+    (:attr:`Robot.mimic`). A mimic of a mimic is resolved to the independent joint at its root; a
+    leader off the chain, an unknown joint or a cycle is refused naming the joint."""
+    index = {j["name"]: i for i, j in enumerate(movable)}
+    out = np.zeros((len(movable), 3))
+    out[:, 0] = -1.0
+    for i, j in enumerate(movable):
+        mult, off, cur, seen = 1.0, 0.0, j, {j["name"]}
+        while "mimic" in cur:
+            lead, m, o = cur["mimic"]
+            w = f"{where}: joint '{cur['name']}' <mimic joint='{lead}'>"
+            if lead not in by_name:
+                raise RobotFileError(f"{w}: no joint of that name")
+            if lead in seen:
+                raise RobotFileError(f"{w}: mimic joints form a cycle")
+            if by_name[lead]["type"] not in _MOVABLE:
+                raise RobotFileError(f"{w}: the leader is a fixed joint")
+            mult, off = mult * m, mult * o + off  # q = m (m_l q_root + o_l) + o
+            cur = by_name[lead]
+            seen.add(lead)
+        if cur is j:
+            continue
+        if cur["name"] not in index:
+            raise RobotFileError(f"{where}: joint '{j['name']}' mimics '{cur['name']}', which is not on the chain "
+                                 f"'{base_link}' -> '{tip_link}' (choose --base/--tip to include it)")
+        out[i] = (index[cur["name"]], mult, off)
+    return out
 
 
 def _fmt(v) -> str:
@@ -276,13 +354,18 @@ def robot_to_urdf(robot: Robot) -> str:
     from ..kinematics.chain import chain_of
 
     ch = chain_of(robot)
+    lo, hi, mim = robot.lower, robot.upper, ""
+    ex = robot.expansion()
+    if ex is not None:  # chain-joint limits of mimic joints from their leaders'
+        idx, mult, off = ex
+        lo, hi = np.minimum(mult * lo[idx], mult * hi[idx]) + off, np.maximum(mult * lo[idx], mult * hi[idx]) + off
     out = [f'<?xml version="1.0"?>\n<robot name="{robot.name}">', '  <link name="world"/>', '  <link name="base_link"/>']
     out.append(
         f'  <joint name="base_joint" type="fixed"><parent link="world"/><child link="base_link"/>'
         f"{_origin_xml(robot.base)}</joint>"
     )
     parent = "base_link"
-    for i in range(robot.dof):
+    for i in range(robot.n_chain):
         k = i + 1
         jt = "prismatic" if robot.joint_type[i] == "prismatic" else "revolute"
         out.append(f'  <link name="joint_{k}_frame"/>')
@@ -293,10 +376,15 @@ def robot_to_urdf(robot: Robot) -> str:
                 '<inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial>'
             )
         out.append(f'  <link name="link_{k}">{inert}</link>')
+        if robot.mimic is not None and robot.mimic[i, 0] >= 0:
+            mim = (f'<mimic joint="joint_{int(robot.mimic[i, 0]) + 1}" multiplier="{float(robot.mimic[i, 1])!r}" '
+                   f'offset="{float(robot.mimic[i, 2])!r}"/>')
+        else:
+            mim = ""
         out.append(
             f'  <joint name="joint_{k}" type="{jt}"><parent link="{parent}"/><child link="joint_{k}_frame"/>'
             f'{_origin_xml(ch.pre[i])}<axis xyz="0 0 1"/>'
-            f'<limit lower="{float(robot.lower[i])!r}" upper="{float(robot.upper[i])!r}" effort="0" velocity="0"/></joint>'
+            f'<limit lower="{float(lo[i])!r}" upper="{float(hi[i])!r}" effort="0" velocity="0"/>{mim}</joint>'
         )
         out.append(
             f'  <joint name="link_{k}_fixed" type="fixed"><parent link="joint_{k}_frame"/><child link="link_{k}"/>'
@@ -312,17 +400,94 @@ def robot_to_urdf(robot: Robot) -> str:
     return "\n".join(out)
 
 
+def calibrated_robot_urdf(robot: Robot) -> tuple[str, str]:
+    """URDF text of a calibrated ``robot`` and what a URDF cannot carry (``""`` when nothing).
+
+    A robot read from a URDF (``robot.urdf`` set) is written back into the maker's file: every joint,
+    link, mimic tag, limit and side branch is kept; only the origins change: movable chain joint i gets
+    ``inv(P_i) · O_i`` (``O_i`` the calibrated origin, ``P_i`` the fixed joints folded into it on
+    loading), the last fixed joint before the tip takes the calibrated tool (a fixed joint to a new
+    link ``<tip>_tcp`` when the chain ends in a movable joint), and a calibrated base frame becomes a
+    fixed joint from a new root link ``measurement_frame`` (when ``base_link`` is the URDF's root).
+    Loading the result with the same tip gives the same FK to rounding. Any other robot:
+    :func:`robot_to_urdf`. Joint compliance (finite stiffness) cannot be carried; it is named.
+    """
+    left = "joint compliance" if robot.has_compliance else ""
+    if robot.convention != "urdf" or not robot.urdf or robot.joint_names is None:
+        return robot_to_urdf(robot.copy(stiffness_nm_per_rad=np.full(robot.n_chain, np.inf))), left
+    return _patched_urdf(robot), left
+
+
+def _set_origin(el: ET.Element, T: np.ndarray) -> None:
+    o = el.find("origin")
+    if o is None:
+        o = ET.SubElement(el, "origin")
+    xyz, rpy = se3.transform_to_xyzrpy(np.asarray(T, dtype=np.float64))
+    o.attrib.clear()
+    o.set("xyz", _fmt(xyz))
+    o.set("rpy", _fmt(rpy))
+
+
+def _patched_urdf(robot: Robot) -> str:
+    u = robot.urdf
+    root = ET.fromstring(u["xml"], parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True)))  # keep comments
+    by_child = {}
+    for el in root.findall("joint"):
+        by_child[el.find("child").get("link")] = el
+    path, ln = [], u["tip_link"]
+    while ln != u["base_link"]:
+        path.append(by_child[ln])
+        ln = path[-1].find("parent").get("link")
+    path = path[::-1]
+    O = se3.xyzrpy_to_transform(robot.origin_xyz_m, robot.origin_rpy_rad)
+    names = list(robot.joint_names)
+    pending, tail = np.eye(4), []
+    for el in path:
+        if el.get("type") == "fixed":
+            pending = pending @ _origin(el, "")
+            tail.append(el)
+            continue
+        i = names.index(el.get("name"))
+        _set_origin(el, se3.invert(pending) @ O[i])
+        pending, tail = np.eye(4), []
+    if not np.allclose(robot.tool, pending, rtol=0.0, atol=0.0):
+        if tail:
+            before = np.eye(4)
+            for el in tail[:-1]:
+                before = before @ _origin(el, "")
+            _set_origin(tail[-1], se3.invert(before) @ robot.tool)
+        else:
+            tcp = f"{u['tip_link']}_tcp"
+            ET.SubElement(root, "link", name=tcp)
+            j = ET.SubElement(root, "joint", name=f"{tcp}_joint", type="fixed")
+            ET.SubElement(j, "parent", link=u["tip_link"])
+            ET.SubElement(j, "child", link=tcp)
+            _set_origin(j, robot.tool)
+    if not np.array_equal(robot.base, np.eye(4)):
+        if u["base_link"] in by_child:
+            raise RobotFileError(f"robot {robot.name!r}: the calibrated base frame cannot be written above "
+                                 f"'{u['base_link']}', which is not the URDF's root")
+        ET.SubElement(root, "link", name="measurement_frame")
+        j = ET.SubElement(root, "joint", name="measurement_frame_to_base", type="fixed")
+        ET.SubElement(j, "parent", link="measurement_frame")
+        ET.SubElement(j, "child", link=u["base_link"])
+        _set_origin(j, robot.base)
+    ET.indent(root)
+    return '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
 def calibrated_urdf(model) -> tuple[str, str]:
     """URDF of a fitted hybrid model's calibrated classical robot, and what a URDF cannot carry.
 
-    The calibrated geometry and joint offsets go into the joint origins (:func:`robot_to_urdf`), the
-    calibrated base (with the model's registration frame ``frame_pre``) into ``base_joint`` and the
-    tool (with ``frame_post``) into ``tool_joint``. Joint compliance, thermal expansion and the
+    The calibrated geometry and joint offsets go into the joint origins (:func:`calibrated_robot_urdf`:
+    the maker's URDF for a robot read from one, else :func:`robot_to_urdf`), the calibrated base (with
+    the model's registration frame ``frame_pre``) into a fixed joint above the base link and the tool
+    (with ``frame_post``) into the last fixed joint. Joint compliance, thermal expansion and the
     residual networks are not representable; the second item names those the model has.
     """
     rob = model.robot_
     rob = rob.copy(base=model.frame_pre_ @ rob.base, tool=rob.tool @ model.frame_post_, name=f"{rob.name}-calibrated",
-                   stiffness_nm_per_rad=np.full(rob.dof, np.inf))
+                   stiffness_nm_per_rad=np.full(rob.n_chain, np.inf))
     left = []
     if model.robot_.has_compliance:
         left.append("joint compliance")
@@ -331,4 +496,4 @@ def calibrated_urdf(model) -> tuple[str, str]:
         left.append("thermal expansion")
     if getattr(model, "net_pos_", None) is not None:
         left.append("the residual networks")
-    return robot_to_urdf(rob), ", ".join(left) or "nothing"
+    return calibrated_robot_urdf(rob)[0], ", ".join(left) or "nothing"

@@ -36,7 +36,10 @@ class Chain:
     """Fixed transforms of a chain (numpy float64 or torch tensors).
 
     pre, post: ``(n, 4, 4)``; fixed: ``(n + 1, 4, 4)`` fused transforms; prismatic: ``(n,)`` bool.
-    base, tool: ``(4, 4)``.
+    base, tool: ``(4, 4)``. ``n`` counts chain joints (mimic joints included).
+    expand: None, or ``(index (n,) int, multiplier (n,), offset (n,))`` numpy arrays mapping the
+    robot's independent joints onto the chain joints (URDF ``<mimic>``; see
+    :func:`hykin.kinematics.walk.expand_joints`).
     """
 
     pre: Any
@@ -45,9 +48,12 @@ class Chain:
     base: Any
     tool: Any
     prismatic: np.ndarray
+    expand: tuple | None = None
+    n_independent: int | None = None  # the robot's independent joints (``Robot.dof``)
 
     @property
     def dof(self) -> int:
+        """Number of chain joints (mimic joints included)."""
         return int(self.prismatic.shape[0])
 
 
@@ -63,7 +69,7 @@ def geometry_of(robot: Robot) -> dict[str, np.ndarray]:
     if robot.convention == "urdf":
         origin = se3.xyzrpy_to_transform(robot.origin_xyz_m, robot.origin_rpy_rad)
     else:
-        origin = np.tile(np.eye(4), (robot.dof, 1, 1))
+        origin = np.tile(np.eye(4), (robot.n_chain, 1, 1))
     return {
         "a": robot.a_m.copy(),
         "alpha": robot.alpha_rad.copy(),
@@ -124,7 +130,7 @@ def build_chain(robot: Robot, geom: dict | None = None, xp=np) -> Chain:
         g = {k: np.asarray(v, dtype=np.float64) for k, v in g.items()}
     prism = np.array([t == "prismatic" for t in robot.joint_type])
     E = lambda kind, v: _elem(xp, kind, v)
-    n = robot.dof
+    n = robot.n_chain
     if robot.convention == "dh":
         # Rz(θ) [Tz(d) if prismatic] · J · [Tz(d) if revolute] Tx(a) Rx(α) Ry(β)
         d_pre = g["d"] * _as(xp, prism, g["d"])
@@ -147,7 +153,8 @@ def build_chain(robot: Robot, geom: dict | None = None, xp=np) -> Chain:
     base, tool = g["base"], g["tool"]
     cat = np.concatenate if xp is np else xp.cat
     fixed = cat([(base @ pre[0])[None], post[:-1] @ pre[1:], (post[n - 1] @ tool)[None]], 0)
-    return Chain(pre=pre, post=post, fixed=fixed, base=base, tool=tool, prismatic=prism)
+    return Chain(pre=pre, post=post, fixed=fixed, base=base, tool=tool, prismatic=prism, expand=robot.expansion(),
+                 n_independent=robot.dof)
 
 
 def _as(xp, mask: np.ndarray, like):
@@ -159,7 +166,7 @@ def _as(xp, mask: np.ndarray, like):
 # Fields whose *objects* key the chain cache (see :func:`chain_of`).
 _GEOMETRY_FIELDS = (
     "convention", "joint_type", "a_m", "alpha_rad", "d_m", "theta_rad", "beta_rad", "origin_xyz_m",
-    "origin_rpy_rad", "axis", "base", "tool",
+    "origin_rpy_rad", "axis", "base", "tool", "mimic",
 )
 _get_geometry = operator.itemgetter(*_GEOMETRY_FIELDS)  # applied to robot.__dict__ (C-level lookups)
 
@@ -169,7 +176,7 @@ def chain_of(robot: Robot) -> Chain:
 
     Cache rule: the cache is keyed on the *identity* of the robot's geometry fields (``convention``,
     ``joint_type``, ``a_m``, ``alpha_rad``, ``d_m``, ``theta_rad``, ``beta_rad``, ``origin_xyz_m``,
-    ``origin_rpy_rad``, ``axis``, ``base``, ``tool``), which makes a cache hit cost well under a
+    ``origin_rpy_rad``, ``axis``, ``base``, ``tool``, ``mimic``), which makes a cache hit cost well under a
     microsecond. Assigning a new array to a field (``robot.d_m = d2``) or ``robot.copy(...)`` gives a new
     chain. So that a stale chain can never be returned, the cached robot's geometry arrays are made
     read-only: in-place edits (``robot.d_m[0] += 1e-3``) raise ``ValueError`` instead of being missed;

@@ -24,6 +24,10 @@ Everything is vectorised over ``(N, n)`` joint arrays and float64; numpy and tor
 numbers to rounding. The numpy path runs compiled (numba) per-sample kernels, ~0.5 M torque
 evaluations/s per core; the array-namespace code (:func:`_gravity_torques_xp`) serves torch and
 is the numpy fallback without numba.
+
+Mimic joints (URDF ``<mimic>``): each chain joint is a spring of its own, so torques, compliance,
+stiffness and deflected joints are per chain joint (``n = robot.n_chain``); the joints given may be
+the independent ones (expanded by :func:`hykin.kinematics.walk.expand_joints`) or chain joints.
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ import numpy as np
 from .chain import Chain, chain_of
 from .fk import HAVE_NUMBA, fk, fk_torch
 from .robot import Robot
-from .walk import chain_walk
+from .walk import chain_walk, expand_joints
 
 if HAVE_NUMBA:
     import numba
@@ -54,6 +58,12 @@ __all__ = [
 
 TOL_RAD = 1e-13
 MAX_ITER = 12
+# Acceptance after MAX_ITER steps (the 1e-13 target can sit below the rounding floor of large
+# torques or of a prismatic column's metres): the last update is at most CONVERGED_ATOL (rad, or m
+# for a prismatic joint: 1 nrad moves a 3 m arm's TCP by 3 nm) plus CONVERGED_RTOL times the
+# deflection itself. A joint too soft for an equilibrium diverges by orders of magnitude more.
+CONVERGED_ATOL = 1e-9
+CONVERGED_RTOL = 1e-6
 
 
 class ComplianceError(ValueError):
@@ -178,6 +188,9 @@ if HAVE_NUMBA:
                            b * chunk, min(N, (b + 1) * chunk))
 
 
+    #: public name of the one-sample deflection kernel (the fast hybrid kernel of hykin.hybrid calls it)
+    deflect_one = _deflect_one
+
 _PARALLEL_MIN = 5_000  # below this, starting threads costs more than it saves
 
 
@@ -257,9 +270,9 @@ def _check_q(robot: Robot, q, xp):
         q = np.asarray(q, dtype=np.float64)
     elif not _is_torch(q):
         q = xp.as_tensor(np.array(q, dtype=np.float64))
-    if q.ndim != 2 or q.shape[1] != robot.dof:
+    if q.ndim != 2 or q.shape[1] not in (robot.dof, robot.n_chain):
         raise ComplianceError(f"joints must have shape (N, {robot.dof}), got {tuple(q.shape)}")
-    return q
+    return expand_joints(xp, chain_of(robot), q)  # chain joints (mimic joints expanded)
 
 
 def _mass_terms(robot: Robot, links, tcp, base, xp, like, payload=None):
@@ -323,7 +336,7 @@ def _gravity_torques_xp(robot: Robot, q, chain: Chain | None, xp, payload=None):
             M = xp.cross(c, F, dim=-1)
             Fs = xp.flip(xp.cumsum(xp.flip(F, [1]), 1), [1])
             Ms = xp.flip(xp.cumsum(xp.flip(M, [1]), 1), [1])
-        Fs_n = Fs[:, : robot.dof]
+        Fs_n = Fs[:, : robot.n_chain]
     else:
         F = m[:, None] * g[None, :]  # (n+1, 3) forces
         if xp is np:
@@ -334,8 +347,8 @@ def _gravity_torques_xp(robot: Robot, q, chain: Chain | None, xp, payload=None):
             M = xp.cross(c, F[None].expand_as(c), dim=-1)
             Fs = xp.flip(xp.cumsum(xp.flip(F, [0]), 0), [0])
             Ms = xp.flip(xp.cumsum(xp.flip(M, [1]), 1), [1])
-        Fs_n = Fs[None, : robot.dof]  # (1, n, 3)
-    n = robot.dof
+        Fs_n = Fs[None, : robot.n_chain]  # (1, n, 3)
+    n = robot.n_chain
     z = joints[..., :3, 2]  # (N, n, 3)
     o = joints[..., :3, 3]
     # moment about o_i of the forces beyond joint i: sum (c_j - o_i) x F_j = Ms_i - o_i x Fs_i
@@ -369,6 +382,12 @@ def potential_energy(robot: Robot, q, payload_kg=None, payload_com_m=None) -> np
     return -np.einsum("nji,j,i->n", c, m, g)
 
 
+def kernel_args(robot: Robot, N: int = 1) -> tuple:
+    """Arguments ``(fixed, post, ppt (N, 3), prismatic, com, mass, payload_kg (N,), g)`` of the compiled
+    gravity and deflection kernels for the robot's own payload."""
+    return _kernel_args(robot, None, N)
+
+
 def compliance_of(robot: Robot) -> np.ndarray:
     """``(n,)`` joint compliance ``1 / stiffness`` (rad/N·m; m/N prismatic); infinite stiffness -> 0."""
     k = np.asarray(robot.stiffness_nm_per_rad, dtype=np.float64)
@@ -397,16 +416,16 @@ def deflected_joints(robot: Robot, q, compliance=None, chain: Chain | None = Non
         compliance = compliance_of(robot)
     if xp is np:
         C = np.asarray(compliance, dtype=np.float64)
-        if C.shape != (robot.dof,) or not np.all(np.isfinite(C)) or np.any(C < 0):
-            raise ComplianceError(f"compliance must be ({robot.dof},) finite and >= 0, got {C}")
+        if C.shape != (robot.n_chain,) or not np.all(np.isfinite(C)) or np.any(C < 0):
+            raise ComplianceError(f"compliance must be ({robot.n_chain},) finite and >= 0, got {C}")
         if not np.any(C):
             return q.copy()
     else:
         C = compliance if _is_torch(compliance) else xp.as_tensor(
             np.array(compliance, dtype=np.float64), dtype=q.dtype, device=q.device
         )
-        if C.shape != (robot.dof,):
-            raise ComplianceError(f"compliance must have shape ({robot.dof},), got {tuple(C.shape)}")
+        if C.shape != (robot.n_chain,):
+            raise ComplianceError(f"compliance must have shape ({robot.n_chain},), got {tuple(C.shape)}")
         if not C.requires_grad and not bool((C != 0).any()):
             return q.clone()
     if xp is np and HAVE_NUMBA:
@@ -416,7 +435,10 @@ def deflected_joints(robot: Robot, q, compliance=None, chain: Chain | None = Non
             *_kernel_args(robot, chain, q.shape[0], payload), np.ascontiguousarray(C), np.ascontiguousarray(q), int(iterations), MAX_ITER,
             TOL_RAD, out, steps,
         )
-        _check_converged(robot, float(steps.max()) if steps.size else 0.0)
+        if steps.size:
+            excess = steps - CONVERGED_RTOL * np.abs(out - q).max(axis=1)
+            k = int(np.argmax(excess))
+            _check_converged(robot, float(steps[k]), float(np.abs(out[k] - q[k]).max()))
         return out
     q_eff = q
     step = float("inf")
@@ -429,16 +451,20 @@ def deflected_joints(robot: Robot, q, compliance=None, chain: Chain | None = Non
         q_eff = new
         if it + 1 >= iterations and step < TOL_RAD:
             return q_eff
-    _check_converged(robot, step)
+    defl = q_eff - q
+    _check_converged(robot, step, float(np.max(np.abs(defl))) if xp is np else float(defl.detach().abs().max()))
     return q_eff
 
 
-def _check_converged(robot: Robot, step: float) -> None:
-    if step < 1e-10:  # the 1e-13 target can sit below the rounding floor of very large torques
+def _check_converged(robot: Robot, step: float, deflection: float = 0.0) -> None:
+    """Raise unless the last fixed-point update ``step`` is negligible: at most
+    :data:`CONVERGED_ATOL` + :data:`CONVERGED_RTOL` x ``deflection`` (the largest joint deflection of
+    that sample, rad or m)."""
+    if step <= CONVERGED_ATOL + CONVERGED_RTOL * deflection:
         return
     raise ComplianceError(
-        f"robot {robot.name!r}: joint deflection did not converge (last update {step:.3g} rad); "
-        "the joints are too soft for a static equilibrium near the commanded pose"
+        f"robot {robot.name!r}: joint deflection did not converge (last update {step:.3g} rad or m for a "
+        f"deflection of {deflection:.3g}); the joints are too soft for a static equilibrium near the commanded pose"
     )
 
 

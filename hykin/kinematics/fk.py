@@ -22,17 +22,19 @@ import numpy as np
 
 from .chain import Chain, chain_of
 from .robot import Robot
-from .walk import HAVE_NUMBA, chain_walk
+from .walk import HAVE_NUMBA, chain_walk, expand_joints, reduce_columns
 
 __all__ = ["HAVE_NUMBA", "FKFrames", "fk", "fk_chain", "fk_frames", "fk_torch", "jacobian"]
 
 
-def _as_joints(robot_dof: int, q) -> tuple[np.ndarray, bool]:
+def _as_joints(robot: Robot, q) -> tuple[np.ndarray, bool]:
+    """``(N, dof)`` float64 joints (independent; or ``(N, n_chain)`` chain joints of a robot with mimic
+    joints) and whether ``q`` was a single row."""
     q = np.asarray(q, dtype=np.float64)
     single = q.ndim == 1
     q2 = np.ascontiguousarray(q.reshape(1, -1) if single else q)
-    if q2.ndim != 2 or q2.shape[1] != robot_dof:
-        raise ValueError(f"joints must have shape (N, {robot_dof}) or ({robot_dof},), got {q.shape}")
+    if q2.ndim != 2 or q2.shape[1] not in (robot.dof, robot.n_chain):
+        raise ValueError(f"joints must have shape (N, {robot.dof}) or ({robot.dof},), got {q.shape}")
     return q2, single
 
 
@@ -85,7 +87,7 @@ def fk_chain(chain: Chain, q: np.ndarray) -> np.ndarray:
     """FK of a numpy :class:`Chain` for ``q`` ``(N, dof)`` (contiguous float64) -> ``(N, 4, 4)``."""
     fixed = np.ascontiguousarray(chain.fixed, dtype=np.float64)
     prism = np.ascontiguousarray(chain.prismatic, dtype=np.bool_)
-    q = np.ascontiguousarray(q, dtype=np.float64)
+    q = np.ascontiguousarray(expand_joints(np, chain, np.asarray(q, dtype=np.float64)))
     if not HAVE_NUMBA:
         return chain_walk(np, chain, q)
     out = np.empty((q.shape[0], 4, 4))
@@ -114,7 +116,9 @@ def fk(robot: Robot, q) -> np.ndarray:
                 if not _ONE_ENTRY and q.strides[0] == 8:
                     _ONE_ENTRY.extend(_native_entry(fixed, ch.prismatic, q, out))
             return out
-    q2, single = _as_joints(robot.dof, q)
+        if ch.expand is not None and q.shape[0] == ch.n_independent:  # mimic joints: the same fast path
+            return fk(robot, expand_joints(np, ch, q))
+    q2, single = _as_joints(robot, q)
     T = fk_chain(ch, q2)
     return T[0] if single else T
 
@@ -143,7 +147,8 @@ def _native_entry(fixed, prismatic, q, out) -> list:
 class FKFrames:
     """All frames of a batch, world coordinates, float64.
 
-    joint: ``(N, n, 4, 4)`` joint frames (z = joint axis, origin on the axis).
+    joint: ``(N, n, 4, 4)`` joint frames (z = joint axis, origin on the axis); ``n`` = chain joints
+    (``robot.n_chain``, mimic joints included).
     link: ``(N, n, 4, 4)`` link frames (DH/MDH frame i, URDF child link i); ``link[:, -1]`` is the flange.
     tcp: ``(N, 4, 4)`` TCP = flange · tool.
     """
@@ -155,7 +160,7 @@ class FKFrames:
 
 def fk_frames(robot: Robot, q) -> FKFrames:
     """Joint frames, link frames and TCP for ``q`` ``(N, dof)`` (see :class:`FKFrames`)."""
-    q2, _ = _as_joints(robot.dof, q)
+    q2, _ = _as_joints(robot, q)
     j, l, t = chain_walk(np, chain_of(robot), q2, frames=True)
     return FKFrames(joint=j, link=l, tcp=t)
 
@@ -164,9 +169,10 @@ def jacobian(robot: Robot, q, frames: FKFrames | None = None) -> np.ndarray:
     """Geometric Jacobian of the TCP, ``(N, 6, dof)``, rows ``[v (m per unit); ω (rad per unit)]``.
 
     World-frame velocities of the TCP point: column i is ``[z_i × (p − o_i); z_i]`` for a revolute
-    joint and ``[z_i; 0]`` for a prismatic one.
+    joint and ``[z_i; 0]`` for a prismatic one; a mimic joint's column adds to its leader's, times
+    its multiplier (:func:`~hykin.kinematics.walk.reduce_columns`).
     """
-    q2, single = _as_joints(robot.dof, q)
+    q2, single = _as_joints(robot, q)
     fr = fk_frames(robot, q2) if frames is None else frames
     z = fr.joint[..., :3, 2]  # (N, n, 3)
     o = fr.joint[..., :3, 3]
@@ -174,7 +180,7 @@ def jacobian(robot: Robot, q, frames: FKFrames | None = None) -> np.ndarray:
     prism = np.asarray([t == "prismatic" for t in robot.joint_type])
     Jv = np.where(prism[None, :, None], z, np.cross(z, p - o))
     Jw = np.where(prism[None, :, None], 0.0, z)
-    J = np.concatenate([Jv, Jw], axis=-1).transpose(0, 2, 1)
+    J = reduce_columns(chain_of(robot), np.concatenate([Jv, Jw], axis=-1).transpose(0, 2, 1))
     return J[0] if single else J
 
 
@@ -195,6 +201,6 @@ def fk_torch(robot: Robot, q, chain: Chain | None = None, frames: bool = False):
         conv = lambda x: torch.as_tensor(x, dtype=q.dtype, device=q.device)
         chain = Chain(
             pre=conv(ch.pre), post=conv(ch.post), fixed=conv(ch.fixed), base=conv(ch.base),
-            tool=conv(ch.tool), prismatic=ch.prismatic,
+            tool=conv(ch.tool), prismatic=ch.prismatic, expand=ch.expand, n_independent=ch.n_independent,
         )
     return chain_walk(torch, chain, q, frames=frames)

@@ -130,6 +130,55 @@ if HAVE_NUMBA:
             dq[a] = s / L[a, a]
         return True
 
+    @numba.njit(cache=True, nogil=True)
+    def normal_equations_one(J, e, m, A, g):  # pragma: no cover - compiled
+        """``g = Jᵀ e`` and the lower triangle of ``A = JᵀJ`` over the first ``m`` rows; returns trace(A)."""
+        n = g.shape[0]
+        tr = 0.0
+        for a in range(n):
+            s = 0.0
+            for r in range(m):
+                s += J[r, a] * e[r]
+            g[a] = s
+            for b in range(a + 1):
+                s = 0.0
+                for r in range(m):
+                    s += J[r, a] * J[r, b]
+                A[a, b] = s
+            tr += A[a, a]
+        return tr
+
+    @numba.njit(cache=True, nogil=True)
+    def projected_solve(A, g, lam, q, lower, upper, frozen, dq, L, rhs):  # pragma: no cover - compiled
+        """Active-set projected step ``dq`` of ``(A + lam I) dq = g`` in the box: joints whose step would
+        leave it are moved onto the bound and frozen, the others re-solved (up to n passes). False when
+        the damped matrix is not positive definite."""
+        n = g.shape[0]
+        for i in range(n):
+            frozen[i] = False
+        okc = True
+        for _pass in range(n + 1):
+            okc = _masked_solve(A, g, lam, frozen, dq, L, rhs)
+            if not okc:
+                break
+            new = False
+            for i in range(n):
+                if not frozen[i]:
+                    if q[i] + dq[i] > upper[i]:
+                        frozen[i] = True
+                        dq[i] = upper[i] - q[i]
+                        new = True
+                    elif q[i] + dq[i] < lower[i]:
+                        frozen[i] = True
+                        dq[i] = lower[i] - q[i]
+                        new = True
+            if not new:
+                break
+        return okc
+
+    #: public name of the one-target residual (the hybrid LM kernel of hykin.hybrid uses it)
+    pose_residual_one = _residual
+
     # The rule of hykin.kinematics.lm.lm_solve (damping="identity", active-set projection, accept on a
     # cost decrease, λ/10 floored at 1e-12 or 10 λ, stop at λ > 1e10), compiled per target: a rejected
     # step is retried with the larger λ at once (same Jacobian), so `it` counts Jacobians, not trials.
@@ -176,40 +225,10 @@ if HAVE_NUMBA:
                     J[1, i] = z[i, 2] * dx - z[i, 0] * dz
                     J[2, i] = z[i, 0] * dy - z[i, 1] * dx
                     J[3, i], J[4, i], J[5, i] = z[i, 0], z[i, 1], z[i, 2]
-            for a in range(n):
-                s = 0.0
-                for r in range(m):
-                    s += J[r, a] * e[r]
-                g[a] = s
-                for b in range(a + 1):
-                    s = 0.0
-                    for r in range(m):
-                        s += J[r, a] * J[r, b]
-                    A[a, b] = s
+            normal_equations_one(J, e, m, A, g)
             accepted = False
             while not accepted:
-                # Active-set projected step: joints whose step would leave the limits are moved to
-                # the limit and frozen; the others are re-solved to compensate (up to n passes).
-                for i in range(n):
-                    frozen[i] = False
-                okc = True
-                for _pass in range(n + 1):
-                    okc = _masked_solve(A, g, lam, frozen, dq, L, rhs)
-                    if not okc:
-                        break
-                    new = False
-                    for i in range(n):
-                        if not frozen[i]:
-                            if q[i] + dq[i] > upper[i]:
-                                frozen[i] = True
-                                dq[i] = upper[i] - q[i]
-                                new = True
-                            elif q[i] + dq[i] < lower[i]:
-                                frozen[i] = True
-                                dq[i] = lower[i] - q[i]
-                                new = True
-                    if not new:
-                        break
+                okc = projected_solve(A, g, lam, q, lower, upper, frozen, dq, L, rhs)
                 if not okc:
                     lam *= 10.0
                     if lam > 1e10:
@@ -301,9 +320,9 @@ def solve_lm(robot: Robot, T_world, q0, position_only: bool = False, tol_m: floa
     if not bounded:
         rev = _revolute(robot)
         lo, hi = np.where(rev, -np.inf, lo), np.where(rev, np.inf, hi)
-    if not HAVE_NUMBA:
-        return _lm_numpy(robot, T, q, position_only, tol_m, tol_rad, max_iter, lambda0, lo, hi)
     ch = chain_of(robot)
+    if not HAVE_NUMBA or ch.expand is not None:  # the kernel walks chain joints; mimic robots use numpy
+        return _lm_numpy(robot, T, q, position_only, tol_m, tol_rad, max_iter, lambda0, lo, hi)
     N = len(T)
     pe, ae, it = np.empty(N), np.empty(N), np.empty(N, np.int64)
     args = (np.ascontiguousarray(ch.fixed), np.ascontiguousarray(ch.prismatic, dtype=np.bool_),
@@ -376,7 +395,7 @@ def ik_numeric(robot: Robot, T_world, q_seed=None, position_only: bool = False, 
 
 
 def _revolute(robot):
-    return np.array([t == "revolute" for t in robot.joint_type])
+    return np.array([t == "revolute" for t in robot.independent_joint_type])
 
 
 def ik_all_numeric(robot: Robot, T_world, n_seeds: int = 200, position_only: bool = False,

@@ -46,7 +46,7 @@ def is_singular(robot: Robot, q, position_only: bool = False, rel: float = SING_
 
 def _wide(robot: Robot) -> Robot:
     """The robot with revolute limits opened to ±2π (prismatic strokes kept)."""
-    rev = np.array([t == "revolute" for t in robot.joint_type])
+    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
     return robot.copy(lower=np.where(rev, -2 * np.pi, robot.lower), upper=np.where(rev, 2 * np.pi, robot.upper))
 
 

@@ -80,9 +80,9 @@ def _geometry_bytes(robot: Robot) -> bytes:
 
 def _poe_model(robot: Robot, tol: float) -> POEModel:
     nan3 = np.full(3, np.nan)
-    if robot.dof != 6 or any(t != "revolute" for t in robot.joint_type):
+    if robot.n_chain != 6 or any(t != "revolute" for t in robot.joint_type):
         h = np.zeros((robot.dof, 3))
-        return POEModel(h, h.copy(), np.eye(4), None, nan3, "closed form needs 6 revolute joints")
+        return POEModel(h, h.copy(), np.eye(4), None, nan3, "closed form needs 6 revolute joints (no mimic joints)")
     fr = fk_frames(robot, np.zeros((1, 6)))
     h = fr.joint[0, :, :3, 2].copy()
     p = fr.joint[0, :, :3, 3].copy()

@@ -17,6 +17,15 @@ Geometry conventions (``Robot.convention``):
 ``beta`` (Hayati's rotation about y) is zero in nominal models; calibration uses it for near-parallel
 consecutive axes where DH is ill-conditioned. For prismatic joints in DH/MDH, ``q`` adds to ``d``.
 
+Mimic joints (URDF ``<mimic>``): the chain may hold more joints than the robot has independent
+(actuated) joints. ``mimic`` ``(n_chain, 3)`` gives per chain joint ``[leader, multiplier, offset]``:
+``leader = -1`` for an independent joint, else the chain index of the independent joint it follows,
+``q_chain = multiplier · q_leader + offset``. :attr:`Robot.dof` counts independent joints (what data
+and the API give), :attr:`Robot.n_chain` chain joints. Per-chain-joint fields: geometry arrays,
+``joint_type``, ``mass_kg``, ``com_m``, ``stiffness_nm_per_rad``, ``joint_names``; per independent
+joint: ``lower``, ``upper`` (and :attr:`Robot.independent_joint_type`). The expansion from independent
+to chain joints happens in one place, :func:`hykin.kinematics.walk.expand_joints`.
+
 World/measurement frame -> robot base is ``base``; flange (last link frame) -> TCP is ``tool``.
 Gravity acts along ``gravity_base`` (m/s^2, in the robot base frame; default ``(0, 0, -9.81)``).
 """
@@ -51,7 +60,7 @@ class Robot:
     a_m, alpha_rad, d_m, theta_rad, beta_rad: ``(n,)`` DH/MDH parameters (zeros for URDF robots).
     origin_xyz_m, origin_rpy_rad, axis: ``(n, 3)`` URDF joint origins and unit axes (URDF only).
     joint_type: ``(n,)`` strings ``"revolute"`` or ``"prismatic"``.
-    lower, upper: ``(n,)`` joint limits (rad, or m for prismatic joints).
+    lower, upper: ``(dof,)`` limits of the independent joints (rad, or m for prismatic joints).
     mass_kg: ``(n,)`` link masses (zeros if unknown).
     com_m: ``(n, 3)`` centre of mass of link i in link frame i.
     stiffness_nm_per_rad: ``(n,)`` joint stiffness; ``inf`` = rigid.
@@ -60,6 +69,11 @@ class Robot:
     payload_kg: point mass at the TCP.
     gravity_base: ``(3,)`` gravity vector in the robot base frame, m/s^2.
     source: where the numbers come from (free text, kept in saved files).
+    mimic: ``(n_chain, 3)`` ``[leader chain index or -1, multiplier, offset]`` or None (no mimic joints).
+    joint_names: ``(n_chain,)`` joint names (URDF joint names) or None (``q1..qN``).
+    urdf: for robots read from a URDF, ``{"xml": text, "base_link": ..., "tip_link": ..., "continuous":
+        space-separated names of continuous joints}`` (so that a calibrated robot can be written back as
+        the maker's URDF), else None.
     """
 
     name: str
@@ -83,6 +97,9 @@ class Robot:
     payload_kg: float = 0.0
     gravity_base: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
     source: str = ""
+    mimic: np.ndarray | None = None
+    joint_names: tuple[str, ...] | None = None
+    urdf: dict | None = None
 
     def __post_init__(self) -> None:
         if self.convention not in CONVENTIONS:
@@ -94,6 +111,13 @@ class Robot:
             if getattr(self, nm).shape != (n,):
                 raise RobotFileError(f"robot {self.name!r}: {nm} has shape {getattr(self, nm).shape}, expected ({n},)")
         self.lower, self.upper = f(self.lower), f(self.upper)
+        self._check_mimic(n)
+        if self.joint_names is not None:
+            self.joint_names = tuple(str(x) for x in self.joint_names)
+            if len(self.joint_names) != n:
+                raise RobotFileError(f"robot {self.name!r}: {len(self.joint_names)} joint_names for {n} joints")
+        if self.lower.shape != (self.dof,) or self.upper.shape != (self.dof,):
+            raise RobotFileError(f"robot {self.name!r}: lower/upper must have shape ({self.dof},) (one per independent joint)")
         self.beta_rad = np.zeros(n) if self.beta_rad is None else f(self.beta_rad)
         self.origin_xyz_m = np.zeros((n, 3)) if self.origin_xyz_m is None else f(self.origin_xyz_m).reshape(n, 3)
         self.origin_rpy_rad = np.zeros((n, 3)) if self.origin_rpy_rad is None else f(self.origin_rpy_rad).reshape(n, 3)
@@ -117,10 +141,78 @@ class Robot:
             j = int(np.argmax(self.lower > self.upper))
             raise RobotFileError(f"robot {self.name!r}: joint {j + 1} has min > max")
 
+    def _check_mimic(self, n: int) -> None:
+        if self.mimic is None:
+            return
+        m = np.array(self.mimic, dtype=np.float64, copy=True).reshape(n, 3)
+        lead = m[:, 0]
+        for i in range(n):
+            k = lead[i]
+            if k < 0:
+                continue
+            if k != int(k) or not 0 <= k < n or lead[int(k)] >= 0 or int(k) == i:
+                raise RobotFileError(f"robot {self.name!r}: mimic joint {i + 1} follows {k:g}, which is not an independent joint")
+            if not (np.isfinite(m[i, 1]) and np.isfinite(m[i, 2])):
+                raise RobotFileError(f"robot {self.name!r}: mimic joint {i + 1}: multiplier/offset must be finite")
+        self.mimic = None if np.all(lead < 0) else m
+
     @property
     def dof(self) -> int:
-        """Number of joints."""
+        """Number of independent joints (the columns of joint data); ``n_chain`` minus mimic joints."""
+        n = int(self.a_m.shape[0])
+        return n if self.mimic is None else int(np.sum(self.mimic[:, 0] < 0))
+
+    @property
+    def n_chain(self) -> int:
+        """Number of movable joints in the kinematic chain (mimic joints included)."""
         return int(self.a_m.shape[0])
+
+    @property
+    def independent(self) -> np.ndarray:
+        """``(dof,)`` chain indices of the independent joints, in chain order."""
+        if self.mimic is None:
+            return np.arange(self.n_chain)
+        return np.flatnonzero(self.mimic[:, 0] < 0)
+
+    @property
+    def independent_joint_type(self) -> tuple[str, ...]:
+        """``joint_type`` of the independent joints (``(dof,)``: the types of the joint data columns)."""
+        if self.mimic is None:
+            return self.joint_type
+        return tuple(self.joint_type[i] for i in self.independent)
+
+    @property
+    def independent_joint_names(self) -> tuple[str, ...] | None:
+        """Names of the independent joints (URDF joint names) or None."""
+        if self.joint_names is None:
+            return None
+        return tuple(self.joint_names[i] for i in self.independent)
+
+    @property
+    def continuous(self) -> np.ndarray:
+        """``(dof,)`` bool: independent joints that are URDF ``continuous`` (revolute without limits).
+
+        hykin gives them the range ``[-pi, pi]`` (sampling, network input normalisation, IK answers);
+        measured values outside it are valid (the FK is 2π-periodic): the dataset readers wrap them
+        into it and the joint checks accept them."""
+        names = self.independent_joint_names
+        cont = set((self.urdf or {}).get("continuous", "").split())
+        if not cont or names is None:
+            return np.zeros(self.dof, dtype=bool)
+        return np.array([n in cont for n in names], dtype=bool)
+
+    def expansion(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """``(index (n_chain,) into the independent joints, multiplier (n_chain,), offset (n_chain,))``:
+        ``q_chain = multiplier · q[:, index] + offset``; None without mimic joints."""
+        if self.mimic is None:
+            return None
+        pos = np.full(self.n_chain, -1, dtype=np.int64)
+        pos[self.independent] = np.arange(self.dof)
+        lead = self.mimic[:, 0].astype(np.int64)
+        idx = np.where(lead < 0, pos, pos[np.maximum(lead, 0)])
+        mult = np.where(lead < 0, 1.0, self.mimic[:, 1])
+        off = np.where(lead < 0, 0.0, self.mimic[:, 2])
+        return idx, mult, off
 
     @property
     def limits(self) -> np.ndarray:
@@ -155,7 +247,12 @@ def robot_reach_m(robot: Robot) -> float:
     """Upper bound of the distance from the robot base to the TCP (m): link lengths plus tool."""
     links = np.hypot(robot.a_m, robot.d_m) + np.linalg.norm(robot.origin_xyz_m, axis=1)
     pris = np.array([t == "prismatic" for t in robot.joint_type])
-    stroke = np.where(pris, np.maximum(np.abs(robot.lower), np.abs(robot.upper)), 0.0)
+    lo, hi = robot.lower, robot.upper
+    ex = robot.expansion()
+    if ex is not None:  # chain-joint strokes of mimic joints from their leaders' limits
+        idx, mult, off = ex
+        lo, hi = mult * lo[idx] + off, mult * hi[idx] + off
+    stroke = np.where(pris, np.maximum(np.abs(lo), np.abs(hi)), 0.0)
     return float(links.sum() + stroke.sum() + np.linalg.norm(robot.tool[:3, 3]))
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["HAVE_NUMBA", "chain_walk", "joint_motion"]
+__all__ = ["HAVE_NUMBA", "chain_walk", "expand_joints", "joint_motion", "reduce_columns"]
 
 try:  # numba is optional: it makes single-pose FK ~50x and batched FK ~5x faster than numpy.
     import numba
@@ -46,13 +46,47 @@ def joint_motion(xp, T, qi, prismatic: bool):
     return xp.stack([c * x + s * y, c * y - s * x, z, o], -1)
 
 
+def expand_joints(xp, chain, q):
+    """Chain joints ``(N, n_chain)`` from ``q``: THE one place where mimic joints enter the chain.
+
+    ``q`` ``(N, dof)`` independent joints -> ``q_chain[:, i] = multiplier_i · q[:, index_i] + offset_i``
+    (URDF ``<mimic>``, ``chain.expand``). ``q`` that already has ``n_chain`` columns (chain joints, e.g.
+    deflected joints from :mod:`hykin.kinematics.compliance`) and every chain without mimic joints
+    pass through unchanged (for a robot with mimic joints ``dof < n_chain``, so the width says which
+    it is). numpy or torch (``xp``), differentiable.
+    """
+    ex = chain.expand
+    if ex is None or q.shape[-1] == chain.prismatic.shape[0]:
+        return q
+    idx, mult, off = ex
+    if xp is np:
+        return q[..., idx] * mult + off
+    conv = lambda a: xp.as_tensor(a, dtype=q.dtype, device=q.device)
+    return q[..., xp.as_tensor(idx, device=q.device)] * conv(mult) + conv(off)
+
+
+def reduce_columns(chain, J):
+    """Chain rule for mimic joints: columns per chain joint ``(..., n_chain)`` -> per independent joint
+    ``(..., dof)``; a leader's column sums ``multiplier ·`` its followers' columns. The transpose of
+    :func:`expand_joints` (numpy); unchanged without mimic joints."""
+    ex = chain.expand
+    if ex is None:
+        return J
+    idx, mult, _ = ex
+    E = np.zeros((idx.shape[0], int(idx.max()) + 1))
+    E[np.arange(idx.shape[0]), idx] = mult
+    return J @ E
+
+
 def chain_walk(xp, chain, q, frames: bool = False):
-    """Walk ``chain`` (a :class:`~hykin.kinematics.chain.Chain`) for joints ``q`` ``(N, dof)``.
+    """Walk ``chain`` (a :class:`~hykin.kinematics.chain.Chain`) for joints ``q`` ``(N, dof)``
+    (independent joints, expanded by :func:`expand_joints`) or ``(N, n_chain)`` (chain joints).
 
     Returns the TCP poses ``(N, 4, 4)`` in the world frame, or with ``frames=True``
-    ``(joint frames (N, dof, 4, 4), link frames (N, dof, 4, 4), tcp (N, 4, 4))``. ``xp``: ``numpy``
+    ``(joint frames (N, n_chain, 4, 4), link frames (N, n_chain, 4, 4), tcp (N, 4, 4))``. ``xp``: ``numpy``
     (numpy chain and ``q``) or ``torch`` (tensors of one dtype/device; differentiable).
     """
+    q = expand_joints(xp, chain, q)
     N, n = q.shape
     T = xp.broadcast_to(chain.fixed[0], (N, 4, 4))
     joints, links = [], []

@@ -9,8 +9,11 @@ new day changes inside the arm: joint zero offsets (an encoder re-referenced, a 
 and a thermal state (a uniform length scale); the choice is made from the data (QR of the
 registration Jacobian, then backward elimination by leave-one-pose-out error and t-statistics) and
 reported with standard deviations (:meth:`RegistrationInfo.report`). A registration whose residual
-is far above the model's own error is refused (:class:`RegistrationError`): the series does not fit
-the model. On a virtual robot measured on two days (tracker moved, tool re-mounted by 0.5 mm /
+is inconsistent with the measurement noise and the model's uncertainty at those poses (a chi-square
+test, :mod:`hykin.measure.register_checks`) is refused (:class:`RegistrationError`): the series does
+not fit the model; where the nominal robot with frames fitted on the same poses predicts them better
+(leave-one-pose-out), the registration falls back to it. A robot file without a model registers
+through :class:`hykin.measure.robot_model.RobotModel`. On a virtual robot measured on two days (tracker moved, tool re-mounted by 0.5 mm /
 0.05°, joint zeros drifted by 0.01°; benchmarks/bench_transfer.py, default recipe) the 30-pose
 registration recovers the drifts of joints 2-5 to within 0.0002-0.0007° (std 0.0015-0.0024°) and
 predicts day 2 at 1.23× (position) / 1.04× (orientation) day 1's own held-out error (0.0216 mm /
@@ -48,18 +51,32 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..calibration.frames import (
-    fit_frames,
     fit_frames_solution,
     pose_from_vector6,
     select_representative,
     select_spread,
 )
 from ..calibration.result import orientation_weight_from_sigmas
+from ..calibration.stations import add_frames, series_labels
 from ..geometry.se3 import (
     pose_error,
     rotation_difference_rotvec,
 )
 from ..io.dataset import Dataset
+from .register_checks import (
+    MISMATCH_SHORT,
+    NOISE_DEG,
+    NOISE_MM,
+    RegistrationError,
+    distinct_nominal,
+    fall_back_to_nominal,
+    networks_transfer,
+    check_extra_plausible,
+    check_residual_ratio,
+    consistency_test,
+    expected_sigmas,
+    nominal_comparison,
+)
 
 __all__ = ["RegisteredParameter", "RegistrationError", "RegistrationInfo", "register_model"]
 
@@ -85,6 +102,10 @@ class RegistrationInfo:
     not_fitted: dict = field(default_factory=dict)  # candidate name -> why it was not re-fitted
     network_check: str = ""  # whether the networks' correction was kept for this series, and the evidence
     orientation_weight_m_per_rad: float = 1.0  # weight of orientation residuals used (m/rad)
+    consistency: str = ""  # the chi-square test of the residual (hykin.measure.register_checks)
+    nominal_check: str = ""  # registered model vs nominal + frames, leave-one-pose-out
+    nominal_figures: dict = field(default_factory=dict)  # mean LOO errors of both (mm, deg)
+    fell_back: bool = False  # the returned model is the nominal robot with fitted frames
 
 
     def report(self) -> str:
@@ -97,8 +118,9 @@ class RegistrationInfo:
                 f"{p.name} {p.value:+.4f} ± {p.std:.4f} {p.unit}" for p in self.parameters))
         extra = [p.name for p in self.parameters if p.name.endswith(".zero") or p.name == "thermal.scale"]
         lines.append("joint zeros / thermal state re-fitted: " + (", ".join(extra) if extra else "none"))
-        if self.network_check:
-            lines.append(self.network_check)
+        for line in (self.network_check, self.nominal_check, self.consistency):
+            if line:
+                lines.append(line)
         if self.not_fitted:
             groups: dict[str, list[str]] = {}
             for k, v in self.not_fitted.items():
@@ -145,70 +167,11 @@ def _avoid_fade_zone(model, q: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray,
     return np.sort(np.asarray(keep, dtype=np.int64)), int(bad.size)
 
 
-#: fewer registration poses than this under the networks' correction (w > 0): no evidence, keep it
-MIN_CHECK_POSES = 5
-#: paired t of (hybrid - calibrated) leave-one-pose-out error above which the correction is switched off
-NETWORK_HARM_T = 1.0
-
-
-def _loo_errors(T_model: np.ndarray, T_meas: np.ndarray, position_only: bool) -> tuple[np.ndarray, np.ndarray | None]:
-    """Leave-one-pose-out errors of a frames-only registration (:func:`fit_frames` on the other poses,
-    then the left-out pose predicted): ``(position m (n,), orientation rad (n,) or None)``."""
-    n = len(T_model)
-    T = np.empty_like(T_meas)
-    for i in range(n):  # n <= a few dozen registration poses: n small least-squares fits
-        o = np.arange(n) != i
-        B, E = fit_frames(T_model[o], T_meas[o], position_only=position_only)
-        T[i] = B @ T_model[i] @ E
-    p = np.linalg.norm(T[:, :3, 3] - T_meas[:, :3, 3], axis=1)
-    a = None if position_only else np.linalg.norm(rotation_difference_rotvec(T[:, :3, :3], T_meas[:, :3, :3]), axis=1)
-    return p, a
-
-
-def _networks_transfer(w: np.ndarray, T_h: np.ndarray, T_c: np.ndarray, T_meas: np.ndarray,
-                       position_only: bool) -> tuple[bool, str]:
-    """Do the networks' corrections carry over to this series? Leave-one-pose-out on the registration
-    poses: the registered hybrid (model predictions ``T_h`` ``(n, 4, 4)``) against the registered
-    calibrated model (``T_c``), on the poses where the correction applies (fade weight ``w`` ``(n,)``
-    > 0). Per pose the difference of the errors (hybrid - calibrated), position and (full-pose data)
-    orientation; the correction is switched off when either difference is significantly positive
-    (paired t > :data:`NETWORK_HARM_T`): the networks keep the benefit of the doubt, a tie keeps them.
-    Returns ``(keep, report line)``."""
-    on = w > 0
-    n = int(on.sum())
-    if n < MIN_CHECK_POSES:
-        return True, (f"network correction: applies (weight > 0) at {n} of {len(w)} registration poses "
-                      f"(fewer than {MIN_CHECK_POSES}: not checked)")
-    ph, ah = _loo_errors(T_h, T_meas, position_only)
-    pc, ac = _loo_errors(T_c, T_meas, position_only)
-    pairs = [("mm", ph[on] * 1e3, pc[on] * 1e3)]
-    if not position_only:
-        pairs.append(("deg", np.degrees(ah[on]), np.degrees(ac[on])))
-    parts, harm = [], False
-    for unit, h, c in pairs:
-        d = h - c
-        t = float(d.mean() / max(d.std(ddof=1) / np.sqrt(n), 1e-300))
-        harm |= t > NETWORK_HARM_T
-        parts.append(f"{h.mean():.4f} against {c.mean():.4f} {unit} (t {t:+.1f})")
-    where = (f"on the {n} of {len(w)} registration poses where it applies, leave-one-pose-out hybrid vs calibrated "
-             + ", ".join(parts))
-    if not harm:
-        return True, f"network correction: kept; {where}"
-    return False, (f"network correction: OFF for this series (the calibrated model everywhere; it does not carry "
-                   f"over, t > {NETWORK_HARM_T:g}): {where}")
-
-
-class RegistrationError(ValueError):
-    """The series does not fit the model (wrong robot, wrong tool, unit slip): one line, nothing written."""
-
-
 #: Scale of each kind of registration parameter for the identifiability QR (1 mm, 1 mrad, 1e-3 scale).
 _SCALE = {"frame_m": 1e-3, "frame_rad": 1e-3, "offset": 1e-3, "scale": 1e-3}
 _RANK_TOL = 0.05  # |R_kk| / ||column|| below this: redundant with the parameters before it
 _MIN_PRESS_GAIN = 0.03  # a parameter is kept only if it lowers the leave-one-pose-out error by >= 3 %
 _MIN_T = 3.0  # ... and its estimate is at least 3 standard deviations from zero
-MAX_THERMAL_SCALE = 2e-3  # |length scale| a thermal state can explain (aluminium, 23e-6 /K, over ~90 K)
-MAX_ZERO_RAD = np.radians(2.0)  # a joint zero that moved more than this is not a drift
 
 
 @dataclass
@@ -226,7 +189,7 @@ def _candidate_names(model, series_has_temperature: bool) -> list[str]:
     rob = model.robot_
     out = []
     if rob.convention in ("dh", "mdh"):
-        out += [f"q{j + 1}.zero" for j in range(rob.dof) if rob.joint_type[j] == "revolute"]
+        out += [f"q{j + 1}.zero" for j in range(rob.dof) if rob.independent_joint_type[j] == "revolute"]
     out.append("thermal.scale")
     return out
 
@@ -370,18 +333,10 @@ def _select_extra(prob: _Problem, x0: np.ndarray, cands: list[str]) -> tuple[lis
     return [c for c in cands if c in chosen], why
 
 
-def _reference_error_mm(model) -> tuple[float | None, float | None]:
-    """The model's own error on its training data (hybrid; mm, deg): the scale a registration
-    residual is judged against. None when the model file does not carry it."""
-    tr = (getattr(model, "meta_", None) or {}).get("metrics", {}).get("train", {})
-    p = tr.get("classical_pos_mean_mm")
-    a = tr.get("classical_rot_mean_deg")
-    return (None if p is None else float(p)), (None if a is None else float(a))
-
-
 def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, select: str = "representative",
-                   refit: str | tuple = "auto", max_residual_ratio: float = 5.0, check_networks: bool = True,
-                   orientation_weight: float | str = "auto"):
+                   refit: str | tuple = "auto", max_residual_ratio: float | None = None, check_networks: bool = True,
+                   orientation_weight: float | str = "auto", alpha: float = 1e-3, tolerance: float = 3.0,
+                   noise_mm: float = NOISE_MM, noise_deg: float = NOISE_DEG, check_nominal: bool | str = True):
     """Register ``series`` to ``model`` from ``n_poses`` poses; returns ``(new_model, info)``.
 
     ``orientation_weight``: m/rad weight of the orientation residuals, or ``"auto"`` (default):
@@ -405,9 +360,16 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
     ``frame_pre``/``frame_post``; ``info.parameters`` lists every re-fitted value with its standard
     deviation, ``info.not_fitted`` why each other candidate was left out.
 
-    Refusal (:class:`RegistrationError`, one line): when the mean residual on the poses used exceeds
-    ``max_residual_ratio`` times the model's own calibrated error on its training data (at least
-    0.1 mm / 0.01 deg), the series does not fit the model (wrong robot, wrong tool, unit slip).
+    Refusal (:class:`RegistrationError`, one line): a chi-square test of the residuals on the poses
+    used, normalised by the measurement noise (``noise_mm`` / ``noise_deg``) and the model's
+    uncertainty band at each pose, at significance ``alpha`` with ``tolerance``
+    (:mod:`hykin.measure.register_checks`; ``alpha=0`` never refuses). ``max_residual_ratio``
+    (default None): the former fixed rule instead (mean residual above that many times the model's
+    calibrated training error). Nominal check (``check_nominal``: True / ``"pose"``, ``"position"``
+    or False; :func:`nominal_comparison`): when the registered model predicts the registration poses
+    worse than the nominal model with frames (leave-one-pose-out; in position or orientation, or in
+    position only), the returned model is the nominal one with those frames
+    (``info.fell_back``); ``info.consistency`` / ``info.nominal_check`` give the evidence.
 
     The returned model is a copy (the input model is never changed). Poses are chosen where the model is validated:
     inside the networks' training support (fade weight 1) or beyond the fade (weight 0, the calibrated
@@ -452,6 +414,7 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         idx = select_spread(series.q, n_poses, seed)
     else:
         idx = select_representative(series.poses(), n_poses, seed, position_only=pos_only)
+    named = series_labels(series)  # a named station / tool: its frame joins the model's (hykin.calibration.stations)
     new = copy.deepcopy(model)
     new.frame_pre_ = np.eye(4)
     new.frame_post_ = np.eye(4)
@@ -476,7 +439,7 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
             w_used = np.asarray(new.fade_weight(series.q[idx]))
         T_cls = new.predict_classical(series.q[idx], temperature_c=None if temp is None else np.asarray(temp)[idx],
                                       **payload_kwargs(payload_of(series), idx))
-        keep, net_line = _networks_transfer(w_used, T_model[idx], T_cls, T_meas[idx], pos_only)
+        keep, net_line = networks_transfer(w_used, T_model[idx], T_cls, T_meas[idx], pos_only)
         if not keep:  # every fade mode's support distance is >= 0: weight 0 everywhere
             new.fade_offset_ = -(new.fade_width_ + 1.0)  # w = 0 at every support distance >= 0
             T_model = new.predict(series.q, temperature_c=temp, **pl_kw)
@@ -507,11 +470,20 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
     prob = _Problem(new, series.q[idx], T_model[idx], T_meas[idx], extra, pos_only, w) if has_rob else None
     x = x0
     params: list[RegisteredParameter] = []
+    implausible = None  # a zero / scale no drift explains: frames only, the tests below decide
     if extra:
-        sol = least_squares(lambda v: prob.resid(v).ravel(), np.concatenate([x0, np.zeros(len(extra))]),
-                            jac=lambda v: prob.jac(v).reshape(-1, len(v)), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
-        x = sol.x
-        _check_extra_plausible(series, extra, x[12:])
+        sol_x = least_squares(lambda v: prob.resid(v).ravel(), np.concatenate([x0, np.zeros(len(extra))]),
+                              jac=lambda v: prob.jac(v).reshape(-1, len(v)), method="lm", xtol=1e-15, ftol=1e-15,
+                              gtol=1e-15)
+        try:
+            check_extra_plausible(series, extra, sol_x.x[12:])
+        except RegistrationError as e:
+            implausible = str(e)
+            not_fitted.update({c: "implausible value (" + implausible.split(": ", 1)[-1] + ")" for c in extra})
+            extra = []
+            prob = _Problem(new, series.q[idx], T_model[idx], T_meas[idx], [], pos_only, w)
+    if extra:
+        sol, x = sol_x, sol_x.x
         new.robot_ = _robot_with(new.robot_, extra, x[12:])
         T_model = new.predict(series.q, temperature_c=temp, **pl_kw)
         B = pose_from_vector6(x[:6])
@@ -558,39 +530,34 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         not_fitted=not_fitted,
         network_check=net_line,
     )
-    _check_plausible(model, info, series, max_residual_ratio)
+    n_par = len(x) - (3 if pos_only else 0)
+    if max_residual_ratio is not None:
+        check_residual_ratio(model, info.used_pos_mean_mm, info.used_ang_mean_deg, info.n_used,
+                             getattr(series, "source", "series"), max_residual_ratio)
+        alpha = 0.0
+    sp, sa, src = expected_sigmas(new, series.q[idx], noise_mm=noise_mm, noise_deg=noise_deg)
+    test = consistency_test(T_reg[idx], T_meas[idx], sp, sa, n_par, position_only=pos_only, alpha=alpha,
+                            tolerance=tolerance, sigma_source=src)
+    if check_nominal and distinct_nominal(model):
+        from ..kinematics.classical import classical_fk
+
+        T_nom = classical_fk(model.robot, series.q, **pl_kw)
+        keep, info.nominal_check, info.nominal_figures = nominal_comparison(T_model[idx], T_nom[idx], T_meas[idx],
+                                                                            pos_only, w,
+                                                                            "position" if check_nominal == "position" else "pose")
+        if not keep:
+            T_reg, test = fall_back_to_nominal(new, model, T_model, T_nom, T_meas, idx, pos_only, w, sp, sa, alpha, tolerance, src)
+            p, a = pose_error(T_reg, T_meas)
+            info.fell_back, info.frame_pre, info.frame_post = True, new.frame_pre_, new.frame_post_
+            info.parameters, info.network_check = [], ""
+            info.not_fitted = {c: "nominal fallback (frames only)" for c in cands}
+            info.used_pos_mean_mm = float(p[idx].mean())
+            info.used_ang_mean_deg = None if pos_only else float(a[idx].mean())
+            info.rest_pos_mean_mm = float(p[rest].mean()) if len(rest) else None
+            info.rest_ang_mean_deg = None if pos_only or not len(rest) else float(a[rest].mean())
+    info.consistency = test.line()
+    if not test.passed:
+        raise RegistrationError(implausible or f"{getattr(series, 'source', 'series')}: {MISMATCH_SHORT}: {test.line()}")
+    if named != (None, None):  # a series from one named station / tool: its frame joins the model's
+        new.station_frames_, new.frame_pre_, new.frame_post_ = add_frames(new.station_frames_, named, B, E, new.robot_)
     return new, info
-
-
-def _check_extra_plausible(series: Dataset, names: list[str], values: np.ndarray) -> None:
-    """Refuse joint zeros or a length scale no thermal state or zero drift can explain: a unit slip
-    (a scale of 1000) or joints in another convention would otherwise be absorbed by them."""
-    src = getattr(series, "source", "series")
-    for nm, v in zip(names, values):
-        if nm == "thermal.scale" and abs(v) > MAX_THERMAL_SCALE:
-            raise RegistrationError(
-                f"{src}: the series is {1 + v:.6g} times the model's size (a thermal state explains at most "
-                f"{MAX_THERMAL_SCALE * 1e6:g} ppm): length unit slip or another robot?")
-        if nm.endswith(".zero") and abs(v) > MAX_ZERO_RAD:
-            raise RegistrationError(
-                f"{src}: joint {nm[1:].split('.')[0]} zero would move by {np.degrees(v):.3f} deg (more than "
-                f"{np.degrees(MAX_ZERO_RAD):g} deg): joints in another convention, angle unit slip or another robot?")
-
-
-def _check_plausible(model, info: RegistrationInfo, series: Dataset, ratio: float) -> None:
-    """Raise :class:`RegistrationError` when the registration residual is far above the model's own error."""
-    ref_p, ref_a = _reference_error_mm(model)
-    lim_p = ratio * max(ref_p if ref_p is not None else 0.0, 0.02)
-    lim_p = max(lim_p, 0.1)
-    lim_a = max(ratio * max(ref_a if ref_a is not None else 0.0, 0.002), 0.01)
-    src = getattr(series, "source", "series")
-    tail = ("the series does not fit the model (wrong robot or model file, wrong tool or T-Mac, length/angle unit slip, "
-            "or joints in another convention)")
-    if info.used_pos_mean_mm > lim_p:
-        raise RegistrationError(
-            f"{src}: registration residual {info.used_pos_mean_mm:.3f} mm mean on the {info.n_used} poses used, "
-            f"above {lim_p:.3f} mm ({ratio:g} x the model's calibrated error {ref_p if ref_p is not None else float('nan'):.3f} mm): {tail}")
-    if info.used_ang_mean_deg is not None and info.used_ang_mean_deg > lim_a:
-        raise RegistrationError(
-            f"{src}: registration residual {info.used_ang_mean_deg:.4f} deg mean on the {info.n_used} poses used, "
-            f"above {lim_a:.4f} deg ({ratio:g} x the model's calibrated error): {tail}")

@@ -269,7 +269,7 @@ def estimate_clock(t_robot, q_robot, t_tracker, p_tracker, robot=None, *, p_robo
     dt = float(grid_dt_s)
     b, m_r, a, m_t = _speed_profiles(t_r, p_r, t_t, p_t, gap, dt, smooth_s)
     coarse, corr = _ncc_offset(a, m_t, t_t[0], b, m_r, t_r[0], dt, 0.0, max_offset_s,
-                               0.2 * min(m_t.sum(), m_r.sum()))
+                               0.1 * min(m_t.sum(), m_r.sum()))
     t_ref = 0.5 * (t_r[0] + t_r[-1])
     if method == "speed":
         K = int((t_r[-1] - t_r[0]) // window_s)
@@ -279,12 +279,24 @@ def estimate_clock(t_robot, q_robot, t_tracker, p_tracker, robot=None, *, p_robo
                               f"{t_r[-1] - t_r[0]:.3g} s")
         if K >= 2:
             edges = np.linspace(0, b.size, K + 1).astype(int)
-            tc, ok_ = np.zeros(K), np.zeros(K)
+            tc, ok_ = np.zeros(K), np.full(K, np.nan)
             for k in range(K):
                 i0, i1 = edges[k], edges[k + 1]
                 tc[k] = t_r[0] + dt * 0.5 * (i0 + i1 - 1)
-                ok_[k], _ = _ncc_offset(a, m_t, t_t[0], b[i0:i1], m_r[i0:i1], t_r[0] + i0 * dt, dt, coarse, 0.1,
-                                        0.5 * m_r[i0:i1].sum())
+                # only the tracker profile this window can reach (its span, shifted by coarse ± 0.1 s): each
+                # window costs its own length, not the whole stream's
+                ja = max(int(np.floor((t_r[0] + i0 * dt + coarse - 0.2 - t_t[0]) / dt)), 0)
+                jb = min(int(np.ceil((t_r[0] + i1 * dt + coarse + 0.2 - t_t[0]) / dt)), a.size)
+                try:  # a window mostly without beam (fast moves, dropouts) has no timing of its own: skip it
+                    ok_[k], _ = _ncc_offset(a[ja:jb], m_t[ja:jb], t_t[0] + ja * dt, b[i0:i1], m_r[i0:i1],
+                                            t_r[0] + i0 * dt, dt, coarse, 0.1, 0.25 * m_r[i0:i1].sum())
+                except StreamError:
+                    pass
+            good = np.isfinite(ok_)
+            if fit_drift and good.sum() < 2:
+                raise StreamError(f"fit_drift: only {int(good.sum())} of {K} windows of {window_s} s have enough tracker "
+                                  "data to time them; record longer or with fewer beam losses")
+            tc, ok_, K = tc[good], ok_[good], int(good.sum())
             if fit_drift:
                 X = np.stack([np.ones(K), tc - t_ref], 1)
                 sol, *_ = np.linalg.lstsq(X, ok_, rcond=None)
@@ -293,7 +305,7 @@ def estimate_clock(t_robot, q_robot, t_tracker, p_tracker, robot=None, *, p_robo
                     res = ok_ - X @ sol
                     cov = (res @ res / (K - 2)) * np.linalg.inv(X.T @ X)
                     off_std, drift_std = float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))
-            else:
+            elif K >= 2:
                 off_std = float(np.std(ok_, ddof=1) / np.sqrt(K))
         clk = ClockModel(off, drift, t_ref)
         T, rms, n_used = _rigid_at(clk.to_tracker_time, t_r, p_r, t_t, p_t, gap)

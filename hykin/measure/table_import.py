@@ -46,11 +46,14 @@ from .table_map import (
     table_map_from_dict,
 )
 
-__all__ = ["MappedTable", "guess_layout", "import_table", "read_mapped", "read_text_table"]
+__all__ = ["MappedTable", "check_lever_arms", "guess_layout", "import_table", "read_mapped", "read_text_table"]
 
 RAD_LOOKS_LIKE_DEG = 2 * math.pi * 1.2  # |angle| above this, declared rad: degrees
-M_LOOKS_LIKE_MM = 50.0  # |coordinate| above this, declared m: millimetres
-MM_LOOKS_LIKE_M = 5.0  # every point within this of the origin, declared mm: metres
+# Length units are judged by the RMS spread of the positions about their centroid, never by absolute
+# coordinates (a tracker or total station may stand far from the robot): declared m, a spread above
+# hykin.io.dataset.spread_limit_m (10 x the robot's reach, 50 m without a robot) is millimetres;
+# declared mm, a spread below MM_LOOKS_LIKE_M (mm; a hundredth of the reach with a robot) is metres.
+MM_LOOKS_LIKE_M = 5.0
 QUAT_NORM_TOL = 1e-3
 
 
@@ -173,9 +176,17 @@ def _check_further_joints(t: TextTable, joints: list[str], used: set[str], m: Ta
                               "map it under joints, or list it under ignore if it is not a joint of this arm")
 
 
-def _unit_checks(t: TextTable, m: TableMap, q_raw, rev, xyz_raw, ang_raw, ang_unit, ang_cols, jn, pos) -> None:
+def _spread(xyz: np.ndarray) -> float:
+    """RMS distance ``(N, 3)`` -> scalar of the points about their centroid (frame independent)."""
+    return float(np.sqrt(np.mean(np.sum((xyz - xyz.mean(0)) ** 2, axis=1)))) if len(xyz) else 0.0
+
+
+def _unit_checks(t: TextTable, m: TableMap, q_raw, rev, xyz_raw, ang_raw, ang_unit, ang_cols, jn, pos,
+                 robot=None) -> None:
     if not m.check_units:
         return
+    from ..io.dataset import spread_limit_m
+    from ..kinematics.robot import robot_reach_m
     hint_off = " (check_units = false / --no-unit-check if the values are right)"
     if q_raw is not None and rev.any():
         qr = np.abs(q_raw[:, rev])
@@ -189,15 +200,17 @@ def _unit_checks(t: TextTable, m: TableMap, q_raw, rev, xyz_raw, ang_raw, ang_un
             r, c = np.unravel_index(int(np.argmax(qr)), qr.shape)
             raise t.error(int(r), names[c], f"every joint value is within ±2π although degrees were declared "
                           f"(largest {qr.max():.6g}): looks like radians; declare angle_unit = \"rad\"" + hint_off)
-    if xyz_raw is not None:
-        a = np.abs(xyz_raw)
-        if m.length_unit == "m" and (a > M_LOOKS_LIKE_MM).any():
-            r, c = np.argwhere(a > M_LOOKS_LIKE_MM)[0]
-            raise t.error(int(r), pos[c], f"position {xyz_raw[r, c]:.6g} declared m looks like millimetres: "
-                          "declare length_unit = \"mm\" (--length-unit mm)" + hint_off)
-        far = np.linalg.norm(xyz_raw, axis=1).max()
-        if m.length_unit == "mm" and len(xyz_raw) >= 2 and far < MM_LOOKS_LIKE_M and np.ptp(xyz_raw, axis=0).max() > 0:
-            raise t.error(None, pos[0], f"every position is within {far:.3g} mm of the origin although mm was declared: "
+    if xyz_raw is not None and len(xyz_raw) >= 2:
+        spread = _spread(xyz_raw)
+        lim = spread_limit_m(robot)
+        if m.length_unit == "m" and spread > lim:
+            r, c = np.unravel_index(int(np.argmax(np.abs(xyz_raw - xyz_raw.mean(0)))), xyz_raw.shape)
+            raise t.error(int(r), pos[c], f"positions declared m spread {spread:.6g} (RMS about their centroid; > {lim:.3g} m, "
+                          "more than the arm moves): looks like millimetres; declare length_unit = \"mm\" (--length-unit mm)"
+                          + hint_off)
+        small = MM_LOOKS_LIKE_M if robot is None else 1e3 * float(robot_reach_m(robot)) / 100.0
+        if m.length_unit == "mm" and spread < small and np.ptp(xyz_raw, axis=0).max() > 0:
+            raise t.error(None, pos[0], f"positions declared mm spread only {spread:.3g} mm (RMS about their centroid): "
                           "looks like metres; declare length_unit = \"m\"" + hint_off)
     if ang_raw is not None and ang_unit == "rad":
         a = np.abs(ang_raw)
@@ -206,6 +219,40 @@ def _unit_checks(t: TextTable, m: TableMap, q_raw, rev, xyz_raw, ang_raw, ang_un
             key = "euler_unit" if m.euler is not None else "rotvec_unit"
             raise t.error(int(r), ang_cols[c], f"angle {ang_raw[r, c]:.6g} declared rad looks like degrees: "
                           f"declare {key} = \"deg\"" + hint_off)
+
+
+LEVER_ARM_VARIATION = (1e-3, 0.02)  # m, fraction: a lever arm stays within max(1 mm, 2 %) of its median ...
+LEVER_ARM_OFF_ROWS = 0.2  # ... in all but this fraction of the rows (a swapped or lost reflector in a few rows is
+#                           named per row by the later checks, e.g. the nest fit)
+
+
+def check_lever_arms(t: TextTable, m: TableMap, xyz_m: np.ndarray, P_m: np.ndarray) -> None:
+    """Refuse a further reflector (``points``) that is not one: on a rigid tool its distance from the
+    first reflector lies in ``m.lever_arm_m`` (default 3 mm - 2 m; it would otherwise be a duplicate of
+    the first, or millimetres read as metres) and is constant over the rows: within
+    :data:`LEVER_ARM_VARIATION` (``max(1 mm, 2 %)``) of its median in at least 80 % of the rows (an
+    uncertainty, accelerometer or index column is not). ``xyz_m`` ``(N, 3)``, ``P_m`` ``(N, K, 3)``
+    in metres; rows with a missing value are skipped. One line naming the columns."""
+    lo, hi = m.lever_arm_m
+    for k in range(P_m.shape[1]):
+        ok = np.isfinite(P_m[:, k]).all(1) & np.isfinite(xyz_m).all(1)
+        if ok.sum() < 1:
+            continue
+        d = np.linalg.norm(P_m[ok, k] - xyz_m[ok], axis=1)
+        med = float(np.median(d))
+        tol = max(LEVER_ARM_VARIATION[0], LEVER_ARM_VARIATION[1] * med)
+        off = np.abs(d - med) > tol
+        cols = ", ".join(f"'{c}'" for c in m.points[k])
+        why = None
+        if not lo <= med <= hi:
+            why = (f"lies {med * 1e3:.4g} mm (median) from the first reflector, outside the lever arm of a second reflector "
+                   f"on the same tool ({lo * 1e3:g} mm - {hi:g} m; lever_arm_m)")
+        elif off.mean() > LEVER_ARM_OFF_ROWS:
+            why = (f"changes its distance from the first reflector by more than {tol * 1e3:.3g} mm in {off.sum()} of "
+                   f"{off.size} rows (median {med * 1e3:.4g} mm): not on the same rigid tool")
+        if why:
+            raise TableMapError(f"{t.where}, columns {cols}: reflector {k + 2} {why}; an uncertainty, sensor or index "
+                                "column is not a reflector: leave it out of points", file=t.where, column=m.points[k][0])
 
 
 def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool = True, need_position: bool = True,
@@ -250,7 +297,7 @@ def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool 
                       f"has {want} joints")
     if jn:
         _check_further_joints(t, jn, set(used), m)
-    rev = np.array([jt == "revolute" for jt in robot.joint_type], bool) if robot is not None else np.ones(len(jn), bool)
+    rev = np.array([jt == "revolute" for jt in robot.independent_joint_type], bool) if robot is not None else np.ones(len(jn), bool)
     q_raw = _stack(t, jn, d) if jn else None
     xyz_raw = _stack(t, m.position, d, allow_missing) if m.position else None
     ang_raw = ang_unit = None
@@ -258,18 +305,15 @@ def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool 
         ang_raw = _stack(t, ori, d, allow_missing)
         ang_unit = m.euler_unit if m.orientation == "euler" else m.rotvec_unit
     pos_ok = None if xyz_raw is None else np.isfinite(xyz_raw).all(1)
-    _unit_checks(t, m, q_raw, rev, None if xyz_raw is None else xyz_raw[pos_ok], ang_raw, ang_unit, ori, jn, m.position)
+    _unit_checks(t, m, q_raw, rev, None if xyz_raw is None else xyz_raw[pos_ok], ang_raw, ang_unit, ori, jn, m.position,
+                 robot)
     L = LENGTH_UNITS_M[m.length_unit]
     q = None if q_raw is None else q_raw * np.where(rev, ANGLE_UNITS_RAD[m.angle_unit], L)
     xyz = None if xyz_raw is None else xyz_raw * L
     quat = _orientation(t, m, ori, ang_raw, allow_missing)
     P = np.stack([_stack(t, p, d, allow_missing) * L for p in m.points], axis=1) if m.points else np.zeros((len(t.rows), 0, 3))
-    if pts and m.check_units and m.length_unit == "m":
-        big = np.abs(P) > M_LOOKS_LIKE_MM
-        if big.any():
-            r, k, c = np.argwhere(big)[0]
-            raise t.error(int(r), m.points[k][c], f"position {P[r, k, c]:.6g} declared m looks like millimetres: "
-                          "declare length_unit = \"mm\"")
+    if pts and xyz is not None:
+        check_lever_arms(t, m, xyz, P)
     time_s = _time_column(t, m) if m.time else None
     extra: dict[str, np.ndarray] = {}
     if m.temperature:
@@ -392,9 +436,10 @@ def import_table(path: str | Path, m: TableMap | dict | str | Path, robot=None, 
         c = min(clash)
         raise TableMapError(f"{t.where}, column '{c}': a kept column has the name of a dataset column; rename it "
                             f"(keep = {{ {c} = \"{c}_raw\" }})", file=t.where, column=c)
-    ds.meta = {"frame": "file's", "imported_from": t.where, "joint_columns": mt.joint_columns}
+    ds.meta = {"frame": "file's", "imported_from": t.where, "joint_columns": mt.joint_columns,
+               "unit_check": bool(m.check_units)}
     try:
-        validate(ds, robot, where=t.where, angle_unit=m.angle_unit, line_offset=None)
+        validate(ds, robot, where=t.where, angle_unit=m.angle_unit, line_offset=None, unit_check=m.check_units)
     except DatasetError as e:
         if e.row is None:
             raise

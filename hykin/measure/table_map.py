@@ -31,6 +31,7 @@ __all__ = [
     "euler_sequence",
     "expand_joint_spec",
     "load_table_map",
+    "never_position",
     "suggest_map",
     "table_map_from_dict",
 ]
@@ -90,6 +91,9 @@ class TableMap:
         (1-based file lines), where (row filters ``"col op value"``, op in ``== != < <= > >=``,
         all must hold), encoding (None = UTF-8, else cp1252).
     dof: expected joint count; check_units: refuse values that look like the wrong unit.
+    lever_arm_m: ``[min, max]`` distance (m) of a further reflector (``points``) from the first: a
+        second reflector on the same rigid tool keeps a distance in this range, roughly constant over
+        the rows (:func:`hykin.measure.table_import.check_lever_arms`).
     """
 
     joints: list[str] | str | None = None
@@ -126,6 +130,7 @@ class TableMap:
     encoding: str | None = None
     dof: int | None = None
     check_units: bool = True
+    lever_arm_m: list[float] = field(default_factory=lambda: [0.003, 2.0])
 
     @property
     def orientation(self) -> str | None:
@@ -205,6 +210,13 @@ def table_map_from_dict(d: dict, where: str = "<mapping>") -> TableMap:
         elif k in ("euler_extrinsic", "check_units"):
             if not isinstance(v, bool):
                 raise TableMapError(f"{where}: {k} must be true or false, got {v!r}", file=where, column=k)
+        elif k == "lever_arm_m":
+            ok = isinstance(v, (list, tuple)) and len(v) == 2 and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+            if not ok or not 0 <= v[0] < v[1]:
+                raise TableMapError(f"{where}: lever_arm_m must be [min, max] in metres with 0 <= min < max, got {v!r}",
+                                    file=where, column=k)
+            v = [float(x) for x in v]
         elif k == "max_fit_rms_mm":
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
                 raise TableMapError(f"{where}: {k} must be a positive number, got {v!r}", file=where, column=k)
@@ -345,6 +357,20 @@ def _quads(header: list[str]) -> list[tuple[str, str, str, str]]:
 
 
 _NOT_MEASURED = re.compile(r"(?i)goal|target|cmd|command|nominal|std|sigma|dif|err|_t$|(^|_)t_|set|desired|flange|vel|speed")
+# Never a measured position, reflector or joint, whatever else the name says: uncertainties (U95,
+# unc, std, sigma, err, rms, mpe, tol), sensors (accelerometer, gyro, IMU, temperature, humidity,
+# pressure, force, torque, current, voltage, velocity) and index / time columns.
+_NEVER_POSITION = re.compile(
+    r"(?i)(?<![a-z])u\d{2}(?!\d)|(?<![a-z])(unc|uncert|uncertainty|std|stdev|sigma|err|error|rms|mpe|tol|acc|accel|"
+    r"accelerometer|acceleration|gyro|imu|temp|temperature|humid|humidity|press|pressure|force|torque|curr|current|volt|"
+    r"voltage|vel|velocity|speed|idx|index|id|count|sample|row|nr|no|time|timestamp|stamp)[xyz]?(?![a-z])")
+
+
+def never_position(name: str) -> bool:
+    """True for a column name that is an uncertainty, a sensor, an index or a time column (see
+    ``_NEVER_POSITION``): never suggested as a position, a further reflector or a joint."""
+    tokens = re.sub(r"([a-z])([A-Z])", r"\1 \2", name)  # AccX -> Acc X: camelCase words are separate
+    return bool(_NEVER_POSITION.search(tokens))
 
 
 def _unit_in_name(name: str, units: dict) -> str | None:
@@ -386,7 +412,7 @@ def suggest_map(header: list[str], sample_rows: list[list[str]] | None = None, *
         lines.append(f"skip_rows = {skip_rows}")
     fams: dict[str, list[tuple[int, str, str | None]]] = {}
     for h in header:
-        m = _JOINT_RX.match(h)
+        m = None if never_position(h) else _JOINT_RX.match(h)
         if m:
             fams.setdefault(m.group(1).lower(), []).append((int(m.group(2)), h, m.group(3)))
     ros = [h for h in header if re.search(r"(?i)_joint$", h)]
@@ -408,7 +434,8 @@ def suggest_map(header: list[str], sample_rows: list[list[str]] | None = None, *
     else:
         lines.append('# joints = ["J1", "J2", ...]  # no joint columns recognised')
     quads = _quads(header)
-    trips = _triples([h for h in header if h not in joints and not any(h in qd for qd in quads)])
+    trips = [t for t in _triples([h for h in header if h not in joints and not any(h in qd for qd in quads)])
+             if not any(never_position(c) for c in t)]
     meas = [t for t in trips if not _NOT_MEASURED.search(t[0])] or trips
     if meas:
         pos, rest = meas[0], [t for t in meas[1:]]

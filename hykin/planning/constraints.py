@@ -10,11 +10,13 @@ A pose ``q`` is *feasible* for a :class:`Constraints` when
   most ``max_incidence_deg`` (a 1.5" SMR accepts about ±30°, a 6-D probe such as a T-Mac ±45°),
   the reflector is at least ``min_range_m`` from the tracker, and the segment from the tracker to
   ``p`` crosses no keep-out box;
-* the reflector point is inside no keep-out box.
+* the reflector point is inside no keep-out box;
+* the robot's body (capsules along the chain, :mod:`.bodies`) clears itself, the floor plane
+  ``z = floor_z_m`` (world frame) and the keep-out boxes (``body``, on by default).
 
-The robot's own links are **not** checked as obstacles of the beam (no link geometry in a robot
-file); a user who needs it adds keep-out boxes around fixed obstacles, and the incidence cone
-already removes most self-occlusion by the wrist.
+The robot's own links are **not** checked as obstacles of the beam; a user who needs it adds
+keep-out boxes around fixed obstacles, and the incidence cone already removes most self-occlusion
+by the wrist.
 
 Boxes are axis-aligned in the world frame, ``(2, 3)`` arrays ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``
 (m). All tests are vectorised over ``(N, dof)`` joints; FK is :func:`hykin.kinematics.fk.fk` (the rigid model:
@@ -29,6 +31,7 @@ import numpy as np
 
 from ..kinematics.fk import fk
 from ..kinematics.robot import Robot
+from .bodies import BodyModel, body_clear, body_model
 
 __all__ = [
     "Constraints",
@@ -56,6 +59,9 @@ class Constraints:
     line-of-sight test). max_incidence_deg: cone half-angle of the reflector. reflector_offset_m:
     ``(3,)`` reflector point in the tool frame (0 = TCP). reflector_axis: ``(3,)`` reflector normal
     in the tool frame. keep_out_m: list of ``(2, 3)`` boxes. min_range_m: closest tracker distance.
+    floor_z_m: floor height (world frame) or None. body: check the robot's body (self-collision,
+    floor, keep-out boxes). link_radii_m: ``(n_chain + 2,)`` capsule radii or None (estimated,
+    :mod:`.bodies`). bodies: the capsule model, set by :meth:`check`.
     """
 
     lower: np.ndarray | None = None
@@ -67,6 +73,10 @@ class Constraints:
     reflector_axis: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     keep_out_m: list = field(default_factory=list)
     min_range_m: float = 0.0
+    floor_z_m: float | None = None
+    body: bool = True
+    link_radii_m: np.ndarray | None = None
+    bodies: BodyModel | None = None
 
     def check(self, robot: Robot) -> Constraints:
         """Validated copy with the region resolved against ``robot`` (raises :class:`PlanningError`)."""
@@ -86,8 +96,18 @@ class Constraints:
         if off.shape != (3,) or not np.isfinite(off).all():
             raise PlanningError(f"reflector offset must be 3 finite numbers (m), got {self.reflector_offset_m!r}")
         ko = [_box(b, f"keep-out box {k + 1}") for k, b in enumerate(self.keep_out_m)]
+        floor = None if self.floor_z_m is None else float(self.floor_z_m)
+        if floor is not None and not np.isfinite(floor):
+            raise PlanningError(f"floor height must be a finite number (m), got {self.floor_z_m!r}")
+        bodies = None
+        if self.body:
+            try:
+                bodies = body_model(robot, self.link_radii_m, floor)
+            except ValueError as e:
+                raise PlanningError(str(e)) from None
         return Constraints(lo, hi, box, tr, float(self.max_incidence_deg), off, ax / np.linalg.norm(ax), ko,
-                           float(self.min_range_m))
+                           float(self.min_range_m), floor, bool(self.body), None if bodies is None else bodies.radii_m,
+                           bodies)
 
 
 def _box(b, what: str) -> np.ndarray:
@@ -158,6 +178,10 @@ def feasible(robot: Robot, q, c: Constraints) -> np.ndarray:
     lo = robot.lower if c.lower is None else c.lower
     hi = robot.upper if c.upper is None else c.upper
     ok = np.all((q >= lo - 1e-12) & (q <= hi + 1e-12), axis=1)
+    if c.bodies is not None:
+        ok &= body_clear(robot, q, c.bodies, c.floor_z_m, c.keep_out_m)
+    elif c.floor_z_m is not None:  # no body model: at least the TCP stays above the floor
+        ok &= fk(robot, q)[:, 2, 3] >= c.floor_z_m
     if c.box_m is None and c.tracker_m is None and not c.keep_out_m:
         return ok
     p, n = reflector_pose(robot, q, c)
@@ -204,7 +228,7 @@ def parse_region(robot: Robot, text: str, angle_unit: str = "deg") -> tuple[np.n
         if ":" not in s:
             raise PlanningError(f"region: joint {j + 1}: expected lo:hi, got {s!r}")
         a, b = s.split(":", 1)
-        f = np.pi / 180 if angle_unit == "deg" and robot.joint_type[j] == "revolute" else 1.0
+        f = np.pi / 180 if angle_unit == "deg" and robot.independent_joint_type[j] == "revolute" else 1.0
         try:
             if a.strip():
                 lo[j] = float(a) * f

@@ -53,7 +53,7 @@ def embed(robot: Robot, q, lower, upper) -> np.ndarray:
     lo, hi = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
     cols = []
     for j in range(robot.dof):
-        if robot.joint_type[j] == "revolute" and hi[j] - lo[j] >= _TWO_PI - 1e-9:
+        if robot.independent_joint_type[j] == "revolute" and hi[j] - lo[j] >= _TWO_PI - 1e-9:
             cols += [np.cos(q[:, j]) / _TWO_PI, np.sin(q[:, j]) / _TWO_PI]
         else:
             cols.append((q[:, j] - lo[j]) / max(hi[j] - lo[j], 1e-12))

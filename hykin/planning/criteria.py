@@ -3,8 +3,9 @@
 The Jacobian is :func:`hykin.calibration.jacobian.identification_jacobian` (geometry, base, tool, joint
 compliance: exactly what :func:`hykin.calibration.calibrate.calibrate` estimates), scaled like the calibration
 scales it (:func:`hykin.calibration.calibrate.parameter_scales`: 1 mm, 1 mrad, 1e-6 rad/N·m) and expressed in
-mm of TCP displacement per typical deviation, restricted to the parameters the calibration can
-identify (:func:`hykin.calibration.calibrate.identifiable_columns` on a spread sample of the candidate pool).
+mm of TCP displacement per typical deviation, restricted to the parameters the calibration would
+estimate (:func:`hykin.calibration.priors.excitation`, the calibration's test, on a spread sample of the
+candidate pool; the others it holds at the robot file's value).
 
 Criteria of a set of poses with scaled rows ``J`` (``(N, r, P)``) and information ``M = Σ J_iᵀ J_i``:
 
@@ -22,7 +23,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..calibration.calibrate import (
-    identifiable_columns,
     identification_jacobian,
     parameter_scales,
 )
@@ -78,16 +78,30 @@ def scaled_rows(model: IdentificationModel, q) -> np.ndarray:
 def identification_model(robot: Robot, q_pool, *, position_only: bool = True, orientation_weight_m_per_rad: float = 1.0,
                          compliance: bool = True, rank_tol: float = 1e-6, negligible_tol: float = 1e-9
                          ) -> IdentificationModel:
-    """Identifiable parameters of ``robot`` over the joints ``q_pool`` ``(N, dof)`` (the calibration's
-    QR test on up to 600 evenly spread rows of the pool)."""
+    """Parameters the calibration would estimate from the joints ``q_pool`` ``(N, dof)``: the
+    calibration's excitation test (:func:`hykin.calibration.priors.excitation`, default priors, the
+    rank tolerances given) on up to 600 evenly spread rows of the pool."""
+    from ..calibration.params import candidate_specs
+    from ..calibration.priors import DEFAULT_PRIORS, excitation, prior_tolerances
+    from ..kinematics.compliance import gravity_torques
+
     q_pool = np.asarray(q_pool, dtype=np.float64).reshape(-1, robot.dof)
     all_names = identification_jacobian(robot, q_pool[:1], position_only=position_only, compliance=compliance)[0]
     scales_all = parameter_scales(robot, compliance=compliance)
     full = IdentificationModel(robot, all_names, scales_all, np.arange(len(all_names)), all_names, position_only,
                                float(orientation_weight_m_per_rad), compliance)
     idx = np.unique(np.linspace(0, len(q_pool) - 1, min(len(q_pool), _ID_SAMPLES)).astype(np.int64))
-    J = scaled_rows(full, q_pool[idx]).reshape(-1, len(all_names))
-    mask, _ = identifiable_columns(J, rank_tol, negligible_tol)
+    J = scaled_rows(full, q_pool[idx]) / _MM_PER_M  # (n, rows, P): m (weighted rad) per typical deviation
+    tau = None
+    if compliance:  # the compliance tolerance is a deflection under the pool's gravity torques (as calibrate)
+        rows = np.unique(np.linspace(0, len(q_pool) - 1, min(len(q_pool), 2000)).astype(np.int64))
+        tau = np.abs(gravity_torques(robot, np.ascontiguousarray(q_pool[rows]))).max(0)
+    specs = candidate_specs(robot, base=True, tool=True, compliance=compliance)
+    floor = np.array([DEFAULT_PRIORS["excitation_mm"] * 1e-3] * 3
+                     + [float(orientation_weight_m_per_rad) * np.radians(DEFAULT_PRIORS["excitation_deg"])] * 3)
+    row_floor = np.tile(floor[: J.shape[1]], len(idx))
+    mask = excitation(J.reshape(-1, len(all_names)), len(idx), prior_tolerances(specs, DEFAULT_PRIORS, tau), scales_all,
+                      row_floor, negligible_tol, rank_tol).excited
     cols = np.flatnonzero(mask)
     return IdentificationModel(robot, [all_names[k] for k in cols], scales_all[cols], cols, all_names, position_only,
                                float(orientation_weight_m_per_rad), compliance)

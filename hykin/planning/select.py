@@ -70,9 +70,11 @@ from .criteria import (
     observability,
     scaled_rows,
 )
+from .moves import SafePath, safe_path
 from .order import order_path, path_travel
 
-__all__ = ["DEFAULT_SPEEDS_RAD_S", "Plan", "active_poses", "candidate_pool", "d_optimal", "i_optimal", "plan_poses", "usage_weight"]
+__all__ = ["DEFAULT_SPEEDS_RAD_S", "Plan", "active_poses", "candidate_pool", "d_optimal", "i_optimal", "plan_poses", "usage_weight",
+           "with_safe_moves"]
 
 DEFAULT_SPEEDS_RAD_S = 0.5  # conservative joint speed for a measuring campaign (rad/s, every joint)
 _CORE_POOL = 5000  # candidates searched for the optimal core
@@ -91,6 +93,8 @@ class Plan:
     ``marginal_ks``, ``holes_pct``; :func:`plan_poses` only).
     id_model: the identification model used. n_pool / n_feasible: candidates drawn / feasible.
     lower/upper: the working region. score: active-selection score per pose (``--for-model``).
+    moves: the moves to execute (:class:`hykin.planning.moves.SafePath`: the poses in order with via
+    poses where a direct move is not clear); poses no safe move reaches are already left out of ``q``.
     """
 
     q: np.ndarray
@@ -106,10 +110,68 @@ class Plan:
     speeds: np.ndarray
     score: np.ndarray | None = None
     info: dict = field(default_factory=dict)
+    moves: SafePath | None = None
 
     def nested(self) -> np.ndarray:
         """Joints in selection order (the first ``k`` rows are the plan for ``k``)."""
         return self.q[np.argsort(self.pick_order)]
+
+
+def _move_check(robot: Robot, c: Constraints):
+    """``(M, dof) -> (M,) bool`` for configurations met while moving (body, floor, keep-out), or None."""
+    from ..kinematics.fk import fk
+    from .bodies import body_clear
+
+    if c.bodies is not None:
+        return lambda Q: body_clear(robot, Q, c.bodies, c.floor_z_m, c.keep_out_m)
+    if c.floor_z_m is not None:
+        return lambda Q: fk(robot, Q)[:, 2, 3] >= c.floor_z_m
+    return None
+
+
+def _order(robot: Robot, c: Constraints, q: np.ndarray, speeds, start) -> tuple[np.ndarray, np.ndarray]:
+    """A short path through ``q`` whose moves are clear where a clear one is near (:func:`order_path`):
+    ``(order (N,), the poses in that order (N, dof))``, full-turn joints unwrapped along the path
+    (:func:`hykin.planning.order.unwrap_path`: the same poses by shorter moves)."""
+    from .moves import moves_clear
+    from .order import full_turn_joints, nearest_turn, unwrap_path
+
+    ok_fn = _move_check(robot, c)
+    pris = np.array([t == "prismatic" for t in robot.independent_joint_type])
+    tw = full_turn_joints(c.lower, c.upper, robot.independent_joint_type)
+    rep = lambda a, b: nearest_turn(a, b, c.lower, c.upper, tw)
+    clear = None if ok_fn is None else (lambda I, J: moves_clear(q[I], rep(q[I], q[J]), ok_fn, pris))
+    path = order_path(q, speeds, start, clear=clear, turns=tw)
+    return path, unwrap_path(q[path], c.lower, c.upper, tw)
+
+
+def with_safe_moves(plan: Plan, robot: Robot, c: Constraints, via_pool: np.ndarray, start=None) -> Plan:
+    """``plan`` with :attr:`Plan.moves` set: each move checked against the body constraints of ``c``
+    (:mod:`.moves`); poses that no safe move reaches are dropped from the plan (``info['dropped']``)."""
+    ok_fn = _move_check(robot, c)
+    if ok_fn is None:
+        plan.moves = SafePath(q=plan.q.copy(), measure=np.ones(len(plan.q), bool), dropped=np.zeros(0, np.int64))
+        return plan
+    dwell = (plan.travel["total_s"] - plan.travel["move_s"]) / max(len(plan.q), 1)
+    pris = np.array([t == "prismatic" for t in robot.independent_joint_type])
+    from .order import full_turn_joints, nearest_turn
+
+    tw = full_turn_joints(c.lower, c.upper, robot.independent_joint_type)
+    sp = safe_path(plan.q, ok_fn, via_pool, plan.speeds, prismatic=pris, start=start,
+                   rep=lambda a, b: nearest_turn(a, b, c.lower, c.upper, tw))
+    plan.moves = sp
+    if sp.dropped.size:
+        keep = np.ones(len(plan.q), bool)
+        keep[sp.dropped] = False
+        plan.q, plan.core = plan.q[keep], plan.core[keep]
+        plan.pick_order = np.argsort(np.argsort(plan.pick_order[keep]))
+        if plan.score is not None:
+            plan.score = plan.score[keep]
+    plan.info["dropped"] = int(sp.dropped.size)
+    plan.info["via"] = int((~sp.measure).sum())
+    plan.travel = path_travel(sp.q, plan.speeds, 0.0)
+    plan.travel["total_s"] = plan.travel["move_s"] + dwell * len(plan.q)
+    return plan
 
 
 def d_optimal(J: np.ndarray, k: int, *, chosen=None, prior: float = _PRIOR, exclude=None) -> np.ndarray:
@@ -248,15 +310,16 @@ def plan_poses(robot: Robot, n: int, constraints: Constraints | None = None, *, 
         fill_idx = np.flatnonzero(rest)[: n - k_core]
     sel = np.concatenate([core_idx, fill_idx])
     q_sel = cand[sel]
-    path = order_path(q_sel, speeds, start)
+    path, q_ord = _order(robot, c, q_sel, speeds, start)
     crit = observability(scaled_rows(idm, q_sel))
     crit["min_spacing"] = min_spacing(X[sel])
     crit.update(coverage_report(q_sel, c.lower, c.upper, seed=seed))
     pick_order = path.copy()  # ordered row i is selection rank path[i]
     core = path < k_core
-    return Plan(q=q_sel[path], core=core, pick_order=pick_order, travel=path_travel(q_sel[path], speeds, dwell_s),
+    plan = Plan(q=q_ord, core=core, pick_order=pick_order, travel=path_travel(q_ord, speeds, dwell_s),
                 criteria=crit, id_model=idm, n_pool=drawn, n_feasible=len(cand), lower=c.lower, upper=c.upper,
                 speeds=speeds, info={"core_size": k_core, "n_params": idm.n_params, "criterion": criterion, "fill": fill})
+    return with_safe_moves(plan, robot, c, cand, start)
 
 
 def usage_weight(idm: IdentificationModel, robot: Robot, c: Constraints, seed: int = 0, n: int = 2048) -> np.ndarray:
@@ -326,9 +389,11 @@ def active_poses(model, n: int, constraints: Constraints | None = None, *, seed:
     sel = deficit_select(U, have, n, have_weight=n_have / max(len(have), 1), weight=weight)
     X = embed(robot, cand, c.lower, c.upper)
     q_sel = cand[sel]
-    path = order_path(q_sel, speeds, start)
-    return Plan(q=q_sel[path], core=np.zeros(n, bool), pick_order=path, travel=path_travel(q_sel[path], speeds, dwell_s),
+    path, q_ord = _order(robot, c, q_sel, speeds, start)
+    plan = Plan(q=q_ord, core=np.zeros(n, bool), pick_order=path, travel=path_travel(q_ord, speeds, dwell_s),
                 criteria={"min_spacing": min_spacing(X[sel]), "score_mean_mm": float(s[sel].mean()),
                           "pool_score_mean_mm": float(s.mean())},
                 id_model=None, n_pool=drawn, n_feasible=len(cand), lower=c.lower, upper=c.upper, speeds=speeds,
                 score=s[sel][path], info={"uncertainty_power": uncertainty_power, "n_existing": n_have})
+    return with_safe_moves(plan, robot, c, cand, start)
+

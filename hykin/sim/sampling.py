@@ -235,7 +235,7 @@ def _wrap_towards(robot: Robot, q: np.ndarray, ref=None) -> np.ndarray:
     """Shift revolute joints by multiples of 2π towards ``ref`` (default: mid-range); same pose."""
     q = q.copy()
     mid = 0.5 * (robot.lower + robot.upper) if ref is None else ref
-    for i, t in enumerate(robot.joint_type):
+    for i, t in enumerate(robot.independent_joint_type):
         if t == "revolute":
             k = np.round((q[i] - mid[i]) / (2 * np.pi))
             cand = q[i] - k * 2 * np.pi

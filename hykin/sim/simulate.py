@@ -245,7 +245,7 @@ def geometric_deviation(robot: Robot, rng, sigma_m: float, sigma_rad: float, fra
                          frame_sigma_rad: float) -> Robot:
     """Copy of ``robot`` with Gaussian deviations of a, d, alpha, theta (and beta where consecutive
     axes are parallel: alpha ≈ 0), and of the base and tool frames."""
-    n = robot.dof
+    n = robot.n_chain
     parallel = np.abs(np.sin(robot.alpha_rad)) < 1e-6
     beta = robot.beta_rad + np.where(parallel, rng.normal(0, sigma_rad, n), 0.0)
     beta[-1] = robot.beta_rad[-1]  # last joint: beta is a tool rotation, kept in the tool error
@@ -263,7 +263,7 @@ def geometric_deviation(robot: Robot, rng, sigma_m: float, sigma_rad: float, fra
 def mass_deviation(robot: Robot, rng, rel: float = 0.05, com_sigma_m: float = 0.01) -> Robot:
     """Copy of ``robot`` with masses and payload off by ``rel`` (relative σ) and COMs by ``com_sigma_m``:
     the mass model the user has is not exact either."""
-    n = robot.dof
+    n = robot.n_chain
     return robot.copy(
         mass_kg=robot.mass_kg * (1 + rng.normal(0, rel, n)).clip(0.5, 1.5),
         com_m=robot.com_m + rng.normal(0, com_sigma_m, (n, 3)) * (robot.mass_kg > 0)[:, None],

@@ -1,0 +1,165 @@
+"""Real-time bridges benchmark (issue #26): a simulated controller follows a path of lines and arcs
+through ``hykin rsi`` / ``hykin egm`` (the CLI, in a subprocess on 127.0.0.1) at the real period.
+
+Robots: a KUKA-like (nominal ``kuka-kr6-r900``) and an ABB-like (nominal ``abb-irb2400``) with
+geometric deviations drawn here (several mm of nominal error) and joint compliance. A hybrid model
+is fitted per robot on 1,000 noise-free simulated poses (``max_epochs`` 5); its own max error is
+measured on 1,000 other poses. Path: ``--seconds`` (default 20 s = 5,000 cycles at 4 ms) at
+constant speed around a loop of two lines and two half circles (100 mm lines, 40 mm radius) in
+the controller's base frame. The simulated controller (:mod:`hykin.realtime.simulated`) sends each
+cycle's setpoint, waits for the answer until the cycle ends (RSI/EGM's own deadline), holds the
+last correction when none came, solves its nominal IK and moves the TRUE robot. Reported: the true
+TCP's error to the programmed path (mean, max; the same path without the bridge as the baseline),
+the share of cycles answered within the period, cycles without an answer, and cycles the simulator
+itself started late (it shares the 2 cores with the bridge and other jobs).
+
+    python benchmarks/bench_realtime.py [--seconds 20] [--protocols rsi,egm] [--fit-poses 1000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from hykin import fk, load_robot
+from hykin.geometry import se3
+from hykin.hybrid.model import HybridModel
+from hykin.kinematics.ik import ik
+from hykin.realtime.simulated import SimulatedEgm, SimulatedRsi, path_errors, xyzabc_of
+from hykin.sim.simulate import VirtualRobot, geometric_deviation, simulate, true_poses
+
+ROBOTS = {"rsi": ("kuka-kr6-r900", np.radians([10.0, -80, 100, 20, 50, -30]), [-1.0, 1, 1, -1, 1, -1]),
+          "egm": ("abb-irb2400", np.radians([10.0, 20, -10, 30, 40, -20]), [1.0] * 6)}
+
+
+def virtual_robot(preset: str, seed: int) -> VirtualRobot:
+    nom = load_robot(preset)
+    truth = geometric_deviation(nom, np.random.default_rng(seed), 8e-4, np.radians(0.1), 8e-4, np.radians(0.1))
+    truth = truth.copy(name=preset + "-truth", stiffness_nm_per_rad=[4e5, 3e5, 2e5, 5e4, 5e4, 3e4])
+    return VirtualRobot(preset + "-virtual", nom, truth)
+
+
+def fit(vr: VirtualRobot, n: int) -> tuple[HybridModel, float]:
+    t = time.perf_counter()
+    q = vr.nominal.random_joints(n, 1, margin=0.05)
+    m = HybridModel(vr.nominal, recipe_kw={"max_epochs": 5}, seed=0).fit(simulate(vr, q, noise=False), progress=False)
+    qv = vr.nominal.random_joints(1000, 2, margin=0.1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        own = se3.pose_error(m.predict(qv), true_poses(vr, qv))[0]
+    print(f"  fitted {vr.name}: {n} poses, {time.perf_counter() - t:.0f} s; model error on 1,000 other poses: "
+          f"mean {own.mean():.2e} mm, max {own.max():.2e} mm")
+    return m, float(own.max())
+
+
+def loop_path(nom, q0: np.ndarray, n: int) -> np.ndarray:
+    """``(n, 4, 4)`` controller-frame poses: a loop of two 100 mm lines and two 40 mm half circles at
+    constant speed, fixed orientation, starting at the nominal pose of ``q0``."""
+    T0 = se3.invert(nom.base) @ fk(nom, q0[None])[0]
+    L, r = 0.1, 0.04
+    total = 2 * L + 2 * np.pi * r
+    s = np.linspace(0, total, n, endpoint=False)
+    xy = np.zeros((n, 2))
+    for i, d in enumerate(s):
+        if d < L:
+            xy[i] = [d, 0]
+        elif d < L + np.pi * r:
+            a = (d - L) / r
+            xy[i] = [L + r * np.sin(a), r - r * np.cos(a)]
+        elif d < 2 * L + np.pi * r:
+            xy[i] = [L - (d - L - np.pi * r), 2 * r]
+        else:
+            a = (d - 2 * L - np.pi * r) / r
+            xy[i] = [-r * np.sin(a), r + r * np.cos(a)]
+    P = np.repeat(T0[None], n, 0)
+    P[:, 0, 3] += xy[:, 0] - L / 2
+    P[:, 1, 3] += xy[:, 1] - r
+    return P
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def run_protocol(proto: str, a, tmp: Path) -> None:
+    preset, q0, signs = ROBOTS[proto]
+    vr = virtual_robot(preset, 26 if proto == "rsi" else 27)
+    m, own_max = fit(vr, a.fit_poses)
+    mp = tmp / f"{proto}.hykin"
+    m.save(mp)
+    nom = vr.nominal
+    n = int(round(a.seconds / 0.004))
+    P = loop_path(nom, q0, n)
+    port = _free_udp_port()
+    cmd = [sys.executable, "-m", "hykin", proto, str(mp), "--listen", f"127.0.0.1:{port}", "--frame", "measurement",
+           "--idle-exit-s", "3", "--axis-signs", ",".join(f"{s:g}" for s in signs)]
+    proc = subprocess.Popen(cmd, env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ctrl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    addr = ("127.0.0.1", port)
+    if proto == "rsi":
+        sp = np.array([xyzabc_of(T, xyzabc_of(P[0])[3]) for T in P])
+
+        def sim(sl, deadline, stamp0):
+            return SimulatedRsi(nom, sp[sl], q0, addr, signs, period_s=0.004, ipoc0=stamp0, deadline_s=deadline)
+    else:
+        def sim(sl, deadline, stamp0):
+            return SimulatedEgm(nom, P[sl], q0, addr, signs, period_s=0.004, seq0=stamp0, deadline_s=deadline)
+    t0 = time.time()
+    while True:  # warm-up cycles until the bridge answers (it also locks onto this socket)
+        w = sim(slice(0, 1), 2.0, 1000).run(ctrl)
+        if np.isfinite(w.reply_s).all():
+            break
+        if proc.poll() is not None or time.time() - t0 > 180:
+            raise SystemExit(f"hykin {proto} did not answer: {proc.stderr.read()[-800:]}")
+    print(f"{proto.upper()}: {nom.name}-like robot, {n} cycles at 4 ms ({n * 0.004:.0f} s), path of lines and arcs")
+    t = time.perf_counter()
+    run = sim(slice(None), None, 10_000).run(ctrl)
+    wall = time.perf_counter() - t
+    ctrl.close()
+    out, err = proc.communicate(timeout=120)
+    targets = nom.base @ P
+    e_pos, e_ang = path_errors(vr, run.q, targets)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        q_nom = ik(nom, targets, q_seed=run.q).q
+    b_pos, _ = path_errors(vr, q_nom, targets)
+    answered = np.isfinite(run.reply_s)
+    print(f"  path error through hykin {proto}: mean {e_pos.mean():.4f} mm, max {e_pos.max():.4f} mm, "
+          f"max {e_ang.max():.5f} deg (without the bridge: mean {b_pos.mean():.3f} mm, max {b_pos.max():.3f} mm; "
+          f"model's own max error {own_max:.2e} mm)")
+    print(f"  answered within 4 ms: {run.in_time.mean() * 100:.2f} % of cycles; answered late: {int((answered & ~run.in_time).sum())}; "
+          f"no answer: {int((~answered).sum())}; answer delay p50 {np.nanpercentile(run.reply_s, 50) * 1e3:.2f} ms, "
+          f"p99 {np.nanpercentile(run.reply_s, 99) * 1e3:.2f} ms; simulator cycles started late: {run.slipped}; "
+          f"wall {wall:.1f} s")
+    print(f"  bridge's own count: {out.strip().splitlines()[-1] if out.strip() else err[-300:]}")
+    ok = e_pos.mean() <= 0.05 and e_pos.max() <= own_max and run.in_time.mean() >= 0.999 and answered.all()
+    print(f"  must hold (mean <= 0.05 mm, max <= model max, >= 99.9 % within 4 ms, none missing): {'MET' if ok else 'NOT MET'}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=20.0)
+    ap.add_argument("--protocols", default="rsi,egm")
+    ap.add_argument("--fit-poses", type=int, default=1000)
+    a = ap.parse_args()
+    with tempfile.TemporaryDirectory() as d:
+        for proto in a.protocols.split(","):
+            run_protocol(proto.strip(), a, Path(d))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,245 @@
+"""Priors of the calibration: every candidate parameter starts at the robot file's value with a
+stated tolerance, and what the data do not excite stays there (used by :mod:`hykin.calibration.calibrate`).
+
+Tolerances per kind (one standard deviation of the prior; :data:`DEFAULT_PRIORS`, overridable with
+``calibrate(..., priors={"length_mm": 2})`` or ``hykin fit|calibrate --prior length_mm=2``):
+
+==================  ==========  ===========================================================
+key                 default     applies to
+==================  ==========  ===========================================================
+length_mm           5           DH/MDH ``a``, ``d``; URDF origin ``x, y, z``
+angle_deg           0.5         DH/MDH ``alpha``, ``beta``; URDF origin ``rx, ry, rz``
+joint_zero_deg      1.25        DH/MDH ``theta`` (joint zero offsets)
+base_mm             inf         base (measurement frame) translation
+base_deg            inf         base rotation
+tool_mm             100         tool (flange -> TCP) translation, further reflectors' offsets
+tool_deg            180         tool rotation
+compliance_deg      0.25        joint compliance, as the deflection it causes under the largest
+                                gravity torque of that joint in the data
+thermal_per_k       3e-5        thermal expansion coefficient (prior mean 0: the file has none)
+excitation_mm       0.2         model-error floor of the excitation test (below), positions
+excitation_deg      0.01        the same for orientations (6-D data)
+refuse_tolerances   4           a parameter the data put further than this many tolerances from
+                                the robot file is refused (:mod:`hykin.calibration.checks`)
+==================  ==========  ===========================================================
+
+The defaults of length, angle and joint zero are a quarter of the refusal bounds hykin used before
+(20 mm, 2 deg, 5 deg), so the same robot files are refused. The base is uninformative (``inf``): a
+robot file without ``[base]`` says nothing about where the tracker stands, the base comes from the
+data (metres or kilometres away); give ``base_mm``/``base_deg`` to hold a surveyed base. The tool
+is a guess with a tool-sized tolerance (a reflector on a 100 mm tool); its rotation is free.
+
+**Excitation (which parameters the data can tell).** Model errors that the classical model does not
+represent (non-geometric effects, instrument drift) are not white noise: they do not average out
+over thousands of poses. A parameter the data move by ``e`` (RMS over the poses, m, after every
+other estimated parameter has absorbed what it can) when it changes by one tolerance can be shifted
+by such an error of size ``f`` by ``f / e`` tolerances. :func:`excitation` finds these ``e`` by a
+rank-revealing (greedy column-pivoted) QR of the identification Jacobian scaled by the tolerances,
+uninformative parameters first; a parameter with ``e < f`` (``f`` = ``excitation_mm``, 0.2 mm, and
+``excitation_deg``, 0.01 deg, for orientation rows: what a calibrated classical model of an
+industrial arm leaves) is **held at its prior** (not estimated:
+its value stays the robot file's, its posterior standard deviation is its tolerance). Example: a
+tool offset measured with the tool at one orientation (spread 0.1 deg) moves the points by
+``0.1 m x 1.7 mrad ~ 0.1 mm`` per tolerance: held, where a white-noise test would call it
+identified to 0.1 mm and a model error of 0.05 mm would move it by 30 mm.
+
+**Estimate.** The estimated parameters are the maximum a posteriori under Gaussian priors: prior
+rows ``(σ / τ_k) (δ_k - μ_k)`` (``σ`` the measurement noise per coordinate, m; ``τ_k`` the tolerance;
+``μ_k`` the robot file's value, a deviation 0) are added to the normal equations of the one LM
+(:func:`hykin.kinematics.lm.normal_equations_step`). Posterior covariance: ``(Jᵀ Σ⁻¹ J + diag(τ⁻²))⁻¹``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "DEFAULT_PRIORS",
+    "GROUP_KIND",
+    "PRIOR_HELP",
+    "Excitation",
+    "excitation",
+    "kind_of",
+    "parse_kind_values",
+    "parse_priors",
+    "prior_tolerances",
+    "resolve_priors",
+]
+
+DEFAULT_PRIORS: dict[str, float] = {
+    "length_mm": 5.0,
+    "angle_deg": 0.5,
+    "joint_zero_deg": 1.25,
+    "base_mm": math.inf,
+    "base_deg": math.inf,
+    "tool_mm": 100.0,
+    "tool_deg": 180.0,
+    "compliance_deg": 0.25,
+    "thermal_per_k": 3e-5,
+    "excitation_mm": 0.2,
+    "excitation_deg": 0.01,
+    "refuse_tolerances": 4.0,
+}
+
+#: one line for the CLI's --help
+PRIOR_HELP = ("Prior tolerance of the robot file's values, KIND=VALUE (repeatable): length_mm (5), angle_deg (0.5), "
+              "joint_zero_deg (1.25), base_mm (inf), base_deg (inf), tool_mm (100), tool_deg (180), compliance_deg "
+              "(0.25, deflection under gravity), thermal_per_k (3e-5), excitation_mm (0.2, model-error floor: a "
+              "parameter moving the data less per tolerance is held at the file), refuse_tolerances (4). inf = "
+              "uninformative.")
+
+#: parameter group -> prior kind prefix ("base" / "tool"); groups not listed are geometry (by field/unit).
+#: A new frame group (per-station bases, per-tool frames) is a frame by its name (see :func:`kind_of`).
+GROUP_KIND = {"base": "base", "tool": "tool", "point": "tool", "comp": "compliance"}
+
+
+def kind_of(spec) -> str:
+    """Prior kind of a :class:`~hykin.calibration.params.ParamSpec`: ``length``, ``angle``, ``joint_zero``,
+    ``base_len``/``base_ang``, ``tool_len``/``tool_ang`` or ``compliance`` (from its group, field, unit)."""
+    g = GROUP_KIND.get(spec.group)
+    if g is None and ("base" in spec.group or "station" in spec.group):
+        g = "base"
+    elif g is None and "tool" in spec.group:
+        g = "tool"
+    if g == "compliance" or spec.unit == "c":
+        return "compliance"
+    if g in ("base", "tool"):
+        return g + ("_len" if spec.unit == "m" else "_ang")
+    if spec.group == "geom" and spec.field == "theta":
+        return "joint_zero"
+    return "length" if spec.unit == "m" else "angle"
+
+
+def resolve_priors(overrides: Mapping[str, float] | None) -> dict[str, float]:
+    """:data:`DEFAULT_PRIORS` with ``overrides``; ValueError on unknown keys or values that are not > 0
+    (``excitation_mm`` may be 0; ``inf`` makes a kind uninformative)."""
+    out = dict(DEFAULT_PRIORS)
+    for k, v in dict(overrides or {}).items():
+        if k not in DEFAULT_PRIORS:
+            raise ValueError(f"priors: unknown kind {k!r}; kinds are {', '.join(DEFAULT_PRIORS)}")
+        try:
+            v = float(v)
+        except (TypeError, ValueError):
+            raise ValueError(f"priors: {k}={v!r} is not a number") from None
+        floor = k.startswith("excitation")
+        ok = v >= 0 if floor else v > 0
+        if math.isnan(v) or not ok or ((k == "refuse_tolerances" or floor) and math.isinf(v)):
+            raise ValueError(f"priors: {k} must be {'>= 0' if floor else '> 0'} and finite where it is a limit, got {v}")
+        out[k] = v
+    return out
+
+
+def parse_kind_values(items: Iterable[str] | str | None, option: str, kinds) -> dict[str, float]:
+    """``["a=1,b=2", "c=inf"]`` (or one string) -> ``{"a": 1.0, ...}``; ValueError naming ``option`` on
+    an item that is not KIND=VALUE or a value that is not a number (the kinds are checked by the caller)."""
+    if isinstance(items, str) or items is None:
+        items = [items or ""]
+    out: dict[str, float] = {}
+    for item in items:
+        for part in str(item).split(","):
+            part = part.strip()
+            if not part:
+                continue
+            if "=" not in part:
+                raise ValueError(f"{option}: {part!r} is not KIND=VALUE (kinds: {', '.join(kinds)})")
+            k, v = (s.strip() for s in part.split("=", 1))
+            try:
+                out[k] = float(v)
+            except ValueError:
+                raise ValueError(f"{option}: {k}={v!r} is not a number") from None
+    return out
+
+
+def parse_priors(items: Iterable[str] | str | None) -> dict[str, float]:
+    """``["length_mm=2", "base_mm=inf"]`` (or one comma-separated string) -> resolved priors (ValueError)."""
+    return resolve_priors(parse_kind_values(items, "--prior", DEFAULT_PRIORS))
+
+
+def prior_tolerances(specs, pri: Mapping[str, float], torque_max_nm=None) -> np.ndarray:
+    """``(P,)`` prior standard deviation of each parameter, SI (m, rad, rad/N·m; ``inf``: uninformative).
+
+    torque_max_nm: ``(n,)`` largest gravity torque of each joint over the data (N·m), which turns the
+    compliance tolerance (a deflection) into a compliance; None, or below 1e-3 of the largest joint's:
+    that compliance is uninformative (inf).
+    """
+    rad = math.pi / 180
+    per = {"length": pri["length_mm"] * 1e-3, "angle": pri["angle_deg"] * rad, "joint_zero": pri["joint_zero_deg"] * rad,
+           "base_len": pri["base_mm"] * 1e-3, "base_ang": pri["base_deg"] * rad, "tool_len": pri["tool_mm"] * 1e-3,
+           "tool_ang": pri["tool_deg"] * rad}
+    out = np.empty(len(specs))
+    t_all = 0.0 if torque_max_nm is None or len(torque_max_nm) == 0 else float(np.max(torque_max_nm))
+    for k, s in enumerate(specs):
+        kind = kind_of(s)
+        if kind == "compliance":  # a joint with next to no gravity torque: its compliance has no meaningful prior
+            tm = 0.0 if torque_max_nm is None else float(torque_max_nm[s.joint])
+            out[k] = pri["compliance_deg"] * rad / tm if tm > 1e-3 * t_all and tm > 0 else math.inf
+        else:
+            out[k] = per[kind]
+    return out
+
+
+@dataclass(frozen=True)
+class Excitation:
+    """Outcome of :func:`excitation`: ``excited`` ``(P,)`` bool (estimated from the data),
+    ``effect_m`` ``(P,)`` RMS change of the data per tolerance that no earlier column explains (in
+    floors; inf for uninformative parameters), ``floor_m`` the threshold used (1, or 0: rank test)."""
+
+    excited: np.ndarray
+    effect_m: np.ndarray
+    floor_m: float
+
+
+def excitation(J: np.ndarray, n_samples: int, tol_si: np.ndarray, scale: np.ndarray, row_floor: np.ndarray,
+               negligible_rel: float = 1e-9, rank_tol: float = 1e-6) -> Excitation:
+    """Which parameters the data excite beyond the model-error floor (module docstring).
+
+    J: ``(rows, P)`` identification Jacobian in scaled units (column ``k`` = d residual per
+    ``scale[k]`` SI) over ``n_samples`` poses; tol_si: ``(P,)`` tolerances (inf: uninformative, always
+    first and excited unless its column is negligible); row_floor: ``(rows,)`` the floor of each row in
+    its own unit (position rows: ``excitation_mm``; orientation rows, weighted by ``w``: ``w x
+    excitation_deg``), so that the test does not depend on the orientation weight; a parameter is
+    excited when its unexplained RMS effect per tolerance reaches 1 floor (``effect_m`` is in
+    floors then; all-zero floors: the plain rank test); rank_tol: a
+    column whose unexplained part is below this fraction of its norm is redundant (held) whatever
+    ``f`` (``f = 0`` then gives the plain rank test). Greedy column-pivoted QR (scipy's rank-revealing QR) on the tolerance-scaled columns after the
+    uninformative ones are projected out.
+    """
+    J = np.asarray(J, dtype=np.float64)
+    row_floor = np.asarray(row_floor, dtype=np.float64)
+    floor_m = 1.0 if np.all(row_floor > 0) else 0.0
+    if floor_m:
+        J = J / row_floor[:, None]
+    P = J.shape[1]
+    norms = np.linalg.norm(J, axis=0)
+    big = norms.max() if P and norms.size else 0.0
+    live = norms > negligible_rel * max(big, 1e-300)
+    inf = ~np.isfinite(tol_si)
+    effect = np.zeros(P)
+    excited = np.zeros(P, bool)
+    forced = np.flatnonzero(inf & live)
+    excited[forced] = True
+    effect[forced] = np.inf
+    rest = np.flatnonzero(~inf & live)
+    if rest.size == 0 or J.shape[0] == 0:
+        return Excitation(excited, effect, floor_m)
+    import scipy.linalg
+
+    Jr = J[:, rest] * (tol_si[rest] / scale[rest])  # per tolerance
+    cn = np.linalg.norm(Jr, axis=0) / math.sqrt(max(n_samples, 1))
+    if forced.size:
+        Q = np.linalg.qr(J[:, forced])[0]
+        rank = np.linalg.matrix_rank(J[:, forced])
+        Q = Q[:, :rank] if rank < Q.shape[1] else Q
+        Jr = Jr - Q @ (Q.T @ Jr)
+    _, R, piv = scipy.linalg.qr(Jr, mode="economic", pivoting=True)
+    m = min(R.shape)
+    rkk = np.abs(np.diag(R[:m, :m]))
+    e = np.zeros(rest.size)
+    e[piv[:m]] = rkk / math.sqrt(max(n_samples, 1))
+    effect[rest] = e
+    excited[rest] = (e >= floor_m) & (e > rank_tol * cn)
+    return Excitation(excited, effect, floor_m)

@@ -1,0 +1,126 @@
+"""Real-time bridges: ``hykin rsi`` (KUKA RSI Ethernet), ``hykin egm`` (ABB Externally Guided Motion)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from .common import CLIError, app, load_model, parse_axis_signs
+
+_LISTEN = typer.Option(..., "--listen", help="HOST:PORT to receive the controller's datagrams on.")
+_CONTROLLER = typer.Option(None, "--controller", help="HOST:PORT of the controller: datagrams from anyone else are "
+                           "dropped (default: the first sender of a valid message).")
+_FRAME = typer.Option("auto", "--frame", help="Setpoints in the controller's base frame are compensated in: measurement, "
+                      "base or auto (as hykin compensate).")
+_MAX_FAILURES = typer.Option(10, "--max-failures", help="Stop answering after this many consecutive cycles that could "
+                             "not be compensated (the controller's timeout then stops the robot).")
+_IDLE = typer.Option(0.0, "--idle-exit-s", help="Exit when no valid datagram came for this long after the first (0: never).")
+
+
+_MAX_MM = typer.Option(50.0, "--max-correction-mm", help="A larger correction is a failure (answered neutrally).")
+_MAX_DEG = typer.Option(5.0, "--max-correction-deg", help="A larger rotation correction is a failure.")
+_SIGNS = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the "
+                      "robot preset: -1,1,1,-1,1,-1 for kuka-kr*, else +1).")
+
+
+def _bridge_setup(model: str, listen: str, controller: str | None, frame: str, max_failures: int, period_ms: float,
+                  axis_signs: str | None):
+    """(model, compensator, bound socket, controller address, axis signs, controller-to-target frame)."""
+    import numpy as np
+
+    from ..compensation.branches import default_axis_signs
+    from ..compensation.compensator import Compensator
+    from ..compensation.targets import FRAMES
+    from ..realtime.udp_bridge import bind_udp, parse_listen
+
+    if frame not in FRAMES:
+        raise CLIError(f"--frame must be one of {', '.join(FRAMES)}, got {frame!r}")
+    if max_failures < 1:
+        raise CLIError(f"--max-failures must be at least 1, got {max_failures}")
+    if not 0 < period_ms <= 1000:
+        raise CLIError(f"--period-ms must be in (0, 1000], got {period_ms}")
+    try:
+        host, port = parse_listen(listen)
+    except ValueError as e:
+        raise CLIError(str(e)) from None
+    try:
+        ctrl = parse_listen(controller) if controller else None
+    except ValueError as e:
+        raise CLIError(str(e).replace("--listen", "--controller")) from None
+    mdl = load_model(model)
+    comp = Compensator(mdl, frame=frame)
+    signs = parse_axis_signs(axis_signs, mdl.nominal.dof)
+    signs = default_axis_signs(mdl.nominal) if signs is None else signs
+    try:
+        sock = bind_udp(host, port)
+    except OSError as e:
+        raise CLIError(f"--listen {listen}: cannot bind ({e.strerror or e})") from None
+    return mdl, comp, sock, ctrl, signs, (mdl.nominal.base if comp.frame == "measurement" else np.eye(4))
+
+
+def _serve(name: str, sock, handler, period_ms: float, max_failures: int, ctrl, idle_exit_s: float) -> None:
+    from ..realtime.udp_bridge import run_bridge
+
+    with sock:
+        st = run_bridge(sock, handler, period_s=period_ms / 1e3, max_failures=max_failures, controller=ctrl,
+                        idle_exit_s=idle_exit_s)
+    typer.echo(f"hykin {name}: {st.stopped}; {st.summary()}")
+    if "consecutive failures" in st.stopped:
+        raise typer.Exit(3)
+
+
+@app.command("rsi")
+def rsi_cmd(
+    model: str = typer.Argument(..., help="Model file (hykin fit)."),
+    listen: str = _LISTEN,
+    config: Path | None = typer.Option(None, "--config", help="RSI_EthernetConfig.xml: tag names (SENTYPE, the "
+                                       "correction element) and <CORRMODE>."),
+    mode: str | None = typer.Option(None, "--mode", help="absolute or incremental correction (default: the config's, "
+                                    "else absolute); must match RSI's POSCORR object."),
+    controller: str | None = _CONTROLLER,
+    frame: str = _FRAME,
+    axis_signs: str | None = _SIGNS,
+    period_ms: float = typer.Option(4.0, "--period-ms", help="RSI cycle, ms (4 or 12): answers later than this count as late."),
+    max_failures: int = _MAX_FAILURES,
+    max_correction_mm: float = _MAX_MM,
+    max_correction_deg: float = _MAX_DEG,
+    idle_exit_s: float = _IDLE,
+) -> None:
+    """KUKA RSI Ethernet peer: answers each <Rob> message with the RKorr that puts the real robot on the setpoint."""
+    from ..realtime.rsi import RsiHandler
+    from ..realtime.rsi_xml import RsiConfig, read_config
+
+    if mode is not None and mode not in ("absolute", "incremental"):
+        raise CLIError(f"--mode must be absolute or incremental, got {mode!r}")
+    try:
+        cfg = read_config(config, mode) if config is not None else RsiConfig(mode=mode or "absolute")
+    except ValueError as e:
+        raise CLIError(str(e)) from None
+    mdl, comp, sock, ctrl, signs, base = _bridge_setup(model, listen, controller, frame, max_failures, period_ms, axis_signs)
+    h = RsiHandler(comp.step, base, mdl.nominal.dof, signs, cfg, period_ms, max_correction_mm, max_correction_deg)
+    typer.echo(f"hykin rsi: {mdl.nominal.name} on udp://{listen} ({cfg.mode}, <Sen Type=\"{cfg.sen_type}\"> "
+               f"<{cfg.korr_tag}>, frame {comp.frame})")
+    _serve("rsi", sock, h, period_ms, max_failures, ctrl, idle_exit_s)
+
+
+@app.command("egm")
+def egm_cmd(
+    model: str = typer.Argument(..., help="Model file (hykin fit)."),
+    listen: str = _LISTEN,
+    controller: str | None = _CONTROLLER,
+    frame: str = _FRAME,
+    axis_signs: str | None = _SIGNS,
+    period_ms: float = typer.Option(4.0, "--period-ms", help="EGM cycle, ms: answers later than this count as late."),
+    max_failures: int = _MAX_FAILURES,
+    max_correction_mm: float = _MAX_MM,
+    max_correction_deg: float = _MAX_DEG,
+    idle_exit_s: float = _IDLE,
+) -> None:
+    """ABB EGM peer (pose guidance): answers each EgmRobot with the pose that puts the real robot on the planned one."""
+    from ..realtime.egm import EgmHandler
+
+    mdl, comp, sock, ctrl, signs, base = _bridge_setup(model, listen, controller, frame, max_failures, period_ms, axis_signs)
+    h = EgmHandler(comp.step, base, mdl.nominal.dof, signs, max_correction_mm, max_correction_deg)
+    typer.echo(f"hykin egm: {mdl.nominal.name} on udp://{listen} (pose guidance, frame {comp.frame})")
+    _serve("egm", sock, h, period_ms, max_failures, ctrl, idle_exit_s)

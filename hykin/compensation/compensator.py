@@ -1,0 +1,311 @@
+"""A compensator that stays warm (:class:`Compensator`) and :func:`compensate`, which runs through it.
+
+``Compensator(model)`` loads everything once: the model's compiled hybrid FK (:mod:`hykin.hybrid.fast_fk`,
+when the model can run compiled), its frames, joint limits and success tolerance. Then
+:meth:`Compensator.step` compensates one target warm-started from the previous joints, and
+:meth:`Compensator.__call__` a batch; both run the same code (:meth:`Compensator.solve`), which is also
+the code of :func:`compensate`, the CLI ``compensate``, program rewriting and ``hykin serve``.
+
+What is solved (frames and commands: :mod:`hykin.compensation.targets`): for each target, the joints at
+which the model's robot (the hybrid model itself) reaches it, on the branch the caller means. The branch
+comes from a hint: joints given by the caller (current joints, a program's configuration data matched
+to a solution, the previous target's joints); without one, the nominal robot's solution nearest the
+previous target's, or — where the nominal robot cannot reach the target — the calibrated robot's, or
+the previous joints themselves. The nominal model only hints: a target it cannot reach is still
+solved on the hybrid model.
+
+Solving (compiled models; :mod:`hykin.hybrid.fast_ik`): LM from the hint in ``hint ± max_move_rad``
+(within the joint limits) with the classical Jacobian; rows that stop above 1e-9 m / 1e-9 rad are
+re-solved from where they stopped with the hybrid (finite-difference) Jacobian within the joint
+limits; rows still missing the tolerance from the calibrated robot's closed-form/numerical solutions
+nearest the hint (all branches, boundary seeds at the workspace edge). Models that cannot run compiled (e.g. any object with ``predict``) use
+:func:`hykin.hybrid.ik.hybrid_ik` seeded by the hint.
+
+Success tolerance (``tolerance_mm``, ``tolerance_deg``): by default ``tolerance_fraction`` (0.5) of the
+model's own held-out mean hybrid error (training metadata: ``val``, else ``held_out``, else ``train``
+metrics), at least 1e-4 mm / 1e-4 deg (the hybrid IK's own threshold; also the value for models
+without metrics). A solution that misses the target by less than half of what the model itself is
+uncertain about is as good as exact for the robot; the LM normally reaches ~1e-12 m anyway. Failures
+carry a categorised reason: ``"blocked by a joint limit: ..."``, ``"unreachable for the model: ..."``
+(no solution within the limits near the meant branch; residual given), or the caller's
+``branch_reason`` for targets whose branch hint is NaN (configuration data that matched nothing).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import se3
+from ..kinematics.fk import fk
+from ..kinematics.ik_solutions import nearest_representation
+from .frames import fitted_base, parse_targets, resolve_frame
+from .result import Compensation, first_row_per_target
+
+__all__ = ["Compensator", "StepResult", "compensate", "model_tolerance"]
+
+_FLOOR_MM, _FLOOR_DEG = 1e-4, 1e-4
+_POLISH_M = 1e-9  # rows the first solve leaves above this (m, rad) are re-solved with the hybrid Jacobian
+
+
+@dataclass
+class StepResult:
+    """One compensated target. q: ``(dof,)`` joints (rad / m) the real robot needs (NaN on failure).
+    command: ``(4, 4)`` pose to send (controller base frame, m; NaN on failure). success, reason
+    (``""`` on success). pos_err_mm, ang_err_deg: the model's pose at ``q`` to the target."""
+
+    q: np.ndarray
+    command: np.ndarray
+    success: bool
+    reason: str
+    pos_err_mm: float
+    ang_err_deg: float
+
+
+def model_tolerance(model, fraction: float = 0.5) -> tuple[float, float]:
+    """``(mm, deg)``: ``fraction`` of the model's held-out mean hybrid position / orientation error
+    (module docstring), at least 1e-4 mm / 1e-4 deg."""
+    met = (getattr(model, "metadata", None) or {}).get("metrics", {}) or {}
+    src = met.get("val") or met.get("held_out") or met.get("train") or {}
+    out = []
+    for key, floor in (("hybrid_pos_mean_mm", _FLOOR_MM), ("hybrid_rot_mean_deg", _FLOOR_DEG)):
+        v = src.get(key)
+        out.append(max(floor, fraction * float(v)) if v is not None and np.isfinite(v) else floor)
+    return out[0], out[1]
+
+
+class Compensator:
+    """Compensation of targets with ``model`` (a fitted :class:`hykin.HybridModel`, or any model with
+    ``nominal``, ``robot_``, ``frame_pre_``, ``frame_post_`` and ``predict``). Loads everything once
+    (module docstring); a Compensator holds a snapshot of the model as it is at construction.
+
+    frame: ``"measurement"``, ``"base"`` or ``"auto"`` (:mod:`hykin.compensation.targets`).
+    tolerance_mm / tolerance_deg: success tolerance (default from the model's accuracy,
+    :func:`model_tolerance` with ``tolerance_fraction``). max_move_rad: half-width of the first box
+    around the hint (30°). Other keywords go to :func:`hykin.hybrid.ik.hybrid_ik` (models that cannot run
+    compiled)."""
+
+    def __init__(self, model, *, frame: str = "measurement", tolerance_mm: float | None = None,
+                 tolerance_deg: float | None = None, tolerance_fraction: float = 0.5,
+                 max_move_rad: float = np.radians(30.0), **ik_kw):
+        from ..hybrid.ik_result import classical_robot
+
+        self.model = model
+        self.nominal = model.nominal
+        self.robot = classical_robot(model)
+        self.dof = self.nominal.dof
+        self.frame = resolve_frame(model, frame)
+        tm, td = model_tolerance(model, tolerance_fraction)
+        self.tolerance_mm = float(tm if tolerance_mm is None else tolerance_mm)
+        self.tolerance_deg = float(td if tolerance_deg is None else tolerance_deg)
+        if not (self.tolerance_mm > 0 and self.tolerance_deg > 0):
+            raise ValueError(f"tolerances must be > 0, got {self.tolerance_mm} mm, {self.tolerance_deg} deg")
+        self.max_move_rad = float(max_move_rad)
+        self.ik_kw = ik_kw
+        self.lower = np.asarray(self.robot.lower, dtype=np.float64)
+        self.upper = np.asarray(self.robot.upper, dtype=np.float64)
+        self._rev = np.array([t == "revolute" for t in self.robot.joint_type])
+        self._base_fit = fitted_base(model) if self.frame == "base" else None
+        self._nom_base_inv = se3.invert(self.nominal.base)
+        self._pre_inv = se3.invert(np.asarray(model.frame_pre_, dtype=np.float64))
+        self._post_inv = se3.invert(np.asarray(model.frame_post_, dtype=np.float64))
+        self.kernel = None
+        if not ik_kw and hasattr(model, "net_pos_"):
+            from ..hybrid.fast_fk import kernel_of
+
+            self.kernel = kernel_of(model)
+
+    # ------------------------------------------------------------------ public API
+
+    def step(self, target, q_prev) -> StepResult:
+        """Compensate ONE target ``(4, 4)`` (m, in :attr:`frame`) on the branch of ``q_prev`` ``(dof,)``
+        (the previous target's joints: the warm start). Same code as :meth:`__call__`."""
+        T = np.asarray(target, dtype=np.float64)
+        if T.shape != (4, 4) or not np.isfinite(T).all():
+            raise ValueError(f"step: target must be a finite (4, 4) pose, got shape {T.shape}")
+        qp = np.asarray(q_prev, dtype=np.float64).reshape(1, self.dof)
+        q, cmd, ok, reason, pe, ae = self.solve(T[None], qp)
+        return StepResult(q=q[0], command=cmd[0], success=bool(ok[0]), reason=str(reason[0]),
+                          pos_err_mm=float(pe[0]), ang_err_deg=float(ae[0]))
+
+    def __call__(self, targets, q_branch=None, *, tool_delta=None, position_only: bool = False,
+                 branch_reason: str = "no solution on the requested branch") -> Compensation:
+        """Compensate targets ``(N, 4, 4)`` (or ``(N, 3)`` positions), m, in :attr:`frame`.
+
+        ``q_branch`` ``(N, dof)`` / ``(dof,)``: joints choosing each target's branch (NaN rows: no branch,
+        the target fails with ``branch_reason``); default the walk of the module docstring.
+        ``tool_delta``: :mod:`hykin.compensation.targets`. Returns a :class:`Compensation`."""
+        from ..hybrid.ik_result import support_of
+
+        T, pos_in = parse_targets(targets)
+        pos_only = bool(position_only or pos_in)
+        N, n = len(T), self.dof
+        D = None if tool_delta is None else np.broadcast_to(np.asarray(tool_delta, dtype=np.float64), (N, 4, 4))
+        if q_branch is None:
+            qb = self._walk(T, D, pos_only)
+        else:
+            qb = np.array(np.broadcast_to(np.asarray(q_branch, dtype=np.float64), (N, n)))
+        q, cmd, ok, reason, pe, ae = self.solve(T, qb, D, pos_only, branch_reason)
+        T_ctrl = T if self.frame == "base" else self._nom_base_inv @ T
+        dpos = np.linalg.norm(cmd[:, :3, 3] - T_ctrl[:, :3, 3], axis=1) * 1e3
+        dang = np.full(N, np.nan)
+        if ok.any() and not pos_only:
+            dang[ok] = se3.pose_error(cmd[ok], T_ctrl[ok])[1]
+        _, sup = support_of(self.model, q)
+        return Compensation(command=cmd, q=q, success=ok, reason=reason, pos_err_mm=pe, ang_err_deg=ae,
+                            shift_mm=dpos, shift_deg=dang, in_support=sup & ok, q_branch=qb, frame=self.frame)
+
+    # ------------------------------------------------------------------ the one path
+
+    def model_targets(self, T: np.ndarray, D: np.ndarray | None = None) -> np.ndarray:
+        """Targets ``(N, 4, 4)`` in :attr:`frame` (of the program TCP ``D``) -> the model's measurement frame."""
+        Tm = T if self._base_fit is None else self._base_fit @ T
+        return Tm if D is None else Tm @ se3.invert(D)
+
+    def solve(self, T: np.ndarray, hint: np.ndarray, D: np.ndarray | None = None, pos_only: bool = False,
+              branch_reason: str = "no solution on the requested branch"):
+        """Targets ``(N, 4, 4)`` (:attr:`frame`) and branch hints ``(N, dof)`` -> ``(q, command, success,
+        reason, pos_err_mm, ang_err_deg)``, NaN joints and command where unsuccessful."""
+        N, n = len(T), self.dof
+        Tm = self.model_targets(T, D)
+        has = np.isfinite(hint).all(1)
+        q = np.full((N, n), np.nan)
+        pe = np.full(N, np.nan)
+        ae = np.full(N, np.nan)
+        reason = np.full(N, branch_reason, dtype=object)
+        idx = np.flatnonzero(has)
+        if idx.size:
+            if self.kernel is not None:
+                h = hint[idx]
+                if ((h < self.lower) | (h > self.upper)).any():  # outside the limits by a turn: the representation inside
+                    h = np.where(self._rev, nearest_representation(h, h, self.lower, self.upper), h)
+                qi, pi, ai, ri = self._solve_compiled(Tm[idx], np.clip(h, self.lower, self.upper), pos_only)
+            else:
+                qi, pi, ai, ri = self._solve_generic(Tm[idx], hint[idx], pos_only)
+            q[idx], pe[idx], ae[idx], reason[idx] = qi, pi, ai, ri
+        ok = reason == ""
+        q[~ok] = np.nan
+        cmd = np.full((N, 4, 4), np.nan)
+        if ok.any():
+            qo = q[ok]
+            C = fk(self.nominal, qo[0]) if len(qo) == 1 else fk(self.nominal, qo)
+            cmd[ok] = self._nom_base_inv @ C if D is None else self._nom_base_inv @ C @ D[ok]
+        return q, cmd, ok, reason.astype(str), pe, ae
+
+    def _ok(self, pe_m, ae_rad):
+        return (pe_m * 1e3 <= self.tolerance_mm) & (np.degrees(ae_rad) <= self.tolerance_deg)
+
+    def _solve_compiled(self, Tm, hint, pos_only):
+        from ..hybrid.fast_ik import solve
+
+        k, lo_j, hi_j = self.kernel, self.lower, self.upper
+        lo = np.maximum(lo_j, hint - self.max_move_rad)
+        hi = np.minimum(hi_j, hint + self.max_move_rad)
+        q, pe, ae, _ = solve(k, Tm, hint, lo, hi, position_only=pos_only)
+        bad = (pe > _POLISH_M) | (ae > _POLISH_M)  # stalled (even within the tolerance): polish
+        if bad.any():  # the hybrid Jacobian, from where they stopped, within the joint limits
+            i = np.flatnonzero(bad)
+            q2, p2, a2, _ = solve(k, Tm[i], q[i], lo_j, hi_j, position_only=pos_only, fd=True)
+            self._keep_better(i, q, pe, ae, q2, p2, a2)
+            bad = ~self._ok(pe, ae)
+        if bad.any() and not pos_only:  # the calibrated robot's solutions nearest the hint
+            i = np.flatnonzero(bad)
+            seeds = self._calibrated_seeds(Tm[i], hint[i])
+            f = np.isfinite(seeds).all(1)
+            if f.any():
+                j = i[f]
+                q3, p3, a3, _ = solve(k, Tm[j], np.clip(seeds[f], lo_j, hi_j), lo_j, hi_j, position_only=pos_only,
+                                      fd=True)
+                self._keep_better(j, q, pe, ae, q3, p3, a3)
+        ok = self._ok(pe, ae)
+        at_lim = ((q <= lo_j + 1e-9) | (q >= hi_j - 1e-9)).any(1)
+        what = np.where(at_lim, "blocked by a joint limit", "unreachable for the model")
+        ang = "" if pos_only else " / {:.3g} deg"
+        reason = np.array(["" if o else (f"{w}: residual {p * 1e3:.3g} mm" + ang.format(np.degrees(a))
+                                         + f" (tolerance {self.tolerance_mm:.3g} mm)")
+                           for o, w, p, a in zip(ok, what, pe, ae)], dtype=object) if not ok.all() else \
+            np.full(len(q), "", dtype=object)
+        return q, pe * 1e3, np.degrees(ae), reason
+
+    @staticmethod
+    def _keep_better(i, q, pe, ae, q2, p2, a2) -> None:
+        better = p2 + a2 < pe[i] + ae[i]
+        j = i[better]
+        q[j], pe[j], ae[j] = q2[better], p2[better], a2[better]
+
+    def _calibrated_seeds(self, Tm, hint) -> np.ndarray:
+        """Per target the calibrated robot's IK solution (every branch, boundary seeds) nearest ``hint``."""
+        from ..hybrid.ik_seeds import classical_seeds, seed_robot_of
+        from ..kinematics.ik import nearest_representation
+
+        Tr = self._pre_inv @ Tm @ self._post_inv
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            q0, _, _ = classical_seeds(self.robot, Tr, all_branches=True, seed_robot=seed_robot_of(self.model, None))
+        if q0.ndim == 2:
+            q0 = q0[:, None]
+        q0 = nearest_representation(q0, hint[:, None], self.lower, self.upper)
+        d = np.where(np.isfinite(q0).all(2), np.linalg.norm(np.nan_to_num(q0 - hint[:, None]), axis=2), np.inf)
+        k = np.argmin(d, axis=1)
+        out = q0[np.arange(len(q0)), k].copy()
+        out[~np.isfinite(d[np.arange(len(q0)), k])] = np.nan
+        return out
+
+    def _solve_generic(self, Tm, hint, pos_only):
+        from ..hybrid.ik import hybrid_ik
+
+        kw = {"success_mm": self.tolerance_mm, "success_deg": self.tolerance_deg, **self.ik_kw}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # out-of-support is reported per row (in_support)
+            res = hybrid_ik(self.model, Tm[:, :3, 3] if pos_only else Tm, all_branches=False, q_current=hint,
+                            nearest=True, position_only=pos_only, **kw)
+        first = first_row_per_target(res)
+        M, n = len(Tm), self.dof
+        q, pe, ae = np.full((M, n), np.nan), np.full(M, np.nan), np.full(M, np.nan)
+        reason = np.full(M, "unreachable for the model", dtype=object)
+        t = res.target[first]
+        q[t], pe[t], ae[t] = res.q[first], res.pos_err_mm[first], res.ang_err_deg[first]
+        reason[t] = np.where(res.success[first], "", np.where(res.reason[first] != "", res.reason[first].astype(object),
+                                                              "unreachable for the model"))
+        return q, pe, ae, reason
+
+    def _walk(self, T: np.ndarray, D, pos_only: bool) -> np.ndarray:
+        """Branch hints without ``q_branch`` (module docstring): nominal solutions nearest the previous
+        target's; where the nominal robot has none, the calibrated robot's, else the previous joints."""
+        from ..kinematics.ik import ik
+        from .branches import nearest_candidate, sequential_nearest
+
+        nom, N, n = self.nominal, len(T), self.dof
+        start = np.clip(np.zeros(n), nom.lower, nom.upper)
+        if pos_only:
+            return np.tile(start, (N, 1))
+        T_nom = nom.base @ T if self.frame == "base" else T  # the target in the nominal robot's world
+        if D is not None:
+            T_nom = T_nom @ se3.invert(D)
+        qb = sequential_nearest(nom, T_nom, None)
+        miss = np.flatnonzero(~np.isfinite(qb).all(1))
+        if miss.size:
+            Tr = self._pre_inv @ self.model_targets(T[miss], None if D is None else D[miss]) @ self._post_inv
+            br = ik(self.robot, Tr, all_branches=True)
+            qc = np.asarray(br.q, dtype=np.float64).reshape(len(miss), -1, n)
+            okc = np.asarray(br.success, dtype=bool).reshape(len(miss), -1)
+            for j, i in enumerate(miss):  # few rows: the walk continues from the joints before
+                prev = next((qb[k] for k in range(i - 1, -1, -1) if np.isfinite(qb[k]).all()), start)
+                pick = nearest_candidate(self.robot, qc[j], okc[j], prev)
+                qb[i] = prev if pick is None else pick
+        return qb
+
+
+def compensate(model, T_target, *, q_branch=None, frame: str = "measurement", position_only: bool = False,
+               tool_delta=None, branch_reason: str = "no solution on the requested branch", **kw) -> Compensation:
+    """Compensated commands for targets ``T_target`` ``(N, 4, 4)`` (or ``(N, 3)`` positions), m:
+    ``Compensator(model, frame=frame, **kw)(T_target, q_branch, ...)`` (:class:`Compensator`).
+
+    ``q_branch`` ``(N, n)`` or ``(n,)``: joints choosing the branch (current joints, or the solution the
+    program means); NaN rows = no branch (the target fails with ``branch_reason``). Default: the walk of
+    :class:`Compensator`. ``frame``, ``tool_delta``: :mod:`hykin.compensation.targets`. ``kw``: tolerances,
+    ``max_move_rad`` (:class:`Compensator`); other keywords go to :func:`hykin.hybrid.ik.hybrid_ik`."""
+    return Compensator(model, frame=frame, **kw)(T_target, q_branch, tool_delta=tool_delta, position_only=position_only,
+                                                 branch_reason=branch_reason)

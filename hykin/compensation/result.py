@@ -1,0 +1,74 @@
+"""The result of compensation (:class:`Compensation`, one row per target) and its CSV columns."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import se3
+
+__all__ = ["Compensation", "command_rows", "first_row_per_target"]
+
+
+@dataclass
+class Compensation:
+    """One row per target (``N``).
+
+    command: ``(N, 4, 4)`` pose to send (controller base frame, m), NaN where ``success`` is False.
+    q: ``(N, n)`` joints the real robot needs (rad); NaN where unreachable.
+    success: ``(N,)`` bool. reason: ``(N,)`` str, ``""`` on success.
+    pos_err_mm, ang_err_deg: ``(N,)`` error of the model's pose at ``q`` to the target (hybrid IK).
+    shift_mm, shift_deg: ``(N,)`` how far the command is from the target (controller frame).
+    in_support: ``(N,)`` bool, ``q`` inside the model's training support.
+    q_branch: ``(N, n)`` joints that chose the branch. frame: the resolved frame.
+    """
+
+    command: np.ndarray
+    q: np.ndarray
+    success: np.ndarray
+    reason: np.ndarray
+    pos_err_mm: np.ndarray
+    ang_err_deg: np.ndarray
+    shift_mm: np.ndarray
+    shift_deg: np.ndarray
+    in_support: np.ndarray
+    q_branch: np.ndarray
+    frame: str
+
+    def __len__(self) -> int:
+        return int(self.success.shape[0])
+
+
+def first_row_per_target(res) -> np.ndarray:
+    """Row indices of a :class:`hykin.hybrid.ik_result.HybridIKResult`: one per target that has rows, its
+    first successful row (else its first row), ordered by target."""
+    order = np.lexsort((~res.success, res.target))
+    return order[np.r_[True, res.target[order][1:] != res.target[order][:-1]]]
+
+
+def command_rows(comp: Compensation, q_names: list[str] | None = None, joints_only: bool = False) -> dict:
+    """CSV columns of a :class:`Compensation`: ``target, x,y,z,qw,qx,qy,qz`` (command, m), ``q1..qN``
+    (rad), ``success``, ``pos_err_mm``, ``ang_err_deg``, ``shift_mm``, ``shift_deg``, ``in_support``,
+    ``status``. ``joints_only``: ``target, q1..qN, success, pos_err_mm, ang_err_deg, status``."""
+    N, n = comp.q.shape
+    rows: dict = {"target": np.arange(N)}
+    if not joints_only:
+        xyz, quat = se3.transform_to_pose(np.where(np.isfinite(comp.command), comp.command, np.eye(4)))
+        quat = np.where(comp.success[:, None], quat, np.nan)
+        xyz = np.where(comp.success[:, None], xyz, np.nan)
+        for k, c in enumerate("xyz"):
+            rows[c] = xyz[:, k]
+        for k, c in enumerate(("qw", "qx", "qy", "qz")):
+            rows[c] = quat[:, k]
+    for j in range(n):
+        rows[(q_names or [f"q{i + 1}" for i in range(n)])[j]] = comp.q[:, j]
+    rows["success"] = comp.success.astype(int)
+    rows["pos_err_mm"] = comp.pos_err_mm
+    rows["ang_err_deg"] = comp.ang_err_deg
+    if not joints_only:
+        rows["shift_mm"] = comp.shift_mm
+        rows["shift_deg"] = comp.shift_deg
+        rows["in_support"] = comp.in_support.astype(int)
+    rows["status"] = np.where(comp.success, "ok", comp.reason)
+    return rows

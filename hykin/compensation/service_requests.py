@@ -1,0 +1,221 @@
+"""Requests of ``hykin serve`` (:mod:`.service`): JSON in, checked arrays, the model call, JSON out.
+
+Every endpoint has a ``parse_*`` method (checks only, no model: it runs on the server's event loop and
+answers a bad request at once) and a method of the same name without the prefix (the model call: it
+runs on the service's one model thread, :class:`hykin.compensation.service_guard.ModelWorker`).
+Units: m, rad; poses as rows ``x, y, z, qw, qx, qy, qz``.
+
+The service holds ONE warm compensator for its lifetime (:func:`warm_compensator`); streaming steps
+go through :func:`step` and batches through the compensator's call.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+from ..geometry import se3
+from .compensator import Compensator
+from .targets import FRAMES, resolve_frame
+
+__all__ = ["Handlers", "RequestError", "step", "warm_compensator"]
+
+
+class RequestError(ValueError):
+    """A request the service cannot answer: ``status`` (400/422) and a one-line reason."""
+
+    def __init__(self, reason: str, status: int = 422):
+        super().__init__(reason)
+        self.status = status
+
+
+class _Compensators:
+    """The service's warm :class:`hykin.compensation.compensator.Compensator`: one for the default frame,
+    built at start; one more for the other frame built on its first request and kept."""
+
+    def __init__(self, model):
+        self.model = model
+        self._by_frame = {"measurement": Compensator(model, frame="measurement")}
+
+    def __call__(self, frame: str):
+        key = resolve_frame(self.model, frame)
+        if key not in self._by_frame:
+            self._by_frame[key] = Compensator(self.model, frame=key)
+        return self._by_frame[key]
+
+
+def warm_compensator(model) -> _Compensators:
+    """The compensators the service holds for its lifetime (built once, at start)."""
+    return _Compensators(model)
+
+
+def step(comps: _Compensators, T: np.ndarray, q_prev: np.ndarray, frame: str) -> dict:
+    """One streamed target ``T`` ``(4, 4)`` from the joints ``q_prev`` ``(n,)`` -> the reply fields."""
+    r = comps(frame).step(T, q_prev)
+    return _step_reply(r.success, r.command, r.q, r.pos_err_mm, r.ang_err_deg, r.reason)
+
+
+def _step_reply(ok: bool, command, q, pos_err_mm: float, ang_err_deg: float, reason: str) -> dict:
+    return {"success": ok, "command": pose_rows(np.asarray(command)[None], np.array([ok]))[0],
+            "q": np.asarray(q, dtype=np.float64).tolist() if ok else None, "pos_err_mm": _float(pos_err_mm),
+            "ang_err_deg": _float(ang_err_deg), "reason": "" if ok else reason}
+
+
+def matrix(body: dict, key: str, widths: tuple, limit: int, required: bool = True):
+    """``body[key]`` as a finite float64 ``(N, w)`` array, ``w`` in ``widths``, ``N <= limit`` (one
+    row may be flat); :class:`RequestError` naming the row and column otherwise."""
+    if key not in body or body[key] is None:
+        if required:
+            raise RequestError(f"missing field '{key}'")
+        return None
+    v = body[key]
+    if not isinstance(v, list) or not v:
+        raise RequestError(f"'{key}' must be a non-empty list of rows")
+    if not isinstance(v[0], list):
+        v = [v]
+    if len(v) > limit:
+        raise RequestError(f"'{key}': {len(v)} rows, at most {limit} per request (hykin serve --max-targets)")
+    for i, row in enumerate(v):
+        if not isinstance(row, list) or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in row):
+            raise RequestError(f"'{key}' row {i}: expected a list of numbers")
+    lens = {len(r) for r in v}
+    if len(lens) != 1 or next(iter(lens)) not in widths:
+        raise RequestError(f"'{key}': every row must have {' or '.join(map(str, widths))} numbers, got lengths {sorted(lens)}")
+    a = np.asarray(v, dtype=np.float64)
+    bad = ~np.isfinite(a)
+    if bad.any():
+        i, j = np.argwhere(bad)[0]
+        raise RequestError(f"'{key}' row {i}, column {j}: not a finite number")
+    return a
+
+
+def poses(a: np.ndarray, key: str = "targets") -> np.ndarray:
+    """``(N, 7)`` rows ``x,y,z,qw,qx,qy,qz`` -> ``(N, 4, 4)``; ``(N, 3)`` positions kept."""
+    if a.shape[1] == 3:
+        return a
+    n = np.linalg.norm(a[:, 3:], axis=1)
+    if np.any(np.abs(n - 1) > 1e-3):
+        i = int(np.argmax(np.abs(n - 1) > 1e-3))
+        raise RequestError(f"'{key}' row {i}: quaternion norm {n[i]:.6f}, expected 1")
+    return se3.pose_to_transform(a[:, :3], a[:, 3:] / n[:, None])
+
+
+def pose_rows(T: np.ndarray, ok: np.ndarray) -> list:
+    """``(N, 4, 4)`` -> rows ``x,y,z,qw,qx,qy,qz`` (None where not ``ok``)."""
+    xyz, quat = se3.transform_to_pose(np.where(np.isfinite(T), T, np.eye(4)))
+    rows = np.concatenate([xyz, quat], 1).tolist()
+    return [r if k else None for r, k in zip(rows, ok.tolist())]
+
+
+def _float(x: float):
+    return float(x) if math.isfinite(x) else None
+
+
+def _floats(a) -> list:
+    return [_float(x) for x in np.asarray(a, dtype=np.float64).tolist()]
+
+
+def check_keys(body, allowed: set) -> dict:
+    """``body`` when it is a JSON object with keys in ``allowed`` only."""
+    if not isinstance(body, dict):
+        raise RequestError("the body must be a JSON object")
+    extra = set(body) - allowed
+    if extra:
+        raise RequestError(f"unknown field(s): {', '.join(sorted(extra))}; allowed: {', '.join(sorted(allowed))}")
+    return body
+
+
+class Handlers:
+    """The computations behind the endpoints (plain functions of parsed JSON; testable without HTTP).
+
+    ``model``: a fitted hybrid model; ``max_targets``: rows per request.
+    """
+
+    def __init__(self, model, max_targets: int = 10_000):
+        self.model = model
+        self.dof = model.nominal.dof
+        self.max_targets = int(max_targets)
+        self.frames = FRAMES
+        self.comp = warm_compensator(model)
+
+    def _targets_q(self, body, widths=(3, 7)):
+        a = matrix(body, "targets", widths, self.max_targets)
+        qc = matrix(body, "q_current", (self.dof,), self.max_targets, required=False)
+        if qc is not None and len(qc) not in (1, len(a)):
+            raise RequestError(f"'q_current': {len(qc)} rows, expected 1 or {len(a)}")
+        return poses(a), qc
+
+    def _frame(self, frame):
+        if frame not in self.frames:
+            raise RequestError(f"'frame' must be one of {', '.join(self.frames)}, got {frame!r}")
+        return frame
+
+    # --- POST /fk
+    def parse_fk(self, body) -> tuple:
+        return (matrix(check_keys(body, {"q"}), "q", (self.dof,), self.max_targets),)
+
+    def fk(self, q) -> dict:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            T = self.model.predict(q)
+            sup = self.model.support_distance(q) if hasattr(self.model, "support_distance") else np.zeros(len(q))
+        return {"poses": pose_rows(T, np.ones(len(q), bool)), "in_support": (np.asarray(sup) <= 0).tolist()}
+
+    # --- POST /ik
+    def parse_ik(self, body) -> tuple:
+        T, qc = self._targets_q(check_keys(body, {"targets", "q_current"}))
+        nom = self.model.nominal
+        zero = np.clip(np.zeros(self.dof), nom.lower, nom.upper)
+        return T, np.ascontiguousarray(np.broadcast_to(zero if qc is None else qc, (len(T), self.dof)))
+
+    def ik(self, T, qc) -> dict:
+        from ..hybrid.ik import hybrid_ik
+        from .targets import first_row_per_target
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = hybrid_ik(self.model, T, all_branches=True, q_current=qc, nearest=True)
+        N = len(T)
+        q = np.full((N, self.dof), np.nan)
+        ok = np.zeros(N, bool)
+        pe, ae = np.full(N, np.nan), np.full(N, np.nan)
+        reason = np.array(["unreachable"] * N, dtype=object)
+        k = first_row_per_target(res)
+        t = res.target[k]
+        q[t], ok[t], pe[t], ae[t], reason[t] = res.q[k], res.success[k], res.pos_err_mm[k], res.ang_err_deg[k], res.reason[k]
+        return {"q": [r if k else None for r, k in zip(q.tolist(), ok.tolist())], "success": ok.tolist(),
+                "pos_err_mm": _floats(pe), "ang_err_deg": _floats(ae), "reason": ["" if k else str(r) for r, k in zip(reason.tolist(), ok.tolist())]}
+
+    # --- POST /compensate
+    def parse_compensate(self, body) -> tuple:
+        body = check_keys(body, {"targets", "q_current", "frame"})
+        T, qc = self._targets_q(body)
+        return T, qc, self._frame(body.get("frame", "measurement"))
+
+    def compensate(self, T, qc, frame) -> dict:
+        c = self.comp(frame)(T, q_branch=qc)
+        return {"commands": pose_rows(c.command, c.success), "q": [r if k else None for r, k in zip(c.q.tolist(), c.success.tolist())],
+                "success": c.success.tolist(), "pos_err_mm": _floats(c.pos_err_mm), "ang_err_deg": _floats(c.ang_err_deg),
+                "shift_mm": _floats(c.shift_mm), "status": ["ok" if k else r for r, k in zip(c.reason.tolist(), c.success.tolist())],
+                "frame": c.frame}
+
+    # --- WebSocket /stream: one target per message
+    def parse_step(self, body, q_last) -> tuple:
+        """``{"target": [x,y,z,qw,qx,qy,qz], "q": [..] (optional after the first message), "id": any}``
+        -> ``(T (4, 4), q_prev (n,))``; ``q_last``: the connection's last answered joints (or None)."""
+        body = check_keys(body, {"target", "q", "id"})
+        v = body.get("target")
+        if not isinstance(v, list) or (v and isinstance(v[0], list)):
+            raise RequestError("'target' must be one row of 7 numbers x, y, z, qw, qx, qy, qz")
+        T = poses(matrix(body, "target", (7,), 1), "target")[0]
+        q = matrix(body, "q", (self.dof,), 1, required=False)
+        if q is None:
+            if q_last is None:
+                raise RequestError(f"'q' (the robot's {self.dof} current joints, rad) is required until a target was answered")
+            return T, q_last
+        return T, q[0]
+
+    def step(self, T, q_prev, frame: str = "measurement") -> dict:
+        return step(self.comp, T, q_prev, frame)

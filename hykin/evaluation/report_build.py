@@ -1,0 +1,200 @@
+"""THE report builder: one self-contained HTML report from one model and optional test data.
+``hykin report``, ``hykin evaluate --report`` and ``hykin demo`` all call :func:`build_report`
+(the demo appends its comparison with the paper to the returned :class:`Report`).
+
+Sections, in reading order: summary in words; model card and data; accuracy per model (position,
+orientation, per base axis) with error distributions; where the error is (against each joint, in
+the workspace, per joint region); ISO 9283; training support; per payload and per temperature;
+calibration (table and correlation heatmap); inverse-kinematics timings.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from . import report_accuracy as acc
+from .evaluate import evaluate_model
+from .report import Report
+from .report_calibration import HEADER as CAL_HEADER
+from .report_calibration import calibration_rows, calibration_summary
+from .report_card import DATA_HEADER, card_rows, data_rows
+from .report_figures import (
+    correlation_figure,
+    distributions_figure,
+    error_histograms,
+    joint_error_figure,
+    spatial_error_figure,
+)
+from .report_ik import HEADER as IK_HEADER
+from .report_ik import time_hybrid_ik
+from .report_summary import accuracy_sentences, final_model, metadata_sentences
+
+__all__ = ["build_report", "evaluation_report", "write_report"]
+
+
+def _revolute(robot) -> np.ndarray:
+    jt = getattr(robot, "joint_type", None) or ("revolute",) * robot.dof
+    return np.array([t == "revolute" for t in jt], bool)
+
+
+def _calibration(model) -> dict | None:
+    cal = getattr(model, "calibration", None)
+    if cal is not None:
+        return cal.to_dict()
+    return ((getattr(model, "metadata", None) or {}).get("calibration")) or None
+
+
+def build_report(model, test=None, *, model_path=None, test_path=None, title: str | None = None,
+                 res=None, ik_targets: int = 20, seed: int = 0, intro: list[str] | None = None) -> tuple[Report, object]:
+    """The report of ``model`` (a fitted :class:`hykin.hybrid.model.HybridModel` or a :class:`Robot`),
+    evaluated on ``test`` (a Dataset, optional; ``res``: its :func:`evaluate_model` result when already
+    computed). ``ik_targets``: targets for the warm IK timing (0: none). ``intro``: paragraphs placed
+    after the summary (what the data are). Returns ``(report, res)``."""
+    robot = getattr(model, "nominal", None) or model
+    rev = _revolute(robot)
+    if test is not None and res is None:
+        res = evaluate_model(model, test)
+    name = Path(str(model_path)).name if model_path else robot.name
+    rep = Report(title or f"hykin report: {name}")
+    rep.subtitle = f"robot {robot.name}" + (f"; test data {Path(str(test_path or test.source)).name} ({len(test)} poses)" if test is not None else "")
+    cal = _calibration(model)
+    cal_rows = calibration_rows(cal, robot, getattr(model, "robot_", None)) if cal else []
+
+    summary = accuracy_sentences(res, test, rev, model) if res is not None else metadata_sentences(model)
+    if cal:
+        summary += calibration_summary(cal, cal_rows)[:2]
+    meta = getattr(model, "metadata", None) or {}
+    if meta:
+        summary.append(f"Trained on {meta.get('n_total', '?')} measured poses (seed {meta.get('seed', '?')}); "
+                       "the model card below lists the files and their hashes.")
+    rep.summary(summary)
+    for p in intro or []:
+        rep.text(p)
+
+    rep.heading("Model card")
+    rep.table(["item", "value"], card_rows(model, model_path), text_cols=2)
+    drows = data_rows(model, test, test_path)
+    if drows:
+        rep.table(DATA_HEADER, drows, "Data", text_cols=2)
+
+    if res is not None:
+        _accuracy_sections(rep, model, test, res, rev)
+    if cal:
+        _calibration_section(rep, cal, cal_rows)
+    if ik_targets and hasattr(model, "predict_classical"):
+        _ik_section(rep, model, test, ik_targets, seed)
+    return rep, res
+
+
+def _accuracy_sections(rep: Report, model, test, res, rev) -> None:
+    names = list(res.vectors)
+    rep.heading("Accuracy on the test data")
+    rep.note("nominal: the robot's nominal kinematics; calibrated: the calibrated classical model; hybrid: calibrated "
+             "model plus the learned residual networks. Errors are predicted minus measured. For |e| the mean is of "
+             "the error's length; for a component (x, y, z in the base frame; rx, ry, rz rotations about them) the "
+             "mean is signed (a bias) and the std its spread.")
+    rep.table(acc.AXIS_HEADER, acc.axis_rows(res.vectors), text_cols=2)
+    last = final_model(res)
+    rep.figure(distributions_figure({k: res.errors[k] for k in names}),
+               f"Error distributions on the test data, {', '.join(names)} (log scale).")
+
+    rep.heading("Where the error is")
+    rep.figure(joint_error_figure(test.q, {k: res.errors[k][0] for k in names}, rev),
+               f"Position error against each joint: lines are mean errors per joint bin, dots the {last} model's test poses.")
+    rep.figure(spatial_error_figure(test.xyz_m, res.errors[last][0], last),
+               f"Test positions (base frame) seen from above (x–y) and from the sides, coloured by the {last} model's position error.")
+    if res.regions:
+        rep.note("Per joint quartile (registered model; mean mm): nominal + rigid fit is the nominal robot with base and "
+                 "tool fitted to all of these poses.")
+        keys = [k for k in res.regions[0] if k not in ("region", "n")]
+        rep.table(["region", "n", *keys], [[r["region"], r["n"], *(r[k][0] for k in keys)] for r in res.regions])
+
+    rep.heading("ISO 9283 pose accuracy and repeatability")
+    rows, note = acc.iso_rows(test, res.predicted)
+    if rows:
+        rep.table(acc.ISO_HEADER, rows, text_cols=2)
+    rep.note(note)
+
+    srows, n_out = acc.support_rows(model, test.q, rev)
+    if srows:
+        rep.heading("Training support")
+        rep.table(acc.SUPPORT_HEADER, srows, text_cols=2)
+        rep.note(f"{n_out} of {res.n} test poses lie outside the training support (outside a joint's trained range, or "
+                 "in a gap between training poses); the network correction fades to the calibrated model there.")
+    prow = acc.per_payload_rows(res.per_payload)
+    from ..calibration.thermal import temperature_of
+
+    trow = acc.per_temperature_rows(temperature_of(test), res.errors)
+    if prow or trow:
+        rep.heading("Per payload and temperature")
+        if prow:
+            rep.table(acc.PAYLOAD_HEADER, prow, text_cols=2)
+        if trow:
+            rep.table(acc.TEMPERATURE_HEADER, trow, text_cols=2)
+    else:
+        rep.note("The test data carry no payload_kg or temperature_c column: no per-payload or per-temperature tables.")
+
+
+def _calibration_section(rep: Report, cal: dict, rows) -> None:
+    rep.heading("Calibration")
+    rep.bullets(calibration_summary(cal, rows))
+    rep.note("Deviation = identified − nominal (base and tool: the correction in the nominal frame). Posterior std: "
+             "the standard deviation of the identified value from the residual noise. Held parameters keep their "
+             "nominal value because these poses cannot separate them from others. Base/tool rx, ry, rz: rotation vector.")
+    cells = [r.cells() for r in rows]
+    header = CAL_HEADER
+    if not any(r.notes for r in rows):  # the notes column only when the calibration adds per-parameter fields
+        header, cells = header[:-1], [c[:-1] for c in cells]
+    rep.table(header, cells, text_cols={0, 6, 7}, digits=6, row_classes=["held" if r.held else "" for r in rows])
+    names, corr = cal.get("correlation_names") or [], np.asarray(cal.get("correlation") or [])
+    if len(names) >= 2 and corr.shape == (len(names), len(names)):
+        rep.figure(correlation_figure(names, corr),
+                   "Correlation of the identified parameters (red +1, blue −1): strongly correlated pairs are hard "
+                   "to tell apart from these poses.")
+
+
+def _ik_section(rep: Report, model, test, n: int, seed: int) -> None:
+    if test is not None:
+        q = np.asarray(test.q)[: int(n)]
+    else:
+        q = model.nominal.random_joints(int(n), seed)
+        lo, hi = getattr(model, "support_lower_", None), getattr(model, "support_upper_", None)
+        if lo is not None and np.all(getattr(model, "input_mask_", True)) and not np.isfinite(getattr(model, "wrap_centre_", [np.nan])).any():
+            q = np.clip(q, lo, hi)
+    t = time_hybrid_ik(model, q)
+    if t is None:
+        return
+    rep.heading("Inverse kinematics timing")
+    rep.table(IK_HEADER, t.rows(), text_cols={0, 5})
+    rep.note(f"Warm figures: one untimed call first (imports, compiled kernels), then the best of 2 calls on {t.n_targets} "
+             "targets (the model's own poses at test joints), divided by the number of targets, on this machine while "
+             "it wrote the report. Hybrid IK is vectorised over the targets of a call: on batches of thousands the cost "
+             "per target is much lower, on a handful it is dominated by fixed per-call work. A first, cold call costs more.")
+
+
+def write_report(rep: Report, out_dir, res=None) -> Path:
+    """Write ``out_dir/report.html`` (and ``out_dir/evaluation.json`` with ``res``); returns the HTML path."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    if res is not None:
+        (out / "evaluation.json").write_text(res.json(), encoding="utf-8")
+    return rep.write(out / "report.html")
+
+
+def evaluation_report(res, out_dir: str | Path, title: str | None = None, *, model=None, data=None,
+                      model_path=None, test_path=None, ik_targets: int = 20) -> Path:
+    """Write ``out_dir/report.html`` (the report of :func:`build_report`)
+    and ``out_dir/evaluation.json``. ``model`` and ``data``: the model and test Dataset ``res`` was
+    computed from (without them only the error tables and distributions of ``res`` are shown)."""
+    if model is None or data is None:
+        rep = Report(title or "hykin evaluation")
+        rep.text(f"Dataset: {res.dataset} ({res.n} samples{', position only' if res.position_only else ''}).")
+        names = list(res.errors)
+        b, a = res.errors[names[0]], res.errors[names[-1]]
+        rep.figure(error_histograms(b[0], a[0], b[1], a[1], labels=(names[0], names[-1])),
+                   caption=f"Error distributions, {names[0]} vs {names[-1]}.")
+        return write_report(rep, out_dir, res)
+    rep, _ = build_report(model, data, model_path=model_path, test_path=test_path, title=title, res=res, ik_targets=ik_targets)
+    return write_report(rep, out_dir, res)

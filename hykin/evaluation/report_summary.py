@@ -1,0 +1,87 @@
+"""The written summary at the top of the report, computed from the evaluation (never canned): how
+accurate the model is, how much of the nominal error it removes, where the largest errors remain,
+how many test poses lie outside the training data, and which data it was trained on.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .report import deg, mm
+from .report_accuracy import joint_hotspot, reach_hotspot
+
+__all__ = ["accuracy_sentences", "final_model", "metadata_sentences"]
+
+
+def final_model(res) -> str:
+    """The row the report judges: ``hybrid`` when present, else the last model of the evaluation."""
+    return "hybrid" if "hybrid" in res.stats else list(res.stats)[-1]
+
+
+def _pct(a: float, b: float) -> str:
+    """Share of ``b`` removed when it becomes ``a``, with enough digits to tell 99.9 % from 99.999 %."""
+    if not b > 0:
+        return "–"
+    r = 100 * (1 - a / b)
+    return f"{r:.1f} %" if r < 99.9 else f"{r:.4g} %"
+
+
+def accuracy_sentences(res, data, revolute, model=None) -> list[str]:
+    """Sentences on the test data: accuracy of the final model, share of the nominal error removed
+    (and by the calibration alone), where the largest errors remain, poses outside the training data."""
+    name = final_model(res)
+    s = res.stats[name]
+    out = []
+    line = (f"On {res.n} test poses the {name} model is accurate to {mm(s.pos_mean_mm)} on average "
+            f"(95 % of poses within {mm(s.pos_p95_mm)}, worst {mm(s.pos_max_mm)})")
+    if s.ang_mean_deg is not None:
+        line += f" and {deg(s.ang_mean_deg)} in orientation (95 % within {deg(s.ang_p95_deg)})"
+    out.append(line + ".")
+    nom = res.stats.get("nominal")
+    if nom is not None and name != "nominal":
+        line = (f"It removes {_pct(s.pos_mean_mm, nom.pos_mean_mm)} of the nominal model's mean position error "
+                f"({mm(nom.pos_mean_mm)} → {mm(s.pos_mean_mm)})")
+        if nom.ang_mean_deg is not None and s.ang_mean_deg is not None:
+            line += f" and {_pct(s.ang_mean_deg, nom.ang_mean_deg)} of its orientation error ({deg(nom.ang_mean_deg)} → {deg(s.ang_mean_deg)})"
+        cal = res.stats.get("calibrated")
+        if cal is not None and name != "calibrated":
+            line += f"; the calibration alone removes {_pct(cal.pos_mean_mm, nom.pos_mean_mm)} ({mm(cal.pos_mean_mm)})"
+        out.append(line + ".")
+    e = res.errors[name][0]
+    hot = joint_hotspot(np.asarray(data.q), e, revolute)
+    reach = reach_hotspot(np.asarray(data.xyz_m), e)
+    where = [h.words() for h in (hot, reach) if h is not None and h.mean_mm > 1.2 * h.overall_mm]
+    if where:
+        out.append("The largest remaining errors are at " + "; and at ".join(where) + ".")
+    elif hot is not None:
+        out.append("The remaining error is spread evenly: no joint range or reach has a mean error above 1.2 × the overall mean.")
+    if res.support_distance is not None:
+        n_out = int(np.sum(res.support_distance > 0))
+        if n_out:
+            mean_out = float(e[res.support_distance > 0].mean())
+            out.append(f"{n_out} of {res.n} test poses lie outside the training data (mean error there {mm(mean_out)}); "
+                       "there the network correction fades out towards the calibrated model.")
+        else:
+            out.append("All test poses lie inside the training data.")
+    return out
+
+
+def metadata_sentences(model) -> list[str]:
+    """Sentences from the model's own record when there are no test data: errors on its held-out /
+    validation / training rows."""
+    metrics = (getattr(model, "metadata", None) or {}).get("metrics") or {}
+    out = []
+    labels = {"held_out": "the rows held out from network training", "val": "the validation data", "train": "the training data"}
+    for key in ("held_out", "val", "train"):
+        m = metrics.get(key)
+        if not m:
+            continue
+        line = f"On {labels[key]} the hybrid model's mean position error is {mm(m.get('hybrid_pos_mean_mm', float('nan')))}"
+        if "hybrid_rot_mean_deg" in m:
+            line += f" and {deg(m['hybrid_rot_mean_deg'])} in orientation"
+        line += f" (calibrated model alone: {mm(m.get('classical_pos_mean_mm', float('nan')))})."
+        out.append(line)
+        break
+    out.append("No test data were given: pass a test file (hykin report MODEL TEST.csv) for accuracy tables, "
+               "error maps and ISO 9283 figures.")
+    return out

@@ -1,0 +1,340 @@
+"""Hybrid FK compiled: the whole prediction of :meth:`hykin.HybridModel.predict` for one pose in one
+numba function (joint deflection under gravity, chain walk, network coordinates, fade, both residual
+networks, the correction and the registration frames), with no per-call Python or numpy overhead.
+
+:func:`kernel_of` packs a fitted model into plain arrays once (:class:`HybridKernel`, cached on the
+model and rebuilt when its weights, robot, frames or fade change). ``hybrid_one`` is the compiled
+per-pose function that :mod:`hykin.hybrid.fast_ik` (hybrid LM) calls; :func:`predict_fast` the
+batched one that ``HybridModel.predict`` (and so ``hykin fk``, ``hykin ik``, hybrid IK and the
+compensation) uses for batches under :data:`COMPILED_MAX` poses.
+
+Same operations and numbers as the numpy path: deflection with
+:func:`hykin.kinematics.compliance.deflect_one`, the chain walk of :mod:`hykin.kinematics.walk`, the
+pair gap of :func:`hykin.hybrid.support.pair_gap_row`, the rotation of
+:func:`hykin.hybrid.rotations.rotate_top`, and the networks as :mod:`hykin.hybrid.fast_nets` does them
+(float32 weights in float64 arithmetic; dense nets and Chen ResNets, BatchNorm folded). Differences
+to the numpy path are rounding of the summation order (tested within 1e-9 mm).
+
+Not compiled (``kernel_of`` returns None and callers use the numpy path): numba missing, ``fade="full"``
+(nearest-neighbour gap over a k-d tree), an explicit payload or temperature (per-call arguments).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..kinematics.fk import HAVE_NUMBA
+from . import fast_nets
+
+__all__ = ["COMPILED_MAX", "HybridKernel", "kernel_of", "pack_net", "predict_fast"]
+
+#: batches at least this large predict through the numpy path (the networks as BLAS matrix products
+#: of :mod:`hykin.hybrid.fast_nets` beat per-pose matrix-vector products there; same numbers to rounding)
+COMPILED_MAX = 64
+
+_ACT = {None: 0, "relu": 1, "silu": 2, "gelu": 3, "tanh": 4, "sigmoid": 5}
+_DENSE, _ADD, _ACTOP, _COPY = 0, 1, 2, 3
+
+
+def pack_net(fn: fast_nets.FastNet) -> tuple:
+    """A :class:`~hykin.hybrid.fast_nets.FastNet` as ``(ops (K, 7) int64, weights (W,), lower, upper,
+    out_bias, meta [out_scale, features (0 minmax01, 1 trig), widest layer])``. ops rows
+    ``[code, src, dst, offset, n_in, n_out, act]`` over 4 buffers (0 = layer input x)."""
+    ops, chunks, off, widest = [], [], 0, 3 * len(fn.lower)
+
+    def dense(W, b, src, dst, act):
+        nonlocal off
+        ops.append([_DENSE, src, dst, off, W.shape[0], W.shape[1], _ACT[act]])
+        chunks.extend([W.reshape(-1), b])
+        off += W.size + b.size
+        return W.shape[1]
+
+    width = widest
+    for L in fn.layers:
+        cur, nxt = 0, 1
+        for W, b, act in L.main:
+            width = dense(W, b, cur, nxt, act)
+            widest = max(widest, width)
+            cur, nxt = nxt, (2 if nxt == 1 else 1)
+        if isinstance(L.shortcut, str):
+            ops.append([_ADD, 0, cur, 0, 0, width, 0])
+        elif L.shortcut is not None:
+            dense(L.shortcut[0], L.shortcut[1], 0, 3, None)
+            ops.append([_ADD, 3, cur, 0, 0, width, 0])
+        if L.act is not None:
+            ops.append([_ACTOP, cur, cur, 0, 0, width, _ACT[L.act]])
+        ops.append([_COPY, cur, 0, 0, 0, width, 0])
+    meta = np.array([fn.out_scale, 0.0 if fn.features == "minmax01" else 1.0, float(widest)])
+    return (np.array(ops, dtype=np.int64).reshape(-1, 7), np.concatenate(chunks), fn.lower.copy(),
+            fn.upper.copy(), fn.out_bias.copy(), meta)
+
+
+@dataclass
+class HybridKernel:
+    """A fitted model packed for the compiled kernels. ``P``: the tuple ``hybrid_one`` takes; ``dof``;
+    ``refs``/``vals``/``tensors``/``versions``: what it was built from (:func:`kernel_of`)."""
+
+    P: tuple
+    dof: int
+    refs: tuple
+    vals: tuple
+    tensors: list
+    versions: tuple
+
+
+def _refs(model) -> tuple:
+    return (model.net_pos_, model.net_rot_, model.robot_, model.frame_pre_, model.frame_post_, model.pair_gap_,
+            model.wrap_centre_, model.support_lower_, model.support_upper_, model.j1_axis_, model.payload_range_)
+
+
+def _vals(model) -> tuple:
+    return (model.fade, model.fade_offset_, model.fade_width_, model.payload_input_,
+            getattr(model, "payload_default_kg_", None))
+
+
+def kernel_of(model) -> HybridKernel | None:
+    """The :class:`HybridKernel` of a fitted :class:`hykin.HybridModel` (cached on it; rebuilt when one
+    of its networks, robot, frames, support or fade settings is replaced or a network's weights change
+    in place), or None when the model cannot run compiled (module docstring)."""
+    if not HAVE_NUMBA or model.fade == "full" or getattr(model, "net_pos_", None) is None:
+        return None
+    k = model.__dict__.get("_fast_kernel")
+    if (k is not None and all(a is b for a, b in zip(_refs(model), k.refs)) and _vals(model) == k.vals
+            and all(t._version == v for t, v in zip(k.tensors, k.versions))):
+        return k
+    from ..kinematics.chain import chain_of
+    from ..kinematics.compliance import compliance_of, kernel_args
+
+    rob = model.robot_
+    n = rob.dof
+    ch = chain_of(rob)
+    comp = bool(rob.has_compliance)
+    kf, kpost, ppt, kpr, com, mass, kg, g = kernel_args(rob, 1)
+    C = compliance_of(rob) if comp else np.zeros(n)
+    wrap = np.asarray(model.wrap_centre_, dtype=np.float64)
+    mask = np.asarray(model.input_mask_, dtype=np.float64)
+    pin = np.zeros(1)
+    if model.payload_input_:
+        from ..io.payload import payload_column
+
+        kgd = rob.payload_kg if model.payload_default_kg_ is None else model.payload_default_kg_
+        pin = payload_column(np.zeros((1, 0)), kgd, model.payload_range_)[0]  # the clamped default payload
+    s = model.support
+    mode = 0 if model.fade is False else (1 if model.fade == "range" else 2)
+    pairs = np.asarray(s.pair_index, dtype=np.int64).reshape(-1, 2)
+    field = np.ascontiguousarray(s.pair_gap, dtype=np.float64)
+    if field.ndim != 3:
+        field = np.zeros((0, 2, 2))
+    j1 = np.zeros(3) if model.j1_axis_ is None else np.asarray(model.j1_axis_, dtype=np.float64)
+    pos = pack_net(fast_nets.cached(model, model.net_pos_).fast)
+    has_rot = model.net_rot_ is not None
+    rot = pack_net(fast_nets.cached(model, model.net_rot_).fast) if has_rot else pos
+    framed = not (np.array_equal(model.frame_pre_, np.eye(4)) and np.array_equal(model.frame_post_, np.eye(4)))
+    c = lambda x: np.ascontiguousarray(x, dtype=np.float64)
+    P = (
+        c(ch.fixed), np.ascontiguousarray(ch.prismatic, dtype=np.bool_), comp, c(kf), c(kpost), c(ppt[0]),
+        np.ascontiguousarray(kpr, dtype=np.bool_), c(com), c(mass), float(kg[0]), c(g), c(C),
+        c(wrap), c(mask), bool(model.payload_input_), c(pin),
+        int(mode), c(s.lower), c(s.upper), c(s.span), float(model.fade_offset_), float(model.fade_width_),
+        np.ascontiguousarray(pairs[:, 0]), np.ascontiguousarray(pairs[:, 1]), field,
+        model.j1_axis_ is not None, j1,
+        *pos, has_rot, *rot,
+        framed, c(model.frame_pre_), c(model.frame_post_),
+    )
+    tensors = [t for net in (model.net_pos_, model.net_rot_) if net is not None for t in (*net.parameters(), *net.buffers())]
+    k = HybridKernel(P=P, dof=n, refs=_refs(model), vals=_vals(model), tensors=tensors,
+                     versions=tuple(t._version for t in tensors))
+    model.__dict__["_fast_kernel"] = k
+    return k
+
+
+if HAVE_NUMBA:
+    import math
+
+    import numba
+
+    from ..kinematics.compliance import MAX_ITER, TOL_RAD, deflect_one
+    from ..kinematics.walk import fk_one
+    from .rotations import rotate_top
+    from .support import pair_gap_row
+
+    _DEFLECT_MIN_IT = 4  # hykin.kinematics.compliance.deflected_joints' default ``iterations``
+
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _act(a, x):  # pragma: no cover - compiled
+        if a == 1:
+            return x if x > 0.0 else 0.0
+        if a == 2:
+            return x / (1.0 + math.exp(-x)) if x > -700.0 else -0.0
+        if a == 3:
+            return 0.5 * x * (1.0 + math.erf(x / math.sqrt(2.0)))
+        if a == 4:
+            return math.tanh(x)
+        if a == 5:
+            return 1.0 / (1.0 + math.exp(-x)) if x > -700.0 else 0.0
+        return x
+
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _dense(Wf, off, ni, no, a, x, y):  # pragma: no cover - compiled
+        """``y[:no] = act(x[:ni] @ W + b)``."""
+        boff = off + ni * no
+        h = np.dot(x[:ni], Wf[off:boff].reshape((ni, no)))  # BLAS gemv
+        for o in range(no):
+            y[o] = h[o] + Wf[boff + o]
+        if a != 0:
+            for o in range(no):
+                y[o] = _act(a, y[o])
+
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _pick(k, b0, b1, b2, b3):  # pragma: no cover - compiled
+        if k == 0:
+            return b0
+        if k == 1:
+            return b1
+        if k == 2:
+            return b2
+        return b3
+
+    @numba.njit(cache=True, nogil=True)
+    def net_one(ops, Wf, lower, upper, out_bias, meta, x_in, n_in, buf, out):  # pragma: no cover - compiled
+        """One network evaluation: inputs ``x_in[:n_in]`` -> ``out`` (3,); ``buf`` (4, widest) scratch
+        (four separate rows, so that the compiler sees no aliasing)."""
+        b0, b1, b2, b3 = buf[0], buf[1], buf[2], buf[3]
+        if meta[1] == 0.0:
+            for i in range(n_in):
+                b0[i] = (x_in[i] - lower[i]) / (upper[i] - lower[i])
+        else:
+            for i in range(n_in):
+                b0[i] = 2.0 * ((x_in[i] - lower[i]) / (upper[i] - lower[i])) - 1.0
+                b0[n_in + i] = math.sin(x_in[i])
+                b0[2 * n_in + i] = math.cos(x_in[i])
+        for k in range(ops.shape[0]):
+            code, src, dst, off, ni, no, a = ops[k, 0], ops[k, 1], ops[k, 2], ops[k, 3], ops[k, 4], ops[k, 5], ops[k, 6]
+            xs = _pick(src, b0, b1, b2, b3)
+            yd = _pick(dst, b0, b1, b2, b3)
+            if code == 0:
+                _dense(Wf, off, ni, no, a, xs, yd)
+            elif code == 1:
+                for o in range(no):
+                    yd[o] += xs[o]
+            elif code == 2:
+                for o in range(no):
+                    yd[o] = _act(a, yd[o])
+            else:
+                for o in range(no):
+                    yd[o] = xs[o]
+        s = meta[0]
+        for o in range(3):
+            out[o] = out_bias[o] + s * b0[o]
+
+    @numba.njit(cache=True, nogil=True)
+    def _from_net_frame(has_j1, u, q0, v):  # pragma: no cover - compiled
+        if not has_j1:
+            return
+        c, s = math.cos(q0), math.sin(q0)
+        x, y, z = v[0], v[1], v[2]
+        cx, cy, cz = u[1] * z - u[2] * y, u[2] * x - u[0] * z, u[0] * y - u[1] * x
+        d = (x * u[0] + y * u[1] + z * u[2]) * (1.0 - c)
+        v[0], v[1], v[2] = x * c + cx * s + u[0] * d, y * c + cy * s + u[1] * d, z * c + cz * s + u[2] * d
+
+    @numba.njit(cache=True, nogil=True)
+    def hybrid_one(P, q, T, ex, framed_out):  # pragma: no cover - compiled
+        """Hybrid pose of joints ``q`` (n,) into ``T`` (4, 4) at the reference temperature, the range
+        excess into ``ex`` (n,); returns the pair gap. ``framed_out``: apply the registration frames."""
+        (fixed, prism, comp, kf, kpost, ppt, kpr, com, mass, kg, g, C, wrap, mask, pin_on, pin, mode, slo, shi, span,
+         f_off, f_w, I, J, field, has_j1, j1,
+         p_ops, p_W, p_lo, p_hi, p_b, p_meta, has_rot, r_ops, r_W, r_lo, r_hi, r_b, r_meta,
+         framed, pre, post) = P
+        n = q.shape[0]
+        qe = np.empty(n)
+        if comp:
+            tau = np.empty(n)
+            z = np.empty((n, 3))
+            o = np.empty((n, 3))
+            cm = np.empty((n, 3))
+            deflect_one(kf, kpost, ppt, kpr, com, mass, kg, g, C, q, _DEFLECT_MIN_IT, MAX_ITER, TOL_RAD, qe, tau, z, o, cm)
+            fk_one(fixed, prism, qe, T)
+        else:
+            fk_one(fixed, prism, q, T)
+        # network coordinates: wrapped revolute joints, masked inputs, payload column
+        x = np.empty(n + 1)
+        for i in range(n):
+            v = q[i]
+            c = wrap[i]
+            if not math.isnan(c):
+                a = c - math.pi
+                v = a + (v - a) % (2.0 * math.pi)
+            x[i] = v * mask[i]
+        n_in = n
+        if pin_on:
+            x[n] = pin[0]
+            n_in = n + 1
+        d = 0.0
+        for i in range(n):
+            e = max(0.0, max(slo[i] - x[i], x[i] - shi[i])) / span[i]
+            ex[i] = e
+            d = max(d, e)
+        gap = pair_gap_row(x, slo, span, field, I, J) if I.shape[0] > 0 else 0.0
+        w = 1.0
+        if mode == 2:
+            d = max(d, gap)
+        if mode != 0:
+            t = min(max((d - f_off) / f_w, 0.0), 1.0)
+            w = 0.5 * (1.0 + math.cos(math.pi * t))
+        widest = int(max(p_meta[2], r_meta[2]))
+        buf = np.empty((4, widest))
+        dv = np.empty(3)
+        if w != 0.0:
+            net_one(p_ops, p_W, p_lo, p_hi, p_b, p_meta, x, n_in, buf, dv)
+            _from_net_frame(has_j1, j1, q[0], dv)
+            for r in range(3):
+                T[r, 3] += w * dv[r] if w != 1.0 else dv[r]
+            if has_rot:
+                net_one(r_ops, r_W, r_lo, r_hi, r_b, r_meta, x, n_in, buf, dv)
+                _from_net_frame(has_j1, j1, q[0], dv)
+                if w != 1.0:
+                    for r in range(3):
+                        dv[r] *= w
+                rotate_top(dv[0], dv[1], dv[2], T)
+        if framed and framed_out:
+            M = np.empty((4, 4))
+            for r in range(3):
+                for cc in range(4):
+                    s = 0.0
+                    for k in range(4):
+                        s += pre[r, k] * T[k, cc]
+                    M[r, cc] = s
+            for r in range(3):
+                for cc in range(4):
+                    s = 0.0
+                    for k in range(4):
+                        s += M[r, k] * post[k, cc]
+                    T[r, cc] = s
+        return gap
+
+    @numba.njit(cache=True, nogil=True, parallel=True)
+    def _predict_batch(P, q, T, ex, gap, framed_out):  # pragma: no cover - compiled
+        for k in numba.prange(q.shape[0]):
+            gap[k] = hybrid_one(P, q[k], T[k], ex[k], framed_out)
+
+    @numba.njit(cache=True, nogil=True)
+    def _predict_serial(P, q, T, ex, gap, framed_out):  # pragma: no cover - compiled
+        for k in range(q.shape[0]):
+            gap[k] = hybrid_one(P, q[k], T[k], ex[k], framed_out)
+
+
+_PARALLEL_MIN = 512
+
+
+def predict_fast(kernel: HybridKernel, q: np.ndarray, framed: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Hybrid poses ``(N, 4, 4)`` of checked joints ``q`` ``(N, n)`` at the reference temperature (with the
+    registration frames when ``framed``), range excess ``(N, n)`` and pair gap ``(N,)``."""
+    q = np.ascontiguousarray(q, dtype=np.float64)
+    N = q.shape[0]
+    T = np.empty((N, 4, 4))
+    ex = np.empty((N, kernel.dof))
+    gap = np.empty(N)
+    (_predict_batch if N >= _PARALLEL_MIN else _predict_serial)(kernel.P, q, T, ex, gap, framed)
+    return T, ex, gap

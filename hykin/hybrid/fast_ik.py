@@ -1,0 +1,204 @@
+"""Hybrid IK of one target, compiled: Levenberg–Marquardt on the hybrid pose of
+:mod:`hykin.hybrid.fast_fk`, started from given joints (a warm start: the previous target's joints, or
+a branch's seed), in a box (joint limits, or a box around the seed).
+
+The rule is the one of :mod:`hykin.kinematics.lm` (``damping="scaled"``: ``(JᵀJ + λ s I) dq = Jᵀ e``
+with ``s`` the mean diagonal of ``JᵀJ``; active-set projection onto the box; a step is accepted iff the
+cost decreases, then ``λ ← max(λ/10, 1e-12)``, else ``λ ← 10 λ``; stop at convergence, ``λ > lam_max`` or
+``max_iter`` Jacobians), compiled per target like the classical kernel of :mod:`hykin.kinematics.ik`
+(same normal equations and projected solve, :func:`hykin.kinematics.ik.projected_solve`, and residual,
+:func:`hykin.kinematics.ik.pose_residual_one`: position ``p_t − p`` (m) and ``log(R_t Rᵀ)`` (rad, times
+``w_rot`` m)).
+
+Jacobian: the "frozen correction" of :mod:`hykin.hybrid.ik`: the rigid geometric Jacobian of the
+calibrated chain at the current joints (mapped through the registration frame), plus — with
+``fd=True`` — the difference to the hybrid residual's central-difference Jacobian, measured at the start
+and every 6th iteration. The classical part alone is within ~1e-3 of the hybrid one (the correction and
+the compliance are small), so each step gains ~3 digits and 3–5 steps reach 1e-12 m from a warm start;
+``fd=True`` is for starts far from the solution or near singularities.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..kinematics.fk import HAVE_NUMBA
+
+__all__ = ["solve"]
+
+if HAVE_NUMBA:
+    import numba
+
+    from ..kinematics.ik import normal_equations_one, pose_residual_one, projected_solve
+    from ..kinematics.walk import axes_one
+    from .fast_fk import hybrid_one
+
+    @numba.njit(cache=True, nogil=True)
+    def _residual(P, q, Tt, pos_only, w_rot, T, ex, e):  # pragma: no cover - compiled
+        """Hybrid pose of ``q`` into ``T`` and residual into ``e``; returns (|Δp| m, angle rad, cost)."""
+        hybrid_one(P, q, T, ex, True)
+        pe, ae = pose_residual_one(T, Tt, pos_only, e)
+        m = 3 if pos_only else 6
+        cost = 0.0
+        for r in range(m):
+            if r >= 3:
+                e[r] *= w_rot
+            cost += e[r] * e[r]
+        return pe, ae, cost
+
+    @numba.njit(cache=True, nogil=True)
+    def _classical_jac(P, q, T, pos_only, w_rot, J, z, o, T3):  # pragma: no cover - compiled
+        """Geometric Jacobian ``J`` (m, n) of the rigid calibrated chain at ``q``, about the hybrid TCP
+        ``T[:3, 3]``, in the (registration) frame of ``T``."""
+        fixed, prism = P[0], P[1]
+        framed, pre = P[40], P[41]
+        n = q.shape[0]
+        axes_one(fixed, prism, q, z, o, T3)
+        for i in range(n):
+            zx, zy, zz = z[i, 0], z[i, 1], z[i, 2]
+            ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
+            if framed:
+                zx, zy, zz = (pre[0, 0] * zx + pre[0, 1] * zy + pre[0, 2] * zz, pre[1, 0] * zx + pre[1, 1] * zy
+                              + pre[1, 2] * zz, pre[2, 0] * zx + pre[2, 1] * zy + pre[2, 2] * zz)
+                ox, oy, oz = (pre[0, 0] * ox + pre[0, 1] * oy + pre[0, 2] * oz + pre[0, 3], pre[1, 0] * ox
+                              + pre[1, 1] * oy + pre[1, 2] * oz + pre[1, 3], pre[2, 0] * ox + pre[2, 1] * oy
+                              + pre[2, 2] * oz + pre[2, 3])
+            if prism[i]:
+                J[0, i], J[1, i], J[2, i] = zx, zy, zz
+                if not pos_only:
+                    J[3, i] = J[4, i] = J[5, i] = 0.0
+            else:
+                dx, dy, dz = T[0, 3] - ox, T[1, 3] - oy, T[2, 3] - oz
+                J[0, i] = zy * dz - zz * dy
+                J[1, i] = zz * dx - zx * dz
+                J[2, i] = zx * dy - zy * dx
+                if not pos_only:
+                    J[3, i], J[4, i], J[5, i] = w_rot * zx, w_rot * zy, w_rot * zz
+
+    @numba.njit(cache=True, nogil=True)
+    def _fd_correction(P, q, Tt, pos_only, w_rot, J, D, T, ex, z, o, T3):  # pragma: no cover - compiled
+        """``D`` = central-difference Jacobian of the hybrid pose (−∂e/∂q) minus the classical ``J``."""
+        n = q.shape[0]
+        m = 3 if pos_only else 6
+        h = 1e-6
+        qh = q.copy()
+        ep = np.empty(6)
+        em = np.empty(6)
+        Th = np.empty((4, 4))
+        for i in range(n):
+            qh[i] = q[i] + h
+            _residual(P, qh, Tt, pos_only, w_rot, Th, ex, ep)
+            qh[i] = q[i] - h
+            _residual(P, qh, Tt, pos_only, w_rot, Th, ex, em)
+            qh[i] = q[i]
+            for r in range(m):
+                D[r, i] = -(ep[r] - em[r]) / (2 * h) - J[r, i]
+
+    @numba.njit(cache=True, nogil=True)
+    def solve_one(P, Tt, q, lo, hi, pos_only, w_rot, tol_m, tol_rad, max_iter, lam0, lam_max, fd):  # pragma: no cover
+        """LM from ``q`` (n,) (solved in place, clipped into ``[lo, hi]``) to the target ``Tt`` (4, 4).
+        Returns ``(pos_err_m, ang_err_rad, jacobians)``."""
+        n = q.shape[0]
+        m = 3 if pos_only else 6
+        T = np.empty((4, 4))
+        Tn = np.empty((4, 4))
+        ex = np.empty(n)
+        e = np.empty(6)
+        en = np.empty(6)
+        J = np.zeros((6, n))
+        D = np.zeros((6, n))
+        z = np.empty((n, 3))
+        o = np.empty((n, 3))
+        T3 = np.empty((3, 4))
+        A = np.empty((n, n))
+        g = np.empty(n)
+        dq = np.empty(n)
+        qn = np.empty(n)
+        L = np.empty((n, n))
+        rhs = np.empty(n)
+        frozen = np.zeros(n, np.bool_)
+        for i in range(n):
+            q[i] = min(max(q[i], lo[i]), hi[i])
+        pe, ae, cost = _residual(P, q, Tt, pos_only, w_rot, T, ex, e)
+        lam = lam0
+        it = 0
+        while it < max_iter:
+            if pe <= tol_m and ae <= tol_rad:
+                break
+            _classical_jac(P, q, T, pos_only, w_rot, J, z, o, T3)
+            if fd and it % 6 == 0:
+                _fd_correction(P, q, Tt, pos_only, w_rot, J, D, Tn, ex, z, o, T3)
+                _classical_jac(P, q, T, pos_only, w_rot, J, z, o, T3)  # z, o were scratch
+            if fd:
+                for r in range(m):
+                    for i in range(n):
+                        J[r, i] += D[r, i]
+            it += 1
+            scale = max(normal_equations_one(J, e, m, A, g) / n, 1e-12)
+            accepted = False
+            while not accepted:
+                okc = projected_solve(A, g, lam * scale, q, lo, hi, frozen, dq, L, rhs)
+                if not okc:
+                    lam *= 10.0
+                    if lam > lam_max:
+                        break
+                    continue
+                for i in range(n):
+                    qn[i] = min(max(q[i] + dq[i], lo[i]), hi[i])
+                pen, aen, costn = _residual(P, qn, Tt, pos_only, w_rot, Tn, ex, en)
+                if costn < cost:
+                    accepted = True
+                    for i in range(n):
+                        q[i] = qn[i]
+                    for r in range(4):
+                        for c in range(4):
+                            T[r, c] = Tn[r, c]
+                    for r in range(6):
+                        e[r] = en[r]
+                    cost, pe, ae = costn, pen, aen
+                    lam = max(lam * 0.1, 1e-12)
+                else:
+                    lam *= 10.0
+                    if lam > lam_max:
+                        break
+            if not accepted:
+                break
+        return pe, ae, it
+
+    @numba.njit(cache=True, nogil=True)
+    def _solve_range(P, Tt, q, lo, hi, pos_only, w_rot, tol_m, tol_rad, max_iter, lam0, lam_max, fd, pe, ae, its,
+                     k0, k1):  # pragma: no cover - compiled
+        for k in range(k0, k1):
+            pe[k], ae[k], its[k] = solve_one(P, Tt[k], q[k], lo[k], hi[k], pos_only, w_rot, tol_m, tol_rad, max_iter,
+                                             lam0, lam_max, fd[k])
+
+    @numba.njit(cache=True, nogil=True, parallel=True)
+    def _solve_parallel(P, Tt, q, lo, hi, pos_only, w_rot, tol_m, tol_rad, max_iter, lam0, lam_max, fd, pe, ae,
+                        its):  # pragma: no cover - compiled
+        N = q.shape[0]
+        nb = (N + 63) // 64
+        for b in numba.prange(nb):
+            _solve_range(P, Tt, q, lo, hi, pos_only, w_rot, tol_m, tol_rad, max_iter, lam0, lam_max, fd, pe, ae, its,
+                         b * 64, min(N, (b + 1) * 64))
+
+
+def solve(kernel, T_target: np.ndarray, q0: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, position_only: bool = False,
+          w_rot: float = 1.0, tol_m: float = 1e-12, tol_rad: float = 1e-12, max_iter: int = 40, lam0: float = 1e-9,
+          lam_max: float = 1e6, fd=False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Hybrid IK of targets ``T_target`` ``(N, 4, 4)`` (the model's framed world, m) from ``q0`` ``(N, n)``
+    in boxes ``lo``/``hi`` ``(N, n)``. ``fd``: bool or ``(N,)`` (module docstring).
+    Returns ``(q (N, n), pos_err_m (N,), ang_err_rad (N,), iterations (N,))``."""
+    N = len(q0)
+    q = np.array(q0, dtype=np.float64, order="C", copy=True)
+    Tt = np.ascontiguousarray(T_target, dtype=np.float64)
+    lo = np.ascontiguousarray(np.broadcast_to(lo, q.shape), dtype=np.float64)
+    hi = np.ascontiguousarray(np.broadcast_to(hi, q.shape), dtype=np.float64)
+    fdv = np.ascontiguousarray(np.broadcast_to(np.asarray(fd, dtype=np.bool_), (N,)))
+    pe, ae, its = np.empty(N), np.empty(N), np.empty(N, dtype=np.int64)
+    args = (kernel.P, Tt, q, lo, hi, bool(position_only), float(w_rot), float(tol_m), float(tol_rad), int(max_iter),
+            float(lam0), float(lam_max), fdv, pe, ae, its)
+    if N >= 128:
+        _solve_parallel(*args)
+    else:
+        _solve_range(*args, 0, N)
+    return q, pe, ae, its

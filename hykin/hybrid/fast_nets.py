@@ -1,0 +1,253 @@
+"""The residual networks as plain float64 arrays: inference without torch (no autograd, no per-call
+graph), for the small batches of compensation and hybrid FK (:mod:`hykin.hybrid.nets` stays the
+training path).
+
+:func:`fast_net` turns a :class:`hykin.hybrid.nets.ResidualNet` (any architecture of
+:data:`hykin.hybrid.nets.ARCHITECTURES`: dense nets and the Chen 2020 ResNets, BatchNorm folded into
+the preceding dense layer in eval mode) into a :class:`FastNet`, whose :meth:`FastNet.__call__` maps
+joints ``(N, n_in)`` to residuals ``(N, n_out)`` (m / rad) with numpy.
+
+Precision. The networks are trained and stored in float32. The model's function is these float32
+weights evaluated in float64 arithmetic: every weight is widened exactly, and the features, layers
+and output scaling run in float64 — here, and in the torch inference path of the model
+(:func:`net_float64`, used by :meth:`hykin.HybridModel.predict_torch`). Both then compute the same
+function to rounding (measured ~1e-16 m; tested within 1e-9 mm); evaluating in float32 would leave
+differences of the order of float32 rounding of the residual (~1e-10 m) between any two evaluation
+orders. :meth:`FastNet.jacobian` gives ``∂out/∂q`` analytically (forward mode through the layers).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["FastNet", "Layer", "fast_net", "net_float64"]
+
+
+def _silu(x):
+    return x / (1.0 + np.exp(-x))
+
+
+def _silu_d(x):
+    s = 1.0 / (1.0 + np.exp(-x))
+    return s * (1.0 + x * (1.0 - s))
+
+
+def _gelu(x):
+    from scipy.special import erf
+
+    return 0.5 * x * (1.0 + erf(x / np.sqrt(2.0)))
+
+
+def _gelu_d(x):
+    from scipy.special import erf
+
+    return 0.5 * (1.0 + erf(x / np.sqrt(2.0))) + x * np.exp(-0.5 * x * x) / np.sqrt(2.0 * np.pi)
+
+
+def _sigmoid(x):
+    return 1.0 / (1.0 + np.exp(-x))
+
+
+def _sigmoid_d(x):
+    s = _sigmoid(x)
+    return s * (1.0 - s)
+
+
+#: activation name -> (f, f')
+ACTS = {
+    "relu": (lambda x: np.maximum(x, 0.0), lambda x: (x > 0).astype(np.float64)),
+    "silu": (_silu, _silu_d),
+    "gelu": (_gelu, _gelu_d),
+    "tanh": (np.tanh, lambda x: 1.0 - np.tanh(x) ** 2),
+    "sigmoid": (_sigmoid, _sigmoid_d),
+    None: (None, None),
+}
+
+
+@dataclass
+class Layer:
+    """``y = act(main(x) + shortcut(x))``. main: list of ``(W (in, out), b (out,), act)`` applied in
+    turn (BatchNorm folded in); shortcut: None (no residual add), ``"identity"`` or ``(W, b)``;
+    act: activation after the add (None: linear)."""
+
+    main: list
+    shortcut: object = None
+    act: str | None = None
+
+
+@dataclass
+class FastNet:
+    """A :class:`~hykin.hybrid.nets.ResidualNet` as float64 arrays (module docstring).
+    features: ``"minmax01"`` or ``"trig"``; lower/upper ``(n_in,)`` normalisation range;
+    out_bias ``(n_out,)``, out_scale float; layers: :class:`Layer` list."""
+
+    features: str
+    lower: np.ndarray
+    upper: np.ndarray
+    out_bias: np.ndarray
+    out_scale: float
+    layers: list = field(default_factory=list)
+
+    def featurize(self, q: np.ndarray) -> np.ndarray:
+        x = (q - self.lower) / (self.upper - self.lower)
+        if self.features == "minmax01":
+            return x
+        return np.concatenate([2.0 * x - 1.0, np.sin(q), np.cos(q)], axis=1)
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        """Residuals ``(N, n_out)`` of joints ``q`` ``(N, n_in)`` float64."""
+        x = self.featurize(q)
+        with np.errstate(over="ignore"):  # exp overflow in sigmoid/SiLU saturates correctly
+            for L in self.layers:
+                x = self._layer(L, x)
+        return self.out_bias + self.out_scale * x
+
+    @staticmethod
+    def _layer(L: Layer, x: np.ndarray) -> np.ndarray:
+        h = x
+        for W, b, act in L.main:
+            h = h @ W + b
+            if act is not None:
+                h = ACTS[act][0](h)
+        if L.shortcut is not None:
+            h = h + (x if isinstance(L.shortcut, str) else x @ L.shortcut[0] + L.shortcut[1])
+        return h if L.act is None else ACTS[L.act][0](h)
+
+    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(out (N, n_out), ∂out/∂q (N, n_out, n_in))`` by forward-mode differentiation."""
+        N, n = q.shape
+        s = 1.0 / (self.upper - self.lower)
+        x = (q - self.lower) * s
+        if self.features == "minmax01":
+            dx = np.broadcast_to(np.diag(s), (N, n, n)).copy()  # (N, features, n_in)
+        else:
+            x = np.concatenate([2.0 * x - 1.0, np.sin(q), np.cos(q)], axis=1)
+            eye = np.eye(n)
+            dx = np.concatenate([np.broadcast_to(2.0 * np.diag(s), (N, n, n)), np.cos(q)[:, :, None] * eye,
+                                 -np.sin(q)[:, :, None] * eye], axis=1)
+        for L in self.layers:
+            h, dh = x, dx
+            for W, b, act in L.main:
+                h = h @ W + b
+                dh = np.einsum("nfi,fo->noi", dh, W)
+                if act is not None:
+                    f, fd = ACTS[act]
+                    dh = dh * fd(h)[:, :, None]
+                    h = f(h)
+            if L.shortcut is not None:
+                if isinstance(L.shortcut, str):
+                    h, dh = h + x, dh + dx
+                else:
+                    h = h + x @ L.shortcut[0] + L.shortcut[1]
+                    dh = dh + np.einsum("nfi,fo->noi", dx, L.shortcut[0])
+            if L.act is not None:
+                f, fd = ACTS[L.act]
+                dh = dh * fd(h)[:, :, None]
+                h = f(h)
+            x, dx = h, dh
+        return self.out_bias + self.out_scale * x, self.out_scale * dx
+
+
+def _f64(t) -> np.ndarray:
+    return t.detach().to("cpu").double().numpy().copy()
+
+
+def _linear(lin, bn=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(W (in, out), b)`` of a ``Linear`` (followed by an eval-mode ``BatchNorm1d``, folded)."""
+    W, b = _f64(lin.weight).T, _f64(lin.bias)
+    if bn is not None:
+        g = _f64(bn.weight) / np.sqrt(_f64(bn.running_var) + bn.eps)
+        W, b = W * g, (b - _f64(bn.running_mean)) * g + _f64(bn.bias)
+    return np.ascontiguousarray(W), b
+
+
+def _act_name(mod) -> str | None:
+    from torch import nn
+
+    for name, cls in (("relu", nn.ReLU), ("silu", nn.SiLU), ("gelu", nn.GELU), ("tanh", nn.Tanh),
+                      ("sigmoid", nn.Sigmoid)):
+        if isinstance(mod, cls):
+            if name == "gelu" and getattr(mod, "approximate", "none") != "none":
+                raise ValueError("fast_net: tanh-approximated GELU is not supported")
+            return name
+    return None
+
+
+def _sequence(mods: list) -> list:
+    """Dense(+BN)(+act) triples of a flat module list."""
+    from torch import nn
+
+    out, i = [], 0
+    while i < len(mods):
+        m = mods[i]
+        if not isinstance(m, nn.Linear):
+            raise ValueError(f"fast_net: unexpected module {type(m).__name__}")
+        bn = mods[i + 1] if i + 1 < len(mods) and isinstance(mods[i + 1], nn.BatchNorm1d) else None
+        i += 1 + (bn is not None)
+        act = _act_name(mods[i]) if i < len(mods) else None
+        i += act is not None
+        out.append((*_linear(m, bn), act))
+    return out
+
+
+def fast_net(net) -> FastNet:
+    """The :class:`FastNet` of a :class:`~hykin.hybrid.nets.ResidualNet` (eval-mode BatchNorm folded).
+    ValueError for a body that is not a sequence of dense layers and Chen 2020 blocks."""
+    from .nets import DenseBlock, IdentityBlock
+
+    layers: list[Layer] = []
+    pending: list = []
+    for m in net.body:
+        if isinstance(m, (DenseBlock, IdentityBlock)):
+            if pending:
+                layers.append(Layer(_sequence(pending)))
+                pending = []
+            sc = "identity" if isinstance(m, IdentityBlock) else _linear(m.shortcut[0], m.shortcut[1])
+            layers.append(Layer(_sequence(list(m.main)), sc, _act_name(m.act)))
+        else:
+            pending.append(m)
+    if pending:
+        layers.append(Layer(_sequence(pending)))
+    return FastNet(features=net.features, lower=_f64(net.lower), upper=_f64(net.upper), out_bias=_f64(net.out_bias),
+                   out_scale=float(_f64(net.out_scale)), layers=layers)
+
+
+def net_float64(net):
+    """A float64 eval-mode copy of a torch network (the torch inference path at the precision of
+    :class:`FastNet`; module docstring)."""
+    c = copy.deepcopy(net).double().eval()
+    for p in c.parameters():  # inference only (gradients with respect to the inputs still flow)
+        p.requires_grad_(False)
+    return c
+
+
+@dataclass
+class _Cached:
+    net: object
+    tensors: list
+    versions: tuple
+    fast: FastNet
+    torch64: object = None
+
+
+def cached(owner, net) -> _Cached:
+    """The float64 forms of ``net`` (``.fast``: :class:`FastNet`, ``.torch64``: :func:`net_float64`),
+    cached on ``owner`` (a model) and rebuilt when the network's weights change in place (training)."""
+    cache = owner.__dict__.setdefault("_fast_nets_cache", {})
+    c = cache.get(id(net))
+    if c is not None and c.net is net and all(t._version == v for t, v in zip(c.tensors, c.versions)):
+        return c
+    tensors = [*net.parameters(), *net.buffers()]
+    c = cache[id(net)] = _Cached(net, tensors, tuple(t._version for t in tensors), fast_net(net))
+    return c
+
+
+def torch64(owner, net):
+    """The float64 torch copy of ``net`` (cached as :func:`cached`), on the network's device."""
+    c = cached(owner, net)
+    if c.torch64 is None:
+        c.torch64 = net_float64(net)
+    return c.torch64

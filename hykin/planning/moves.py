@@ -1,0 +1,116 @@
+"""Safe moves between planned poses: the synchronised joint move from one pose to the next is checked
+at intermediate configurations (no joint moves more than 2° / 5 mm between two checks) with every
+constraint of the plan; a move that fails is replaced by a detour through a via pose (a feasible
+candidate, not measured) whose two moves are clear, the quickest such detour among the
+``n_try`` candidates with the shortest detour time; a pose that no detour reaches is dropped and
+reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["SafePath", "interpolate_moves", "moves_clear", "safe_path"]
+
+
+@dataclass
+class SafePath:
+    """The moves to execute. q: ``(M, dof)`` joints in order; measure: ``(M,)`` bool (False: a via
+    pose, moved through only); dropped: indices (into the input order) of poses no safe move reaches."""
+
+    q: np.ndarray
+    measure: np.ndarray
+    dropped: np.ndarray
+
+
+def interpolate_moves(q_ordered: np.ndarray, step_rad: float = np.radians(2.0), step_m: float = 0.005,
+                      prismatic=None) -> tuple[np.ndarray, np.ndarray]:
+    """Intermediate configurations of synchronised joint moves between consecutive rows.
+
+    Returns ``(q (M, dof), move (M,))``: configurations strictly between row i and row i+1 (no joint
+    moves more than ``step_rad`` / ``step_m`` between two of them) and the index i of their move."""
+    q = np.asarray(q_ordered, dtype=np.float64)
+    if len(q) < 2:
+        return np.zeros((0, q.shape[1])), np.zeros(0, np.int64)
+    pris = np.zeros(q.shape[1], bool) if prismatic is None else np.asarray(prismatic, bool)
+    step = np.where(pris, step_m, step_rad)
+    d = np.diff(q, axis=0)
+    k = np.maximum(np.ceil(np.max(np.abs(d) / step, axis=1)).astype(np.int64), 1)  # sub-moves per move
+    move = np.repeat(np.arange(len(d)), k - 1)
+    # fraction j / k for j = 1 .. k-1 of each move
+    j = np.arange(len(move)) - np.repeat(np.cumsum(k - 1) - (k - 1), k - 1) + 1
+    t = j / np.repeat(k, k - 1)
+    return q[move] + t[:, None] * d[move], move
+
+
+def moves_clear(a: np.ndarray, b: np.ndarray, ok_fn, prismatic) -> np.ndarray:
+    """``(K,)`` bool: each move ``a[k] -> b[k]`` (``(K, dof)``) is clear at its intermediate configurations."""
+    K = len(a)
+    if K == 0:
+        return np.zeros(0, bool)
+    pairs = np.empty((2 * K, a.shape[1]))
+    pairs[0::2], pairs[1::2] = a, b
+    qi, mv = interpolate_moves(pairs, prismatic=prismatic)
+    keep = mv % 2 == 0  # the moves a[k] -> b[k], not b[k] -> a[k+1]
+    bad = np.zeros(K, bool)
+    if keep.any():
+        ok = ok_fn(qi[keep])
+        np.logical_or.at(bad, mv[keep][~ok] // 2, True)
+    return ~bad
+
+
+def safe_path(q_ordered: np.ndarray, ok_fn, via_pool: np.ndarray, speeds, prismatic=None, n_try: int = 24,
+              start=None, rep=None) -> SafePath:
+    """Make every move between consecutive rows of ``q_ordered`` clear (module docstring).
+
+    ok_fn: ``(M, dof) -> (M,) bool`` the configurations that satisfy the plan's constraints (the
+    poses themselves already do). via_pool: ``(V, dof)`` feasible configurations to detour through.
+    speeds: ``(dof,)`` joint speeds (rad/s, m/s) for the detour time. start: ``(dof,)`` joints the
+    robot starts from (its move to the first pose is checked too; None: not checked). rep:
+    ``(prev (K, dof), q (K, dof)) -> q'``, the representation of a via pose reached from ``prev``
+    (full-turn joints, :func:`hykin.planning.order.nearest_turn`); None: as given."""
+    from .order import travel_matrix
+
+    q = np.asarray(q_ordered, dtype=np.float64)
+    v = np.broadcast_to(np.asarray(speeds, dtype=np.float64), (q.shape[1],))
+    seq = q if start is None else np.vstack([np.asarray(start, dtype=np.float64)[None], q])
+    off = 0 if start is None else 1
+    clear = moves_clear(seq[:-1], seq[1:], ok_fn, prismatic)
+    out_q, out_m, dropped = [seq[0]], [start is None], []
+    cur, cur_i = seq[0], 0
+    i = 1
+    while i < len(seq):
+        nxt = seq[i]
+        direct = clear[i - 1] if cur_i == i - 1 else moves_clear(cur[None], nxt[None], ok_fn, prismatic)[0]
+        if direct:
+            out_q.append(nxt)
+            out_m.append(True)
+            cur, cur_i = nxt, i
+            i += 1
+            continue
+        t = travel_matrix(np.vstack([cur, nxt, via_pool]), v)
+        detour = t[0, 2:] + t[1, 2:]
+        ranked = np.argsort(detour)
+        good = np.zeros(0, np.int64)
+        for lo_, hi_ in ((0, n_try), (n_try, 5 * n_try)):  # the quickest detours first, then further ones
+            cand = via_pool[ranked[lo_:hi_]]
+            if rep is not None and len(cand):
+                cand = rep(np.broadcast_to(cur, cand.shape), cand)
+            ok_a = moves_clear(np.broadcast_to(cur, cand.shape), cand, ok_fn, prismatic)
+            ok_b = moves_clear(cand, np.broadcast_to(nxt, cand.shape), ok_fn, prismatic)
+            good = np.flatnonzero(ok_a & ok_b)
+            if good.size:
+                break
+        if good.size:
+            out_q += [cand[good[0]], nxt]
+            out_m += [False, True]
+            cur, cur_i = nxt, i
+        else:
+            dropped.append(i - off)
+        i += 1
+    qs, ms = np.array(out_q), np.array(out_m, bool)
+    if start is not None:
+        qs, ms = qs[1:], ms[1:]
+    return SafePath(q=qs, measure=ms, dropped=np.array(dropped, dtype=np.int64))

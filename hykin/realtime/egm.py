@@ -1,0 +1,145 @@
+"""``hykin egm``: an ABB EGM peer in pose-guidance mode (UDP, protobuf ``EgmRobot`` / ``EgmSensor`` of
+ABB's ``egm.proto``, compiled to :mod:`.egm_pb2`).
+
+Per ``EgmRobot``: the planned pose (``planned.cartesian``: ``pos`` mm, ``orient`` quaternion
+``u0..u3`` = w, x, y, z, in the EGM correction frame, taken as the robot's base frame) is compensated
+on the branch of the feedback joints (``feedBack.joints``, deg), and the answer ``EgmSensor`` carries
+the compensated pose in ``planned.cartesian`` with the robot's ``seqno`` and ``tm`` echoed and
+``mtype = MSGTYPE_CORRECTION``. A pose that cannot be compensated is answered with the planned pose
+itself (no correction); a message that cannot be parsed, lacks the planned pose or joints, or whose
+``seqno`` is not after the last answered one (modulo 2^32) is not answered.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry import se3
+from .udp_bridge import Outcome
+
+__all__ = ["EgmHandler", "format_robot", "format_sensor", "parse_robot", "parse_sensor"]
+
+
+def _pb():
+    from google.protobuf.message import DecodeError
+
+    from . import egm_pb2
+
+    return egm_pb2, DecodeError
+
+
+def _pose(p) -> np.ndarray:
+    """``EgmPose`` -> ``(4, 4)`` m."""
+    o = p.orient
+    q = np.array([o.u0, o.u1, o.u2, o.u3])
+    n = np.linalg.norm(q)
+    if not np.isfinite(q).all() or abs(n - 1) > 1e-3:
+        raise ValueError(f"quaternion norm {n:.6f}, expected 1")
+    xyz = np.array([p.pos.x, p.pos.y, p.pos.z]) * 1e-3
+    if not np.isfinite(xyz).all():
+        raise ValueError("position holds NaN or inf")
+    return se3.pose_to_transform(xyz, q / n)
+
+
+def _set_pose(p, T: np.ndarray) -> None:
+    xyz, q = se3.transform_to_pose(T)
+    p.pos.x, p.pos.y, p.pos.z = (float(v) for v in xyz * 1e3)
+    p.orient.u0, p.orient.u1, p.orient.u2, p.orient.u3 = (float(v) for v in q)
+
+
+def _parse(kind: str, data: bytes):
+    pb, DecodeError = _pb()
+    m = getattr(pb, kind)()
+    try:
+        m.ParseFromString(data)
+    except (DecodeError, RuntimeError) as e:
+        raise ValueError(f"not an {kind} message ({e})") from None
+    return m
+
+
+def parse_robot(data: bytes, dof: int):
+    """``(seqno, tm, planned (4, 4) m, joints_deg (dof,))`` of an ``EgmRobot``; ValueError otherwise."""
+    m = _parse("EgmRobot", data)
+    if not m.HasField("header") or not m.header.HasField("seqno"):
+        raise ValueError("no header.seqno")
+    if not m.HasField("planned") or not m.planned.HasField("cartesian") or not m.planned.cartesian.HasField("pos") \
+            or not m.planned.cartesian.HasField("orient"):
+        raise ValueError("no planned.cartesian pose with pos and orient")
+    j = np.array(m.feedBack.joints.joints if m.HasField("feedBack") else [], dtype=np.float64)
+    if j.size < dof or not np.isfinite(j[:dof]).all():
+        raise ValueError(f"feedBack.joints: {j.size} finite values, expected {dof}")
+    return m.header.seqno, m.header.tm, _pose(m.planned.cartesian), j[:dof]
+
+
+def format_sensor(seqno: int, tm: int, T: np.ndarray) -> bytes:
+    """``EgmSensor``: pose ``T`` (m) to go to, echoed ``seqno`` and ``tm``, ``MSGTYPE_CORRECTION``."""
+    pb, _ = _pb()
+    m = pb.EgmSensor()
+    m.header.seqno, m.header.tm = int(seqno), int(tm)
+    m.header.mtype = pb.EgmHeader.MSGTYPE_CORRECTION
+    _set_pose(m.planned.cartesian, T)
+    return m.SerializeToString()
+
+
+def format_robot(seqno: int, tm: int, planned: np.ndarray, joints_deg: np.ndarray, actual: np.ndarray) -> bytes:
+    """``EgmRobot`` (the simulated controller's side)."""
+    pb, _ = _pb()
+    m = pb.EgmRobot()
+    m.header.seqno, m.header.tm = int(seqno), int(tm)
+    m.header.mtype = pb.EgmHeader.MSGTYPE_DATA
+    _set_pose(m.planned.cartesian, planned)
+    _set_pose(m.feedBack.cartesian, actual)
+    m.feedBack.joints.joints.extend(float(v) for v in joints_deg)
+    m.mciState.state = pb.EgmMCIState.MCI_RUNNING
+    return m.SerializeToString()
+
+
+def parse_sensor(data: bytes) -> tuple[int, int, np.ndarray]:
+    """``(seqno, tm, pose (4, 4) m)`` of an ``EgmSensor`` (the simulated controller's side)."""
+    m = _parse("EgmSensor", data)
+    if not m.planned.HasField("cartesian"):
+        raise ValueError("no planned.cartesian")
+    return m.header.seqno, m.header.tm, _pose(m.planned.cartesian)
+
+
+class EgmHandler:
+    """The per-message work of ``hykin egm`` (see :class:`hykin.realtime.rsi.RsiHandler` for ``step``,
+    ``base``, ``axis_signs`` and the correction limits)."""
+
+    def __init__(self, step, base: np.ndarray, dof: int, axis_signs, max_correction_mm: float = 50.0,
+                 max_correction_deg: float = 5.0):
+        self.step, self.base, self.dof = step, np.asarray(base, dtype=np.float64), dof
+        self.signs = np.asarray(axis_signs, dtype=np.float64)
+        self.max_mm, self.max_deg = float(max_correction_mm), float(max_correction_deg)
+        self.last_seq: int | None = None
+        self.last_reason = ""
+
+    def command(self, planned: np.ndarray, joints_deg) -> np.ndarray:
+        """The compensated pose ``(4, 4)`` for one planned pose (ValueError with the reason on failure)."""
+        r = self.step(self.base @ planned, np.radians(np.asarray(joints_deg, dtype=np.float64)) * self.signs)
+        if not r.success:
+            raise ValueError(f"not compensated: {r.reason}")
+        dp, da = se3.pose_error(r.command[None], planned[None])
+        if dp[0] > self.max_mm or da[0] > self.max_deg:
+            raise ValueError(f"correction {dp[0]:.2f} mm / {da[0]:.3f} deg over the limit")
+        return r.command
+
+    def __call__(self, data: bytes) -> Outcome:
+        try:
+            seq, tm, planned, joints = parse_robot(data, self.dof)
+        except ValueError as e:
+            self.last_reason = str(e)
+            return Outcome(None, "ignored:malformed")
+        skipped = 0
+        if self.last_seq is not None:
+            gap = (seq - self.last_seq) % 2**32
+            if gap == 0 or gap >= 2**31:
+                return Outcome(None, "ignored:stale seqno")
+            skipped = gap - 1
+        self.last_seq = seq
+        try:
+            T, kind = self.command(planned, joints), "ok"
+        except Exception as e:  # noqa: BLE001 - any internal failure: the planned pose, uncorrected
+            self.last_reason = f"{type(e).__name__}: {e}"
+            T, kind = planned, "failure"
+        return Outcome(format_sensor(seq, tm, T), kind, skipped)

@@ -1,0 +1,164 @@
+"""The UDP loop shared by the controller bridges (:mod:`.rsi`, :mod:`.egm`).
+
+One socket, one controller. Per datagram: drop it when it is over the size limit (truncated by the
+kernel), when it comes from another sender than the controller (the first sender whose message was
+valid, or the address given), when a newer one of the controller is already waiting (superseded:
+its cycle is over), or when the protocol handler calls it invalid or stale; else answer it at once
+with the handler's reply. Counted: answered, failures (the handler could not compute
+and answered a neutral message), late answers (sent more than one period after the datagram
+arrived, by the kernel's receive time stamp), cycles the controller skipped (by its stamps) and
+every kind of dropped datagram. After ``max_failures`` consecutive failures the loop stops
+answering and returns, so that the controller's own timeout stops the robot.
+"""
+
+from __future__ import annotations
+
+import logging
+import select
+import socket
+import struct
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+__all__ = ["BridgeStats", "Outcome", "bind_udp", "parse_listen", "run_bridge"]
+
+_log = logging.getLogger("hykin.realtime")
+_DRAIN = 256  # datagrams read at most per turn when behind
+
+
+@dataclass
+class Outcome:
+    """What the handler made of one datagram. reply: bytes to send back (None: send nothing).
+    kind: ``"ok"``, ``"failure"`` (reply is the protocol's neutral answer) or ``"ignored:<why>"``.
+    skipped: cycles the controller's stamp says were skipped before this one."""
+
+    reply: bytes | None
+    kind: str
+    skipped: int = 0
+
+
+@dataclass
+class BridgeStats:
+    """Counts of one bridge run (see the module docstring); ``stopped``: why the loop ended."""
+
+    answered: int = 0
+    failures: int = 0
+    late: int = 0
+    skipped_cycles: int = 0
+    ignored: Counter = field(default_factory=Counter)
+    max_consecutive_failures: int = 0
+    latency_s: list = field(default_factory=list)
+    stopped: str = ""
+
+    def summary(self) -> str:
+        ign = ", ".join(f"{k} {v}" for k, v in sorted(self.ignored.items())) or "none"
+        return (f"answered {self.answered} (failures answered neutrally {self.failures}), late {self.late}, "
+                f"cycles skipped by the controller {self.skipped_cycles}, dropped: {ign}")
+
+
+def parse_listen(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` -> ``(host, port)``; ValueError with the reason."""
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"--listen must be HOST:PORT with a port 1..65535, got {text!r}")
+    return host.strip("[]"), int(port)
+
+
+def bind_udp(host: str, port: int) -> socket.socket:
+    """A UDP socket bound to ``(host, port)`` with kernel receive time stamps where available."""
+    s = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_DGRAM)
+    if hasattr(socket, "SO_TIMESTAMPNS"):
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_TIMESTAMPNS, 1)
+    s.bind((host, port))
+    return s
+
+
+def _arrival(anc) -> float | None:
+    for level, kind, data in anc:
+        if level == socket.SOL_SOCKET and kind == getattr(socket, "SO_TIMESTAMPNS", -1) and len(data) >= 16:
+            sec, ns = struct.unpack("qq", data[:16])
+            return sec + ns * 1e-9
+    return None
+
+
+def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: int = 10, max_packet: int = 8192,
+               controller: tuple | None = None, idle_exit_s: float = 0.0, stop=None, log_every_s: float = 10.0,
+               keep_latency: bool = False) -> BridgeStats:
+    """Serve datagrams on ``sock`` with ``handle(bytes) -> Outcome`` until ``stop`` (a threading.Event)
+    is set, ``idle_exit_s`` passes without a valid datagram after the first one (0: never), or
+    ``max_failures`` consecutive failures. ``controller``: ``(host, port)`` to accept datagrams from
+    (default: the first sender of a valid one). ``keep_latency``: keep each answer's delay (s) in
+    ``stats.latency_s``."""
+    st = BridgeStats()
+    peer = controller
+    consecutive = 0
+    last_valid = None
+    last_log = time.monotonic()
+    sock.setblocking(False)
+    cmsg = socket.CMSG_SPACE(16)
+    while stop is None or not stop.is_set():
+        if idle_exit_s and last_valid is not None and time.monotonic() - last_valid > idle_exit_s:
+            st.stopped = f"no valid datagram for {idle_exit_s:g} s"
+            break
+        try:
+            select.select([sock], [], [], 0.1)
+            data, anc, flags, addr = sock.recvmsg(max_packet + 1, cmsg)
+        except (BlockingIOError, InterruptedError, ConnectionRefusedError):  # nothing (or an ICMP error) to read
+            continue
+        # when behind, answer only the newest datagram of the controller: older cycles are over
+        best = None
+        for _ in range(_DRAIN):
+            t_in = _arrival(anc) or time.time()
+            if len(data) > max_packet or flags & socket.MSG_TRUNC:
+                st.ignored["oversized"] += 1
+            elif peer is not None and addr[:2] != tuple(peer)[:2]:
+                st.ignored["other sender"] += 1
+            else:
+                if best is not None:
+                    st.ignored["superseded"] += 1
+                best = (data, addr, t_in)
+                if peer is None:
+                    break  # no controller yet: one datagram at a time
+            try:
+                data, anc, flags, addr = sock.recvmsg(max_packet + 1, cmsg)
+            except (BlockingIOError, InterruptedError, ConnectionRefusedError):
+                break
+        if best is None:
+            continue
+        data, addr, t_in = best
+        out = handle(data)
+        if out.reply is not None:
+            try:
+                sock.sendto(out.reply, addr)
+            except (BlockingIOError, ConnectionRefusedError):  # buffer full / nobody listening: the cycle is lost
+                st.ignored["send failed"] += 1
+            delay = time.time() - t_in
+            if keep_latency:
+                st.latency_s.append(delay)
+            st.late += delay > period_s
+        if out.kind.startswith("ignored"):
+            st.ignored[out.kind.partition(":")[2] or "invalid"] += 1
+            continue
+        last_valid = time.monotonic()
+        st.skipped_cycles += out.skipped
+        st.answered += out.reply is not None
+        if out.kind == "failure":
+            st.failures += 1
+            consecutive += 1
+            st.max_consecutive_failures = max(st.max_consecutive_failures, consecutive)
+            if consecutive >= max_failures:
+                st.stopped = f"{consecutive} consecutive failures: stopped answering"
+                _log.error("hykin bridge: %s (%s)", st.stopped, st.summary())
+                break
+        else:
+            consecutive = 0
+            if peer is None:
+                peer = addr
+        if log_every_s and time.monotonic() - last_log > log_every_s:
+            last_log = time.monotonic()
+            if st.late or st.skipped_cycles or st.failures:
+                _log.warning("hykin bridge: %s", st.summary())
+    if not st.stopped:
+        st.stopped = "stopped"
+    return st

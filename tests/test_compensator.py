@@ -1,0 +1,143 @@
+"""hykin.Compensator: one target (step) and batches run one path; reachable targets are never refused.
+
+References: the model's own prediction at chosen joints (the targets are poses its robot reaches), a
+stand-in controller = nominal IK of the command (solution nearest the joints we asked for), the hybrid
+IK of hykin.hybrid.ik for the joints."""
+
+from __future__ import annotations
+
+import copy
+import warnings
+
+import numpy as np
+import pytest
+from comp_models import exact, tiny_model_file
+
+import hykin
+from hykin.geometry import se3
+from hykin.kinematics.ik import ik
+
+
+@pytest.fixture(scope="module")
+def model():
+    from hykin.hybrid.model import HybridModel
+
+    return HybridModel.load(tiny_model_file())
+
+
+def _predict(m, q):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return m.predict(q)
+
+
+def _land(m, c, q_ref):
+    """Where a controller running the nominal model lands the commands: pose error (mm, deg) to ``T``."""
+    nom = m.nominal
+    r = ik(nom, nom.base @ c.command, all_branches=True).nearest_to(q_ref, nom.lower, nom.upper)
+    return _predict(m, np.where(r.success[:, None], r.q, np.nan))
+
+
+def _hard_joints(m, rng):
+    """Joints within 1° of a limit, near the wrist (q5 ~ 0) and elbow (q3 ~ 0, stretched: the workspace
+    edge) singularities, and random ones."""
+    nom = m.nominal
+    lo, hi = nom.lower, nom.upper
+    q = nom.random_joints(60, 3, margin=0.3)
+    for k in range(12):  # one joint within 1 degree of a limit
+        j = k % 6
+        q[k, j] = (lo[j] + np.radians(rng.uniform(0.05, 1.0))) if k % 2 else (hi[j] - np.radians(rng.uniform(0.05, 1.0)))
+    q[12:24, 4] = np.radians(rng.uniform(-0.5, 0.5, 12))  # wrist singularity
+    q[24:36, 2] = np.radians(rng.uniform(-1.0, 1.0, 12))  # stretched elbow: workspace edge
+    q[36:40, 2] = 0.0
+    return q
+
+
+def test_step_equals_batch_and_lands(model):
+    m = model
+    C = hykin.Compensator(m)
+    assert C.kernel is not None  # the compiled path
+    s = np.linspace(0, 1, 40)[:, None]
+    q_path = np.array([0.3, -1.4, 1.5, -1.7, -1.5, 0.4]) + s * np.array([0.9, 0.4, 0.4, -0.5, 0.3, 1.0])
+    T = _predict(m, q_path) @ se3.trans(0.0, 0.0, 1e-3)  # 1 mm beside the path: not the start joints
+    qp, Q, cmd = q_path[0], [], []
+    for k in range(len(T)):
+        r = C.step(T[k], qp)
+        assert r.success and r.reason == "" and r.pos_err_mm < C.tolerance_mm
+        qp = r.q
+        Q.append(r.q)
+        cmd.append(r.command)
+    c = C(T, q_branch=np.vstack([q_path[:1], Q[:-1]]))
+    assert c.success.all()
+    assert np.abs(np.array(Q) - c.q).max() < 1e-9 and np.abs(np.array(cmd) - c.command).max() < 1e-9
+    # the batch with the default walk finds the same joints (same branch: the path starts near zero's branch)
+    p, a = se3.pose_error(_predict(m, c.q), T)
+    assert p.max() < 1e-6 and a.max() < 1e-6
+    # the command is the nominal FK at those joints; a nominal controller lands there
+    assert np.allclose(c.command, se3.invert(m.nominal.base) @ hykin.fk(m.nominal, c.q), atol=1e-12)
+    p, a = se3.pose_error(_land(m, c, c.q), T)
+    assert p.max() < 1e-6
+
+
+def test_hard_targets_are_compensated(model):
+    m = model
+    rng = np.random.default_rng(4)
+    q = _hard_joints(m, rng)
+    T = _predict(m, q)  # every target is reached by the model's robot within its limits
+    c = hykin.Compensator(m)(T, q_branch=q)
+    assert c.success.all(), list(zip(np.flatnonzero(~c.success), c.reason[~c.success]))
+    p, a = se3.pose_error(_predict(m, c.q), T)
+    assert p.max() < c.pos_err_mm.max() + 1e-9 and p.max() < 1e-4
+    assert np.all((c.q >= m.robot_.lower - 1e-12) & (c.q <= m.robot_.upper + 1e-12))
+
+
+def test_target_the_nominal_robot_cannot_reach(model):
+    m = copy.deepcopy(model)
+    a = m.robot_.a_m.copy()
+    a[1] -= 0.004  # the real upper arm is 4 mm longer than the nominal one
+    m.robot_ = m.robot_.copy(a_m=a)
+    q = np.array([[0.4, -1.2, 0.0, -1.0, -1.4, 0.3], [-0.5, -0.9, 0.002, -1.9, 1.2, -0.8]])
+    T = _predict(m, q)
+    assert not ik(m.nominal, T, all_branches=True).success.any(1).all()  # the nominal robot cannot reach them
+    c = hykin.compensate(m, T)  # no branch given: the walk falls back to the calibrated robot's solutions
+    assert c.success.all(), c.reason
+    assert se3.pose_error(_predict(m, c.q), T)[0].max() < 1e-6
+    r = hykin.Compensator(m).step(T[1], q[1] + 0.003)  # near the stretched elbow: either side of the fold
+    assert r.success and se3.pose_error(_predict(m, r.q), T[1])[0] < 1e-6
+
+
+def test_failures_are_categorised_and_tolerance_from_the_model(model):
+    m = model
+    C = hykin.Compensator(m)
+    held = m.metadata["metrics"].get("val") or m.metadata["metrics"]["held_out"]
+    assert C.tolerance_mm == pytest.approx(max(1e-4, 0.5 * held["hybrid_pos_mean_mm"]))
+    assert hykin.Compensator(m, tolerance_mm=0.02).tolerance_mm == 0.02
+    q = np.array([[0.3, -1.4, 1.5, -1.7, -1.5, 0.4]])
+    T = _predict(m, q)
+    far = T.copy()
+    far[0, :3, 3] = [3.0, 0.0, 0.5]  # 3 m away
+    r = C.step(far[0], q[0])
+    assert not r.success and r.reason.startswith(("unreachable for the model", "blocked by a joint limit"))
+    assert np.isnan(r.q).all() and np.isnan(r.command).all()
+    with pytest.raises(ValueError):
+        C.step(np.eye(3), q[0])
+
+
+def test_generic_models_run_the_same_interface():
+    m = exact("ur10", 2)  # predict() only: hybrid IK of hykin.hybrid.ik underneath
+    q = m.nominal.random_joints(5, 1, margin=0.2)
+    T = hykin.fk(m.robot_, q)
+    C = hykin.Compensator(m)
+    assert C.kernel is None
+    r = C.step(T[0], q[0])
+    c = C(T, q_branch=q)
+    assert r.success and c.success.all() and np.abs(r.q - c.q[0]).max() < 1e-9
+
+
+def test_hint_a_turn_outside_the_limits(model):
+    m = model
+    q = np.array([0.3, -1.4, 1.5, -1.7, -1.5, 0.4])
+    T = _predict(m, q[None])[0]
+    hint = q + np.array([2 * np.pi, 0, 0, 0, 0, 0])  # 6.58 rad: beyond the +2π limit, the same branch
+    r = hykin.Compensator(m).step(T, hint)
+    assert r.success and np.abs(r.q - q).max() < 1e-6

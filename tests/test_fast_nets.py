@@ -1,0 +1,119 @@
+"""Float64 numpy inference of the residual networks (hykin.hybrid.fast_nets) against torch.
+
+Reference: the same torch network evaluated in float64 (``net.double()``), with random weights and
+random BatchNorm running statistics (eval mode); the Jacobian against central differences."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from hykin.hybrid.fast_nets import fast_net, net_float64
+from hykin.hybrid.nets import make_net
+
+
+def _randomised(name: str, n_in: int, seed: int):
+    torch.manual_seed(seed)
+    net = make_net(name, n_in, 3)
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for mod in net.modules():
+            if isinstance(mod, torch.nn.BatchNorm1d):  # non-trivial running statistics and affine terms
+                mod.running_mean.copy_(torch.randn(mod.num_features, generator=g) * 0.3)
+                mod.running_var.copy_(torch.rand(mod.num_features, generator=g) + 0.5)
+                mod.weight.copy_(torch.rand(mod.num_features, generator=g) + 0.5)
+                mod.bias.copy_(torch.randn(mod.num_features, generator=g) * 0.1)
+    net.set_input_range(-np.pi * np.ones(n_in), np.pi * np.ones(n_in))
+    net.set_output_scale(np.array([1e-3, -2e-3, 5e-4]), 2e-3)  # a mm-sized residual, in m
+    return net.eval()
+
+
+@pytest.mark.parametrize("name", ["default", "default-wide", "B1", "B2", "B3", "B4", "Rd"])
+def test_fast_net_equals_torch_float64(name):
+    net = _randomised(name, 6, 1)
+    fn = fast_net(net)
+    q = np.random.default_rng(0).uniform(-4, 4, (257, 6))
+    with torch.inference_mode():
+        ref = net_float64(net)(torch.from_numpy(q)).numpy()
+        ref32 = net(torch.from_numpy(q)).double().numpy()
+    out = fn(q)
+    assert out.dtype == np.float64 and out.shape == (257, 3)
+    assert np.abs(out - ref).max() * 1e3 < 1e-9  # mm
+    # the float32 torch path differs only by float32 rounding of a mm-sized residual
+    assert np.abs(out - ref32).max() < 1e-6 * np.abs(ref).max() + 1e-12
+    # one row at a time is the same function
+    assert np.abs(fn(q[:1]) - out[:1]).max() < 1e-15
+
+
+@pytest.mark.parametrize("name", ["default", "B2", "B3"])
+def test_fast_net_jacobian_matches_differences(name):
+    net = _randomised(name, 6, 2)
+    fn = fast_net(net)
+    q = np.random.default_rng(1).uniform(-3, 3, (5, 6))
+    out, J = fn.jacobian(q)
+    assert np.abs(out - fn(q)).max() < 1e-15
+    h = 1e-6
+    Jfd = np.stack([(fn(q + h * e) - fn(q - h * e)) / (2 * h) for e in np.eye(6)], axis=2)
+    assert np.abs(J - Jfd).max() < 1e-7 * max(1.0, np.abs(J).max())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["D1", "D4", "D4w", "D4W", "Rw"])
+def test_fast_net_paper_sizes(name):
+    net = _randomised(name, 6, 3)
+    q = np.random.default_rng(2).uniform(-3, 3, (16, 6))
+    with torch.inference_mode():
+        ref = net_float64(net)(torch.from_numpy(q)).numpy()
+    assert np.abs(fast_net(net)(q) - ref).max() * 1e3 < 1e-9
+
+
+@pytest.mark.parametrize("name", ["default", "B2", "B3"])
+def test_compiled_network_equals_fast_net(name):
+    from hykin.hybrid import fast_fk
+
+    if not fast_fk.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    net = _randomised(name, 6, 4)
+    fn = fast_net(net)
+    packed = fast_fk.pack_net(fn)
+    q = np.random.default_rng(3).uniform(-3, 3, (20, 6))
+    buf = np.empty((4, int(packed[5][2])))
+    out = np.empty(3)
+    ref = fn(q)
+    for k in range(len(q)):
+        fast_fk.net_one(*packed, q[k], 6, buf, out)
+        assert np.abs(out - ref[k]).max() * 1e3 < 1e-9
+
+
+def test_compiled_hybrid_fk_equals_numpy_path():
+    """HybridModel.predict: the compiled path (small batches) against the numpy path (the same model with
+    the compiled kernel switched off), with and without registration frames."""
+    import copy
+    import warnings
+
+    from comp_models import tiny_model_file
+
+    from hykin.geometry import se3
+    from hykin.hybrid import fast_fk
+    from hykin.hybrid.model import HybridModel
+
+    if not fast_fk.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    m = HybridModel.load(tiny_model_file())
+    q = m.nominal.random_joints(40, 9, margin=-0.3)  # partly outside the trained range: the fade acts
+    m2 = copy.deepcopy(m)
+    m2.frame_pre_ = se3.trans(0.1, -0.2, 0.3) @ se3.rotz(0.3)
+    m2.frame_post_ = se3.trans(0, 0, 0.05)
+    for mm in (m, m2):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fast = mm.predict(q)  # 40 < COMPILED_MAX: compiled
+            ref = mm.predict(np.repeat(q, 2, axis=0))[::2]  # 80 rows: the numpy path
+        assert np.abs(fast - ref).max() < 1e-12  # m and dimensionless: 1e-9 mm
+        tt = mm.predict_torch(torch.from_numpy(q)).numpy()  # the torch path: float64 copies of the nets
+        assert np.abs(tt - fast).max() < 1e-12
+        assert fast_fk.kernel_of(mm) is not None
+    k = fast_fk.kernel_of(m)
+    T, ex, gap = fast_fk.predict_fast(k, q)
+    assert np.allclose(ex, m.range_excess(q), atol=1e-15) and np.allclose(gap, m.pair_gap(q), atol=1e-15)
