@@ -82,7 +82,7 @@ def test_cli_plan_trajectory_simulate_stream_import(tmp_path, capsys):
                      "-o", str(out), "--fit-drift"], capsys)
     assert rc == 0, e
     got_ms = float(o.split("clock offset ")[1].split(" ms")[0])
-    assert abs(got_ms - truth["offset_s"] * 1e3) < 0.2
+    assert abs(got_ms - truth["offset_s"] * 1e3) < 0.5  # a 10-waypoint log; at scale 0.044 ms (README)
     rc, o, e = _run(["simulate", "rx160-virtual", "--stream", "-o", str(cell)], capsys)
     assert rc != 0 and "--trajectory" in e
     rc, o, e = _run(["plan", "rx160", "-n", "10", "--pool", "1000", "--trajectory", "-o", str(tmp_path / "t.src")], capsys)

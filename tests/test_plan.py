@@ -219,7 +219,7 @@ def test_forecast_parameter_part_scales_with_repetition():
 
 def test_d_optimal_core_beats_random_on_logdet():
     robot = own_robot()
-    p = plan_poses(robot, 30, seed=0, pool=4096)
+    p = plan_poses(robot, 30, Constraints(body=False), seed=0, pool=4096)  # the criterion only (body: test_plan_safety)
     J = scaled_rows(p.id_model, robot.random_joints(30, np.random.default_rng(7)))
     A = J.reshape(-1, J.shape[-1])
     assert p.criteria["logdet"] > np.linalg.slogdet(A.T @ A)[1] + 5.0  # e^5 = 150x larger det
@@ -231,7 +231,7 @@ def test_cli_plan_writes_ordered_joints_with_line_of_sight(tmp_path, capsys):
     out = tmp_path / "plan.csv"
     code, _, se = _run(["plan", "ur5", "-n", "20", "-o", str(out), "--seed", "3", "--tracker", "1200,-300,400",
                          "--length-unit", "mm", "--max-incidence", "40", "--pool", "2048",
-                         "--region", "-90:90,:,:,:,:,:"], capsys)
+                         "--region", "-90:90,:,:,:,:,:", "--no-body-check"], capsys)
     assert code == 0, se
     from hykin.io.dataset_files import read_joints
 
@@ -276,7 +276,7 @@ def test_active_poses_go_where_the_model_is_uncertain(tmp_path, capsys):
     q = rob.random_joints(300, np.random.default_rng(0))
     q[:, 0] = np.random.default_rng(1).uniform(-0.5, 0.5, 300)
     m = HybridModel(rob, recipe_kw={"max_epochs": 5, "batch_size": 64}, seed=0).fit(simulate(vr, q, rng=0), progress=False)
-    p = active_poses(m, 12, Constraints(lower=np.maximum(rob.lower, -2.0), upper=np.minimum(rob.upper, 2.0)),
+    p = active_poses(m, 12, Constraints(lower=np.maximum(rob.lower, -2.0), upper=np.minimum(rob.upper, 2.0), body=False),
                      pool=2048)
     outside = np.abs(p.q[:, 0]) > 0.5
     assert outside.mean() >= 0.75  # the training data are thinnest (none) outside the trained band
@@ -288,7 +288,7 @@ def test_active_poses_go_where_the_model_is_uncertain(tmp_path, capsys):
     path = tmp_path / "m.hykin"
     m.save(path)
     out = tmp_path / "next.csv"
-    code, so, se = _run(["plan", "--for-model", str(path), "-n", "8", "-o", str(out), "--pool", "1024", "--report",
+    code, so, se = _run(["plan", "--for-model", str(path), "-n", "8", "-o", str(out), "--pool", "1024", "--no-body-check", "--report",
                          "--report-max", "100"], capsys)
     assert code == 0, se
     assert "hybrid mm" in so

@@ -76,11 +76,11 @@ def plan_cmd(
         raise CLIError("plan: give -o JOINTS.csv (and/or --report)")
     kind = None
     if out is not None:
+        check_output(out, (robot, for_model), force)
         try:
             kind = program_kind(out)
         except ProgramError as e:
             raise CLIError(str(e)) from None
-        check_output(out, (robot, for_model), force)
         if kind == "krl":
             check_output(out.with_suffix(".dat" if out.suffix.lower() == ".src" else ".src"), (robot, for_model), force)
     if angle_unit not in (None, "rad", "deg"):

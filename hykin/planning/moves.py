@@ -2,8 +2,10 @@
 at intermediate configurations (no joint moves more than 2° / 5 mm between two checks) with every
 constraint of the plan; a move that fails is replaced by a detour through a via pose (a feasible
 candidate, not measured) whose two moves are clear, the quickest such detour among the
-``n_try`` candidates with the shortest detour time; a pose that no detour reaches is dropped and
-reported.
+``n_try`` candidates with the shortest detour time, or by going back along the path already checked
+to a pose from which the move is clear; when the planned next pose cannot be reached, the nearest
+reachable one goes first. A pose that none of this reaches is tried again between every two
+consecutive moves, and dropped and reported only if it fits nowhere.
 """
 
 from __future__ import annotations
@@ -18,11 +20,14 @@ __all__ = ["SafePath", "interpolate_moves", "moves_clear", "safe_path"]
 @dataclass
 class SafePath:
     """The moves to execute. q: ``(M, dof)`` joints in order; measure: ``(M,)`` bool (False: a via
-    pose, moved through only); dropped: indices (into the input order) of poses no safe move reaches."""
+    pose, moved through only); dropped: indices (into the input order) of poses no safe move reaches;
+    order: for each measured row of ``q``, its index in the input order (a pose that no move reached
+    where it was is tried again between every two consecutive poses and goes where that is clear)."""
 
     q: np.ndarray
     measure: np.ndarray
     dropped: np.ndarray
+    order: np.ndarray | None = None
 
 
 def interpolate_moves(q_ordered: np.ndarray, step_rad: float = np.radians(2.0), step_m: float = 0.005,
@@ -62,7 +67,7 @@ def moves_clear(a: np.ndarray, b: np.ndarray, ok_fn, prismatic) -> np.ndarray:
 
 
 def safe_path(q_ordered: np.ndarray, ok_fn, via_pool: np.ndarray, speeds, prismatic=None, n_try: int = 24,
-              start=None, rep=None) -> SafePath:
+              start=None, rep=None, n_near: int = 8) -> SafePath:
     """Make every move between consecutive rows of ``q_ordered`` clear (module docstring).
 
     ok_fn: ``(M, dof) -> (M,) bool`` the configurations that satisfy the plan's constraints (the
@@ -78,17 +83,37 @@ def safe_path(q_ordered: np.ndarray, ok_fn, via_pool: np.ndarray, speeds, prisma
     seq = q if start is None else np.vstack([np.asarray(start, dtype=np.float64)[None], q])
     off = 0 if start is None else 1
     clear = moves_clear(seq[:-1], seq[1:], ok_fn, prismatic)
-    out_q, out_m, dropped = [seq[0]], [start is None], []
+    out_q, out_m, out_i, dropped = [seq[0]], [start is None], [0 - off], []
     cur, cur_i = seq[0], 0
-    i = 1
-    while i < len(seq):
+    rest = list(range(1, len(seq)))  # poses still to visit, in the planned order
+    while rest:
+        i = rest[0]
         nxt = seq[i]
         direct = clear[i - 1] if cur_i == i - 1 else moves_clear(cur[None], nxt[None], ok_fn, prismatic)[0]
+        if not direct:
+            # stuck on the planned next pose: the nearest of the others reachable directly goes first
+            # (the planned one stays to visit later), so that one blocked move does not leave every later
+            # pose a long, blocked move away from where the robot is
+            R = np.array(rest[1:], dtype=np.int64)
+            if R.size:
+                near = R[np.argsort(np.max(np.abs(seq[R] - cur) / v, axis=1))[:n_near]]
+                okn = np.flatnonzero(moves_clear(np.broadcast_to(cur, seq[near].shape), seq[near], ok_fn, prismatic))
+                if okn.size:
+                    k = int(near[okn[0]])
+                    rest.remove(k)
+                    rest.insert(0, k)
+                    out_q.append(seq[k])
+                    out_m.append(True)
+                    out_i.append(k - off)
+                    cur, cur_i = seq[k], k
+                    rest.pop(0)
+                    continue
         if direct:
             out_q.append(nxt)
             out_m.append(True)
+            out_i.append(i - off)
             cur, cur_i = nxt, i
-            i += 1
+            rest.pop(0)
             continue
         t = travel_matrix(np.vstack([cur, nxt, via_pool]), v)
         detour = t[0, 2:] + t[1, 2:]
@@ -106,11 +131,68 @@ def safe_path(q_ordered: np.ndarray, ok_fn, via_pool: np.ndarray, speeds, prisma
         if good.size:
             out_q += [cand[good[0]], nxt]
             out_m += [False, True]
+            out_i += [-1, i - off]
+            cur, cur_i = nxt, i
+            rest.pop(0)
+            continue
+        back = _backtrack(out_q, nxt, ok_fn, prismatic)
+        if back is not None:  # go back along the path already checked, to where the move is clear
+            out_q += [out_q[k] for k in back] + [nxt]
+            out_m += [False] * len(back) + [True]
+            out_i += [-1] * len(back) + [i - off]
+            cur, cur_i = nxt, i
+        elif len(out_q) == 1 and start is None:  # the first pose itself is trapped: start from this one
+            dropped.append(0)
+            out_q, out_m, out_i = [nxt], [True], [i - off]
             cur, cur_i = nxt, i
         else:
             dropped.append(i - off)
-        i += 1
-    qs, ms = np.array(out_q), np.array(out_m, bool)
+        rest.pop(0)
+    still = []
+    for d in dropped:  # a second chance: between any two consecutive moves, or at the end, where clear
+        pos = _insertion(np.array(out_q), q[d], ok_fn, v, prismatic, rep)
+        if pos is None:
+            still.append(d)
+            continue
+        k, qd = pos
+        out_q.insert(k + 1, qd)
+        out_m.insert(k + 1, True)
+        out_i.insert(k + 1, d)
+    qs, ms, idx = np.array(out_q), np.array(out_m, bool), np.array(out_i, dtype=np.int64)
     if start is not None:
-        qs, ms = qs[1:], ms[1:]
-    return SafePath(q=qs, measure=ms, dropped=np.array(dropped, dtype=np.int64))
+        qs, ms, idx = qs[1:], ms[1:], idx[1:]
+    return SafePath(q=qs, measure=ms, dropped=np.array(still, dtype=np.int64), order=idx[ms])
+
+
+def _backtrack(out_q: list, nxt: np.ndarray, ok_fn, prismatic, depth: int = 6) -> list | None:
+    """Indices into ``out_q`` to move back through (the path's own poses, newest first: their moves
+    were checked, so are their reverses) until ``nxt`` is reachable by a clear move; None if not
+    within ``depth`` steps back."""
+    k = np.arange(len(out_q) - 2, max(len(out_q) - 2 - depth, -1), -1)
+    if k.size == 0:
+        return None
+    P = np.array([out_q[j] for j in k])
+    ok = moves_clear(P, np.broadcast_to(nxt, P.shape), ok_fn, prismatic)
+    if not ok.any():
+        return None
+    m = int(np.argmax(ok))
+    return [int(j) for j in k[: m + 1]]
+
+
+def _insertion(path: np.ndarray, qd: np.ndarray, ok_fn, v, prismatic, rep):
+    """``(k, q')``: insert ``qd`` (as ``q'``, its representation reached from ``path[k]``) after row ``k``
+    of ``path`` where both new moves are clear, at the least added travel time; None where nowhere."""
+    M = len(path)
+    d = np.broadcast_to(qd, path.shape)
+    d = rep(path, d) if rep is not None else d.copy()
+    ok = moves_clear(path, d, ok_fn, prismatic)
+    if M > 1:
+        ok[:-1] &= moves_clear(d[:-1], path[1:], ok_fn, prismatic)
+    if not ok.any():
+        return None
+    t_in = np.max(np.abs(d - path) / v, axis=1)
+    t_out = np.append(np.max(np.abs(path[1:] - d[:-1]) / v, axis=1), 0.0)
+    t_old = np.append(np.max(np.abs(np.diff(path, axis=0)) / v, axis=1), 0.0)
+    cost = np.where(ok, t_in + t_out - t_old, np.inf)
+    k = int(np.argmin(cost))
+    return k, d[k]

@@ -157,16 +157,19 @@ def with_safe_moves(plan: Plan, robot: Robot, c: Constraints, via_pool: np.ndarr
     from .order import full_turn_joints, nearest_turn
 
     tw = full_turn_joints(c.lower, c.upper, robot.independent_joint_type)
+    # via poses are moved through, not measured: any configuration of the region whose body is clear
+    # will do (line of sight and the Cartesian box do not apply to them)
+    q_free = uniform(robot, 4096, np.random.default_rng([len(plan.q), 53]), lower=c.lower, upper=c.upper)
+    via_pool = np.vstack([via_pool, q_free[ok_fn(q_free)]])
     sp = safe_path(plan.q, ok_fn, via_pool, plan.speeds, prismatic=pris, start=start,
                    rep=lambda a, b: nearest_turn(a, b, c.lower, c.upper, tw))
     plan.moves = sp
-    if sp.dropped.size:
-        keep = np.ones(len(plan.q), bool)
-        keep[sp.dropped] = False
-        plan.q, plan.core = plan.q[keep], plan.core[keep]
-        plan.pick_order = np.argsort(np.argsort(plan.pick_order[keep]))
+    if sp.order is not None:  # measured poses in the order the moves visit them (dropped ones left out)
+        o = sp.order
+        rank = np.argsort(np.argsort(plan.pick_order[o]))
+        plan.q, plan.core, plan.pick_order = sp.q[sp.measure], plan.core[o], rank
         if plan.score is not None:
-            plan.score = plan.score[keep]
+            plan.score = plan.score[o]
     plan.info["dropped"] = int(sp.dropped.size)
     plan.info["via"] = int((~sp.measure).sum())
     plan.travel = path_travel(sp.q, plan.speeds, 0.0)
