@@ -256,7 +256,7 @@ def draw_campaign(family: str, seed: int) -> Campaign:
     if family == "stations":
         k = int(rng.integers(2, 4))
         label = np.arange(n) % k
-        parts_q, parts_p, parts_d = [], [], []
+        parts_q, parts_d = [], []
         meas.pop("frame")
         ds_all, p_all = None, np.zeros((n, 3))
         for s in range(k):  # stations around the robot, 2.9-3.5 m from it: 5-7 m apart

@@ -231,7 +231,7 @@ def random_urdf(rng: np.random.Generator, dof: int, n_mimic: int = 0, branches: 
     if two_tips:
         add("fixed", se3.xyzrpy_to_transform([0.0, 0.08, 0.12], [0, 0, 0]), name="tool1", into=side, parent=flange)
         tip = tcp["child"]
-    body = [f'<?xml version="1.0"?>\n<robot name="random-urdf-arm">']
+    body = ['<?xml version="1.0"?>\n<robot name="random-urdf-arm">']
     body += [f'  <link name="{ln}"/>' for ln in links]
     body += [_urdf_joint_xml(j) for j in chain + side]
     body.append("</robot>\n")
