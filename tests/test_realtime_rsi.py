@@ -224,6 +224,7 @@ def test_bridge_stops_answering_after_consecutive_failures(kuka):
     assert np.isfinite(run.reply_s).sum() == 3 and np.abs(run.correction).max() < 1e-9  # 3 zero answers, then silence
 
 
+@pytest.mark.slow  # ~10 s: the same path runs in-process in the default suite
 def test_cli_rsi_answers_as_the_in_process_handler():
     from hykin.compensation.compensator import Compensator
     from hykin.hybrid.model import HybridModel

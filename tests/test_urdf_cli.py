@@ -45,6 +45,7 @@ def _write(path, nom, truth, n, seed, bump=False, noise_m=2e-5):
     return q
 
 
+@pytest.mark.slow  # ~10 s: the same path runs in-process in the default suite
 def test_calibrate_urdf_with_tip_writes_urdf(tmp_path, capsys):
     nom, truth = _truth(0)
     _write(tmp_path / "d.csv", nom, truth, 400, 1)

@@ -291,12 +291,13 @@ def _report(rob, model, p, c, n, noise_mm, unmodelled_mm, plot, measure, seed, p
         h_mm = hyb.get("hybrid_pos_mean_mm")
         if ntr > 0 and h_mm:  # anchor the curve's level on the model's own error at its size
             learning = (float(h_mm) * ntr**LEARNING_B, LEARNING_B)
-        base = plan_poses(rob, max(n, report_max), c, seed=seed, pool=pool, position_only=True, speeds=speeds, dwell_s=dwell)
+        base = plan_poses(rob, max(n, report_max), c, seed=seed, pool=pool, position_only=True, speeds=speeds, dwell_s=dwell,
+                          safe_moves=False)
     else:
         u = 0.15 if unmodelled_mm is None else unmodelled_mm
         learning = (LEARNING_A, LEARNING_B)
         base = p if n >= report_max else plan_poses(rob, report_max, c, seed=seed, pool=pool, position_only=measure == "position",
-                                              speeds=speeds, dwell_s=dwell)
+                                                    speeds=speeds, dwell_s=dwell, safe_moves=False)
     q_test = uniform(rob, 2048, np.random.default_rng([seed, 29]), lower=c.lower, upper=c.upper)
     per_pose = base.travel["move_s"] / max(len(base.q), 1) + dwell
     ns = [m for m in (15, 30, 60, 100, 250, 500, 1000, 2000, 5000, 10000, n) if m <= len(base.q)]

@@ -178,22 +178,22 @@ def feasible(robot: Robot, q, c: Constraints) -> np.ndarray:
     lo = robot.lower if c.lower is None else c.lower
     hi = robot.upper if c.upper is None else c.upper
     ok = np.all((q >= lo - 1e-12) & (q <= hi + 1e-12), axis=1)
-    if c.bodies is not None:
-        ok &= body_clear(robot, q, c.bodies, c.floor_z_m, c.keep_out_m)
-    elif c.floor_z_m is not None:  # no body model: at least the TCP stays above the floor
-        ok &= fk(robot, q)[:, 2, 3] >= c.floor_z_m
-    if c.box_m is None and c.tracker_m is None and not c.keep_out_m:
-        return ok
-    p, n = reflector_pose(robot, q, c)
-    if c.box_m is not None:
-        ok &= np.all((p >= c.box_m[0]) & (p <= c.box_m[1]), axis=1)
-    for b in c.keep_out_m:
-        ok &= ~np.all((p >= b[0]) & (p <= b[1]), axis=1)
-    if c.tracker_m is not None:
-        ok &= incidence_deg(p, n, c.tracker_m) <= c.max_incidence_deg
-        ok &= np.linalg.norm(p - c.tracker_m, axis=1) >= c.min_range_m
+    if c.box_m is not None or c.tracker_m is not None or c.keep_out_m:
+        p, n = reflector_pose(robot, q, c)
+        if c.box_m is not None:
+            ok &= np.all((p >= c.box_m[0]) & (p <= c.box_m[1]), axis=1)
         for b in c.keep_out_m:
-            ok &= ~segment_hits_box(np.broadcast_to(c.tracker_m, p.shape), p, b)
+            ok &= ~np.all((p >= b[0]) & (p <= b[1]), axis=1)
+        if c.tracker_m is not None:
+            ok &= incidence_deg(p, n, c.tracker_m) <= c.max_incidence_deg
+            ok &= np.linalg.norm(p - c.tracker_m, axis=1) >= c.min_range_m
+            for b in c.keep_out_m:
+                ok &= ~segment_hits_box(np.broadcast_to(c.tracker_m, p.shape), p, b)
+    rows = np.flatnonzero(ok)  # the body test, the costliest, only where everything else holds
+    if c.bodies is not None and rows.size:
+        ok[rows] = body_clear(robot, q[rows], c.bodies, c.floor_z_m, c.keep_out_m)
+    elif c.floor_z_m is not None and rows.size:  # no body model: at least the TCP stays above the floor
+        ok[rows] = fk(robot, q[rows])[:, 2, 3] >= c.floor_z_m
     return ok
 
 

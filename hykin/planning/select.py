@@ -129,14 +129,14 @@ def _move_check(robot: Robot, c: Constraints):
     return None
 
 
-def _order(robot: Robot, c: Constraints, q: np.ndarray, speeds, start) -> tuple[np.ndarray, np.ndarray]:
+def _order(robot: Robot, c: Constraints, q: np.ndarray, speeds, start, check: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """A short path through ``q`` whose moves are clear where a clear one is near (:func:`order_path`):
     ``(order (N,), the poses in that order (N, dof))``, full-turn joints unwrapped along the path
     (:func:`hykin.planning.order.unwrap_path`: the same poses by shorter moves)."""
     from .moves import moves_clear
     from .order import full_turn_joints, nearest_turn, unwrap_path
 
-    ok_fn = _move_check(robot, c)
+    ok_fn = _move_check(robot, c) if check else None
     pris = np.array([t == "prismatic" for t in robot.independent_joint_type])
     tw = full_turn_joints(c.lower, c.upper, robot.independent_joint_type)
     rep = lambda a, b: nearest_turn(a, b, c.lower, c.upper, tw)
@@ -272,14 +272,16 @@ def candidate_pool(robot: Robot, c: Constraints, n_needed: int, seed: int = 0, p
 def plan_poses(robot: Robot, n: int, constraints: Constraints | None = None, *, seed: int = 0, pool: int = 20_000,
                position_only: bool = True, orientation_weight_m_per_rad: float = 1.0, compliance: bool = True,
                criterion: str = "I", core_factor: float = 2.0, fill: str = "sobol", speeds=DEFAULT_SPEEDS_RAD_S,
-               start=None, dwell_s: float = 0.0) -> Plan:
+               start=None, dwell_s: float = 0.0, safe_moves: bool = True) -> Plan:
     """``n`` poses for calibration + networks within ``constraints`` (module docstring), ordered.
 
     position_only: the tracker measures positions (SMR) or full poses (6-D probe). criterion: ``"I"``
     (default) or ``"D"`` for the core. core_factor: core size in multiples of the minimum number of
     poses (identifiable parameters / rows per pose). fill: ``"sobol"`` (default: the feasible
     low-discrepancy candidates in sequence order) or ``"maximin"`` (greedy farthest point). speeds: joint speeds (rad/s) for the order and
-    the time estimate. start: joints the robot starts from. dwell_s: settle + measure time per pose."""
+    the time estimate. start: joints the robot starts from. dwell_s: settle + measure time per pose.
+    safe_moves: check and detour the moves between poses (:func:`with_safe_moves`); False for plans
+    that are only studied (the accuracy forecast), not run."""
     if isinstance(n, bool) or int(n) != n or n < 1:
         raise PlanningError(f"number of poses must be a positive integer, got {n!r}")
     if criterion not in ("I", "D"):
@@ -313,7 +315,7 @@ def plan_poses(robot: Robot, n: int, constraints: Constraints | None = None, *, 
         fill_idx = np.flatnonzero(rest)[: n - k_core]
     sel = np.concatenate([core_idx, fill_idx])
     q_sel = cand[sel]
-    path, q_ord = _order(robot, c, q_sel, speeds, start)
+    path, q_ord = _order(robot, c, q_sel, speeds, start, check=safe_moves)
     crit = observability(scaled_rows(idm, q_sel))
     crit["min_spacing"] = min_spacing(X[sel])
     crit.update(coverage_report(q_sel, c.lower, c.upper, seed=seed))
@@ -322,7 +324,7 @@ def plan_poses(robot: Robot, n: int, constraints: Constraints | None = None, *, 
     plan = Plan(q=q_ord, core=core, pick_order=pick_order, travel=path_travel(q_ord, speeds, dwell_s),
                 criteria=crit, id_model=idm, n_pool=drawn, n_feasible=len(cand), lower=c.lower, upper=c.upper,
                 speeds=speeds, info={"core_size": k_core, "n_params": idm.n_params, "criterion": criterion, "fill": fill})
-    return with_safe_moves(plan, robot, c, cand, start)
+    return with_safe_moves(plan, robot, c, cand, start) if safe_moves else plan
 
 
 def usage_weight(idm: IdentificationModel, robot: Robot, c: Constraints, seed: int = 0, n: int = 2048) -> np.ndarray:
