@@ -318,3 +318,16 @@ def test_generated_mimic_chains_against_reference(chain, seed):
         np.testing.assert_allclose(J[:, :3, j], fd, atol=1e-7)
     back = load_urdf_string(calibrated_robot_urdf(r)[0])  # the maker's file written back unchanged in FK
     np.testing.assert_allclose(fk(back, q), T, atol=1e-12)
+
+
+def test_compiled_hybrid_fk_is_not_used_for_mimic_chains(robot):
+    """The compiled small-batch hybrid FK walks independent joints only: a robot with <mimic> joints takes
+    the numpy path (found by the battery: a 40-row evaluation of a mimic model was metres off, the
+    112-row one right)."""
+    from types import SimpleNamespace
+
+    from hykin.hybrid.fast_fk import kernel_of
+
+    model = SimpleNamespace(fade=True, net_pos_=object(), robot_=robot)
+    assert model.robot_.n_chain > model.robot_.dof
+    assert kernel_of(model) is None

@@ -100,6 +100,8 @@ def kernel_of(model) -> HybridKernel | None:
     in place), or None when the model cannot run compiled (module docstring)."""
     if not HAVE_NUMBA or model.fade == "full" or getattr(model, "net_pos_", None) is None:
         return None
+    if model.robot_.n_chain != model.robot_.dof:  # <mimic> joints: the kernel walks independent joints only
+        return None
     k = model.__dict__.get("_fast_kernel")
     if (k is not None and all(a is b for a, b in zip(_refs(model), k.refs)) and _vals(model) == k.vals
             and all(t._version == v for t, v in zip(k.tensors, k.versions))):
