@@ -121,88 +121,74 @@ def _num(v: float, nd: int) -> str:
     return "0." + "0" * nd if out.startswith("-") and float(out) == 0.0 else out
 
 
+def _rows(lang: str, A: np.ndarray, measure: np.ndarray, s: ProgramSettings, comment: str, move, wait, out,
+          await_in) -> list[str]:
+    """The program body, one language's syntax given as functions: per row a comment, the joint move
+    ``move(row_number, axes)``, then at a measured pose the trigger of ``s.trigger`` built from
+    ``wait(seconds)``, ``out(signal, on)`` and ``await_in(signal)`` (each a list of lines)."""
+    mode, sig = _trigger(s.trigger, lang)
+    lines, k = [], 0
+    for i, (a, m) in enumerate(zip(A, measure), start=1):
+        if m:
+            k += 1
+            lines.append(f"{comment} pose {k}")
+        else:
+            lines.append(f"{comment} waypoint" if s.stream else f"{comment} via (not measured)")
+        lines.append(move(i, a))
+        if not m:
+            continue
+        if mode == "wait":
+            lines += wait(s.dwell_s)
+        elif mode == "do":
+            lines += wait(s.settle_s) + out(sig, True) + wait(s.dwell_s) + out(sig, False)
+        else:
+            lines += wait(s.settle_s) + await_in(sig)
+    return lines
+
+
 def urscript(q: np.ndarray, measure: np.ndarray, robot_name: str, s: ProgramSettings) -> str:
-    mode, sig = _trigger(s.trigger, "urscript")
     A = _axes(q, s)
     lines = _header("#", robot_name, int(measure.sum()), int((~measure).sum()), s,
                     f"{np.degrees(s.speed_rad_s):g} deg/s")
     lines.append(f"def {s.name}():")
-    k = 0
-    for a, m in zip(A, measure):
-        if m:
-            k += 1
-            lines.append(f"  # pose {k}")
-        else:
-            lines.append("  # waypoint" if s.stream else "  # via (not measured)")
-        lines.append(f"  movej([{', '.join(_num(x, 8) for x in a)}], a={s.accel_rad_s2:g}, v={s.speed_rad_s:.6g})")
-        if not m:
-            continue
-        if mode == "wait":
-            lines.append(f"  sleep({s.dwell_s:g})")
-        elif mode == "do":
-            lines += [f"  sleep({s.settle_s:g})", f"  set_standard_digital_out({sig}, True)", f"  sleep({s.dwell_s:g})",
-                      f"  set_standard_digital_out({sig}, False)"]
-        else:
-            lines += [f"  sleep({s.settle_s:g})", f"  while not get_standard_digital_in({sig}):", "    sync()", "  end"]
+    lines += _rows(
+        "urscript", A, measure, s, "  #",
+        lambda i, a: f"  movej([{', '.join(_num(x, 8) for x in a)}], a={s.accel_rad_s2:g}, v={s.speed_rad_s:.6g})",
+        lambda t: [f"  sleep({t:g})"],
+        lambda sig, on: [f"  set_standard_digital_out({sig}, {on})"],
+        lambda sig: [f"  while not get_standard_digital_in({sig}):", "    sync()", "  end"])
     lines.append("end")
     return "\n".join(lines) + "\n"
 
 
 def krl(q: np.ndarray, measure: np.ndarray, robot_name: str, s: ProgramSettings) -> tuple[str, str]:
     """``(src, dat)`` texts."""
-    mode, sig = _trigger(s.trigger, "krl")
     A = np.degrees(_axes(q, s))
     head = _header(";", robot_name, int(measure.sum()), int((~measure).sum()), s,
                    f"$VEL_AXIS {s.krl_vel_percent:g} % (time estimate at {np.degrees(s.speed_rad_s):g} deg/s)")
     src = ["&ACCESS RVP", f"DEF {s.name}( )"] + head
     src += [f"$VEL_AXIS[{i}]={s.krl_vel_percent:g}" for i in range(1, 7)]
     dat = ["&ACCESS RVP", f"DEFDAT {s.name}"] + head
-    k = 0
-    for i, (a, m) in enumerate(zip(A, measure), start=1):
-        dat.append(f"DECL E6AXIS XP{i}={{{', '.join(f'A{j + 1} {_num(x, 5)}' for j, x in enumerate(a))}, "
-                   "E1 0.0, E2 0.0, E3 0.0, E4 0.0, E5 0.0, E6 0.0}")
-        if m:
-            k += 1
-            src.append(f"; pose {k}")
-        else:
-            src.append("; waypoint" if s.stream else "; via (not measured)")
-        src.append(f"PTP XP{i}")
-        if not m:
-            continue
-        if mode == "wait":
-            src.append(f"WAIT SEC {s.dwell_s:g}")
-        elif mode == "do":
-            src += [f"WAIT SEC {s.settle_s:g}", f"$OUT[{sig}]=TRUE", f"WAIT SEC {s.dwell_s:g}", f"$OUT[{sig}]=FALSE"]
-        else:
-            src += [f"WAIT SEC {s.settle_s:g}", f"WAIT FOR $IN[{sig}]"]
+    dat += [f"DECL E6AXIS XP{i}={{{', '.join(f'A{j + 1} {_num(x, 5)}' for j, x in enumerate(a))}, "
+            "E1 0.0, E2 0.0, E3 0.0, E4 0.0, E5 0.0, E6 0.0}" for i, a in enumerate(A, start=1)]
+    src += _rows("krl", A, measure, s, ";", lambda i, a: f"PTP XP{i}", lambda t: [f"WAIT SEC {t:g}"],
+                 lambda sig, on: [f"$OUT[{sig}]={'TRUE' if on else 'FALSE'}"], lambda sig: [f"WAIT FOR $IN[{sig}]"])
     src.append("END")
     dat.append("ENDDAT")
     return "\n".join(src) + "\n", "\n".join(dat) + "\n"
 
 
 def rapid(q: np.ndarray, measure: np.ndarray, robot_name: str, s: ProgramSettings) -> str:
-    mode, sig = _trigger(s.trigger, "rapid")
     A = np.degrees(_axes(q, s))
     lines = [f"MODULE {s.name}"] + _header("  !", robot_name, int(measure.sum()), int((~measure).sum()), s,
                                            f"v_ori {np.degrees(s.speed_rad_s):g} deg/s")
     lines.append(f"  CONST speeddata vPlan := [500, {np.degrees(s.speed_rad_s):.4g}, 5000, 1000];")
     lines.append("  PROC main()")
-    k = 0
-    for a, m in zip(A, measure):
-        if m:
-            k += 1
-            lines.append(f"    ! pose {k}")
-        else:
-            lines.append("    ! waypoint" if s.stream else "    ! via (not measured)")
-        lines.append(f"    MoveAbsJ [[{','.join(_num(x, 5) for x in a)}],[9E9,9E9,9E9,9E9,9E9,9E9]]\\NoEOffs, vPlan, fine, tool0;")
-        if not m:
-            continue
-        if mode == "wait":
-            lines.append(f"    WaitTime {s.dwell_s:g};")
-        elif mode == "do":
-            lines += [f"    WaitTime {s.settle_s:g};", f"    SetDO {sig}, 1;", f"    WaitTime {s.dwell_s:g};", f"    SetDO {sig}, 0;"]
-        else:
-            lines += [f"    WaitTime {s.settle_s:g};", f"    WaitDI {sig}, 1;"]
+    lines += _rows(
+        "rapid", A, measure, s, "    !",
+        lambda i, a: f"    MoveAbsJ [[{','.join(_num(x, 5) for x in a)}],[9E9,9E9,9E9,9E9,9E9,9E9]]\\NoEOffs, vPlan, fine, tool0;",
+        lambda t: [f"    WaitTime {t:g};"], lambda sig, on: [f"    SetDO {sig}, {int(on)};"],
+        lambda sig: [f"    WaitDI {sig}, 1;"])
     lines += ["  ENDPROC", "ENDMODULE"]
     return "\n".join(lines) + "\n"
 
