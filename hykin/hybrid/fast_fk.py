@@ -255,6 +255,17 @@ if HAVE_NUMBA:
         d = (x * u[0] + y * u[1] + z * u[2]) * (1.0 - c)
         v[0], v[1], v[2] = x * c + cx * s + u[0] * d, y * c + cy * s + u[1] * d, z * c + cz * s + u[2] * d
 
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _top_rows(A, B, out):  # pragma: no cover - compiled
+        """``out[:3] = (A @ B)[:3]`` for (4, 4) ``A``, ``B`` (only rows 0-2 of ``A`` are read; ``out`` is
+        not ``A`` or ``B``)."""
+        for r in range(3):
+            for cc in range(4):
+                s = 0.0
+                for k in range(4):
+                    s += A[r, k] * B[k, cc]
+                out[r, cc] = s
+
     @numba.njit(cache=True, nogil=True)
     def hybrid_one(P, q, T, ex, framed_out):  # pragma: no cover - compiled
         """Hybrid pose of joints ``q`` (n,) into ``T`` (4, 4) at the reference temperature, the range
@@ -316,18 +327,8 @@ if HAVE_NUMBA:
                 rotate_top(dv[0], dv[1], dv[2], T)
         if framed and framed_out:
             M = np.empty((4, 4))
-            for r in range(3):
-                for cc in range(4):
-                    s = 0.0
-                    for k in range(4):
-                        s += pre[r, k] * T[k, cc]
-                    M[r, cc] = s
-            for r in range(3):
-                for cc in range(4):
-                    s = 0.0
-                    for k in range(4):
-                        s += M[r, k] * post[k, cc]
-                    T[r, cc] = s
+            _top_rows(pre, T, M)
+            _top_rows(M, post, T)
         return gap
 
     @numba.njit(cache=True, nogil=True)
