@@ -180,3 +180,27 @@ def test_compiled_kernel_cache_follows_the_model():
     m.fade = "range" if m.fade != "range" else "pairs"
     agree()
     assert fast_fk.kernel_of(m) is not k0
+
+
+def _max_diff_in_child(args):
+    fn, q, ref = args
+    return float(np.abs(fn(q) - ref).max())
+
+
+def test_fast_net_thread_pool_survives_fork(monkeypatch):
+    """A process forked after a large batch ran on the thread pool evaluates large batches too (the
+    parent's pool threads do not exist in the child: it makes its own) with the same numbers."""
+    import multiprocessing as mp
+    import sys
+
+    from hykin.hybrid import fast_nets
+
+    if sys.platform != "linux":
+        pytest.skip("fork start method")
+    monkeypatch.setattr(fast_nets, "PARALLEL_ROWS", 500)
+    monkeypatch.setattr(fast_nets, "threads", lambda: 2)
+    fn = fast_net(_randomised("default", 6, 6))
+    q = np.random.default_rng(6).uniform(-3, 3, (2000, 6))
+    ref = fn(q)  # the parent's pool exists now
+    with mp.get_context("fork").Pool(1) as pool:
+        assert pool.map_async(_max_diff_in_child, [(fn, q, ref)]).get(timeout=60) == [0.0]

@@ -105,11 +105,15 @@ def threads() -> int:
 
 
 def _pool(n: int):
+    """The thread pool of ``n`` workers of this process (a forked child makes its own: the parent's
+    worker threads do not exist there)."""
+    import os
     from concurrent.futures import ThreadPoolExecutor
 
-    p = _POOL.get(n)
+    key = (os.getpid(), n)
+    p = _POOL.get(key)
     if p is None:
-        p = _POOL[n] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="hykin-nets")
+        p = _POOL[key] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="hykin-nets")
     return p
 
 
