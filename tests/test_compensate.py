@@ -96,6 +96,12 @@ def test_unreachable_targets_get_no_command():
     qb[2] = np.nan  # no branch (a program's configuration data matched nothing)
     c = compensate(m, T, q_branch=qb, branch_reason="no match")
     assert not c.success[2] and c.reason[2] == "no match"
+    qb, T2 = q.copy(), T.copy()
+    qb[1], T2[1] = np.nan, T[0]  # every row with a branch succeeds, one row has none
+    c = compensate(m, T2, q_branch=qb, branch_reason="no match")
+    assert list(c.success) == [True, False, True] and list(c.reason) == ["", "no match", ""]
+    assert np.isnan(c.command[1]).all() and np.isnan(c.q[1]).all() and np.isfinite(c.command[[0, 2]]).all()
+    assert np.allclose(c.command[2], compensate(m, T2[2:], q_branch=q[2:]).command[0], atol=1e-12)
     with pytest.raises(ValueError, match="NaN"):
         compensate(m, np.full((1, 4, 4), np.nan))
 

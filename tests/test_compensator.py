@@ -141,3 +141,41 @@ def test_hint_a_turn_outside_the_limits(model):
     hint = q + np.array([2 * np.pi, 0, 0, 0, 0, 0])  # 6.58 rad: beyond the +2π limit, the same branch
     r = hykin.Compensator(m).step(T, hint)
     assert r.success and np.abs(r.q - q).max() < 1e-6
+
+
+def test_walk_candidate_is_the_nearest_representation():
+    """branches.Candidates.nearest (the default walk's choice) against a brute force written here: every
+    2π shift of every revolute joint within the limits, every valid solution, the nearest to the
+    reference; None where no valid solution has a representation within the limits."""
+    from hykin import load_robot
+    from hykin.compensation.branches import Candidates, nearest_candidate
+
+    rob = load_robot("ur10")
+    rng = np.random.default_rng(5)
+    N, K, n = 30, 8, rob.dof
+    q = rng.uniform(-8.0, 8.0, (N, K, n))
+    q[rng.random((N, K)) < 0.2, 0] = np.nan  # solutions a branch lacks
+    ok = rng.random((N, K)) < 0.8
+    ok[0] = False  # a target without solutions
+    q[1, :, 1] = rob.upper[1] + 0.5 + np.arange(K) * 1e-3 - 2 * np.pi * 3  # beyond the limits whatever the turn
+    cand = Candidates(rob, q, ok)
+    for i in range(N):
+        cur = rng.uniform(rob.lower, rob.upper)
+        best, best_d = None, np.inf
+        for k in range(K):
+            if not ok[i, k] or not np.isfinite(q[i, k]).all():
+                continue
+            rep = np.empty(n)
+            for j in range(n):
+                shifts = q[i, k, j] + 2 * np.pi * np.arange(-6, 7)
+                inside = shifts[(shifts >= rob.lower[j] - 1e-9) & (shifts <= rob.upper[j] + 1e-9)]
+                rep[j] = inside[np.argmin(np.abs(inside - cur[j]))] if inside.size else np.nan
+            d = np.linalg.norm(rep - cur)
+            if np.isfinite(d) and d < best_d:
+                best, best_d = rep, d
+        got = cand.nearest(i, cur)
+        if best is None:
+            assert got is None and i in (0, 1)
+        else:
+            assert np.allclose(got, best, atol=1e-12)
+            assert np.array_equal(nearest_candidate(rob, q[i], ok[i], cur), got)

@@ -46,6 +46,28 @@ def test_fast_net_equals_torch_float64(name):
     assert np.abs(fn(q[:1]) - out[:1]).max() < 1e-15
 
 
+@pytest.mark.parametrize("name", ["default", "B1", "B2", "Rd"])
+def test_fast_net_chunks_and_threads_are_the_same_function(name, monkeypatch):
+    """Large batches run in chunks with reused scratch buffers over a thread pool: small chunks and
+    three workers here (rows split unevenly, ResNet shortcuts reading a block's input while its output
+    is written) give the torch float64 numbers, and the one-chunk single-thread evaluation's."""
+    from hykin.hybrid import fast_nets
+
+    net = _randomised(name, 6, 5)
+    fn = fast_net(net)
+    q = np.random.default_rng(4).uniform(-4, 4, (101, 6))
+    with torch.inference_mode():
+        ref = net_float64(net)(torch.from_numpy(q)).numpy()
+    whole = fn(q)  # 101 rows < CHUNK_ROWS: one chunk, one thread
+    monkeypatch.setattr(fast_nets, "CHUNK_ROWS", 7)
+    monkeypatch.setattr(fast_nets, "PARALLEL_ROWS", 20)
+    monkeypatch.setattr(fast_nets, "threads", lambda: 3)
+    out = fn(q)
+    assert np.abs(out - ref).max() * 1e3 < 1e-9  # mm
+    assert np.abs(out - whole).max() <= 1e-15 * np.abs(whole).max()
+    assert fn(q[:0]).shape == (0, 3)
+
+
 @pytest.mark.parametrize("name", ["default", "B2", "B3"])
 def test_fast_net_jacobian_matches_differences(name):
     net = _randomised(name, 6, 2)
@@ -115,5 +137,70 @@ def test_compiled_hybrid_fk_equals_numpy_path():
         assert np.abs(tt - fast).max() < 1e-12
         assert fast_fk.kernel_of(mm) is not None
     k = fast_fk.kernel_of(m)
-    T, ex, gap = fast_fk.predict_fast(k, q)
+    T, ex, gap, outside = fast_fk.predict_fast(k, q)
+    assert outside == bool(ex.any() or gap.max() > 0)
     assert np.allclose(ex, m.range_excess(q), atol=1e-15) and np.allclose(gap, m.pair_gap(q), atol=1e-15)
+
+
+def test_compiled_kernel_cache_follows_the_model():
+    """The compiled kernel cached on a model is rebuilt when a network's weights change in place, a
+    frame is replaced or the fade changes; reference: the numpy path of the changed model."""
+    import warnings
+
+    from comp_models import tiny_model_file
+
+    from hykin.geometry import se3
+    from hykin.hybrid import fast_fk
+    from hykin.hybrid.model import HybridModel
+
+    if not fast_fk.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    m = HybridModel.load(tiny_model_file())
+    q = m.nominal.random_joints(300, 1, margin=0.1)[:8]  # training joints (comp_models): fade weight 1
+    assert np.all(m.fade_weight(q) == 1.0)
+
+    def agree():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fast, ref = m.predict(q), m.predict(np.repeat(q, 10, axis=0))[::10]  # compiled / numpy path
+        assert np.abs(fast - ref).max() < 1e-12
+        return fast
+
+    T0 = agree()
+    k0 = fast_fk.kernel_of(m)
+    assert fast_fk.kernel_of(m) is k0  # unchanged model: the cached kernel
+    with torch.no_grad():  # a buffer and a weight changed in place (the tiny model's output scale is ~0)
+        m.net_pos_.out_scale.fill_(1e-3)
+        next(m.net_pos_.parameters()).mul_(1.5)
+    T1 = agree()
+    assert np.abs(T1 - T0)[:, :3, 3].max() > 1e-6
+    m.frame_pre_ = se3.trans(0.01, 0.0, 0.0) @ m.frame_pre_  # a frame replaced
+    T2 = agree()
+    assert np.allclose(T2[:, 0, 3] - T1[:, 0, 3], 0.01, atol=1e-12)
+    m.fade = "range" if m.fade != "range" else "pairs"
+    agree()
+    assert fast_fk.kernel_of(m) is not k0
+
+
+def _max_diff_in_child(args):
+    fn, q, ref = args
+    return float(np.abs(fn(q) - ref).max())
+
+
+def test_fast_net_thread_pool_survives_fork(monkeypatch):
+    """A process forked after a large batch ran on the thread pool evaluates large batches too (the
+    parent's pool threads do not exist in the child: it makes its own) with the same numbers."""
+    import multiprocessing as mp
+    import sys
+
+    from hykin.hybrid import fast_nets
+
+    if sys.platform != "linux":
+        pytest.skip("fork start method")
+    monkeypatch.setattr(fast_nets, "PARALLEL_ROWS", 500)
+    monkeypatch.setattr(fast_nets, "threads", lambda: 2)
+    fn = fast_net(_randomised("default", 6, 6))
+    q = np.random.default_rng(6).uniform(-3, 3, (2000, 6))
+    ref = fn(q)  # the parent's pool exists now
+    with mp.get_context("fork").Pool(1) as pool:
+        assert pool.map_async(_max_diff_in_child, [(fn, q, ref)]).get(timeout=60) == [0.0]

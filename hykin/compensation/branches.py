@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kinematics.ik_solutions import nearest_representation
+from ..kinematics.ik_solutions import representation_range
 from ..kinematics.robot import Robot
 
 __all__ = [
@@ -175,16 +175,37 @@ def match_abb_confdata(robot: Robot, T_world, conf, axis_signs=None) -> np.ndarr
     return _pick(q, ok, cost, cc[..., 3] == conf[..., 3])
 
 
+class Candidates:
+    """Solutions ``q`` ``(N, K, n)`` of N targets (valid where ``ok`` ``(N, K)`` and finite), prepared
+    once for :meth:`nearest` (the 2π ranges within the limits do not depend on the reference)."""
+
+    def __init__(self, robot: Robot, q: np.ndarray, ok: np.ndarray):
+        q = np.asarray(q, dtype=np.float64)
+        self.qz = np.nan_to_num(q)
+        self.k_lo, self.k_hi = representation_range(self.qz, robot.lower, robot.upper)
+        rev = np.array([t == "revolute" for t in robot.joint_type])
+        self.shift = TWO_PI * (rev & (self.k_lo <= self.k_hi))  # 2π where a revolute joint can move into the limits
+        self.valid = np.asarray(ok, dtype=bool) & np.isfinite(q).all(-1)
+        self.lo, self.hi = robot.lower - 1e-9, robot.upper + 1e-9
+
+    def nearest(self, i: int, cur: np.ndarray) -> np.ndarray | None:
+        """Of target ``i``'s valid solutions, each in its 2π representation nearest ``cur`` ``(n,)``
+        within the limits, the one nearest ``cur``; None when no valid one is within the limits."""
+        qz = self.qz[i]
+        k = np.clip(np.round((cur - qz) / TWO_PI), self.k_lo[i], self.k_hi[i])
+        qq = qz + k * self.shift[i]  # nearest_representation (revolute joints), q itself elsewhere
+        inside = self.valid[i] & ((qq >= self.lo) & (qq <= self.hi)).all(1)
+        if not inside.any():
+            return None
+        dq = qq - cur
+        d = np.where(inside, np.sqrt((dq * dq).sum(1)), np.inf)
+        return qq[int(np.argmin(d))]
+
+
 def nearest_candidate(robot: Robot, q: np.ndarray, ok: np.ndarray, cur: np.ndarray) -> np.ndarray | None:
     """Of the solutions ``q`` ``(K, n)`` (valid where ``ok``), each in its 2π representation nearest
     ``cur`` ``(n,)`` within the limits, the one nearest ``cur``; None when no valid one is within the limits."""
-    rev = np.array([t == "revolute" for t in robot.joint_type])
-    qq = np.where(rev, nearest_representation(np.nan_to_num(q), cur, robot.lower, robot.upper), q)
-    inside = ok & np.isfinite(q).all(1) & np.all((qq >= robot.lower - 1e-9) & (qq <= robot.upper + 1e-9), axis=1)
-    if not inside.any():
-        return None
-    d = np.where(inside, np.linalg.norm(np.nan_to_num(qq - cur), axis=1), np.inf)
-    return qq[int(np.argmin(d))]
+    return Candidates(robot, np.asarray(q)[None], np.asarray(ok)[None]).nearest(0, cur)
 
 
 def sequential_nearest(robot: Robot, T_world, q_start=None) -> np.ndarray:
@@ -199,10 +220,11 @@ def sequential_nearest(robot: Robot, T_world, q_start=None) -> np.ndarray:
     ok = np.asarray(br.success, dtype=bool).reshape(len(q), -1)
     cur = np.clip(np.zeros(robot.dof), robot.lower, robot.upper) if q_start is None else np.asarray(q_start, float)
     out = np.full((len(q), robot.dof), np.nan)
+    cand = Candidates(robot, q, ok)
     # a walk: each choice depends on the previous one (N steps over K branches each)
     for i in range(len(q)):
         if ok[i].any():
-            pick = nearest_candidate(robot, q[i], ok[i], cur)
+            pick = cand.nearest(i, cur)
             if pick is not None:
                 cur = out[i] = pick
     return out

@@ -171,28 +171,43 @@ class Compensator:
         N, n = len(T), self.dof
         Tm = self.model_targets(T, D)
         has = np.isfinite(hint).all(1)
-        q = np.full((N, n), np.nan)
-        pe = np.full(N, np.nan)
-        ae = np.full(N, np.nan)
-        reason = np.full(N, branch_reason, dtype=object)
-        idx = np.flatnonzero(has)
-        if idx.size:
+        every = bool(has.all())  # the usual case: no index arrays, no copies
+        idx = slice(None) if every else np.flatnonzero(has)
+        if every:
+            q, pe, ae = np.empty((N, n)), np.empty(N), np.empty(N)
+        else:
+            q, pe, ae = np.full((N, n), np.nan), np.full(N, np.nan), np.full(N, np.nan)
+        ok = has.copy()
+        reason = None if every else np.where(has, "", branch_reason).astype(object)
+        if every or idx.size:
+            h, Ti = (hint, Tm) if every else (hint[idx], Tm[idx])
             if self.kernel is not None:
-                h = hint[idx]
                 if ((h < self.lower) | (h > self.upper)).any():  # outside the limits by a turn: the representation inside
                     h = np.where(self._rev, nearest_representation(h, h, self.lower, self.upper), h)
-                qi, pi, ai, ri = self._solve_compiled(Tm[idx], np.clip(h, self.lower, self.upper), pos_only)
+                qi, pi, ai, ri = self._solve_compiled(Ti, np.clip(h, self.lower, self.upper), pos_only)
             else:
-                qi, pi, ai, ri = self._solve_generic(Tm[idx], hint[idx], pos_only)
-            q[idx], pe[idx], ae[idx], reason[idx] = qi, pi, ai, ri
-        ok = reason == ""
-        q[~ok] = np.nan
+                qi, pi, ai, ri = self._solve_generic(Ti, h, pos_only)
+            q[idx], pe[idx], ae[idx] = qi, pi, ai
+            if ri is not None:  # some rows failed (None: every row succeeded)
+                if reason is None:
+                    reason = np.full(N, "", dtype=object)
+                reason[idx] = ri
+                ok[idx] = ri == ""
         cmd = np.full((N, 4, 4), np.nan)
-        if ok.any():
+        if reason is not None:
+            q[~ok] = np.nan
             qo = q[ok]
-            C = fk(self.nominal, qo[0]) if len(qo) == 1 else fk(self.nominal, qo)
-            cmd[ok] = self._nom_base_inv @ C if D is None else self._nom_base_inv @ C @ D[ok]
-        return q, cmd, ok, reason.astype(str), pe, ae
+        else:
+            qo = q
+        if len(qo):
+            C = fk(self.nominal, qo[0])[None] if len(qo) == 1 else fk(self.nominal, qo)
+            C = self._nom_base_inv @ C if D is None else self._nom_base_inv @ C @ D[ok]
+            if reason is None:
+                cmd = C
+            else:
+                cmd[ok] = C
+        reason = np.zeros(N, dtype="<U1") if reason is None else reason.astype(str)  # "" where successful
+        return q, cmd, ok, reason, pe, ae
 
     def _ok(self, pe_m, ae_rad):
         return (pe_m * 1e3 <= self.tolerance_mm) & (np.degrees(ae_rad) <= self.tolerance_deg)
@@ -220,13 +235,14 @@ class Compensator:
                                       fd=True)
                 self._keep_better(j, q, pe, ae, q3, p3, a3)
         ok = self._ok(pe, ae)
-        at_lim = ((q <= lo_j + 1e-9) | (q >= hi_j - 1e-9)).any(1)
-        what = np.where(at_lim, "blocked by a joint limit", "unreachable for the model")
-        ang = "" if pos_only else " / {:.3g} deg"
-        reason = np.array(["" if o else (f"{w}: residual {p * 1e3:.3g} mm" + ang.format(np.degrees(a))
-                                         + f" (tolerance {self.tolerance_mm:.3g} mm)")
-                           for o, w, p, a in zip(ok, what, pe, ae)], dtype=object) if not ok.all() else \
-            np.full(len(q), "", dtype=object)
+        reason = None  # every row within the tolerance
+        if not ok.all():
+            at_lim = ((q <= lo_j + 1e-9) | (q >= hi_j - 1e-9)).any(1)
+            what = np.where(at_lim, "blocked by a joint limit", "unreachable for the model")
+            ang = "" if pos_only else " / {:.3g} deg"
+            reason = np.array(["" if o else (f"{w}: residual {p * 1e3:.3g} mm" + ang.format(np.degrees(a))
+                                             + f" (tolerance {self.tolerance_mm:.3g} mm)")
+                               for o, w, p, a in zip(ok, what, pe, ae)], dtype=object)
         return q, pe * 1e3, np.degrees(ae), reason
 
     @staticmethod

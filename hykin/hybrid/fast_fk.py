@@ -21,6 +21,7 @@ Not compiled (``kernel_of`` returns None and callers use the numpy path): numba 
 
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass
 
 import numpy as np
@@ -74,7 +75,9 @@ def pack_net(fn: fast_nets.FastNet) -> tuple:
 @dataclass
 class HybridKernel:
     """A fitted model packed for the compiled kernels. ``P``: the tuple ``hybrid_one`` takes; ``dof``;
-    ``refs``/``vals``/``tensors``/``versions``: what it was built from (:func:`kernel_of`)."""
+    ``refs``/``vals``/``tensors``/``versions``: what it was built from (:func:`kernel_of`); ``ids``: the
+    ``id`` of each of ``refs`` (the cache check compares ids: ``refs`` keeps those objects alive, so no
+    other object can have their id)."""
 
     P: tuple
     dof: int
@@ -82,6 +85,7 @@ class HybridKernel:
     vals: tuple
     tensors: list
     versions: tuple
+    ids: tuple = ()
 
 
 def _refs(model) -> tuple:
@@ -94,18 +98,27 @@ def _vals(model) -> tuple:
             getattr(model, "payload_default_kg_", None))
 
 
+_version = operator.attrgetter("_version")
+
+
+def _current(model, k: HybridKernel) -> bool:
+    """Whether the cached kernel ``k`` was built from what ``model`` holds now: the same objects (by id),
+    the same fade / payload settings, and no network weight changed in place (torch version counters)."""
+    return (tuple(map(id, _refs(model))) == k.ids and _vals(model) == k.vals
+            and tuple(map(_version, k.tensors)) == k.versions)
+
+
 def kernel_of(model) -> HybridKernel | None:
     """The :class:`HybridKernel` of a fitted :class:`hykin.HybridModel` (cached on it; rebuilt when one
     of its networks, robot, frames, support or fade settings is replaced or a network's weights change
     in place), or None when the model cannot run compiled (module docstring)."""
+    k = model.__dict__.get("_fast_kernel")
+    if k is not None and _current(model, k):
+        return k
     if not HAVE_NUMBA or model.fade == "full" or getattr(model, "net_pos_", None) is None:
         return None
     if model.robot_.n_chain != model.robot_.dof:  # <mimic> joints: the kernel walks independent joints only
         return None
-    k = model.__dict__.get("_fast_kernel")
-    if (k is not None and all(a is b for a, b in zip(_refs(model), k.refs)) and _vals(model) == k.vals
-            and all(t._version == v for t, v in zip(k.tensors, k.versions))):
-        return k
     from ..kinematics.chain import chain_of
     from ..kinematics.compliance import compliance_of, kernel_args
 
@@ -146,8 +159,9 @@ def kernel_of(model) -> HybridKernel | None:
         framed, c(model.frame_pre_), c(model.frame_post_),
     )
     tensors = [t for net in (model.net_pos_, model.net_rot_) if net is not None for t in (*net.parameters(), *net.buffers())]
-    k = HybridKernel(P=P, dof=n, refs=_refs(model), vals=_vals(model), tensors=tensors,
-                     versions=tuple(t._version for t in tensors))
+    refs = _refs(model)
+    k = HybridKernel(P=P, dof=n, refs=refs, vals=_vals(model), tensors=tensors,
+                     versions=tuple(map(_version, tensors)), ids=tuple(map(id, refs)))
     model.__dict__["_fast_kernel"] = k
     return k
 
@@ -241,6 +255,17 @@ if HAVE_NUMBA:
         d = (x * u[0] + y * u[1] + z * u[2]) * (1.0 - c)
         v[0], v[1], v[2] = x * c + cx * s + u[0] * d, y * c + cy * s + u[1] * d, z * c + cz * s + u[2] * d
 
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _top_rows(A, B, out):  # pragma: no cover - compiled
+        """``out[:3] = (A @ B)[:3]`` for (4, 4) ``A``, ``B`` (only rows 0-2 of ``A`` are read; ``out`` is
+        not ``A`` or ``B``)."""
+        for r in range(3):
+            for cc in range(4):
+                s = 0.0
+                for k in range(4):
+                    s += A[r, k] * B[k, cc]
+                out[r, cc] = s
+
     @numba.njit(cache=True, nogil=True)
     def hybrid_one(P, q, T, ex, framed_out):  # pragma: no cover - compiled
         """Hybrid pose of joints ``q`` (n,) into ``T`` (4, 4) at the reference temperature, the range
@@ -302,41 +327,48 @@ if HAVE_NUMBA:
                 rotate_top(dv[0], dv[1], dv[2], T)
         if framed and framed_out:
             M = np.empty((4, 4))
-            for r in range(3):
-                for cc in range(4):
-                    s = 0.0
-                    for k in range(4):
-                        s += pre[r, k] * T[k, cc]
-                    M[r, cc] = s
-            for r in range(3):
-                for cc in range(4):
-                    s = 0.0
-                    for k in range(4):
-                        s += M[r, k] * post[k, cc]
-                    T[r, cc] = s
+            _top_rows(pre, T, M)
+            _top_rows(M, post, T)
         return gap
 
-    @numba.njit(cache=True, nogil=True, parallel=True)
-    def _predict_batch(P, q, T, ex, gap, framed_out):  # pragma: no cover - compiled
-        for k in numba.prange(q.shape[0]):
-            gap[k] = hybrid_one(P, q[k], T[k], ex[k], framed_out)
-
     @numba.njit(cache=True, nogil=True)
-    def _predict_serial(P, q, T, ex, gap, framed_out):  # pragma: no cover - compiled
-        for k in range(q.shape[0]):
+    def _predict_range(P, q, T, ex, gap, framed_out, k0, k1):  # pragma: no cover - compiled
+        """Rows ``k0:k1``; returns whether any of them is outside the support (range excess or pair gap)."""
+        outside = False
+        for k in range(k0, k1):
             gap[k] = hybrid_one(P, q[k], T[k], ex[k], framed_out)
+            if gap[k] > 0.0:
+                outside = True
+            for i in range(ex.shape[1]):
+                if ex[k, i] > 0.0:
+                    outside = True
+        return outside
+
+    @numba.njit(cache=True, nogil=True, parallel=True)
+    def _predict_parallel(P, q, T, ex, gap, framed_out):  # pragma: no cover - compiled
+        N = q.shape[0]
+        nb = (N + 63) // 64
+        out = np.zeros(nb, np.bool_)
+        for b in numba.prange(nb):
+            out[b] = _predict_range(P, q, T, ex, gap, framed_out, b * 64, min(N, (b + 1) * 64))
+        return out.any()
 
 
 _PARALLEL_MIN = 512
 
 
-def predict_fast(kernel: HybridKernel, q: np.ndarray, framed: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def predict_fast(kernel: HybridKernel, q: np.ndarray, framed: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                                       bool]:
     """Hybrid poses ``(N, 4, 4)`` of checked joints ``q`` ``(N, n)`` at the reference temperature (with the
-    registration frames when ``framed``), range excess ``(N, n)`` and pair gap ``(N,)``."""
+    registration frames when ``framed``), range excess ``(N, n)``, pair gap ``(N,)`` and whether any row
+    is outside the support (range excess or pair gap > 0)."""
     q = np.ascontiguousarray(q, dtype=np.float64)
     N = q.shape[0]
     T = np.empty((N, 4, 4))
     ex = np.empty((N, kernel.dof))
     gap = np.empty(N)
-    (_predict_batch if N >= _PARALLEL_MIN else _predict_serial)(kernel.P, q, T, ex, gap, framed)
-    return T, ex, gap
+    if N >= _PARALLEL_MIN:
+        outside = _predict_parallel(kernel.P, q, T, ex, gap, framed)
+    else:
+        outside = _predict_range(kernel.P, q, T, ex, gap, framed, 0, N)
+    return T, ex, gap, bool(outside)

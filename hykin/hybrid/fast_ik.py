@@ -29,7 +29,7 @@ __all__ = ["solve"]
 if HAVE_NUMBA:
     import numba
 
-    from ..kinematics.ik import normal_equations_one, pose_residual_one, projected_solve
+    from ..kinematics.ik import lm_scratch, normal_equations_one, pose_residual_one, projected_solve
     from ..kinematics.walk import axes_one
     from .fast_fk import hybrid_one
 
@@ -103,20 +103,11 @@ if HAVE_NUMBA:
         T = np.empty((4, 4))
         Tn = np.empty((4, 4))
         ex = np.empty(n)
-        e = np.empty(6)
-        en = np.empty(6)
-        J = np.zeros((6, n))
+        e, en, J, A, g, dq, qn, L, rhs, frozen = lm_scratch(n)
         D = np.zeros((6, n))
         z = np.empty((n, 3))
         o = np.empty((n, 3))
         T3 = np.empty((3, 4))
-        A = np.empty((n, n))
-        g = np.empty(n)
-        dq = np.empty(n)
-        qn = np.empty(n)
-        L = np.empty((n, n))
-        rhs = np.empty(n)
-        frozen = np.zeros(n, np.bool_)
         for i in range(n):
             q[i] = min(max(q[i], lo[i]), hi[i])
         pe, ae, cost = _residual(P, q, Tt, pos_only, w_rot, T, ex, e)
@@ -191,9 +182,9 @@ def solve(kernel, T_target: np.ndarray, q0: np.ndarray, lo: np.ndarray, hi: np.n
     N = len(q0)
     q = np.array(q0, dtype=np.float64, order="C", copy=True)
     Tt = np.ascontiguousarray(T_target, dtype=np.float64)
-    lo = np.ascontiguousarray(np.broadcast_to(lo, q.shape), dtype=np.float64)
-    hi = np.ascontiguousarray(np.broadcast_to(hi, q.shape), dtype=np.float64)
-    fdv = np.ascontiguousarray(np.broadcast_to(np.asarray(fd, dtype=np.bool_), (N,)))
+    lo, hi = (np.ascontiguousarray(b if np.shape(b) == q.shape else np.broadcast_to(b, q.shape), dtype=np.float64)
+              for b in (lo, hi))
+    fdv = np.full(N, fd, dtype=np.bool_) if np.ndim(fd) == 0 else np.ascontiguousarray(fd, dtype=np.bool_)
     pe, ae, its = np.empty(N), np.empty(N), np.empty(N, dtype=np.int64)
     args = (kernel.P, Tt, q, lo, hi, bool(position_only), float(w_rot), float(tol_m), float(tol_rad), int(max_iter),
             float(lam0), float(lam_max), fdv, pe, ae, its)

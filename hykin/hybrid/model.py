@@ -497,8 +497,8 @@ class HybridModel:
         Small batches run compiled (:mod:`hykin.hybrid.fast_fk`) unless a payload is given; large ones BLAS."""
         kern = fast_fk.kernel_of(self) if len(q2) < fast_fk.COMPILED_MAX and payload_kg is None is payload_com_m else None
         if kern is not None:
-            T, ex, gap = fast_fk.predict_fast(kern, q2, framed)
-            if warn and (ex.any() or gap.max() > 0):
+            T, ex, gap, outside = fast_fk.predict_fast(kern, q2, framed)
+            if warn and outside:
                 sup_.warn_outside(ex, gap, bool(self.fade), self.payload_range_, payload_kg, stacklevel=3)
             return T
         T = classical_fk(self.robot_, q2, payload_kg, payload_com_m)

@@ -176,6 +176,13 @@ if HAVE_NUMBA:
                 break
         return okc
 
+    @numba.njit(cache=True, nogil=True)
+    def lm_scratch(n):  # pragma: no cover - compiled
+        """Scratch of one LM target with ``n`` joints (this kernel and the hybrid one of hykin.hybrid):
+        ``(e, e_new (6,), J (6, n), A (n, n), g, dq, q_new (n,), L (n, n), rhs (n,), frozen (n,) bool)``."""
+        return (np.empty(6), np.empty(6), np.zeros((6, n)), np.empty((n, n)), np.empty(n), np.empty(n), np.empty(n),
+                np.empty((n, n)), np.empty(n), np.zeros(n, np.bool_))
+
     #: public name of the one-target residual (the hybrid LM kernel of hykin.hybrid uses it)
     pose_residual_one = _residual
 
@@ -192,16 +199,7 @@ if HAVE_NUMBA:
         zn = np.empty((n, 3))
         on = np.empty((n, 3))
         Tn = np.empty((3, 4))
-        e = np.empty(6)
-        en = np.empty(6)
-        J = np.empty((6, n))
-        A = np.empty((n, n))
-        g = np.empty(n)
-        dq = np.empty(n)
-        qn = np.empty(n)
-        L = np.empty((n, n))
-        rhs = np.empty(n)
-        frozen = np.zeros(n, np.bool_)
+        e, en, J, A, g, dq, qn, L, rhs, frozen = lm_scratch(n)
         for i in range(n):
             q[i] = min(max(q[i], lower[i]), upper[i])
         _frames(fixed, prismatic, q, z, o, T)

@@ -74,11 +74,16 @@ def wrap_to_limits(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, revolute
     return np.where(rev, out, q)
 
 
+def representation_range(q, lower, upper) -> tuple[np.ndarray, np.ndarray]:
+    """``(k_lo, k_hi)``: the multiples ``k`` of 2π for which ``q + 2πk`` lies within ``[lower, upper]``
+    (to 1e-12 of a turn); ``k_lo > k_hi`` where none does."""
+    return np.ceil((lower - q) / TWO_PI - 1e-12), np.floor((upper - q) / TWO_PI + 1e-12)
+
+
 def nearest_representation(q, q_ref, lower, upper):
     """Each revolute angle of ``q`` moved by multiples of 2π to be nearest ``q_ref`` within limits."""
     q = np.asarray(q, dtype=np.float64)
-    k_lo = np.ceil((lower - q) / TWO_PI - 1e-12)
-    k_hi = np.floor((upper - q) / TWO_PI + 1e-12)
+    k_lo, k_hi = representation_range(q, lower, upper)
     k = np.clip(np.round((q_ref - q) / TWO_PI), k_lo, k_hi)
     k = np.where(k_lo <= k_hi, k, 0.0)
     return q + TWO_PI * np.nan_to_num(k)
