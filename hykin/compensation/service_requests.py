@@ -11,6 +11,7 @@ go through :func:`step` and batches through the compensator's call.
 
 from __future__ import annotations
 
+import itertools
 import math
 import warnings
 
@@ -38,12 +39,16 @@ class _Compensators:
     def __init__(self, model):
         self.model = model
         self._by_frame = {"measurement": Compensator(model, frame="measurement")}
+        self._by_name: dict = {}  # frame as requested ("auto" too) -> its compensator, resolved once
 
     def __call__(self, frame: str):
-        key = resolve_frame(self.model, frame)
-        if key not in self._by_frame:
-            self._by_frame[key] = Compensator(self.model, frame=key)
-        return self._by_frame[key]
+        c = self._by_name.get(frame)
+        if c is None:
+            key = resolve_frame(self.model, frame)
+            if key not in self._by_frame:
+                self._by_frame[key] = Compensator(self.model, frame=key)
+            c = self._by_name[frame] = self._by_frame[key]
+        return c
 
 
 def warm_compensator(model) -> _Compensators:
@@ -58,9 +63,31 @@ def step(comps: _Compensators, T: np.ndarray, q_prev: np.ndarray, frame: str) ->
 
 
 def _step_reply(ok: bool, command, q, pos_err_mm: float, ang_err_deg: float, reason: str) -> dict:
-    return {"success": ok, "command": pose_rows(np.asarray(command)[None], np.array([ok]))[0],
-            "q": np.asarray(q, dtype=np.float64).tolist() if ok else None, "pos_err_mm": _float(pos_err_mm),
-            "ang_err_deg": _float(ang_err_deg), "reason": "" if ok else reason}
+    row = None
+    if ok:  # one pose: the row as :func:`pose_rows` writes it
+        xyz, quat = se3.transform_to_pose(command)
+        row = xyz.tolist() + quat.tolist()
+    return {"success": ok, "command": row, "q": np.asarray(q, dtype=np.float64).tolist() if ok else None,
+            "pos_err_mm": _float(pos_err_mm), "ang_err_deg": _float(ang_err_deg), "reason": "" if ok else reason}
+
+
+_NUMBER_TYPES = {int, float}  # JSON numbers as json.loads makes them (bool is neither)
+
+
+def _fast_rows(v, widths: tuple, limit: int):
+    """The float64 array of ``v`` when it is a valid, finite list of rows (or one flat row) of one width
+    in ``widths``, at most ``limit`` rows; None otherwise (:func:`matrix` then names the fault). One
+    pass over the types in C: no per-number Python check on the common, valid request."""
+    if not isinstance(v, list) or not v:
+        return None
+    rows = v if isinstance(v[0], list) else [v]
+    if len(rows) > limit or any(type(r) is not list for r in rows):
+        return None
+    w = len(rows[0])
+    if w not in widths or any(len(r) != w for r in rows) or not set(map(type, itertools.chain.from_iterable(rows))) <= _NUMBER_TYPES:
+        return None
+    a = np.array(rows, dtype=np.float64)
+    return a if np.isfinite(a).all() else None
 
 
 def matrix(body: dict, key: str, widths: tuple, limit: int, required: bool = True):
@@ -71,6 +98,12 @@ def matrix(body: dict, key: str, widths: tuple, limit: int, required: bool = Tru
             raise RequestError(f"missing field '{key}'")
         return None
     v = body[key]
+    try:
+        a = _fast_rows(v, widths, limit)
+    except OverflowError:  # an integer too large for a float: the checks below name it
+        a = None
+    if a is not None:
+        return a
     if not isinstance(v, list) or not v:
         raise RequestError(f"'{key}' must be a non-empty list of rows")
     if not isinstance(v[0], list):
@@ -83,7 +116,11 @@ def matrix(body: dict, key: str, widths: tuple, limit: int, required: bool = Tru
     lens = {len(r) for r in v}
     if len(lens) != 1 or next(iter(lens)) not in widths:
         raise RequestError(f"'{key}': every row must have {' or '.join(map(str, widths))} numbers, got lengths {sorted(lens)}")
-    a = np.asarray(v, dtype=np.float64)
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except OverflowError:  # an integer beyond float range
+        i, j = next((i, j) for i, r in enumerate(v) for j, x in enumerate(r) if abs(x) > 1e308)
+        raise RequestError(f"'{key}' row {i}, column {j}: not a finite number") from None
     bad = ~np.isfinite(a)
     if bad.any():
         i, j = np.argwhere(bad)[0]
