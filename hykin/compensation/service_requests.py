@@ -86,8 +86,21 @@ def _fast_rows(v, widths: tuple, limit: int):
     w = len(rows[0])
     if w not in widths or any(len(r) != w for r in rows) or not set(map(type, itertools.chain.from_iterable(rows))) <= _NUMBER_TYPES:
         return None
-    a = np.array(rows, dtype=np.float64)
+    try:
+        a = np.array(rows, dtype=np.float64)
+    except OverflowError:  # an integer beyond float range
+        return None
     return a if np.isfinite(a).all() else None
+
+
+def _one_row(v, width: int) -> list | None:
+    """``v`` as ``width`` finite floats when it is a flat list of that many JSON numbers; None otherwise."""
+    if type(v) is not list or len(v) != width or not all(type(x) is float or type(x) is int for x in v):
+        return None
+    try:
+        return [float(x) for x in v] if all(map(math.isfinite, v)) else None
+    except OverflowError:  # an integer beyond float range
+        return None
 
 
 def matrix(body: dict, key: str, widths: tuple, limit: int, required: bool = True):
@@ -98,10 +111,7 @@ def matrix(body: dict, key: str, widths: tuple, limit: int, required: bool = Tru
             raise RequestError(f"missing field '{key}'")
         return None
     v = body[key]
-    try:
-        a = _fast_rows(v, widths, limit)
-    except OverflowError:  # an integer too large for a float: the checks below name it
-        a = None
+    a = _fast_rows(v, widths, limit)
     if a is not None:
         return a
     if not isinstance(v, list) or not v:
@@ -246,13 +256,19 @@ class Handlers:
         v = body.get("target")
         if not isinstance(v, list) or (v and isinstance(v[0], list)):
             raise RequestError("'target' must be one row of 7 numbers x, y, z, qw, qx, qy, qz")
-        T = poses(matrix(body, "target", (7,), 1), "target")[0]
-        q = matrix(body, "q", (self.dof,), 1, required=False)
-        if q is None:
+        t = _one_row(v, 7)
+        n = math.sqrt(t[3] ** 2 + t[4] ** 2 + t[5] ** 2 + t[6] ** 2) if t is not None else 0.0
+        if abs(n - 1) <= 1e-3:  # the common, valid message: plain floats, no array checks
+            T = se3.pose_to_transform(np.array(t[:3]), np.array(t[3:]) / n)
+        else:  # the checks that name the fault
+            T = poses(matrix(body, "target", (7,), 1), "target")[0]
+        qv = body.get("q")
+        if qv is None:
             if q_last is None:
                 raise RequestError(f"'q' (the robot's {self.dof} current joints, rad) is required until a target was answered")
             return T, q_last
-        return T, q[0]
+        qr = _one_row(qv, self.dof)
+        return T, (np.array(qr) if qr is not None else matrix(body, "q", (self.dof,), 1)[0])
 
     def step(self, T, q_prev, frame: str = "measurement") -> dict:
         return step(self.comp, T, q_prev, frame)
