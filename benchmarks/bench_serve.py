@@ -44,6 +44,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from _timing import cpu_s  # noqa: E402
 
 TOKEN = "bench-serve-token-0123456789"
 
@@ -89,16 +92,6 @@ def _rows(T: np.ndarray) -> list:
 
     xyz, quat = se3.transform_to_pose(T)
     return np.column_stack([xyz, quat]).tolist()
-
-
-def cpu_s(pid: int) -> float:
-    """CPU seconds (user + system) a process has used (Linux /proc; NaN elsewhere): a figure that other
-    jobs on a shared machine do not inflate, unlike latencies."""
-    try:
-        f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
-    except (OSError, IndexError, ValueError):
-        return float("nan")
 
 
 def start_server(model_path: Path, tmp: Path) -> tuple[subprocess.Popen, int]:

@@ -187,3 +187,25 @@ def test_so3_torch_gradient_at_zero_is_finite():
     out = se3.so3_log_torch(se3.so3_exp_torch(w))
     (gw,) = torch.autograd.grad(out.sum(), w)
     np.testing.assert_allclose(gw.numpy(), np.ones(3), atol=1e-12)
+
+
+def test_single_rotation_paths_agree_with_scipy():
+    """The plain-float path for ONE rotation (real-time code) gives scipy's numbers: quaternion and
+    rotation vector bit for bit on rotations (incl. 180 degree turns and tiny angles), the matrix of a
+    quaternion to rounding; a matrix that is not a rotation still goes to scipy."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(7)
+    R = list(Rotation.random(500, rng).as_matrix())
+    R += [np.eye(3), np.diag([1.0, -1, -1]), np.diag([-1.0, 1, -1]), np.diag([-1.0, -1, 1]),
+          Rotation.from_rotvec([1e-5, 0, 0]).as_matrix(), Rotation.from_rotvec([0, np.pi - 1e-9, 0]).as_matrix(),
+          Rotation.from_rotvec([2e-4, -1e-4, 3e-4]).as_matrix()]
+    for M in R:
+        ref = Rotation.from_matrix(M[None])
+        q = ref.as_quat(canonical=True, scalar_first=True)[0]
+        assert np.array_equal(se3.matrix_to_quat(M), q)
+        assert np.array_equal(se3.matrix_to_rotvec(M[None])[0], ref.as_rotvec()[0])
+        assert np.abs(se3.quat_to_matrix(q) - ref.as_matrix()[0]).max() < 2e-15
+    skew = R[0] + 1e-6  # not a rotation: scipy's projection, the same as in a batch
+    assert np.array_equal(se3.matrix_to_quat(skew), se3.matrix_to_quat(np.stack([skew, skew]))[0])
+    assert se3.matrix_to_quat(np.eye(3)[None]).shape == (1, 4) and se3.matrix_to_rotvec(np.eye(3)).shape == (3,)

@@ -323,3 +323,22 @@ def test_cli_serve_refuses_a_zero_limit():
 
     r = CliRunner().invoke(app, ["serve", str(tiny_model_file()), "--queue", "0"])
     assert r.exit_code != 0 and "--queue" in str(r.exception or r.output)
+
+
+def test_row_checks_fast_path_agrees_with_the_per_number_checks():
+    """Valid rows take one C pass (:func:`_fast_rows`, :func:`_one_row`) and give the same arrays as the
+    per-number checks (a reference written here); every invalid row still gets the reason naming it."""
+    from hykin.compensation.service_requests import RequestError, _fast_rows, _one_row, matrix
+
+    rng = np.random.default_rng(3)
+    rows = rng.normal(size=(5, 7)).tolist()
+    rows[2][1] = 3  # a JSON integer
+    ref = np.array([[float(x) for x in r] for r in rows])
+    assert np.array_equal(_fast_rows(rows, (7,), 10), ref) and np.array_equal(matrix({"t": rows}, "t", (7,), 10), ref)
+    assert np.array_equal(_fast_rows(rows[0], (7,), 1), ref[:1]) and _one_row(rows[2], 7) == ref[2].tolist()
+    for bad, word in (([1.0, True, 2.0], "list of numbers"), ([1.0, "2", 3.0], "list of numbers"),
+                      ([1.0, float("nan"), 3.0], "column 1: not a finite"), ([1.0, 10**400, 3.0], "column 1: not a finite"),
+                      ([[1.0, 2.0, 3.0], [1.0, 2.0]], "every row must have 3"), ([], "non-empty")):
+        assert _fast_rows(bad, (3,), 5) is None and _one_row(bad, 3) is None
+        with pytest.raises(RequestError, match=word):
+            matrix({"t": bad}, "t", (3,), 5)

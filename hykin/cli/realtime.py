@@ -2,25 +2,26 @@
 
 from __future__ import annotations
 
+import inspect
 from pathlib import Path
 
 import typer
 
 from .common import CLIError, app, load_model, parse_axis_signs
 
-_LISTEN = typer.Option(..., "--listen", help="HOST:PORT to receive the controller's datagrams on.")
-_CONTROLLER = typer.Option(None, "--controller", help="HOST:PORT of the controller: datagrams from anyone else are "
+_LISTEN = typer.Option(..., "--listen", metavar="HOST:PORT", help="HOST:PORT to receive the controller's datagrams on.")
+_CONTROLLER = typer.Option(None, "--controller", metavar="HOST:PORT", help="HOST:PORT of the controller: datagrams from anyone else are "
                            "dropped (default: the first sender of a valid message).")
-_FRAME = typer.Option("auto", "--frame", help="Setpoints in the controller's base frame are compensated in: measurement, "
+_FRAME = typer.Option("auto", "--frame", metavar="measurement|base|auto", help="Setpoints in the controller's base frame are compensated in: measurement, "
                       "base or auto (as hykin compensate).")
-_MAX_FAILURES = typer.Option(10, "--max-failures", help="Stop answering after this many consecutive cycles that could "
+_MAX_FAILURES = typer.Option(10, "--max-failures", metavar="N", help="Stop answering after this many consecutive cycles that could "
                              "not be compensated (the controller's timeout then stops the robot).")
-_IDLE = typer.Option(0.0, "--idle-exit-s", help="Exit when no valid datagram came for this long after the first (0: never).")
+_IDLE = typer.Option(0.0, "--idle-exit-s", metavar="S", help="Exit when no valid datagram came for this long after the first (0: never).")
 
 
-_MAX_MM = typer.Option(50.0, "--max-correction-mm", help="A larger correction is a failure (answered neutrally).")
-_MAX_DEG = typer.Option(5.0, "--max-correction-deg", help="A larger rotation correction is a failure.")
-_SIGNS = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the "
+_MAX_MM = typer.Option(50.0, "--max-correction-mm", metavar="MM", help="A larger correction is a failure (answered neutrally).")
+_MAX_DEG = typer.Option(5.0, "--max-correction-deg", metavar="DEG", help="A larger rotation correction is a failure.")
+_SIGNS = typer.Option(None, "--axis-signs", metavar="S1,..,SN", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the "
                       "robot preset: -1,1,1,-1,1,-1 for kuka-kr*, else +1).")
 
 
@@ -70,23 +71,38 @@ def _serve(name: str, sock, handler, period_ms: float, max_failures: int, ctrl, 
         raise typer.Exit(3)
 
 
-@app.command("rsi")
-def rsi_cmd(
-    model: str = typer.Argument(..., help="Model file (hykin fit)."),
-    listen: str = _LISTEN,
-    config: Path | None = typer.Option(None, "--config", help="RSI_EthernetConfig.xml: tag names (SENTYPE, the "
-                                       "correction element) and <CORRMODE>."),
-    mode: str | None = typer.Option(None, "--mode", help="absolute or incremental correction (default: the config's, "
-                                    "else absolute); must match RSI's POSCORR object."),
-    controller: str | None = _CONTROLLER,
-    frame: str = _FRAME,
-    axis_signs: str | None = _SIGNS,
-    period_ms: float = typer.Option(4.0, "--period-ms", help="RSI cycle, ms (4 or 12): answers later than this count as late."),
-    max_failures: int = _MAX_FAILURES,
-    max_correction_mm: float = _MAX_MM,
-    max_correction_deg: float = _MAX_DEG,
-    idle_exit_s: float = _IDLE,
-) -> None:
+def _bridge_command(name: str, period_help: str, extra: tuple = ()):
+    """Register ``hykin NAME`` with the options every bridge has (model, --listen, --controller, --frame,
+    --axis-signs, --period-ms, --max-failures, --max-correction-*, --idle-exit-s) after its own
+    ``extra`` ``(name, type, typer.Option)`` triples; the decorated function gets them all as keywords."""
+    common = (("model", str, typer.Argument(..., metavar="MODEL", help="Model file (hykin fit).")),
+              ("listen", str, _LISTEN)) + tuple(extra) + (
+        ("controller", str | None, _CONTROLLER), ("frame", str, _FRAME), ("axis_signs", str | None, _SIGNS),
+        ("period_ms", float, typer.Option(4.0, "--period-ms", metavar="MS", help=period_help)),
+        ("max_failures", int, _MAX_FAILURES), ("max_correction_mm", float, _MAX_MM),
+        ("max_correction_deg", float, _MAX_DEG), ("idle_exit_s", float, _IDLE))
+
+    def register(fn):
+        def cmd(**kw) -> None:
+            fn(**kw)
+
+        cmd.__name__, cmd.__doc__ = f"{name}_cmd", fn.__doc__
+        cmd.__annotations__ = {n: t for n, t, _ in common} | {"return": None}
+        cmd.__signature__ = inspect.Signature(
+            [inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, default=d, annotation=t) for n, t, d in common])
+        app.command(name)(cmd)
+        return fn
+
+    return register
+
+
+@_bridge_command("rsi", "RSI cycle, ms (4 or 12): answers later than this count as late.", (
+    ("config", Path | None, typer.Option(None, "--config", metavar="FILE", help="RSI_EthernetConfig.xml: tag names "
+                                         "(SENTYPE, the correction element) and <CORRMODE>.")),
+    ("mode", str | None, typer.Option(None, "--mode", metavar="absolute|incremental", help="absolute or incremental "
+                                      "correction (default: the config's, else absolute); must match RSI's POSCORR object."))))
+def rsi_cmd(model, listen, config, mode, controller, frame, axis_signs, period_ms, max_failures, max_correction_mm,
+            max_correction_deg, idle_exit_s) -> None:
     """KUKA RSI Ethernet peer: answers each <Rob> message with the RKorr that puts the real robot on the setpoint."""
     from ..realtime.rsi import RsiHandler
     from ..realtime.rsi_xml import RsiConfig, read_config
@@ -104,19 +120,9 @@ def rsi_cmd(
     _serve("rsi", sock, h, period_ms, max_failures, ctrl, idle_exit_s)
 
 
-@app.command("egm")
-def egm_cmd(
-    model: str = typer.Argument(..., help="Model file (hykin fit)."),
-    listen: str = _LISTEN,
-    controller: str | None = _CONTROLLER,
-    frame: str = _FRAME,
-    axis_signs: str | None = _SIGNS,
-    period_ms: float = typer.Option(4.0, "--period-ms", help="EGM cycle, ms: answers later than this count as late."),
-    max_failures: int = _MAX_FAILURES,
-    max_correction_mm: float = _MAX_MM,
-    max_correction_deg: float = _MAX_DEG,
-    idle_exit_s: float = _IDLE,
-) -> None:
+@_bridge_command("egm", "EGM cycle, ms: answers later than this count as late.")
+def egm_cmd(model, listen, controller, frame, axis_signs, period_ms, max_failures, max_correction_mm, max_correction_deg,
+            idle_exit_s) -> None:
     """ABB EGM peer (pose guidance): answers each EgmRobot with the pose that puts the real robot on the planned one."""
     from ..realtime.egm import EgmHandler
 

@@ -20,6 +20,7 @@ your cell if it differs). Numbers are written with 4 decimals (mm) and 5 (deg).
 
 from __future__ import annotations
 
+import math
 import re
 
 import numpy as np
@@ -40,18 +41,25 @@ _CART = ("X", "Y", "Z", "A", "B", "C")
 
 def matrix_from_abc(a_deg, b_deg, c_deg) -> np.ndarray:
     """``(3, 3)`` rotation ``Rz(A) Ry(B) Rx(C)`` (degrees)."""
-    return se3.rotz(np.radians(a_deg)) [:3, :3] @ se3.roty(np.radians(b_deg))[:3, :3] @ se3.rotx(np.radians(c_deg))[:3, :3]
+    a, b, c = math.radians(float(a_deg)), math.radians(float(b_deg)), math.radians(float(c_deg))
+    ca, sa, cb, sb, cc, sc = math.cos(a), math.sin(a), math.cos(b), math.sin(b), math.cos(c), math.sin(c)
+    return np.array([[ca * cb, ca * sb * sc - sa * cc, ca * sb * cc + sa * sc],
+                     [sa * cb, sa * sb * sc + ca * cc, sa * sb * cc - ca * sc],
+                     [-sb, cb * sc, cb * cc]])
 
 
 def abc_from_matrix(R: np.ndarray, a_hint_deg: float = 0.0) -> tuple[float, float, float]:
     """``(A, B, C)`` degrees with ``R = Rz(A) Ry(B) Rx(C)``; at ``B = ±90°`` (gimbal lock) ``A`` is
     ``a_hint_deg`` and ``C`` takes the rest."""
-    h = float(np.hypot(R[0, 0], R[1, 0]))
-    a = np.arctan2(R[1, 0], R[0, 0]) if h > 1e-9 else np.radians(a_hint_deg)
-    b = np.arctan2(-R[2, 0], h)
-    M = (se3.rotz(a)[:3, :3] @ se3.roty(b)[:3, :3]).T @ R
-    c = np.arctan2(M[2, 1], M[1, 1])
-    return float(np.degrees(a)), float(np.degrees(b)), float(np.degrees(c))
+    (r00, r01, _), (r10, r11, _), (r20, r21, _) = np.asarray(R, dtype=np.float64)[:3, :3].tolist()
+    h = math.hypot(r00, r10)
+    a = math.atan2(r10, r00) if h > 1e-9 else math.radians(float(a_hint_deg))
+    b = math.atan2(-r20, h)
+    ca, sa, cb, sb = math.cos(a), math.sin(a), math.cos(b), math.sin(b)
+    # M = (Rz(a) Ry(b))^T R; C = atan2(M[2, 1], M[1, 1])
+    m11 = -sa * r01 + ca * r11
+    m21 = sb * (ca * r01 + sa * r11) + cb * r21
+    return math.degrees(a), math.degrees(b), math.degrees(math.atan2(m21, m11))
 
 
 def _int_value(tok: str) -> int:

@@ -40,6 +40,7 @@ run time, and ``Request`` is imported inside :func:`create_app`.)
 import asyncio
 import collections
 import contextlib
+import gc
 import json
 import logging
 
@@ -84,6 +85,8 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
 
     @contextlib.asynccontextmanager
     async def lifespan(_app):
+        gc.collect()
+        gc.freeze()  # the model and libraries are never scanned again: no full-collection pause mid-stream
         yield
         worker.close()
 

@@ -11,6 +11,7 @@ go through :func:`step` and batches through the compensator's call.
 
 from __future__ import annotations
 
+import itertools
 import math
 import warnings
 
@@ -38,12 +39,16 @@ class _Compensators:
     def __init__(self, model):
         self.model = model
         self._by_frame = {"measurement": Compensator(model, frame="measurement")}
+        self._by_name: dict = {}  # frame as requested ("auto" too) -> its compensator, resolved once
 
     def __call__(self, frame: str):
-        key = resolve_frame(self.model, frame)
-        if key not in self._by_frame:
-            self._by_frame[key] = Compensator(self.model, frame=key)
-        return self._by_frame[key]
+        c = self._by_name.get(frame)
+        if c is None:
+            key = resolve_frame(self.model, frame)
+            if key not in self._by_frame:
+                self._by_frame[key] = Compensator(self.model, frame=key)
+            c = self._by_name[frame] = self._by_frame[key]
+        return c
 
 
 def warm_compensator(model) -> _Compensators:
@@ -58,9 +63,44 @@ def step(comps: _Compensators, T: np.ndarray, q_prev: np.ndarray, frame: str) ->
 
 
 def _step_reply(ok: bool, command, q, pos_err_mm: float, ang_err_deg: float, reason: str) -> dict:
-    return {"success": ok, "command": pose_rows(np.asarray(command)[None], np.array([ok]))[0],
-            "q": np.asarray(q, dtype=np.float64).tolist() if ok else None, "pos_err_mm": _float(pos_err_mm),
-            "ang_err_deg": _float(ang_err_deg), "reason": "" if ok else reason}
+    row = None
+    if ok:  # one pose: the row as :func:`pose_rows` writes it
+        xyz, quat = se3.transform_to_pose(command)
+        row = xyz.tolist() + quat.tolist()
+    return {"success": ok, "command": row, "q": np.asarray(q, dtype=np.float64).tolist() if ok else None,
+            "pos_err_mm": _float(pos_err_mm), "ang_err_deg": _float(ang_err_deg), "reason": "" if ok else reason}
+
+
+_NUMBER_TYPES = {int, float}  # JSON numbers as json.loads makes them (bool is neither)
+
+
+def _fast_rows(v, widths: tuple, limit: int):
+    """The float64 array of ``v`` when it is a valid, finite list of rows (or one flat row) of one width
+    in ``widths``, at most ``limit`` rows; None otherwise (:func:`matrix` then names the fault). One
+    pass over the types in C: no per-number Python check on the common, valid request."""
+    if not isinstance(v, list) or not v:
+        return None
+    rows = v if isinstance(v[0], list) else [v]
+    if len(rows) > limit or any(type(r) is not list for r in rows):
+        return None
+    w = len(rows[0])
+    if w not in widths or any(len(r) != w for r in rows) or not set(map(type, itertools.chain.from_iterable(rows))) <= _NUMBER_TYPES:
+        return None
+    try:
+        a = np.array(rows, dtype=np.float64)
+    except OverflowError:  # an integer beyond float range
+        return None
+    return a if np.isfinite(a).all() else None
+
+
+def _one_row(v, width: int) -> list | None:
+    """``v`` as ``width`` finite floats when it is a flat list of that many JSON numbers; None otherwise."""
+    if type(v) is not list or len(v) != width or not all(type(x) is float or type(x) is int for x in v):
+        return None
+    try:
+        return [float(x) for x in v] if all(map(math.isfinite, v)) else None
+    except OverflowError:  # an integer beyond float range
+        return None
 
 
 def matrix(body: dict, key: str, widths: tuple, limit: int, required: bool = True):
@@ -71,6 +111,9 @@ def matrix(body: dict, key: str, widths: tuple, limit: int, required: bool = Tru
             raise RequestError(f"missing field '{key}'")
         return None
     v = body[key]
+    a = _fast_rows(v, widths, limit)
+    if a is not None:
+        return a
     if not isinstance(v, list) or not v:
         raise RequestError(f"'{key}' must be a non-empty list of rows")
     if not isinstance(v[0], list):
@@ -83,7 +126,11 @@ def matrix(body: dict, key: str, widths: tuple, limit: int, required: bool = Tru
     lens = {len(r) for r in v}
     if len(lens) != 1 or next(iter(lens)) not in widths:
         raise RequestError(f"'{key}': every row must have {' or '.join(map(str, widths))} numbers, got lengths {sorted(lens)}")
-    a = np.asarray(v, dtype=np.float64)
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except OverflowError:  # an integer beyond float range
+        i, j = next((i, j) for i, r in enumerate(v) for j, x in enumerate(r) if abs(x) > 1e308)
+        raise RequestError(f"'{key}' row {i}, column {j}: not a finite number") from None
     bad = ~np.isfinite(a)
     if bad.any():
         i, j = np.argwhere(bad)[0]
@@ -209,13 +256,19 @@ class Handlers:
         v = body.get("target")
         if not isinstance(v, list) or (v and isinstance(v[0], list)):
             raise RequestError("'target' must be one row of 7 numbers x, y, z, qw, qx, qy, qz")
-        T = poses(matrix(body, "target", (7,), 1), "target")[0]
-        q = matrix(body, "q", (self.dof,), 1, required=False)
-        if q is None:
+        t = _one_row(v, 7)
+        n = math.sqrt(t[3] ** 2 + t[4] ** 2 + t[5] ** 2 + t[6] ** 2) if t is not None else 0.0
+        if abs(n - 1) <= 1e-3:  # the common, valid message: plain floats, no array checks
+            T = se3.pose_to_transform(np.array(t[:3]), np.array(t[3:]) / n)
+        else:  # the checks that name the fault
+            T = poses(matrix(body, "target", (7,), 1), "target")[0]
+        qv = body.get("q")
+        if qv is None:
             if q_last is None:
                 raise RequestError(f"'q' (the robot's {self.dof} current joints, rad) is required until a target was answered")
             return T, q_last
-        return T, q[0]
+        qr = _one_row(qv, self.dof)
+        return T, (np.array(qr) if qr is not None else matrix(body, "q", (self.dof,), 1)[0])
 
     def step(self, T, q_prev, frame: str = "measurement") -> dict:
         return step(self.comp, T, q_prev, frame)

@@ -13,6 +13,8 @@ hybrid model and by calibration.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -119,8 +121,52 @@ def rotvec_to_matrix(rotvec_rad: np.ndarray) -> np.ndarray:
     return Rotation.from_rotvec(r).as_matrix().reshape(lead + (3, 3))
 
 
+# One rotation at a time (the real-time paths: a bridge cycle, a streamed target) in plain floats:
+# scipy's Rotation costs ~100 us per call whatever the batch size. Same rules as scipy's (Shepperd's
+# choice of the largest diagonal term, canonical qw >= 0, the rotation vector's small-angle series),
+# so that a single rotation and the same one inside a batch agree to rounding; matrices that are not
+# orthonormal within 1e-12 go to scipy (which projects them onto rotations first).
+
+def _quat_one(m: list) -> tuple | None:
+    """Row-major 3x3 ``m`` (9 floats) -> ``(w, x, y, z)`` with ``w >= 0``; None when not a rotation."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = m
+    if not (abs(r00 * r00 + r01 * r01 + r02 * r02 - 1) < 1e-12 and abs(r10 * r10 + r11 * r11 + r12 * r12 - 1) < 1e-12
+            and abs(r20 * r20 + r21 * r21 + r22 * r22 - 1) < 1e-12 and abs(r00 * r10 + r01 * r11 + r02 * r12) < 1e-12
+            and abs(r00 * r20 + r01 * r21 + r02 * r22) < 1e-12 and abs(r10 * r20 + r11 * r21 + r12 * r22) < 1e-12):
+        return None
+    tr = r00 + r11 + r22
+    big = max(r00, r11, r22, tr)  # the first of r00, r11, r22, tr that is largest (scipy's argmax)
+    if big == r00:
+        x, y, z, w = 1 - tr + 2 * r00, r10 + r01, r20 + r02, r21 - r12
+    elif big == r11:
+        x, y, z, w = r01 + r10, 1 - tr + 2 * r11, r21 + r12, r02 - r20
+    elif big == r22:
+        x, y, z, w = r02 + r20, r12 + r21, 1 - tr + 2 * r22, r10 - r01
+    else:
+        x, y, z, w = r21 - r12, r02 - r20, r10 - r01, 1 + tr
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if w < 0:
+        n = -n
+    return w / n, x / n, y / n, z / n
+
+
+def _single(R) -> list | None:
+    """The 9 floats of ``R`` when it holds exactly one ``(3, 3)`` matrix, else None."""
+    R = np.asarray(R)
+    return R.reshape(9).tolist() if R.size == 9 and R.shape[-2:] == (3, 3) and R.dtype.kind == "f" else None
+
+
 def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` to rotation vectors ``(..., 3)`` (angle in [0, pi])."""
+    m1 = _single(R)
+    q = None if m1 is None else _quat_one(m1)
+    if q is not None:
+        w, x, y, z = q
+        s = math.sqrt(x * x + y * y + z * z)
+        angle = 2 * math.atan2(s, w)
+        a2 = angle * angle
+        scale = 2 + a2 / 12 + 7 * a2 * a2 / 2880 if angle <= 1e-3 else angle / math.sin(angle / 2)
+        return np.array([scale * x, scale * y, scale * z]).reshape(np.shape(R)[:-2] + (3,))
     m, lead = _flat(R, (3, 3))
     return Rotation.from_matrix(m).as_rotvec().reshape(lead + (3,))
 
@@ -132,11 +178,25 @@ def quat_to_matrix(quat_wxyz: np.ndarray) -> np.ndarray:
     (see :mod:`hykin.io.dataset`).
     """
     q, lead = _flat(quat_wxyz, (4,))
+    if len(q) == 1:
+        w, x, y, z = q[0].tolist()
+        n = math.sqrt(w * w + x * x + y * y + z * z)
+        if n > 0 and math.isfinite(n):
+            w, x, y, z = w / n, x / n, y / n, z / n
+            xx, yy, zz, ww = x * x, y * y, z * z, w * w
+            xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+            return np.array([[xx - yy - zz + ww, 2 * (xy - zw), 2 * (xz + yw)],
+                             [2 * (xy + zw), -xx + yy - zz + ww, 2 * (yz - xw)],
+                             [2 * (xz - yw), 2 * (yz + xw), -xx - yy + zz + ww]]).reshape(lead + (3, 3))
     return Rotation.from_quat(q, scalar_first=True).as_matrix().reshape(lead + (3, 3))
 
 
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:
     """Matrices ``(..., 3, 3)`` to scalar-first unit quaternions ``(..., 4)`` with ``qw >= 0``."""
+    m1 = _single(R)
+    q1 = None if m1 is None else _quat_one(m1)
+    if q1 is not None:
+        return np.array(q1).reshape(np.shape(R)[:-2] + (4,))
     m, lead = _flat(R, (3, 3))
     q = Rotation.from_matrix(m).as_quat(canonical=True, scalar_first=True)
     return q.reshape(lead + (4,))

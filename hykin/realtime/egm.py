@@ -20,12 +20,19 @@ from .udp_bridge import Outcome
 __all__ = ["EgmHandler", "format_robot", "format_sensor", "parse_robot", "parse_sensor"]
 
 
+_PB: tuple = ()
+
+
 def _pb():
-    from google.protobuf.message import DecodeError
+    """``(egm_pb2, DecodeError)``, imported on first use (protobuf is loaded only by the EGM bridge)."""
+    global _PB
+    if not _PB:
+        from google.protobuf.message import DecodeError
 
-    from . import egm_pb2
+        from . import egm_pb2
 
-    return egm_pb2, DecodeError
+        _PB = (egm_pb2, DecodeError)
+    return _PB
 
 
 def _pose(p) -> np.ndarray:

@@ -26,13 +26,15 @@ import numpy as np
 from ..compensation.krl import abc_from_matrix
 from ..geometry import se3
 from ..kinematics.fk import fk
-from ..kinematics.ik import ik
+from ..kinematics.ik import ik, solve_lm
 from ..sim.simulate import true_poses
 from .egm import format_robot, parse_sensor
 from .rsi import pose_of
 from .rsi_xml import RsiConfig, RsiMessageError, format_rob, parse_sen
 
 __all__ = ["SimRun", "SimulatedEgm", "SimulatedRsi", "path_errors", "xyzabc_of"]
+
+_SPIN_S = 3e-4  # the last stretch before a clock tick is spun, not slept (sleep overshoots by ~0.1 ms)
 
 
 def xyzabc_of(T: np.ndarray, a_hint_deg: float = 0.0) -> np.ndarray:
@@ -45,13 +47,17 @@ class SimRun:
     """One simulated run of ``N`` cycles. q: ``(N, n)`` joints taken (rad). in_time: ``(N,)`` an answer
     with the cycle's stamp arrived within the period. reply_s: ``(N,)`` its delay (NaN: none).
     correction: ``(N, 6)`` commanded minus programmed pose (mm; rotation vector, rad). slipped: cycles
-    the simulator itself started late."""
+    the simulator itself started more than half a period late (its own lateness, not the bridge's).
+    start_late_s: ``(N,)`` how late each cycle was sent after its clock tick (s). cpu_s: the
+    simulator's own CPU time per cycle (s, this thread: message, answer, nominal IK)."""
 
     q: np.ndarray
     in_time: np.ndarray
     reply_s: np.ndarray
     correction: np.ndarray
     slipped: int
+    start_late_s: np.ndarray | None = None
+    cpu_s: float = float("nan")
 
 
 def path_errors(vr, q: np.ndarray, targets_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -70,10 +76,23 @@ class _Simulated:
         self.period, self.stamp0 = float(period_s), int(stamp0)
         self.deadline = self.period if deadline_s is None else float(deadline_s)
         self.held0 = np.zeros(6)  # RSI: the correction in force at the start (incremental: the sum so far)
+        self._base = np.asarray(nominal.base, dtype=np.float64)
+        self._base_inv = se3.invert(self._base)
 
     def _ik(self, T_ctrl: np.ndarray, q: np.ndarray) -> np.ndarray:
-        r = ik(self.nom, self.nom.base @ T_ctrl, q_seed=q)
+        """The controller's nominal IK of ``T_ctrl`` (its base frame) from its joints ``q``: one compiled
+        LM run from ``q`` (a cycle moves little: it stays on ``q``'s branch), the full IK when that does
+        not converge within the limits."""
+        T = self._base @ T_ctrl
+        qs, pe, ae, _ = solve_lm(self.nom, T[None], q[None])
+        if pe[0] <= 1e-9 and ae[0] <= 1e-9 and self.nom.within_limits(qs, tol=0.0)[0]:
+            return qs[0]
+        r = ik(self.nom, T, q_seed=q)
         return r.q[0] if r.success[0] else q  # no solution: the robot stays (a real one would stop)
+
+    def _actual(self, q: np.ndarray) -> np.ndarray:
+        """The nominal TCP pose ``(4, 4)`` of joints ``q`` in the controller's base frame."""
+        return self._base_inv @ fk(self.nom, q)
 
     def _message(self, k: int, stamp: int, q: np.ndarray) -> bytes:
         raise NotImplementedError
@@ -86,6 +105,9 @@ class _Simulated:
         raise NotImplementedError
 
     def run(self, sock: socket.socket | None = None) -> SimRun:
+        """Run every cycle at its clock tick ``t0 + k period`` (absolute deadlines: sleep, then spin the
+        last ``_SPIN_S``); a cycle started over half a period late re-anchors the clock (counted in
+        ``slipped``), so that a late simulator never sends cycles faster than the period."""
         N, n = len(self.path), self.nom.dof
         own = sock is None
         sock = sock or socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -93,23 +115,29 @@ class _Simulated:
         Q = np.zeros((N, n))
         in_time = np.zeros(N, bool)
         reply_s = np.full(N, np.nan)
-        corr = np.zeros((N, 6))
+        late = np.zeros(N)
+        T_cmd = np.zeros((N, 4, 4))
         held = self._held0()
         slipped = 0
-        t_k = time.perf_counter() + 0.01
+        tick = time.perf_counter() + 0.01
+        cpu = 0.0
         try:
             for k in range(N):
                 if k:
-                    ideal, now = t_k + self.period, time.perf_counter()
-                    slipped += now > ideal + self.period / 2
-                    t_k = max(ideal, now)
-                while (now := time.perf_counter()) < t_k:
-                    if t_k - now > 0.0015:
-                        time.sleep(t_k - now - 0.001)
+                    tick += self.period
+                    if time.perf_counter() > tick + self.period / 2:  # this cycle is over already
+                        slipped += 1
+                        tick = time.perf_counter()
+                while (left := tick - time.perf_counter()) > 0:
+                    if left > _SPIN_S:
+                        time.sleep(left - _SPIN_S)
+                c0 = time.thread_time()
                 stamp = self._stamp(k)
                 msg = self._message(k, stamp, q)
                 t_send = time.perf_counter()
+                late[k] = t_send - tick
                 sock.sendto(msg, self.bridge)
+                cpu += time.thread_time() - c0
                 deadline = t_send + self.deadline
                 while (left := deadline - time.perf_counter()) > 0:
                     sock.settimeout(left)
@@ -117,23 +145,30 @@ class _Simulated:
                         data = sock.recv(65536)
                     except (socket.timeout, ConnectionRefusedError):
                         break
+                    t_got = time.perf_counter()
+                    c0 = time.thread_time()
                     new = self._answer(data, stamp, held)
+                    cpu += time.thread_time() - c0
                     if new is None:
                         continue  # garbage, or a late answer to an earlier cycle
-                    reply_s[k] = time.perf_counter() - t_send
+                    reply_s[k] = t_got - t_send
                     in_time[k] = reply_s[k] <= self.period
                     held = new
                     break
-                T_cmd = self._command(k, held)
-                corr[k] = np.concatenate([(T_cmd[:3, 3] - self._programmed(k)[:3, 3]) * 1e3,
-                                          se3.matrix_to_rotvec(T_cmd[:3, :3] @ self._programmed(k)[:3, :3].T)])
-                q = self._ik(T_cmd, q)
+                c0 = time.thread_time()
+                T_cmd[k] = self._command(k, held)
+                q = self._ik(T_cmd[k], q)
                 Q[k] = q
+                cpu += time.thread_time() - c0
         finally:
             if own:
                 sock.close()
         self.held_last = held  # RSI: the correction in force at the end (EGM: the last pose)
-        return SimRun(q=Q, in_time=in_time, reply_s=reply_s, correction=corr, slipped=int(slipped))
+        P = self._programmed_all()
+        corr = np.concatenate([(T_cmd[:, :3, 3] - P[:, :3, 3]) * 1e3,
+                               se3.matrix_to_rotvec(T_cmd[:, :3, :3] @ np.swapaxes(P[:, :3, :3], -1, -2))], 1)
+        return SimRun(q=Q, in_time=in_time, reply_s=reply_s, correction=corr, slipped=int(slipped), start_late_s=late,
+                      cpu_s=cpu / max(N, 1))
 
 
 class SimulatedRsi(_Simulated):
@@ -159,12 +194,12 @@ class SimulatedRsi(_Simulated):
     def _stamp(self, k: int) -> int:
         return self.stamp0 + k * int(round(self.period * 1e3))
 
-    def _programmed(self, k: int) -> np.ndarray:
-        return pose_of(self.path[k])
+    def _programmed_all(self) -> np.ndarray:
+        return np.array([pose_of(v) for v in self.path]).reshape(-1, 4, 4)
 
     def _message(self, k, stamp, q):
-        T_ctrl = se3.invert(self.nom.base) @ fk(self.nom, q[None])[0]
-        return format_rob(stamp, self.path[k], xyzabc_of(T_ctrl, self.path[k, 3]), np.degrees(q * self.signs), self.cfg)
+        return format_rob(stamp, self.path[k], xyzabc_of(self._actual(q), self.path[k, 3]), np.degrees(q * self.signs),
+                          self.cfg)
 
     def _answer(self, data, stamp, held):
         try:
@@ -194,12 +229,12 @@ class SimulatedEgm(_Simulated):
     def _stamp(self, k: int) -> int:
         return (self.stamp0 + k) % 2**32
 
-    def _programmed(self, k: int) -> np.ndarray:
-        return self.path[k]
+    def _programmed_all(self) -> np.ndarray:
+        return self.path
 
     def _message(self, k, stamp, q):
-        T_ctrl = se3.invert(self.nom.base) @ fk(self.nom, q[None])[0]
-        return format_robot(stamp, int(k * self.period * 1e3) % 2**32, self.path[k], np.degrees(q * self.signs), T_ctrl)
+        return format_robot(stamp, int(k * self.period * 1e3) % 2**32, self.path[k], np.degrees(q * self.signs),
+                            self._actual(q))
 
     def _answer(self, data, stamp, held):
         try:

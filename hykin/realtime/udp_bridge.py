@@ -13,6 +13,7 @@ answering and returns, so that the controller's own timeout stops the robot.
 
 from __future__ import annotations
 
+import gc
 import logging
 import select
 import socket
@@ -91,6 +92,8 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
     (default: the first sender of a valid one). ``keep_latency``: keep each answer's delay (s) in
     ``stats.latency_s``."""
     st = BridgeStats()
+    gc.collect()
+    gc.freeze()  # the model and libraries loaded so far are never scanned again: no full-collection pause mid-run
     peer = controller
     consecutive = 0
     last_valid = None
