@@ -33,43 +33,19 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tests.procs import descendants, proc_table  # noqa: E402
 
 
-def _cpu_s(pids) -> dict:
-    """pid -> CPU seconds (user + system) from /proc (missing processes left out)."""
-    tick = os.sysconf("SC_CLK_TCK")
-    out = {}
-    for pid in pids:
-        try:
-            st = open(f"/proc/{pid}/stat", encoding="utf-8").read()
-        except OSError:
-            continue
-        f = st[st.rindex(")") + 2:].split()
-        out[pid] = (int(f[11]) + int(f[12])) / tick
-    return out
-
-
-def _descendants(pid: int) -> list:
-    parent = {}
-    for d in os.listdir("/proc"):
-        if d.isdigit():
-            try:
-                st = open(f"/proc/{d}/stat", encoding="utf-8").read()
-                parent[int(d)] = int(st[st.rindex(")") + 2:].split()[1])
-            except (OSError, ValueError):
-                pass
-    out, todo = [], [pid]
-    while todo:
-        p = todo.pop()
-        kids = [c for c, pp in parent.items() if pp == p]
-        out += kids
-        todo += kids
-    return out
+def _cpu_s() -> dict:
+    """pid -> CPU seconds of this process and its descendants (Ray's processes when it started them)."""
+    table = proc_table()
+    return {p: table[p][2] for p in [os.getpid(), *descendants(os.getpid(), table)] if p in table}
 
 
 def main() -> None:
@@ -108,13 +84,13 @@ def main() -> None:
     t0 = time.perf_counter()
     ray.init(num_cpus=a.cpus, include_dashboard=False, logging_level="warning")
     t_init = time.perf_counter() - t0
-    cpu0 = _cpu_s([os.getpid(), *_descendants(os.getpid())])
+    cpu0 = _cpu_s()
     t_call = time.time()
     t0 = time.perf_counter()
     res = run_sweep(spec, d / "out", log=lambda s: None)  # in the session started above
     t_sweep = time.perf_counter() - t0
     t_ret = time.time()
-    cpu1 = _cpu_s([os.getpid(), *_descendants(os.getpid())])
+    cpu1 = _cpu_s()
     ray.shutdown()
     load1 = os.getloadavg()[0]
 

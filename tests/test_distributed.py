@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from cli_run import run
+from procs import descendants
 from hykin.distributed.fleet_file import read_fleet
 from hykin.distributed.files import SpecError
 from hykin.distributed.sweep_file import read_sweep, trial_key
@@ -275,27 +276,6 @@ def test_shipped_paper_table1_sweep_parses(files, tmp_path):
         for n in (5000, 20000)]
 
 
-def _descendants(pid: int) -> list[int]:
-    """Process ids below ``pid`` (from /proc; Linux)."""
-    import os
-
-    parent = {}
-    for d in os.listdir("/proc"):
-        if d.isdigit():
-            try:
-                stat = open(f"/proc/{d}/stat", encoding="utf-8").read()
-                parent[int(d)] = int(stat[stat.rindex(")") + 2:].split()[1])
-            except (OSError, ValueError):
-                pass
-    out, todo = [], [pid]
-    while todo:
-        p = todo.pop()
-        kids = [c for c, pp in parent.items() if pp == p]
-        out += kids
-        todo += kids
-    return out
-
-
 @pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds the trial's worker in /proc (Linux)")
 def test_a_worker_killed_mid_trial_is_retried_and_the_sweep_completes(files, local_ray):
@@ -314,7 +294,7 @@ def test_a_worker_killed_mid_trial_is_retried_and_the_sweep_completes(files, loc
     def killer():
         t_end = time.time() + 300
         while not killed and time.time() < t_end:
-            for pid in _descendants(os.getpid()):
+            for pid in descendants(os.getpid()):
                 try:
                     cmd = open(f"/proc/{pid}/cmdline", "rb").read()
                 except OSError:

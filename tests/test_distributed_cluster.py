@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import os
+import secrets
 import shutil
 import signal
 import socket
@@ -18,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from procs import alive, descendants, proc_table
 
 from hykin.io.dataset_files import read_dataset, write_dataset
 from hykin.io.robot_file import load_robot
@@ -38,40 +41,12 @@ def _free_ports(n: int) -> list[int]:
     return ports
 
 
-def _procs() -> dict:
-    """pid -> (parent pid, command line) of every process (from /proc)."""
-    out = {}
-    for d in os.listdir("/proc"):
-        if d.isdigit():
-            try:
-                st = open(f"/proc/{d}/stat", encoding="utf-8").read()
-                cmd = open(f"/proc/{d}/cmdline", "rb").read().replace(b"\0", b" ").decode("utf-8", "replace")
-                out[int(d)] = (int(st[st.rindex(")") + 2:].split()[1]), cmd)
-            except (OSError, ValueError):
-                pass
-    return out
-
-
 def _cluster_pids(temp_dir: str) -> list[int]:
     """The processes of the nodes started with ``temp_dir`` (its path is in their command lines) and all
     their descendants (the workers)."""
-    procs = _procs()
-    ours = [p for p, (_, cmd) in procs.items() if temp_dir in cmd and p != os.getpid()]
-    todo = list(ours)
-    while todo:
-        p = todo.pop()
-        kids = [c for c, (pp, _) in procs.items() if pp == p and c not in ours]
-        ours += kids
-        todo += kids
-    return ours
-
-
-def _alive(pid: int) -> bool:
-    try:
-        st = open(f"/proc/{pid}/stat", encoding="utf-8").read()
-    except OSError:
-        return False
-    return st[st.rindex(")") + 2] != "Z"
+    table = proc_table()
+    ours = [p for p, row in table.items() if temp_dir in row[1] and p != os.getpid()]
+    return ours + [p for p in descendants(ours, table) if p not in ours]
 
 
 def _stop(temp_dir: str) -> None:
@@ -86,13 +61,17 @@ def _stop(temp_dir: str) -> None:
                 pass
         t_end = time.time() + wait
         while pids and time.time() < t_end:
-            pids = [p for p in pids if _alive(p)]
+            pids = [p for p in pids if alive(p)]
             time.sleep(0.2)
+
+
+_TOKEN = secrets.token_hex(32)  # Ray >= 2.5x authenticates nodes and drivers: one token for this cluster
 
 
 def _env() -> dict:
     env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", NUMBA_NUM_THREADS="1",
-               RAY_USAGE_STATS_ENABLED="0")
+               RAY_USAGE_STATS_ENABLED="0", RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=_TOKEN)
+    env.pop("RAY_AUTH_TOKEN_PATH", None)
     env.pop("RAY_ADDRESS", None)
     return env
 
@@ -106,7 +85,7 @@ def cluster():
     temp_dir = tempfile.mkdtemp(prefix="hkray-", dir="/tmp")  # short: Ray's socket paths have a length limit
     p = _free_ports(14)
     common = ["--num-cpus", "1", "--num-gpus", "0", "--disable-usage-stats", "--node-ip-address", "127.0.0.1"]
-    head = [str(ray_bin), "start", "--head", "--port", str(p[0]), "--ray-client-server-port", str(p[1]),
+    head = [str(ray_bin), "start", "--head", "--port", str(p[0]),
             "--include-dashboard", "false", "--temp-dir", temp_dir, "--node-manager-port", str(p[2]),
             "--object-manager-port", str(p[3]), "--dashboard-agent-listen-port", str(p[4]),
             "--dashboard-agent-grpc-port", str(p[5]), "--runtime-env-agent-port", str(p[6]),
