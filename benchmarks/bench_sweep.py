@@ -9,7 +9,8 @@ is in this process after one import of torch + hykin (timed apart); the sweep is
 ``hykin.distributed.sweep.run_sweep`` in a local Ray with ``--cpus`` CPUs started just before (timed
 apart: "Ray start").
 
-Prints one table row (wall times, speed-up with and without Ray's start, overhead per trial) and the
+Prints one table row (wall times, speed-up with and without Ray's start, and counting the serial
+process's one torch + hykin import as the sweep's workers' imports are counted; overhead per trial) and the
 decomposition of the overhead per trial, in CPU-slot seconds (``sweep wall x CPUs`` = the trials'
 own work + what follows), from the times each trial records (``timing`` of the sweep's rows):
 
@@ -117,11 +118,11 @@ def main() -> None:
 
     print(f"load average (1 min) {load0:.1f} before, {load1:.1f} after; torch + hykin import in the serial "
           f"process {t_import:.1f} s (not in 'serial s')")
-    print(f"| trials | n_train | epochs | serial s | Ray start s | sweep s ({a.cpus} CPUs) | speed-up (with start) | "
-          "overhead per trial s | same errors |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print(f"| trials | n_train | epochs | serial s | Ray start s | sweep s ({a.cpus} CPUs) | speed-up (with Ray's start) "
+          "| speed-up, both with their import | overhead per trial s | same errors |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     print(f"| {nt} | {a.n} | {a.epochs} | {t_serial:.1f} | {t_init:.1f} | {t_sweep:.1f} | {t_serial / t_sweep:.2f}x "
-          f"({t_serial / (t_sweep + t_init):.2f}x) | {overhead / nt:.2f} | {same} |")
+          f"({t_serial / (t_sweep + t_init):.2f}x) | {(t_serial + t_import) / t_sweep:.2f}x | {overhead / nt:.2f} | {same} |")
     print()
     print(f"overhead per trial = (sweep wall x {a.cpus} CPUs - serial trials' run time) / trials, in s per trial:")
     print("| set-up | worker start / dispatch | import (torch+hykin) | transfer | report | end | idle slots | "

@@ -383,3 +383,20 @@ def test_an_interrupted_sweep_resumed_reruns_only_the_rest_and_matches_an_uninte
     assert [[r[c] for c in cols] for r in res.rows] == [[r[c] for c in cols] for r in full.rows]
     assert _csv(files / "int-out" / "results.csv")[0]["hybrid_pos_mean_mm"] == \
         _csv(files / "int-full" / "results.csv")[0]["hybrid_pos_mean_mm"]
+
+
+def test_trial_slots_follow_the_clusters_cpus_and_gpus():
+    from hykin.distributed.trial_pool import n_workers
+
+    class FakeRay:
+        def __init__(self, res):
+            self.res = res
+
+        def cluster_resources(self):
+            return self.res
+
+    two = FakeRay({"CPU": 2.0})
+    assert [n_workers(two, 8, c, 0) for c in (1, 0.5, 2, 3, 0)] == [2, 4, 1, 1, 2]
+    assert n_workers(two, 1, 0.5, 0) == 1  # never more workers than trials
+    gpu = FakeRay({"CPU": 16.0, "GPU": 1.0})
+    assert [n_workers(gpu, 8, 1, g) for g in (1, 0.5, 0.25, 0)] == [1, 2, 4, 8]

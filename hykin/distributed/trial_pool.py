@@ -77,11 +77,10 @@ class TrialWorker:
 
 
 def n_workers(ray, n_trials: int, cpus: float, gpus: float) -> int:
-    """Trial slots: as many as the Ray cluster's CPUs and GPUs hold now (at least 1, at most ``n_trials``)."""
+    """Trial slots: as many as the Ray cluster's CPUs and GPUs hold now (at least 1, at most ``n_trials``;
+    trials that ask for no CPU: one slot per CPU)."""
     have = ray.cluster_resources()
-    n = n_trials
-    if cpus > 0:
-        n = min(n, int(have.get("CPU", 0) // cpus))
+    n = min(n_trials, int(have.get("CPU", 0) // cpus) if cpus > 0 else int(have.get("CPU", 1)))
     if gpus > 0:
         n = min(n, int(have.get("GPU", 0) // gpus))
     return max(1, n)
