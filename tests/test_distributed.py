@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from cli_run import run
+from procs import descendants
 from hykin.distributed.fleet_file import read_fleet
 from hykin.distributed.files import SpecError
 from hykin.distributed.sweep_file import read_sweep, trial_key
-from hykin.distributed.trials import fit_model, nested_subset, run_trial
+from hykin.distributed.trials import ERROR_COLUMNS, fit_model, nested_subset, run_trial
 from hykin.geometry.se3 import rotvec_to_matrix
 from hykin.io.dataset import Dataset
 from hykin.io.dataset_files import write_dataset
@@ -186,7 +187,6 @@ def test_missing_ray_is_one_line_naming_the_extra(monkeypatch):
 def local_ray():
     """One local Ray for the module (2 CPUs, no dashboard); the CLI reuses it."""
     ray = pytest.importorskip("ray", reason="Ray not installed (pip install 'hykin[distributed]')")
-    pytest.importorskip("ray.tune", reason="Ray Tune not installed (pip install 'hykin[distributed]')")
     if not ray.is_initialized():
         ray.init(num_cpus=2, include_dashboard=False, logging_level="warning")
     yield ray
@@ -250,6 +250,11 @@ def test_fleet_end_to_end_one_robot_fails(files, local_ray, capsys):
     assert float(ok["registered_hybrid_pos_mean_mm"]) > 0
     md = (out / "summary.md").read_text()
     assert "| cell-1 | ok |" in md and "cell-2: CalibrationError" in md
+    # --resume: the finished robot is kept as it was (its model untouched), the failed one runs again
+    before = (out / "cell-1.hykin").stat().st_mtime_ns
+    code, o, err = run(["fleet", p, "-o", out, "--resume"], capsys)
+    assert code == 1 and "1 of 2 robots kept" in o and "1 to run" in o
+    assert _csv(out / "summary.csv")[0] == ok and (out / "cell-1.hykin").stat().st_mtime_ns == before
 
 
 def test_shipped_paper_table1_sweep_parses(files, tmp_path):
@@ -271,32 +276,11 @@ def test_shipped_paper_table1_sweep_parses(files, tmp_path):
         for n in (5000, 20000)]
 
 
-def _descendants(pid: int) -> list[int]:
-    """Process ids below ``pid`` (from /proc; Linux)."""
-    import os
-
-    parent = {}
-    for d in os.listdir("/proc"):
-        if d.isdigit():
-            try:
-                stat = open(f"/proc/{d}/stat", encoding="utf-8").read()
-                parent[int(d)] = int(stat[stat.rindex(")") + 2:].split()[1])
-            except (OSError, ValueError):
-                pass
-    out, todo = [], [pid]
-    while todo:
-        p = todo.pop()
-        kids = [c for c, pp in parent.items() if pp == p]
-        out += kids
-        todo += kids
-    return out
-
-
 @pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds the trial's worker in /proc (Linux)")
 def test_a_worker_killed_mid_trial_is_retried_and_the_sweep_completes(files, local_ray):
     """Fault injection: the worker process of the running trial (one this test's Ray started) is killed
-    with SIGKILL; Tune retries the trial once and it finishes."""
+    with SIGKILL; Ray restarts the worker, the trial is run once more and it finishes."""
     import os
     import signal
     import threading
@@ -310,12 +294,12 @@ def test_a_worker_killed_mid_trial_is_retried_and_the_sweep_completes(files, loc
     def killer():
         t_end = time.time() + 300
         while not killed and time.time() < t_end:
-            for pid in _descendants(os.getpid()):
+            for pid in descendants(os.getpid()):
                 try:
                     cmd = open(f"/proc/{pid}/cmdline", "rb").read()
                 except OSError:
                     continue
-                if b"ImplicitFunc.train" in cmd:
+                if b"TrialWorker.run" in cmd:
                     time.sleep(1.0)  # mid-trial
                     os.kill(pid, signal.SIGKILL)
                     killed.append(pid)
@@ -337,3 +321,82 @@ def test_more_gpus_per_trial_than_the_local_ray_has_is_refused_in_one_line(files
     code, _, err = run(["sweep", p, "-o", files / "gpu-out"], capsys)
     assert code == 2 and len(err.strip().splitlines()) == 1 and "gpus_per_trial" in err and str(p) in err
     assert not (files / "gpu-out").exists()
+
+
+# --------------------------------------------------------------------------- fleet --resume (no Ray needed)
+
+
+def test_fleet_resume_keeps_only_complete_rows_with_unchanged_inputs(files, tmp_path):
+    """kept_rows: an ``ok`` summary row whose model file is there and whose inputs' hash is unchanged is
+    kept; a failed row, a missing model, or a changed data file / fit option means the robot runs again."""
+    import shutil
+
+    from hykin.distributed.fleet import SUMMARY_COLUMNS, _write_summary, inputs_hash, kept_rows
+
+    for n in ("train.csv", "test.csv"):
+        shutil.copy(files / n, tmp_path / n)
+    text = "".join(f'[[robot]]\nname = "c{i}"\nrobot = "rx160"\ntrain = "train.csv"\ntest = "test.csv"\n'
+                   f"[robot.fit]\nseed = {i}\n" for i in (1, 2, 3))
+    spec = read_fleet(_write(tmp_path / "f.toml", text))
+    out = tmp_path / "out"
+    out.mkdir()
+    rows = [{"name": e.name, "status": "ok" if e.name != "c2" else "failed", "hybrid_pos_mean_mm": 0.5, "n_train": 240,
+             "inputs_sha256": inputs_hash(e), "model": f"{e.name}.hykin"} for e in spec.robots]
+    _write_summary(out / "summary.csv", rows)
+    for e in spec.robots:
+        (out / f"{e.name}.hykin").write_bytes(b"model")
+    kept = kept_rows(spec, out)
+    assert sorted(kept) == ["c1", "c3"] and kept["c1"]["hybrid_pos_mean_mm"] == 0.5 and kept["c1"]["n_train"] == 240
+    assert set(kept["c1"]) == set(SUMMARY_COLUMNS)
+    (out / "c3.hykin").unlink()
+    assert sorted(kept_rows(spec, out)) == ["c1"]
+    # the hash follows the data and the options: a changed training file or seed reruns the robot
+    with open(tmp_path / "train.csv", "a", encoding="utf-8") as fh:
+        fh.write("\n")
+    assert kept_rows(spec, out) == {}
+    spec2 = read_fleet(_write(tmp_path / "f.toml", text.replace("seed = 1", "seed = 9")))
+    assert inputs_hash(spec2.robots[0]) != rows[0]["inputs_sha256"]
+    assert kept_rows(read_fleet(tmp_path / "f.toml"), tmp_path / "nothing-here") == {}
+
+
+@pytest.mark.slow
+def test_an_interrupted_sweep_resumed_reruns_only_the_rest_and_matches_an_uninterrupted_one(files, local_ray):
+    """The sweep is interrupted (KeyboardInterrupt in the driver) after its first finished trial; --resume
+    runs only the two others, and every number equals that of the same sweep run without interruption."""
+    from hykin.distributed.sweep import run_sweep
+
+    spec = read_sweep(_write(files / "int.toml", GOOD_SWEEP + "[grid]\nseed = [0, 1, 2]\n" + FAST))
+    full = run_sweep(spec, files / "int-full", log=lambda s: None)
+
+    def stop_after_first(line):
+        if "trial 1/3 done" in line:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(spec, files / "int-out", log=stop_after_first)
+    assert len((files / "int-out" / "trials.jsonl").read_text().splitlines()) == 1
+    lines = []
+    res = run_sweep(spec, files / "int-out", resume=True, log=lines.append)
+    assert "1 of 3 trials kept" in lines[0] and "2 to run" in lines[0] and res.ran == 2
+    cols = ("n_train", "steps", "epochs", *ERROR_COLUMNS)
+    assert [r["status"] for r in res.rows] == ["ok"] * 3
+    assert [[r[c] for c in cols] for r in res.rows] == [[r[c] for c in cols] for r in full.rows]
+    assert _csv(files / "int-out" / "results.csv")[0]["hybrid_pos_mean_mm"] == \
+        _csv(files / "int-full" / "results.csv")[0]["hybrid_pos_mean_mm"]
+
+
+def test_trial_slots_follow_the_clusters_cpus_and_gpus():
+    from hykin.distributed.trial_pool import n_workers
+
+    class FakeRay:
+        def __init__(self, res):
+            self.res = res
+
+        def cluster_resources(self):
+            return self.res
+
+    two = FakeRay({"CPU": 2.0})
+    assert [n_workers(two, 8, c, 0) for c in (1, 0.5, 2, 3, 0)] == [2, 4, 1, 1, 2]
+    assert n_workers(two, 1, 0.5, 0) == 1  # never more workers than trials
+    gpu = FakeRay({"CPU": 16.0, "GPU": 1.0})
+    assert [n_workers(gpu, 8, 1, g) for g in (1, 0.5, 0.25, 0)] == [1, 2, 4, 8]

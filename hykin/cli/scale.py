@@ -1,4 +1,4 @@
-"""Commands that run many fits on Ray: sweep (Ray Tune trials), fleet (one Ray task per robot)."""
+"""Commands that run many fits on Ray: sweep (trials on Ray actors), fleet (one Ray task per robot)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ def sweep_cmd(
     num_cpus: int | None = NumCpus,
 ) -> None:
     """Run every trial of a sweep file (each: `hykin fit` with its options + evaluation on the test set)
-    on Ray Tune. A failing trial is retried once, then recorded with its error; exit 1 if any failed."""
+    on Ray (local, or a cluster with --address). A failing trial is retried once, then recorded with its error; exit 1 if any failed."""
     from ..distributed.sweep import run_sweep
     from ..distributed.sweep_file import read_sweep
 
@@ -40,6 +40,8 @@ def fleet_cmd(
     out: Path = typer.Option(..., "-o", "--out", help="Output directory: NAME.hykin models, summary.csv, summary.md."),
     address: str | None = Address,
     num_cpus: int | None = NumCpus,
+    resume: bool = typer.Option(False, "--resume", help="Keep the robots of OUT's summary.csv that are ok, have "
+                                "their model files and unchanged inputs (hashes); run only the others."),
 ) -> None:
     """Fit, evaluate and register every robot of a fleet file in parallel on Ray. A failing robot does
     not stop the others; exit 1 with one line per failed robot."""
@@ -49,7 +51,7 @@ def fleet_cmd(
     if out.exists() and not out.is_dir():
         raise CLIError(f"{out}: -o must name a directory, got an existing file")
     spec = read_fleet(fleet_file)
-    rows = run_fleet(spec, out, address=address, num_cpus=num_cpus, log=typer.echo)
+    rows = run_fleet(spec, out, address=address, num_cpus=num_cpus, log=typer.echo, resume=resume)
     ok = sum(r["status"] == "ok" for r in rows)
     typer.echo(f"fleet: {ok} of {len(rows)} robots ok; summary in {out / 'summary.csv'} and {out / 'summary.md'}")
     _fail_lines([(f"robot {r['name']}", r["error"]) for r in rows if r["status"] != "ok"])

@@ -7,6 +7,7 @@ Modules:
 * ``fleet_file`` — FLEET.toml -> :class:`~hykin.distributed.fleet_file.FleetSpec`.
 * ``trials`` — the one trial: `hykin fit` options -> fitted model -> test errors.
 * ``ray_session`` — Ray imported lazily (extra ``distributed``), a local or cluster session.
-* ``sweep`` — the Ray Tune driver: results.csv, the error-vs-size plot, retries, resume.
+* ``trial_pool`` — the trials on long-lived Ray actors (one per trial slot), each retried once.
+* ``sweep`` — the sweep driver: results.csv, the error-vs-size plot, resume.
 * ``fleet`` — the Ray core driver: per-robot models, summary.csv and summary.md.
 """

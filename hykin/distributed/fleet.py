@@ -7,26 +7,29 @@ evaluate on its test set (nominal / calibrated / hybrid), and where a series is 
 ``DIR/<name>-registered.hykin`` (the files come back to the driver as bytes, which writes them, so the
 output folder need not be shared with the workers). A robot that fails is a row with its error; the others go on.
 Writes ``DIR/summary.csv`` (the one CSV writer) and ``DIR/summary.md`` (a markdown table).
+
+``resume=True`` keeps a robot whose ``summary.csv`` row is ``ok``, whose model files are in ``DIR`` and
+whose ``inputs_sha256`` (:func:`inputs_hash`: robot file, data files, poses, fit options) is unchanged;
+the others run again.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import time
 from pathlib import Path
 
 from .fleet_file import FleetRobot, FleetSpec
 from .ray_session import check_resources, ray_session
+from .trial_pool import first_line
 from .trials import ERROR_COLUMNS, error_columns, fit_model
 
-__all__ = ["SUMMARY_COLUMNS", "robot_job", "run_fleet", "summary_markdown"]
+__all__ = ["SUMMARY_COLUMNS", "inputs_hash", "kept_rows", "robot_job", "run_fleet", "summary_markdown"]
 
 SUMMARY_COLUMNS = ("name", "status", "error", "n_train", "n_test", *ERROR_COLUMNS, "fit_s",
-                   "registered_hybrid_pos_mean_mm", "registered_hybrid_ang_mean_deg", "model", "registered_model")
-
-
-def _first_line(e: BaseException) -> str:
-    msg = [m for m in str(e).strip().splitlines() if m.strip()]
-    return f"{type(e).__name__}: {msg[0]}" if msg else type(e).__name__
+                   "registered_hybrid_pos_mean_mm", "registered_hybrid_ang_mean_deg", "model", "registered_model",
+                   "inputs_sha256")
 
 
 def _model_bytes(model) -> bytes:
@@ -68,40 +71,105 @@ def robot_job(entry: FleetRobot) -> dict:
             row.update( registered_hybrid_pos_mean_mm=ev["hybrid_pos_mean_mm"],
                        registered_hybrid_ang_mean_deg=ev["hybrid_ang_mean_deg"])
     except Exception as e:  # noqa: BLE001 - a failing robot is recorded; the fleet goes on
-        row.update(status="failed", error=_first_line(e), files={})
+        row.update(status="failed", error=first_line(e), files={})
     return row
 
 
+def inputs_hash(entry: FleetRobot) -> str:
+    """SHA-256 over what a robot's results depend on: the robot file's bytes (a preset: its name), the
+    train / test / register files' bytes, ``poses`` and the fit options."""
+    from ..io.fingerprint import file_fingerprint
+
+    h = hashlib.sha256()
+    for src in (entry.robot, entry.train, entry.test, entry.register):
+        fp = file_fingerprint(src)
+        h.update((fp["sha256"] if fp else repr(src)).encode() + b"\0")
+    h.update(json.dumps({"poses": entry.poses, "fit": entry.fit}, sort_keys=True, default=str).encode())
+    return h.hexdigest()
+
+
+def kept_rows(spec: FleetSpec, out: Path) -> dict:
+    """name -> earlier summary row (numbers as floats) of each robot that need not run again: status
+    ``ok``, its model file(s) in ``out`` and its ``inputs_sha256`` equal to :func:`inputs_hash` now."""
+    import csv
+
+    path = out / "summary.csv"
+    if not path.is_file():
+        return {}
+    with open(path, newline="", encoding="utf-8") as fh:
+        old = {r.get("name"): r for r in csv.DictReader(fh)}
+    keep = {}
+    for e in spec.robots:
+        r = old.get(e.name)
+        if (r is None or r.get("status") != "ok" or r.get("inputs_sha256") != inputs_hash(e)
+                or not (out / f"{e.name}.hykin").is_file()
+                or (e.register is not None and not (out / f"{e.name}-registered.hykin").is_file())):
+            continue
+        row = {k: v if k in ("name", "status", "error", "model", "registered_model", "inputs_sha256") else _number(v)
+               for k, v in r.items()}
+        keep[e.name] = row
+    return keep
+
+
+def _number(text: str):
+    """A summary cell as written: int, float, or the text itself (empty cells stay empty)."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
 def run_fleet(spec: FleetSpec, out_dir: str | Path, address: str | None = None, num_cpus: int | None = None,
-              log=print) -> list:
+              log=print, resume: bool = False) -> list:
     """Run every robot of ``spec`` as a Ray task (retried once if its worker dies); write the per-robot
-    model files, ``summary.csv`` and ``summary.md`` into ``out_dir``. Returns the rows in file order."""
+    model files, ``summary.csv`` and ``summary.md`` into ``out_dir``. ``resume``: keep the robots of
+    :func:`kept_rows`. Returns the rows in file order."""
     out = Path(out_dir)
-    rows: dict = {}
+    rows: dict = kept_rows(spec, out) if resume else {}
+    if resume:
+        log(f"fleet: {len(rows)} of {len(spec.robots)} robots kept from {out / 'summary.csv'}, "
+            f"{len(spec.robots) - len(rows)} to run")
+    todo = [r for r in spec.robots if r.name not in rows]
+    if todo:
+        _run_robots(spec, todo, out, rows, address, num_cpus, log)
+    ordered = [rows[r.name] for r in spec.robots]
+    out.mkdir(parents=True, exist_ok=True)
+    _write_summary(out / "summary.csv", ordered)
+    (out / "summary.md").write_text(summary_markdown(ordered), encoding="utf-8")
+    return ordered
+
+
+def _run_robots(spec: FleetSpec, todo: list, out: Path, rows: dict, address, num_cpus, log) -> None:
+    """The robots ``todo`` as Ray tasks; each finished robot's files written and its row put in ``rows``."""
+    hashes = {r.name: inputs_hash(r) for r in todo}  # the inputs as they are when the robots start
     t0 = time.perf_counter()
     with ray_session(address, num_cpus) as ray:
         check_resources(ray, str(spec.path), {"cpus_per_robot": spec.cpus_per_robot,
                                               "gpus_per_robot": spec.gpus_per_robot}, address)
         out.mkdir(parents=True, exist_ok=True)  # after every check: a refused fleet writes nothing
         job = ray.remote(num_cpus=spec.cpus_per_robot, num_gpus=spec.gpus_per_robot, max_retries=1)(robot_job)
-        pending = {job.remote(r): r.name for r in spec.robots}
+        pending = {job.remote(r): r for r in todo}
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
-            name = pending.pop(done[0])
+            entry = pending.pop(done[0])
+            name = entry.name
             try:
                 row = ray.get(done[0])
             except Exception as e:  # noqa: BLE001 - the worker died twice: recorded, the others go on
-                row = {"name": name, "status": "failed", "error": _first_line(e)}
+                row = {"name": name, "status": "failed", "error": first_line(e)}
+            row["inputs_sha256"] = hashes[name]
+            if row["status"] != "ok":  # no model of an earlier run left beside a failed row
+                for stale in (out / f"{name}.hykin", out / f"{name}-registered.hykin"):
+                    stale.unlink(missing_ok=True)
             for fname, data in row.pop("files", {}).items():
                 (out / fname).write_bytes(data)
             rows[name] = row
+            _write_summary(out / "summary.csv", [rows[r.name] for r in spec.robots if r.name in rows])  # resumable
             what = (f"hybrid {row.get('hybrid_pos_mean_mm', float('nan')):.4f} mm" if row["status"] == "ok"
                     else f"FAILED: {row['error']}")
             log(f"fleet: robot {len(rows)}/{len(spec.robots)} {name}: {what}; elapsed {time.perf_counter() - t0:.0f} s")
-    ordered = [rows[r.name] for r in spec.robots]
-    _write_summary(out / "summary.csv", ordered)
-    (out / "summary.md").write_text(summary_markdown(ordered), encoding="utf-8")
-    return ordered
 
 
 def _write_summary(path: Path, rows: list) -> None:

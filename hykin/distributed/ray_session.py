@@ -13,18 +13,13 @@ import os
 
 __all__ = ["import_ray", "ray_session"]
 
-_MISSING = "Ray is not installed: pip install 'hykin[distributed]' (or pip install 'ray[tune]>=2')"
+_MISSING = "Ray is not installed: pip install 'hykin[distributed]' (or pip install 'ray>=2.9')"
 
 
-def import_ray(tune: bool = False):
-    """``ray`` (and with ``tune=True`` also imports ``ray.tune``); ImportError naming the extra when missing."""
-    os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")  # hykin writes its own results
-    os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
+def import_ray():
+    """``ray``; ImportError naming the extra when missing."""
     try:
         import ray
-
-        if tune:
-            import ray.tune  # noqa: F401
     except ImportError:
         raise ImportError(_MISSING) from None
     return ray
@@ -50,7 +45,7 @@ def ray_session(address: str | None = None, num_cpus: int | None = None):
 
 
 def check_resources(ray, where: str, need: dict, address: str | None) -> None:
-    """ValueError (one line) when a local Ray has fewer CPUs/GPUs than one trial needs (Tune would wait
+    """ValueError (one line) when a local Ray has fewer CPUs/GPUs than one trial needs (the trials would wait
     for them forever); ``need``: e.g. ``{"cpus_per_trial": 1, "gpus_per_trial": 0}``; ``where``: the
     file. A cluster (``address``) may add nodes, so it is not checked."""
     if address is not None:

@@ -1,104 +1,48 @@
-"""`hykin sweep`: every trial of a sweep file on Ray Tune (local or a cluster), results.csv and a plot.
+"""`hykin sweep`: every trial of a sweep file on Ray (local or a cluster), results.csv and a plot.
 
 :func:`run_sweep` reads the robot, training and test sets once and hands them to the trials by
-reference (``tune.with_parameters``: one copy in Ray's object store, not one per trial). Each trial
-is :func:`hykin.distributed.trials.run_trial` on CPUs/GPUs from the file's [resources]. A trial that
-raises (or whose worker dies) is retried once by Tune (``FailureConfig(max_failures=1)``), then
-recorded with its error; it never stops the sweep. Every finished trial is appended to
-``DIR/trials.jsonl`` and ``DIR/results.csv`` is rewritten, so an interrupted sweep keeps what
-finished and ``resume=True`` reruns only the trials without an ``ok`` record.
+reference (one ``ray.put``: one copy in Ray's object store, not one per trial; each worker reads it
+once). The trials run on long-lived Ray actors (:mod:`hykin.distributed.trial_pool`: one per trial
+slot of the file's [resources] CPUs/GPUs, one torch + hykin import each, one torch/numba thread per
+CPU); each trial is :func:`hykin.distributed.trials.run_trial`. A trial that raises (or whose worker
+dies) is run once more, then recorded with its error; it never stops the sweep. Every finished trial
+is appended to ``DIR/trials.jsonl`` and ``DIR/results.csv`` is rewritten, so an interrupted sweep
+keeps what finished and ``resume=True`` reruns only the trials without an ``ok`` record.
 """
 
 from __future__ import annotations
 
 import json
-import logging
 import math
-import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from .ray_session import check_resources, import_ray, ray_session
+from .ray_session import check_resources, ray_session
 from .sweep_file import SweepSpec, trial_key
-from .trials import ERROR_COLUMNS, run_trial
+from .trial_pool import run_trials
+from .trials import ERROR_COLUMNS
 
 __all__ = ["SweepOutcome", "run_sweep", "write_results", "plot_results"]
 
-RESULT_COLUMNS = ("status", "error", "attempts", *ERROR_COLUMNS, "fit_s", "steps", "epochs")
+RESULT_COLUMNS = ("status", "error", "attempts", *ERROR_COLUMNS, "fit_s", "eval_s", "steps", "epochs")
 
 
 @dataclass
 class SweepOutcome:
     """``rows``: one dict per trial in the file's order (status ``ok``, ``error`` or ``not run``);
-    ``ran``: trials run now (the others were kept from an earlier run); paths written."""
+    ``ran``: trials run now (the others were kept from an earlier run); paths written; a row run now
+    has ``timing`` (see :meth:`hykin.distributed.trial_pool.TrialWorker.run`)."""
 
     rows: list
     ran: int
     results_csv: Path
     plot: Path | None
+    clock: dict = field(default_factory=dict)  # unix s: "start" / "end" of the trials' run
 
     @property
     def failed(self) -> list:
         return [r for r in self.rows if r["status"] != "ok"]
-
-
-def _trainable(config, robot=None, train=None, test=None, subsample_seed=0):
-    """The Tune function trainable: one trial, reported once as JSON."""
-    from ray import tune
-
-    row = run_trial(robot, train, test, config["trial"]["options"], subsample_seed)
-    tune.report({"row_json": json.dumps(row), "done_trial": 1})
-
-
-def _first_line(e) -> str:
-    msg = str(e).strip().splitlines()
-    # Tune wraps the trial's exception; keep the innermost message line.
-    lines = [m for m in msg if m.strip() and not m.startswith(("Traceback", "  ", "ray."))]
-    line = (lines[-1] if lines else type(e).__name__).strip()
-    head, sep, rest = line.partition(": ")
-    return f"{head.rsplit('.', 1)[-1]}: {rest}" if sep and " " not in head else line  # a.b.CalibrationError -> CalibrationError
-
-
-def _trial_error(trial):
-    """The trial's last error: the pickled exception or the traceback text Tune wrote next to the
-    trial (local files first, then Tune's storage); None when there is none."""
-    import pickle
-
-    for path, text in ((trial.pickled_error_file, False), (trial.error_file, True)):
-        try:
-            if path and Path(path).is_file():
-                data = Path(path).read_bytes()
-                return data.decode("utf-8", "replace") if text else pickle.loads(data)
-        except Exception:  # noqa: BLE001 - an unreadable error file: try the next source
-            continue
-    try:
-        return trial.get_pickled_error() or trial.get_error()
-    except Exception:  # noqa: BLE001
-        return None
-
-
-def _recorder_class():
-    from ray import tune
-
-    class Recorder(tune.Callback):
-        """Driver side: record each finished trial (jsonl + results.csv) and print a progress line."""
-
-        def __init__(self, on_done):
-            self.on_done = on_done
-
-        def on_trial_complete(self, iteration, trials, trial, **info):
-            res = trial.last_result or {}
-            if "row_json" in res:
-                self.on_done(trial.config["trial"], {"status": "ok", "error": "", "attempts": trial.num_failures + 1,
-                                                     **json.loads(res["row_json"])})
-
-        def on_trial_error(self, iteration, trials, trial, **info):
-            err = _trial_error(trial)
-            self.on_done(trial.config["trial"], {"status": "error", "error": _first_line(err) if err else "failed",
-                                                 "attempts": trial.num_failures})
-
-    return Recorder
 
 
 def _read_records(path: Path) -> dict:
@@ -143,10 +87,9 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
             rows.append({"trial": i, **t, **r})
         return rows
 
-    t_start, n_done = time.perf_counter(), [0]
+    t_start, n_done, clock = time.perf_counter(), [0], {}
 
-    def on_done(trial, row):
-        i = trial["index"]
+    def on_done(i, row):
         records[keys[i]] = row
         with open(records_path, "a", encoding="utf-8") as fh:
             fh.write(json.dumps({"key": keys[i], "row": row}) + "\n")
@@ -162,33 +105,19 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
     if resume:
         log(f"sweep: {len(trials) - len(todo)} of {len(trials)} trials kept from {records_path}, {len(todo)} to run")
     if todo:
-        ray = import_ray(tune=True)
-        from ray import tune
-
-        for name in ("ray.tune.execution.tune_controller", "ray.tune.tune", "ray.tune.analysis.experiment_analysis"):
-            logging.getLogger(name).setLevel(logging.CRITICAL)  # trial failures: hykin records them, one line each
-        with ray_session(address, num_cpus):
+        with ray_session(address, num_cpus) as ray:
             check_resources(ray, str(spec.path), {"cpus_per_trial": spec.cpus_per_trial,
                                                   "gpus_per_trial": spec.gpus_per_trial}, address)
             out.mkdir(parents=True, exist_ok=True)  # after every check: a refused sweep writes nothing
-            trainable = tune.with_resources(
-                tune.with_parameters(_trainable, robot=rob, train=train, test=test, subsample_seed=spec.subsample_seed),
-                {"cpu": spec.cpus_per_trial, "gpu": spec.gpus_per_trial})
-            storage = (out / ".tune").resolve()
-            tuner = tune.Tuner(
-                trainable,
-                param_space={"trial": tune.grid_search([{"index": i, "options": trials[i]} for i in todo])},
-                tune_config=tune.TuneConfig(reuse_actors=True),  # one worker (torch import) serves many trials
-                run_config=tune.RunConfig(
-                    name=f"sweep-{time.strftime('%Y%m%d-%H%M%S')}", storage_path=str(storage), verbose=0,
-                    failure_config=tune.FailureConfig(max_failures=1), callbacks=[_recorder_class()(on_done)]))
-            tuner.fit()
-            shutil.rmtree(storage, ignore_errors=True)
+            clock["start"] = time.time()
+            run_trials(ray, {i: trials[i] for i in todo}, (rob, train, test), spec.cpus_per_trial,
+                       spec.gpus_per_trial, spec.subsample_seed, on_done)
+            clock["end"] = time.time()
     rows = rows_now()
     out.mkdir(parents=True, exist_ok=True)
     write_results(out / "results.csv", rows, columns)
     plot = plot_results(rows, out / "error_vs_n_train.png")
-    return SweepOutcome(rows=rows, ran=len(todo), results_csv=out / "results.csv", plot=plot)
+    return SweepOutcome(rows=rows, ran=len(todo), results_csv=out / "results.csv", plot=plot, clock=clock)
 
 
 def write_results(path: Path, rows: list, option_columns: list) -> None:

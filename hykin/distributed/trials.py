@@ -6,17 +6,19 @@ so a trial and `hykin fit` with the same options, data and seed give the same mo
 * :func:`nested_subset` — the first ``n`` rows of one fixed permutation (``n_train``: nested subsets).
 * :func:`fit_model` — the fitted model for ``options`` (the `hykin fit` path).
 * :func:`error_columns` — ``{nominal,calibrated,hybrid}_{pos_mean_mm,pos_p95_mm,ang_mean_deg}`` of an evaluation.
+* :func:`trial_threads` — context manager: torch and numba use ``n`` threads (one per CPU of the trial).
 * :func:`run_trial` — one sweep trial -> one results row (raises on failure; the driver records it).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 
 import numpy as np
 
-__all__ = ["ERROR_COLUMNS", "error_columns", "fit_model", "nested_subset", "run_trial", "training_steps"]
+__all__ = ["ERROR_COLUMNS", "error_columns", "fit_model", "nested_subset", "run_trial", "training_steps", "trial_threads"]
 
 #: error columns of a results/summary row, in order (mm, deg; NaN where a row does not apply).
 ERROR_COLUMNS = tuple(f"{m}_{s}" for m in ("nominal", "calibrated", "hybrid")
@@ -63,18 +65,42 @@ def training_steps(model) -> tuple[int, int]:
     return epochs * math.ceil(int(meta["n_train"]) / bs), epochs
 
 
-def run_trial(robot, train, test, options: dict, subsample_seed: int = 0) -> dict:
+@contextlib.contextmanager
+def trial_threads(n: int | None):
+    """Within the block torch and numba's parallel kernels use ``n`` threads (``None``: unchanged), then
+    the previous counts: a trial with ``n`` CPUs uses ``n`` threads, in a Ray worker and in one process."""
+    if n is None:
+        yield
+        return
+    import numba
+    import torch
+
+    n = max(1, int(n))
+    prev = torch.get_num_threads(), numba.get_num_threads()
+    torch.set_num_threads(n)
+    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(prev[0])
+        numba.set_num_threads(prev[1])
+
+
+def run_trial(robot, train, test, options: dict, subsample_seed: int = 0, threads: int | None = None) -> dict:
     """One sweep trial: fit on ``train`` (its nested subset of ``options["n_train"]`` rows when given)
-    and evaluate on ``test``. Returns the row: ``n_train`` (rows used), :data:`ERROR_COLUMNS`,
-    ``fit_s`` (wall seconds of fit), ``steps``, ``epochs``. Exceptions propagate."""
+    and evaluate on ``test``, with ``threads`` torch/numba threads (:func:`trial_threads`). Returns the
+    row: ``n_train`` (rows used), :data:`ERROR_COLUMNS`, ``fit_s`` and ``eval_s`` (wall seconds of the
+    fit and the evaluation), ``steps``, ``epochs``. Exceptions propagate."""
     from ..evaluation.evaluate import evaluate_model
 
     opts = dict(options)
     n = opts.pop("n_train", None)
     tr = train if n is None else train.subset(nested_subset(len(train), int(n), subsample_seed))
-    t0 = time.perf_counter()
-    model = fit_model(robot, tr, opts)
-    fit_s = time.perf_counter() - t0
-    steps, epochs = training_steps(model)
-    return {"n_train": len(tr), **error_columns(evaluate_model(model, test)), "fit_s": fit_s,
-            "steps": steps, "epochs": epochs}
+    with trial_threads(threads):
+        t0 = time.perf_counter()
+        model = fit_model(robot, tr, opts)
+        fit_s = time.perf_counter() - t0
+        steps, epochs = training_steps(model)
+        ev = error_columns(evaluate_model(model, test))
+        eval_s = time.perf_counter() - t0 - fit_s
+    return {"n_train": len(tr), **ev, "fit_s": fit_s, "eval_s": eval_s, "steps": steps, "epochs": epochs}
