@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,7 @@ from hykin.io.robot_file import load_robot
 from hykin.kinematics.compliance import compliance_of, compliant_fk
 from hykin.kinematics.robot import dh_to_mdh
 
-UR5_DIR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "serial-robots-ur5" / "UR5"
+UR5_DIR = Path(os.environ.get("HYKIN_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")) / "serial-robots-ur5" / "UR5"
 UNIT = {"m": 1e-3, "rad": 1e-3, "c": 1e-6}  # typical deviation per unit kind
 
 
@@ -403,7 +404,7 @@ def _load_ur5(name):
     return q, p
 
 
-@pytest.mark.skipif(not UR5_DIR.is_dir(), reason="real UR5 data not found in ../shared/data/serial-robots-ur5")
+@pytest.mark.skipif(not UR5_DIR.is_dir(), reason=f"real UR5 data not found at {UR5_DIR} (set HYKIN_SHARED_DATA)")
 def test_real_ur5_geometric_calibration():
     """UR5 laser-tracker data: train on the 1000-pose grid, test on the 20 random poses.
 

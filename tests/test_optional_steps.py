@@ -83,6 +83,25 @@ def test_band_failure_keeps_model(data, tmp_path, monkeypatch):
         back.predict_uncertainty(rob.random_joints(2, np.random.default_rng(1)))
 
 
+def test_uncertainty_off_skips_only_the_bands(data, tmp_path):
+    """``uncertainty=False`` (the demo's learning-curve models): the same calibration and networks,
+    bit for bit, as with bands; no bands, and predict_uncertainty says why, also after save/load."""
+    rob, ds = data
+    ref, _ = _fit(rob, ds, thermal=False, calibrate=True)
+    m, w = _fit(rob, ds, thermal=False, calibrate=True, uncertainty=False)
+    assert not w and ref.unc_ is not None and m.unc_ is None
+    q = rob.random_joints(50, np.random.default_rng(4))
+    np.testing.assert_array_equal(m.predict(q), ref.predict(q))
+    np.testing.assert_array_equal(m.calibration_.values, ref.calibration_.values)
+    m.save(tmp_path / "m.hykin")
+    back = HybridModel.load(tmp_path / "m.hykin")
+    assert back.uncertainty is False
+    for mm in (m, back):
+        with pytest.raises(HybridError, match="uncertainty=False"):
+            mm.predict_uncertainty(q[:2])
+    np.testing.assert_array_equal(back.predict(q), m.predict(q))
+
+
 def test_fade_calibration_failure(data, tmp_path, monkeypatch):
     rob, ds = data
     monkeypatch.setattr(fade_mod, "calibrate_fade", _boom)

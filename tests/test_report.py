@@ -126,7 +126,7 @@ def test_per_temperature_rows_are_bin_means():
 
 def test_calibration_rows_values_and_status():
     """identified = nominal + deviation (geometry), held parameters greyed, a calibration's own status
-    and extra per-parameter fields shown."""
+    (a correlated one naming its partners), the prior tolerance, and extra per-parameter fields shown."""
     from hykin.calibration.params import apply_deviations
     from hykin.evaluation.report_calibration import calibration_rows, calibration_summary
     from hykin.io.robot_file import load_robot
@@ -136,19 +136,26 @@ def test_calibration_rows_values_and_status():
         {"name": "a2", "unit": "m", "value": 2e-4, "std": 1e-5, "identifiable": True},
         {"name": "d3", "unit": "m", "value": 0.0, "std": None, "identifiable": False},
         {"name": "theta3", "unit": "rad", "value": 1e-6, "std": 1e-5, "identifiable": True, "status": "held at prior",
-         "prior_std": 0.001},
+         "prior_std": 0.001, "weight": 0.5},
         {"name": "c2", "unit": "c", "value": 2e-6, "std": 1e-8, "identifiable": True},
-    ], "strong_correlations": [["a2", "theta3", 0.95]], "before": {"pos_mean_mm": 1.0}, "after": {"pos_mean_mm": 0.01}}
-    cal_robot = apply_deviations(rob, {"a2": 2e-4, "theta3": 1e-6, "c2": 2e-6})
+        {"name": "a3", "unit": "m", "value": 1e-4, "std": 2e-4, "identifiable": True, "status": "correlated",
+         "prior_std": 0.005, "correlated_with": [["d4", -0.995]]},
+    ], "strong_correlations": [["a2", "theta3", 0.95], ["a3", "d4", -0.995]],
+        "before": {"pos_mean_mm": 1.0}, "after": {"pos_mean_mm": 0.01}}
+    cal_robot = apply_deviations(rob, {"a2": 2e-4, "theta3": 1e-6, "c2": 2e-6, "a3": 1e-4})
     rows = {r.name: r for r in calibration_rows(calib, rob, cal_robot)}
     assert rows["a2"].nominal == pytest.approx(rob.a_m[1] * 1e3) and rows["a2"].identified == pytest.approx(rob.a_m[1] * 1e3 + 0.2)
-    assert rows["a2"].deviation == pytest.approx(0.2) and rows["a2"].unit == "mm"
-    assert "differs from nominal" in rows["a2"].status and "theta3" in rows["a2"].status
+    assert rows["a2"].deviation == pytest.approx(0.2) and rows["a2"].unit == "mm" and rows["a2"].status == "identified"
+    assert "differs from nominal" in rows["a2"].notes and "theta3 (ρ +0.950)" in rows["a2"].notes
     assert rows["d3"].held and rows["d3"].std is None and "not identifiable" in rows["d3"].status
-    assert rows["theta3"].status.startswith("held at prior") and rows["theta3"].held and "prior_std 0.001" in rows["theta3"].notes
-    assert rows["c2"].identified == pytest.approx(2.0) and rows["c2"].nominal == 0.0
+    assert rows["theta3"].status == "held at prior" and rows["theta3"].held
+    assert rows["theta3"].prior == pytest.approx(np.degrees(0.001)) and "weight 0.5" in rows["theta3"].notes
+    assert rows["a3"].status == "correlated with d4 (ρ -0.995)" and not rows["a3"].held
+    assert "agrees with nominal" in rows["a3"].notes and "d4" not in rows["a3"].notes  # named once, in the status
+    assert rows["c2"].identified == pytest.approx(2.0) and rows["c2"].nominal == 0.0 and rows["c2"].prior is None
     text = " ".join(calibration_summary(calib, list(rows.values())))
-    assert "2 of 4 parameters identified" in text and "a2 +0.2 mm" in text
+    assert "2 of 5 parameters identified" in text and "1 correlated" in text and "2 held (d3, theta3)" in text
+    assert "a2 +0.2 mm" in text
 
 
 @pytest.fixture(scope="module")

@@ -19,14 +19,20 @@ app = typer.Typer(
 )
 
 def _plain_help() -> None:
-    """Help as the README writes it: arguments upper-case (``ROBOT``, ``[TEST]``, not ``{robot}``) and no
-    ``<bool>`` type placeholder on flags. Typer 0.2x renders these itself; this adjusts its two hooks."""
+    """Help as the README writes it: arguments upper-case (``ROBOT``, ``[TEST]``, not ``{robot}``), no
+    ``<bool>`` type placeholder on flags, and value types as a user reads them (``<str>`` for a
+    repeatable option, not ``<list[str]>``; ``<int> [x>=1]``, not ``<int range> [x>=1]``). Typer 0.2x
+    renders these itself; this adjusts its two hooks."""
+    import re
     from typer import core as tc
 
     opt_type = getattr(tc.TyperOption, "display_type_rich", None)
     if opt_type is not None and not getattr(opt_type, "_hykin", False):
         def display_type_rich(self, ctx):
-            return None if getattr(self, "is_flag", False) else opt_type(self, ctx)
+            if getattr(self, "is_flag", False):
+                return None
+            t = opt_type(self, ctx)
+            return re.sub(r"<list\[(\w+)\]>", r"<\1>", t.replace(" range>", ">")) if isinstance(t, str) else t
 
         display_type_rich._hykin = True
         tc.TyperOption.display_type_rich = display_type_rich

@@ -27,7 +27,7 @@ def presets_cmd() -> None:
         for name in list_virtual_presets():
             vr = virtual_preset(name)
             desc = (vr.description or "").strip().splitlines()
-            typer.echo(f"  {name:16s} {desc[0] if desc else ''} [nominal: {vr.nominal.name}, payload {vr.nominal.payload_kg:g} kg]")
+            typer.echo(f"  {name:19s} {desc[0] if desc else ''} [nominal: {vr.nominal.name}, payload {vr.nominal.payload_kg:g} kg]")
     except ImportError:  # pragma: no cover
         pass
 

@@ -97,8 +97,10 @@ def _run_demo(out_dir, n_train: int, quick: bool, seed: int) -> Path:
     t_fit = time.perf_counter() - t_fit
     model.save(out / "model.hykin")
 
-    # the paper's set-up for comparison: networks only, on the nominal model (no calibration)
-    nets_only = HybridModel(robot, seed=seed, calibrate=False, recipe_kw=recipe_kw).fit(train, val, progress=True)
+    # the paper's set-up for comparison: networks only, on the nominal model (no calibration). This model and
+    # the learning curve's are only scored on the test set: they fit no prediction bands (uncertainty=False)
+    side = {"seed": seed, "recipe_kw": recipe_kw, "uncertainty": False}
+    nets_only = HybridModel(robot, calibrate=False, **side).fit(train, val, progress=True)
 
     # 3. evaluate
     stage(3, "evaluating on the test set; learning curve")
@@ -112,10 +114,8 @@ def _run_demo(out_dir, n_train: int, quick: bool, seed: int) -> Path:
         sub = train.subset(np.arange(s))
         e_h = None
         if s == sizes[0]:  # with calibration the hybrid is at the rounding floor from the smallest size on
-            e_h = evaluate_model(HybridModel(robot, seed=seed, recipe_kw=recipe_kw).fit(sub, val, progress=False), test).stats["hybrid"]
-        e_n = evaluate_model(
-            HybridModel(robot, seed=seed, calibrate=False, recipe_kw=recipe_kw).fit(sub, val, progress=False), test
-        ).stats["hybrid"]
+            e_h = evaluate_model(HybridModel(robot, **side).fit(sub, val, progress=False), test).stats["hybrid"]
+        e_n = evaluate_model(HybridModel(robot, calibrate=False, **side).fit(sub, val, progress=False), test).stats["hybrid"]
         nan = float("nan")
         curve.append((s, e_h.pos_mean_mm if e_h else nan, e_h.ang_mean_deg if e_h else nan, e_n.pos_mean_mm, e_n.ang_mean_deg))
     h, nn = ev.stats["hybrid"], ev.stats["networks only (no calibration)"]

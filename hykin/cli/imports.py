@@ -151,7 +151,7 @@ def import_table_cmd(
     temperature: str | None = typer.Option(None, "--temperature", help="Temperature column -> temperature_c."),
     temperature_unit: str | None = typer.Option(None, "--temperature-unit", help="C, K or F."),
     payload: str | None = typer.Option(None, "--payload", help="Payload mass column (kg) -> payload_kg."),
-    keep: list[str] | None = typer.Option(None, "--keep", help="Further columns to carry as they are ('*' = all unmapped)."),
+    keep: list[str] | None = typer.Option(None, "--keep", help="Further columns to carry as they are ('*' = all unmapped; repeatable)."),
     ignore: str | None = typer.Option(None, "--ignore", help="Columns that look like joints but are not (comma-separated)."),
     delimiter: str | None = DelimOpt,
     decimal: str | None = DecimalOpt,

@@ -120,15 +120,17 @@ def fit_cmd(
 
 
 def _print_metrics(model) -> None:
-    """One line per evaluated set: calibrated vs hybrid mean errors (mm, deg)."""
+    """One line per evaluated set: calibrated vs hybrid mean errors (mm, deg; 4 decimals, or 3 significant
+    digits below 0.001, so noise-free virtual data do not read 0.0000)."""
     metrics = (getattr(model, "metadata", None) or {}).get("metrics") or {}
+    f = lambda v: f"{v:.4f}" if not abs(v) < 1e-3 or v == 0 else f"{v:.3g}"
     for name, m in metrics.items():
-        line = f"{name}: calibrated {m.get('classical_pos_mean_mm', float('nan')):.4f} mm"
+        line = f"{name}: calibrated {f(m.get('classical_pos_mean_mm', float('nan')))} mm"
         if "classical_rot_mean_deg" in m:
-            line += f" / {m['classical_rot_mean_deg']:.4f} deg"
-        line += f" -> hybrid {m.get('hybrid_pos_mean_mm', float('nan')):.4f} mm"
+            line += f" / {f(m['classical_rot_mean_deg'])} deg"
+        line += f" -> hybrid {f(m.get('hybrid_pos_mean_mm', float('nan')))} mm"
         if "hybrid_rot_mean_deg" in m:
-            line += f" / {m['hybrid_rot_mean_deg']:.4f} deg"
+            line += f" / {f(m['hybrid_rot_mean_deg'])} deg"
         typer.echo(line + " (mean)")
 
 

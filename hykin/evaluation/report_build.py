@@ -18,6 +18,7 @@ from . import report_accuracy as acc
 from .evaluate import evaluate_model
 from .report import Report
 from .report_calibration import HEADER as CAL_HEADER
+from .report_calibration import TEXT_COLS as CAL_TEXT
 from .report_calibration import calibration_rows, calibration_summary
 from .report_card import DATA_HEADER, card_rows, data_rows
 from .report_figures import (
@@ -141,13 +142,12 @@ def _calibration_section(rep: Report, cal: dict, rows) -> None:
     rep.heading("Calibration")
     rep.bullets(calibration_summary(cal, rows))
     rep.note("Deviation = identified − nominal (base and tool: the correction in the nominal frame). Posterior std: "
-             "the standard deviation of the identified value from the residual noise. Held parameters keep their "
-             "nominal value because these poses cannot separate them from others. Base/tool rx, ry, rz: rotation vector.")
-    cells = [r.cells() for r in rows]
-    header = CAL_HEADER
-    if not any(r.notes for r in rows):  # the notes column only when the calibration adds per-parameter fields
-        header, cells = header[:-1], [c[:-1] for c in cells]
-    rep.table(header, cells, text_cols={0, 6, 7}, digits=6, row_classes=["held" if r.held else "" for r in rows])
+             "the standard deviation of the identified value (residual noise and prior); prior std: the tolerance the "
+             "calibration assumed for the robot file's value (blank: uninformative). Status (docs/calibration-priors.md): "
+             "identified; correlated with the named parameters (|ρ| ≥ 0.99: the data tell their combination, the priors "
+             "the split); held at prior (greyed: these poses do not excite it, so it keeps the robot file's value and "
+             "its posterior std is the prior's); at bound 0 (a compliance held rigid). Base/tool rx, ry, rz: rotation vector.")
+    rep.table(CAL_HEADER, [r.cells() for r in rows], text_cols=CAL_TEXT, digits=6, row_classes=["held" if r.held else "" for r in rows])
     names, corr = cal.get("correlation_names") or [], np.asarray(cal.get("correlation") or [])
     if len(names) >= 2 and corr.shape == (len(names), len(names)):
         rep.figure(correlation_figure(names, corr),

@@ -1,12 +1,16 @@
 """The report's calibration table: for every calibration parameter its nominal value, identified
-value, deviation, posterior standard deviation, unit and status, from a calibration summary (the
-dict of :meth:`hykin.calibration.result.CalibrationResult.to_dict`, as a model file stores it).
+value, deviation, posterior standard deviation, prior tolerance, unit and status, from a calibration
+summary (the dict of :meth:`hykin.calibration.result.CalibrationResult.to_dict`, as a model file
+stores it).
 
-Status: a ``status`` entry of the parameter wins when the calibration provides one (e.g. "held at
-prior"); otherwise it is derived: *held at nominal* (not identifiable from these poses), *at a bound*
-(no standard deviation), *identified* — with whether the deviation is significant (> 3 σ) and the
-parameters it is strongly correlated with (|ρ| > 0.9). Any further per-parameter entries the
-calibration adds (prior, …) appear in the *notes* column, so new fields show up without code here.
+Status: the calibration's own per-parameter status (calibration with priors, docs/calibration-priors.md):
+*identified*, *correlated with* the named partners (|posterior ρ| >= 0.99: the data tell their
+combination, the priors the split), *held at prior* (not excited by the data: the robot file's value,
+posterior std = prior tolerance) or *at bound 0* (a compliance held rigid, no std). A model file
+written before the status existed gets a derived one (*held at nominal* where not identifiable,
+*identified* otherwise). The *notes* column says whether an estimated deviation is significant
+(> 3 σ), names further strong correlations (|ρ| > 0.9) and shows any per-parameter field the
+calibration adds, so new fields show up without code here.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ __all__ = ["CalibrationRow", "calibration_rows", "calibration_summary", "UNIT_SC
 
 #: SI unit code -> (factor to the shown unit, shown unit)
 UNIT_SCALE = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg"), "c": (1e6, "µrad/(N·m)")}
-_KNOWN = {"name", "unit", "value", "std", "identifiable", "status", "posterior_std"}
+_KNOWN = {"name", "unit", "value", "std", "identifiable", "status", "posterior_std", "prior_std", "correlated_with"}
 SIGNIFICANT_SIGMA = 3.0
 #: deviations below these (SI: m, rad, rad/(N·m)) are at the level of floating-point rounding
 NEGLIGIBLE = {"m": 1e-11, "rad": 1e-11, "c": 1e-14}
@@ -33,23 +37,35 @@ NEGLIGIBLE = {"m": 1e-11, "rad": 1e-11, "c": 1e-14}
 
 @dataclass
 class CalibrationRow:
-    """One parameter, in the shown unit: ``nominal`` / ``identified`` None where not defined."""
+    """One parameter, in the shown unit: ``nominal`` / ``identified`` / ``std`` / ``prior`` None where not
+    defined. ``state``: the calibration's status word ("identified", "correlated", "held at prior",
+    "at bound 0"; "held at nominal" for a model file without statuses); ``status``: the shown cell
+    (a correlated parameter names its partners)."""
 
     name: str
     nominal: float | None
     identified: float | None
     deviation: float
     std: float | None
+    prior: float | None
     unit: str
+    state: str
     status: str
     notes: str
-    held: bool
+
+    @property
+    def held(self) -> bool:
+        """Kept at the robot file's value (greyed in the table)."""
+        return self.state.startswith("held")
 
     def cells(self) -> list:
-        return [self.name, self.nominal, self.identified, self.deviation, self.std, self.unit, self.status, self.notes]
+        return [self.name, self.nominal, self.identified, self.deviation, self.std, self.prior, self.unit, self.status,
+                self.notes]
 
 
-HEADER = ["parameter", "nominal", "identified", "deviation", "posterior std", "unit", "status", "notes"]
+HEADER = ["parameter", "nominal", "identified", "deviation", "posterior std", "prior std", "unit", "status", "notes"]
+#: the text columns of :data:`HEADER`
+TEXT_COLS = {0, 6, 7, 8}
 
 
 def _frame_values(T: np.ndarray) -> dict[str, float]:
@@ -89,40 +105,57 @@ def _correlated(calib: dict) -> dict[str, list[tuple[str, float]]]:
     return out
 
 
+def _finite(v) -> float | None:
+    return None if v is None or not np.isfinite(v) else float(v)
+
+
+def _partners(pairs) -> str:
+    return ", ".join(f"{b} (ρ {float(r):+.3f})" for b, r in sorted(pairs, key=lambda t: -abs(float(t[1]))))
+
+
 def calibration_rows(calib: dict, nominal: Robot, calibrated: Robot | None = None) -> list[CalibrationRow]:
     """Rows of the calibration table for the summary ``calib`` of a calibration of ``nominal``
     (``calibrated``: the calibrated robot, for the identified values; without it nominal + deviation)."""
     nom = parameter_values(nominal)
     ide = parameter_values(calibrated) if calibrated is not None else {}
-    corr = _correlated(calib)
+    strong = _correlated(calib)
     rows = []
     for p in calib.get("parameters", []):
         name, unit = p["name"], p.get("unit", "m")
         f, shown = UNIT_SCALE.get(unit, (1.0, unit))
         dev = float(p.get("value", 0.0))
-        std = p.get("posterior_std", p.get("std"))
-        std = None if std is None or not np.isfinite(std) else float(std)
+        std = _finite(p.get("posterior_std", p.get("std")))
         ident = bool(p.get("identifiable", True))
         n0 = nom.get(name)
         n1 = ide.get(name, None if n0 is None or name.startswith(("base.", "tool.")) else n0 + dev)
-        if "status" in p:
-            status = str(p["status"])
-        elif not ident:
+        state = str(p["status"]) if "status" in p else "identified" if ident else "held at nominal"
+        partners = [(str(b), float(r)) for b, r in p.get("correlated_with") or []]
+        if state == "correlated":
+            status = "correlated with " + _partners(partners) if partners else state
+        elif state == "held at nominal":
             status = "held at nominal (not identifiable from these poses)"
-        elif std is None:
-            status = "identified, at a bound (no std)"
-        elif abs(dev) < NEGLIGIBLE.get(unit, 0.0):
-            status = "identified, equals nominal (deviation at rounding level)"
         else:
-            sig = abs(dev) > SIGNIFICANT_SIGMA * std if std > 0 else dev != 0
-            status = "identified, differs from nominal" if sig else "identified, agrees with nominal (< 3 σ)"
-        if name in corr:
-            status += "; correlated with " + ", ".join(f"{b} (ρ {r:+.2f})" for b, r in sorted(corr[name], key=lambda t: -abs(t[1])))
-        notes = "; ".join(f"{k} {_note(v)}" for k, v in p.items() if k not in _KNOWN)
+            status = state
+        notes = []
+        if state in ("identified", "correlated"):
+            if std is None:
+                notes.append("no std (at a bound)")
+            elif abs(dev) < NEGLIGIBLE.get(unit, 0.0):
+                notes.append("equals nominal (deviation at rounding level)")
+            elif abs(dev) > SIGNIFICANT_SIGMA * std if std > 0 else dev != 0:
+                notes.append("differs from nominal (> 3 σ)")
+            else:
+                notes.append("agrees with nominal (< 3 σ)")
+        named = {b for b, _ in partners}
+        more = [(b, r) for b, r in strong.get(name, []) if b not in named]
+        if more:
+            notes.append("strongly correlated with " + _partners(more))
+        notes += [f"{k} {_note(v)}" for k, v in p.items() if k not in _KNOWN]
+        prior = _finite(p.get("prior_std"))
         rows.append(CalibrationRow(
             name=name, nominal=None if n0 is None else n0 * f, identified=None if n1 is None else n1 * f,
-            deviation=dev * f if ident else 0.0, std=None if std is None else std * f, unit=shown,
-            status=status, notes=notes, held=not ident or "held" in status))
+            deviation=dev * f if ident else 0.0, std=None if std is None else std * f,
+            prior=None if prior is None else prior * f, unit=shown, state=state, status=status, notes="; ".join(notes)))
     return rows
 
 
@@ -136,13 +169,19 @@ def calibration_summary(calib: dict, rows: list[CalibrationRow]) -> list[str]:
     """Sentences on the calibration: what was identified, what was held, how well, what correlates."""
     n = len(rows)
     held = [r.name for r in rows if r.held]
-    sig = [r for r in rows if not r.held and r.std is not None and r.std > 0 and abs(r.deviation) > SIGNIFICANT_SIGMA * r.std
-           and "equals nominal" not in r.status]
+    cor = [r.name for r in rows if r.state == "correlated"]
+    bound = [r.name for r in rows if r.state == "at bound 0"]
+    n_id = sum(r.state == "identified" for r in rows)
+    sig = [r for r in rows if r.state == "identified" and r.std is not None and r.std > 0
+           and abs(r.deviation) > SIGNIFICANT_SIGMA * r.std and "equals nominal" not in r.notes]
     sig.sort(key=lambda r: -abs(r.deviation) / r.std)
     b, a = calib.get("before") or {}, calib.get("after") or {}
-    out = [f"Calibration: {n - len(held)} of {n} parameters identified from {calib.get('n_samples', '?')} poses"
-           f" ({'position only' if calib.get('position_only') else 'full pose'}); {len(held)} held"
-           + (f" ({', '.join(held[:8])}{', …' if len(held) > 8 else ''})." if held else ".")]
+    lst = lambda names: f" ({', '.join(names[:8])}{', …' if len(names) > 8 else ''})" if names else ""
+    out = [f"Calibration: {n_id} of {n} parameters identified from {calib.get('n_samples', '?')} poses"
+           f" ({'position only' if calib.get('position_only') else 'full pose'})"
+           + (f"; {len(cor)} correlated (the data tell their combination, the priors the split){lst(cor)}" if cor else "")
+           + (f"; {len(bound)} at the bound 0 (rigid){lst(bound)}" if bound else "")
+           + f"; {len(held)} held{lst(held)}."]
     if "pos_mean_mm" in b and "pos_mean_mm" in a:
         s = f"On its own data the calibration takes the mean position residual from {b['pos_mean_mm']:.4g} mm to {a['pos_mean_mm']:.3g} mm"
         if "rot_mean_deg" in b and "rot_mean_deg" in a:

@@ -114,6 +114,10 @@ class HybridModel:
     ``frame_pre_``/``frame_post_`` ``(4, 4)``: fitted rigid frames around the model, set by
     :func:`hykin.measure.register.register_model` on its copy for a new measurement series (pose =
     frame_pre · T_model(q) · frame_post; identity for the series the model was trained on).
+    uncertainty: fit the prediction bands of :meth:`predict_uncertainty` (default True). False skips
+    that step of ``fit`` (held-out error quantiles and the extrapolation growth, which recalibrates on
+    parts of the data: often the costliest step after training) for models whose bands are never used,
+    e.g. the fits of a learning curve; :meth:`predict_uncertainty` then refuses.
     """
 
     def __init__(self, robot, arch: str = "default", recipe: str | Recipe = "default", calibrate: bool = True,
@@ -121,7 +125,8 @@ class HybridModel:
                  fade_width: float = 0.1, device: str = "cpu", seed: int = 0, max_seconds: float | None = None,
                  val_fraction: float | None = None, recipe_kw: dict | None = None, periodic: str = "wrap",
                  joint1: str = "input", input_joints=None, thermal: bool | str = "auto",
-                 payload_input: bool | str = "auto", fade_cv: int = 0, fade_offset: float = 0.0):
+                 payload_input: bool | str = "auto", fade_cv: int = 0, fade_offset: float = 0.0,
+                 uncertainty: bool = True):
         self.robot = load_robot(robot)
         self.arch = arch
         self.recipe = recipe
@@ -142,6 +147,7 @@ class HybridModel:
         self.input_joints = input_joints
         self.thermal = thermal
         self.payload_input = payload_input
+        self.uncertainty = uncertainty
 
     # ------------------------------------------------------------------ settings
 
@@ -304,17 +310,18 @@ class HybridModel:
                                        has_orientation=dr is not None, timings=timings, results=results, calib=calib)
         iv, iv_cal, val_cal, cal_rows = sp["iv"], sp["iv_cal"], sp["val_cal"], sp["cal_rows"]
         # optional from here on (hykin.hybrid.optional): a failure warns once and keeps the model
-        bands_stage = Progress(progress).stage("prediction bands (held-out errors, extrapolation growth)")
-        if val is None:
-            rows = iv_cal if iv_cal is not None else iv
-            raw = train_in.subset(np.asarray(rows)) if len(rows) >= 10 else train_in
-            self.unc_ = optional_step("uncertainty bands", self._skipped, fit_bands, self, train, None, rows, raw,
-                                      self._skipped)
-        else:
-            raw = val_in.subset(cal_rows) if cal_rows is not None else val_in
-            self.unc_ = optional_step("uncertainty bands", self._skipped, fit_bands, self, train,
-                                      val_cal if val_cal is not None else val, None, raw, self._skipped)
-        bands_stage.done()
+        if self.uncertainty:  # the prediction bands of predict_uncertainty (False: not fitted, e.g. learning curves)
+            bands_stage = Progress(progress).stage("prediction bands (held-out errors, extrapolation growth)")
+            if val is None:
+                rows = iv_cal if iv_cal is not None else iv
+                raw = train_in.subset(np.asarray(rows)) if len(rows) >= 10 else train_in
+                self.unc_ = optional_step("uncertainty bands", self._skipped, fit_bands, self, train, None, rows, raw,
+                                          self._skipped)
+            else:
+                raw = val_in.subset(cal_rows) if cal_rows is not None else val_in
+                self.unc_ = optional_step("uncertainty bands", self._skipped, fit_bands, self, train,
+                                          val_cal if val_cal is not None else val, None, raw, self._skipped)
+            bands_stage.done()
         if int(self.fade_cv) >= 2 and self.fade is not False:  # hykin.hybrid.fade: fade measured by leave-one-region-out
             from .fade import calibrate_fade
 
@@ -387,8 +394,9 @@ class HybridModel:
         self._check_fitted()
         if self.unc_ is None:
             why = (self.metadata.get("optional_steps_failed") or {}).get("uncertainty bands")
-            raise HybridError("this model has no uncertainty bands (" + (f"fit skipped them: {why}" if why else
-                              "saved by an older hykin") + "): refit it")
+            raise HybridError("this model has no uncertainty bands (" + (
+                "fitted with uncertainty=False" if not self.uncertainty else f"fit skipped them: {why}" if why else
+                "saved by an older hykin") + "): refit it")
         if not (0.5 <= level <= 0.995):
             raise HybridError(f"level must be in [0.5, 0.995], got {level}")
         q2, single = self._q(q)

@@ -89,7 +89,7 @@ def model_config(model) -> dict:
             "max_seconds": model.max_seconds, "val_fraction": model.resolved_val_fraction(),
             "periodic": model.periodic, "joint1": model.joint1, "input_joints": list(model.resolved_input_joints()),
             "thermal": model.thermal, "payload_input": model.payload_input, "fade_offset": float(_fitted_or_setting(model, "fade_offset")),
-            "fade_cv": int(model.fade_cv)}
+            "fade_cv": int(model.fade_cv), "uncertainty": bool(model.uncertainty)}
 
 
 def settings_from_config(cfg: dict, device: str) -> dict:
@@ -100,7 +100,8 @@ def settings_from_config(cfg: dict, device: str) -> dict:
             "val_fraction": cfg.get("val_fraction"), "periodic": cfg.get("periodic", "none"),
             "joint1": cfg.get("joint1", "input"), "input_joints": cfg.get("input_joints"),
             "thermal": cfg.get("thermal", "auto"), "payload_input": cfg.get("payload_input", False),
-            "fade_offset": float(cfg.get("fade_offset", 0.0)), "fade_cv": int(cfg.get("fade_cv", 0))}
+            "fade_offset": float(cfg.get("fade_offset", 0.0)), "fade_cv": int(cfg.get("fade_cv", 0)),
+            "uncertainty": bool(cfg.get("uncertainty", True))}
 
 
 def save_model(model, path: str | Path) -> None:

@@ -19,6 +19,7 @@ CHOICES = {
     "joint1": (("input", "frame"), "'input' or 'frame'"),
     "thermal": ((True, False, "auto"), "True, False or 'auto'"),
     "payload_input": ((True, False, "auto"), "True, False or 'auto'"),
+    "uncertainty": ((True, False), "True or False"),
 }
 
 
