@@ -575,6 +575,13 @@ def calibrate(
             rms = np.sqrt(np.bincount(groups.station, e2) / np.bincount(groups.station)) * 1e3
             per = ", ".join(f"{lab} {v:.3g} mm" for lab, v in zip(groups.station_labels, rms))
             raise CalibrationError(f"{e}; or a wrong station/tool label on some rows (RMS per station: {per})") from None
+        from .consistency import check_orientation_consistency  # orientations vs the positions' own residual
+
+        check_orientation_consistency(res, data, lambda d, po: calibrate(
+            robot, d, params=params, compliance=compliance, base=base, tool=tool, position_only=po,
+            orientation_weight_m_per_rad=orientation_weight_m_per_rad, max_iter=max_iter, tol=tol, rank_tol=rank_tol,
+            negligible_tol=negligible_tol, initial=initial, restarts=restarts, max_deviation=max_deviation, checks=False,
+            payload_kg=payload_kg, payload_com_m=payload_com_m, priors=priors, noise_m=noise_m), lim["orientation_conflict"])
     return res
 
 
