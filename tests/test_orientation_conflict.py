@@ -57,8 +57,9 @@ def test_bound_is_the_positions_own_residual():
     with pytest.raises(CalibrationError, match="quaternion convention") as e:
         check_orientation_consistency(_Res(2.7), data, lambda d, po: _Res(0.04 if po else 2.7), 3.0)
     assert "scalar-last" not in str(e.value)
-    # a position-only calibration has nothing to contradict
+    # a position-only calibration has nothing to contradict; an infinite bound turns the check off
     check_orientation_consistency(_Res(2.7, position_only=True), data, None, 3.0)
+    check_orientation_consistency(_Res(2.7), data, None, float("inf"))
 
 
 def test_option_is_a_max_deviation_kind():

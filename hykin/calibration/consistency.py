@@ -12,7 +12,9 @@ residual the positions allow (measurement noise plus what the model cannot repre
 orientations add equations, not contradictions: they move the parameters by about their uncertainty,
 which raises the position RMS by a few per cent (measured on the generated battery's correct campaigns:
 at most about 1.1x; ``benchmarks/bench_battery.py``). When the 6-D fit's position RMS exceeds
-``orientation_conflict`` (3, ``--max-deviation orientation_conflict=R``) times the positions-alone RMS,
+``orientation_conflict`` (3, ``--max-deviation orientation_conflict=R``; ``inf`` turns the check off, as
+the subset calibrations of :mod:`hykin.hybrid.uncertainty` do on data the full calibration checked) times
+the positions-alone RMS,
 the orientations contradict the positions and the fit is refused with one line naming the file and its
 ``qw,qx,qy,qz`` columns. The likely cause is then tested, not guessed: the calibration is repeated with
 the quaternions read scalar-last, and inverted; the reading that brings the position residual back
@@ -22,6 +24,7 @@ within the bound is named.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -43,7 +46,7 @@ def check_orientation_consistency(res, data, recalibrate: Callable, ratio: float
     calibration with the checks off. Sets ``res.position_only_rms_mm`` (the bound's base, mm)."""
     from .result import CalibrationError
 
-    if getattr(res, "position_only", True):
+    if getattr(res, "position_only", True) or not math.isfinite(ratio):  # inf: the check is off
         return
     rms = float(res.after["pos_rms_mm"])
     rms_po = float(recalibrate(data, True).after["pos_rms_mm"])
