@@ -25,21 +25,28 @@ A plan-to-model run on one virtual robot:
 
 ``--dir DIR`` keeps every file (and ``results.json``) there; ``--reuse`` skips plan/simulate/import when
 ``DIR/streamed.parquet`` exists, so the data can be made on one machine and the fits run on another
-(``streamed.parquet``, ``robot.truth.json``, ``test_q.csv`` and ``data.json`` are all the fit stage needs; about 30 MB at 415k poses).
+(``streamed.parquet``, ``robot.truth.json``, ``test_q.csv`` and ``data.json`` are all the fit stage needs; about 45 MB at 415k poses).
 
-**Fit options for the paper's scale on a GPU** (``--device cuda --fit-args "--max-epochs 6"``). hykin's
-default recipe trains each network for max(200 epochs, 30,000 steps) at batch 256. On 374k training rows
-(415k aligned poses, 10 % held out) 200 epochs are 292,000 steps per fit -- about 8 minutes per fit on an
-H100 at the step time below, too long for three fits in ~5 minutes. A training step at batch 256 is
-launch/sync-bound on a GPU (the loop reads the loss back every step), so time ~ steps, not N or batch:
-measured here (CPU, 1 thread, torch, batch 256) about 2.0 ms per step (the reduced-scale run below prints
-its own steps/s); a GPU step of this small MLP is of the same order (kernel launches + one sync; taken as
-<= 1.5 ms, not measured here). ``--max-epochs 6`` gives 6 x 1,460 = 8,760 steps per large fit (~13-18 s) and
-the 12k fit 6 x 43 = 258 steps -- too few for a small set, so the 12k fit gets hykin's default recipe
-instead (``--small-fit-args`` default: none, i.e. >= 30,000 steps, ~45-60 s): the small set is given its
-best, not the large sets' budget. Calibration (float64 LM on the CPU cores) at 415k positions is the other
-large cost (~30-60 s per large fit on 16 cores). Estimated total for the three fits: 3-4 minutes.
-The reduced-scale run (``--waypoints 150 --static-small 3000 --fit-args "--max-epochs 3"``) proves the chain.
+**Fit options for the paper's scale on a GPU**: ``--device cuda --fit-args "--max-epochs 8 --max-minutes 1.5"
+--small-fit-args "--max-minutes 1.5"``. hykin's default recipe trains each network for max(200 epochs,
+30,000 steps) at batch 256; position-only data train one network per fit. On 374k training rows (415k
+aligned poses, 10 % held out) 200 epochs are 292,000 steps per fit -- far too long for three fits in ~5
+minutes. The training time is steps x (time per step), and a step at batch 256 of the 9.7k-parameter
+default MLP is launch/sync-bound on a GPU (the loop reads the loss back every step), so it hardly depends
+on N or the batch. Measured here (CPU, 1 thread, on the shared 2-core machine at load ~12): 43 ms per step
+in the reduced-scale fit (1,278 steps in 55 s), 25 ms in a bare loop; an H100 step is estimated at
+<= 1.5 ms (kernel launches + one sync; NOT measured). ``--max-epochs 8``: 8 x 1,460 = 11,680 steps per large
+fit (~18 s at 1.5 ms); the 12k fit keeps hykin's default recipe (30,000 steps, ~45 s): at the large sets'
+8 epochs it would get only 344 steps, so the small set is given its best, not the large sets' budget.
+``--max-minutes 1.5`` caps each network's training whatever the step time turns out to be (the best
+weights so far are kept; the fit says how far it got). The other costs are on the CPU cores: the float64
+calibration (121k positions: 2 min 55 s here at load ~12, 1 thread; 415k: ~3.4x that single-threaded)
+and the prediction bands (52 s here). Estimated total for the three fits on the 16-core H100 machine:
+3-5 minutes, dominated by the two large calibrations -- the first run will tell; the script prints each
+fit's seconds.
+
+Reduced scale (proves the chain; not the issue's figure): ``--waypoints 150 --static-small 3000
+--test-poses 300 --fit-args "--max-epochs 3" --small-fit-args "--max-epochs 40"``.
 """
 
 from __future__ import annotations
@@ -85,15 +92,9 @@ def _line(out: str, start: str) -> str:
 
 
 def _hybrid_mean_mm(report: str) -> float:
-    """Mean position error (mm) of the model's own (hybrid) row of ``hykin evaluate --json``."""
+    """Mean position error (mm) of the model's hybrid row of ``hykin evaluate --json`` (after any warning lines)."""
     d = json.loads(report[report.index("{"):])
-    rows = d["rows"] if isinstance(d, dict) and "rows" in d else d
-    if isinstance(rows, dict):
-        rows = [dict(model=k, **v) for k, v in rows.items() if isinstance(v, dict)]
-    for r in rows:
-        if "hybrid" in str(r.get("model", r.get("name", ""))).lower():
-            return float(r.get("pos_mean_mm", r.get("position_mean_mm")))
-    raise KeyError(f"no hybrid row in evaluate's JSON: {report[:300]}")
+    return float(d["stats"]["hybrid"]["pos_mean_mm"])
 
 
 def _static_sets(work: Path, a, rows_streamed: int) -> None:
