@@ -69,8 +69,8 @@ def test_option_is_a_max_deviation_kind():
 
 @pytest.mark.slow  # ~8 s CPU: four calibrations
 def test_correct_6d_data_pass_and_slipped_quaternions_are_refused():
-    """A real calibration: correct 6-D data of a geometric virtual robot stay within a few per cent of
-    their positions-alone residual; the same data with scalar-last quaternions are refused, named."""
+    """A real calibration: correct 6-D data of a virtual robot with non-geometric errors and noise stay
+    close to their positions-alone residual; the same data with scalar-last quaternions are refused."""
     vr = virtual_preset("rx160-nongeo", seed=3)
     q = uniform(vr.nominal, 60, np.random.default_rng(1))
     ds = simulate(vr, q, rng=2)
@@ -78,6 +78,8 @@ def test_correct_6d_data_pass_and_slipped_quaternions_are_refused():
     res = calibrate(vr.nominal, ds)
     ratio = res.after["pos_rms_mm"] / res.position_only_rms_mm
     assert ratio < 1.5, ratio  # consistent orientations hardly move the position residual (either way: excitation differs)
+    # on a 6-axis arm the slip bends a twist beyond its tolerance first (and `hykin fit` refuses it before
+    # the fit, hykin.io.plausibility); the planar arm where only this bound catches it is in test_battery
     bad = dataclasses.replace(ds, quat_wxyz=np.roll(ds.quat_wxyz, -1, axis=1))
-    with pytest.raises(CalibrationError, match=r"train\.csv: columns qw,qx,qy,qz .*scalar-last"):
+    with pytest.raises(CalibrationError):
         calibrate(vr.nominal, bad)
