@@ -60,6 +60,14 @@ def test_bound_is_the_positions_own_residual():
     # a position-only calibration has nothing to contradict; an infinite bound turns the check off
     check_orientation_consistency(_Res(2.7, position_only=True), data, None, 3.0)
     check_orientation_consistency(_Res(2.7), data, None, float("inf"))
+    # another check's refusal stays as it was unless a re-read of the quaternions explains the positions
+    other = CalibrationError("tool offset came out 4.7 m from the flange")
+    with pytest.raises(CalibrationError, match="tool offset"):
+        check_orientation_consistency(_Res(2.7), data, lambda d, po: _Res(0.04 if po else 2.7), 3.0, refused=other)
+    with pytest.raises(CalibrationError, match="tool offset"):
+        check_orientation_consistency(_Res(0.05), data, recal, 3.0, refused=other)
+    with pytest.raises(CalibrationError, match="scalar-last"):
+        check_orientation_consistency(_Res(2.7), data, recal, 3.0, refused=other)
 
 
 def test_option_is_a_max_deviation_kind():

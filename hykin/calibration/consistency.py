@@ -41,19 +41,26 @@ def _where(data) -> str:
     return src if src and not src.startswith("hykin") else "<data>"
 
 
-def check_orientation_consistency(res, data, recalibrate: Callable, ratio: float) -> None:
+def check_orientation_consistency(res, data, recalibrate: Callable, ratio: float, refused=None) -> None:
     """Raise :class:`~hykin.calibration.result.CalibrationError` when ``res`` (a calibration that used
     orientations) leaves a position RMS above ``ratio`` x that of the same calibration on the positions
     alone (module docstring). ``recalibrate(data, position_only) -> CalibrationResult`` repeats the
-    calibration with the checks off. Sets ``res.position_only_rms_mm`` (the bound's base, mm)."""
+    calibration with the checks off. Sets ``res.position_only_rms_mm`` (the bound's base, mm).
+    ``refused``: the CalibrationError another check raised on ``res`` (a tool metres away, a bent
+    twist): it is replaced by this check's line only when a re-read of the quaternions brings the
+    position residual within the bound (the evidence names the cause), else raised as it was."""
     from .result import CalibrationError
 
     if getattr(res, "position_only", True) or not math.isfinite(ratio):  # inf: the check is off
+        if refused is not None:
+            raise refused
         return
     rms = float(res.after["pos_rms_mm"])
     rms_po = float(recalibrate(data, True).after["pos_rms_mm"])
     res.position_only_rms_mm = rms_po
     if rms <= ratio * rms_po:
+        if refused is not None:
+            raise refused
         return
     where = _where(data)
     cause = ("check the quaternion convention (unit, scalar first, base->tool rotation) and the orientation "
@@ -72,6 +79,11 @@ def check_orientation_consistency(res, data, recalibrate: Callable, ratio: float
             if alt.after["pos_rms_mm"] <= ratio * rms_po:
                 cause = f"{text} (read so, they leave {alt.after['pos_rms_mm']:.3g} mm)"
                 break
+        else:
+            if refused is not None:
+                raise refused
+    elif refused is not None:
+        raise refused
     raise CalibrationError(
         f"{where}: columns qw,qx,qy,qz contradict the positions: calibrating {res.robot.name!r} with them leaves "
         f"{rms:.3g} mm RMS, with the positions alone {rms_po:.3g} mm (bound {ratio:g}x, --max-deviation "
