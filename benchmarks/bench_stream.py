@@ -38,7 +38,8 @@ in the reduced-scale fit (1,278 steps in 55 s), 25 ms in a bare loop; an H100 st
 <= 1.5 ms (kernel launches + one sync; NOT measured). ``--max-epochs 8``: 8 x 1,460 = 11,680 steps per large
 fit (~18 s at 1.5 ms); the 12k fit keeps hykin's default recipe (30,000 steps, ~45 s): at the large sets'
 8 epochs it would get only 344 steps, so the small set is given its best, not the large sets' budget.
-``--max-minutes 1.5`` caps each network's training whatever the step time turns out to be (the best
+(At the present planner's 43.2-min trajectory the import gives 492,735 poses: 1,733 steps per epoch, 13,864
+steps at 8 epochs, ~21 s.) ``--max-minutes 1.5`` caps each network's training whatever the step time turns out to be (the best
 weights so far are kept; the fit says how far it got). The other costs are on the CPU cores: the float64
 calibration (121k positions: 2 min 55 s here at load ~12, 1 thread; 415k: ~3.4x that single-threaded)
 and the prediction bands (52 s here). Estimated total for the three fits on the 16-core H100 machine:
