@@ -564,17 +564,28 @@ def calibrate(
             q_eff = effective_joints(state1, q, pl)
             tau = gravity_torques(state1.robot, np.ascontiguousarray(q_eff), **payload_kwargs(pl))
             defl = np.max(np.abs(state1.c * tau), axis=0)
+        from .consistency import check_orientation_consistency  # orientations vs the positions' own residual
+
+        recal = lambda d, po: calibrate(
+            robot, d, params=params, compliance=compliance, base=base, tool=tool, position_only=po,
+            orientation_weight_m_per_rad=orientation_weight_m_per_rad, max_iter=max_iter, tol=tol, rank_tol=rank_tol,
+            negligible_tol=negligible_tol, initial=initial, restarts=restarts, max_deviation=max_deviation, checks=False,
+            payload_kg=payload_kg, payload_com_m=payload_com_m, priors=priors, noise_m=noise_m)
         try:
-            check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl,
-                              refuse_tolerances=pri_kinds["refuse_tolerances"], explicit=set(max_deviation or {}))
+            try:
+                check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl,
+                                  refuse_tolerances=pri_kinds["refuse_tolerances"], explicit=set(max_deviation or {}))
+            except CalibrationError as e0:  # a quaternion re-read that explains the positions names the cause
+                check_orientation_consistency(res, data, recal, lim["orientation_conflict"], refused=e0)
         except CalibrationError as e:
-            if groups is None:
+            if groups is None or "columns qw,qx,qy,qz" in str(e):
                 raise
             rp, _ = residual(model_poses(state1, q, pl, groups), xyz, None, 1.0, state1.pts)
             e2 = np.sum(rp.reshape(q.shape[0], -1) ** 2, 1) / (rp.size // q.shape[0] // 3)
             rms = np.sqrt(np.bincount(groups.station, e2) / np.bincount(groups.station)) * 1e3
             per = ", ".join(f"{lab} {v:.3g} mm" for lab, v in zip(groups.station_labels, rms))
             raise CalibrationError(f"{e}; or a wrong station/tool label on some rows (RMS per station: {per})") from None
+        check_orientation_consistency(res, data, recal, lim["orientation_conflict"])
     return res
 
 

@@ -32,6 +32,9 @@ deflection_deg      1        largest joint deflection under gravity ``c_i · tau
 tool_m              2        distance of the TCP (and every reflector) from the flange
 residual_mm         3        RMS position residual after the calibration
 residual_deg        1        RMS orientation residual after the calibration
+orientation_conflict 3       a calibration with orientations leaves at most this times the position
+                             RMS of the same calibration on the positions alone (the data's own noise
+                             and model error; :mod:`hykin.calibration.consistency`)
 ==================  =======  ==========================================================
 
 Base and tool are otherwise unbounded: they are what the calibration finds for data in a
@@ -55,6 +58,7 @@ DEFAULT_MAX_DEVIATION: dict[str, float] = {
     "tool_m": 2.0,
     "residual_mm": 3.0,
     "residual_deg": 1.0,
+    "orientation_conflict": 3.0,
 }
 
 #: the one line of advice appended to every refusal

@@ -29,7 +29,7 @@ OrientationWeight = typer.Option(
 MaxDeviation = typer.Option(
     None, "--max-deviation",
     help="Plausible calibration bounds, KIND=VALUE[,...]: length_mm (20), angle_deg (2), joint_offset_deg (5), "
-         "deflection_deg (1), tool_m (2), residual_mm (3), residual_deg (1).")
+         "deflection_deg (1), tool_m (2), residual_mm (3), residual_deg (1), orientation_conflict (3, x the positions-alone RMS).")
 
 
 def _prior_help() -> str:

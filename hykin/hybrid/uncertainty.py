@@ -18,6 +18,7 @@ the sum of the slopes times the excesses.
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
@@ -120,6 +121,8 @@ def _calibration_kwargs(model) -> dict:
     kw.pop("select", None)
     if getattr(model, "calibration_cv_", None) is not None:
         kw.update(model.calibration_cv_.kwargs)
+    # the full calibration checked these data's orientations against their positions already
+    kw["max_deviation"] = {**(kw.get("max_deviation") or {}), "orientation_conflict": math.inf}
     return kw
 
 
