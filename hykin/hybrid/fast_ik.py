@@ -182,9 +182,10 @@ def solve(kernel, T_target: np.ndarray, q0: np.ndarray, lo: np.ndarray, hi: np.n
     N = len(q0)
     q = np.array(q0, dtype=np.float64, order="C", copy=True)
     Tt = np.ascontiguousarray(T_target, dtype=np.float64)
-    lo, hi = (np.ascontiguousarray(b if np.shape(b) == q.shape else np.broadcast_to(b, q.shape), dtype=np.float64)
-              for b in (lo, hi))
-    fdv = np.full(N, fd, dtype=np.bool_) if np.ndim(fd) == 0 else np.ascontiguousarray(fd, dtype=np.bool_)
+    # writable C copies always (a read-only broadcast view would compile the kernel a second time)
+    lo = np.array(np.broadcast_to(lo, q.shape), dtype=np.float64, order="C")
+    hi = np.array(np.broadcast_to(hi, q.shape), dtype=np.float64, order="C")
+    fdv = np.array(np.broadcast_to(np.asarray(fd, dtype=np.bool_), (N,)), order="C")
     pe, ae, its = np.empty(N), np.empty(N), np.empty(N, dtype=np.int64)
     args = (kernel.P, Tt, q, lo, hi, bool(position_only), float(w_rot), float(tol_m), float(tol_rad), int(max_iter),
             float(lam0), float(lam_max), fdv, pe, ae, its)

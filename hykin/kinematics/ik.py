@@ -313,7 +313,7 @@ def solve_lm(robot: Robot, T_world, q0, position_only: bool = False, tol_m: floa
     otherwise, stop at λ > 1e10: the compiled kernel ``_lm_one`` with numba, else :func:`hykin.kinematics.lm.lm_solve` itself.
     """
     T, _ = as_targets(T_world)
-    q = np.array(np.broadcast_to(np.asarray(q0, dtype=np.float64), (len(T), robot.dof)))
+    q = np.array(np.broadcast_to(np.asarray(q0, dtype=np.float64), (len(T), robot.dof)), order="C")  # one kernel signature
     lo, hi = robot.lower, robot.upper
     if not bounded:
         rev = _revolute(robot)
