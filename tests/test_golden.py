@@ -19,6 +19,10 @@ import pytest
 import hykin
 from hykin.cli import main
 
+# expected here: random queries leave the trained range, and the 0.1.0 golden file has no integrity hash
+pytestmark = [pytest.mark.filterwarnings("ignore::hykin.hybrid.errors.OutOfRangeWarning"),
+              pytest.mark.filterwarnings("ignore::hykin.io.modelfile.UnverifiedModelWarning")]
+
 GOLDEN = Path(__file__).parent / "data" / "golden"
 
 PUBLIC_0_1_0 = ["BranchCountReport", "CalibrationResult", "Dataset", "DatasetError", "HybridIKResult", "HybridModel", "IKBranches", "IKResult", "ModelFileError", "OutOfRangeWarning", "Report", "Robot", "RobotFileError", "ThermalFit", "VirtualRobot", "align_streams", "apply_deviations", "axis_from_sweep", "base_frame_from_sweeps", "branch_count_report", "build_chain", "calibrate", "calibrated_fk", "compliant_fk", "concat", "dataset_hash", "deflected_joints", "dh_to_mdh", "error_stats", "estimate_time_offset", "evaluate_model", "export_onnx", "extrapolation_growth", "fit_circle_3d", "fit_plane", "fk", "fk_frames", "fk_torch", "format_table", "get_recipe", "gravity_torques", "has_closed_form", "hybrid_ik", "ik", "ik_closed_form", "ik_numeric", "ik_result_to_rows", "import_ipa_series", "import_three_smr", "import_ur5", "iso9283_pose", "iso_cube", "jacobian", "kabsch", "list_architectures", "list_presets", "list_virtual_presets", "load_robot", "load_robot_toml", "load_truth", "load_urdf", "make_net", "mdh_to_dh", "pose_errors", "pose_from_three_points", "read_dataset", "read_joints", "read_poses", "register_model", "robot_to_urdf", "sample", "save_robot_toml", "save_truth", "simulate", "simulate_to_file", "split", "tool_frame_from_sweeps", "validate", "virtual_preset", "wang_ik", "write_dataset"]

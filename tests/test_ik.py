@@ -327,3 +327,19 @@ def test_all_branches_falls_back_to_lm_at_exact_ur_singularity():
     assert br.n_solutions[0] >= 1
     pe, ae = _errors(r, br.q[0][br.success[0]], np.repeat(T, br.n_solutions[0], 0))
     assert pe.max() <= 1e-9 and ae.max() <= 1e-9
+
+
+def test_a_solution_a_rounding_beyond_a_limit_is_at_the_limit():
+    # A UR elbow stretched at q3 = 360° (its limit): IK returns q3 = 0 + ~1e-8 (acos near 1). Its 2π
+    # representation 360° + 1e-8 must count as the limit itself, not as out of range (before: the
+    # representation was refused and the nearest "other" branch was 360° away, 11 mm off on the robot).
+    from hykin.kinematics.ik_solutions import LIMIT_SLACK_RAD, nearest_representation
+
+    lo, hi = np.full(6, -2 * np.pi), np.full(6, 2 * np.pi)
+    q = np.array([0.1, -0.2, 3e-8, 0.3, -0.4, 0.5])
+    ref = np.array([0.1, -0.2, 2 * np.pi - 1e-4, 0.3, -0.4, 0.5])
+    out = nearest_representation(q, ref, lo, hi)
+    assert out[2] == 2 * np.pi and np.array_equal(out[[0, 1, 3, 4, 5]], q[[0, 1, 3, 4, 5]])
+    beyond = q.copy()
+    beyond[2] = 10 * LIMIT_SLACK_RAD  # 2π + 1e-6 is truly outside [-2π, 2π]: the nearest fitting one is q itself
+    assert nearest_representation(beyond, ref, lo, hi)[2] == beyond[2]

@@ -21,6 +21,9 @@ from hykin.sim.presets import virtual_preset
 from hykin.sim.sampling import restricted
 from hykin.sim.simulate import simulate
 
+# the model's own out-of-range warning is expected here: the queries are random joints
+pytestmark = pytest.mark.filterwarnings("ignore::hykin.hybrid.errors.OutOfRangeWarning")
+
 FAST = {"max_epochs": 40, "batch_size": 64, "lr": 1e-2}
 
 

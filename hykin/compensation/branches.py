@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kinematics.ik_solutions import representation_range
+from ..kinematics.ik_solutions import LIMIT_SLACK_RAD, representation_range
 from ..kinematics.robot import Robot
 
 __all__ = [
@@ -186,7 +186,8 @@ class Candidates:
         rev = np.array([t == "revolute" for t in robot.joint_type])
         self.shift = TWO_PI * (rev & (self.k_lo <= self.k_hi))  # 2π where a revolute joint can move into the limits
         self.valid = np.asarray(ok, dtype=bool) & np.isfinite(q).all(-1)
-        self.lo, self.hi = robot.lower - 1e-9, robot.upper + 1e-9
+        self.lower, self.upper = robot.lower, robot.upper
+        self.lo, self.hi = robot.lower - LIMIT_SLACK_RAD, robot.upper + LIMIT_SLACK_RAD
 
     def nearest(self, i: int, cur: np.ndarray) -> np.ndarray | None:
         """Of target ``i``'s valid solutions, each in its 2π representation nearest ``cur`` ``(n,)``
@@ -199,7 +200,7 @@ class Candidates:
             return None
         dq = qq - cur
         d = np.where(inside, np.sqrt((dq * dq).sum(1)), np.inf)
-        return qq[int(np.argmin(d))]
+        return np.clip(qq[int(np.argmin(d))], self.lower, self.upper)  # a rounding beyond a limit: onto it
 
 
 def nearest_candidate(robot: Robot, q: np.ndarray, ok: np.ndarray, cur: np.ndarray) -> np.ndarray | None:

@@ -74,19 +74,27 @@ def wrap_to_limits(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, revolute
     return np.where(rev, out, q)
 
 
+#: rad: a solution this close beyond a joint limit counts as at the limit (and is clipped onto it). A
+#: solution AT a limit comes back from IK a rounding beyond it, and at a singular limit (a UR elbow
+#: stretched at q3 = ±360°: acos near 1) that rounding is ~1e-8 rad; 1e-7 rad moves the TCP < 0.2 µm.
+LIMIT_SLACK_RAD = 1e-7
+
+
 def representation_range(q, lower, upper) -> tuple[np.ndarray, np.ndarray]:
     """``(k_lo, k_hi)``: the multiples ``k`` of 2π for which ``q + 2πk`` lies within ``[lower, upper]``
-    (to 1e-12 of a turn); ``k_lo > k_hi`` where none does."""
-    return np.ceil((lower - q) / TWO_PI - 1e-12), np.floor((upper - q) / TWO_PI + 1e-12)
+    widened by :data:`LIMIT_SLACK_RAD`; ``k_lo > k_hi`` where none does."""
+    return (np.ceil((lower - LIMIT_SLACK_RAD - q) / TWO_PI), np.floor((upper + LIMIT_SLACK_RAD - q) / TWO_PI))
 
 
 def nearest_representation(q, q_ref, lower, upper):
-    """Each revolute angle of ``q`` moved by multiples of 2π to be nearest ``q_ref`` within limits."""
+    """Each revolute angle of ``q`` moved by multiples of 2π to be nearest ``q_ref`` within limits
+    (clipped onto a limit it passes by at most :data:`LIMIT_SLACK_RAD`); unchanged where none fits."""
     q = np.asarray(q, dtype=np.float64)
     k_lo, k_hi = representation_range(q, lower, upper)
+    fits = k_lo <= k_hi
     k = np.clip(np.round((q_ref - q) / TWO_PI), k_lo, k_hi)
-    k = np.where(k_lo <= k_hi, k, 0.0)
-    return q + TWO_PI * np.nan_to_num(k)
+    out = q + TWO_PI * np.nan_to_num(np.where(fits, k, 0.0))
+    return np.where(fits, np.clip(out, lower, upper), out)
 
 
 def mark_duplicates(q: np.ndarray, valid: np.ndarray, tol: float = 1e-7,
