@@ -564,7 +564,7 @@ def calibrate(
             q_eff = effective_joints(state1, q, pl)
             tau = gravity_torques(state1.robot, np.ascontiguousarray(q_eff), **payload_kwargs(pl))
             defl = np.max(np.abs(state1.c * tau), axis=0)
-        from .consistency import check_orientation_consistency  # orientations vs the positions' own residual
+        from .consistency import OrientationConflictError, check_orientation_consistency  # vs the positions' own residual
 
         recal = lambda d, po: calibrate(
             robot, d, params=params, compliance=compliance, base=base, tool=tool, position_only=po,
@@ -578,7 +578,7 @@ def calibrate(
             except CalibrationError as e0:  # a quaternion re-read that explains the positions names the cause
                 check_orientation_consistency(res, data, recal, lim["orientation_conflict"], refused=e0)
         except CalibrationError as e:
-            if groups is None or "columns qw,qx,qy,qz" in str(e):
+            if groups is None or isinstance(e, OrientationConflictError):
                 raise
             rp, _ = residual(model_poses(state1, q, pl, groups), xyz, None, 1.0, state1.pts)
             e2 = np.sum(rp.reshape(q.shape[0], -1) ** 2, 1) / (rp.size // q.shape[0] // 3)

@@ -31,9 +31,15 @@ from collections.abc import Callable
 
 import numpy as np
 
-__all__ = ["check_orientation_consistency"]
+from .result import CalibrationError
+
+__all__ = ["OrientationConflictError", "check_orientation_consistency"]
 
 _CONJ = np.array([1.0, -1.0, -1.0, -1.0])
+
+
+class OrientationConflictError(CalibrationError):
+    """The orientation columns contradict the positions (:func:`check_orientation_consistency`)."""
 
 
 def _where(data) -> str:
@@ -42,15 +48,13 @@ def _where(data) -> str:
 
 
 def check_orientation_consistency(res, data, recalibrate: Callable, ratio: float, refused=None) -> None:
-    """Raise :class:`~hykin.calibration.result.CalibrationError` when ``res`` (a calibration that used
+    """Raise :class:`OrientationConflictError` (a CalibrationError) when ``res`` (a calibration that used
     orientations) leaves a position RMS above ``ratio`` x that of the same calibration on the positions
     alone (module docstring). ``recalibrate(data, position_only) -> CalibrationResult`` repeats the
     calibration with the checks off. Sets ``res.position_only_rms_mm`` (the bound's base, mm).
     ``refused``: the CalibrationError another check raised on ``res`` (a tool metres away, a bent
     twist): it is replaced by this check's line only when a re-read of the quaternions brings the
     position residual within the bound (the evidence names the cause), else raised as it was."""
-    from .result import CalibrationError
-
     if getattr(res, "position_only", True) or not math.isfinite(ratio):  # inf: the check is off
         if refused is not None:
             raise refused
@@ -84,7 +88,7 @@ def check_orientation_consistency(res, data, recalibrate: Callable, ratio: float
                 raise refused
     elif refused is not None:
         raise refused
-    raise CalibrationError(
+    raise OrientationConflictError(
         f"{where}: columns qw,qx,qy,qz contradict the positions: calibrating {res.robot.name!r} with them leaves "
         f"{rms:.3g} mm RMS, with the positions alone {rms_po:.3g} mm (bound {ratio:g}x, --max-deviation "
         f"orientation_conflict=R): {cause}")
