@@ -17,7 +17,6 @@ from scipy.stats import chi2
 
 from hykin.calibration.frames import fit_frames
 from hykin.geometry import se3
-from hykin.hybrid.model import HybridModel
 from hykin.io.dataset import Dataset
 from hykin.io.robot_file import load_robot
 from hykin.kinematics.fk import fk
@@ -46,12 +45,9 @@ def rx160():
 
 
 @pytest.fixture(scope="module")
-def model(rx160):
-    """Trained on exact data in the robot frame: equals the nominal robot (networks ~0)."""
-    q = rx160.random_joints(200, np.random.default_rng(5))
-    T = fk(rx160, q)
-    ds = Dataset(q=q, xyz_m=T[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T[:, :3, :3]), source="exact")
-    return HybridModel(rx160, calibrate=False, recipe_kw={"max_epochs": 1}, fade=False).fit(ds, progress=False)
+def model(exact_rx160_model):
+    """Trained on exact data in the robot frame: equals the nominal robot (networks ~0; tests/conftest.py)."""
+    return exact_rx160_model
 
 
 def test_band_to_sigma_is_the_chi3_quantile():

@@ -33,13 +33,6 @@ def rx160():
     return load_robot("rx160")
 
 
-@pytest.fixture(scope="module")
-def exact_model(rx160):
-    """Trained on exact data: the networks learn a ~zero residual, the model equals the robot."""
-    q = rx160.random_joints(200, np.random.default_rng(5))
-    T = fk(rx160, q)
-    ds = Dataset(q=q, xyz_m=T[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T[:, :3, :3]), source="exact")
-    return HybridModel(rx160, calibrate=False, recipe_kw={"max_epochs": 1}, fade=False).fit(ds, progress=False)
 
 
 def _day2(robot, n=200, noise_mm=0.005, noise_deg=0.0005, seed=1, drift_deg=DRIFT_DEG):
@@ -53,13 +46,13 @@ def _day2(robot, n=200, noise_mm=0.005, noise_deg=0.0005, seed=1, drift_deg=DRIF
     return Dataset(q=q, xyz_m=p, quat_wxyz=se3.matrix_to_quat(R), source="day2.csv")
 
 
-def test_register_recovers_joint_zero_drift(exact_model):
-    ds = _day2(exact_model.robot)
-    before = copy.deepcopy(exact_model.robot_), exact_model.frame_pre_.copy()
-    _, info = register_model(exact_model, ds, n_poses=30)
+def test_register_recovers_joint_zero_drift(exact_rx160_model):
+    ds = _day2(exact_rx160_model.robot)
+    before = copy.deepcopy(exact_rx160_model.robot_), exact_rx160_model.frame_pre_.copy()
+    _, info = register_model(exact_rx160_model, ds, n_poses=30)
     # the input model is untouched (scikit-learn contract: a new model is returned)
-    np.testing.assert_array_equal(exact_model.robot_.theta_rad, before[0].theta_rad)
-    np.testing.assert_array_equal(exact_model.frame_pre_, before[1])
+    np.testing.assert_array_equal(exact_rx160_model.robot_.theta_rad, before[0].theta_rad)
+    np.testing.assert_array_equal(exact_rx160_model.frame_pre_, before[1])
     fitted = {p.name: p for p in info.parameters}
     # joint 1 and joint 6 zeros are redundant with the base / tool frames: never fitted
     assert "q1.zero" not in fitted and "q6.zero" not in fitted
@@ -72,37 +65,37 @@ def test_register_recovers_joint_zero_drift(exact_model):
         p = fitted[f"q{j}.zero"]
         assert p.unit == "deg" and abs(p.value - DRIFT_DEG[j - 1]) < 4 * p.std + 1e-4, info.report()
     assert info.rest_pos_mean_mm < 0.02 and info.rest_ang_mean_deg < 0.002
-    _, finfo = register_model(exact_model, ds, n_poses=30, refit="frames", max_residual_ratio=1e9)
+    _, finfo = register_model(exact_rx160_model, ds, n_poses=30, refit="frames", max_residual_ratio=1e9)
     assert finfo.rest_pos_mean_mm > 3 * info.rest_pos_mean_mm
     assert "joint zeros / thermal state re-fitted: q" in info.report()
 
 
-def test_register_keeps_frames_only_when_nothing_drifted(exact_model):
-    ds = _day2(exact_model.robot, drift_deg=np.zeros(6), seed=3)
-    new, info = register_model(exact_model, ds, n_poses=30)
+def test_register_keeps_frames_only_when_nothing_drifted(exact_rx160_model):
+    ds = _day2(exact_rx160_model.robot, drift_deg=np.zeros(6), seed=3)
+    new, info = register_model(exact_rx160_model, ds, n_poses=30)
     assert not [p for p in info.parameters if p.name.endswith(".zero") or p.name == "thermal.scale"], info.report()
-    np.testing.assert_allclose(new.robot_.theta_rad, exact_model.robot_.theta_rad)
+    np.testing.assert_allclose(new.robot_.theta_rad, exact_rx160_model.robot_.theta_rad)
 
 
-def test_register_refuses_unit_slip_and_wrong_robot(exact_model):
-    ds = _day2(exact_model.robot)
+def test_register_refuses_unit_slip_and_wrong_robot(exact_rx160_model):
+    ds = _day2(exact_rx160_model.robot)
     slip = Dataset(q=ds.q, xyz_m=ds.xyz_m * 1e3, quat_wxyz=ds.quat_wxyz, source="slip.csv")  # mm read as m
     with pytest.raises(RegistrationError, match=r"^slip\.csv: .*(does not fit the model|unit slip)"):
-        register_model(exact_model, slip, n_poses=30)
+        register_model(exact_rx160_model, slip, n_poses=30)
     # m read as mm: a length scale of 1/1000 would absorb it; no thermal state is that large
     small = Dataset(q=ds.q, xyz_m=ds.xyz_m * 1e-3, quat_wxyz=ds.quat_wxyz, source="small.csv")
     with pytest.raises(RegistrationError, match=r"^small\.csv: .*(does not fit the model|unit slip)"):
-        register_model(exact_model, small, n_poses=30)
+        register_model(exact_rx160_model, small, n_poses=30)
     ur10 = load_robot("ur10")
     T = TRACKER @ fk(ur10, ds.q)  # another robot's poses for the same joints
     wrong = Dataset(q=ds.q, xyz_m=T[:, :3, 3], quat_wxyz=se3.matrix_to_quat(T[:, :3, :3]), source="wrong.csv")
     with pytest.raises(RegistrationError) as e:
-        register_model(exact_model, wrong, n_poses=30)
+        register_model(exact_rx160_model, wrong, n_poses=30)
     assert "\n" not in str(e.value)
 
 
-def test_fade_offset_in_every_prediction_path(exact_model, tmp_path):
-    m = copy.deepcopy(exact_model)
+def test_fade_offset_in_every_prediction_path(exact_rx160_model, tmp_path):
+    m = copy.deepcopy(exact_rx160_model)
     m.fade = True
     m.fade_offset_, m.fade_width_ = 0.05, 0.2
     q = m.robot.random_joints(300, np.random.default_rng(9)) * 2.0  # partly outside the trained range
@@ -133,9 +126,9 @@ def test_joint_region_rows_match_direct_means():
     assert r["calibrated"][1] is None and r["calibrated"][0] == pytest.approx(2 * p[sel].mean())
 
 
-def test_evaluate_registered_model_reports_regions(exact_model):
-    ds = _day2(exact_model.robot, drift_deg=np.zeros(6), seed=4)
-    new, _ = register_model(exact_model, ds, n_poses=30)
+def test_evaluate_registered_model_reports_regions(exact_rx160_model):
+    ds = _day2(exact_rx160_model.robot, drift_deg=np.zeros(6), seed=4)
+    new, _ = register_model(exact_rx160_model, ds, n_poses=30)
     res = evaluate_model(new, ds)
     assert res.regions and "nominal + fitted frames" in res.regions[0]
     # one definition of the nominal row: the main table's and the region table's "all" row agree
@@ -144,7 +137,7 @@ def test_evaluate_registered_model_reports_regions(exact_model):
     # nominal robot = true robot here: the rigid fit on all poses is at the noise level
     assert res.regions[0]["nominal + fitted frames"][0] < 0.02
     assert "Per joint region" in res.table() and "regions" in res.to_dict()
-    assert not evaluate_model(exact_model, ds).regions  # not registered: no region table
+    assert not evaluate_model(exact_rx160_model, ds).regions  # not registered: no region table
 
 
 def test_blocks_partition():
@@ -264,12 +257,12 @@ def test_register_keeps_networks_only_where_they_help_the_new_series(learnt_mode
     np.testing.assert_allclose(Tt, new.predict_classical(q[:50]), atol=1e-9)
 
 
-def test_register_from_few_position_only_poses(exact_model):
+def test_register_from_few_position_only_poses(exact_rx160_model):
     """8 position-only poses: 24 rows leave no room for joint zeros beside the 9 frame parameters
     (a third as many unknowns as rows at most); the frames are fitted and every candidate is reported."""
-    ds = _day2(exact_model.robot, n=40, drift_deg=np.zeros(6), seed=6)
+    ds = _day2(exact_rx160_model.robot, n=40, drift_deg=np.zeros(6), seed=6)
     pos = Dataset(q=ds.q, xyz_m=ds.xyz_m, source="positions.csv")
-    new, info = register_model(exact_model, pos, n_poses=8)
+    new, info = register_model(exact_rx160_model, pos, n_poses=8)
     assert info.n_used == 8 and info.used_ang_mean_deg is None
     assert [p.name for p in info.parameters][:6] == ["base.rx", "base.ry", "base.rz", "base.x", "base.y", "base.z"]
     assert not [p for p in info.parameters if p.name.endswith(".zero")]
