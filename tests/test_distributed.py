@@ -403,3 +403,33 @@ def test_trial_slots_follow_the_clusters_cpus_and_gpus():
     assert n_workers(two, 1, 0.5, 0) == 1  # never more workers than trials
     gpu = FakeRay({"CPU": 16.0, "GPU": 1.0})
     assert [n_workers(gpu, 8, 1, g) for g in (1, 0.5, 0.25, 0)] == [1, 2, 4, 8]
+
+
+def test_gpus_per_trial_makes_trials_that_name_no_device_fit_on_cuda(files, monkeypatch):
+    """With gpus_per_trial > 0 a trial whose grid names no device is run with device "cuda"; one that
+    names a device keeps it; results.csv records the options as written (no Ray: its session and the
+    trial runner are stand-ins that record what they were given)."""
+    import contextlib
+
+    import hykin.distributed.sweep as sweep_mod
+
+    given = {}
+
+    def fake_run_trials(ray, trials, data, cpus, gpus, subsample_seed, on_done):
+        given.update(trials)
+        for i in trials:
+            on_done(i, {"status": "ok", "error": "", "attempts": 1, "n_train": 240, **dict.fromkeys(ERROR_COLUMNS, 0.1),
+                        "fit_s": 1.0, "eval_s": 0.1, "steps": 4, "epochs": 2})
+
+    monkeypatch.setattr(sweep_mod, "ray_session", lambda address, num_cpus: contextlib.nullcontext(None))
+    monkeypatch.setattr(sweep_mod, "check_resources", lambda *a, **k: None)
+    monkeypatch.setattr(sweep_mod, "run_trials", fake_run_trials)
+    text = (GOOD_SWEEP + "[[grid]]\nseed = [0]\n" + FAST + '[[grid]]\nseed = [1]\ndevice = ["cpu"]\n' + FAST
+            + "[resources]\ngpus_per_trial = 0.5\n")
+    res = sweep_mod.run_sweep(read_sweep(_write(files / "gpu-default.toml", text)), files / "gpu-default", log=lambda s: None)
+    assert given[0]["device"] == "cuda" and given[1]["device"] == "cpu"
+    assert "device" not in res.rows[0] and res.rows[1]["device"] == "cpu"
+    given.clear()
+    text0 = text.replace("gpus_per_trial = 0.5", "gpus_per_trial = 0")
+    sweep_mod.run_sweep(read_sweep(_write(files / "cpu-default.toml", text0)), files / "cpu-default", log=lambda s: None)
+    assert "device" not in given[0] and given[1]["device"] == "cpu"

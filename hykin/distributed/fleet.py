@@ -15,6 +15,7 @@ the others run again.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import time
@@ -150,7 +151,9 @@ def _run_robots(spec: FleetSpec, todo: list, out: Path, rows: dict, address, num
                                               "gpus_per_robot": spec.gpus_per_robot}, address)
         out.mkdir(parents=True, exist_ok=True)  # after every check: a refused fleet writes nothing
         job = ray.remote(num_cpus=spec.cpus_per_robot, num_gpus=spec.gpus_per_robot, max_retries=1)(robot_job)
-        pending = {job.remote(r): r for r in todo}
+        # gpus_per_robot > 0 means the fits should use them: an entry whose [robot.fit] names no device gets "cuda"
+        gpu = {"device": "cuda"} if spec.gpus_per_robot > 0 else {}
+        pending = {job.remote(dataclasses.replace(r, fit={**gpu, **r.fit})): r for r in todo}
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
             entry = pending.pop(done[0])

@@ -110,7 +110,10 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
                                                   "gpus_per_trial": spec.gpus_per_trial}, address)
             out.mkdir(parents=True, exist_ok=True)  # after every check: a refused sweep writes nothing
             clock["start"] = time.time()
-            run_trials(ray, {i: trials[i] for i in todo}, (rob, train, test), spec.cpus_per_trial,
+            # gpus_per_trial > 0 means the fits should use them: a trial that names no device gets "cuda"
+            # (its recorded options stay as written, so --resume keys do not change)
+            gpu_default = {"device": "cuda"} if spec.gpus_per_trial > 0 else {}
+            run_trials(ray, {i: {**gpu_default, **trials[i]} for i in todo}, (rob, train, test), spec.cpus_per_trial,
                        spec.gpus_per_trial, spec.subsample_seed, on_done)
             clock["end"] = time.time()
     rows = rows_now()
