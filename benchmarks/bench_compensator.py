@@ -31,6 +31,7 @@ inflated (load average ~10 while measured: other jobs).
 from __future__ import annotations
 
 import argparse
+import gc
 import sys
 import time
 import warnings
@@ -150,6 +151,8 @@ def latency(vr, m, n_path: int) -> None:
     T = true_poses(vr, q_path)  # 10,000 targets along a smooth path (~0.3 mm apart)
     C = hykin.Compensator(m)
     C.step(T[0], q_path[0])
+    gc.collect()
+    gc.freeze()  # as a real-time loop does once before it starts (docs/realtime.md, the ur-rtde example)
     load_probe(nom)
     lat = np.empty(n_path)
     Q = np.empty((n_path, nom.dof))
@@ -163,6 +166,7 @@ def latency(vr, m, n_path: int) -> None:
         ok += r.success
         qp = r.q if r.success else qp
         Q[k], cmd[k] = r.q, r.command
+    gc.unfreeze()
     us = lat * 1e6
     hints = np.vstack([q_path[:1], Q[:-1]])
     s = time.perf_counter()

@@ -13,13 +13,14 @@ TCP's error to the programmed path (mean, max; the same path without the bridge 
 the share of cycles answered within the period, cycles without an answer, and cycles the simulator
 itself started late (it shares the 2 cores with the bridge and other jobs).
 
-    python benchmarks/bench_realtime.py [--seconds 20] [--protocols rsi,egm] [--fit-poses 1000]
+    python benchmarks/bench_realtime.py [--seconds 20] [--protocols rsi,egm] [--fit-poses 1000] [--bridge-args "..."]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import socket
 import subprocess
 import sys
@@ -109,7 +110,7 @@ def run_protocol(proto: str, a, tmp: Path) -> None:
     P = loop_path(nom, q0, n)
     port = _free_udp_port()
     cmd = [sys.executable, "-m", "hykin", proto, str(mp), "--listen", f"127.0.0.1:{port}", "--frame", "measurement",
-           "--idle-exit-s", "3", "--axis-signs", ",".join(f"{s:g}" for s in signs)]
+           "--idle-exit-s", "3", "--axis-signs", ",".join(f"{s:g}" for s in signs), *shlex.split(a.bridge_args)]
     proc = subprocess.Popen(cmd, env=dict(os.environ, PYTHONPATH=str(ROOT)), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     ctrl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     addr = ("127.0.0.1", port)
@@ -155,7 +156,9 @@ def run_protocol(proto: str, a, tmp: Path) -> None:
     print(f"  CPU per cycle: bridge process {bridge_cpu * 1e3:.3f} ms, simulated controller {run.cpu_s * 1e3:.3f} ms; "
           f"simulator's own lateness (send after its clock tick): p99 {np.percentile(run.start_late_s, 99) * 1e3:.3f} ms, "
           f"max {run.start_late_s.max() * 1e3:.2f} ms, cycles started over half a period late {run.slipped}")
-    print(f"  bridge's own count: {out.strip().splitlines()[-1] if out.strip() else err[-300:]}")
+    lines = out.strip().splitlines()
+    print(f"  bridge (extra options: {a.bridge_args or 'none'}): {next((x for x in lines if 'priority' in x), '?')}")
+    print(f"  bridge's own count: {lines[-1] if lines else err[-300:]}")
     ok = e_pos.mean() <= 0.05 and e_pos.max() <= own_max and run.in_time.mean() >= 0.999 and answered.all()
     print(f"  must hold (mean <= 0.05 mm, max <= model max, >= 99.9 % within 4 ms, none missing): {'MET' if ok else 'NOT MET'}")
 
@@ -165,6 +168,7 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--protocols", default="rsi,egm")
     ap.add_argument("--fit-poses", type=int, default=1000)
+    ap.add_argument("--bridge-args", default="", help='more options of the bridge, e.g. "--rt-priority 0" or "--spin"')
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         for proto in a.protocols.split(","):

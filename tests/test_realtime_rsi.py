@@ -261,3 +261,51 @@ def test_cli_rsi_answers_as_the_in_process_handler():
     for k, (ipoc, korr) in enumerate(replies):
         ref_ipoc, ref = parse_sen(h(format_rob(100 + 4 * k, sp[k], sp[k], np.degrees(q0), RsiConfig())).reply, RsiConfig())
         assert ipoc == ref_ipoc and np.abs(korr - ref).max() < 1e-4 and np.linalg.norm(korr[:3]) > 0.01
+
+
+def test_spinning_bridge_answers_like_the_sleeping_one(kuka):
+    """--spin polls without select(): the same answers, and it still stops on the stop event."""
+    nom = kuka.nominal
+    q0 = np.radians([10.0, -80, 100, 20, 50, -30])
+    sp = _path(nom, 20, q0)
+    runs = []
+    for spin in (False, True):
+        sock, stop, th, box = _bridge_thread(RsiHandler(exact_step(kuka), np.eye(4), 6, SIGNS, RsiConfig()), spin=spin)
+        runs.append(SimulatedRsi(nom, sp, q0, sock.getsockname(), SIGNS, period_s=0.004, deadline_s=1.0).run())
+        stop.set()
+        th.join(5)
+        sock.close()
+        assert not th.is_alive() and box["stats"].answered == 20
+    assert np.isfinite(runs[1].reply_s).all()
+    np.testing.assert_allclose(runs[1].correction, runs[0].correction, atol=1e-9)
+
+
+def test_raise_priority_says_what_it_did_and_never_raises(monkeypatch):
+    import os
+
+    from hykin.realtime.udp_bridge import raise_priority
+
+    assert raise_priority(0).startswith("normal priority")
+    calls = []
+    monkeypatch.setattr(os, "sched_setscheduler", lambda pid, policy, param: calls.append((pid, policy, param.sched_priority)))
+    assert raise_priority(30) == "real-time priority (SCHED_FIFO 30)" and calls == [(0, os.SCHED_FIFO, 30)]
+
+    def refuse(*a):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    line = raise_priority(20)
+    assert line.startswith("normal priority: SCHED_FIFO 20 refused (Operation not permitted)") and "--rt-priority 0" in line
+
+
+def test_cli_rsi_refuses_an_rt_priority_out_of_range_in_one_line(tmp_path, capsys):
+    from hykin.cli import main
+
+    mp = tiny_model_file()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(SystemExit) as e:
+        main(["rsi", str(mp), "--listen", f"127.0.0.1:{port}", "--rt-priority", "150"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert e.value.code == 2 and len(err) == 1 and "--rt-priority" in err[0] and "150" in err[0]

@@ -334,7 +334,8 @@ def import_stream_cmd(
     tracker_time_unit: str | None = typer.Option(None, "--tracker-time-unit", help="Unit of the tracker's time: s, ms, us, ns (default s)."),
     offset: float | None = typer.Option(None, "--offset", help="Known clock offset t_tracker - t_robot (s); default: estimated."),
     fit_drift: bool = typer.Option(False, "--fit-drift", help="Also estimate a clock drift (needs a log of >= 2 windows)."),
-    method: str = typer.Option("speed", "--method", help="Offset estimate: speed (frame-free) or positions (accurate model)."),
+    method: str | None = typer.Option(None, "--method", metavar="speed|positions", help="Offset estimate: speed (frame-free; "
+                                      "the default with a robot file) or positions (accurate model; the default with a model file)."),
     max_offset: float = typer.Option(1.0, "--max-offset", help="Search the offset within ± this (s).", min=0.0),
     max_speed: float = typer.Option(0.1, "--max-speed", help="Drop samples where the TCP moves faster (m/s); 0 keeps all.", min=0.0),
     max_gap: float | None = typer.Option(None, "--max-gap", help="Longest tracker gap bridged (s; default 3 tracker periods)."),
@@ -346,7 +347,11 @@ def import_stream_cmd(
 
     if frame not in ("tracker", "fit"):
         raise CLIError(f"import stream: --frame must be tracker or fit, got {frame!r}")
-    rob = _robot(robot, base_link, tip_link)
+    from .common import load_model_or_robot
+
+    model, rob = load_model_or_robot(robot, base_link, tip_link)
+    if method is None:
+        method = "positions" if model is not None else "speed"
     check_output(out, (robot_log, tracker_stream, robot_map, tracker_map), force)
     r_opts = dict(time=robot_time, joints=_joint_spec(joints), angle_unit=angle_unit, time_unit=robot_time_unit)
     t_opts = dict(time=tracker_time, position=_csv_names(position), quaternion=_csv_names(quaternion),
@@ -356,7 +361,17 @@ def import_stream_cmd(
     if tracker_map is None:
         t_opts = {"time": "t", "position": ["x", "y", "z"], **{k: v for k, v in t_opts.items() if v is not None}}
     t_r, q_r, t_t, p_t, quat_t = _read_streams(robot_log, tracker_stream, robot_map, tracker_map, r_opts, t_opts, rob)
-    a = align_streams(t_r, q_r, t_t, p_t, quat_t, rob, clock=offset,
+    p_robot = None
+    if model is not None and offset is None:
+        # a fitted model: the clock is fitted to its hybrid positions (second pass of a streamed campaign:
+        # import with the robot file, fit, import again with the model; the model's error no longer
+        # leaks into the clock)
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # out-of-range counts belong to evaluation, not to a clock fit
+            p_robot = model.predict(q_r)[:, :3, 3]
+    a = align_streams(t_r, q_r, t_t, p_t, quat_t, rob, clock=offset, p_robot=p_robot,
                       max_speed_m_s=max_speed or None, max_gap_s=max_gap, fit_drift=fit_drift,
                       T_base_tracker="fit" if frame == "fit" else None,
                       **({} if offset is not None else {"method": method, "max_offset_s": max_offset}))
@@ -366,5 +381,8 @@ def import_stream_cmd(
                        f"{a.info['n_dropped_speed']} faster than {max_speed} m/s)")
     info = a.info
     _write(ds, out, [robot_log, tracker_stream, robot_map, tracker_map],
-           f"; clock offset {info['offset_s'] * 1e3:.4f} ms, dropped {info['n_dropped_gap']} in tracker gaps and "
+           f"; clock offset {info['offset_s'] * 1e3:.4f} ms"
+           + (f", drift {info['drift'] * 1e6:.4f} ppm" if fit_drift else "")
+           + (f" ({method}{', hybrid positions of the model' if p_robot is not None else ''})" if offset is None else "")
+           + f", dropped {info['n_dropped_gap']} in tracker gaps and "
            f"{info['n_dropped_speed']} above {max_speed} m/s")

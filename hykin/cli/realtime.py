@@ -19,6 +19,10 @@ _MAX_FAILURES = typer.Option(10, "--max-failures", metavar="N", help="Stop answe
 _IDLE = typer.Option(0.0, "--idle-exit-s", metavar="S", help="Exit when no valid datagram came for this long after the first (0: never).")
 
 
+_RT = typer.Option(20, "--rt-priority", metavar="N", help="Answer under SCHED_FIFO at this priority (1-99), so that other "
+                   "processes cannot delay an answer; 0: normal priority. Without the right it runs at normal priority and says so.")
+_SPIN = typer.Option(False, "--spin", help="Poll the socket without sleeping: no wake-up delay, at the cost of one busy core "
+                     "(for a core set aside for the bridge).")
 _MAX_MM = typer.Option(50.0, "--max-correction-mm", metavar="MM", help="A larger correction is a failure (answered neutrally).")
 _MAX_DEG = typer.Option(5.0, "--max-correction-deg", metavar="DEG", help="A larger rotation correction is a failure.")
 _SIGNS = typer.Option(None, "--axis-signs", metavar="S1,..,SN", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the "
@@ -60,12 +64,19 @@ def _bridge_setup(model: str, listen: str, controller: str | None, frame: str, m
     return mdl, comp, sock, ctrl, signs, (mdl.nominal.base if comp.frame == "measurement" else np.eye(4))
 
 
-def _serve(name: str, sock, handler, period_ms: float, max_failures: int, ctrl, idle_exit_s: float) -> None:
-    from ..realtime.udp_bridge import run_bridge
+def _serve(name: str, sock, handler, period_ms: float, max_failures: int, ctrl, idle_exit_s: float, rt_priority: int,
+           spin: bool) -> None:
+    from ..realtime.udp_bridge import raise_priority, run_bridge
 
+    if not 0 <= rt_priority <= 99:
+        raise CLIError(f"--rt-priority must be 0 (normal) or 1..99 (SCHED_FIFO), got {rt_priority}")
+    if spin:  # a SCHED_FIFO thread that never sleeps is throttled by the kernel (sched_rt_runtime_us): pauses
+        typer.echo(f"hykin {name}: polling without sleeping (--spin), at normal priority")
+    else:
+        typer.echo(f"hykin {name}: {raise_priority(rt_priority)}")
     with sock:
         st = run_bridge(sock, handler, period_s=period_ms / 1e3, max_failures=max_failures, controller=ctrl,
-                        idle_exit_s=idle_exit_s)
+                        idle_exit_s=idle_exit_s, spin=spin)
     typer.echo(f"hykin {name}: {st.stopped}; {st.summary()}")
     if "consecutive failures" in st.stopped:
         raise typer.Exit(3)
@@ -80,7 +91,8 @@ def _bridge_command(name: str, period_help: str, extra: tuple = ()):
         ("controller", str | None, _CONTROLLER), ("frame", str, _FRAME), ("axis_signs", str | None, _SIGNS),
         ("period_ms", float, typer.Option(4.0, "--period-ms", metavar="MS", help=period_help)),
         ("max_failures", int, _MAX_FAILURES), ("max_correction_mm", float, _MAX_MM),
-        ("max_correction_deg", float, _MAX_DEG), ("idle_exit_s", float, _IDLE))
+        ("max_correction_deg", float, _MAX_DEG), ("idle_exit_s", float, _IDLE), ("rt_priority", int, _RT),
+        ("spin", bool, _SPIN))
 
     def register(fn):
         def cmd(**kw) -> None:
@@ -102,7 +114,7 @@ def _bridge_command(name: str, period_help: str, extra: tuple = ()):
     ("mode", str | None, typer.Option(None, "--mode", metavar="absolute|incremental", help="absolute or incremental "
                                       "correction (default: the config's, else absolute); must match RSI's POSCORR object."))))
 def rsi_cmd(model, listen, config, mode, controller, frame, axis_signs, period_ms, max_failures, max_correction_mm,
-            max_correction_deg, idle_exit_s) -> None:
+            max_correction_deg, idle_exit_s, rt_priority, spin) -> None:
     """KUKA RSI Ethernet peer: answers each <Rob> message with the RKorr that puts the real robot on the setpoint."""
     from ..realtime.rsi import RsiHandler
     from ..realtime.rsi_xml import RsiConfig, read_config
@@ -117,16 +129,16 @@ def rsi_cmd(model, listen, config, mode, controller, frame, axis_signs, period_m
     h = RsiHandler(comp.step, base, mdl.nominal.dof, signs, cfg, period_ms, max_correction_mm, max_correction_deg)
     typer.echo(f"hykin rsi: {mdl.nominal.name} on udp://{listen} ({cfg.mode}, <Sen Type=\"{cfg.sen_type}\"> "
                f"<{cfg.korr_tag}>, frame {comp.frame})")
-    _serve("rsi", sock, h, period_ms, max_failures, ctrl, idle_exit_s)
+    _serve("rsi", sock, h, period_ms, max_failures, ctrl, idle_exit_s, rt_priority, spin)
 
 
 @_bridge_command("egm", "EGM cycle, ms: answers later than this count as late.")
 def egm_cmd(model, listen, controller, frame, axis_signs, period_ms, max_failures, max_correction_mm, max_correction_deg,
-            idle_exit_s) -> None:
+            idle_exit_s, rt_priority, spin) -> None:
     """ABB EGM peer (pose guidance): answers each EgmRobot with the pose that puts the real robot on the planned one."""
     from ..realtime.egm import EgmHandler
 
     mdl, comp, sock, ctrl, signs, base = _bridge_setup(model, listen, controller, frame, max_failures, period_ms, axis_signs)
     h = EgmHandler(comp.step, base, mdl.nominal.dof, signs, max_correction_mm, max_correction_deg)
     typer.echo(f"hykin egm: {mdl.nominal.name} on udp://{listen} (pose guidance, frame {comp.frame})")
-    _serve("egm", sock, h, period_ms, max_failures, ctrl, idle_exit_s)
+    _serve("egm", sock, h, period_ms, max_failures, ctrl, idle_exit_s, rt_priority, spin)

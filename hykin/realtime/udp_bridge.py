@@ -22,7 +22,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 
-__all__ = ["BridgeStats", "Outcome", "bind_udp", "parse_listen", "run_bridge"]
+__all__ = ["BridgeStats", "Outcome", "bind_udp", "parse_listen", "raise_priority", "run_bridge"]
 
 _log = logging.getLogger("hykin.realtime")
 _DRAIN = 256  # datagrams read at most per turn when behind
@@ -75,6 +75,25 @@ def bind_udp(host: str, port: int) -> socket.socket:
     return s
 
 
+def raise_priority(rt_priority: int) -> str:
+    """Run this thread under ``SCHED_FIFO`` at ``rt_priority`` (1-99; 0: leave it as it is), so that the
+    answer is not queued behind other processes. Returns one line saying what was done; never raises
+    (without the right, e.g. not root and no ``rtprio`` limit / CAP_SYS_NICE, the bridge runs at normal
+    priority and the line says how to grant it)."""
+    import os
+
+    if rt_priority <= 0:
+        return "normal priority (--rt-priority 0)"
+    if not hasattr(os, "sched_setscheduler"):
+        return "normal priority (this platform has no SCHED_FIFO)"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(min(int(rt_priority), 99)))
+    except (PermissionError, OSError) as e:
+        return (f"normal priority: SCHED_FIFO {rt_priority} refused ({e.strerror or e}); allow it with an rtprio limit "
+                f"(/etc/security/limits.conf) or CAP_SYS_NICE, or pass --rt-priority 0 to silence this")
+    return f"real-time priority (SCHED_FIFO {min(int(rt_priority), 99)})"
+
+
 def _arrival(anc) -> float | None:
     for level, kind, data in anc:
         if level == socket.SOL_SOCKET and kind == getattr(socket, "SO_TIMESTAMPNS", -1) and len(data) >= 16:
@@ -85,12 +104,13 @@ def _arrival(anc) -> float | None:
 
 def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: int = 10, max_packet: int = 8192,
                controller: tuple | None = None, idle_exit_s: float = 0.0, stop=None, log_every_s: float = 10.0,
-               keep_latency: bool = False) -> BridgeStats:
+               keep_latency: bool = False, spin: bool = False) -> BridgeStats:
     """Serve datagrams on ``sock`` with ``handle(bytes) -> Outcome`` until ``stop`` (a threading.Event)
     is set, ``idle_exit_s`` passes without a valid datagram after the first one (0: never), or
     ``max_failures`` consecutive failures. ``controller``: ``(host, port)`` to accept datagrams from
     (default: the first sender of a valid one). ``keep_latency``: keep each answer's delay (s) in
-    ``stats.latency_s``."""
+    ``stats.latency_s``. ``spin``: poll the socket without sleeping (one core stays busy and warm: no
+    wake-up delay and no cold caches when a datagram comes; for a core set aside for the bridge)."""
     st = BridgeStats()
     gc.collect()
     gc.freeze()  # the model and libraries loaded so far are never scanned again: no full-collection pause mid-run
@@ -105,7 +125,8 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
             st.stopped = f"no valid datagram for {idle_exit_s:g} s"
             break
         try:
-            select.select([sock], [], [], 0.1)
+            if not spin:
+                select.select([sock], [], [], 0.1)
             data, anc, flags, addr = sock.recvmsg(max_packet + 1, cmsg)
         except (BlockingIOError, InterruptedError, ConnectionRefusedError):  # nothing (or an ICMP error) to read
             continue
