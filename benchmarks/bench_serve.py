@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import socket
 import subprocess
 import sys
@@ -94,14 +95,15 @@ def _rows(T: np.ndarray) -> list:
     return np.column_stack([xyz, quat]).tolist()
 
 
-def start_server(model_path: Path, tmp: Path) -> tuple[subprocess.Popen, int]:
+def start_server(model_path: Path, tmp: Path, server_args: str = "") -> tuple[subprocess.Popen, int]:
     import httpx
 
     tok = tmp / "token"
     tok.write_text(TOKEN + "\n")
     port = _free_port()
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-m", "hykin", "serve", str(model_path), "--port", str(port), "--token-file", str(tok)],
+    proc = subprocess.Popen([sys.executable, "-m", "hykin", "serve", str(model_path), "--port", str(port), "--token-file", str(tok),
+                             *shlex.split(server_args)],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     t0 = time.time()
     while True:
@@ -334,6 +336,7 @@ def main() -> None:
     ap.add_argument("--block-s", type=float, default=20.0, help="part 3: seconds per block")
     ap.add_argument("--flood-connections", type=int, default=4)
     ap.add_argument("--parts", default="123")
+    ap.add_argument("--server-args", default="", help='more `hykin serve` options, e.g. "--rt-priority 20"')
     ap.add_argument("--flood-port", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--flood-seconds", type=float, help=argparse.SUPPRESS)
     a = ap.parse_args()
@@ -355,7 +358,7 @@ def main() -> None:
         steps = in_process_steps(m, T[: min(n, 2000)], q[0]) * 1e3
         print(f"  in-process Compensator.step, {len(steps)} targets of the path: p50 {np.percentile(steps, 50):.3f} ms, "
               f"p99 {np.percentile(steps, 99):.3f} ms, max {steps.max():.2f} ms")
-        proc, port = start_server(a.model, tmp)
+        proc, port = start_server(a.model, tmp, a.server_args)
         try:
             if "1" in a.parts:
                 print(f"1. streaming: WebSocket /stream, {a.rate:.0f} Hz, {a.seconds:.0f} s")

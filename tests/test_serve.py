@@ -326,6 +326,8 @@ def test_cli_serve_refuses_a_zero_limit():
 
     r = CliRunner().invoke(app, ["serve", str(tiny_model_file()), "--queue", "0"])
     assert r.exit_code != 0 and "--queue" in str(r.exception or r.output)
+    r = CliRunner().invoke(app, ["serve", str(tiny_model_file()), "--rt-priority", "120"])
+    assert r.exit_code != 0 and "--rt-priority" in str(r.exception or r.output)
 
 
 def test_row_checks_fast_path_agrees_with_the_per_number_checks():

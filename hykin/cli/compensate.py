@@ -191,6 +191,9 @@ def serve_cmd(
     max_connections: int = typer.Option(64, "--max-connections", help="Open connections (503 above)."),
     refusal_delay_ms: float = typer.Option(100.0, "--refusal-delay-ms", help="Every refused request is answered after "
                                            "this delay, which slows a client flooding bad requests (0: at once)."),
+    rt_priority: int = typer.Option(0, "--rt-priority", metavar="N", help="Serve under SCHED_FIFO at this priority "
+                                    "(1-99; its threads inherit it), so that other processes cannot delay a streamed "
+                                    "answer; 0 (default): normal priority. Without the right it runs at normal priority and says so."),
 ) -> None:
     """Serve fk / ik / compensate over HTTP (JSON batches), a WebSocket stream of single targets (/stream) and GET /health."""
     from ..compensation.service import serve
@@ -202,6 +205,8 @@ def serve_cmd(
                     ("--queue", queue), ("--max-connections", max_connections)):
         if v < 1:
             raise CLIError(f"{name} must be at least 1, got {v}")
+    if not 0 <= rt_priority <= 99:
+        raise CLIError(f"--rt-priority must be 0 (normal) or 1..99 (SCHED_FIFO), got {rt_priority}")
     if not 0 <= refusal_delay_ms <= 60_000:
         raise CLIError(f"--refusal-delay-ms must be in 0..60000, got {refusal_delay_ms}")
     try:
@@ -215,6 +220,10 @@ def serve_cmd(
     typer.echo(f"hykin serve: {mdl.nominal.name} (sha256 {identity['model_sha256'] or identity['file_sha256']}) on "
                f"http://{host}:{port} (GET /health, POST /fk /ik /compensate, WebSocket /stream"
                f"{'; bearer token required' if token else ''})")
+    if rt_priority:  # before the app and its model thread exist: threads inherit the policy
+        from ..realtime.udp_bridge import raise_priority
+
+        typer.echo(f"hykin serve: {raise_priority(rt_priority)}")
     serve(mdl, host, port, limits, identity)
 
 
