@@ -386,3 +386,9 @@ def import_stream_cmd(
            + (f" ({method}{', hybrid positions of the model' if p_robot is not None else ''})" if offset is None else "")
            + f", dropped {info['n_dropped_gap']} in tracker gaps and "
            f"{info['n_dropped_speed']} above {max_speed} m/s")
+    if model is None and offset is None and (max_speed == 0 or max_speed > 0.1):
+        # the clock of a nominal model is good to ~0.05 ms: at speed v that is v x 0.05 ms of error the
+        # networks would learn (docs/dynamic-collection.md, "Two passes")
+        typer.echo(f"note: samples up to {max_speed or 'any'} m/s kept, clock timed on the robot file; for them import "
+                   "first with --max-speed 0.1, fit on that, then import again with --robot MODEL.hykin (its hybrid "
+                   "positions time the clock)")
