@@ -179,3 +179,25 @@ def test_walk_candidate_is_the_nearest_representation():
         else:
             assert np.allclose(got, best, atol=1e-12)
             assert np.array_equal(nearest_candidate(rob, q[i], ok[i], cur), got)
+
+
+@pytest.mark.parametrize("preset", ["ur10", "kuka-iiwa14"])
+def test_compiled_walk_makes_the_same_choices_as_candidates_nearest(preset, monkeypatch):
+    """sequential_nearest's compiled walk against its row-by-row Python path (Candidates.nearest), on
+    targets along a path with joints near their limits, a target no branch reaches, and 2π turns."""
+    from hykin import load_robot
+    from hykin.compensation import branches
+
+    if branches._walk is None:
+        pytest.skip("numba missing: only the Python walk exists")
+    rob = load_robot(preset)
+    rng = np.random.default_rng(11)
+    q = rob.random_joints(200, 3, margin=0.0)
+    q[::7] = np.clip(q[::7] + rng.choice([-1, 1], (len(q[::7]), rob.dof)) * 50.0, rob.lower + 1e-8, rob.upper - 1e-8)
+    T = hykin.fk(rob, q)
+    T[17, :3, 3] += 50.0  # out of reach
+    got = branches.sequential_nearest(rob, T, q[0])
+    monkeypatch.setattr(branches, "_walk", None)
+    ref = branches.sequential_nearest(rob, T, q[0])
+    assert np.isnan(ref[17]).all() and np.array_equal(np.isnan(got), np.isnan(ref))
+    np.testing.assert_array_equal(got, ref)

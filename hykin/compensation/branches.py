@@ -222,6 +222,11 @@ def sequential_nearest(robot: Robot, T_world, q_start=None) -> np.ndarray:
     cur = np.clip(np.zeros(robot.dof), robot.lower, robot.upper) if q_start is None else np.asarray(q_start, float)
     out = np.full((len(q), robot.dof), np.nan)
     cand = Candidates(robot, q, ok)
+    if _walk is not None:  # compiled: the same choices as Candidates.nearest, row after row
+        _walk(cand.qz, cand.k_lo.astype(np.float64), cand.k_hi.astype(np.float64), cand.shift.astype(np.float64),
+              cand.valid, ok.any(1), cand.lo, cand.hi, np.asarray(cand.lower, np.float64),
+              np.asarray(cand.upper, np.float64), np.asarray(cur, np.float64).copy(), out)
+        return out
     # a walk: each choice depends on the previous one (N steps over K branches each)
     for i in range(len(q)):
         if ok[i].any():
@@ -229,3 +234,48 @@ def sequential_nearest(robot: Robot, T_world, q_start=None) -> np.ndarray:
             if pick is not None:
                 cur = out[i] = pick
     return out
+
+
+def _compile_walk():
+    from ..kinematics.fk import HAVE_NUMBA
+
+    if not HAVE_NUMBA:
+        return None
+    import math
+
+    import numba
+
+    @numba.njit(cache=True, nogil=True)
+    def walk(qz, k_lo, k_hi, shift, valid, any_ok, lo, hi, lower, upper, cur, out):  # pragma: no cover - compiled
+        """:meth:`Candidates.nearest` for each row in turn from ``cur``, into ``out`` (NaN rows stay)."""
+        N, K, n = qz.shape
+        qq = np.empty((K, n))
+        for i in range(N):
+            if not any_ok[i]:
+                continue
+            best, best_d = -1, math.inf
+            for k in range(K):
+                inside = valid[i, k]
+                for j in range(n):
+                    m = np.rint((cur[j] - qz[i, k, j]) / (2.0 * math.pi))
+                    m = min(max(m, k_lo[i, k, j]), k_hi[i, k, j])
+                    v = qz[i, k, j] + m * shift[i, k, j]
+                    qq[k, j] = v
+                    if not (v >= lo[j] and v <= hi[j]):
+                        inside = False
+                if inside:
+                    d = 0.0
+                    for j in range(n):
+                        d += (qq[k, j] - cur[j]) ** 2
+                    d = math.sqrt(d)
+                    if d < best_d:
+                        best, best_d = k, d
+            if best >= 0:
+                for j in range(n):
+                    cur[j] = min(max(qq[best, j], lower[j]), upper[j])
+                    out[i, j] = cur[j]
+
+    return walk
+
+
+_walk = _compile_walk()
