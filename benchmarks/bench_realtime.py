@@ -3,7 +3,7 @@ through ``hykin rsi`` / ``hykin egm`` (the CLI, in a subprocess on 127.0.0.1) at
 
 Robots: a KUKA-like (nominal ``kuka-kr6-r900``) and an ABB-like (nominal ``abb-irb2400``) with
 geometric deviations drawn here (several mm of nominal error) and joint compliance. A hybrid model
-is fitted per robot on 1,000 noise-free simulated poses (``max_epochs`` 5); its own max error is
+is fitted per robot on 1,000 simulated poses (noise-free, or ``--fit-noise-um`` per axis; ``max_epochs`` 5); its own max error is
 measured on 1,000 other poses. Path: ``--seconds`` (default 20 s = 5,000 cycles at 4 ms) at
 constant speed around a loop of two lines and two half circles (100 mm lines, 40 mm radius) in
 the controller's base frame. The simulated controller (:mod:`hykin.realtime.simulated`) sends each
@@ -19,6 +19,7 @@ itself started late (it shares the 2 cores with the bridge and other jobs).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import shlex
 import socket
@@ -55,10 +56,14 @@ def virtual_robot(preset: str, seed: int) -> VirtualRobot:
     return VirtualRobot(preset + "-virtual", nom, truth)
 
 
-def fit(vr: VirtualRobot, n: int) -> tuple[HybridModel, float]:
+def fit(vr: VirtualRobot, n: int, noise_um: float = 0.0) -> tuple[HybridModel, float]:
+    """A hybrid model of ``vr`` from ``n`` simulated poses (position noise ``noise_um`` per axis; 0:
+    noise-free) and its own max position error (mm) on 1,000 other poses."""
     t = time.perf_counter()
     q = vr.nominal.random_joints(n, 1, margin=0.05)
-    m = HybridModel(vr.nominal, recipe_kw={"max_epochs": 5}, seed=0).fit(simulate(vr, q, noise=False), progress=False)
+    vr_fit = dataclasses.replace(vr, noise_position_m=noise_um * 1e-6, noise_orientation_rad=noise_um * 1e-5)
+    data = simulate(vr_fit, q, noise=noise_um > 0, rng=np.random.default_rng(3))
+    m = HybridModel(vr.nominal, recipe_kw={"max_epochs": 5}, seed=0).fit(data, progress=False)
     qv = vr.nominal.random_joints(1000, 2, margin=0.1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -102,7 +107,7 @@ def _free_udp_port() -> int:
 def run_protocol(proto: str, a, tmp: Path) -> None:
     preset, q0, signs = ROBOTS[proto]
     vr = virtual_robot(preset, 26 if proto == "rsi" else 27)
-    m, own_max = fit(vr, a.fit_poses)
+    m, own_max = fit(vr, a.fit_poses, a.fit_noise_um)
     mp = tmp / f"{proto}.hykin"
     m.save(mp)
     nom = vr.nominal
@@ -176,6 +181,8 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--protocols", default="rsi,egm")
     ap.add_argument("--fit-poses", type=int, default=1000)
+    ap.add_argument("--fit-noise-um", type=float, default=0.0, help="tracker noise (µm per axis) of the fit's poses: "
+                    "a model with a realistic own error (0: noise-free, own error ~1e-11 mm)")
     ap.add_argument("--bridge-args", default="", help='more options of the bridge, e.g. "--rt-priority 0" or "--spin"')
     ap.add_argument("--sim-rt-priority", type=int, default=0, help="run the simulated controller under SCHED_FIFO at this "
                     "priority (a real controller is a real-time system of its own; 0: normal priority)")
