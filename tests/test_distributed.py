@@ -433,3 +433,16 @@ def test_gpus_per_trial_makes_trials_that_name_no_device_fit_on_cuda(files, monk
     text0 = text.replace("gpus_per_trial = 0.5", "gpus_per_trial = 0")
     sweep_mod.run_sweep(read_sweep(_write(files / "cpu-default.toml", text0)), files / "cpu-default", log=lambda s: None)
     assert "device" not in given[0] and given[1]["device"] == "cpu"
+
+
+def test_a_one_thread_trial_keeps_batch_work_to_one_thread():
+    """trial_threads(1) sets numba's thread count; the chunked IK and the networks' batch pool follow it."""
+    from hykin.distributed.trials import trial_threads
+    from hykin.hybrid import fast_nets
+    from hykin.kinematics.chunks import run_chunked, worker_count
+
+    calls = []
+    with trial_threads(1):
+        assert worker_count() == 1 and fast_nets.threads() == 1
+        run_chunked(lambda a, b: calls.append((a, b)), (), 100_000, min_chunk=200)
+    assert calls == [(0, 100_000)]

@@ -92,16 +92,11 @@ _POOL = {}
 
 
 def threads() -> int:
-    """Workers for large batches: the thread count of the compiled kernels (``NUMBA_NUM_THREADS``, so that
-    the classical and the network parts use the same cores), else the CPUs this process may use."""
-    try:
-        import numba
+    """Workers for large batches: :func:`hykin.kinematics.chunks.worker_count` (numba's current thread
+    count, so that the classical and the network parts use the same cores and a 1-CPU sweep trial one)."""
+    from ..kinematics.chunks import worker_count
 
-        return max(1, int(numba.config.NUMBA_NUM_THREADS))
-    except ImportError:  # pragma: no cover - numba is optional
-        import os
-
-        return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+    return worker_count()
 
 
 def _pool(n: int):
