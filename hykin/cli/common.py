@@ -246,6 +246,12 @@ def load_model(spec) -> object:
 # --------------------------------------------------------------------------- commands
 
 
+def check_rt_priority(rt_priority: int) -> None:
+    """``--rt-priority`` of the bridges and the service: 0 (normal) or a SCHED_FIFO priority 1..99."""
+    if not 0 <= rt_priority <= 99:
+        raise CLIError(f"--rt-priority must be 0 (normal) or 1..99 (SCHED_FIFO), got {rt_priority}")
+
+
 def parse_axis_signs(text: str | None, dof: int):
     """``--axis-signs`` (comma-separated 1 / -1 per joint) -> ``(dof,)`` array, or None when not given."""
     if text is None:

@@ -14,6 +14,7 @@ from .common import (
     LengthUnit,
     app,
     check_output,
+    check_rt_priority,
     console,
     load_model,
     parse_axis_signs,
@@ -205,8 +206,7 @@ def serve_cmd(
                     ("--queue", queue), ("--max-connections", max_connections)):
         if v < 1:
             raise CLIError(f"{name} must be at least 1, got {v}")
-    if not 0 <= rt_priority <= 99:
-        raise CLIError(f"--rt-priority must be 0 (normal) or 1..99 (SCHED_FIFO), got {rt_priority}")
+    check_rt_priority(rt_priority)
     if not 0 <= refusal_delay_ms <= 60_000:
         raise CLIError(f"--refusal-delay-ms must be in 0..60000, got {refusal_delay_ms}")
     try:

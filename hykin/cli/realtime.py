@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from .common import CLIError, app, load_model, parse_axis_signs
+from .common import CLIError, app, check_rt_priority, load_model, parse_axis_signs
 
 _LISTEN = typer.Option(..., "--listen", metavar="HOST:PORT", help="HOST:PORT to receive the controller's datagrams on.")
 _CONTROLLER = typer.Option(None, "--controller", metavar="HOST:PORT", help="HOST:PORT of the controller: datagrams from anyone else are "
@@ -68,8 +68,6 @@ def _serve(name: str, sock, handler, period_ms: float, max_failures: int, ctrl, 
            spin: bool) -> None:
     from ..realtime.udp_bridge import raise_priority, run_bridge
 
-    if not 0 <= rt_priority <= 99:
-        raise CLIError(f"--rt-priority must be 0 (normal) or 1..99 (SCHED_FIFO), got {rt_priority}")
     if spin:  # a SCHED_FIFO thread that never sleeps is throttled by the kernel (sched_rt_runtime_us): pauses
         typer.echo(f"hykin {name}: polling without sleeping (--spin), at normal priority")
     else:
@@ -96,6 +94,7 @@ def _bridge_command(name: str, period_help: str, extra: tuple = ()):
 
     def register(fn):
         def cmd(**kw) -> None:
+            check_rt_priority(kw["rt_priority"])  # before the model is loaded and the socket bound
             fn(**kw)
 
         cmd.__name__, cmd.__doc__ = f"{name}_cmd", fn.__doc__

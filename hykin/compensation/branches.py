@@ -223,9 +223,8 @@ def sequential_nearest(robot: Robot, T_world, q_start=None) -> np.ndarray:
     out = np.full((len(q), robot.dof), np.nan)
     cand = Candidates(robot, q, ok)
     if _walk is not None:  # compiled: the same choices as Candidates.nearest, row after row
-        _walk(cand.qz, cand.k_lo.astype(np.float64), cand.k_hi.astype(np.float64), cand.shift.astype(np.float64),
-              cand.valid, ok.any(1), cand.lo, cand.hi, np.asarray(cand.lower, np.float64),
-              np.asarray(cand.upper, np.float64), np.asarray(cur, np.float64).copy(), out)
+        _walk(cand.qz, cand.k_lo, cand.k_hi, cand.shift, cand.valid, ok.any(1), cand.lo, cand.hi,
+              np.asarray(cand.lower, np.float64), np.asarray(cand.upper, np.float64), np.array(cur, np.float64), out)
         return out
     # a walk: each choice depends on the previous one (N steps over K branches each)
     for i in range(len(q)):
