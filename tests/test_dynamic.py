@@ -106,13 +106,39 @@ def test_cli_import_stream_second_pass_with_a_fitted_model_times_the_clock_on_it
                       "--fit-drift"],
                      capsys)
     assert rc == 0, e
-    assert "(speed)" in o1
+    assert "(speed;" in o1
     rc, _, e = _run(["fit", "rx160", str(tmp_path / "p1.csv"), "-o", str(tmp_path / "p1.hykin"), "--max-epochs", "3",
                      "--min-steps", "300"], capsys)
     assert rc == 0, e
     rc, o2, e = _run(["import", "stream", *logs, "--robot", str(tmp_path / "p1.hykin"), "-o", str(tmp_path / "p2.csv"),
                       "--max-speed", "0.3", "--fit-drift"], capsys)
     assert rc == 0, e
-    assert "(positions, hybrid positions of the model)" in o2
+    assert "(positions, hybrid positions of the model;" in o2
     err1, err2 = (abs(float(o.split("clock offset ")[1].split(" ms")[0]) - truth_ms) for o in (o1, o2))
     assert err2 < 0.05, (err1, err2)
+
+
+def test_cli_import_stream_refuses_a_robot_or_model_that_does_not_fit_in_one_line(tmp_path, capsys):
+    """Another robot's file, or a model of another robot, leaves its positions hundreds of mm from the
+    tracker's after the clock fit's rigid map: refused in one line naming the stream, the RMS and the
+    option, nothing written; the right robot file passes, and --max-rms-mm moves the bound."""
+    traj, cell = tmp_path / "traj.csv", tmp_path / "cell"
+    assert _run(["plan", "rx160", "-n", "8", "--pool", "1000", "--trajectory", "--max-joint-speed", "60",
+                 "--floor", "0", "-o", str(traj)], capsys)[0] == 0
+    assert _run(["simulate", "rx160-virtual", "--trajectory", str(traj), "--stream", "-o", str(cell),
+                 "--robot-rate", "125", "--tracker-rate", "1000"], capsys)[0] == 0
+    logs = [str(cell / "robot_log.csv"), str(cell / "tracker.csv")]
+    out = tmp_path / "s.csv"
+    rc, o, e = _run(["import", "stream", *logs, "--robot", "rx160", "-o", str(out), "--max-speed", "0.3"], capsys)
+    assert rc == 0, e
+    rms = float(o.split("robot positions ")[1].split(" mm RMS")[0])
+    assert rms < 50
+    out.unlink()
+    rc, o, e = _run(["import", "stream", *logs, "--robot", "ur10", "-o", str(out), "--max-speed", "0.3"], capsys)
+    lines = e.strip().splitlines()
+    assert rc != 0 and len(lines) == 1 and "does not fit this stream" in lines[0] and "--max-rms-mm" in lines[0]
+    assert "tracker.csv" in lines[0] and not out.exists()
+    rc, _, e = _run(["import", "stream", *logs, "--robot", "rx160", "-o", str(out), "--max-speed", "0.3",
+                     "--max-rms-mm", str(rms / 2)], capsys)
+    assert rc != 0 and "bound" in e and not out.exists()
+

@@ -313,6 +313,27 @@ def _read_streams(robot_log, tracker_stream, robot_map, tracker_map, r_opts, t_o
     return rm.time_s, rm.q, tm.time_s, tm.xyz_m, tm.quat_wxyz
 
 
+#: ``import stream``'s bound on the robot's positions against the tracker's (RMS after the rigid map of the
+#: clock fit): a robot file is mm off a real robot (1-6 mm), another robot or a unit slip is 100s of mm off
+#: (measured on an own 6R's stream: the right file 2.43 mm, UR10 / KR6 / RX160 files 159-1,170 mm); a
+#: fitted model is off by about its own error (the right model 0.029 mm for a held-out 0.027 mm)
+_STREAM_RMS_ROBOT_MM = 50.0
+_STREAM_RMS_MODEL_X, _STREAM_RMS_MODEL_MIN_MM = 20.0, 1.0
+
+
+def _stream_rms_bound(model, max_rms_mm: float | None) -> float:
+    """The RMS bound (mm) of ``import stream`` (see the constants above)."""
+    if max_rms_mm is not None:
+        return float(max_rms_mm)
+    if model is None:
+        return _STREAM_RMS_ROBOT_MM
+    held = ((getattr(model, "metadata", None) or {}).get("metrics") or {}).get("held_out") or {}
+    err = held.get("hybrid_pos_mean_mm")
+    if err is None or not err == err:  # no held-out figure in the file: the robot file's bound
+        return _STREAM_RMS_ROBOT_MM
+    return max(_STREAM_RMS_MODEL_MIN_MM, _STREAM_RMS_MODEL_X * float(err))
+
+
 @import_app.command("stream")
 def import_stream_cmd(
     robot_log: Path = typer.Argument(..., help="Robot joint log: a time column and the joints."),
@@ -340,6 +361,10 @@ def import_stream_cmd(
     max_speed: float = typer.Option(0.1, "--max-speed", help="Drop samples where the TCP moves faster (m/s); 0 keeps all.", min=0.0),
     max_gap: float | None = typer.Option(None, "--max-gap", help="Longest tracker gap bridged (s; default 3 tracker periods)."),
     frame: str = typer.Option("tracker", "--frame", help="tracker (keep the tracker frame) or fit (robot base by the rigid map of the clock fit)."),
+    max_rms_mm: float | None = typer.Option(None, "--max-rms-mm", metavar="MM", min=0.0, help="Refuse when the robot's "
+                                            "positions, rigidly mapped, stay further than this RMS from the tracker's (default "
+                                            f"{_STREAM_RMS_ROBOT_MM:g} mm with a robot file; with a model file "
+                                            f"{_STREAM_RMS_MODEL_X:g}x its held-out error, at least {_STREAM_RMS_MODEL_MIN_MM:g} mm)."),
     force: bool = Force,
 ) -> None:
     """Align a robot joint log with a tracker stream (clock offset, interpolation) into a dataset."""
@@ -376,6 +401,12 @@ def import_stream_cmd(
                       T_base_tracker="fit" if frame == "fit" else None,
                       **({} if offset is not None else {"method": method, "max_offset_s": max_offset}))
     ds = a.dataset
+    rms_mm, bound = a.info["clock"].rms_m * 1e3, _stream_rms_bound(model, max_rms_mm)
+    if offset is None and rms_mm > bound:  # the clock fit's rigid map: the robot (file or model) does not fit the data
+        raise CLIError(f"{tracker_stream}: the {'model' if model is not None else 'robot'} {robot!r} does not fit this "
+                       f"stream: its positions stay {rms_mm:.3g} mm RMS from the tracker's after the best rigid map "
+                       f"(bound {bound:.3g} mm, --max-rms-mm): another robot or tool, the joint columns' order or "
+                       "--angle-unit, or the tracker's --length-unit?")
     if len(ds) == 0:
         raise CLIError(f"{tracker_stream}: no robot sample kept ({a.info['n_dropped_gap']} outside valid tracker data, "
                        f"{a.info['n_dropped_speed']} faster than {max_speed} m/s)")
@@ -383,7 +414,8 @@ def import_stream_cmd(
     _write(ds, out, [robot_log, tracker_stream, robot_map, tracker_map],
            f"; clock offset {info['offset_s'] * 1e3:.4f} ms"
            + (f", drift {info['drift'] * 1e6:.4f} ppm" if fit_drift else "")
-           + (f" ({method}{', hybrid positions of the model' if p_robot is not None else ''})" if offset is None else "")
+           + (f" ({method}{', hybrid positions of the model' if p_robot is not None else ''}; robot positions "
+              f"{info['clock'].rms_m * 1e3:.3g} mm RMS from the tracker's)" if offset is None else "")
            + f", dropped {info['n_dropped_gap']} in tracker gaps and "
            f"{info['n_dropped_speed']} above {max_speed} m/s")
     if model is None and offset is None and (max_speed == 0 or max_speed > 0.1):
