@@ -119,9 +119,10 @@ def test_cli_import_stream_second_pass_with_a_fitted_model_times_the_clock_on_it
 
 
 def test_cli_import_stream_refuses_a_robot_or_model_that_does_not_fit_in_one_line(tmp_path, capsys):
-    """Another robot's file, or a model of another robot, leaves its positions hundreds of mm from the
-    tracker's after the clock fit's rigid map: refused in one line naming the stream, the RMS and the
-    option, nothing written; the right robot file passes, and --max-rms-mm moves the bound."""
+    """Another robot's file leaves its positions hundreds of mm from the tracker's after the clock fit's
+    rigid map: a warning (a right file without the tool is as far off), refused with --max-rms-mm in one
+    line naming the stream, the RMS and the option, nothing written; a model of another robot is refused
+    by default; the right robot file passes quietly."""
     traj, cell = tmp_path / "traj.csv", tmp_path / "cell"
     assert _run(["plan", "rx160", "-n", "8", "--pool", "1000", "--trajectory", "--max-joint-speed", "60",
                  "--floor", "0", "-o", str(traj)], capsys)[0] == 0
@@ -134,10 +135,21 @@ def test_cli_import_stream_refuses_a_robot_or_model_that_does_not_fit_in_one_lin
     rms = float(o.split("robot positions ")[1].split(" mm RMS")[0])
     assert rms < 50
     out.unlink()
+    assert "warning" not in o + e
     rc, o, e = _run(["import", "stream", *logs, "--robot", "ur10", "-o", str(out), "--max-speed", "0.3"], capsys)
+    assert rc == 0 and "warning: the robot file's positions stay" in o + e and "lacks the tool" in o + e and out.exists()
+    out.unlink()
+    rc, o, e = _run(["import", "stream", *logs, "--robot", "ur10", "-o", str(out), "--max-speed", "0.3",
+                     "--max-rms-mm", "50"], capsys)
     lines = e.strip().splitlines()
     assert rc != 0 and len(lines) == 1 and "does not fit this stream" in lines[0] and "--max-rms-mm" in lines[0]
     assert "tracker.csv" in lines[0] and not out.exists()
+    other = tmp_path / "ur10.hykin"  # a model of another robot (UR10, fitted on its own simulated poses)
+    assert _run(["simulate", "ur10-virtual", "-n", "300", "--no-noise", "-o", str(tmp_path / "u.csv")], capsys)[0] == 0
+    assert _run(["fit", "ur10", str(tmp_path / "u.csv"), "-o", str(other), "--max-epochs", "2", "--min-steps", "100"],
+                capsys)[0] == 0
+    rc, _, e = _run(["import", "stream", *logs, "--robot", str(other), "-o", str(out), "--max-speed", "0.3"], capsys)
+    assert rc != 0 and "the model" in e and "does not fit this stream" in e and not out.exists()
     rc, _, e = _run(["import", "stream", *logs, "--robot", "rx160", "-o", str(out), "--max-speed", "0.3",
                      "--max-rms-mm", str(rms / 2)], capsys)
     assert rc != 0 and "bound" in e and not out.exists()
