@@ -204,3 +204,68 @@ def test_fast_net_thread_pool_survives_fork(monkeypatch):
     ref = fn(q)  # the parent's pool exists now
     with mp.get_context("fork").Pool(1) as pool:
         assert pool.map_async(_max_diff_in_child, [(fn, q, ref)]).get(timeout=60) == [0.0]
+
+
+def test_pooled_batches_run_blas_one_thread_each_and_restore_it():
+    """The networks' thread pool and the chunked kernels run under ``one_blas_thread``: inside, every
+    loaded BLAS has one thread (else workers x BLAS threads oversubscribe the cores), entered from the
+    main thread or another, nested or not; blocks from several threads at once neither fail nor wait,
+    and the counts afterwards are those before."""
+    import threading
+
+    from threadpoolctl import threadpool_info
+
+    from hykin.kinematics.chunks import one_blas_thread
+
+    def blas():
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    before = blas()
+    assert before, "numpy's BLAS is not visible to threadpoolctl"
+    with one_blas_thread():
+        assert set(blas()) == {1}
+        with one_blas_thread():
+            assert set(blas()) == {1}
+        assert set(blas()) == {1}
+    assert blas() == before
+    seen = []
+
+    def inside():
+        with one_blas_thread():
+            seen.append(blas())
+
+    t = threading.Thread(target=inside)
+    t.start()
+    t.join()
+    assert seen == [[1] * len(before)] and blas() == before
+    go = threading.Barrier(4)
+
+    def together():
+        go.wait()
+        for _ in range(20):
+            with one_blas_thread():
+                with one_blas_thread():
+                    pass
+
+    ts = [threading.Thread(target=together) for _ in range(4)]
+    for t in ts:
+        t.start()
+    for t in ts:
+        t.join()
+    assert blas() == before
+
+
+def test_one_cpu_trial_limits_blas_too():
+    """``trial_threads(1)`` holds BLAS to one thread inside the trial (a one-CPU trial beside another
+    must not spread its calibration over both cores) and gives the previous count back."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from hykin.distributed.trials import trial_threads
+
+    def blas():
+        return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        with trial_threads(1):
+            assert blas() == {1}
+        assert blas() == {2}

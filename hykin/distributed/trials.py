@@ -67,20 +67,24 @@ def training_steps(model) -> tuple[int, int]:
 
 @contextlib.contextmanager
 def trial_threads(n: int | None):
-    """Within the block torch and numba's parallel kernels use ``n`` threads (``None``: unchanged), then
-    the previous counts: a trial with ``n`` CPUs uses ``n`` threads, in a Ray worker and in one process."""
+    """Within the block torch, numba's parallel kernels and BLAS (numpy's and scipy's, through
+    ``threadpoolctl``) use ``n`` threads (``None``: unchanged), then the previous counts: a trial with
+    ``n`` CPUs uses ``n`` threads, in a Ray worker and in one process (where BLAS would otherwise use
+    every core: a one-CPU trial's calibration then ran on two)."""
     if n is None:
         yield
         return
     import numba
     import torch
+    from threadpoolctl import threadpool_limits
 
     n = max(1, int(n))
     prev = torch.get_num_threads(), numba.get_num_threads()
     torch.set_num_threads(n)
     numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
     try:
-        yield
+        with threadpool_limits(limits=n, user_api="blas"):
+            yield
     finally:
         torch.set_num_threads(prev[0])
         numba.set_num_threads(prev[1])

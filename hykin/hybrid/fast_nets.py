@@ -168,7 +168,10 @@ class FastNet:
             self._rows(q, out, 0, N)
             return out
         bounds = np.linspace(0, N, nt + 1).astype(int)
-        list(_pool(nt).map(lambda k: self._rows(q, out, bounds[k], bounds[k + 1]), range(nt)))
+        from ..kinematics.chunks import one_blas_thread
+
+        with one_blas_thread():  # the workers' matrix products: one BLAS thread each, not threads x BLAS's
+            list(_pool(nt).map(lambda k: self._rows(q, out, bounds[k], bounds[k + 1]), range(nt)))
         return out
 
     def _rows(self, q: np.ndarray, out: np.ndarray, a: int, b: int) -> None:
