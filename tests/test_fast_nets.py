@@ -100,7 +100,7 @@ def test_compiled_network_equals_fast_net(name):
     fn = fast_net(net)
     packed = fast_fk.pack_net(fn)
     q = np.random.default_rng(3).uniform(-3, 3, (20, 6))
-    buf = np.empty((4, int(packed[5][2])))
+    buf = np.empty((6, int(packed[5][2])))
     out = np.empty(3)
     ref = fn(q)
     for k in range(len(q)):
@@ -269,3 +269,55 @@ def test_one_cpu_trial_limits_blas_too():
         with trial_threads(1):
             assert blas() == {1}
         assert blas() == {2}
+
+
+@pytest.mark.parametrize("act", ["silu", "sigmoid"])
+def test_compiled_activations_match_numpy_to_rounding(act):
+    """The vectorised exp of :mod:`hykin.hybrid.fast_act` against numpy's: within 1e-15 relative over
+    the whole float range the networks meet (and at the reduction's boundaries, t ln2 ± ln2/2), finite
+    and of the right limit where numpy's exp overflows."""
+    from hykin.hybrid import fast_act
+
+    if not fast_act.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    rng = np.random.default_rng(8)
+    ln2 = np.log(2.0)
+    x = np.concatenate([rng.normal(0, 3, 5000), rng.uniform(-700, 700, 2000), np.arange(-60, 61) * ln2 / 2,
+                        [0.0, -0.0, 1e-300, -1e-300, 5e-324, 1e-8, -1e-8, 36.7, -36.7, 700.0, -700.0]])
+    ref = x / (1.0 + np.exp(-x)) if act == "silu" else 1.0 / (1.0 + np.exp(-x))
+    h = x.reshape(-1, 1).copy()
+    assert fast_act.act_rows(act, h, {})
+    rel = np.abs(h[:, 0] - ref) / np.maximum(np.abs(ref), 1e-300)
+    assert rel.max() < 1e-15
+    big = np.array([-710.0, -1e5, -800.0, 710.0, 1e5])  # numpy's exp(-x) overflows on the first three
+    hb = big.reshape(1, -1).copy()
+    fast_act.act_rows(act, hb, {})
+    want = [0.0, 0.0, 0.0, 710.0, 1e5] if act == "silu" else [0.0, 0.0, 0.0, 1.0, 1.0]
+    assert np.all(np.isfinite(hb)) and np.allclose(hb[0], want, rtol=1e-15, atol=1e-290)
+    assert not fast_act.act_rows("tanh", h, {})  # others stay with numpy
+
+
+def test_packed_kernel_arguments_are_the_tuple():
+    """The three flat arrays the Python-called kernels take (``pack_args``; one array instead of a
+    43-item tuple makes numba's dispatch ~5 µs shorter) unpack to exactly the kernel tuple, item by
+    item, with its types; a tuple of another layout is refused."""
+    from hykin.hybrid import fast_fk
+
+    if not fast_fk.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    from hykin.hybrid.model import HybridModel
+    from hykin.sim.presets import virtual_preset
+    from hykin.sim.simulate import simulate
+
+    vr = virtual_preset("ur10-virtual", 3)  # compliance, payload: every item in use
+    m = HybridModel(vr.nominal, recipe_kw={"max_epochs": 1}, seed=0).fit(
+        simulate(vr, vr.nominal.random_joints(300, 1)), progress=False)
+    k = fast_fk.kernel_of(m)
+    back = fast_fk.unpack(*k.args)
+    assert len(back) == len(k.P) == len(fast_fk.P_KINDS)
+    for i, (a, b, kind) in enumerate(zip(back, k.P, fast_fk.P_KINDS)):
+        a, b = np.asarray(a), np.asarray(b)
+        assert a.shape == b.shape and np.array_equal(a, b), i
+        assert a.dtype.kind == {"f": "f", "i": "i", "b": "b"}[kind[0]], i
+    with pytest.raises(ValueError, match="43"):
+        fast_fk.pack_args(k.P[:-1])

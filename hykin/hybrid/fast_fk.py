@@ -28,14 +28,14 @@ import numpy as np
 
 from ..kinematics.fk import HAVE_NUMBA
 from . import fast_nets
+from .fast_act import ACT_CODES as _ACT
 
-__all__ = ["COMPILED_MAX", "HybridKernel", "kernel_of", "pack_net", "predict_fast"]
+__all__ = ["COMPILED_MAX", "HybridKernel", "P_KINDS", "kernel_of", "pack_args", "pack_net", "predict_fast"]
 
 #: batches at least this large predict through the numpy path (the networks as BLAS matrix products
 #: of :mod:`hykin.hybrid.fast_nets` beat per-pose matrix-vector products there; same numbers to rounding)
 COMPILED_MAX = 64
 
-_ACT = {None: 0, "relu": 1, "silu": 2, "gelu": 3, "tanh": 4, "sigmoid": 5}
 _DENSE, _ADD, _ACTOP, _COPY = 0, 1, 2, 3
 
 
@@ -74,10 +74,11 @@ def pack_net(fn: fast_nets.FastNet) -> tuple:
 
 @dataclass
 class HybridKernel:
-    """A fitted model packed for the compiled kernels. ``P``: the tuple ``hybrid_one`` takes; ``dof``;
-    ``refs``/``vals``/``tensors``/``versions``: what it was built from (:func:`kernel_of`); ``ids``: the
-    ``id`` of each of ``refs`` (the cache check compares ids: ``refs`` keeps those objects alive, so no
-    other object can have their id)."""
+    """A fitted model packed for the compiled kernels. ``P``: the tuple ``hybrid_one`` takes; ``args``:
+    the same packed into three flat arrays (:func:`pack_args`: what the Python-called kernels take, as
+    numba's dispatch types a 43-item tuple in ~5 µs, three arrays in well under 1); ``dof``;
+    ``refs``/``vals``/``tensors``/``versions``: what it was built from (:func:`kernel_of`; the cache check
+    compares ``refs`` by identity, ``vals`` by value, ``versions`` with the tensors' version counters)."""
 
     P: tuple
     dof: int
@@ -85,15 +86,54 @@ class HybridKernel:
     vals: tuple
     tensors: list
     versions: tuple
-    ids: tuple = ()
+    args: tuple = ()
 
 
-def _refs(model) -> tuple:
-    return (model.net_pos_, model.net_rot_, model.robot_, model.frame_pre_, model.frame_post_, model.pair_gap_,
-            model.wrap_centre_, model.support_lower_, model.support_upper_, model.j1_axis_, model.payload_range_)
+#: the kind of each item of ``HybridKernel.P`` (in order): f/i/b = float64/int64/bool array of that many
+#: dimensions, "fs"/"is"/"bs" = float/int/bool scalar. :func:`_unpack` rebuilds the tuple in this order.
+P_KINDS = ("f3", "b1", "bs", "f3", "f3", "f1", "b1", "f2", "f1", "fs", "f1", "f1", "f1", "f1", "bs", "f1", "is",
+           "f1", "f1", "f1", "fs", "fs", "i1", "i1", "f3", "bs", "f1",
+           "i2", "f1", "f1", "f1", "f1", "f1", "bs", "i2", "f1", "f1", "f1", "f1", "f1",
+           "bs", "f2", "f2")
+
+
+def pack_args(P: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``P`` (items of :data:`P_KINDS`) as ``(F float64, G int64, B bool)`` flat arrays: ``G`` starts with
+    a header of 4 ints per item (offset into its array, up to 3 dimensions), then the int items."""
+    if len(P) != len(P_KINDS):
+        raise ValueError(f"kernel tuple has {len(P)} items, the layout {len(P_KINDS)}")
+    head = np.zeros((len(P), 4), dtype=np.int64)
+    F, G, B = [], [], []
+    nf = ng = nb = 0
+    ng = head.size
+    for i, (kind, v) in enumerate(zip(P_KINDS, P)):
+        a = np.asarray(v)
+        if kind[1] == "s":
+            a = a.reshape(1)
+        elif a.ndim != int(kind[1]):
+            raise ValueError(f"kernel item {i} has {a.ndim} dimensions, the layout {kind[1]}")
+        dims = a.shape if kind[1] != "s" else ()
+        if kind[0] == "f":
+            head[i, 0], nf = nf, nf + a.size
+            F.append(a.astype(np.float64).ravel())
+        elif kind[0] == "i":
+            head[i, 0], ng = ng, ng + a.size
+            G.append(a.astype(np.int64).ravel())
+        else:
+            head[i, 0], nb = nb, nb + a.size
+            B.append(a.astype(np.bool_).ravel())
+        head[i, 1:1 + len(dims)] = dims
+    cat = lambda parts, dt: np.ascontiguousarray(np.concatenate(parts) if parts else np.zeros(0), dtype=dt)
+    return cat(F, np.float64), cat([head.ravel(), *G], np.int64), cat(B, np.bool_)
+
+
+#: what a kernel is built from: these attributes' objects (compared by identity) ...
+_refs = operator.attrgetter("net_pos_", "net_rot_", "robot_", "frame_pre_", "frame_post_", "pair_gap_", "wrap_centre_",
+                            "support_lower_", "support_upper_", "j1_axis_", "payload_range_")
 
 
 def _vals(model) -> tuple:
+    """... and these settings (compared by value)."""
     return (model.fade, model.fade_offset_, model.fade_width_, model.payload_input_,
             getattr(model, "payload_default_kg_", None))
 
@@ -102,9 +142,9 @@ _version = operator.attrgetter("_version")
 
 
 def _current(model, k: HybridKernel) -> bool:
-    """Whether the cached kernel ``k`` was built from what ``model`` holds now: the same objects (by id),
-    the same fade / payload settings, and no network weight changed in place (torch version counters)."""
-    return (tuple(map(id, _refs(model))) == k.ids and _vals(model) == k.vals
+    """Whether the cached kernel ``k`` was built from what ``model`` holds now: the same objects, the
+    same fade / payload settings, and no network weight changed in place (torch version counters)."""
+    return (all(map(operator.is_, _refs(model), k.refs)) and _vals(model) == k.vals
             and tuple(map(_version, k.tensors)) == k.versions)
 
 
@@ -161,7 +201,7 @@ def kernel_of(model) -> HybridKernel | None:
     tensors = [t for net in (model.net_pos_, model.net_rot_) if net is not None for t in (*net.parameters(), *net.buffers())]
     refs = _refs(model)
     k = HybridKernel(P=P, dof=n, refs=refs, vals=_vals(model), tensors=tensors,
-                     versions=tuple(map(_version, tensors)), ids=tuple(map(id, refs)))
+                     versions=tuple(map(_version, tensors)), args=pack_args(P))
     model.__dict__["_fast_kernel"] = k
     return k
 
@@ -173,35 +213,21 @@ if HAVE_NUMBA:
 
     from ..kinematics.compliance import MAX_ITER, TOL_RAD, deflect_one
     from ..kinematics.walk import fk_one
+    from .fast_act import act_vec
     from .rotations import rotate_top
     from .support import pair_gap_row
 
     _DEFLECT_MIN_IT = 4  # hykin.kinematics.compliance.deflected_joints' default ``iterations``
 
     @numba.njit(cache=True, nogil=True, inline="always")
-    def _act(a, x):  # pragma: no cover - compiled
-        if a == 1:
-            return x if x > 0.0 else 0.0
-        if a == 2:
-            return x / (1.0 + math.exp(-x)) if x > -700.0 else -0.0
-        if a == 3:
-            return 0.5 * x * (1.0 + math.erf(x / math.sqrt(2.0)))
-        if a == 4:
-            return math.tanh(x)
-        if a == 5:
-            return 1.0 / (1.0 + math.exp(-x)) if x > -700.0 else 0.0
-        return x
-
-    @numba.njit(cache=True, nogil=True, inline="always")
-    def _dense(Wf, off, ni, no, a, x, y):  # pragma: no cover - compiled
-        """``y[:no] = act(x[:ni] @ W + b)``."""
+    def _dense(Wf, off, ni, no, a, x, y, f, nb):  # pragma: no cover - compiled
+        """``y[:no] = act(x[:ni] @ W + b)`` (``f``, ``nb``: the activation's scratch)."""
         boff = off + ni * no
         h = np.dot(x[:ni], Wf[off:boff].reshape((ni, no)))  # BLAS gemv
         for o in range(no):
             y[o] = h[o] + Wf[boff + o]
         if a != 0:
-            for o in range(no):
-                y[o] = _act(a, y[o])
+            act_vec(a, y, no, f, nb)
 
     @numba.njit(cache=True, nogil=True, inline="always")
     def _pick(k, b0, b1, b2, b3):  # pragma: no cover - compiled
@@ -215,9 +241,10 @@ if HAVE_NUMBA:
 
     @numba.njit(cache=True, nogil=True)
     def net_one(ops, Wf, lower, upper, out_bias, meta, x_in, n_in, buf, out):  # pragma: no cover - compiled
-        """One network evaluation: inputs ``x_in[:n_in]`` -> ``out`` (3,); ``buf`` (4, widest) scratch
-        (four separate rows, so that the compiler sees no aliasing)."""
+        """One network evaluation: inputs ``x_in[:n_in]`` -> ``out`` (3,); ``buf`` (6, widest) scratch
+        (separate rows, so that the compiler sees no aliasing; rows 4-5 the activations')."""
         b0, b1, b2, b3 = buf[0], buf[1], buf[2], buf[3]
+        f, nb = buf[4], buf[5].view(np.int64)
         if meta[1] == 0.0:
             for i in range(n_in):
                 b0[i] = (x_in[i] - lower[i]) / (upper[i] - lower[i])
@@ -231,13 +258,12 @@ if HAVE_NUMBA:
             xs = _pick(src, b0, b1, b2, b3)
             yd = _pick(dst, b0, b1, b2, b3)
             if code == 0:
-                _dense(Wf, off, ni, no, a, xs, yd)
+                _dense(Wf, off, ni, no, a, xs, yd, f, nb)
             elif code == 1:
                 for o in range(no):
                     yd[o] += xs[o]
             elif code == 2:
-                for o in range(no):
-                    yd[o] = _act(a, yd[o])
+                act_vec(a, yd, no, f, nb)
             else:
                 for o in range(no):
                     yd[o] = xs[o]
@@ -311,7 +337,7 @@ if HAVE_NUMBA:
             t = min(max((d - f_off) / f_w, 0.0), 1.0)
             w = 0.5 * (1.0 + math.cos(math.pi * t))
         widest = int(max(p_meta[2], r_meta[2]))
-        buf = np.empty((4, widest))
+        buf = np.empty((6, widest))
         dv = np.empty(3)
         if w != 0.0:
             net_one(p_ops, p_W, p_lo, p_hi, p_b, p_meta, x, n_in, buf, dv)
@@ -331,6 +357,47 @@ if HAVE_NUMBA:
             _top_rows(M, post, T)
         return gap
 
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _f1(F, G, i):  # pragma: no cover - compiled
+        o = G[4 * i]
+        return F[o:o + G[4 * i + 1]]
+
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _f2(F, G, i):  # pragma: no cover - compiled
+        o, a, b = G[4 * i], G[4 * i + 1], G[4 * i + 2]
+        return F[o:o + a * b].reshape((a, b))
+
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _f3(F, G, i):  # pragma: no cover - compiled
+        o, a, b, c = G[4 * i], G[4 * i + 1], G[4 * i + 2], G[4 * i + 3]
+        return F[o:o + a * b * c].reshape((a, b, c))
+
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _i1(G, i):  # pragma: no cover - compiled
+        o = G[4 * i]
+        return G[o:o + G[4 * i + 1]]
+
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _i2(G, i):  # pragma: no cover - compiled
+        o, a, b = G[4 * i], G[4 * i + 1], G[4 * i + 2]
+        return G[o:o + a * b].reshape((a, b))
+
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def _b1(B, G, i):  # pragma: no cover - compiled
+        o = G[4 * i]
+        return B[o:o + G[4 * i + 1]]
+
+    @numba.njit(cache=True, nogil=True)
+    def unpack(F, G, B):  # pragma: no cover - compiled
+        """The ``P`` tuple of :func:`pack_args`'s arrays: views into them, in :data:`P_KINDS` order."""
+        return (_f3(F, G, 0), _b1(B, G, 1), B[G[8]], _f3(F, G, 3), _f3(F, G, 4), _f1(F, G, 5), _b1(B, G, 6),
+                _f2(F, G, 7), _f1(F, G, 8), F[G[36]], _f1(F, G, 10), _f1(F, G, 11), _f1(F, G, 12), _f1(F, G, 13),
+                B[G[56]], _f1(F, G, 15), G[G[64]], _f1(F, G, 17), _f1(F, G, 18), _f1(F, G, 19), F[G[80]], F[G[84]],
+                _i1(G, 22), _i1(G, 23), _f3(F, G, 24), B[G[100]], _f1(F, G, 26),
+                _i2(G, 27), _f1(F, G, 28), _f1(F, G, 29), _f1(F, G, 30), _f1(F, G, 31), _f1(F, G, 32), B[G[132]],
+                _i2(G, 34), _f1(F, G, 35), _f1(F, G, 36), _f1(F, G, 37), _f1(F, G, 38), _f1(F, G, 39),
+                B[G[160]], _f2(F, G, 41), _f2(F, G, 42))
+
     @numba.njit(cache=True, nogil=True)
     def _predict_range(P, q, T, ex, gap, framed_out, k0, k1):  # pragma: no cover - compiled
         """Rows ``k0:k1``; returns whether any of them is outside the support (range excess or pair gap)."""
@@ -344,8 +411,13 @@ if HAVE_NUMBA:
                     outside = True
         return outside
 
+    @numba.njit(cache=True, nogil=True)
+    def _predict_packed(F, G, B, q, T, ex, gap, framed_out):  # pragma: no cover - compiled
+        return _predict_range(unpack(F, G, B), q, T, ex, gap, framed_out, 0, q.shape[0])
+
     @numba.njit(cache=True, nogil=True, parallel=True)
-    def _predict_parallel(P, q, T, ex, gap, framed_out):  # pragma: no cover - compiled
+    def _predict_parallel(F, G, B, q, T, ex, gap, framed_out):  # pragma: no cover - compiled
+        P = unpack(F, G, B)
         N = q.shape[0]
         nb = (N + 63) // 64
         out = np.zeros(nb, np.bool_)
@@ -368,7 +440,7 @@ def predict_fast(kernel: HybridKernel, q: np.ndarray, framed: bool = False) -> t
     ex = np.empty((N, kernel.dof))
     gap = np.empty(N)
     if N >= _PARALLEL_MIN:
-        outside = _predict_parallel(kernel.P, q, T, ex, gap, framed)
+        outside = _predict_parallel(*kernel.args, q, T, ex, gap, framed)
     else:
-        outside = _predict_range(kernel.P, q, T, ex, gap, framed, 0, N)
+        outside = _predict_packed(*kernel.args, q, T, ex, gap, framed)
     return T, ex, gap, bool(outside)

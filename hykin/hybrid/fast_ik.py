@@ -31,7 +31,7 @@ if HAVE_NUMBA:
 
     from ..kinematics.ik import lm_scratch, normal_equations_one, pose_residual_one, projected_solve
     from ..kinematics.walk import axes_one
-    from .fast_fk import hybrid_one
+    from .fast_fk import hybrid_one, unpack
 
     @numba.njit(cache=True, nogil=True)
     def _residual(P, q, Tt, pos_only, w_rot, T, ex, e):  # pragma: no cover - compiled
@@ -163,9 +163,16 @@ if HAVE_NUMBA:
             pe[k], ae[k], its[k] = solve_one(P, Tt[k], q[k], lo[k], hi[k], pos_only, w_rot, tol_m, tol_rad, max_iter,
                                              lam0, lam_max, fd[k])
 
+    @numba.njit(cache=True, nogil=True)
+    def _solve_packed(F, G, B, Tt, q, lo, hi, pos_only, w_rot, tol_m, tol_rad, max_iter, lam0, lam_max, fd, pe, ae,
+                      its):  # pragma: no cover - compiled
+        _solve_range(unpack(F, G, B), Tt, q, lo, hi, pos_only, w_rot, tol_m, tol_rad, max_iter, lam0, lam_max, fd, pe,
+                     ae, its, 0, q.shape[0])
+
     @numba.njit(cache=True, nogil=True, parallel=True)
-    def _solve_parallel(P, Tt, q, lo, hi, pos_only, w_rot, tol_m, tol_rad, max_iter, lam0, lam_max, fd, pe, ae,
+    def _solve_parallel(F, G, B, Tt, q, lo, hi, pos_only, w_rot, tol_m, tol_rad, max_iter, lam0, lam_max, fd, pe, ae,
                         its):  # pragma: no cover - compiled
+        P = unpack(F, G, B)
         N = q.shape[0]
         nb = (N + 63) // 64
         for b in numba.prange(nb):
@@ -187,10 +194,10 @@ def solve(kernel, T_target: np.ndarray, q0: np.ndarray, lo: np.ndarray, hi: np.n
     hi = np.array(np.broadcast_to(hi, q.shape), dtype=np.float64, order="C")
     fdv = np.array(np.broadcast_to(np.asarray(fd, dtype=np.bool_), (N,)), order="C")
     pe, ae, its = np.empty(N), np.empty(N), np.empty(N, dtype=np.int64)
-    args = (kernel.P, Tt, q, lo, hi, bool(position_only), float(w_rot), float(tol_m), float(tol_rad), int(max_iter),
+    args = (*kernel.args, Tt, q, lo, hi, bool(position_only), float(w_rot), float(tol_m), float(tol_rad), int(max_iter),
             float(lam0), float(lam_max), fdv, pe, ae, its)
     if N >= 128:
         _solve_parallel(*args)
     else:
-        _solve_range(*args, 0, N)
+        _solve_packed(*args)
     return q, pe, ae, its

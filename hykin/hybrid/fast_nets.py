@@ -57,8 +57,12 @@ def _sigmoid_d(x):
 
 
 def _act_inplace(act: str, h: np.ndarray, scratch: dict) -> None:
-    """``h = act(h)`` in place: the same operations as :data:`ACTS` (same numbers), no temporaries for
-    SiLU / sigmoid / ReLU / tanh."""
+    """``h = act(h)`` in place: the same operations as :data:`ACTS` (same numbers to rounding), no
+    temporaries for SiLU / sigmoid / ReLU / tanh; SiLU and sigmoid compiled (:mod:`.fast_act`)."""
+    from .fast_act import act_rows
+
+    if act_rows(act, h, scratch):
+        return
     if act in ("silu", "sigmoid"):
         t = np.negative(h, out=_buf(scratch, 0, *h.shape))
         np.exp(t, out=t)
