@@ -10,8 +10,9 @@ The service runs as the CLI does (``hykin serve MODEL --token-file ...`` in a su
    robot streaming its actual joints would. Round-trip latency per target (send → its reply), p50 /
    p99 / max, replies over one period late, and messages lost (no reply, a reply out of order, or an
    error reply). Peer in the same run: ``Compensator.step`` on the same targets in-process (no server).
-2. **HTTP batches**: ``POST /compensate`` with 100 targets per request, one client, keep-alive:
-   targets/s. Peer: the in-process ``Compensator`` on the same batches.
+2. **HTTP batches**: ``POST /compensate`` with 100 targets per request, one client, keep-alive, its
+   JSON written and read with orjson (as the service's): targets/s. Peer: the in-process
+   ``Compensator`` on the same batches.
 3. **Flood**: the streaming client again, in alternating blocks of ``--block-s`` seconds without
    and with a second client (a subprocess, ``--flood-connections`` raw-socket connections sending as
    fast as it is answered: malformed JSON, wrong shapes, no token, and bodies announced at 100 MB).
@@ -189,14 +190,17 @@ def http_batches(port: int, m, T: np.ndarray, q: np.ndarray, n_req: int, batch: 
 
     from hykin.compensation.compensator import Compensator
 
+    import orjson
+
     rows = _rows(T)
-    with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=60, headers={"Authorization": f"Bearer {TOKEN}"}) as c:
-        c.post("/compensate", json={"targets": rows[:batch], "q_current": q[:batch].tolist()})
+    hdr = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}
+    with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=60, headers=hdr) as c:
+        c.post("/compensate", content=orjson.dumps({"targets": rows[:batch], "q_current": q[:batch].tolist()}))
         ok, t0 = 0, time.perf_counter()
-        for r in range(n_req):
+        for r in range(n_req):  # the client's JSON with orjson as well: its own costs are not the service's
             sl = slice(r * batch, (r + 1) * batch)
-            resp = c.post("/compensate", json={"targets": rows[sl], "q_current": q[sl].tolist()})
-            ok += resp.status_code == 200 and all(resp.json()["success"])
+            resp = c.post("/compensate", content=orjson.dumps({"targets": rows[sl], "q_current": q[sl].tolist()}))
+            ok += resp.status_code == 200 and all(orjson.loads(resp.content)["success"])
         wall = time.perf_counter() - t0
     comp = Compensator(m)
     reps = min(n_req, 50)

@@ -219,9 +219,16 @@ def pair_gap_torch(sup: Support, qn):
     return v.max(1).values
 
 
+_NN_PARALLEL_ROWS = 4096  # nearest-neighbour queries below this many rows run on the calling thread
+
+
 def nn_gap(sup: Support, qn: np.ndarray) -> np.ndarray:
     """``(N,)`` distance of ``qn`` to the nearest support point beyond ``GAP_FACTOR x spacing``."""
-    nn, _ = sup.tree.query((qn - sup.lower) / sup.span, k=1, workers=-1)
+    from ..kinematics.chunks import worker_count
+
+    # scipy starts its worker threads on every call (~1.5 ms for two): one thread for small batches
+    workers = worker_count() if len(qn) >= _NN_PARALLEL_ROWS else 1
+    nn, _ = sup.tree.query((qn - sup.lower) / sup.span, k=1, workers=workers)
     return np.maximum(0.0, nn - GAP_FACTOR * sup.spacing)
 
 
