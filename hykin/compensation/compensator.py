@@ -184,7 +184,7 @@ class Compensator:
             if self.kernel is not None:
                 if ((h < self.lower) | (h > self.upper)).any():  # outside the limits by a turn: the representation inside
                     h = np.where(self._rev, nearest_representation(h, h, self.lower, self.upper), h)
-                qi, pi, ai, ri = self._solve_compiled(Ti, np.clip(h, self.lower, self.upper), pos_only)
+                qi, pi, ai, ri = self._solve_compiled(Ti, np.minimum(np.maximum(h, self.lower), self.upper), pos_only)
             else:
                 qi, pi, ai, ri = self._solve_generic(Ti, h, pos_only)
             q[idx], pe[idx], ae[idx] = qi, pi, ai
@@ -193,19 +193,22 @@ class Compensator:
                     reason = np.full(N, "", dtype=object)
                 reason[idx] = ri
                 ok[idx] = ri == ""
-        cmd = np.full((N, 4, 4), np.nan)
         if reason is not None:
             q[~ok] = np.nan
             qo = q[ok]
         else:
             qo = q
+        cmd = None
         if len(qo):
             C = fk(self.nominal, qo[0])[None] if len(qo) == 1 else fk(self.nominal, qo)
             C = self._nom_base_inv @ C if D is None else self._nom_base_inv @ C @ D[ok]
             if reason is None:
                 cmd = C
             else:
+                cmd = np.full((N, 4, 4), np.nan)
                 cmd[ok] = C
+        if cmd is None:
+            cmd = np.full((N, 4, 4), np.nan)
         reason = np.zeros(N, dtype="<U1") if reason is None else reason.astype(str)  # "" where successful
         return q, cmd, ok, reason, pe, ae
 

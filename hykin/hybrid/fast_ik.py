@@ -180,6 +180,14 @@ if HAVE_NUMBA:
                          b * 64, min(N, (b + 1) * 64))
 
 
+def _writable(a, shape: tuple, dtype) -> np.ndarray:
+    """``a`` when it is a writable C-contiguous array of ``shape`` and ``dtype``, else such a copy of its
+    broadcast to ``shape``."""
+    if type(a) is np.ndarray and a.shape == shape and a.dtype == dtype and a.flags.c_contiguous and a.flags.writeable:
+        return a
+    return np.array(np.broadcast_to(np.asarray(a, dtype=dtype), shape), dtype=dtype, order="C")
+
+
 def solve(kernel, T_target: np.ndarray, q0: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, position_only: bool = False,
           w_rot: float = 1.0, tol_m: float = 1e-12, tol_rad: float = 1e-12, max_iter: int = 40, lam0: float = 1e-9,
           lam_max: float = 1e6, fd=False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -189,10 +197,10 @@ def solve(kernel, T_target: np.ndarray, q0: np.ndarray, lo: np.ndarray, hi: np.n
     N = len(q0)
     q = np.array(q0, dtype=np.float64, order="C", copy=True)
     Tt = np.ascontiguousarray(T_target, dtype=np.float64)
-    # writable C copies always (a read-only broadcast view would compile the kernel a second time)
-    lo = np.array(np.broadcast_to(lo, q.shape), dtype=np.float64, order="C")
-    hi = np.array(np.broadcast_to(hi, q.shape), dtype=np.float64, order="C")
-    fdv = np.array(np.broadcast_to(np.asarray(fd, dtype=np.bool_), (N,)), order="C")
+    # writable C arrays always (a read-only broadcast view would compile the kernel a second time); the
+    # kernel only reads lo, hi and fd, so arrays already of that kind are passed as they are
+    lo, hi = _writable(lo, q.shape, np.float64), _writable(hi, q.shape, np.float64)
+    fdv = np.full(N, fd, dtype=np.bool_) if isinstance(fd, (bool, np.bool_)) else _writable(fd, (N,), np.bool_)
     pe, ae, its = np.empty(N), np.empty(N), np.empty(N, dtype=np.int64)
     args = (*kernel.args, Tt, q, lo, hi, bool(position_only), float(w_rot), float(tol_m), float(tol_rad), int(max_iter),
             float(lam0), float(lam_max), fdv, pe, ae, its)
