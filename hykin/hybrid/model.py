@@ -53,6 +53,7 @@ calibrated model's outside the training data (:mod:`hykin.hybrid.bands`, measure
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from pathlib import Path
@@ -431,7 +432,9 @@ class HybridModel:
         n = self.robot.dof
         if q2.ndim != 2 or q2.shape[1] != n:
             raise HybridError(f"joints must have shape (N, {n}) or ({n},), got {q.shape}")
-        if not np.isfinite(q2).all():
+        # a few values: checked in Python (numpy's isfinite + all costs ~2 µs of a ~30 µs one-pose query)
+        finite = all(map(math.isfinite, q2.ravel().tolist())) if q2.size <= 64 else bool(np.isfinite(q2).all())
+        if not finite:
             row = int(np.argwhere(~np.isfinite(q2))[0, 0])
             raise HybridError(f"joints contain NaN/inf (row {row})")
         return np.ascontiguousarray(q2), single
