@@ -140,6 +140,12 @@ def test_compiled_hybrid_fk_equals_numpy_path():
     T, ex, gap, outside = fast_fk.predict_fast(k, q)
     assert outside == bool(ex.any() or gap.max() > 0)
     assert np.allclose(ex, m.range_excess(q), atol=1e-15) and np.allclose(gap, m.pair_gap(q), atol=1e-15)
+    qb = m.nominal.random_joints(1100, 5, margin=-0.3)  # over _PARALLEL_MIN: threads over chunks of the kernel
+    Tb, exb, gapb, outb = fast_fk.predict_fast(k, qb)
+    parts = [fast_fk.predict_fast(k, qb[i:i + 100]) for i in range(0, 1100, 100)]  # one thread each
+    assert np.array_equal(Tb, np.concatenate([p[0] for p in parts]))
+    assert np.array_equal(gapb, np.concatenate([p[2] for p in parts]))
+    assert outb == any(p[3] for p in parts) == bool(exb.any() or gapb.max() > 0)
 
 
 def test_compiled_kernel_cache_follows_the_model():
@@ -305,14 +311,11 @@ def test_packed_kernel_arguments_are_the_tuple():
 
     if not fast_fk.HAVE_NUMBA:
         pytest.skip("numba not installed")
-    from hykin.hybrid.model import HybridModel
-    from hykin.sim.presets import virtual_preset
-    from hykin.sim.simulate import simulate
+    from comp_models import tiny_model_file
 
-    vr = virtual_preset("ur10-virtual", 3)  # compliance, payload: every item in use
-    m = HybridModel(vr.nominal, recipe_kw={"max_epochs": 1}, seed=0).fit(
-        simulate(vr, vr.nominal.random_joints(300, 1)), progress=False)
-    k = fast_fk.kernel_of(m)
+    from hykin.hybrid.model import HybridModel
+
+    k = fast_fk.kernel_of(HybridModel.load(tiny_model_file()))
     back = fast_fk.unpack(*k.args)
     assert len(back) == len(k.P) == len(fast_fk.P_KINDS)
     for i, (a, b, kind) in enumerate(zip(back, k.P, fast_fk.P_KINDS)):

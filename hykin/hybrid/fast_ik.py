@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..kinematics.chunks import run_chunked
 from ..kinematics.fk import HAVE_NUMBA
 
 __all__ = ["solve"]
@@ -165,19 +166,9 @@ if HAVE_NUMBA:
 
     @numba.njit(cache=True, nogil=True)
     def _solve_packed(F, G, B, Tt, q, lo, hi, pos_only, w_rot, tol_m, tol_rad, max_iter, lam0, lam_max, fd, pe, ae,
-                      its):  # pragma: no cover - compiled
+                      its, k0, k1):  # pragma: no cover - compiled
         _solve_range(unpack(F, G, B), Tt, q, lo, hi, pos_only, w_rot, tol_m, tol_rad, max_iter, lam0, lam_max, fd, pe,
-                     ae, its, 0, q.shape[0])
-
-    @numba.njit(cache=True, nogil=True, parallel=True)
-    def _solve_parallel(F, G, B, Tt, q, lo, hi, pos_only, w_rot, tol_m, tol_rad, max_iter, lam0, lam_max, fd, pe, ae,
-                        its):  # pragma: no cover - compiled
-        P = unpack(F, G, B)
-        N = q.shape[0]
-        nb = (N + 63) // 64
-        for b in numba.prange(nb):
-            _solve_range(P, Tt, q, lo, hi, pos_only, w_rot, tol_m, tol_rad, max_iter, lam0, lam_max, fd, pe, ae, its,
-                         b * 64, min(N, (b + 1) * 64))
+                     ae, its, k0, k1)
 
 
 def _writable(a, shape: tuple, dtype) -> np.ndarray:
@@ -204,8 +195,8 @@ def solve(kernel, T_target: np.ndarray, q0: np.ndarray, lo: np.ndarray, hi: np.n
     pe, ae, its = np.empty(N), np.empty(N), np.empty(N, dtype=np.int64)
     args = (*kernel.args, Tt, q, lo, hi, bool(position_only), float(w_rot), float(tol_m), float(tol_rad), int(max_iter),
             float(lam0), float(lam_max), fdv, pe, ae, its)
-    if N >= 128:
-        _solve_parallel(*args)
+    if N >= 128:  # threads over the one serial kernel (no parallel compile: numba's prange cost ~13 s)
+        run_chunked(_solve_packed, args, N, min_chunk=64)
     else:
-        _solve_packed(*args)
+        _solve_packed(*args, 0, N)
     return q, pe, ae, its
