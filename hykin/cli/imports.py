@@ -331,7 +331,7 @@ def _stream_rms_bound(model, max_rms_mm: float | None) -> float:
         return _STREAM_RMS_ROBOT_MM
     held = ((getattr(model, "metadata", None) or {}).get("metrics") or {}).get("held_out") or {}
     err = held.get("hybrid_pos_mean_mm")
-    if err is None or not err == err:  # no held-out figure in the file: the robot file's bound
+    if err is None or not err == err:  # no held-out figure in the file: the robot file's bound, refused beyond it
         return _STREAM_RMS_ROBOT_MM
     return max(_STREAM_RMS_MODEL_MIN_MM, _STREAM_RMS_MODEL_X * float(err))
 
@@ -405,7 +405,7 @@ def import_stream_cmd(
                       **({} if offset is not None else {"method": method, "max_offset_s": max_offset}))
     ds = a.dataset
     rms_mm, bound = a.info["clock"].rms_m * 1e3, _stream_rms_bound(model, max_rms_mm)
-    if offset is None and rms_mm > bound and bound == _STREAM_RMS_ROBOT_MM and max_rms_mm is None:
+    if offset is None and rms_mm > bound and model is None and max_rms_mm is None:
         # a robot file without the tool (calibration identifies it) is as far off as another robot: say it, write
         typer.echo(f"warning: the robot file's positions stay {rms_mm:.3g} mm RMS from the tracker's after the best "
                    f"rigid map (a robot is 1-6 mm off its file): expected when the file lacks the tool, else another "

@@ -198,17 +198,14 @@ class Compensator:
             qo = q[ok]
         else:
             qo = q
-        cmd = None
+        cmd = None if reason is None and len(qo) else np.full((N, 4, 4), np.nan)  # NaN only where a row failed
         if len(qo):
             C = fk(self.nominal, qo[0])[None] if len(qo) == 1 else fk(self.nominal, qo)
             C = self._nom_base_inv @ C if D is None else self._nom_base_inv @ C @ D[ok]
-            if reason is None:
+            if cmd is None:
                 cmd = C
             else:
-                cmd = np.full((N, 4, 4), np.nan)
                 cmd[ok] = C
-        if cmd is None:
-            cmd = np.full((N, 4, 4), np.nan)
         reason = np.zeros(N, dtype="<U1") if reason is None else reason.astype(str)  # "" where successful
         return q, cmd, ok, reason, pe, ae
 

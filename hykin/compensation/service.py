@@ -58,8 +58,8 @@ _log = logging.getLogger("hykin.serve")
 
 
 def _dumps(obj) -> bytes:
-    """JSON bytes (orjson: ~10x faster than the standard library on a 100-target answer, 0.15 against
-    1.7 ms, where that was a quarter of the request's time; floats in the same shortest form)."""
+    """JSON bytes (orjson: a 100-target answer in 0.05 ms against the standard library's 1.7 ms, which
+    was a quarter of the request's time; floats in the same shortest form)."""
     return orjson.dumps(obj)
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 from .fleet_file import FleetRobot, FleetSpec
 from .ray_session import check_resources, ray_session
 from .trial_pool import first_line
-from .trials import ERROR_COLUMNS, error_columns, fit_model
+from .trials import ERROR_COLUMNS, error_columns, fit_model, gpu_fit_options
 
 __all__ = ["SUMMARY_COLUMNS", "inputs_hash", "kept_rows", "robot_job", "run_fleet", "summary_markdown"]
 
@@ -151,9 +151,7 @@ def _run_robots(spec: FleetSpec, todo: list, out: Path, rows: dict, address, num
                                               "gpus_per_robot": spec.gpus_per_robot}, address)
         out.mkdir(parents=True, exist_ok=True)  # after every check: a refused fleet writes nothing
         job = ray.remote(num_cpus=spec.cpus_per_robot, num_gpus=spec.gpus_per_robot, max_retries=1)(robot_job)
-        # gpus_per_robot > 0 means the fits should use them: an entry whose [robot.fit] names no device gets "cuda"
-        gpu = {"device": "cuda"} if spec.gpus_per_robot > 0 else {}
-        pending = {job.remote(dataclasses.replace(r, fit={**gpu, **r.fit})): r for r in todo}
+        pending = {job.remote(dataclasses.replace(r, fit=gpu_fit_options(r.fit, spec.gpus_per_robot))): r for r in todo}
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
             entry = pending.pop(done[0])

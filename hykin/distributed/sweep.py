@@ -21,7 +21,7 @@ from pathlib import Path
 from .ray_session import check_resources, ray_session
 from .sweep_file import SweepSpec, trial_key
 from .trial_pool import run_trials
-from .trials import ERROR_COLUMNS
+from .trials import ERROR_COLUMNS, gpu_fit_options
 
 __all__ = ["SweepOutcome", "run_sweep", "write_results", "plot_results"]
 
@@ -110,11 +110,9 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
                                                   "gpus_per_trial": spec.gpus_per_trial}, address)
             out.mkdir(parents=True, exist_ok=True)  # after every check: a refused sweep writes nothing
             clock["start"] = time.time()
-            # gpus_per_trial > 0 means the fits should use them: a trial that names no device gets "cuda"
-            # (its recorded options stay as written, so --resume keys do not change)
-            gpu_default = {"device": "cuda"} if spec.gpus_per_trial > 0 else {}
-            run_trials(ray, {i: {**gpu_default, **trials[i]} for i in todo}, (rob, train, test), spec.cpus_per_trial,
-                       spec.gpus_per_trial, spec.subsample_seed, on_done)
+            # the recorded options stay as written (so --resume keys do not change); the fit gets the device
+            run_trials(ray, {i: gpu_fit_options(trials[i], spec.gpus_per_trial) for i in todo}, (rob, train, test),
+                       spec.cpus_per_trial, spec.gpus_per_trial, spec.subsample_seed, on_done)
             clock["end"] = time.time()
     rows = rows_now()
     out.mkdir(parents=True, exist_ok=True)

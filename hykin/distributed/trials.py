@@ -18,7 +18,8 @@ import time
 
 import numpy as np
 
-__all__ = ["ERROR_COLUMNS", "error_columns", "fit_model", "nested_subset", "run_trial", "training_steps", "trial_threads"]
+__all__ = ["ERROR_COLUMNS", "error_columns", "fit_model", "gpu_fit_options", "nested_subset", "run_trial", "training_steps",
+           "trial_threads"]
 
 #: error columns of a results/summary row, in order (mm, deg; NaN where a row does not apply).
 ERROR_COLUMNS = tuple(f"{m}_{s}" for m in ("nominal", "calibrated", "hybrid")
@@ -31,6 +32,12 @@ def nested_subset(n_total: int, n: int, seed: int) -> np.ndarray:
     if not 1 <= n <= n_total:
         raise ValueError(f"n_train = {n} must be between 1 and the {n_total} training rows")
     return np.sort(np.random.default_rng(seed).permutation(n_total)[:n])
+
+
+def gpu_fit_options(options: dict, gpus: float) -> dict:
+    """``options`` with ``device = "cuda"`` added when the trial / robot is given GPUs (``gpus > 0``) and
+    its options name no device: resources per trial mean the fits should use them."""
+    return {"device": "cuda", **options} if gpus > 0 else options
 
 
 def fit_model(robot, train, options: dict, progress: bool = False):

@@ -91,7 +91,7 @@ class HybridKernel:
 
 
 #: the kind of each item of ``HybridKernel.P`` (in order): f/i/b = float64/int64/bool array of that many
-#: dimensions, "fs"/"is"/"bs" = float/int/bool scalar. :func:`_unpack` rebuilds the tuple in this order.
+#: dimensions, "fs"/"is"/"bs" = float/int/bool scalar. ``unpack`` rebuilds the tuple in this order.
 P_KINDS = ("f3", "b1", "bs", "f3", "f3", "f1", "b1", "f2", "f1", "fs", "f1", "f1", "f1", "f1", "bs", "f1", "is",
            "f1", "f1", "f1", "fs", "fs", "i1", "i1", "f3", "bs", "f1",
            "i2", "f1", "f1", "f1", "f1", "f1", "bs", "i2", "f1", "f1", "f1", "f1", "f1",
@@ -105,8 +105,7 @@ def pack_args(P: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         raise ValueError(f"kernel tuple has {len(P)} items, the layout {len(P_KINDS)}")
     head = np.zeros((len(P), 4), dtype=np.int64)
     F, G, B = [], [], []
-    nf = ng = nb = 0
-    ng = head.size
+    nf, ng, nb = 0, head.size, 0  # next free offset in F, G (after the header), B
     for i, (kind, v) in enumerate(zip(P_KINDS, P)):
         a = np.asarray(v)
         if kind[1] == "s":
@@ -358,46 +357,37 @@ if HAVE_NUMBA:
             _top_rows(M, post, T)
         return gap
 
+    # item i of pack_args' arrays: ``A`` is F, G or B (numba compiles each for its dtype); G's header row i
+    # holds the item's offset into A and its dimensions
     @numba.njit(cache=True, nogil=True, inline="always")
-    def _f1(F, G, i):  # pragma: no cover - compiled
+    def _v1(A, G, i):  # pragma: no cover - compiled
         o = G[4 * i]
-        return F[o:o + G[4 * i + 1]]
+        return A[o:o + G[4 * i + 1]]
 
     @numba.njit(cache=True, nogil=True, inline="always")
-    def _f2(F, G, i):  # pragma: no cover - compiled
+    def _v2(A, G, i):  # pragma: no cover - compiled
         o, a, b = G[4 * i], G[4 * i + 1], G[4 * i + 2]
-        return F[o:o + a * b].reshape((a, b))
+        return A[o:o + a * b].reshape((a, b))
 
     @numba.njit(cache=True, nogil=True, inline="always")
-    def _f3(F, G, i):  # pragma: no cover - compiled
+    def _v3(A, G, i):  # pragma: no cover - compiled
         o, a, b, c = G[4 * i], G[4 * i + 1], G[4 * i + 2], G[4 * i + 3]
-        return F[o:o + a * b * c].reshape((a, b, c))
+        return A[o:o + a * b * c].reshape((a, b, c))
 
     @numba.njit(cache=True, nogil=True, inline="always")
-    def _i1(G, i):  # pragma: no cover - compiled
-        o = G[4 * i]
-        return G[o:o + G[4 * i + 1]]
-
-    @numba.njit(cache=True, nogil=True, inline="always")
-    def _i2(G, i):  # pragma: no cover - compiled
-        o, a, b = G[4 * i], G[4 * i + 1], G[4 * i + 2]
-        return G[o:o + a * b].reshape((a, b))
-
-    @numba.njit(cache=True, nogil=True, inline="always")
-    def _b1(B, G, i):  # pragma: no cover - compiled
-        o = G[4 * i]
-        return B[o:o + G[4 * i + 1]]
+    def _s(A, G, i):  # pragma: no cover - compiled
+        return A[G[4 * i]]
 
     @numba.njit(cache=True, nogil=True)
     def unpack(F, G, B):  # pragma: no cover - compiled
         """The ``P`` tuple of :func:`pack_args`'s arrays: views into them, in :data:`P_KINDS` order."""
-        return (_f3(F, G, 0), _b1(B, G, 1), B[G[8]], _f3(F, G, 3), _f3(F, G, 4), _f1(F, G, 5), _b1(B, G, 6),
-                _f2(F, G, 7), _f1(F, G, 8), F[G[36]], _f1(F, G, 10), _f1(F, G, 11), _f1(F, G, 12), _f1(F, G, 13),
-                B[G[56]], _f1(F, G, 15), G[G[64]], _f1(F, G, 17), _f1(F, G, 18), _f1(F, G, 19), F[G[80]], F[G[84]],
-                _i1(G, 22), _i1(G, 23), _f3(F, G, 24), B[G[100]], _f1(F, G, 26),
-                _i2(G, 27), _f1(F, G, 28), _f1(F, G, 29), _f1(F, G, 30), _f1(F, G, 31), _f1(F, G, 32), B[G[132]],
-                _i2(G, 34), _f1(F, G, 35), _f1(F, G, 36), _f1(F, G, 37), _f1(F, G, 38), _f1(F, G, 39),
-                B[G[160]], _f2(F, G, 41), _f2(F, G, 42))
+        return (_v3(F, G, 0), _v1(B, G, 1), _s(B, G, 2), _v3(F, G, 3), _v3(F, G, 4), _v1(F, G, 5), _v1(B, G, 6),
+                _v2(F, G, 7), _v1(F, G, 8), _s(F, G, 9), _v1(F, G, 10), _v1(F, G, 11), _v1(F, G, 12), _v1(F, G, 13),
+                _s(B, G, 14), _v1(F, G, 15), _s(G, G, 16), _v1(F, G, 17), _v1(F, G, 18), _v1(F, G, 19), _s(F, G, 20),
+                _s(F, G, 21), _v1(G, G, 22), _v1(G, G, 23), _v3(F, G, 24), _s(B, G, 25), _v1(F, G, 26),
+                _v2(G, G, 27), _v1(F, G, 28), _v1(F, G, 29), _v1(F, G, 30), _v1(F, G, 31), _v1(F, G, 32), _s(B, G, 33),
+                _v2(G, G, 34), _v1(F, G, 35), _v1(F, G, 36), _v1(F, G, 37), _v1(F, G, 38), _v1(F, G, 39),
+                _s(B, G, 40), _v2(F, G, 41), _v2(F, G, 42))
 
     @numba.njit(cache=True, nogil=True)
     def _predict_range(P, q, T, ex, gap, framed_out, k0, k1):  # pragma: no cover - compiled

@@ -23,6 +23,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..kinematics.chunks import one_blas_thread, worker_count
+from .fast_act import act_rows
+
 __all__ = ["FastNet", "Layer", "fast_net", "net_float64"]
 
 
@@ -59,8 +62,6 @@ def _sigmoid_d(x):
 def _act_inplace(act: str, h: np.ndarray, scratch: dict) -> None:
     """``h = act(h)`` in place: the same operations as :data:`ACTS` (same numbers to rounding), no
     temporaries for SiLU / sigmoid / ReLU / tanh; SiLU and sigmoid compiled (:mod:`.fast_act`)."""
-    from .fast_act import act_rows
-
     if act_rows(act, h, scratch):
         return
     if act in ("silu", "sigmoid"):
@@ -98,8 +99,6 @@ _POOL = {}
 def threads() -> int:
     """Workers for large batches: :func:`hykin.kinematics.chunks.worker_count` (numba's current thread
     count, so that the classical and the network parts use the same cores and a 1-CPU sweep trial one)."""
-    from ..kinematics.chunks import worker_count
-
     return worker_count()
 
 
@@ -172,8 +171,6 @@ class FastNet:
             self._rows(q, out, 0, N)
             return out
         bounds = np.linspace(0, N, nt + 1).astype(int)
-        from ..kinematics.chunks import one_blas_thread
-
         with one_blas_thread():  # the workers' matrix products: one BLAS thread each, not threads x BLAS's
             list(_pool(nt).map(lambda k: self._rows(q, out, bounds[k], bounds[k + 1]), range(nt)))
         return out

@@ -46,6 +46,7 @@ import numpy as np
 import torch
 
 from ..io.payload import payload_outside
+from ..kinematics.chunks import worker_count
 from ..kinematics.fk import HAVE_NUMBA
 from .errors import OutOfRangeWarning
 
@@ -224,8 +225,6 @@ _NN_PARALLEL_ROWS = 4096  # nearest-neighbour queries below this many rows run o
 
 def nn_gap(sup: Support, qn: np.ndarray) -> np.ndarray:
     """``(N,)`` distance of ``qn`` to the nearest support point beyond ``GAP_FACTOR x spacing``."""
-    from ..kinematics.chunks import worker_count
-
     # scipy starts its worker threads on every call (~1.5 ms for two): one thread for small batches
     workers = worker_count() if len(qn) >= _NN_PARALLEL_ROWS else 1
     nn, _ = sup.tree.query((qn - sup.lower) / sup.span, k=1, workers=workers)
