@@ -173,6 +173,12 @@ def test_cli_compensate_csv_programs_and_urdf(tmp_path):
     rows = _read_csv(tmp_path / "c.csv")
     assert [row["status"] == "ok" for row in rows] == [True] * 5 + [False]
     assert rows[5]["x"] == "nan" and rows[5]["q1"] == "nan"
+    assert "out of reach" in rows[5]["status"] and "1 of them beyond the arm's reach" in r.output
+    assert "hint:" not in r.output  # one target of six: no frame hint
+    far = {k: v[5:] for k, v in cols.items()}
+    _write_csv(tmp_path / "far.csv", far)
+    r = run(app, ["compensate", str(mp), str(tmp_path / "far.csv"), "-o", str(tmp_path / "far_c.csv")])
+    assert r.exit_code == 0 and "hint:" in r.output and "--frame base" in r.output, r.output
     cmd = np.array([[float(row[k]) for k in ("x", "y", "z")] for row in rows[:5]])
     qo = np.array([[float(row[f"q{j + 1}"]) for j in range(6)] for row in rows[:5]])
     assert np.allclose(cmd, fk(nom, qo)[:, :3, 3], atol=1e-12)

@@ -61,6 +61,8 @@ def test_step_equals_batch_and_lands(model):
     q_path = np.array([0.3, -1.4, 1.5, -1.7, -1.5, 0.4]) + s * np.array([0.9, 0.4, 0.4, -0.5, 0.3, 1.0])
     T = _predict(m, q_path) @ se3.trans(0.0, 0.0, 1e-3)  # 1 mm beside the path: not the start joints
     qp, Q, cmd = q_path[0], [], []
+    assert C._step_compiled(T[0], q_path[:1]) is not None  # the warm one-target path is the one timed
+    assert C._step_compiled(T[0], q_path[:1] + 2 * np.pi) is None  # outside the limits: solve() decides
     for k in range(len(T)):
         r = C.step(T[k], qp)
         assert r.success and r.reason == "" and r.pos_err_mm < C.tolerance_mm
@@ -117,7 +119,16 @@ def test_failures_are_categorised_and_tolerance_from_the_model(model):
     far = T.copy()
     far[0, :3, 3] = [3.0, 0.0, 0.5]  # 3 m away
     r = C.step(far[0], q[0])
-    assert not r.success and r.reason.startswith(("unreachable for the model", "blocked by a joint limit"))
+    assert not r.success and r.reason.startswith("unreachable for the model: out of reach"), r.reason
+    assert "frame 'base'" in r.reason  # the likely cause: a target in the other frame
+    # within reach but behind a joint limit (joint 1 held to [0, 0.5] rad; the target needs 1.3 or 1.3 - pi):
+    # not called out of reach
+    m2 = copy.deepcopy(m)
+    m2.robot_ = m2.robot_.copy(lower=np.r_[0.0, m2.robot_.lower[1:]], upper=np.r_[0.5, m2.robot_.upper[1:]])
+    blocked = _predict(m, q + [1.0, 0, 0, 0, 0, 0])
+    c = hykin.Compensator(m2)(np.vstack([far, blocked]), q_branch=np.vstack([[0.4, *q[0, 1:]]] * 2))
+    assert not c.success.any() and "out of reach" in c.reason[0], c.reason
+    assert c.reason[1].startswith("blocked by a joint limit"), c.reason
     assert np.isnan(r.q).all() and np.isnan(r.command).all()
     with pytest.raises(ValueError):
         C.step(np.eye(3), q[0])

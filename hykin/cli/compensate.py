@@ -123,7 +123,15 @@ def _summary(comp, out: Path, n: int) -> None:
                  f"model error max {np.max(comp.pos_err_mm[ok]):.2e} mm)")
     if (~ok).any():
         line += f"; {int((~ok).sum())} unreachable (status column)"
+        far = int(sum("out of reach" in r for r in comp.reason[~ok]))
+        if far:
+            line += f", {far} of them beyond the arm's reach"
     typer.echo(line)
+    if 2 * int((~ok).sum()) > n:  # most targets failed: the usual cause is the targets' frame
+        other = "measurement" if comp.frame == "base" else "base"
+        name = {"measurement": "the model's measurement frame", "base": "the controller's base frame"}[other]
+        console().print(f"[yellow]hint:[/] most targets failed in the {comp.frame} frame; if they are given in {name}, "
+                        f"pass --frame {other}")
     if ok.any() and not comp.in_support[ok].all():
         console().print(f"[yellow]warning:[/] {int((~comp.in_support[ok]).sum())} compensated targets need joints outside "
                         "the model's training support: the correction fades to the calibrated model there")

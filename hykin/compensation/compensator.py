@@ -27,7 +27,9 @@ metrics), at least 1e-4 mm / 1e-4 deg (the hybrid IK's own threshold; also the v
 without metrics). A solution that misses the target by less than half of what the model itself is
 uncertain about is as good as exact for the robot; the LM normally reaches ~1e-12 m anyway. Failures
 carry a categorised reason: ``"blocked by a joint limit: ..."``, ``"unreachable for the model: ..."``
-(no solution within the limits near the meant branch; residual given), or the caller's
+(no solution within the limits near the meant branch; residual given; ``"unreachable for the model: out of
+reach, ..."`` when the target is farther from the robot's base than the arm reaches, naming the other
+frame as the likely cause), or the caller's
 ``branch_reason`` for targets whose branch hint is NaN (configuration data that matched nothing).
 """
 
@@ -41,6 +43,7 @@ import numpy as np
 from ..geometry import se3
 from ..kinematics.fk import fk
 from ..kinematics.ik_solutions import nearest_representation
+from ..kinematics.robot import robot_reach_m
 from .frames import fitted_base, parse_targets, resolve_frame
 from .result import Compensation, first_row_per_target
 
@@ -111,6 +114,7 @@ class Compensator:
         self._nom_base_inv = se3.invert(self.nominal.base)
         self._pre_inv = se3.invert(np.asarray(model.frame_pre_, dtype=np.float64))
         self._post_inv = se3.invert(np.asarray(model.frame_post_, dtype=np.float64))
+        self._reach_m = robot_reach_m(self.robot)
         self.kernel = None
         if not ik_kw and hasattr(model, "net_pos_"):
             from ..hybrid.fast_fk import kernel_of
@@ -126,6 +130,9 @@ class Compensator:
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise ValueError(f"step: target must be a finite (4, 4) pose, got shape {T.shape}")
         qp = np.asarray(q_prev, dtype=np.float64).reshape(1, self.dof)
+        fast = self._step_compiled(T, qp)
+        if fast is not None:
+            return fast
         q, cmd, ok, reason, pe, ae = self.solve(T[None], qp)
         return StepResult(q=q[0], command=cmd[0], success=bool(ok[0]), reason=str(reason[0]),
                           pos_err_mm=float(pe[0]), ang_err_deg=float(ae[0]))
@@ -206,8 +213,52 @@ class Compensator:
                 cmd = C
             else:
                 cmd[ok] = C
+        if reason is not None:
+            self._name_out_of_reach(Tm, has & ~ok, reason)
         reason = np.zeros(N, dtype="<U1") if reason is None else reason.astype(str)  # "" where successful
         return q, cmd, ok, reason, pe, ae
+
+    def _name_out_of_reach(self, Tm: np.ndarray, failed: np.ndarray, reason: np.ndarray) -> None:
+        """Rewrite (in place) the reason of ``failed`` rows whose target ``Tm`` (measurement frame) lies
+        beyond the calibrated arm's reach from its base (:func:`hykin.kinematics.robot.robot_reach_m`, an
+        upper bound over all joints; plus 1 % and 5 mm for the networks' corrections): the cause is then
+        the target's place (often its frame), not a joint limit that the solver ran into on the way."""
+        i = np.flatnonzero(failed)
+        if not i.size:
+            return
+        p = (self._pre_inv @ Tm[i] @ self._post_inv)[:, :3, 3]
+        d = np.linalg.norm(p - self.robot.base[:3, 3], axis=1)
+        far = d > 1.01 * self._reach_m + 0.005
+        other = "measurement" if self.frame == "base" else "base"
+        where = "the model's measurement frame" if other == "measurement" else "the controller's base frame"
+        for k, dk in zip(i[far], d[far]):
+            reason[k] = (f"unreachable for the model: out of reach, {dk * 1e3:.0f} mm from the robot's base where it "
+                         f"reaches {self._reach_m * 1e3:.0f} mm at most (targets in {where}? frame '{other}')")
+
+    def _step_compiled(self, T: np.ndarray, hint: np.ndarray) -> StepResult | None:
+        """The usual step without :meth:`solve`'s bookkeeping: a compiled model, a hint ``(1, dof)`` within
+        the joint limits and a first solve that converges (below 1e-9 m / rad). The same kernel call on the
+        same arrays as :meth:`_solve_compiled`'s first solve, and the same command, so the same numbers;
+        None otherwise (the caller runs :meth:`solve`, which starts with that same first solve)."""
+        k, lo_j, hi_j = self.kernel, self.lower, self.upper
+        h = hint[0]
+        if k is None or not ((h >= lo_j).all() and (h <= hi_j).all()):  # NaN or outside: the general path
+            return None
+        from ..hybrid.fast_ik import solve_packed_rows
+
+        Tm = T if self._base_fit is None else self._base_fit @ T
+        q = hint.copy()
+        lo = np.maximum(lo_j, h - self.max_move_rad)[None]
+        hi = np.minimum(hi_j, h + self.max_move_rad)[None]
+        pe, ae = solve_packed_rows(k, np.ascontiguousarray(Tm[None]), q, lo, hi)
+        pe_m, ae_rad = float(pe[0]), float(ae[0])
+        if pe_m > _POLISH_M or ae_rad > _POLISH_M:
+            return None
+        pe_mm, ae_deg = pe_m * 1e3, float(np.degrees(ae_rad))
+        if not (pe_mm <= self.tolerance_mm and ae_deg <= self.tolerance_deg):
+            return None
+        return StepResult(q=q[0], command=self._nom_base_inv @ fk(self.nominal, q[0]), success=True, reason="",
+                          pos_err_mm=pe_mm, ang_err_deg=ae_deg)
 
     def _ok(self, pe_m, ae_rad):
         return (pe_m * 1e3 <= self.tolerance_mm) & (np.degrees(ae_rad) <= self.tolerance_deg)

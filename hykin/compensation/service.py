@@ -212,8 +212,12 @@ def uvicorn_config(model, host: str, port: int, limits: ServiceLimits | None = N
     import uvicorn
 
     limits = limits or ServiceLimits()
+    # websockets-sansio: uvicorn's WebSocket protocol on websockets' sans-I/O core (uvicorn >= 0.35). Measured
+    # on loopback at 250 Hz, one target per message: p50 0.90 / p99 1.86 ms and 0.70 ms of server CPU per
+    # message, against 1.19-1.37 / 2.36-6.36 ms and 0.95-1.13 ms with uvicorn's default websockets protocol
     return uvicorn.Config(create_app(model, limits, identity), host=host, port=port, log_level="warning",
-                          limit_concurrency=limits.max_connections, ws_max_size=limits.max_message_bytes)
+                          limit_concurrency=limits.max_connections, ws_max_size=limits.max_message_bytes,
+                          ws="websockets-sansio")
 
 
 def serve(model, host: str, port: int, limits: ServiceLimits | None = None, identity: dict | None = None) -> None:

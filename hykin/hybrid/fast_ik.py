@@ -25,7 +25,7 @@ import numpy as np
 from ..kinematics.chunks import run_chunked
 from ..kinematics.fk import HAVE_NUMBA
 
-__all__ = ["solve"]
+__all__ = ["solve", "solve_packed_rows"]
 
 if HAVE_NUMBA:
     import numba
@@ -171,6 +171,9 @@ if HAVE_NUMBA:
                      ae, its, k0, k1)
 
 
+_TOL, _MAX_ITER, _LAM0, _LAM_MAX = 1e-12, 40, 1e-9, 1e6  # solve's defaults (m and rad; iterations; damping)
+
+
 def _writable(a, shape: tuple, dtype) -> np.ndarray:
     """``a`` when it is a writable C-contiguous array of ``shape`` and ``dtype``, else such a copy of its
     broadcast to ``shape``."""
@@ -180,8 +183,8 @@ def _writable(a, shape: tuple, dtype) -> np.ndarray:
 
 
 def solve(kernel, T_target: np.ndarray, q0: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, position_only: bool = False,
-          w_rot: float = 1.0, tol_m: float = 1e-12, tol_rad: float = 1e-12, max_iter: int = 40, lam0: float = 1e-9,
-          lam_max: float = 1e6, fd=False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+          w_rot: float = 1.0, tol_m: float = _TOL, tol_rad: float = _TOL, max_iter: int = _MAX_ITER, lam0: float = _LAM0,
+          lam_max: float = _LAM_MAX, fd=False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Hybrid IK of targets ``T_target`` ``(N, 4, 4)`` (the model's framed world, m) from ``q0`` ``(N, n)``
     in boxes ``lo``/``hi`` ``(N, n)``. ``fd``: bool or ``(N,)`` (module docstring).
     Returns ``(q (N, n), pos_err_m (N,), ang_err_rad (N,), iterations (N,))``."""
@@ -200,3 +203,15 @@ def solve(kernel, T_target: np.ndarray, q0: np.ndarray, lo: np.ndarray, hi: np.n
     else:
         _solve_packed(*args, 0, N)
     return q, pe, ae, its
+
+
+def solve_packed_rows(kernel, T_target: np.ndarray, q: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """:func:`solve` with its defaults (no finite differences) for a few rows, on arrays the caller made:
+    ``T_target`` ``(N, 4, 4)``, ``q`` ``(N, n)`` (solved in place), ``lo``/``hi`` ``(N, n)``, all C-contiguous
+    writable float64 (what :func:`solve` passes; no copies or checks here: the warm one-target path).
+    Returns ``(pos_err_m (N,), ang_err_rad (N,))``."""
+    N = len(q)
+    pe, ae = np.empty(N), np.empty(N)
+    _solve_packed(*kernel.args, T_target, q, lo, hi, False, 1.0, _TOL, _TOL, _MAX_ITER, _LAM0, _LAM_MAX, np.zeros(N, dtype=np.bool_),
+                  pe, ae, np.empty(N, dtype=np.int64), 0, N)
+    return pe, ae
