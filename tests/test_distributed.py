@@ -251,6 +251,7 @@ def test_fleet_end_to_end_one_robot_fails(files, local_ray, capsys):
     ok = rows[0]
     assert float(ok["hybrid_pos_mean_mm"]) < float(ok["nominal_pos_mean_mm"])
     assert float(ok["registered_hybrid_pos_mean_mm"]) > 0
+    assert int(ok["n_registered_held_out"]) == 60 - 20  # evaluated on the series' poses not used to register
     md = (out / "summary.md").read_text()
     assert "| cell-1 | ok |" in md and "cell-2: CalibrationError" in md
     # --resume: the finished robot is kept as it was (its model untouched), the failed one runs again

@@ -3,8 +3,8 @@
 Each robot (:class:`hykin.distributed.fleet_file.FleetRobot`) is one task, :func:`robot_job`: fit
 (:func:`hykin.distributed.trials.fit_model`, the `hykin fit` path), the model file ``DIR/<name>.hykin``,
 evaluate on its test set (nominal / calibrated / hybrid), and where a series is given register it
-(:func:`hykin.measure.register.register_model`, the `hykin register` path) and write
-``DIR/<name>-registered.hykin`` (the files come back to the driver as bytes, which writes them, so the
+(:func:`hykin.measure.register.register_model`, the `hykin register` path), evaluate the registered model
+on the series' poses not used to register it, and write ``DIR/<name>-registered.hykin`` (the files come back to the driver as bytes, which writes them, so the
 output folder need not be shared with the workers). A robot that fails is a row with its error; the others go on.
 Writes ``DIR/summary.csv`` (the one CSV writer) and ``DIR/summary.md`` (a markdown table).
 
@@ -21,6 +21,8 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
+
 from .fleet_file import FleetRobot, FleetSpec
 from .ray_session import check_resources, ray_session
 from .trial_pool import first_line
@@ -29,7 +31,8 @@ from .trials import ERROR_COLUMNS, error_columns, fit_model, gpu_fit_options
 __all__ = ["SUMMARY_COLUMNS", "inputs_hash", "kept_rows", "robot_job", "run_fleet", "summary_markdown"]
 
 SUMMARY_COLUMNS = ("name", "status", "error", "n_train", "n_test", *ERROR_COLUMNS, "fit_s",
-                   "registered_hybrid_pos_mean_mm", "registered_hybrid_ang_mean_deg", "model", "registered_model",
+                   "registered_hybrid_pos_mean_mm", "registered_hybrid_ang_mean_deg", "n_registered_held_out", "model",
+                   "registered_model",
                    "inputs_sha256")
 
 
@@ -65,12 +68,13 @@ def robot_job(entry: FleetRobot) -> dict:
             row.update(n_test=len(test), **error_columns(evaluate_model(model, test)))
         if entry.register is not None:
             series = read_dataset(entry.register, robot=rob)
-            new, _ = register_model(model, series, n_poses=entry.poses)
+            new, info = register_model(model, series, n_poses=entry.poses)
             row["registered_model"] = f"{entry.name}-registered.hykin"
             row["files"][row["registered_model"]] = _model_bytes(new)
-            ev = error_columns(evaluate_model(new, series))
-            row.update( registered_hybrid_pos_mean_mm=ev["hybrid_pos_mean_mm"],
-                       registered_hybrid_ang_mean_deg=ev["hybrid_ang_mean_deg"])
+            rest = np.setdiff1d(np.arange(len(series)), info.used_index)  # the poses not used to register
+            ev = error_columns(evaluate_model(new, series.subset(rest) if rest.size else series))
+            row.update(registered_hybrid_pos_mean_mm=ev["hybrid_pos_mean_mm"],
+                       registered_hybrid_ang_mean_deg=ev["hybrid_ang_mean_deg"], n_registered_held_out=int(rest.size))
     except Exception as e:  # noqa: BLE001 - a failing robot is recorded; the fleet goes on
         row.update(status="failed", error=first_line(e), files={})
     return row
@@ -168,13 +172,18 @@ def _run_robots(spec: FleetSpec, todo: list, out: Path, rows: dict, address, num
                 (out / fname).write_bytes(data)
             rows[name] = row
             _write_summary(out / "summary.csv", [rows[r.name] for r in spec.robots if r.name in rows])  # resumable
-            what = (f"hybrid {row.get('hybrid_pos_mean_mm', float('nan')):.4f} mm" if row["status"] == "ok"
-                    else f"FAILED: {row['error']}")
+            if row["status"] != "ok":
+                what = f"FAILED: {row['error']}"
+            elif row.get("hybrid_pos_mean_mm") is None:
+                what = "fitted (no test set: no test errors)"
+            else:
+                what = f"hybrid {row['hybrid_pos_mean_mm']:.4f} mm on its test set"
+            if row.get("registered_hybrid_pos_mean_mm") is not None:
+                what += f", registered series {row['registered_hybrid_pos_mean_mm']:.4f} mm"
             log(f"fleet: robot {len(rows)}/{len(spec.robots)} {name}: {what}; elapsed {time.perf_counter() - t0:.0f} s")
 
 
 def _write_summary(path: Path, rows: list) -> None:
-    import numpy as np
 
     from ..io.csv_writer import ROWS_STYLE, write_csv
 
