@@ -15,6 +15,7 @@ import subprocess
 import sys
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +29,7 @@ from hykin.compensation.krl import matrix_from_abc
 from hykin.geometry import se3
 from hykin.kinematics.ik import ik
 from hykin.realtime.rsi import RsiHandler, korr_of, pose_of
-from hykin.realtime.rsi_xml import RsiConfig, format_rob, format_sen, parse_rob, parse_sen, read_config
+from hykin.realtime.rsi_xml import RsiConfig, RsiConfigWarning, format_rob, format_sen, parse_rob, parse_sen, read_config
 from hykin.realtime.simulated import SimulatedRsi, path_errors, xyzabc_of
 from hykin.realtime.udp_bridge import bind_udp, run_bridge
 from hykin.sim.simulate import VirtualRobot
@@ -99,8 +100,23 @@ def test_xml_round_trips_and_config(tmp_path):
     assert (c.sen_type, c.korr_tag, c.mode, c.port) == ("Hykin", "Korr", "incremental", 49152)
     assert read_config(p, "absolute").mode == "absolute"
     assert format_sen(1, np.zeros(6), c).startswith(b'<Sen Type="Hykin"><Korr X=')
-    p.write_text(p.read_text().replace('TAG="Korr.C"', 'TAG="Foo"'))
+    text = p.read_text()
+    p.write_text(text.replace('TAG="Korr.C"', 'TAG="Foo"'))
     with pytest.raises(ValueError, match=r"RSI_EthernetConfig.xml: .*Korr lacks C"):
+        read_config(p)
+    # axis corrections only (AK.A1..A6): the controller would drop a Cartesian RKorr -> refused, naming the fix
+    ak = "".join(f'<ELEMENT TAG="AK.A{j}" TYPE="DOUBLE" INDX="{j}" HOLDON="1" />' for j in range(1, 7))
+    p.write_text(text.replace(rec, ak))
+    with pytest.raises(ValueError, match=r"lists no Cartesian correction .*AK.A1.*RKorr.X"):
+        read_config(p)
+    # <SEND> without the setpoint: a warning naming DEF_RSol; with it and the axes: none
+    p.write_text(text.replace("<SEND><ELEMENTS/>", '<SEND><ELEMENTS><ELEMENT TAG="DEF_RIst" TYPE="DOUBLE" INDX="INTERNAL" />'
+                              '<ELEMENT TAG="DEF_AIPos" TYPE="DOUBLE" INDX="INTERNAL" /></ELEMENTS>'))
+    with pytest.warns(RsiConfigWarning, match=r"does not list DEF_RSol:"):
+        assert read_config(p).korr_tag == "Korr"
+    p.write_text(p.read_text().replace('TAG="DEF_RIst"', 'TAG="DEF_RSol"'))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
         read_config(p)
 
 

@@ -18,13 +18,14 @@ correction and the ``Sen`` type come from the user's ``RSI_EthernetConfig.xml`` 
 from __future__ import annotations
 
 import re
+import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["RobMessage", "RsiConfig", "RsiMessageError", "format_rob", "format_sen", "ipoc_of", "parse_rob", "parse_sen", "read_config"]
+__all__ = ["RobMessage", "RsiConfig", "RsiConfigWarning", "RsiMessageError", "format_rob", "format_sen", "ipoc_of", "parse_rob", "parse_sen", "read_config"]
 
 _CART = ("X", "Y", "Z", "A", "B", "C")
 _IPOC = re.compile(rb"<IPOC>\s*(\d{1,20})\s*</IPOC>")
@@ -32,6 +33,10 @@ _IPOC = re.compile(rb"<IPOC>\s*(\d{1,20})\s*</IPOC>")
 
 class RsiMessageError(ValueError):
     """A controller message hykin cannot use (one-line reason)."""
+
+
+class RsiConfigWarning(UserWarning):
+    """An RSI config that hykin can use, but with which the controller would not send what hykin needs."""
 
 
 @dataclass(frozen=True)
@@ -63,7 +68,9 @@ def read_config(path: str | Path, mode: str | None = None) -> RsiConfig:
     correction element among ``<RECEIVE><ELEMENTS><ELEMENT TAG="Name.X" ../>`` (the one name that has
     all of ``X Y Z A B C``). ``mode`` overrides the file's ``<CONFIG><CORRMODE>`` (hykin's element:
     ``ABSOLUTE`` / ``INCREMENTAL``; RSI's own mode is the POSCORR object's, which must agree).
-    ValueError naming the file and the element otherwise."""
+    ValueError naming the file and the element otherwise, also when ``<RECEIVE>`` lists elements but no
+    Cartesian correction (the controller would drop hykin's). :class:`RsiConfigWarning` when ``<SEND>``
+    lists elements but not ``DEF_RSol`` / ``DEF_AIPos`` (the setpoint and the axes every message needs)."""
     p = Path(path)
     try:
         root = ET.parse(p).getroot()
@@ -96,11 +103,26 @@ def read_config(path: str | Path, mode: str | None = None) -> RsiConfig:
     elif groups:
         name, comps = next(iter(groups.items()))
         raise ValueError(f"{p}: <RECEIVE> element {name} lacks {', '.join(c for c in _CART if c not in comps)} (needs X Y Z A B C)")
+    elif received := [el.get("TAG", "") for el in root.findall("./RECEIVE/ELEMENTS/ELEMENT")]:
+        # the controller reads only what <RECEIVE> lists: a correction it does not list would be dropped
+        # silently and the robot would run uncorrected
+        raise ValueError(f"{p}: <RECEIVE> lists no Cartesian correction (elements {', '.join(received[:8])}); hykin rsi "
+                         f"sends one: add <ELEMENT TAG=\"RKorr.X\" TYPE=\"DOUBLE\" INDX=\"..\" HOLDON=\"1\" /> .. RKorr.C "
+                         f"and connect them to the POSCORR object")
     kw["mode"] = (mode or file_mode or "absolute")
     try:
-        return RsiConfig(**kw)
+        cfg = RsiConfig(**kw)
     except ValueError as e:
         raise ValueError(f"{p}: {e}") from None
+    sent = {el.get("TAG", "") for el in root.findall("./SEND/ELEMENTS/ELEMENT")}
+    if sent:  # the controller sends the DEF_ elements its <SEND> lists
+        miss = [t for t in (cfg.setpoint_tag, cfg.axes_tag) if f"DEF_{t}" not in sent]
+        if miss:
+            warnings.warn(f"{p}: <SEND> does not list {', '.join('DEF_' + t for t in miss)}: hykin needs the setpoint "
+                          f"(DEF_{cfg.setpoint_tag}) and the axis positions (DEF_{cfg.axes_tag}) in every message and "
+                          f"ignores messages without them; add <ELEMENT TAG=\"DEF_..\" TYPE=\"DOUBLE\" INDX=\"INTERNAL\" />",
+                          RsiConfigWarning, stacklevel=2)
+    return cfg
 
 
 @dataclass
