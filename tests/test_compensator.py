@@ -212,3 +212,29 @@ def test_compiled_walk_makes_the_same_choices_as_candidates_nearest(preset, monk
     ref = branches.sequential_nearest(rob, T, q[0])
     assert np.isnan(ref[17]).all() and np.array_equal(np.isnan(got), np.isnan(ref))
     np.testing.assert_array_equal(got, ref)
+
+
+@pytest.mark.parametrize("preset", ["ur10", "kr6-r900"])
+def test_unpolished_walk_picks_the_same_branches(preset):
+    """sequential_nearest(polish=False) (the compensator's hints: closed-form solutions as found) picks
+    the branch and 2π representation of the polished walk, within the closed form's 1e-9, also at the
+    wrist singularity, near the limits and for an unreachable target."""
+    from hykin import load_robot
+    from hykin.compensation import branches
+
+    rob = load_robot("kuka-kr6-r900" if preset == "kr6-r900" else preset)
+    rng = np.random.default_rng(5)
+    s = np.linspace(0, 1, 300)[:, None]
+    q = rob.random_joints(1, 2, margin=0.3) + s * rng.uniform(-2.0, 2.0, rob.dof)  # a long sweep: branch changes
+    q = np.clip(q, rob.lower + 1e-6, rob.upper - 1e-6)
+    q[40:45, 4] = 0.0  # wrist singularity
+    T = hykin.fk(rob, q)
+    T[100, :3, 3] += 10.0  # out of reach
+    a = branches.sequential_nearest(rob, T, q[0])
+    b = branches.sequential_nearest(rob, T, q[0], polish=False)
+    assert np.array_equal(np.isnan(a), np.isnan(b)) and np.isnan(b[100]).all()
+    f = np.isfinite(a).all(1)
+    assert np.abs(a[f] - b[f]).max() < 1e-6
+    regular = f.copy()
+    regular[40:45] = False  # at the singularity the wrist angles split freely
+    assert np.abs(b[regular] - q[regular]).max() < 1e-6  # the walk follows the path's own joints

@@ -351,7 +351,7 @@ class Compensator:
         T_nom = nom.base @ T if self.frame == "base" else T  # the target in the nominal robot's world
         if D is not None:
             T_nom = T_nom @ se3.invert(D)
-        qb = sequential_nearest(nom, T_nom, None)
+        qb = sequential_nearest(nom, T_nom, None, polish=False)  # hints: solved on the model next
         miss = np.flatnonzero(~np.isfinite(qb).all(1))
         if miss.size:
             Tr = self._pre_inv @ self.model_targets(T[miss], None if D is None else D[miss]) @ self._post_inv
