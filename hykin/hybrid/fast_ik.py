@@ -15,7 +15,11 @@ calibrated chain at the current joints (mapped through the registration frame), 
 ``fd=True`` — the difference to the hybrid residual's central-difference Jacobian, measured at the start
 and every 6th iteration. The classical part alone is within ~1e-3 of the hybrid one (the correction and
 the compliance are small), so each step gains ~3 digits and 3–5 steps reach 1e-12 m from a warm start;
-``fd=True`` is for starts far from the solution or near singularities.
+``fd=True`` is for starts far from the solution or near singularities. After each accepted step below
+1e-4 rad the correction also gets Broyden's rank-one update (the secant of that step), so that a model
+whose networks or compliance tilt the Jacobian more than ~1e-3 still converges superlinearly (measured
+on a UR-like model with soft joints, 1,200 targets at limits and singularities from the true joints:
+6,100 -> 8,000-9,400 targets/s; the smooth path's iterations unchanged).
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ from ..kinematics.chunks import run_chunked
 from ..kinematics.fk import HAVE_NUMBA
 
 __all__ = ["solve", "solve_packed_rows"]
+
+_BROYDEN_MAX_STEP2 = 1e-8  # squared joint step (rad^2) up to which solve_one makes Broyden's update
 
 if HAVE_NUMBA:
     import numba
@@ -121,10 +127,9 @@ if HAVE_NUMBA:
             if fd and it % 6 == 0:
                 _fd_correction(P, q, Tt, pos_only, w_rot, J, D, Tn, ex, z, o, T3)
                 _classical_jac(P, q, T, pos_only, w_rot, J, z, o, T3)  # z, o were scratch
-            if fd:
-                for r in range(m):
-                    for i in range(n):
-                        J[r, i] += D[r, i]
+            for r in range(m):
+                for i in range(n):
+                    J[r, i] += D[r, i]
             it += 1
             scale = max(normal_equations_one(J, e, m, A, g) / n, 1e-12)
             accepted = False
@@ -140,6 +145,24 @@ if HAVE_NUMBA:
                 pen, aen, costn = _residual(P, qn, Tt, pos_only, w_rot, Tn, ex, en)
                 if costn < cost:
                     accepted = True
+                    # Broyden's update of the correction D after a small step s: afterwards (J + D_new) s =
+                    # -(e_new - e), so the Jacobian learns what the rigid chain misses (the networks' and the
+                    # compliance's slopes). After a large step the secant's own error (~|s| times the
+                    # curvature) exceeds that mismatch, so it is skipped (measured: a 1e-3 rad first step
+                    # updated this way cost the smooth path its 2-iteration convergence)
+                    ss = 0.0
+                    for i in range(n):
+                        s_i = qn[i] - q[i]
+                        dq[i] = s_i
+                        ss += s_i * s_i
+                    if 0.0 < ss <= _BROYDEN_MAX_STEP2:
+                        for r in range(m):
+                            js = 0.0
+                            for i in range(n):
+                                js += J[r, i] * dq[i]
+                            u = (e[r] - en[r] - js) / ss
+                            for i in range(n):
+                                D[r, i] += u * dq[i]
                     for i in range(n):
                         q[i] = qn[i]
                     for r in range(4):
