@@ -31,10 +31,12 @@ from ..sim.simulate import true_poses
 from .egm import format_robot, parse_sensor
 from .rsi import pose_of
 from .rsi_xml import RsiConfig, RsiMessageError, format_rob, parse_sen
+from .udp_bridge import arrival_time
 
 __all__ = ["SimRun", "SimulatedEgm", "SimulatedRsi", "path_errors", "xyzabc_of"]
 
 _SPIN_S = 3e-4  # the last stretch before a clock tick is spun, not slept (sleep overshoots by ~0.1 ms)
+_CMSG = socket.CMSG_SPACE(16)  # room for one SO_TIMESTAMPNS stamp
 
 
 def xyzabc_of(T: np.ndarray, a_hint_deg: float = 0.0) -> np.ndarray:
@@ -107,10 +109,15 @@ class _Simulated:
     def run(self, sock: socket.socket | None = None) -> SimRun:
         """Run every cycle at its clock tick ``t0 + k period`` (absolute deadlines: sleep, then spin the
         last ``_SPIN_S``); a cycle started over half a period late re-anchors the clock (counted in
-        ``slipped``), so that a late simulator never sends cycles faster than the period."""
+        ``slipped``), so that a late simulator never sends cycles faster than the period. An answer's
+        delay is from the send to the kernel's receive stamp of the answer (where the platform has
+        ``SO_TIMESTAMPNS``): what a controller on a real-time OS sees, not when this process, sharing
+        the cores, got to read it; an answer that arrived after the deadline is not used."""
         N, n = len(self.path), self.nom.dof
         own = sock is None
         sock = sock or socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        if hasattr(socket, "SO_TIMESTAMPNS"):
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_TIMESTAMPNS, 1)
         q = self.q0.copy()
         Q = np.zeros((N, n))
         in_time = np.zeros(N, bool)
@@ -134,18 +141,23 @@ class _Simulated:
                 c0 = time.thread_time()
                 stamp = self._stamp(k)
                 msg = self._message(k, stamp, q)
-                t_send = time.perf_counter()
-                late[k] = t_send - tick
+                late[k] = time.perf_counter() - tick
+                t_send = time.time()  # the kernel's receive stamps are on this clock
                 sock.sendto(msg, self.bridge)
                 cpu += time.thread_time() - c0
                 deadline = t_send + self.deadline
-                while (left := deadline - time.perf_counter()) > 0:
-                    sock.settimeout(left)
+                while True:
+                    # an answer counts by when it reached this socket (the kernel's stamp), as on a
+                    # controller's real-time OS: this simulator shares the cores and may read it later;
+                    # past the deadline only what already arrived is read (a zero timeout)
+                    sock.settimeout(max(deadline - time.time(), 0.0))
                     try:
-                        data = sock.recv(65536)
-                    except (socket.timeout, ConnectionRefusedError):
+                        data, anc, _, _ = sock.recvmsg(65536, _CMSG)
+                    except (socket.timeout, BlockingIOError, InterruptedError, ConnectionRefusedError):
                         break
-                    t_got = time.perf_counter()
+                    t_got = arrival_time(anc) or time.time()
+                    if t_got > deadline:
+                        break  # this cycle is over: the answer is not used (RSI/EGM move on)
                     c0 = time.thread_time()
                     new = self._answer(data, stamp, held)
                     cpu += time.thread_time() - c0

@@ -22,7 +22,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 
-__all__ = ["BridgeStats", "Outcome", "bind_udp", "parse_listen", "raise_priority", "run_bridge"]
+__all__ = ["BridgeStats", "Outcome", "arrival_time", "bind_udp", "parse_listen", "raise_priority", "run_bridge"]
 
 _log = logging.getLogger("hykin.realtime")
 _DRAIN = 256  # datagrams read at most per turn when behind
@@ -94,7 +94,9 @@ def raise_priority(rt_priority: int) -> str:
     return f"real-time priority (SCHED_FIFO {min(int(rt_priority), 99)})"
 
 
-def _arrival(anc) -> float | None:
+def arrival_time(anc) -> float | None:
+    """The kernel's receive time stamp (unix s) in the ancillary data ``anc`` of ``socket.recvmsg`` on a
+    socket from :func:`bind_udp` (or with ``SO_TIMESTAMPNS`` set); None without one."""
     for level, kind, data in anc:
         if level == socket.SOL_SOCKET and kind == getattr(socket, "SO_TIMESTAMPNS", -1) and len(data) >= 16:
             sec, ns = struct.unpack("qq", data[:16])
@@ -133,7 +135,7 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
         # when behind, answer only the newest datagram of the controller: older cycles are over
         best = None
         for _ in range(_DRAIN):
-            t_in = _arrival(anc) or time.time()
+            t_in = arrival_time(anc) or time.time()
             if len(data) > max_packet or flags & socket.MSG_TRUNC:
                 st.ignored["oversized"] += 1
             elif peer is not None and addr[:2] != tuple(peer)[:2]:
