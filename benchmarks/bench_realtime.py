@@ -133,7 +133,8 @@ def run_protocol(proto: str, a, tmp: Path) -> None:
     stamp = 1000  # one controller clock for warm-up and run: consecutive stamps (no cycles "skipped" between)
     step = 4 if proto == "rsi" else 1  # RSI's IPOC counts ms, EGM's seqno cycles
     while True:  # warm-up cycles until the bridge answers (it also locks onto this socket)
-        w = sim(slice(0, 1), 2.0, stamp).run(ctrl)
+        warm = sim(slice(0, 1), 2.0, stamp)
+        w = warm.run(ctrl)
         stamp += step
         if np.isfinite(w.reply_s).all():
             break
@@ -146,7 +147,9 @@ def run_protocol(proto: str, a, tmp: Path) -> None:
         from hykin.realtime.udp_bridge import raise_priority
 
         print(f"  simulated controller: {raise_priority(a.sim_rt_priority)}")
-    run = sim(slice(None), None, stamp).run(ctrl)
+    timed = sim(slice(None), None, stamp)
+    timed.q0, timed.held0 = w.q[-1], warm.held_last  # the run continues the warm-up (its joints and the value in force)
+    run = timed.run(ctrl)
     if a.sim_rt_priority and hasattr(os, "sched_setscheduler"):
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     bridge_cpu = (cpu_s(proc.pid) - c0) / n

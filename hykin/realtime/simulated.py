@@ -77,7 +77,9 @@ class _Simulated:
         self.signs = np.ones(nominal.dof) if axis_signs is None else np.asarray(axis_signs, dtype=np.float64)
         self.period, self.stamp0 = float(period_s), int(stamp0)
         self.deadline = self.period if deadline_s is None else float(deadline_s)
-        self.held0 = np.zeros(6)  # RSI: the correction in force at the start (incremental: the sum so far)
+        # in force at the start (a run that continues an earlier one: its held_last). RSI: the correction
+        # (incremental: the sum so far), zero by default; EGM: the pose, the first programmed one by default
+        self.held0 = None
         self._base = np.asarray(nominal.base, dtype=np.float64)
         self._base_inv = se3.invert(self._base)
 
@@ -201,7 +203,7 @@ class SimulatedRsi(_Simulated):
         self.cfg = cfg or RsiConfig()
 
     def _held0(self):
-        return self.held0.copy()
+        return np.zeros(6) if self.held0 is None else np.array(self.held0, dtype=np.float64)
 
     def _stamp(self, k: int) -> int:
         return self.stamp0 + k * int(round(self.period * 1e3))
@@ -236,7 +238,7 @@ class SimulatedEgm(_Simulated):
         super().__init__(nominal, poses, q0, bridge, axis_signs, period_s, seq0, deadline_s)
 
     def _held0(self):
-        return self.path[0]
+        return self.path[0] if self.held0 is None else np.array(self.held0, dtype=np.float64)
 
     def _stamp(self, k: int) -> int:
         return (self.stamp0 + k) % 2**32
