@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -173,6 +174,26 @@ def test_a_trial_is_hykin_fit_with_the_same_options(files, capsys):
     assert row["hybrid_pos_mean_mm"] == pytest.approx(ref, rel=1e-12)
     assert row["n_train"] == 240 and row["epochs"] >= 1 and row["steps"] >= row["epochs"] and row["fit_s"] > 0
     assert np.isnan(row["calibrated_pos_mean_mm"])
+
+
+def test_a_trials_out_of_range_warning_goes_into_its_row(files):
+    """A trial fitted on a small subset sees test poses outside its training range: the evaluation's
+    warning is the row's test_note (the same text evaluate_model warns with), not a warning."""
+    from hykin.evaluation.evaluate import evaluate_model
+    from hykin.hybrid.errors import OutOfRangeWarning
+    from hykin.io.dataset_files import read_dataset
+
+    rob = load_robot("rx160")
+    train, test = read_dataset(files / "train.csv", robot=rob), read_dataset(files / "test.csv", robot=rob)
+    opts = {"seed": 1, "max_epochs": 1, "min_steps": 0, "calibrate": False}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        row = run_trial(rob, train, test, {**opts, "n_train": 40})
+    assert not [w for w in caught if issubclass(w.category, OutOfRangeWarning)]
+    model = fit_model(rob, train.subset(nested_subset(len(train), 40, 0)), opts)
+    with pytest.warns(OutOfRangeWarning) as ref:
+        evaluate_model(model, test)
+    assert row["test_note"] == str(ref[0].message) and "outside" in row["test_note"]
 
 
 def test_missing_ray_is_one_line_naming_the_extra(monkeypatch):

@@ -26,14 +26,13 @@ import numpy as np
 from .fleet_file import FleetRobot, FleetSpec
 from .ray_session import check_resources, ray_session
 from .trial_pool import first_line
-from .trials import ERROR_COLUMNS, error_columns, fit_model, gpu_fit_options
+from .trials import ERROR_COLUMNS, error_columns, evaluate_noted, fit_model, gpu_fit_options
 
 __all__ = ["SUMMARY_COLUMNS", "inputs_hash", "kept_rows", "robot_job", "run_fleet", "summary_markdown"]
 
 SUMMARY_COLUMNS = ("name", "status", "error", "n_train", "n_test", *ERROR_COLUMNS, "fit_s",
                    "registered_hybrid_pos_mean_mm", "registered_hybrid_ang_mean_deg", "n_registered_held_out", "model",
-                   "registered_model",
-                   "inputs_sha256")
+                   "registered_model", "test_note", "inputs_sha256")
 
 
 def _model_bytes(model) -> bytes:
@@ -49,7 +48,6 @@ def _model_bytes(model) -> bytes:
 def robot_job(entry: FleetRobot) -> dict:
     """Fit / evaluate / register one robot; a summary row (status ``ok`` or ``failed`` with ``error``).
     The model files come back as bytes in ``files`` (file name -> bytes) for the driver to write."""
-    from ..evaluation.evaluate import evaluate_model
     from ..io.dataset_files import read_dataset
     from ..io.robot_file import load_robot
     from ..measure.register import register_model
@@ -65,14 +63,16 @@ def robot_job(entry: FleetRobot) -> dict:
         row["files"][row["model"]] = _model_bytes(model)
         if entry.test is not None:
             test = read_dataset(entry.test, robot=rob)
-            row.update(n_test=len(test), **error_columns(evaluate_model(model, test)))
+            res, note = evaluate_noted(model, test)
+            row.update(n_test=len(test), **error_columns(res), test_note=note)
         if entry.register is not None:
             series = read_dataset(entry.register, robot=rob)
             new, info = register_model(model, series, n_poses=entry.poses)
             row["registered_model"] = f"{entry.name}-registered.hykin"
             row["files"][row["registered_model"]] = _model_bytes(new)
             rest = np.setdiff1d(np.arange(len(series)), info.used_index)  # the poses not used to register
-            ev = error_columns(evaluate_model(new, series.subset(rest) if rest.size else series))
+            res, _ = evaluate_noted(new, series.subset(rest) if rest.size else series)
+            ev = error_columns(res)
             row.update(registered_hybrid_pos_mean_mm=ev["hybrid_pos_mean_mm"],
                        registered_hybrid_ang_mean_deg=ev["hybrid_ang_mean_deg"], n_registered_held_out=int(rest.size))
     except Exception as e:  # noqa: BLE001 - a failing robot is recorded; the fleet goes on

@@ -25,7 +25,7 @@ from .trials import ERROR_COLUMNS, gpu_fit_options
 
 __all__ = ["SweepOutcome", "run_sweep", "write_results", "plot_results"]
 
-RESULT_COLUMNS = ("status", "error", "attempts", *ERROR_COLUMNS, "fit_s", "eval_s", "steps", "epochs")
+RESULT_COLUMNS = ("status", "error", "attempts", *ERROR_COLUMNS, "fit_s", "eval_s", "steps", "epochs", "test_note")
 
 
 @dataclass
@@ -98,8 +98,9 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
         el = time.perf_counter() - t_start
         eta = el / n_done[0] * (len(todo) - n_done[0])
         opts = " ".join(f"{k}={v}" for k, v in trials[i].items())
-        what = (f"hybrid {row['hybrid_pos_mean_mm']:.4f} mm, fit {row['fit_s']:.1f} s" if row["status"] == "ok"
-                else f"FAILED after {row['attempts']} attempts: {row['error']}")
+        what = (f"hybrid {row['hybrid_pos_mean_mm']:.4f} mm, fit {row['fit_s']:.1f} s"
+                + (" (test poses outside its training range: test_note)" if row.get("test_note") else "")
+                if row["status"] == "ok" else f"FAILED after {row['attempts']} attempts: {row['error']}")
         log(f"sweep: trial {n_done[0]}/{len(todo)} done (#{i} {opts}): {what}; elapsed {el:.0f} s, ETA {eta:.0f} s")
 
     if resume:

@@ -6,6 +6,7 @@ so a trial and `hykin fit` with the same options, data and seed give the same mo
 * :func:`nested_subset` — the first ``n`` rows of one fixed permutation (``n_train``: nested subsets).
 * :func:`fit_model` — the fitted model for ``options`` (the `hykin fit` path).
 * :func:`error_columns` — ``{nominal,calibrated,hybrid}_{pos_mean_mm,pos_p95_mm,ang_mean_deg}`` of an evaluation.
+* :func:`evaluate_noted` — the evaluation, with its out-of-range warnings as one line for the row.
 * :func:`trial_threads` — context manager: torch and numba use ``n`` threads (one per CPU of the trial).
 * :func:`run_trial` — one sweep trial -> one results row (raises on failure; the driver records it).
 """
@@ -18,7 +19,7 @@ import time
 
 import numpy as np
 
-__all__ = ["ERROR_COLUMNS", "error_columns", "fit_model", "gpu_fit_options", "nested_subset", "run_trial", "training_steps",
+__all__ = ["ERROR_COLUMNS", "error_columns", "evaluate_noted", "fit_model", "gpu_fit_options", "nested_subset", "run_trial", "training_steps",
            "trial_threads"]
 
 #: error columns of a results/summary row, in order (mm, deg; NaN where a row does not apply).
@@ -62,6 +63,27 @@ def error_columns(res) -> dict:
     return out
 
 
+def evaluate_noted(model, test):
+    """``(evaluate_model(model, test), note)``: the evaluation, and its out-of-range warnings (test poses
+    outside what the networks were trained on) as one line for the results row instead of a warning in
+    the sweep's log from every worker (``""`` when none); other warnings pass on as they are."""
+    import warnings
+
+    from ..evaluation.evaluate import evaluate_model
+    from ..hybrid.errors import OutOfRangeWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = evaluate_model(model, test)
+    notes = []
+    for w in caught:
+        if issubclass(w.category, OutOfRangeWarning):
+            notes.append(str(w.message))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return res, "; ".join(dict.fromkeys(notes))
+
+
 def training_steps(model) -> tuple[int, int]:
     """(optimiser steps, epochs) of the position network of a fitted ``model``."""
     from ..hybrid.train import batch_and_epochs
@@ -101,9 +123,8 @@ def run_trial(robot, train, test, options: dict, subsample_seed: int = 0, thread
     """One sweep trial: fit on ``train`` (its nested subset of ``options["n_train"]`` rows when given)
     and evaluate on ``test``, with ``threads`` torch/numba threads (:func:`trial_threads`). Returns the
     row: ``n_train`` (rows used), :data:`ERROR_COLUMNS`, ``fit_s`` and ``eval_s`` (wall seconds of the
-    fit and the evaluation), ``steps``, ``epochs``. Exceptions propagate."""
-    from ..evaluation.evaluate import evaluate_model
-
+    fit and the evaluation), ``steps``, ``epochs``, ``test_note`` (:func:`evaluate_noted`). Exceptions
+    propagate."""
     opts = dict(options)
     n = opts.pop("n_train", None)
     tr = train if n is None else train.subset(nested_subset(len(train), int(n), subsample_seed))
@@ -112,6 +133,8 @@ def run_trial(robot, train, test, options: dict, subsample_seed: int = 0, thread
         model = fit_model(robot, tr, opts)
         fit_s = time.perf_counter() - t0
         steps, epochs = training_steps(model)
-        ev = error_columns(evaluate_model(model, test))
+        res, note = evaluate_noted(model, test)
+        ev = error_columns(res)
         eval_s = time.perf_counter() - t0 - fit_s
-    return {"n_train": len(tr), **ev, "fit_s": fit_s, "eval_s": eval_s, "steps": steps, "epochs": epochs}
+    return {"n_train": len(tr), **ev, "fit_s": fit_s, "eval_s": eval_s, "steps": steps, "epochs": epochs,
+            "test_note": note}
