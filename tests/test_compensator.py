@@ -128,7 +128,13 @@ def test_failures_are_categorised_and_tolerance_from_the_model(model):
     blocked = _predict(m, q + [1.0, 0, 0, 0, 0, 0])
     c = hykin.Compensator(m2)(np.vstack([far, blocked]), q_branch=np.vstack([[0.4, *q[0, 1:]]] * 2))
     assert not c.success.any() and "out of reach" in c.reason[0], c.reason
-    assert c.reason[1].startswith("blocked by a joint limit"), c.reason
+    assert c.reason[1].startswith("blocked by a joint limit"), c.reason  # the IK without limits reaches it
+    # 1.5 m out: inside the loose reach bound (the sum of the links, ~1.7 m), beyond the arm's real reach:
+    # whether the solver stopped at a limit or not, the limit is not named as the cause
+    beyond = T.copy()
+    beyond[0, :3, 3] = m.robot_.base[:3, 3] + [1.5, 0.0, 0.13]
+    c = hykin.Compensator(m)(beyond, q_branch=q)
+    assert not c.success[0] and c.reason[0].startswith("unreachable for the model") and "residual" in c.reason[0], c.reason
     assert np.isnan(r.q).all() and np.isnan(r.command).all()
     with pytest.raises(ValueError):
         C.step(np.eye(3), q[0])

@@ -29,7 +29,9 @@ uncertain about is as good as exact for the robot; the LM normally reaches ~1e-1
 carry a categorised reason: ``"blocked by a joint limit: ..."``, ``"unreachable for the model: ..."``
 (no solution within the limits near the meant branch; residual given; ``"unreachable for the model: out of
 reach, ..."`` when the target is farther from the robot's base than the arm reaches, naming the other
-frame as the likely cause), or the caller's
+frame as the likely cause; a solver stopped at a limit is called blocked by it only when the calibrated
+arm's IK with its revolute limits opened finds the target, else "unreachable for the model: the
+calibrated arm reaches it in no configuration, even without joint limits; residual ..."), or the caller's
 ``branch_reason`` for targets whose branch hint is NaN (configuration data that matched nothing).
 """
 
@@ -51,6 +53,7 @@ __all__ = ["Compensator", "StepResult", "compensate", "model_tolerance"]
 
 _FLOOR_MM, _FLOOR_DEG = 1e-4, 1e-4
 _POLISH_M = 1e-9  # rows the first solve leaves above this (m, rad) are re-solved with the hybrid Jacobian
+_BLOCKED = "blocked by a joint limit"
 
 
 @dataclass
@@ -115,6 +118,7 @@ class Compensator:
         self._pre_inv = se3.invert(np.asarray(model.frame_pre_, dtype=np.float64))
         self._post_inv = se3.invert(np.asarray(model.frame_post_, dtype=np.float64))
         self._reach_m = robot_reach_m(self.robot)
+        self._wide = None  # the calibrated robot with its revolute limits opened (built on first use)
         self.kernel = None
         if not ik_kw and hasattr(model, "net_pos_"):
             from ..hybrid.fast_fk import kernel_of
@@ -215,6 +219,8 @@ class Compensator:
                 cmd[ok] = C
         if reason is not None:
             self._name_out_of_reach(Tm, has & ~ok, reason)
+            if not pos_only:
+                self._confirm_limits(Tm, has & ~ok, reason)
         reason = np.zeros(N, dtype="<U1") if reason is None else reason.astype(str)  # "" where successful
         return q, cmd, ok, reason, pe, ae
 
@@ -234,6 +240,30 @@ class Compensator:
         for k, dk in zip(i[far], d[far]):
             reason[k] = (f"unreachable for the model: out of reach, {dk * 1e3:.0f} mm from the robot's base where it "
                          f"reaches {self._reach_m * 1e3:.0f} mm at most (targets in {where}? frame '{other}')")
+
+    def _confirm_limits(self, Tm: np.ndarray, failed: np.ndarray, reason: np.ndarray) -> None:
+        """Check (in place) the ``failed`` rows said to be blocked by a joint limit: the solver stopped at
+        a limit, but was the limit the cause? The calibrated arm's IK with its revolute limits opened to
+        ±2π (every branch, the closed form of :func:`hykin.hybrid.ik_seeds.seed_robot_of` as seeds)
+        decides: a solution there keeps the reason; none rewrites it to "unreachable for the model: the
+        calibrated arm reaches it in no configuration, even without joint limits" (the residual kept)."""
+        i = np.array([k for k in np.flatnonzero(failed) if str(reason[k]).startswith(_BLOCKED)], dtype=np.int64)
+        if not i.size:
+            return
+        from ..hybrid.ik_seeds import seed_robot_of
+        from ..kinematics.ik import ik
+
+        if self._wide is None:
+            self._wide = self.robot.copy(lower=np.where(self._rev, -2 * np.pi, self.lower),
+                                         upper=np.where(self._rev, 2 * np.pi, self.upper))
+        Tr = self._pre_inv @ Tm[i] @ self._post_inv
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            br = ik(self._wide, Tr, all_branches=True, seed_robot=seed_robot_of(self.model, None))
+        none = ~np.asarray(br.success, dtype=bool).reshape(len(i), -1).any(1)
+        for k in i[none]:
+            reason[k] = ("unreachable for the model: the calibrated arm reaches it in no configuration, even without "
+                         "joint limits" + str(reason[k])[len(_BLOCKED):].replace(": residual", "; residual", 1))
 
     def _step_compiled(self, T: np.ndarray, hint: np.ndarray) -> StepResult | None:
         """The usual step without :meth:`solve`'s bookkeeping: a compiled model, a hint ``(1, dof)`` within
@@ -289,7 +319,7 @@ class Compensator:
         reason = None  # every row within the tolerance
         if not ok.all():
             at_lim = ((q <= lo_j + 1e-9) | (q >= hi_j - 1e-9)).any(1)
-            what = np.where(at_lim, "blocked by a joint limit", "unreachable for the model")
+            what = np.where(at_lim, _BLOCKED, "unreachable for the model")
             ang = "" if pos_only else " / {:.3g} deg"
             reason = np.array(["" if o else (f"{w}: residual {p * 1e3:.3g} mm" + ang.format(np.degrees(a))
                                              + f" (tolerance {self.tolerance_mm:.3g} mm)")
