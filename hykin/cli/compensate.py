@@ -128,8 +128,9 @@ def _summary(comp, out: Path, n: int) -> None:
             line += f", {far} of them beyond the arm's reach"
     typer.echo(line)
     if 2 * int((~ok).sum()) > n:  # most targets failed: the usual cause is the targets' frame
-        other = "measurement" if comp.frame == "base" else "base"
-        name = {"measurement": "the model's measurement frame", "base": "the controller's base frame"}[other]
+        from ..compensation.frames import other_frame
+
+        other, name = other_frame(comp.frame)
         console().print(f"[yellow]hint:[/] most targets failed in the {comp.frame} frame; if they are given in {name}, "
                         f"pass --frame {other}")
     if ok.any() and not comp.in_support[ok].all():

@@ -215,26 +215,14 @@ def sequential_nearest(robot: Robot, T_world, q_start=None, polish: bool = True)
     the limits), over every branch and 2π representation within the limits. NaN rows for unreachable
     targets (the walk continues from the last reached joints).
 
-    ``polish=False`` (branch hints, refined afterwards anyway): for a robot with a closed form, its
-    solutions as found (to 1e-9 m / rad) instead of polished to 1e-10 by LM — the polish was a quarter
-    of a compensated batch's time; the rows without any closed-form solution still get :func:`ik`."""
-    from ..kinematics.ik import ik, ik_closed_form
-    from ..kinematics.ik_closed_form import has_closed_form
+    ``polish=False`` (branch hints, refined afterwards anyway): a robot's own closed-form solutions as
+    found (to 1e-9 m / rad), not polished to 1e-10 by LM (:func:`hykin.kinematics.ik.ik`'s ``polish``):
+    the polish was a quarter of a compensated batch's time."""
+    from ..kinematics.ik import ik
 
-    T = np.asarray(T_world, dtype=np.float64)
-    if not polish and T.ndim == 3 and len(T) and has_closed_form(robot):
-        sols = ik_closed_form(robot, T)
-        q, ok = sols.q.copy(), sols.valid.copy()
-        none = np.flatnonzero(~ok.any(1))
-        if none.size:  # exact singularities the closed form misses, or unreachable: the full IK there
-            br = ik(robot, T[none], all_branches=True)
-            qb = np.asarray(br.q, dtype=np.float64).reshape(len(none), -1, robot.dof)
-            k = min(qb.shape[1], q.shape[1])
-            q[none, :k], ok[none, :k] = qb[:, :k], np.asarray(br.success, dtype=bool).reshape(len(none), -1)[:, :k]
-    else:
-        br = ik(robot, T, all_branches=True)
-        q = np.asarray(br.q, dtype=np.float64).reshape(len(br.q), -1, robot.dof)
-        ok = np.asarray(br.success, dtype=bool).reshape(len(q), -1)
+    br = ik(robot, np.asarray(T_world, dtype=np.float64), all_branches=True, polish=polish)
+    q = np.asarray(br.q, dtype=np.float64).reshape(len(br.q), -1, robot.dof)
+    ok = np.asarray(br.success, dtype=bool).reshape(len(q), -1)
     cur = np.clip(np.zeros(robot.dof), robot.lower, robot.upper) if q_start is None else np.asarray(q_start, float)
     out = np.full((len(q), robot.dof), np.nan)
     cand = Candidates(robot, q, ok)

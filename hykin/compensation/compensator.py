@@ -46,7 +46,7 @@ from ..geometry import se3
 from ..kinematics.fk import fk
 from ..kinematics.ik_solutions import nearest_representation
 from ..kinematics.robot import robot_reach_m
-from .frames import fitted_base, parse_targets, resolve_frame
+from .frames import fitted_base, other_frame, parse_targets, resolve_frame
 from .result import Compensation, first_row_per_target
 
 __all__ = ["Compensator", "StepResult", "compensate", "model_tolerance"]
@@ -118,7 +118,6 @@ class Compensator:
         self._pre_inv = se3.invert(np.asarray(model.frame_pre_, dtype=np.float64))
         self._post_inv = se3.invert(np.asarray(model.frame_post_, dtype=np.float64))
         self._reach_m = robot_reach_m(self.robot)
-        self._wide = None  # the calibrated robot with its revolute limits opened (built on first use)
         self.kernel = None
         if not ik_kw and hasattr(model, "net_pos_"):
             from ..hybrid.fast_fk import kernel_of
@@ -224,6 +223,14 @@ class Compensator:
         reason = np.zeros(N, dtype="<U1") if reason is None else reason.astype(str)  # "" where successful
         return q, cmd, ok, reason, pe, ae
 
+    def _robot_world(self, Tm: np.ndarray) -> np.ndarray:
+        """Targets ``(N, 4, 4)`` in the model's measurement frame -> the calibrated robot's TCP in its world."""
+        return self._pre_inv @ Tm @ self._post_inv
+
+    def _first_box(self, hint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The first solve's box: ``hint ± max_move_rad`` within the joint limits (``hint`` ``(..., dof)``)."""
+        return np.maximum(self.lower, hint - self.max_move_rad), np.minimum(self.upper, hint + self.max_move_rad)
+
     def _name_out_of_reach(self, Tm: np.ndarray, failed: np.ndarray, reason: np.ndarray) -> None:
         """Rewrite (in place) the reason of ``failed`` rows whose target ``Tm`` (measurement frame) lies
         beyond the calibrated arm's reach from its base (:func:`hykin.kinematics.robot.robot_reach_m`, an
@@ -232,11 +239,10 @@ class Compensator:
         i = np.flatnonzero(failed)
         if not i.size:
             return
-        p = (self._pre_inv @ Tm[i] @ self._post_inv)[:, :3, 3]
+        p = self._robot_world(Tm[i])[:, :3, 3]
         d = np.linalg.norm(p - self.robot.base[:3, 3], axis=1)
         far = d > 1.01 * self._reach_m + 0.005
-        other = "measurement" if self.frame == "base" else "base"
-        where = "the model's measurement frame" if other == "measurement" else "the controller's base frame"
+        other, where = other_frame(self.frame)
         for k, dk in zip(i[far], d[far]):
             reason[k] = (f"unreachable for the model: out of reach, {dk * 1e3:.0f} mm from the robot's base where it "
                          f"reaches {self._reach_m * 1e3:.0f} mm at most (targets in {where}? frame '{other}')")
@@ -252,14 +258,12 @@ class Compensator:
             return
         from ..hybrid.ik_seeds import seed_robot_of
         from ..kinematics.ik import ik
+        from ..kinematics.ik_reasons import open_revolute_limits
 
-        if self._wide is None:
-            self._wide = self.robot.copy(lower=np.where(self._rev, -2 * np.pi, self.lower),
-                                         upper=np.where(self._rev, 2 * np.pi, self.upper))
-        Tr = self._pre_inv @ Tm[i] @ self._post_inv
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            br = ik(self._wide, Tr, all_branches=True, seed_robot=seed_robot_of(self.model, None))
+            br = ik(open_revolute_limits(self.robot), self._robot_world(Tm[i]), all_branches=True,
+                    seed_robot=seed_robot_of(self.model, None))
         none = ~np.asarray(br.success, dtype=bool).reshape(len(i), -1).any(1)
         for k in i[none]:
             reason[k] = ("unreachable for the model: the calibrated arm reaches it in no configuration, even without "
@@ -278,8 +282,7 @@ class Compensator:
 
         Tm = T if self._base_fit is None else self._base_fit @ T
         q = hint.copy()
-        lo = np.maximum(lo_j, h - self.max_move_rad)[None]
-        hi = np.minimum(hi_j, h + self.max_move_rad)[None]
+        lo, hi = self._first_box(hint)
         pe, ae = solve_packed_rows(k, np.ascontiguousarray(Tm[None]), q, lo, hi)
         pe_m, ae_rad = float(pe[0]), float(ae[0])
         if pe_m > _POLISH_M or ae_rad > _POLISH_M:
@@ -297,8 +300,7 @@ class Compensator:
         from ..hybrid.fast_ik import solve
 
         k, lo_j, hi_j = self.kernel, self.lower, self.upper
-        lo = np.maximum(lo_j, hint - self.max_move_rad)
-        hi = np.minimum(hi_j, hint + self.max_move_rad)
+        lo, hi = self._first_box(hint)
         q, pe, ae, _ = solve(k, Tm, hint, lo, hi, position_only=pos_only)
         bad = (pe > _POLISH_M) | (ae > _POLISH_M)  # stalled (even within the tolerance): polish
         if bad.any():  # the hybrid Jacobian, from where they stopped, within the joint limits
@@ -337,7 +339,7 @@ class Compensator:
         from ..hybrid.ik_seeds import classical_seeds, seed_robot_of
         from ..kinematics.ik import nearest_representation
 
-        Tr = self._pre_inv @ Tm @ self._post_inv
+        Tr = self._robot_world(Tm)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             q0, _, _ = classical_seeds(self.robot, Tr, all_branches=True, seed_robot=seed_robot_of(self.model, None))
@@ -384,7 +386,7 @@ class Compensator:
         qb = sequential_nearest(nom, T_nom, None, polish=False)  # hints: solved on the model next
         miss = np.flatnonzero(~np.isfinite(qb).all(1))
         if miss.size:
-            Tr = self._pre_inv @ self.model_targets(T[miss], None if D is None else D[miss]) @ self._post_inv
+            Tr = self._robot_world(self.model_targets(T[miss], None if D is None else D[miss]))
             br = ik(self.robot, Tr, all_branches=True)
             qc = np.asarray(br.q, dtype=np.float64).reshape(len(miss), -1, n)
             okc = np.asarray(br.success, dtype=bool).reshape(len(miss), -1)

@@ -7,7 +7,7 @@ import numpy as np
 
 from ..geometry import se3
 
-__all__ = ["FRAMES", "fitted_base", "parse_targets", "resolve_frame", "to_model_frame"]
+__all__ = ["FRAMES", "fitted_base", "other_frame", "parse_targets", "resolve_frame", "to_model_frame"]
 
 FRAMES = ("measurement", "base", "auto")
 _AUTO_M, _AUTO_RAD = 0.05, np.radians(5.0)
@@ -27,6 +27,12 @@ def resolve_frame(model, frame: str) -> str:
     D = np.linalg.inv(model.nominal.base) @ fitted_base(model)
     far = np.linalg.norm(D[:3, 3]) > _AUTO_M or np.linalg.norm(se3.matrix_to_rotvec(D[:3, :3])) > _AUTO_RAD
     return "base" if far else "measurement"
+
+
+def other_frame(frame: str) -> tuple[str, str]:
+    """The resolved frame that is not ``frame`` (``"measurement"`` / ``"base"``), and its words for a
+    message: targets that fail in one are usually given in the other."""
+    return ("measurement", "the model's measurement frame") if frame == "base" else ("base", "the controller's base frame")
 
 
 def to_model_frame(model, T: np.ndarray, frame: str) -> np.ndarray:

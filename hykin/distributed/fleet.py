@@ -4,8 +4,8 @@ Each robot (:class:`hykin.distributed.fleet_file.FleetRobot`) is one task, :func
 (:func:`hykin.distributed.trials.fit_model`, the `hykin fit` path), the model file ``DIR/<name>.hykin``,
 evaluate on its test set (nominal / calibrated / hybrid), and where a series is given register it
 (:func:`hykin.measure.register.register_model`, the `hykin register` path), evaluate the registered model
-on the series' poses not used to register it, and write ``DIR/<name>-registered.hykin`` (the files come back to the driver as bytes, which writes them, so the
-output folder need not be shared with the workers). A robot that fails is a row with its error; the others go on.
+on the series' poses not used to register it, and write ``DIR/<name>-registered.hykin`` (the files come
+back to the driver as bytes, which writes them, so the output folder need not be shared with the workers). A robot that fails is a row with its error; the others go on.
 Writes ``DIR/summary.csv`` (the one CSV writer) and ``DIR/summary.md`` (a markdown table).
 
 ``resume=True`` keeps a robot whose ``summary.csv`` row is ``ok``, whose model files are in ``DIR`` and
@@ -184,7 +184,6 @@ def _run_robots(spec: FleetSpec, todo: list, out: Path, rows: dict, address, num
 
 
 def _write_summary(path: Path, rows: list) -> None:
-
     from ..io.csv_writer import ROWS_STYLE, write_csv
 
     write_csv(path, {c: np.array([r.get(c, "") for r in rows], dtype=object) for c in SUMMARY_COLUMNS}, ROWS_STYLE)

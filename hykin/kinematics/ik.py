@@ -492,7 +492,7 @@ def _polish_branches(robot: Robot, T, sols: IKSolutions, position_only, tol_m, t
 def ik(robot: Robot, T_world, q_seed=None, all_branches: bool = False, position_only: bool = False,
        method: str = "auto", seed_robot: Robot | None = None, tol_m: float = 1e-10, tol_rad: float = 1e-10,
        max_iter: int = 50, restarts: int = 40, n_seeds: int = 64,
-       rng: np.random.Generator | int | None = 0) -> IKResult | IKBranches:
+       rng: np.random.Generator | int | None = 0, polish: bool = True) -> IKResult | IKBranches:
     """Inverse kinematics of world TCP targets ``T_world`` ``(N, 4, 4)`` (or one ``(4, 4)``).
 
     method: ``"auto"`` (closed form + LM polish where :func:`has_closed_form` holds for ``robot`` or
@@ -501,6 +501,9 @@ def ik(robot: Robot, T_world, q_seed=None, all_branches: bool = False, position_
     to (default: zero clipped into limits). all_branches: return an :class:`IKBranches` with every
     distinct solution; otherwise an :class:`IKResult`. position_only: 3-D residual (orientation free;
     the closed form does not apply). Unreachable targets come back with ``success = False``.
+    polish: with ``all_branches`` and a robot that has its own closed form, ``False`` returns its
+    solutions as found (to 1e-9 m / rad) instead of polished by LM to ``tol_m`` / ``tol_rad``: for
+    branch hints that are refined afterwards anyway (the polish is most of the time of a batch).
     """
     T, _ = as_targets(T_world)
     N, n = len(T), robot.dof
@@ -522,8 +525,16 @@ def ik(robot: Robot, T_world, q_seed=None, all_branches: bool = False, position_
     if cf_robot is not None:
         same = cf_robot is robot
         sols = ik_closed_form(cf_robot, T, tol_m=1e-9 if same else np.inf, tol_rad=1e-9 if same else np.inf)
+        lab = np.array(sols.labels, dtype=object)
         if all_branches:
-            br = _polish_branches(robot, T, sols, position_only, tol_m, tol_rad, max_iter, same)
+            if polish or not same:  # another robot's closed form only seeds: always polished on this one
+                br = _polish_branches(robot, T, sols, position_only, tol_m, tol_rad, max_iter, same)
+            else:
+                v = sols.valid
+                br = IKBranches(q=np.where(v[..., None], sols.q, np.nan), success=v.copy(),
+                                pos_err_m=np.where(v, sols.pos_err_m, np.inf), ang_err_rad=np.where(v, sols.ang_err_rad, np.inf),
+                                branch=np.broadcast_to(sols.branch, v.shape).copy(),
+                                label=np.broadcast_to(lab, v.shape).copy())
             none = np.flatnonzero(br.n_solutions == 0)
             if none.size:  # exact singularities the closed form misses, or unreachable: ask LM once
                 sub = ik_numeric(robot, T[none], None, position_only, tol_m, tol_rad, max_iter, restarts, rng)
@@ -533,7 +544,6 @@ def ik(robot: Robot, T_world, q_seed=None, all_branches: bool = False, position_
                 br.branch[got, 0], br.label[got, 0] = -1, ""
             return br
         ref = np.clip(np.zeros(n), robot.lower, robot.upper) if q_seed is None else q_seed
-        lab = np.array(sols.labels, dtype=object)
         raw = IKBranches(q=sols.q, success=sols.valid, pos_err_m=sols.pos_err_m, ang_err_rad=sols.ang_err_rad,
                          branch=np.broadcast_to(sols.branch, (N, 8)), label=np.broadcast_to(lab, (N, 8)))
         res = raw.nearest_to(ref, robot.lower, robot.upper)

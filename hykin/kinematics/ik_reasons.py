@@ -15,7 +15,7 @@ import numpy as np
 
 from .robot import Robot
 
-__all__ = ["CATEGORIES", "categorise", "failure_reasons", "is_singular"]
+__all__ = ["CATEGORIES", "categorise", "failure_reasons", "is_singular", "open_revolute_limits"]
 
 CATEGORIES = ("out of reach", "joint limits", "singular", "not converged")
 # Smallest / largest singular value of the scaled Jacobian below which a configuration counts as
@@ -44,8 +44,9 @@ def is_singular(robot: Robot, q, position_only: bool = False, rel: float = SING_
     return out
 
 
-def _wide(robot: Robot) -> Robot:
-    """The robot with revolute limits opened to ±2π (prismatic strokes kept)."""
+def open_revolute_limits(robot: Robot) -> Robot:
+    """The robot with revolute limits opened to ±2π (prismatic strokes kept): every configuration
+    a revolute joint can take has a representation there."""
     rev = np.array([t == "revolute" for t in robot.independent_joint_type])
     return robot.copy(lower=np.where(rev, -2 * np.pi, robot.lower), upper=np.where(rev, 2 * np.pi, robot.upper))
 
@@ -77,7 +78,7 @@ def failure_reasons(robot: Robot, T_target, position_only: bool = False, q_best=
     lim = np.zeros(N, dtype=bool)
     test = cf & ~far
     if test.any():
-        wide = ik(_wide(robot), T[test], all_branches=True, position_only=position_only)
+        wide = ik(open_revolute_limits(robot), T[test], all_branches=True, position_only=position_only)
         lim[test] = wide.success.any(axis=1)
     sing = np.zeros(N, dtype=bool) if q_best is None else is_singular(robot, q_best, position_only)
     closed = bool(has_closed_form(robot)) and not position_only  # a closed form finds every solution
