@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 import pytest
-from comp_models import exact, tiny_model_file
+from comp_models import ExactModel, exact, tiny_model_file
 
 import hykin
 from hykin.geometry import se3
@@ -244,3 +244,17 @@ def test_unpolished_walk_picks_the_same_branches(preset):
     regular = f.copy()
     regular[40:45] = False  # at the singularity the wrist angles split freely
     assert np.abs(b[regular] - q[regular]).max() < 1e-6  # the walk follows the path's own joints
+
+
+def test_revolute_mask_is_per_independent_joint():
+    """A URDF with <mimic> joints has more chain joints (9) than joint values (7): the compensator's
+    revolute mask, used beside the limits on the hint, is per joint value."""
+    from pathlib import Path
+
+    from hykin.io.urdf import load_urdf
+
+    rob = load_urdf(Path(__file__).parent / "data" / "construction_robot.urdf", tip_link="tcp")
+    assert rob.n_chain > rob.dof
+    C = hykin.Compensator(ExactModel(rob, rob))
+    assert C._rev.shape == rob.lower.shape == (rob.dof,)
+    assert list(C._rev) == [t == "revolute" for t in rob.independent_joint_type]

@@ -112,7 +112,7 @@ class Compensator:
         self.ik_kw = ik_kw
         self.lower = np.asarray(self.robot.lower, dtype=np.float64)
         self.upper = np.asarray(self.robot.upper, dtype=np.float64)
-        self._rev = np.array([t == "revolute" for t in self.robot.joint_type])
+        self._rev = np.array([t == "revolute" for t in self.robot.independent_joint_type])  # (dof,) like the limits
         self._base_fit = fitted_base(model) if self.frame == "base" else None
         self._nom_base_inv = se3.invert(self.nominal.base)
         self._pre_inv = se3.invert(np.asarray(model.frame_pre_, dtype=np.float64))
