@@ -57,6 +57,19 @@ def test_onnx_export_matches_hykin(tmp_path, small_model):
     T = ort.InferenceSession(str(tmp_path / "m.onnx")).run(None, {"q": q})[0]
     p, a = pose_error(T, small_model.predict(q))
     assert p.max() < 1e-6 and a.max() < 1e-6
+    # no Mul(x, Sigmoid(x)): ONNX Runtime 1.30 fuses it into a float32-only kernel and then refuses
+    # to load the float64 graph; the SiLU nets are traced as a division instead, and put back after
+    import onnx
+    import torch
+
+    from hykin.hybrid.fast_nets import torch64
+
+    g = onnx.load(str(tmp_path / "m.onnx")).graph
+    sigmoid_of = {n.output[0]: n.input[0] for n in g.node if n.op_type == "Sigmoid"}
+    fusable = [n.name for n in g.node if n.op_type == "Mul" and len(n.input) == 2 and any(
+        sigmoid_of.get(a) == b for a, b in (n.input, n.input[::-1]))]
+    assert not fusable and sum(n.op_type == "Exp" for n in g.node) >= 3  # the default nets' three SiLU layers
+    assert sum(isinstance(mod, torch.nn.SiLU) for mod in torch64(small_model, small_model.net_pos_).modules()) == 3
 
 
 def test_registered_model_roundtrip(tmp_path, small_model):

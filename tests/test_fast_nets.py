@@ -40,8 +40,10 @@ def test_fast_net_equals_torch_float64(name):
     out = fn(q)
     assert out.dtype == np.float64 and out.shape == (257, 3)
     assert np.abs(out - ref).max() * 1e3 < 1e-9  # mm
-    # the float32 torch path differs only by float32 rounding of a mm-sized residual
-    assert np.abs(out - ref32).max() < 1e-6 * np.abs(ref).max() + 1e-12
+    # the float32 torch path differs only by float32 rounding of a mm-sized residual: a few dozen
+    # float32 ulps of the output after 3-4 layers, the summation order depending on the CPU's kernels
+    # (an AVX-512 host gave 1.1e-6 of the output on B2)
+    assert np.abs(out - ref32).max() < 1e-5 * np.abs(ref).max() + 1e-12
     # one row at a time is the same function
     assert np.abs(fn(q[:1]) - out[:1]).max() < 1e-15
 

@@ -10,6 +10,7 @@ period (4 ms) and waits up to 1 s for an answer (correctness on a busy machine; 
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
@@ -254,7 +255,7 @@ def test_cli_rsi_answers_as_the_in_process_handler():
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     proc = subprocess.Popen([sys.executable, "-m", "hykin", "rsi", str(mp), "--listen", f"127.0.0.1:{port}", "--frame",
-                             "measurement", "--idle-exit-s", "2"], env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin",
+                             "measurement", "--idle-exit-s", "2"], env={"PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])), "PATH": "/usr/bin:/bin",
                                                                        "OMP_NUM_THREADS": "1"},
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     c = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

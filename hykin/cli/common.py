@@ -21,30 +21,50 @@ app = typer.Typer(
 def _plain_help() -> None:
     """Help as the README writes it: arguments upper-case (``ROBOT``, ``[TEST]``, not ``{robot}``), no
     ``<bool>`` type placeholder on flags, and value types as a user reads them (``<str>`` for a
-    repeatable option, not ``<list[str]>``; ``<int> [x>=1]``, not ``<int range> [x>=1]``). Typer 0.2x
-    renders these itself; this adjusts its two hooks."""
+    repeatable option, not ``<list[str]>``; ``<int> [x>=1]``, not ``<int range> [x>=1]``). Typer
+    renders these itself; this adjusts its hooks: ``display_type_rich`` and ``_usage_display_name``
+    from typer 0.29, ``make_metavar`` before (0.27 and 0.28 print ``{robot}`` and ``<int range>``
+    otherwise; older releases already print them plainly)."""
     import re
     from typer import core as tc
+
+    def plain_type(t):
+        return re.sub(r"<list\[(\w+)\]>", r"<\1>", t.replace(" range>", ">")) if isinstance(t, str) else t
+
+    def usage_name(self):
+        name = self.metavar or (self.name or "").upper()
+        if not self.required and not name.startswith("["):
+            name = f"[{name}]"
+        return name + ("..." if self.nargs != 1 else "")
 
     opt_type = getattr(tc.TyperOption, "display_type_rich", None)
     if opt_type is not None and not getattr(opt_type, "_hykin", False):
         def display_type_rich(self, ctx):
-            if getattr(self, "is_flag", False):
-                return None
-            t = opt_type(self, ctx)
-            return re.sub(r"<list\[(\w+)\]>", r"<\1>", t.replace(" range>", ">")) if isinstance(t, str) else t
+            return None if getattr(self, "is_flag", False) else plain_type(opt_type(self, ctx))
 
         display_type_rich._hykin = True
         tc.TyperOption.display_type_rich = display_type_rich
-    if hasattr(tc.TyperArgument, "_usage_display_name"):
-        def usage_name(self):
-            name = self.metavar or (self.name or "").upper()
-            if not self.required and not name.startswith("["):
-                name = f"[{name}]"
-            return name + ("..." if self.nargs != 1 else "")
+    elif opt_type is None and not getattr(tc.TyperOption.make_metavar, "_hykin", False):
+        opt_metavar = tc.TyperOption.make_metavar
 
+        def option_metavar(self, *args, **kwargs):
+            return plain_type(opt_metavar(self, *args, **kwargs))
+
+        option_metavar._hykin = True
+        tc.TyperOption.make_metavar = option_metavar
+    if hasattr(tc.TyperArgument, "_usage_display_name"):
         tc.TyperArgument._usage_display_name = usage_name
         tc.TyperArgument.display_name_raw = property(lambda self: self.metavar or (self.name or "").upper())
+    elif not getattr(tc.TyperArgument.make_metavar, "_hykin", False):
+        import inspect
+
+        arg_metavar = tc.TyperArgument.make_metavar
+        if "usage" in inspect.signature(arg_metavar).parameters:
+            def argument_metavar(self, *args, usage=False, **kwargs):
+                return usage_name(self) if usage else arg_metavar(self, *args, usage=usage, **kwargs)
+
+            argument_metavar._hykin = True
+            tc.TyperArgument.make_metavar = argument_metavar
 
 
 _plain_help()

@@ -11,11 +11,43 @@ controller needs to apply the expansion: ``p = b + (1 + alpha (t - t_ref)) (p - 
 from __future__ import annotations
 
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 __all__ = ["export_onnx"]
+
+
+@contextmanager
+def _silu_as_division(*nets):
+    """Trace SiLU as ``x / (1 + exp(-x))`` instead of ``x * sigmoid(x)`` while exporting.
+
+    ONNX Runtime fuses ``Mul(x, Sigmoid(x))`` into its QuickGelu kernel, which some releases (1.30,
+    seen on a GPU machine) have for float32 alone: a float64 graph with that pattern then fails to
+    load with the default options, in our check and on the controller. The division has no fused
+    form and equals SiLU to float64 rounding (exp overflow at very negative x gives -0). The modules
+    are swapped in place and put back afterwards."""
+    import torch
+
+    class _SiLUDiv(torch.nn.Module):
+        def forward(self, x):
+            return x / (1.0 + torch.exp(-x))
+
+    swapped = []
+    for net in nets:
+        if net is None:
+            continue
+        for mod in list(net.modules()):
+            for name, child in list(mod.named_children()):
+                if isinstance(child, torch.nn.SiLU):
+                    setattr(mod, name, _SiLUDiv())
+                    swapped.append((mod, name, child))
+    try:
+        yield
+    finally:
+        for mod, name, child in swapped:
+            setattr(mod, name, child)
 
 
 def export_onnx(model, path: str | Path, n_check: int = 2000, opset: int = 17, seed: int = 0) -> dict:
@@ -50,7 +82,7 @@ def export_onnx(model, path: str | Path, n_check: int = 2000, opset: int = 17, s
     wrapper = _Wrapper(model).eval()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with warnings.catch_warnings(), torch.no_grad():
+    with warnings.catch_warnings(), torch.no_grad(), _silu_as_division(wrapper.net_pos, wrapper.net_rot):
         # The tracer warns about Python-side control flow (fixed-point iterations, fade branches);
         # the result is verified numerically below.
         warnings.simplefilter("ignore")
