@@ -72,6 +72,24 @@ def test_onnx_export_matches_hykin(tmp_path, small_model):
     assert sum(isinstance(mod, torch.nn.SiLU) for mod in torch64(small_model, small_model.net_pos_).modules()) == 3
 
 
+def test_onnx_export_on_a_runtime_that_cannot_run_it_writes_nothing(tmp_path, small_model, monkeypatch):
+    """ONNX Runtime before 1.29 has no float64 Cos: the export says which version it needs and leaves
+    neither the file nor its temporary behind (an older file at the target stays as it was)."""
+    ort = pytest.importorskip("onnxruntime")
+    from hykin.hybrid.export import MIN_ORT, export_onnx
+
+    class Refusing:
+        def __init__(self, *a, **k):
+            raise RuntimeError("[ONNXRuntimeError] : 9 : NOT_IMPLEMENTED : Could not find an implementation for Cos(7)")
+
+    monkeypatch.setattr(ort, "InferenceSession", Refusing)
+    (tmp_path / "old.onnx").write_bytes(b"earlier export")
+    with pytest.raises(RuntimeError, match=rf"onnxruntime>={MIN_ORT}.*Nothing was written"):
+        export_onnx(small_model, tmp_path / "old.onnx", n_check=10)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.onnx"]
+    assert (tmp_path / "old.onnx").read_bytes() == b"earlier export"
+
+
 def test_registered_model_roundtrip(tmp_path, small_model):
     """A model with registration frames saves and loads them (the frames change predictions)."""
     from hykin.geometry import se3

@@ -22,7 +22,7 @@ def _cli_commands() -> dict[str, set[tuple[str, ...]]]:
     for name in root.list_commands(ctx):
         cmd = root.get_command(ctx, name)
         subs = [(name, cmd)]
-        if isinstance(cmd, click.Group):
+        if hasattr(cmd, "list_commands"):  # a group (typer 0.29 vendors click: not a click.Group)
             subs = [(f"{name} {s}", cmd.get_command(ctx, s)) for s in cmd.list_commands(ctx)]
         for full, c in subs:
             opts = set()

@@ -10,13 +10,17 @@ controller needs to apply the expansion: ``p = b + (1 + alpha (t - t_ref)) (p - 
 
 from __future__ import annotations
 
+import os
 import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["export_onnx"]
+__all__ = ["MIN_ORT", "export_onnx"]
+
+#: the oldest ONNX Runtime that runs the float64 graph (double Sin/Cos kernels; 1.28 has float only)
+MIN_ORT = "1.29"
 
 
 @contextmanager
@@ -54,12 +58,12 @@ def export_onnx(model, path: str | Path, n_check: int = 2000, opset: int = 17, s
     """Write ``model`` to ``path`` as ONNX and check it with ONNX Runtime.
 
     Returns ``{"max_pos_diff_mm", "max_ang_diff_deg", "n_check"}`` measured on ``n_check`` joint
-    configurations drawn inside the training range. Raises ``RuntimeError`` if the exported model
-    differs from hykin by more than 1e-6 mm / 1e-6 deg.
+    configurations drawn inside the training range. Raises ``RuntimeError``, and writes nothing, if
+    the exported model differs from hykin by more than 1e-6 mm / 1e-6 deg or if the installed ONNX
+    Runtime cannot run it (float64 Sin/Cos need onnxruntime >= :data:`MIN_ORT`).
     """
     import torch
 
-    from ..geometry.se3 import pose_error
     from .fast_nets import torch64
 
     class _Wrapper(torch.nn.Module):
@@ -82,24 +86,45 @@ def export_onnx(model, path: str | Path, n_check: int = 2000, opset: int = 17, s
     wrapper = _Wrapper(model).eval()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    # written beside the target and moved there only once checked: a failed export leaves nothing
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        info = _export_checked(model, wrapper, q, q_t, tmp, opset, torch)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return info
+
+
+def _export_checked(model, wrapper, q, q_t, tmp: Path, opset: int, torch) -> dict:
+    """Trace ``wrapper`` to ``tmp`` and compare ONNX Runtime's poses there with ``model.predict``."""
+    from ..geometry.se3 import pose_error
+
     with warnings.catch_warnings(), torch.no_grad(), _silu_as_division(wrapper.net_pos, wrapper.net_rot):
         # The tracer warns about Python-side control flow (fixed-point iterations, fade branches);
         # the result is verified numerically below.
         warnings.simplefilter("ignore")
         torch.onnx.export(
-            wrapper, (q_t[:8],), str(path), dynamo=False, input_names=["q"], output_names=["pose"],
+            wrapper, (q_t[:8],), str(tmp), dynamo=False, input_names=["q"], output_names=["pose"],
             dynamic_axes={"q": {0: "N"}, "pose": {0: "N"}}, opset_version=opset,
         )
     import onnxruntime as ort
 
-    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    try:
+        sess = ort.InferenceSession(str(tmp), providers=["CPUExecutionProvider"])
+    except Exception as e:  # onnxruntime raises its own NotImplemented / Fail types
+        raise RuntimeError(
+            f"ONNX Runtime {ort.__version__} cannot run the exported float64 graph "
+            f"({str(e).splitlines()[0][:160]}); the export is checked with onnxruntime >= {MIN_ORT} "
+            f"(float64 Sin/Cos): pip install -U 'onnxruntime>={MIN_ORT}'. Nothing was written."
+        ) from e
     T_onnx = sess.run(None, {"q": q})[0]
     with warnings.catch_warnings():
         # Check points are drawn over the whole trained box, holes included: no need to warn here.
         warnings.simplefilter("ignore")
         T_ref = model.predict(q)
     p, a = pose_error(T_onnx, T_ref)
-    info = {"max_pos_diff_mm": float(p.max()), "max_ang_diff_deg": float(a.max()), "n_check": n_check}
+    info = {"max_pos_diff_mm": float(p.max()), "max_ang_diff_deg": float(a.max()), "n_check": len(q)}
     th = getattr(model, "thermal_", None)
     if th is not None and th.coefficient_per_k != 0.0:
         b = model.frame_pre_ @ np.r_[model.robot_.base[:3, 3], 1.0]
@@ -107,7 +132,7 @@ def export_onnx(model, path: str | Path, n_check: int = 2000, opset: int = 17, s
                     thermal_origin_m=b[:3].tolist())
     if info["max_pos_diff_mm"] > 1e-6 or info["max_ang_diff_deg"] > 1e-6:
         raise RuntimeError(
-            f"ONNX export of {path} differs from hykin by {info['max_pos_diff_mm']:.2e} mm / "
-            f"{info['max_ang_diff_deg']:.2e} deg (limit 1e-6)"
+            f"ONNX export differs from hykin by {info['max_pos_diff_mm']:.2e} mm / "
+            f"{info['max_ang_diff_deg']:.2e} deg (limit 1e-6); nothing was written"
         )
     return info

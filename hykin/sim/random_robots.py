@@ -42,6 +42,7 @@ class RandomRobot:
     without mimic joints). tip: the tip link a user must name (``--tip``), or None.
     lower, upper: ``(n_ind,)`` limits of the independent joints (rad, m for prismatic).
     describe: one line saying what was drawn (for failure reports).
+    sigma_m, sigma_rad: the σ of the truth's geometric errors (m, rad; :func:`perturb`).
     """
 
     kind: str
@@ -57,6 +58,8 @@ class RandomRobot:
     describe: str = ""
     units: tuple[str, str] = ("m", "rad")
     extra: dict = field(default_factory=dict)
+    sigma_m: float = 0.0
+    sigma_rad: float = 0.0
 
     @property
     def dof(self) -> int:
@@ -332,4 +335,4 @@ def draw_robot(rng: np.random.Generator, kind: str = "dh", dof: int | None = Non
     desc += f", file in {units[0]}/{units[1]}, truth off by {sigma_m * 1e3:.2f} mm / {sigma_rad / _DEG:.3f} deg"
     return RandomRobot(kind=kind, file_text=text, suffix=suffix, nominal=nominal, truth=truth, mimic_matrix=M,
                        mimic_offset=c, lower=np.asarray(lower, float), upper=np.asarray(upper, float), tip=tip,
-                       describe=desc, units=tuple(units))
+                       describe=desc, units=tuple(units), sigma_m=sigma_m, sigma_rad=sigma_rad)
