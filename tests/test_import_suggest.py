@@ -4,7 +4,7 @@ plausible, constant lever arm from the first (a 3 µm "second reflector" is refu
 
 import numpy as np
 import pytest
-import tomllib
+from hykin.io.toml_compat import tomllib
 from hypothesis import given, settings
 from hypothesis import strategies as st
 

@@ -101,7 +101,7 @@ def test_layout1_semicolon_decimal_comma_euler_intrinsic(tmp_path, capsys):
     # the suggestion finds the layout (metadata lines, ';', decimal comma, degrees, mm)
     code, so, err = run(["import", "table", path, "--suggest"], capsys)
     assert code == 0, err
-    import tomllib
+    from hykin.io.toml_compat import tomllib
 
     sug = tomllib.loads(so)
     assert sug["skip_rows"] == 2 and sug["delimiter"] == ";" and sug["decimal"] == ","

@@ -6,7 +6,6 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-import click
 import typer
 
 from hykin.cli import app
@@ -17,7 +16,7 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 def _cli_commands() -> dict[str, set[tuple[str, ...]]]:
     """``{"fit": {"--val", ...}, "import table": {...}, ...}`` from the Typer app itself."""
     root = typer.main.get_command(app)
-    ctx = click.Context(root)
+    ctx = typer.Context(root)
     out: dict[str, set[tuple[str, ...]]] = {}
     for name in root.list_commands(ctx):
         cmd = root.get_command(ctx, name)

@@ -216,7 +216,7 @@ def _parse_nest(spec: str):
     """``"x,y,z; x,y,z; x,y,z"`` or a TOML file with ``nest`` (and ``nest_unit``) -> (nest, unit or None)."""
     p = Path(spec)
     if p.suffix.lower() == ".toml" or p.is_file():
-        import tomllib
+        from ..io.toml_compat import tomllib
 
         try:
             doc = tomllib.loads(p.read_text(encoding="utf-8"))

@@ -165,10 +165,8 @@ def _declared_angle_unit(spec: str | None) -> str:
     p = Path(spec) if spec else None
     if p is None or not p.is_file() or p.suffix.lower() != ".toml":
         return "rad"
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python 3.10
-        import tomli as tomllib
+    from ..io.toml_compat import tomllib
+
     try:
         return str(tomllib.loads(p.read_text(encoding="utf-8")).get("angle_unit", "rad"))
     except (OSError, ValueError):

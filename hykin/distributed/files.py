@@ -8,13 +8,9 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
+from ..io.toml_compat import tomllib
 
 __all__ = ["SpecError", "check_keys", "read_toml", "rel_path", "robot_spec"]
 

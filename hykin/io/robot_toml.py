@@ -11,7 +11,6 @@ Writing uses m and degrees for readability; only DH/MDH robots have a TOML form 
 from __future__ import annotations
 
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,10 +18,7 @@ import numpy as np
 from ..geometry import se3
 from ..kinematics.robot import Robot, RobotFileError
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
+from .toml_compat import tomllib
 
 __all__ = [
     "check_keys",

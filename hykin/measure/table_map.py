@@ -261,7 +261,7 @@ def table_map_from_dict(d: dict, where: str = "<mapping>") -> TableMap:
 
 def load_table_map(path: str | Path, overrides: dict | None = None) -> TableMap:
     """Read a ``--map`` TOML file; ``overrides`` (CLI options, same keys) replace its values."""
-    import tomllib
+    from ..io.toml_compat import tomllib
 
     where = str(path)
     p = Path(path)
