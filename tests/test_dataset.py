@@ -232,7 +232,16 @@ def test_empty_files_and_bad_units(tmp_path):
     p = _write_csv(tmp_path / "ragged.csv", HEADER, [GOOD, GOOD[:-1]])
     _expect(p, ["row 2", "9 cells", "header has 10"])
     (tmp_path / "semi.csv").write_text("q1;x;y;z\n0;0;0;0\n")
-    _expect(tmp_path / "semi.csv", ["';'-separated"])
+    _expect(tmp_path / "semi.csv", ["';'-separated", "hykin import table semi.csv --suggest"])
+    (tmp_path / "tab.csv").write_text("q1\tx\ty\tz\n0\t0\t0\t0\n")
+    _expect(tmp_path / "tab.csv", ["tab-separated", "name it .tsv"])
+    (tmp_path / "tab.tsv").write_text("q1\tx\ty\tz\n0\t0\t0\t0\n")
+    assert read_dataset(tmp_path / "tab.tsv").q.shape == (1, 1)
+    # the columns in another case: refused (the format's names are lower-case), saying so
+    p = _write_csv(tmp_path / "upper.csv", [h.upper() for h in HEADER], [GOOD])
+    _expect(p, ["no joint columns", "column names are lower-case: the file has 'Q1' for 'q1'"])
+    p = _write_csv(tmp_path / "upper_xyz.csv", [h.upper() if h in "xyz" else h for h in HEADER], [GOOD])
+    _expect(p, ["missing column(s) x, y, z", "'X' for 'x'"])
     with pytest.raises(DatasetError, match="empty"):
         validate(Dataset(q=np.zeros((0, 6)), xyz_m=np.zeros((0, 3)), source="nothing"))
 

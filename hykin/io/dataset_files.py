@@ -94,7 +94,7 @@ def _dof_from_header(where: str, header: Sequence[str], robot, dof: int | None) 
         if k == 0:
             raise DatasetError(
                 f"{where}: no joint columns; expected q1..qN, x, y, z and optionally qw, qx, qy, qz "
-                f"(found: {', '.join(header)})", file=where)
+                f"(found: {', '.join(header)}){_case_hint(['q1'], header)}", file=where)
         return k
     if robot is not None and dof is not None and dof != robot.dof:
         raise DatasetError(f"{where}: dof={dof} given but robot {robot.name!r} has {robot.dof} joints", file=where)
@@ -104,7 +104,8 @@ def _dof_from_header(where: str, header: Sequence[str], robot, dof: int | None) 
         alt = f" (or the URDF's joint names {', '.join(names)})" if names else ""
         raise DatasetError(
             f"{where}: missing column(s) {', '.join(missing)}; expected {', '.join(joint_columns(want))}{alt}, x, y, z "
-            f"and optionally qw, qx, qy, qz (found: {', '.join(header)})", file=where, column=missing[0])
+            f"and optionally qw, qx, qy, qz (found: {', '.join(header)}){_case_hint(missing, header)}", file=where,
+            column=missing[0])
     if f"q{want + 1}" in present:
         raise DatasetError(
             f"{where}: the file has joint columns q1..q{k} but the robot{'' if robot is None else ' ' + repr(robot.name)} "
@@ -155,9 +156,12 @@ def _open_table(path: str | Path) -> _Table:
         raise DatasetError(f"{where}: unknown dataset file type {suffix!r}; expected .csv or .parquet", file=where)
     t = read_delimited(path, delimiter="\t" if suffix == ".tsv" else ",", allow_empty_names=True,
                        layout_hint="is that the file's delimiter?")
-    if len(t.header) == 1 and ";" in t.header[0]:
-        raise DatasetError(f"{where}: the header is one column {t.header[0][:60]!r}...: the file looks ';'-separated; "
-                           "datasets are comma-separated (use hykin.importers for other layouts)", file=where)
+    seps = [(c, n) for c, n in ((";", "';'"), ("\t", "tab"), ("|", "'|'")) if len(t.header) == 1 and c in t.header[0]]
+    if seps:
+        c, name = seps[0]
+        raise DatasetError(f"{where}: the header is one column {t.header[0][:60]!r}...: the file looks {name}-separated; "
+                           f"datasets are comma-separated{' (or tab-separated as .tsv)' if c != chr(9) else ': name it .tsv'}; "
+                           f"any other layout: hykin import table {Path(path).name} --suggest", file=where)
     return _Table(where, t.header, lambda c: float_column(t, c, finite=False), lambda c: lenient_column(t.col(c)),
                   t.line_offset(), {}, t.lines)
 
@@ -224,6 +228,16 @@ def _joints_of(t: _Table, robot, dof, angle_unit: str, length_unit: str) -> np.n
     return q
 
 
+def _case_hint(missing: list[str], header: list[str]) -> str:
+    """``"; column names are lower-case: ..."`` when the missing columns are there in another case."""
+    found = {h.strip().lower(): h for h in header}
+    pairs = [(found[m], m) for m in missing if m in found]
+    if not pairs:
+        return ""
+    shown = ", ".join(f"{h!r} for {m!r}" for h, m in pairs[:3]) + (", ..." if len(pairs) > 3 else "")
+    return f"; column names are lower-case: the file has {shown} (rename them, or map them: hykin import table FILE --suggest)"
+
+
 def _check_pose_header(t: _Table, expect: str) -> bool:
     """Raise for missing x/y/z or partial orientation columns; return True when orientation is present."""
     present = set(t.header)
@@ -231,7 +245,7 @@ def _check_pose_header(t: _Table, expect: str) -> bool:
     if missing:
         raise DatasetError(
             f"{t.where}: missing column(s) {', '.join(missing)}; expected {expect} "
-            f"(found: {', '.join(t.header)})", file=t.where, column=missing[0])
+            f"(found: {', '.join(t.header)}){_case_hint(missing, t.header)}", file=t.where, column=missing[0])
     qcols = [c for c in QUAT_COLUMNS if c in present]
     if qcols and len(qcols) != 4:
         miss = [c for c in QUAT_COLUMNS if c not in present]
