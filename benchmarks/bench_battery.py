@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import shlex
 import sys
 import tempfile
 import time
@@ -32,8 +33,9 @@ for _v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 
-def run_draw(family: str, seed: int, folder: Path):
-    """Draw and run one campaign -> Verdict; a failure to even draw it is a crash of the generator."""
+def run_draw(family: str, seed: int, folder: Path, extra_fit_args: tuple = ()):
+    """Draw and run one campaign -> Verdict; a failure to even draw it is a crash of the generator.
+    ``extra_fit_args``: further ``hykin fit`` options for every draw (e.g. ``--prior ...``)."""
     import warnings
 
     from hykin.sim.battery import Verdict, run_campaign
@@ -45,6 +47,7 @@ def run_draw(family: str, seed: int, folder: Path):
         c = draw_campaign(family, seed)
     except Exception as e:
         return Verdict(family, seed, False, "crash", f"generator failed: {type(e).__name__}: {e}")
+    c.fit_args = [*c.fit_args, *extra_fit_args]
     return run_campaign(c, folder, run_captured)
 
 
@@ -60,6 +63,8 @@ def main(argv=None) -> int:
     ap.add_argument("--keep", type=Path, default=None, help="keep each draw's files under this folder")
     ap.add_argument("--verbose", action="store_true", help="print every draw's verdict")
     ap.add_argument("--jobs", type=int, default=1, help="draws run in this many processes (same verdicts)")
+    ap.add_argument("--fit-args", default="", help="further hykin fit options for every draw, e.g. "
+                    "'--prior excitation_residual=1'")
     a = ap.parse_args(argv)
     fams = list(FAMILIES) if a.families == "all" else [f.strip() for f in a.families.split(",") if f.strip()]
     bad = [f for f in fams if f not in FAMILIES]
@@ -71,7 +76,8 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         root = a.keep or Path(tmp)
         todo = [(fams[k % len(fams)], a.seed + k // len(fams)) for k in range(a.draws)]
-        todo = [(f, s, root / f"{f}-{s}") for f, s in todo]
+        extra = tuple(shlex.split(a.fit_args))
+        todo = [(f, s, root / f"{f}-{s}", extra) for f, s in todo]
         from concurrent.futures import ProcessPoolExecutor
 
         with ProcessPoolExecutor(max(a.jobs, 1)) if a.jobs > 1 else contextlib.nullcontext() as pool:

@@ -105,7 +105,7 @@ from .params import (
     select_specs,
 )
 from .posterior import PriorContext, noise_variances, posterior, prior_system, prior_weight, reset_held
-from .priors import excitation, prior_tolerances, resolve_priors
+from .priors import excitation, prior_tolerances, residual_floors, resolve_priors
 from .result import (
     CalibrationError,
     CalibrationResult,
@@ -490,8 +490,8 @@ def calibrate(
                   floor_m=pri_kinds["excitation_mm"] * 1e-3, floor_rad=math.radians(pri_kinds["excitation_deg"]),
                   noise_m=noise_m, rank_tol=rank_tol,
                   negligible_tol=negligible_tol)
-    run = lambda rob, sp, ww, it, pts=None, fr=None: _calibrate_pass(
-        rob, q, xyz, R_meas, sp, ww, it, tol, progress, pri, pts0=pts, pl=pl, groups=groups, frames0=fr)
+    run = lambda rob, sp, ww, it, pts=None, fr=None, pr=None: _calibrate_pass(
+        rob, q, xyz, R_meas, sp, ww, it, tol, progress, pr or pri, pts0=pts, pl=pl, groups=groups, frames0=fr)
     starts = [(robot, pts_zero, fr_file)]
     reg = None
     full_frames = all(f"base.{f}" in names for f in TWIST) and all(f"tool.{f}" in names for f in ("x", "y", "z"))
@@ -522,6 +522,11 @@ def calibrate(
                 break
             res, rel, changed = run(res.robot, specs, ww, max_iter, pts=res.point_offsets_m, fr=res.station_frames)
             iters += res.iterations
+        low = residual_floors(pri, res.after, pri_kinds["excitation_residual"])
+        if low is not None:  # opt-in: what the fit leaves bounds the model error (hykin.calibration.priors)
+            res, rel, _ = run(res.robot, specs, ww, max_iter, pts=res.point_offsets_m, fr=res.station_frames, pr=low)
+            iters += res.iterations
+            res.message += f"; excitation floors from the residual: {low.floor_m * 1e3:.3g} mm, {math.degrees(low.floor_rad):.3g} deg"
         return res, rel, iters
 
     best = None
