@@ -82,22 +82,24 @@ def export_onnx(model, path: str | Path, n_check: int = 2000, opset: int = 17, s
     hi = np.asarray(model.support_upper_)
     rng = np.random.default_rng(seed)
     q = lo + rng.random((n_check, len(lo))) * (hi - lo)
-    q_t = torch.from_numpy(q)
     wrapper = _Wrapper(model).eval()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     # written beside the target and moved there only once checked: a failed export leaves nothing
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        info = _export_checked(model, wrapper, q, q_t, tmp, opset, torch)
+        info = _export_checked(model, wrapper, q, tmp, opset)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
     return info
 
 
-def _export_checked(model, wrapper, q, q_t, tmp: Path, opset: int, torch) -> dict:
-    """Trace ``wrapper`` to ``tmp`` and compare ONNX Runtime's poses there with ``model.predict``."""
+def _export_checked(model, wrapper, q: np.ndarray, tmp: Path, opset: int) -> dict:
+    """Trace ``wrapper`` to ``tmp`` and compare ONNX Runtime's poses there with ``model.predict`` at
+    the joints ``q`` ``(n, dof)`` rad."""
+    import torch
+
     from ..geometry.se3 import pose_error
 
     with warnings.catch_warnings(), torch.no_grad(), _silu_as_division(wrapper.net_pos, wrapper.net_rot):
@@ -105,7 +107,7 @@ def _export_checked(model, wrapper, q, q_t, tmp: Path, opset: int, torch) -> dic
         # the result is verified numerically below.
         warnings.simplefilter("ignore")
         torch.onnx.export(
-            wrapper, (q_t[:8],), str(tmp), dynamo=False, input_names=["q"], output_names=["pose"],
+            wrapper, (torch.from_numpy(q[:8]),), str(tmp), dynamo=False, input_names=["q"], output_names=["pose"],
             dynamic_axes={"q": {0: "N"}, "pose": {0: "N"}}, opset_version=opset,
         )
     import onnxruntime as ort
