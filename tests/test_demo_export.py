@@ -83,6 +83,10 @@ def test_onnx_export_on_a_runtime_that_cannot_run_it_writes_nothing(tmp_path, sm
             raise RuntimeError("[ONNXRuntimeError] : 9 : NOT_IMPLEMENTED : Could not find an implementation for Cos(7)")
 
     monkeypatch.setattr(ort, "InferenceSession", Refusing)
+    import torch
+
+    # the trace itself is checked above; here a stand-in writes the file it would have written
+    monkeypatch.setattr(torch.onnx, "export", lambda model, args, f, **kw: open(f, "wb").write(b"traced"))
     (tmp_path / "old.onnx").write_bytes(b"earlier export")
     with pytest.raises(RuntimeError, match=rf"onnxruntime>={MIN_ORT}.*Nothing was written"):
         export_onnx(small_model, tmp_path / "old.onnx", n_check=10)
