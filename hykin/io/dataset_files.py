@@ -38,7 +38,7 @@ from .dataset import (
     validate_joints,
     validate_poses,
 )
-from .text_table import float_column, lenient_column, read_delimited, with_file_line
+from .text_table import delimiter_name, detect_delimiter, float_column, lenient_column, read_delimited, with_file_line
 
 __all__ = ["read_dataset", "read_joints", "read_poses", "write_dataset"]
 
@@ -156,12 +156,11 @@ def _open_table(path: str | Path) -> _Table:
         raise DatasetError(f"{where}: unknown dataset file type {suffix!r}; expected .csv or .parquet", file=where)
     t = read_delimited(path, delimiter="\t" if suffix == ".tsv" else ",", allow_empty_names=True,
                        layout_hint="is that the file's delimiter?")
-    seps = [(c, n) for c, n in ((";", "';'"), ("\t", "tab"), ("|", "'|'")) if len(t.header) == 1 and c in t.header[0]]
-    if seps:
-        c, name = seps[0]
-        raise DatasetError(f"{where}: the header is one column {t.header[0][:60]!r}...: the file looks {name}-separated; "
-                           f"datasets are comma-separated{' (or tab-separated as .tsv)' if c != chr(9) else ': name it .tsv'}; "
-                           f"any other layout: hykin import table {Path(path).name} --suggest", file=where)
+    if len(t.header) == 1 and (d := detect_delimiter(t.header[0], ".")) in ("\t", ";", "|"):
+        tsv = ": name it .tsv" if d == "\t" else " (or tab-separated as .tsv)"
+        raise DatasetError(f"{where}: the header is one column {t.header[0][:60]!r}...: the file looks "
+                           f"{delimiter_name(d)}-separated; datasets are comma-separated{tsv}; any other layout: "
+                           f"hykin import table {Path(path).name} --suggest", file=where)
     return _Table(where, t.header, lambda c: float_column(t, c, finite=False), lambda c: lenient_column(t.col(c)),
                   t.line_offset(), {}, t.lines)
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from .dataset import DatasetError
 
-__all__ = ["TextTable", "detect_delimiter", "float_column", "lenient_column", "read_delimited", "read_lines",
+__all__ = ["TextTable", "delimiter_name", "detect_delimiter", "float_column", "lenient_column", "read_delimited", "read_lines",
            "split_lines", "with_file_line"]
 
 _DELIMITER_NAMES = {",": "','", ";": "';'", "\t": "tab", " ": "whitespace", "|": "'|'"}
@@ -76,6 +76,11 @@ def read_lines(path: Path, encoding: str | None, where: str) -> list[str]:
             raise DatasetError(f"{where}: cannot be decoded as {encoding}", file=where) from None
         text = raw.decode("cp1252", errors="replace")
     return text.splitlines()
+
+
+def delimiter_name(delimiter: str) -> str:
+    """How a message names a delimiter: ``"';'"``, ``"tab"``, ``"whitespace"``..."""
+    return _DELIMITER_NAMES.get(delimiter, repr(delimiter))
 
 
 def detect_delimiter(header_line: str, decimal: str) -> str:
@@ -151,7 +156,7 @@ def read_delimited(
             cells[r] = row[:len(names)]  # trailing delimiter(s) on this line only
         elif len(row) != len(names):
             raise t.error(r, None, f"has {len(row)} cells, the header has {len(names)} "
-                          f"(delimiter: {_DELIMITER_NAMES.get(delim, repr(delim))}; {layout_hint})")
+                          f"(delimiter: {delimiter_name(delim)}; {layout_hint})")
     return t
 
 
