@@ -306,13 +306,18 @@ def test_residual_floors_lower_only_what_the_residual_is_below():
 
     pri = PriorContext(file_state=None, tol_by_name={}, floor_m=0.2e-3, floor_rad=math.radians(0.01), noise_m=None,
                        rank_tol=1e-6, negligible_tol=1e-9)
-    six = {"pos_rms_mm": 0.05, "rot_rms_deg": 0.02}
+    six = {"pos_rms_mm": 0.05, "rot_rms_deg": 0.002}
     assert residual_floors(pri, six, 0.0) is None  # off by default
-    low = residual_floors(pri, six, 1.0)
-    assert low.floor_m == pytest.approx(0.05e-3) and low.floor_rad == pri.floor_rad  # 0.02 deg > the 0.01 floor
+    low = residual_floors(pri, six, 1.0)  # one factor, max(0.05 / 0.2, 0.002 / 0.01) = 0.25, for both floors
+    assert low.floor_m == pytest.approx(0.05e-3) and low.floor_rad == pytest.approx(0.25 * pri.floor_rad)
     assert residual_floors(pri, six, 2.0).floor_m == pytest.approx(0.1e-3)
-    assert residual_floors(pri, {"pos_rms_mm": 0.3}, 1.0) is None  # above both floors: nothing to lower
-    assert residual_floors(pri, {"pos_rms_mm": 0.01}, 1.0).floor_rad == pri.floor_rad  # position-only data
+    assert residual_floors(pri, {"pos_rms_mm": 0.3}, 1.0) is None  # above the floor: nothing to lower
+    assert residual_floors(pri, {"pos_rms_mm": 0.05, "rot_rms_deg": 0.02}, 1.0) is None  # orientations above theirs
+    # noise-free orientations (a simulation, my own arm's data): the positions set the factor, the
+    # orientation floor is not dropped to 1e-9 deg, where those rows alone would decide the test
+    nf = residual_floors(pri, {"pos_rms_mm": 0.035, "rot_rms_deg": 3e-9}, 1.0)
+    assert nf.floor_m == pytest.approx(0.035e-3) and nf.floor_rad == pytest.approx(0.175 * pri.floor_rad)
+    assert residual_floors(pri, {"pos_rms_mm": 0.01}, 1.0).floor_rad == pytest.approx(0.05 * pri.floor_rad)  # positions only
     assert parse_priors(["excitation_residual=1"])["excitation_residual"] == 1.0
     with pytest.raises(ValueError, match="excitation_residual"):
         parse_priors(["excitation_residual=-1"])
