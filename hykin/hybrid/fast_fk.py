@@ -307,7 +307,11 @@ if HAVE_NUMBA:
             z = np.empty((n, 3))
             o = np.empty((n, 3))
             cm = np.empty((n, 3))
-            deflect_one(kf, kpost, ppt, kpr, com, mass, kg, g, C, q, _DEFLECT_MIN_IT, MAX_ITER, TOL_RAD, qe, tau, z, o, cm)
+            # iteration counts as int64, not literals: deflect_one is then compiled once for this caller and
+            # for compliance's own kernels (each literal argument value is a separate ~1 s compilation)
+            zero = n - n
+            deflect_one(kf, kpost, ppt, kpr, com, mass, kg, g, C, q, zero + _DEFLECT_MIN_IT, zero + MAX_ITER, TOL_RAD, qe, tau,
+                        z, o, cm)
             fk_one(fixed, prism, qe, T)
         else:
             fk_one(fixed, prism, q, T)

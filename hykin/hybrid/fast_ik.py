@@ -43,7 +43,9 @@ if HAVE_NUMBA:
     @numba.njit(cache=True, nogil=True)
     def _residual(P, q, Tt, pos_only, w_rot, T, ex, e):  # pragma: no cover - compiled
         """Hybrid pose of ``q`` into ``T`` and residual into ``e``; returns (|Δp| m, angle rad, cost)."""
-        hybrid_one(P, q, T, ex, True)
+        # framed_out = P[40] (the model's own ``framed``) is the same as True here, and a runtime bool: a
+        # literal True would compile hybrid_one a second time (~3 s) beside fast_fk's batch kernel
+        hybrid_one(P, q, T, ex, P[40])
         pe, ae = pose_residual_one(T, Tt, pos_only, e)
         m = 3 if pos_only else 6
         cost = 0.0

@@ -189,7 +189,11 @@ def train_net(
     n_params = sum(p.numel() for p in net.parameters())
     threads = recipe.threads or (1 if (n_params < 1_000_000 and device == "cpu") else prev_threads)
     torch.set_num_threads(threads)
-    torch.use_deterministic_algorithms(True, warn_only=True)
+    # Only CUDA has kernels that are not deterministic (atomics); on the CPU every kernel this loop
+    # uses is, and setting the flag imports torch's compiler stack (1.6 s per process).
+    deterministic = not device.startswith("cpu")
+    if deterministic:
+        torch.use_deterministic_algorithms(True, warn_only=True)
     try:
         net.to(device=device, dtype=dt)
         X = torch.as_tensor(np.asarray(q_train), dtype=torch.float64, device=device)
@@ -288,7 +292,8 @@ def train_net(
         net.eval()
         final_train = _eval(net, X, Y)
     finally:
-        torch.use_deterministic_algorithms(prev_det)
+        if deterministic:
+            torch.use_deterministic_algorithms(prev_det)
         torch.set_num_threads(prev_threads)
     return TrainResult(
         epochs=epoch, best_epoch=best_epoch, best_val=float(best_val), final_train=final_train,
