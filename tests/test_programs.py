@@ -109,13 +109,22 @@ def test_krl_src_and_dat_rewrite():
         "ENDDAT\r\n"
     )
     rs = compensate_program(m, src, krl, frame="measurement")
-    rd = compensate_program(m, dat, krl, frame="measurement", context=src)
+    # XP2 and XP3 are moved to in base 1 with the $TOOL aggregate: without BASE_DATA[1] ($config.dat)
+    # their pose is unknown and they fail, saying so; with it (the identity here) they are solved
+    r0 = compensate_program(m, dat, krl, frame="measurement", context=src)
+    assert [line for line, _ in r0.failed] == [5, 6] and all("BASE_DATA[1]) is not declared" in r for _, r in r0.failed)
+    config = "DEFDAT $CONFIG\r\nBASE_DATA[1]={X 0.0,Y 0.0,Z 0.0,A 0.0,B 0.0,C 0.0}\r\nENDDAT\r\n"
+    rd = compensate_program(m, dat, krl, frame="measurement", context=src + config)
     assert len(rs.targets) == 2 and len(rd.targets) == 3 and not rs.failed and not rd.failed
+    tool = se3.make_transform(np.eye(3), np.array([0.0, 0.0, 0.1]))
+    assert rd.targets[0].tool_delta is None and rd.targets[0].frame is None  # XP1: before the selections
+    for t in rd.targets[1:]:
+        assert np.allclose(t.frame, np.eye(4)) and np.allclose(t.tool_delta, se3.invert(nom.tool) @ tool)
     assert _diff_lines(src, rs.text) == {5, 9} and _diff_lines(dat, rd.text) == {3, 5, 6}
     assert "E1 0.0} C_PTP\r\n" in rs.text and "S 'B" in rs.text.split("\r\n")[8]
     assert len(rs.notes) == 3  # LIN_REL, the partial aggregate and $TOOL are kept and noted
     assert any("TOOL_OFS" in n for n in rd.notes)
-    new = krl.find_targets(rs.text, nom)[0] + krl.find_targets(rd.text, nom, context=src)[0]
+    new = krl.find_targets(rs.text, nom)[0] + krl.find_targets(rd.text, nom, context=src + config)[0]
     want = np.stack([t.pose for t in rs.targets + rd.targets])
     cmd = np.stack([t.pose for t in new])
     # stand-in KUKA controller for the targets with S/T: the nominal solution with exactly those bits

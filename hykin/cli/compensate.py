@@ -49,7 +49,7 @@ def compensate_cmd(
     frame: str = typer.Option("auto", "--frame", help="Frame of the targets: measurement (the model's data frame), base (controller base placed by the fitted base), auto (CSV: measurement; programs: base when the fitted base is far from the nominal one)."),
     skip_unreachable: bool = typer.Option(False, "--skip-unreachable", help="Programs: keep an unreachable target's original line and warn, instead of refusing to write."),
     fmt: str | None = typer.Option(None, "--format", help="Input format: csv, urscript, krl, rapid (default: by suffix)."),
-    context: Path | None = typer.Option(None, "--context", help="KRL: the companion .src of a .dat (default: same name beside it)."),
+    context: list[Path] | None = typer.Option(None, "--context", help="More files the program needs (repeatable). KRL: the companion .src/.dat (read from beside the input by default) and $config.dat (BASE_DATA/TOOL_DATA). RAPID: modules declaring the tooldata/wobjdata the program uses."),
     axis_signs: str | None = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the robot preset)."),
     payload_kg: float | None = typer.Option(None, "--payload-kg", help="Payload (kg, at the TCP) the robot carries while executing these targets: the model deflects under it (default: the robot file's payload)."),
     force: bool = Force,
@@ -60,7 +60,9 @@ def compensate_cmd(
     kind = _format_of(inp, fmt)
     if frame not in ("auto", "measurement", "base"):
         raise CLIError(f"--frame must be auto, measurement or base, got {frame!r}")
-    check_output(out, [inp, model, context], force)
+    context = list(context or [])
+    companion = [inp.with_suffix(x) for x in (".src", ".dat")] if inp.suffix.lower() in (".src", ".dat") else []
+    check_output(out, [inp, model, *context, *companion], force)
     if not inp.is_file():
         raise CLIError(f"{inp}: no such file")
     mdl = load_model(model)
@@ -139,21 +141,20 @@ def _summary(comp, out: Path, n: int) -> None:
 
 
 def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, frame: str, skip: bool,
-                        context: Path | None, signs) -> None:
+                        context: list, signs) -> None:
     from ..compensation import krl, rapid, urscript
     from ..compensation.programs import compensate_program
 
     fmt = {"urscript": urscript, "krl": krl, "rapid": rapid}[kind]
     text = inp.read_bytes().decode("latin-1")  # one char per byte: unchanged bytes stay unchanged
-    ctx = ""
-    if kind == "krl":
-        if context is None and inp.suffix.lower() == ".dat":
-            sib = inp.with_suffix(".src")
-            context = sib if sib.is_file() else None
-        if context is not None:
-            if not Path(context).is_file():
-                raise CLIError(f"--context {context}: no such file")
-            ctx = Path(context).read_bytes().decode("latin-1")
+    if kind == "krl" and inp.suffix.lower() in (".src", ".dat"):  # the companion file, beside it, comes too
+        sib = inp.with_suffix(".src" if inp.suffix.lower() == ".dat" else ".dat")
+        if sib.is_file() and not any(Path(c).resolve() == sib.resolve() for c in context):
+            context = [sib, *context]
+    for c in context:
+        if not Path(c).is_file():
+            raise CLIError(f"--context {c}: no such file")
+    ctx = "\n".join(Path(c).read_bytes().decode("latin-1") for c in context)
     try:
         res = compensate_program(mdl, text, fmt, frame=frame, axis_signs=signs, context=ctx)
     except ValueError as e:
@@ -163,10 +164,15 @@ def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, fram
         con.print(f"note: {inp}:{note}", highlight=False)
     if not res.targets:
         raise CLIError(f"{inp}: no Cartesian targets found (format {kind}); nothing written")
+    unknown = {t.line for t in res.targets if t.error}  # frames the program does not define (RAPID work objects)
     for line, reason in res.failed:
-        con.print(f"{'warning' if skip else 'error'}: {inp}:{line}: target unreachable ({reason})", highlight=False)
+        what = "target's frame unknown" if line in unknown else "target unreachable"
+        con.print(f"{'warning' if skip else 'error'}: {inp}:{line}: {what} ({reason})", highlight=False)
     if res.failed and not skip:
-        raise CLIError(f"{inp}: {len(res.failed)} of {len(res.targets)} targets unreachable; nothing written "
+        n_frame = sum(1 for line, _ in res.failed if line in unknown)
+        why = "unreachable" if not n_frame else ("with unknown frames" if n_frame == len(res.failed)
+                                                  else f"unreachable or with unknown frames ({n_frame})")
+        raise CLIError(f"{inp}: {len(res.failed)} of {len(res.targets)} targets {why}; nothing written "
                        "(--skip-unreachable keeps their original lines)")
     if joints:
         rows = {"target": np.arange(len(res.targets)), "line": [t.line for t in res.targets],

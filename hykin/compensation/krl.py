@@ -13,9 +13,10 @@ this file or its companion (``.src`` for a ``.dat``) uses. Kept and noted: relat
 cannot know), ``FRAME`` data not used as a motion target (``$BASE``/``$TOOL``/``BASE_DATA``/
 ``TOOL_DATA``), assignments to system variables (``$TOOL = {...}``, ``$BASE``, ``BASE_DATA[i]``,
 ``TOOL_DATA[i]``). ``PTP {A1 .., A6 ..}`` joint moves restart the branch walk (axis angles, degrees,
-controller signs). Targets are in the robot base frame: ``$BASE`` = ``$WORLD`` = robot root and the
-tool of the nominal robot file, i.e. ``BASE_DATA[0]``/``$TOOL`` as the robot file's tool (document
-your cell if it differs). Numbers are written with 4 decimals (mm) and 5 (deg).
+controller signs). Each target is taken in the base and with the tool the program selects where it
+moves to it (:mod:`.krl_frames`: ``$BASE``/``$TOOL``, ``BAS(#BASE, n)``, ``FDAT_ACT``; ``BASE_DATA``/
+``TOOL_DATA`` from ``$config.dat`` in ``context``; base 0 = the robot base, tool 0 = the robot file's
+tool) and written back in that base. Numbers are written with 4 decimals (mm) and 5 (deg).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import re
 import numpy as np
 
 from ..geometry import se3
+from .krl_frames import frames_of_targets
 from .programs import NUMBER, ProgramTarget, comment_mask, line_of, splice_numbers
 
 __all__ = ["SUFFIXES", "abc_from_matrix", "find_targets", "format_target", "matrix_from_abc"]
@@ -66,13 +68,18 @@ def _int_value(tok: str) -> int:
     return int(tok[2:-1], 2) if tok.startswith("'") else int(float(tok))
 
 
-def _motion_names(clean: str) -> set:
-    names = set()
+def _motion_uses(clean: str) -> list:
+    """``[(position, variable name (upper case))]`` of the variables motion statements move to."""
+    uses = []
     for m in re.finditer(r"\b(?:S?PTP|S?LIN)\s+([A-Za-z_$]\w*)", clean, re.IGNORECASE):
-        names.add(m.group(1).upper())
+        uses.append((m.start(), m.group(1).upper()))
     for m in re.finditer(r"\bS?CIRC\s+([A-Za-z_$]\w*)\s*,\s*([A-Za-z_$]\w*)", clean, re.IGNORECASE):
-        names.update((m.group(1).upper(), m.group(2).upper()))
-    return names
+        uses += [(m.start(), m.group(1).upper()), (m.start(), m.group(2).upper())]
+    return uses
+
+
+def _motion_names(clean: str) -> set:
+    return {name for _, name in _motion_uses(clean)}
 
 
 def _clean(text: str) -> str:
@@ -142,7 +149,18 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
                                 "tokens": {k: comps[k][2] for k in keys}, "axis_signs": sgn},
         ))
         prev_end = m.end()
-    return targets, notes
+    # the base and tool of each target: the selections in force where the .src moves to it
+    text_is_src = bool(_motion_uses(clean)) or not context
+    src_clean = clean if text_is_src else _clean(context)
+    motions = [(p, name, None) for p, name in _motion_uses(src_clean)]
+    motions += [(t.start, None, k) for k, t in enumerate(targets) if not t.name]
+    fr = frames_of_targets(src_clean, text_is_src, targets, robot, [clean, _clean(context)] if context else [clean],
+                           motions, matrix_from_abc)
+    for t, W, D, err in zip(targets, fr.frame, fr.tool_delta, fr.error):
+        t.frame, t.tool_delta, t.error = W, D, err
+        if W is not None:
+            t.pose = W @ t.pose
+    return targets, notes + fr.notes
 
 
 def format_target(t: ProgramTarget, command: np.ndarray, q, robot, axis_signs=None) -> str:

@@ -25,10 +25,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..geometry import se3
 from .compensator import compensate
 from .result import Compensation
 
-__all__ = ["NUMBER", "ProgramResult", "ProgramTarget", "comment_mask", "compensate_program", "line_of", "splice_numbers"]
+__all__ = ["NUMBER", "ProgramResult", "ProgramTarget", "TargetFrames", "comment_mask", "compensate_program", "line_of",
+           "splice_numbers"]
 
 NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 
@@ -42,6 +44,9 @@ class ProgramTarget:
     name: variable name (``""`` for an inline literal). kind: e.g. ``"p[]"``, ``"E6POS"``, ``"robtarget"``.
     config: configuration data read from the program (``{"S": 6, "T": 27}``, ``{"conf": [0, 0, 0, 1]}``).
     tool_delta: ``(4, 4)`` program TCP relative to the nominal tool (URScript ``set_tcp``) or None.
+    frame: ``(4, 4)`` the frame the literal is written in, in the controller's base frame (RAPID work
+    objects: ``pose = frame · literal``), or None (the base frame).
+    error: why the target cannot be compensated before solving (an unknown work object ...), or ``""``.
     reset: joints ``(n,)`` of the last joint-space move before the target, or None.
     parts: format-specific parse (number spans and texts) used to write the literal back.
     """
@@ -56,6 +61,34 @@ class ProgramTarget:
     tool_delta: np.ndarray | None = None
     reset: np.ndarray | None = None
     parts: dict = field(default_factory=dict)
+    frame: np.ndarray | None = None
+    error: str = ""
+
+
+@dataclass
+class TargetFrames:
+    """The frames of a program's targets (RAPID :mod:`.rapid_frames`, KRL :mod:`.krl_frames`), one entry
+    per target: ``frame`` ``(4, 4)`` or None (the base frame), ``tool_delta`` ``(4, 4)`` or None (the
+    robot file's tool), ``error`` (``""``: resolved); ``notes`` for the program."""
+
+    frame: list = field(default_factory=list)
+    tool_delta: list = field(default_factory=list)
+    error: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
+
+    def add(self, uses: list, conflict: str) -> None:
+        """Append one target from its uses ``[(frame, tool_delta, error, label)]`` (at least one): their
+        common frames, or ``conflict`` (followed by the uses' labels) when they differ."""
+        W, D, err = uses[0][:3]
+        same = lambda a, b: (a is None and b is None) or (a is not None and b is not None and np.allclose(a, b, atol=1e-12))
+        for W2, D2, err2, _ in uses[1:]:
+            err = err or err2
+            if not (same(W, W2) and same(D, D2)):
+                err = f"{conflict} ({', '.join(u[3] for u in uses)}): one literal cannot be compensated for both"
+                break
+        self.frame.append(W)
+        self.tool_delta.append(D)
+        self.error.append(err)
 
 
 @dataclass
@@ -152,40 +185,64 @@ def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs
                        **ik_kw) -> ProgramResult:
     """Compensate every Cartesian target of ``text`` (a program in format module ``fmt``: one of
     :mod:`.urscript`, :mod:`.krl`, :mod:`.rapid`). ``context``: text of a companion file (KRL: the
-    ``.src`` beside a ``.dat``) whose motion statements tell which variables are targets.
+    ``.src`` beside a ``.dat``, whose motion statements tell which variables are targets; RAPID: modules
+    declaring the ``tooldata``/``wobjdata`` the program uses).
     ``frame``: how program poses map into the model's measurement frame (:mod:`.targets`).
     Returns a :class:`ProgramResult`; unreachable targets keep their literal and are listed in ``failed``.
     """
-    from ..geometry import se3
-
     targets, notes = fmt.find_targets(text, model.nominal, context=context, axis_signs=axis_signs)
     if not targets:
         return ProgramResult(text=text, targets=[], comp=None, failed=[], notes=notes)
-    T = np.stack([t.pose for t in targets])
-    D = np.stack([np.eye(4) if t.tool_delta is None else t.tool_delta for t in targets])
-    from .frames import resolve_frame
-
-    fr = resolve_frame(model, frame)
-    # branch from the nominal solutions of the uncompensated target, in the nominal robot's world
-    # (= the measurement frame; the controller base sits at nominal.base in it)
-    T_nom = (T if fr == "measurement" else model.nominal.base @ T) @ se3.invert(D)
-    from .frames import to_model_frame
-
-    T_cal = se3.invert(model.frame_pre_) @ to_model_frame(model, T, fr) @ se3.invert(D) @ se3.invert(model.frame_post_)
-    qb = _branch_joints(model, targets, T_nom, T_cal, axis_signs, fmt)
-    reason = "no solution with the program's configuration data"
-    comp = compensate(model, T, q_branch=qb, frame=fr, tool_delta=D, branch_reason=reason, **ik_kw)
+    ok = [k for k, t in enumerate(targets) if not t.error]
+    comp = _solve(model, [targets[k] for k in ok], frame, axis_signs, fmt, ik_kw) if ok else None
+    comp = _scatter(comp, ok, targets, model.nominal.dof, frame)
     pieces, last, failed = [], 0, []
     for k, t in enumerate(targets):
         if not comp.success[k]:
             failed.append((t.line, f"{t.name or t.kind}: {comp.reason[k]}"))
             continue
-        new = fmt.format_target(t, comp.command[k], comp.q[k], model.nominal, axis_signs)
+        command = comp.command[k] if t.frame is None else se3.invert(t.frame) @ comp.command[k]
+        new = fmt.format_target(t, command, comp.q[k], model.nominal, axis_signs)
         pieces.append(text[last : t.start])
         pieces.append(new)
         last = t.end
     pieces.append(text[last:])
     return ProgramResult(text="".join(pieces), targets=targets, comp=comp, failed=failed, notes=notes)
+
+
+def _solve(model, targets: list, frame: str, axis_signs, fmt, ik_kw: dict) -> Compensation:
+    """:class:`Compensation` of ``targets`` (all with known frames), branches as the program means them."""
+    from .frames import resolve_frame, to_model_frame
+
+    T = np.stack([t.pose for t in targets])
+    D = np.stack([np.eye(4) if t.tool_delta is None else t.tool_delta for t in targets])
+    fr = resolve_frame(model, frame)
+    # branch from the nominal solutions of the uncompensated target, in the nominal robot's world
+    # (= the measurement frame; the controller base sits at nominal.base in it)
+    T_nom = (T if fr == "measurement" else model.nominal.base @ T) @ se3.invert(D)
+    T_cal = se3.invert(model.frame_pre_) @ to_model_frame(model, T, fr) @ se3.invert(D) @ se3.invert(model.frame_post_)
+    qb = _branch_joints(model, targets, T_nom, T_cal, axis_signs, fmt)
+    reason = "no solution with the program's configuration data"
+    return compensate(model, T, q_branch=qb, frame=fr, tool_delta=D, branch_reason=reason, **ik_kw)
+
+
+def _scatter(comp: Compensation | None, rows: list, targets: list, n: int, frame: str) -> Compensation:
+    """``comp`` (of ``targets[rows]``) widened to every target: the others failed with their ``error``."""
+    N = len(targets)
+    if comp is not None and len(rows) == N:
+        return comp
+    nan = lambda *shape: np.full(shape, np.nan)
+    out = Compensation(command=nan(N, 4, 4), q=nan(N, n), success=np.zeros(N, dtype=bool),
+                       reason=np.array([t.error for t in targets], dtype=object), pos_err_mm=nan(N),
+                       ang_err_deg=nan(N), shift_mm=nan(N), shift_deg=nan(N), in_support=np.zeros(N, dtype=bool),
+                       q_branch=nan(N, n), frame=frame if comp is None else comp.frame)
+    if comp is not None:
+        for name in ("command", "q", "success", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg", "in_support",
+                     "q_branch"):
+            getattr(out, name)[rows] = getattr(comp, name)
+        out.reason[rows] = comp.reason
+    out.reason = out.reason.astype(str)
+    return out
 
 
 def splice_numbers(literal: str, spans: list, values: list) -> str:

@@ -1,13 +1,15 @@
-"""ABB RAPID: ``robtarget`` literals ``[[x,y,z],[q1,q2,q3,q4],[cf1,cf4,cf6,cfx],[e1,...,e6]]``.
+r"""ABB RAPID: ``robtarget`` literals ``[[x,y,z],[q1,q2,q3,q4],[cf1,cf4,cf6,cfx],[e1,...,e6]]``.
 
 ``x, y, z`` in mm; ``q1..q4`` the orientation quaternion, scalar first; ``confdata`` as in
 :mod:`.branches` (it picks the nominal solution the program means and is rewritten from the
 compensated joints); external axes kept. Any literal of that shape is a robtarget (``CONST``/``PERS``/
-``VAR robtarget`` declarations and inline ``MoveL``/``MoveJ`` arguments; ``jointtarget``, ``tooldata``,
-``wobjdata`` and ``pose`` have other shapes). Comments (``!``) and strings are ignored. Targets are
-taken relative to ``wobj0`` with the robot file's tool (``tool0`` + the file's tool): a target used
-with another work object or tool needs that frame in the robot file. Numbers are written with 4
-decimals (mm) and 9 (quaternion, normalised).
+``VAR robtarget`` declarations, arrays of them, and inline ``MoveL``/``MoveJ`` arguments; ``jointtarget``,
+``tooldata``, ``wobjdata`` and ``pose`` have other shapes). Comments (``!``) and strings are ignored.
+Each target is taken in the work object and with the tool its motion statements name
+(:mod:`.rapid_frames`: ``\WObj:=`` and ``tooldata``/``wobjdata`` declared in the module or in the
+``context`` modules; ``wobj0`` = the robot base frame, ``tool0`` and undeclared tools = the robot
+file's tool) and written back in that work object. Numbers are written with 4 decimals (mm) and 9
+(quaternion, normalised).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import numpy as np
 
 from ..geometry import se3
 from .programs import NUMBER, ProgramTarget, comment_mask, line_of, splice_numbers
+from .rapid_frames import frames_of_targets, read_frame_data
 
 __all__ = ["SUFFIXES", "find_targets", "format_target"]
 
@@ -36,9 +39,11 @@ _ROBT = re.compile(
 
 
 def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[list, list]:
-    """``(targets, notes)`` of a RAPID module text."""
-    mask = comment_mask(text, "!", '"')
-    clean = "".join(" " if m else c for c, m in zip(text, mask[: len(text)]))
+    """``(targets, notes)`` of a RAPID module text; ``context``: the text of further modules whose
+    ``tooldata``/``wobjdata`` declarations the program uses (module docstring)."""
+    clean = _blank(text)
+    data = read_frame_data(_blank(context), context, "--context ", line_of) if context else {}
+    data.update(read_frame_data(clean, text, "", line_of))
     targets = []
     for m in _ROBT.finditer(clean):
         g = [float(x) for x in m.groups()[:7]]
@@ -56,7 +61,18 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
             name=decl.group(1) if decl else "", kind="robtarget", config={"conf": conf},
             parts={"spans": spans, "literal": text[m.start():m.end()], "quat": quat},
         ))
-    return targets, []
+    fr = frames_of_targets(clean, text, targets, robot, data, line_of)
+    for t, W, D, err in zip(targets, fr.frame, fr.tool_delta, fr.error):
+        t.frame, t.tool_delta, t.error = W, D, err
+        if W is not None:
+            t.pose = W @ t.pose
+    return targets, fr.notes
+
+
+def _blank(text: str) -> str:
+    """``text`` with its comments and strings replaced by spaces (offsets kept)."""
+    mask = comment_mask(text, "!", '"')
+    return "".join(" " if m else c for c, m in zip(text, mask[: len(text)]))
 
 
 def format_target(t: ProgramTarget, command: np.ndarray, q, robot, axis_signs=None) -> str:

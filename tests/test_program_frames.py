@@ -1,0 +1,242 @@
+"""Program frames: a RAPID robtarget is a pose of the instruction's tool in its work object, a KRL
+aggregate a pose of ``$TOOL`` in ``$BASE``.
+
+The stand-in controllers here know the declared frames: they move the flange to
+``W · literal · inv(tool)`` on the program's confdata / S and T with the nominal model. The real robot (the
+model's calibrated chain) must then put the program's TCP on the wanted pose in the base frame.
+Frames the program does not define fail the target, with the reason, and nothing is guessed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from cli_run import run
+from comp_models import exact
+
+from hykin import fk
+from hykin.compensation import krl, rapid
+from hykin.compensation.branches import abb_confdata, kuka_status, match_abb_confdata, match_kuka_status
+from hykin.compensation.programs import compensate_program
+from hykin.geometry import se3
+
+
+def _frame(xyz_mm, quat) -> np.ndarray:
+    q = np.asarray(quat, dtype=float)
+    return se3.pose_to_transform(np.asarray(xyz_mm, dtype=float) * 1e-3, q / np.linalg.norm(q))
+
+
+def _f(T) -> str:
+    xyz, quat = se3.transform_to_pose(T[None])
+    return ("[[" + ",".join(f"{v:.6f}" for v in xyz[0] * 1e3) + "],[" + ",".join(f"{v:.10f}" for v in quat[0]) + "]]")
+
+
+def _robt(T, cf) -> str:
+    return _f(T)[:-1] + ",[" + ",".join(str(int(c)) for c in cf) + "],[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]]"
+
+
+UF = _frame([850.0, -420.0, 310.0], [0.9659258, 0.0, 0.0, 0.2588190])  # 30 deg about z
+OF = _frame([25.0, 40.0, -5.0], [0.9961947, 0.0871557, 0.0, 0.0])  # 10 deg about x
+TF = _frame([12.0, -8.0, 145.0], [0.9848078, 0.0, 0.1736482, 0.0])  # 20 deg about y
+
+
+@pytest.fixture(scope="module")
+def setup():
+    m = exact("abb-irb2400", 13)
+    nom = m.nominal
+    q = nom.random_joints(4, 21, margin=0.25)
+    q[:, 4] = np.abs(q[:, 4]) + 0.3
+    D = se3.invert(nom.tool) @ TF  # the program's TCP relative to the robot file's tool
+    W = UF @ OF
+    tcp = fk(m.robot_, q) @ D  # where the real robot's program TCP is at q (base frame)
+    return m, q, D, W, tcp, abb_confdata(nom, q)
+
+
+def _module(tcp, W, cf, wobj_decl=True, tool_decl=True) -> str:
+    loc = se3.invert(W) @ tcp
+    decl = ""
+    if tool_decl:
+        decl += "  PERS tooldata tGun:=[TRUE," + _f(TF) + ",[2.5,[0,0,80],[1,0,0,0],0,0,0]];\n"
+    if wobj_decl:
+        decl += "  TASK PERS wobjdata wTable:=[FALSE,TRUE,\"\"," + _f(UF) + "," + _f(OF) + "];\n"
+    return (
+        "MODULE cell\n" + decl
+        + f"  CONST robtarget pA:={_robt(loc[0], cf[0])};\n"
+        + f"  CONST robtarget path{{2}}:=[{_robt(loc[1], cf[1])},\n      {_robt(loc[2], cf[2])}];\n"
+        + "  PROC main()\n"
+        + "    MoveJ pA, v1000, z50, tGun\\WObj:=wTable;\n"
+        + "    MoveL path{1}, v500 \\T:=2, fine, tGun \\WObj:=wTable;\n"
+        + "    MoveL Offs(path{2}, 0, 0, 0),\n        v500, z10, tGun\\WObj:=wTable;\n"
+        + f"    MoveL {_robt(tcp[3], cf[3])}, v200, fine, tool0;\n"
+        + "  ENDPROC\n"
+        + "ENDMODULE\n"
+    )
+
+
+def _controller_lands(m, res, setup_W) -> np.ndarray:
+    """Position error (mm) of the real robot's program TCP after the stand-in controller executes the
+    rewritten literals: the first three in wTable with tGun, the last in the base frame with tool0."""
+    new, _ = rapid.find_targets(res.text, m.nominal)
+    nom = m.nominal
+    local = [se3.invert(t.frame) @ t.pose if t.frame is not None else t.pose for t in new]
+    W = [setup_W, setup_W, setup_W, np.eye(4)]
+    D = se3.invert(nom.tool) @ TF
+    Ds = [D, D, D, np.eye(4)]
+    flange_tcp = np.stack([W[k] @ local[k] @ se3.invert(Ds[k]) for k in range(4)])  # nominal-tool TCP wanted
+    conf = np.array([t.config["conf"] for t in new])
+    qc = match_abb_confdata(nom, flange_tcp, conf)
+    return np.stack([fk(m.robot_, qc[k:k + 1])[0] @ Ds[k] for k in range(4)])
+
+
+def test_work_object_and_tool_are_applied_and_written_back_in_the_work_object(setup):
+    m, q, D, W, tcp, cf = setup
+    mod = _module(tcp, W, cf)
+    res = compensate_program(m, mod, rapid, frame="measurement")
+    assert len(res.targets) == 4 and not res.failed, res.failed
+    for t in res.targets[:3]:
+        assert np.allclose(t.frame, W) and np.allclose(t.tool_delta, D)
+    assert res.targets[3].frame is None and res.targets[3].tool_delta is None
+    # the poses found are the wanted TCP poses in the base frame
+    assert np.abs(np.stack([t.pose for t in res.targets]) - tcp).max() < 1e-8
+    got = _controller_lands(m, res, W)
+    err_mm = np.linalg.norm(got[:, :3, 3] - tcp[:, :3, 3], axis=1) * 1e3
+    assert err_mm.max() < 2e-3, err_mm
+    # the uncompensated program misses by the model's error: the rewrite changed the literals
+    assert res.text != mod and res.comp.shift_mm.min() > 0.1
+
+
+def test_same_targets_without_frames_would_land_elsewhere(setup):
+    """The reference the frames matter for: reading the wTable literals in the base frame puts the
+    TCP hundreds of mm away (what hykin did before it read work objects)."""
+    m, q, D, W, tcp, cf = setup
+    loc = se3.invert(W) @ tcp
+    assert np.linalg.norm(loc[:3, :3, 3] - tcp[:3, :3, 3], axis=1).min() > 0.3
+
+
+def test_undeclared_work_object_fails_its_targets_with_the_reason(setup):
+    m, q, D, W, tcp, cf = setup
+    mod = _module(tcp, W, cf, wobj_decl=False)
+    res = compensate_program(m, mod, rapid, frame="measurement")
+    assert [line for line, _ in res.failed] == [t.line for t in res.targets[:3]]
+    assert all("work object wTable is not declared" in r and "--context" in r for _, r in res.failed)
+    assert res.comp.success.tolist() == [False, False, False, True]
+    # its literals stay as they were; the tool0 target is rewritten
+    assert _module(tcp, W, cf, wobj_decl=False).split("MoveL [[")[0] == res.text.split("MoveL [[")[0]
+
+
+def test_context_module_declares_the_frames(setup):
+    m, q, D, W, tcp, cf = setup
+    full = _module(tcp, W, cf)
+    decl = "\n".join(line for line in full.splitlines() if "tooldata" in line or "wobjdata" in line)
+    res = compensate_program(m, _module(tcp, W, cf, wobj_decl=False, tool_decl=False), rapid, frame="measurement",
+                             context="MODULE frames\n" + decl + "\nENDMODULE\n")
+    assert not res.failed
+    got = _controller_lands(m, res, W)
+    assert np.linalg.norm(got[:, :3, 3] - tcp[:, :3, 3], axis=1).max() * 1e3 < 2e-3
+
+
+def test_undeclared_tool_is_the_robot_files_tool_with_a_note(setup):
+    m, q, D, W, tcp, cf = setup
+    mod = _module(tcp, W, cf, tool_decl=False)
+    res = compensate_program(m, mod, rapid, frame="measurement")
+    assert not res.failed
+    assert res.targets[0].tool_delta is None
+    assert len(res.notes) == 1 and "tool tGun is not declared" in res.notes[0] and "robot file's tool" in res.notes[0]
+
+
+@pytest.mark.parametrize("wobj, why", [
+    ('[TRUE,TRUE,"",{uf},{of}]', "held by the robot"),
+    ('[FALSE,TRUE,"STN1",{uf},{of}]', "moved by a mechanical unit (STN1)"),
+    ('[FALSE,TRUE,"",[[1,2,3],[2,0,0,0]],{of}]', "quaternion norm 2.0000"),
+    ('[FALSE,TRUE,"",[1,2,3]]', "not [robhold, ufprog, ufmec, uframe, oframe]"),
+])
+def test_unsupported_or_broken_work_objects_are_named(setup, wobj, why):
+    m, q, D, W, tcp, cf = setup
+    mod = _module(tcp, W, cf, wobj_decl=False).replace(
+        "MODULE cell\n", "MODULE cell\n  PERS wobjdata wTable:=" + wobj.format(uf=_f(UF), of=_f(OF)) + ";\n")
+    res = compensate_program(m, mod, rapid, frame="measurement")
+    assert len(res.failed) == 3 and all(why in r and "wobjdata wTable (line 2)" in r for _, r in res.failed), res.failed
+
+
+def test_one_literal_used_in_two_work_objects_fails(setup):
+    m, q, D, W, tcp, cf = setup
+    mod = _module(tcp, W, cf).replace("  ENDPROC", "    MoveJ pA, v1000, z50, tGun;\n  ENDPROC")
+    res = compensate_program(m, mod, rapid, frame="measurement")
+    assert len(res.failed) == 1 and "used with different tools or work objects" in res.failed[0][1]
+    assert "wTable" in res.failed[0][1] and "wobj0" in res.failed[0][1]
+
+
+def test_cli_refuses_unknown_work_object_and_takes_context(tmp_path, capsys):
+    """Through the CLI on a real model file (UR10, few steps): unknown work object -> exit 2, one line per
+    target naming it, nothing written; the module that declares it given with --context -> written."""
+    import warnings
+
+    from comp_models import tiny_model_file
+
+    from hykin.hybrid.model import HybridModel
+
+    model = tiny_model_file()
+    m = HybridModel.load(model)
+    q = m.nominal.random_joints(4, 8, margin=0.3)
+    D = se3.invert(m.nominal.tool) @ TF
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        tcp = m.predict(q) @ D
+    prog = tmp_path / "job.mod"
+    prog.write_text(_module(tcp, UF @ OF, abb_confdata(m.nominal, q), wobj_decl=False))
+    out = tmp_path / "job_comp.mod"
+    code, _, err = run(["compensate", str(model), str(prog), "-o", str(out), "--frame", "measurement"], capsys)
+    assert code != 0 and not out.exists()
+    assert err.count("target's frame unknown (") == 3 and "3 of 4 targets with unknown frames; nothing written" in err
+    ctx = tmp_path / "frames.sys"
+    full = _module(tcp, UF @ OF, abb_confdata(m.nominal, q))
+    ctx.write_text("MODULE frames(SYSMODULE)\n" + "\n".join(ln for ln in full.splitlines() if "wobjdata" in ln) + "\nENDMODULE\n")
+    code, o, err = run(["compensate", str(model), str(prog), "-o", str(out), "--frame", "measurement",
+                        "--context", str(ctx)], capsys)
+    assert code == 0, err
+    assert out.exists() and out.read_text() != prog.read_text()
+
+
+def _krl_frame(T) -> str:
+    a, b, c = krl.abc_from_matrix(T[:3, :3])
+    x, y, z = T[:3, 3] * 1e3
+    return f"X {x:.6f},Y {y:.6f},Z {z:.6f},A {a:.8f},B {b:.8f},C {c:.8f}"
+
+
+def test_krl_base_and_tool_from_inline_forms_and_config():
+    """KRL inline forms (FDAT_ACT with BASE_NO / TOOL_NO), then $BASE/$TOOL = $NULLFRAME: the first two
+    targets are in BASE_DATA[1] with TOOL_DATA[2] (from $config.dat given as context), the third in
+    the robot base with the robot file's tool. A stand-in KUKA controller lands each on the truth."""
+    m = exact("kuka-kr6-r900", 12)
+    nom = m.nominal
+    q = nom.random_joints(3, 9, margin=0.25)
+    q[:, 4] = np.abs(q[:, 4]) + 0.3
+    B1 = se3.make_transform(krl.matrix_from_abc(30.0, 0.0, 5.0), np.array([1.2, -0.3, 0.05]))
+    TL = se3.make_transform(krl.matrix_from_abc(0.0, 15.0, 0.0), np.array([0.01, 0.0, 0.18]))
+    D = se3.invert(nom.tool) @ TL
+    Ws, Ds = [B1, B1, np.eye(4)], [D, D, np.eye(4)]
+    tcp = np.stack([fk(m.robot_, q[k:k + 1])[0] @ Ds[k] for k in range(3)])
+    S, T = kuka_status(nom, q)
+    dat = "DEFDAT cell\r\n" + "".join(
+        f"DECL E6POS XP{k + 1}={{{_krl_frame(se3.invert(Ws[k]) @ tcp[k])},S {S[k]},T {T[k]},E1 0.0}}\r\n" for k in range(3))
+    dat += 'DECL FDAT FP1={TOOL_NO 2,BASE_NO 1,IPO_FRAME #BASE,POINT2[] " "}\r\nENDDAT\r\n'
+    fold = lambda k, mv: (f";FOLD {mv} P{k} Vel=2 m/s CPDAT1 Tool[2] Base[1];%{{PE}}\r\n$BWDSTART=FALSE\r\n"
+                          f"FDAT_ACT=FP1\r\nBAS(#CP_PARAMS,2)\r\n{mv} XP{k}\r\n;ENDFOLD\r\n")
+    src = ("DEF cell( )\r\n" + fold(1, "PTP") + fold(2, "LIN")
+           + "$BASE=$NULLFRAME\r\n$TOOL=$NULLFRAME\r\nLIN XP3\r\nEND\r\n")
+    config = (f"DEFDAT $CONFIG\r\nBASE_DATA[1]={{{_krl_frame(B1)}}}\r\n"
+              f"TOOL_DATA[2]={{{_krl_frame(TL)}}}\r\nENDDAT\r\n")
+    res = compensate_program(m, dat, krl, frame="measurement", context=src + config)
+    assert len(res.targets) == 3 and not res.failed, res.failed
+    assert np.abs(np.stack([t.pose for t in res.targets]) - tcp).max() < 1e-8
+    new, _ = krl.find_targets(res.text, nom, context=src + config)
+    local = np.stack([se3.invert(Ws[k]) @ new[k].pose for k in range(3)])
+    qc = match_kuka_status(nom, np.stack([Ws[k] @ local[k] @ se3.invert(Ds[k]) for k in range(3)]),
+                           [t.config["S"] for t in new], [t.config["T"] for t in new])
+    got = np.stack([fk(m.robot_, qc[k:k + 1])[0] @ Ds[k] for k in range(3)])
+    assert np.linalg.norm(got[:, :3, 3] - tcp[:, :3, 3], axis=1).max() * 1e3 < 2e-3
+    # without $config.dat: base 1 is unknown (those targets fail, saying so), tool 2 is noted
+    r0 = compensate_program(m, dat, krl, frame="measurement", context=src)
+    assert [line for line, _ in r0.failed] == [2, 3] and all("BASE_DATA[1]" in r and "$config.dat" in r for _, r in r0.failed)
+    assert any("tool 2 (TOOL_DATA[2]) was not read" in n for n in r0.notes)
+    assert r0.comp.success.tolist() == [False, False, True]
