@@ -96,16 +96,22 @@ def _walk(clean: str, fdat: dict, matrix_from_abc) -> list:
     return out
 
 
-def _state_at(events: list, pos: int) -> tuple:
-    base, tool = 0, 0
-    for p, kind, value in events:
-        if p >= pos:
-            break
+def _states(events: list) -> tuple[np.ndarray, list]:
+    """``(positions (E,), states)``: the ``(base, tool)`` in force after each selection event."""
+    base, tool, states = 0, 0, []
+    for _, kind, value in events:
         if kind == "base":
             base = value
         else:
             tool = value
-    return base, tool
+        states.append((base, tool))
+    return np.array([p for p, _, _ in events], dtype=np.int64), states
+
+
+def _state_at(positions: np.ndarray, states: list, pos: int) -> tuple:
+    """The ``(base, tool)`` in force at ``pos`` (base 0 and tool 0 before any selection)."""
+    i = int(np.searchsorted(positions, pos))  # events strictly before pos
+    return states[i - 1] if i else (0, 0)
 
 
 def frames_of_targets(src_clean: str, text_is_src: bool, targets: list, robot, cleans: list, motions: list,
@@ -115,14 +121,14 @@ def frames_of_targets(src_clean: str, text_is_src: bool, targets: list, robot, c
     companion), the data declared in ``cleans`` (every text read) and ``motions``: ``[(position in
     src_clean, target name (upper case) or None, index of an inline target or None)]``."""
     frames, fdat = _declared(cleans, matrix_from_abc)
-    events = _walk(src_clean, fdat, matrix_from_abc)
+    positions, states = _states(_walk(src_clean, fdat, matrix_from_abc))
     uses: dict = {}
     by_name: dict = {}
     for k, t in enumerate(targets):
         if t.name:
             by_name.setdefault(t.name.upper(), []).append(k)
     for pos, name, inline in motions:
-        state = _state_at(events, pos)
+        state = _state_at(positions, states, pos)
         hits = [inline] if inline is not None and text_is_src else by_name.get(name, []) if name else []
         for k in hits:
             uses.setdefault(k, []).append(state)

@@ -21,6 +21,8 @@ the program (default) or keeps their original literal and warns (``skip_unreacha
 
 from __future__ import annotations
 
+import functools
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -109,8 +111,14 @@ class ProgramResult:
 
 
 def line_of(text: str, pos: int) -> int:
-    """1-based line number of character ``pos``."""
-    return text.count("\n", 0, pos) + 1
+    """1-based line number of character ``pos`` (a search in the text's newline offsets, found once per
+    text: a program of 10,000 targets asks 10,000 times)."""
+    return int(np.searchsorted(_newlines(text), pos)) + 1
+
+
+@functools.lru_cache(maxsize=8)
+def _newlines(text: str) -> np.ndarray:
+    return np.array([m.start() for m in re.finditer("\n", text)], dtype=np.int64)
 
 
 def comment_mask(text: str, comment: str, quote: str = '"') -> np.ndarray:

@@ -208,12 +208,14 @@ def _statements(clean: str):
 def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, line_of) -> TargetFrames:
     """Frames of ``targets`` (:class:`hykin.compensation.programs.ProgramTarget` of this module, in order)
     from the motion statements of ``clean``/``text`` and the declarations ``data`` (module docstring)."""
+    starts = np.array([t.start for t in targets], dtype=np.int64)  # in text order (found left to right)
     names = {}  # declared robtarget name (lower) -> indices of its literals
     for m in _ROBT_DECL.finditer(clean):
         i = m.end()
         if i < len(clean) and clean[i] == "[":
             end = bracket_end(clean, i)
-            names.setdefault(m.group(1).lower(), []).extend(k for k, t in enumerate(targets) if i <= t.start < end)
+            names.setdefault(m.group(1).lower(), []).extend(
+                range(int(np.searchsorted(starts, i)), int(np.searchsorted(starts, end))))
     uses: dict = {}  # target index -> [(tool name or None, wobj name, line)]
     ident = re.compile(r"\b(" + "|".join(re.escape(n) for n in names) + r")\b", re.IGNORECASE) if names else None
     for start, word, body_at, end in _statements(clean):
@@ -228,7 +230,7 @@ def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, l
         if k is None and not wm:
             continue  # not a motion we know, no work object named: the default frames
         line = line_of(text, start)
-        hit = {j for j, t in enumerate(targets) if body_at <= t.start < end}
+        hit = set(range(int(np.searchsorted(starts, body_at)), int(np.searchsorted(starts, end))))
         if ident is not None:
             for n in ident.finditer(body):
                 hit.update(names[n.group(1).lower()])
