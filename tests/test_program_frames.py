@@ -240,3 +240,44 @@ def test_krl_base_and_tool_from_inline_forms_and_config():
     assert [line for line, _ in r0.failed] == [2, 3] and all("BASE_DATA[1]" in r and "$config.dat" in r for _, r in r0.failed)
     assert any("tool 2 (TOOL_DATA[2]) was not read" in n for n in r0.notes)
     assert r0.comp.success.tolist() == [False, False, True]
+
+
+def test_rapid_statement_forms():
+    """Which argument is the target and which the tool, across statement forms: \\Conc first, optional
+    arguments after positional ones without a comma, RelTool(..), MoveC's two points, two statements on
+    one line, SearchL's SearchPoint (written by the instruction: not a target), an instruction hykin
+    does not know that names a work object (its tool agrees with any), one target in two work objects."""
+    from hykin import load_robot
+
+    rob = load_robot("abb-irb2400")
+    R = "[[900,0,800],[0,0,1,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]]"
+    mod = f"""MODULE m
+  LOCAL PERS tooldata tGun := [ TRUE, [ [0, 0, 150],
+      [1, 0, 0, 0] ], [1.5,[0,0,50],[1,0,0,0],0,0,0] ];
+  TASK PERS wobjdata wT:=[FALSE,TRUE,"",[[100,0,0],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];
+  CONST robtarget p1:={R};
+  CONST robtarget p2:={R};
+  VAR robtarget p3:={R};
+  CONST robtarget p4:={R};
+  PROC main()
+    MoveL \\Conc, p1, v100 \\V:=500, z10 \\Z:=5, tGun \\WObj:=wT \\Corr;
+    MoveJ RelTool(p2, 0, 0, 10),v1000,fine,tGun\\WObj:=wT; MoveC p2, {R}, v100, z5, tGun\\WObj:=wT;
+    IF reg1 = 1 THEN
+      MoveL p3, v100, fine, tool0;
+    ENDIF
+    p3 := Offs(p1, 0, 0, 10);
+    SearchL \\Stop, di1, p3, p1, v100, tGun\\WObj:=wT;
+    MyMove p1, 5 \\WObj:=wT;
+    MyMove p4, 5 \\WObj:=wT;
+    MoveL p4, v100, z10, tool0;
+  ENDPROC
+ENDMODULE
+"""
+    t, notes = rapid.find_targets(mod, rob)
+    assert [x.name for x in t] == ["p1", "p2", "p3", "p4", ""] and not notes
+    W = se3.make_transform(np.eye(3), np.array([0.1, 0.0, 0.0]))
+    D = se3.invert(rob.tool) @ se3.make_transform(np.eye(3), np.array([0.0, 0.0, 0.15]))
+    for k in (0, 1, 4):
+        assert not t[k].error and np.allclose(t[k].frame, W) and np.allclose(t[k].tool_delta, D), k
+    assert not t[2].error and t[2].frame is None and t[2].tool_delta is None  # MoveL p3 ... tool0 only
+    assert "used with different tools or work objects" in t[3].error and "tool? \\WObj:=wT" in t[3].error

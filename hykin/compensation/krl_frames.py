@@ -30,7 +30,7 @@ __all__ = ["frames_of_targets"]
 _FRAME_DATA = re.compile(r"\b(BASE_DATA|TOOL_DATA)\s*\[\s*(\d+)\s*\]\s*=\s*\{([^{}]*)\}", re.IGNORECASE)
 _FDAT = re.compile(r"\bFDAT\s+([A-Za-z_]\w*)\s*=\s*\{([^{}]*)\}", re.IGNORECASE)
 _SELECT = re.compile(
-    r"(?P<var>\$BASE|\$TOOL)\s*=\s*(?:(?P<data>BASE_DATA|TOOL_DATA)\s*\[\s*(?P<n>\d+)\s*\]|(?P<null>\$NULLFRAME|\$WORLD)\b"
+    r"(?P<var>\$BASE|\$TOOL)\s*=(?!=)\s*(?:(?P<data>BASE_DATA|TOOL_DATA)\s*\[\s*(?P<n>\d+)\s*\]|(?P<null>\$NULLFRAME|\$WORLD)\b"
     r"|\{(?P<agg>[^{}]*)\}|(?P<expr>[^\n]*))"
     r"|\bBAS\s*\(\s*#(?P<bas>BASE|TOOL)\s*,\s*(?P<bn>\d+)\s*\)"
     r"|\bFDAT_ACT\s*=\s*(?P<fdat>[A-Za-z_]\w*)", re.IGNORECASE)

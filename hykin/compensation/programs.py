@@ -78,14 +78,19 @@ class TargetFrames:
     error: list = field(default_factory=list)
     notes: list = field(default_factory=list)
 
+    #: a use's tool delta when the use does not tell the tool (it agrees with any other use's)
+    ANY_TOOL = "any"
+
     def add(self, uses: list, conflict: str) -> None:
         """Append one target from its uses ``[(frame, tool_delta, error, label)]`` (at least one): their
         common frames, or ``conflict`` (followed by the uses' labels) when they differ."""
-        W, D, err = uses[0][:3]
         same = lambda a, b: (a is None and b is None) or (a is not None and b is not None and np.allclose(a, b, atol=1e-12))
+        told = [u for u in uses if not isinstance(u[1], str)]
+        W, err = uses[0][0], uses[0][2]
+        D = told[0][1] if told else None
         for W2, D2, err2, _ in uses[1:]:
             err = err or err2
-            if not (same(W, W2) and same(D, D2)):
+            if not (same(W, W2) and (isinstance(D2, str) or same(D, D2))):
                 err = f"{conflict} ({', '.join(u[3] for u in uses)}): one literal cannot be compensated for both"
                 break
         self.frame.append(W)

@@ -7,7 +7,7 @@ default ``wobj0``, the robot base frame here). This module reads, from the progr
 * ``tooldata`` declarations ``[robhold, [[x,y,z],[q1..q4]], tload]`` (mm, quaternion scalar first) and
   ``wobjdata`` declarations ``[robhold, ufprog, "ufmec", uframe, oframe]``;
 * motion statements (``MoveL ToPoint, Speed, Zone, Tool \\WObj:=W`` and the other instructions of
-  :data:`TOOL_ARGUMENT`): which robtargets (literals, or declared names anywhere in the statement,
+  :data:`MOTION_ARGUMENTS`): which robtargets (literals, or declared names anywhere in the statement,
   ``Offs(p10, ..)`` included) each uses with which tool and work object.
 
 Per target it gives the frame ``W = uframe · oframe`` the literal is expressed in (``pose in the base
@@ -31,14 +31,16 @@ import numpy as np
 from ..geometry import se3
 from .programs import TargetFrames
 
-__all__ = ["TOOL_ARGUMENT", "frames_of_targets", "read_frame_data"]
+__all__ = ["MOTION_ARGUMENTS", "frames_of_targets", "read_frame_data"]
 
-#: instruction (lower case) -> index of its Tool argument among the positional ones
-TOOL_ARGUMENT = {
+#: instruction (lower case) -> (indices of its robtarget arguments, index of its Tool argument), among
+#: the positional arguments (SearchL/C's SearchPoint is written by the instruction: not a target)
+MOTION_ARGUMENTS = {
     **dict.fromkeys(("movel", "movej", "moveldo", "movejdo", "movelao", "movejao", "movelgo", "movejgo", "movelsync",
-                     "movejsync"), 3),
-    **dict.fromkeys(("movec", "movecdo", "movecao", "movecgo", "movecsync", "triggl", "triggj", "searchl"), 4),
-    **dict.fromkeys(("triggc", "searchc"), 5),
+                     "movejsync"), ((0,), 3)),
+    **dict.fromkeys(("movec", "movecdo", "movecao", "movecgo", "movecsync"), ((0, 1), 4)),
+    **dict.fromkeys(("triggl", "triggj"), ((0,), 4)),
+    "triggc": ((0, 1), 5), "searchl": ((2,), 4), "searchc": ((2, 3), 5),
 }
 _DATA_DECL = re.compile(r"\b(?:CONST|PERS|VAR)\s+(tooldata|wobjdata)\s+([A-Za-z_]\w*)\s*:=\s*\[", re.IGNORECASE)
 _ROBT_DECL = re.compile(r"\b(?:CONST|PERS|VAR)\s+robtarget\s+([A-Za-z_]\w*)\s*(?:\{[^{}]*\})?\s*:=\s*", re.IGNORECASE)
@@ -161,32 +163,31 @@ def _tool(name: str | None, data: dict, robot) -> tuple[np.ndarray | None, str, 
         return None, str(e) if str(e).startswith(where) else f"{where}: not [robhold, tframe, tload]", ""
 
 
-def _split_args(s: str) -> list[str]:
-    """Top-level comma-separated arguments (brackets and parentheses nest)."""
-    out, depth, cur = [], 0, []
-    for c in s:
+def _positional_spans(body: str, offset: int) -> list[tuple[int, int]]:
+    """``(start, end)`` text offsets of the positional arguments of a statement's ``body`` (which starts at
+    ``offset``): top-level commas split arguments (brackets and parentheses nest); an argument's part
+    from a top-level ``\\`` on is an optional argument (``\\WObj:=wobj1``, also after a positional one
+    without a comma); ``\\Conc,`` alone is no positional argument."""
+    spans, depth, a, cut = [], 0, 0, None
+
+    def close(b):
+        e = b if cut is None else cut
+        if body[a:e].strip():
+            lead = len(body[a:e]) - len(body[a:e].lstrip())
+            spans.append((offset + a + lead, offset + len(body[:e].rstrip())))
+
+    for i, c in enumerate(body):
         if c in "[(":
             depth += 1
         elif c in "])":
             depth -= 1
-        if c == "," and depth == 0:
-            out.append("".join(cur))
-            cur = []
-        else:
-            cur.append(c)
-    out.append("".join(cur))
-    return out
-
-
-def _positional(args: list[str]) -> list[str]:
-    """The positional arguments (``\\Name[:=value]`` optional ones dropped, also when they follow a
-    positional one without a comma, as ``tool1\\WObj:=wobj1``)."""
-    out = []
-    for a in args:
-        head = a.split("\\", 1)[0].strip()
-        if head:
-            out.append(head)
-    return out
+        elif depth == 0 and c == "\\" and cut is None:
+            cut = i
+        elif depth == 0 and c == ",":
+            close(i)
+            a, cut = i + 1, None
+    close(len(body))
+    return spans
 
 
 def _statements(clean: str):
@@ -224,16 +225,23 @@ def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, l
             continue
         wm = _WOBJ.search(body)
         wobj = wm.group(1) if wm else "wobj0"
-        pos = _positional(_split_args(body))
-        k = TOOL_ARGUMENT.get(word)
-        tool = pos[k] if k is not None and k < len(pos) else None
-        if k is None and not wm:
+        spec = MOTION_ARGUMENTS.get(word)
+        if spec is None and not wm:
             continue  # not a motion we know, no work object named: the default frames
         line = line_of(text, start)
-        hit = set(range(int(np.searchsorted(starts, body_at)), int(np.searchsorted(starts, end))))
-        if ident is not None:
-            for n in ident.finditer(body):
-                hit.update(names[n.group(1).lower()])
+        if spec is None:  # another instruction naming a work object: every robtarget in it
+            parts = [(body_at, end)]
+            tool = ...  # not known: agrees with the tool of the target's other uses
+        else:  # the target arguments only (their spans in the text)
+            spans = _positional_spans(body, body_at)
+            parts = [spans[i] for i in spec[0] if i < len(spans)]
+            tool = clean[slice(*spans[spec[1]])].strip() if spec[1] < len(spans) else None
+        hit = set()
+        for a, b in parts:
+            hit.update(range(int(np.searchsorted(starts, a)), int(np.searchsorted(starts, b))))
+            if ident is not None:
+                for n in ident.finditer(clean, a, b):
+                    hit.update(names[n.group(1).lower()])
         for j in hit:
             uses.setdefault(j, []).append((tool, wobj, line))
     out = TargetFrames()
@@ -242,10 +250,11 @@ def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, l
         resolved = []
         for tool, wobj, line in uses.get(j, [(None, "wobj0", 0)]):
             W, err = _wobj(wobj, data)
-            D, terr, note = _tool(tool, data, robot)
+            D, terr, note = (TargetFrames.ANY_TOOL, "", "") if tool is ... else _tool(tool, data, robot)
             if note and tool.lower() not in noted:
                 noted.add(tool.lower())
                 out.notes.append(f"{line}: {note}")
-            resolved.append((W, D, err or terr, f"line {line}: {tool or 'tool?'} \\WObj:={wobj}"))
+            label = "tool?" if tool is ... else tool or "tool0"
+            resolved.append((W, D, err or terr, f"line {line}: {label} \\WObj:={wobj}"))
         out.add(resolved, "used with different tools or work objects")
     return out
