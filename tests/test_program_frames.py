@@ -274,7 +274,9 @@ def test_rapid_statement_forms():
 ENDMODULE
 """
     t, notes = rapid.find_targets(mod, rob)
-    assert [x.name for x in t] == ["p1", "p2", "p3", "p4", ""] and not notes
+    assert [x.name for x in t] == ["p1", "p2", "p3", "p4", ""]
+    assert notes == ["10: tooldata tGun (line 2) carries 1.5 kg, the robot file's payload is 0 kg: give --payload-kg 1.5 "
+                     "if the robot carries that load while running these targets"]
     W = se3.make_transform(np.eye(3), np.array([0.1, 0.0, 0.0]))
     D = se3.invert(rob.tool) @ se3.make_transform(np.eye(3), np.array([0.0, 0.0, 0.15]))
     for k in (0, 1, 4):

@@ -144,7 +144,8 @@ def _wobj(name: str, data: dict) -> tuple[np.ndarray | None, str]:
 
 
 def _tool(name: str | None, data: dict, robot) -> tuple[np.ndarray | None, str, str]:
-    """``(tool_delta, error, note)`` of a tool name (None: not known)."""
+    """``(tool_delta, error, note)`` of a tool name (None: not known); the note names an undeclared tool,
+    or a declared one whose load differs from the robot file's payload (``--payload-kg``)."""
     if name is None or name.lower() == "tool0":
         return None, "", ""
     d = data.get(name.lower())
@@ -158,7 +159,15 @@ def _tool(name: str | None, data: dict, robot) -> tuple[np.ndarray | None, str, 
         robhold, tframe = d.value[0], d.value[1]
         if not robhold:
             return None, f"{where} is a stationary tool (robhold FALSE): not supported", ""
-        return se3.invert(robot.tool) @ _pose(tframe, where), "", ""
+        note = ""
+        try:  # its load: the model deflects under the payload it is given, not under this one
+            mass = float(d.value[2][0])
+        except (TypeError, ValueError, IndexError):
+            mass = robot.payload_kg
+        if abs(mass - robot.payload_kg) > max(0.1, 0.05 * robot.payload_kg):
+            note = (f"{where} carries {mass:g} kg, the robot file's payload is {robot.payload_kg:g} kg: give "
+                    f"--payload-kg {mass:g} if the robot carries that load while running these targets")
+        return se3.invert(robot.tool) @ _pose(tframe, where), "", note
     except (TypeError, ValueError, IndexError) as e:
         return None, str(e) if str(e).startswith(where) else f"{where}: not [robhold, tframe, tload]", ""
 
@@ -251,7 +260,7 @@ def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, l
         for tool, wobj, line in uses.get(j, [(None, "wobj0", 0)]):
             W, err = _wobj(wobj, data)
             D, terr, note = (TargetFrames.ANY_TOOL, "", "") if tool is ... else _tool(tool, data, robot)
-            if note and tool.lower() not in noted:
+            if note and tool.lower() not in noted:  # once per tool
                 noted.add(tool.lower())
                 out.notes.append(f"{line}: {note}")
             label = "tool?" if tool is ... else tool or "tool0"
