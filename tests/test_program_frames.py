@@ -283,3 +283,63 @@ ENDMODULE
         assert not t[k].error and np.allclose(t[k].frame, W) and np.allclose(t[k].tool_delta, D), k
     assert not t[2].error and t[2].frame is None and t[2].tool_delta is None  # MoveL p3 ... tool0 only
     assert "used with different tools or work objects" in t[3].error and "tool? \\WObj:=wT" in t[3].error
+
+
+def test_cli_csv_targets_of_another_tcp(tmp_path, capsys):
+    """``--tool``: CSV targets that are poses of another TCP (given in the flange frame, mm and deg here)
+    come back as the joints where the model puts that TCP on them, and commands of that TCP; without
+    it the same file would be solved for the model's own TCP (other joints). Position-only targets
+    and programs are refused with the option, in one line."""
+    import csv
+    import warnings
+
+    from comp_models import tiny_model_file
+
+    from hykin.hybrid.model import HybridModel
+
+    model = tiny_model_file()
+    m = HybridModel.load(model)
+    nom = m.nominal
+    q = nom.random_joints(20, 31, margin=0.3)
+    tcp = se3.xyzrpy_to_transform(np.array([[0.02, -0.01, 0.16]]), np.radians([[5.0, -10.0, 30.0]]))[0]
+    D = se3.invert(nom.tool) @ tcp
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        T = m.predict(q) @ D
+    xyz, quat = se3.transform_to_pose(T)
+    # mm and degrees: --angle-unit reads the tool's angles and the file's joint columns (branch hints)
+    src2 = tmp_path / "targets.csv"
+    with open(src2, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["x", "y", "z", "qw", "qx", "qy", "qz"] + [f"q{j + 1}" for j in range(nom.dof)])
+        for k in range(len(q)):
+            w.writerow([*(f"{v:.9f}" for v in xyz[k] * 1e3), *(f"{v:.12f}" for v in quat[k]),
+                        *(f"{v:.12f}" for v in np.degrees(q[k]))])
+    out = tmp_path / "cmd.csv"
+    code, o, err = run(["compensate", str(model), str(src2), "-o", str(out), "--length-unit", "mm", "--angle-unit", "deg",
+                        "--tool", "20,-10,160,5,-10,30"], capsys)
+    assert code == 0, err
+    got = {c: np.array([float(r[c]) for r in csv.DictReader(open(out))]) for c in ["x", "y", "z", "q1", "q2", "q3", "q4", "q5", "q6", "success"]}
+    assert got["success"].all()
+    qo = np.stack([got[f"q{j + 1}"] for j in range(6)], 1)
+    assert np.abs(qo - q).max() < 1e-6
+    want = se3.invert(nom.base) @ fk(nom, q) @ D  # the controller's pose of that TCP at those joints
+    assert np.abs(np.stack([got["x"], got["y"], got["z"]], 1) - want[:, :3, 3]).max() < 1e-8
+    # the same file read as the model's own TCP: other joints (160 mm of tool moves them)
+    out2 = tmp_path / "cmd_own.csv"
+    code, _, err = run(["compensate", str(model), str(src2), "-o", str(out2), "--length-unit", "mm", "--angle-unit", "deg"], capsys)
+    assert code == 0, err
+    q_own = np.stack([np.array([float(r[f"q{j + 1}"]) for r in csv.DictReader(open(out2))]) for j in range(6)], 1)
+    assert np.nanmax(np.abs(q_own - q)) > 0.01
+    # refusals: position-only targets, a program, mm read as m
+    pos = tmp_path / "pos.csv"
+    pos.write_text("x,y,z\n" + "\n".join(",".join(f"{v:.3f}" for v in p * 1e3) for p in xyz) + "\n")
+    code, _, err = run(["compensate", str(model), str(pos), "-o", str(tmp_path / "a.csv"), "--length-unit", "mm",
+                        "--tool", "20,-10,160"], capsys)
+    assert code != 0 and "--tool needs the targets' orientations" in err and not (tmp_path / "a.csv").exists()
+    code, _, err = run(["compensate", str(model), str(src2), "-o", str(tmp_path / "b.csv"), "--tool", "20,-10,160"], capsys)
+    assert code != 0 and "--length-unit mm" in err and not (tmp_path / "b.csv").exists()
+    prog = tmp_path / "job.script"
+    prog.write_text("movel(p[0.5, 0.1, 0.4, 0, 3.14, 0], a=1, v=0.1)\n")
+    code, _, err = run(["compensate", str(model), str(prog), "-o", str(tmp_path / "c.script"), "--tool", "0,0,0.1"], capsys)
+    assert code != 0 and "--tool applies to CSV targets" in err

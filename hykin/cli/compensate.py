@@ -50,6 +50,7 @@ def compensate_cmd(
     skip_unreachable: bool = typer.Option(False, "--skip-unreachable", help="Programs: keep an unreachable target's original line and warn, instead of refusing to write."),
     fmt: str | None = typer.Option(None, "--format", help="Input format: csv, urscript, krl, rapid (default: by suffix)."),
     context: list[Path] | None = typer.Option(None, "--context", help="More files the program needs (repeatable). KRL: the companion .src/.dat (read from beside the input by default) and $config.dat (BASE_DATA/TOOL_DATA). RAPID: modules declaring the tooldata/wobjdata the program uses."),
+    tool: str | None = typer.Option(None, "--tool", help="CSV: the targets are poses of another TCP than the model's: x,y,z[,roll,pitch,yaw] of that TCP in the flange frame, as a robot file's [tool] xyz/rpy, in --length-unit / --angle-unit (programs name their tool: set_tcp, tooldata, TOOL_DATA)."),
     axis_signs: str | None = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the robot preset)."),
     payload_kg: float | None = typer.Option(None, "--payload-kg", help="Payload (kg, at the TCP) the robot carries while executing these targets: the model deflects under it (default: the robot file's payload)."),
     force: bool = Force,
@@ -83,21 +84,53 @@ def compensate_cmd(
         console().print(f"note: the model has thermal expansion; targets are compensated at its reference "
                         f"{th.reference_c:.2f} °C", highlight=False)
     if kind == "csv":
-        _compensate_csv(mdl, inp, out, joints, "measurement" if frame == "auto" else frame, length_unit, angle_unit)
+        D = _tool_delta(mdl, tool, length_unit, angle_unit)
+        _compensate_csv(mdl, inp, out, joints, "measurement" if frame == "auto" else frame, length_unit, angle_unit, D)
+    elif tool is not None:
+        raise CLIError(f"--tool applies to CSV targets; {inp} is a {kind} program, which names its own tool "
+                       "(URScript set_tcp, RAPID tooldata, KRL TOOL_DATA via --context)")
     else:
         _compensate_program(mdl, inp, out, kind, joints, frame, skip_unreachable, context, signs)
 
 
-def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_unit: str, angle_unit: str) -> None:
+def _tool_delta(mdl, text: str | None, length_unit: str, angle_unit: str):
+    """``--tool`` as the tool delta ``inv(nominal tool) · tcp`` ((4, 4)), or None when not given."""
+    if text is None:
+        return None
+    from ..geometry import se3
+
+    try:
+        v = np.array([float(x) for x in text.split(",")])
+    except ValueError:
+        v = np.array([])
+    if v.shape not in ((3,), (6,)) or not np.isfinite(v).all():
+        raise CLIError(f"--tool: expected x,y,z or x,y,z,roll,pitch,yaw (numbers), got {text!r}")
+    L = 1e-3 if length_unit == "mm" else 1.0
+    A = np.pi / 180 if angle_unit == "deg" else 1.0
+    xyz, rpy = v[:3] * L, (v[3:] if v.size == 6 else np.zeros(3)) * A
+    if np.linalg.norm(xyz) > 2.0:
+        raise CLIError(f"--tool: a TCP {np.linalg.norm(xyz):.4g} m from the flange; if its numbers are mm, add "
+                       "--length-unit mm")
+    if np.abs(rpy).max() > 2 * np.pi + 1e-9:
+        raise CLIError(f"--tool: angles up to {np.abs(rpy).max():.4g} rad; if they are degrees, add --angle-unit deg")
+    tcp = se3.xyzrpy_to_transform(xyz[None], rpy[None])[0]
+    return se3.invert(mdl.nominal.tool) @ tcp
+
+
+def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_unit: str, angle_unit: str,
+                    tool_delta=None) -> None:
     from ..compensation.targets import command_rows, compensate
     from ..io.dataset_files import read_joints, read_poses
 
     T, has_rot = read_poses(inp, length_unit=length_unit)
+    if tool_delta is not None and not has_rot:
+        raise CLIError(f"{inp}: --tool needs the targets' orientations (qw,qx,qy,qz columns): where another TCP "
+                       "lies depends on them")
     n = mdl.nominal.dof
     qb = None
     if all(f"q{j + 1}" in _columns(inp) for j in range(n)):
         qb, _ = read_joints(inp, dof=n, angle_unit=angle_unit, robot=mdl.nominal)
-    comp = compensate(mdl, T if has_rot else T[:, :3, 3], q_branch=qb, frame=frame)
+    comp = compensate(mdl, T if has_rot else T[:, :3, 3], q_branch=qb, frame=frame, tool_delta=tool_delta)
     write_rows(command_rows(comp, joints_only=joints), out)
     _summary(comp, out, len(T))
 
