@@ -149,6 +149,7 @@ def test_undeclared_tool_is_the_robot_files_tool_with_a_note(setup):
     ('[FALSE,TRUE,"STN1",{uf},{of}]', "moved by a mechanical unit (STN1)"),
     ('[FALSE,TRUE,"",[[1,2,3],[2,0,0,0]],{of}]', "quaternion norm 2.0000"),
     ('[FALSE,TRUE,"",[1,2,3]]', "not [robhold, ufprog, ufmec, uframe, oframe]"),
+    ('[FALSE,TRUE,"",[[1,2,3],[1,0,0 0]],{of}]', "could not be read"),
 ])
 def test_unsupported_or_broken_work_objects_are_named(setup, wobj, why):
     m, q, D, W, tcp, cf = setup

@@ -42,7 +42,7 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
     """``(targets, notes)`` of a RAPID module text; ``context``: the text of further modules whose
     ``tooldata``/``wobjdata`` declarations the program uses (module docstring)."""
     clean = _blank(text)
-    data = read_frame_data(_blank(context), context, "--context ", line_of) if context else {}
+    data = read_frame_data(_blank(context), context, "--context, ", line_of) if context else {}
     data.update(read_frame_data(clean, text, "", line_of))
     targets = []
     for m in _ROBT.finditer(clean):

@@ -97,7 +97,8 @@ def _literal(raw: str):
 
 def read_frame_data(clean: str, text: str, source: str, line_of) -> dict:
     """``{name (lower case): FrameData}`` of the tooldata/wobjdata declarations of one module
-    (``clean``: its text with comments and strings blanked, ``text`` as read)."""
+    (``clean``: its text with comments and strings blanked, ``text`` as read; ``source``: the prefix of
+    its line numbers in messages, ``""`` for the program)."""
     out = {}
     for m in _DATA_DECL.finditer(clean):
         start = m.end() - 1
@@ -106,7 +107,7 @@ def read_frame_data(clean: str, text: str, source: str, line_of) -> dict:
         try:
             value, err = _literal(text[start:end]), ""
         except (ValueError, SyntaxError):
-            value, err = None, f"{source}line {line}: {m.group(1)} {m.group(2)} could not be read"
+            value, err = None, f"{m.group(1)} {m.group(2)} ({source}line {line}) could not be read"
         out[m.group(2).lower()] = FrameData(m.group(1).lower(), value, line, source, err)
     return out
 
