@@ -50,7 +50,7 @@ def compensate_cmd(
     skip_unreachable: bool = typer.Option(False, "--skip-unreachable", help="Programs: keep an unreachable target's original line and warn, instead of refusing to write."),
     fmt: str | None = typer.Option(None, "--format", help="Input format: csv, urscript, krl, rapid (default: by suffix)."),
     context: list[Path] | None = typer.Option(None, "--context", help="More files the program needs (repeatable). KRL: the companion .src/.dat (read from beside the input by default) and $config.dat (BASE_DATA/TOOL_DATA). RAPID: modules declaring the tooldata/wobjdata the program uses."),
-    tool: str | None = typer.Option(None, "--tool", help="CSV: the targets are poses of another TCP than the model's: x,y,z[,roll,pitch,yaw] of that TCP in the flange frame, as a robot file's [tool] xyz/rpy, in --length-unit / --angle-unit (programs name their tool: set_tcp, tooldata, TOOL_DATA)."),
+    tool: str | None = typer.Option(None, "--tool", help="CSV: the targets are poses of another TCP than the model's: x,y,z[,roll,pitch,yaw] of that TCP in the flange frame, as the tool table of a robot file (xyz, rpy), in --length-unit / --angle-unit (programs name their tool: set_tcp, tooldata, TOOL_DATA)."),
     axis_signs: str | None = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the robot preset)."),
     payload_kg: float | None = typer.Option(None, "--payload-kg", help="Payload (kg, at the TCP) the robot carries while executing these targets: the model deflects under it (default: the robot file's payload)."),
     force: bool = Force,
