@@ -51,6 +51,7 @@ _NOT_INSTRUCTIONS = {"const", "pers", "var", "local", "task", "module", "endmodu
                      "endwhile", "test", "case", "default", "endtest", "return", "goto", "record", "endrecord", "error",
                      "undo", "backward", "then", "do"}
 _WORD = re.compile(r"[ \t]*([A-Za-z_]\w*)")
+_IDENT = re.compile(r"(?<![\w.])[A-Za-z_]\w*")
 
 
 @dataclass
@@ -228,7 +229,6 @@ def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, l
             names.setdefault(m.group(1).lower(), []).extend(
                 range(int(np.searchsorted(starts, i)), int(np.searchsorted(starts, end))))
     uses: dict = {}  # target index -> [(tool name or None, wobj name, line)]
-    ident = re.compile(r"\b(" + "|".join(re.escape(n) for n in names) + r")\b", re.IGNORECASE) if names else None
     for start, word, body_at, end in _statements(clean):
         body = clean[body_at:end]
         if re.match(r"\s*(?:\{[^}]*\})?\s*:=", body):  # an assignment, not an instruction
@@ -249,9 +249,8 @@ def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, l
         hit = set()
         for a, b in parts:
             hit.update(range(int(np.searchsorted(starts, a)), int(np.searchsorted(starts, b))))
-            if ident is not None:
-                for n in ident.finditer(clean, a, b):
-                    hit.update(names[n.group(1).lower()])
+            for n in _IDENT.finditer(clean, a, b):  # declared robtargets named there (Offs(p10, ..), path{i})
+                hit.update(names.get(n.group(0).lower(), ()))
         for j in hit:
             uses.setdefault(j, []).append((tool, wobj, line))
     out = TargetFrames()
