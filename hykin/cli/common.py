@@ -29,7 +29,9 @@ def _plain_help() -> None:
     from typer import core as tc
 
     def plain_type(t):
-        return re.sub(r"<list\[(\w+)\]>", r"<\1>", t.replace(" range>", ">")) if isinstance(t, str) else t
+        if not isinstance(t, str):
+            return t
+        return re.sub(r"<list\[(\w+)\]>", lambda m: f"<{m.group(1).lower()}>", t.replace(" range>", ">"))
 
     def usage_name(self):
         name = self.metavar or (self.name or "").upper()
