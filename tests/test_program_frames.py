@@ -344,3 +344,51 @@ def test_cli_csv_targets_of_another_tcp(tmp_path, capsys):
     prog.write_text("movel(p[0.5, 0.1, 0.4, 0, 3.14, 0], a=1, v=0.1)\n")
     code, _, err = run(["compensate", str(model), str(prog), "-o", str(tmp_path / "c.script"), "--tool", "0,0,0.1"], capsys)
     assert code != 0 and "--tool applies to CSV targets" in err
+
+
+def test_urscript_moves_relative_to_a_feature_the_script_defines():
+    """``movel(pose_trans(Plane_1, p[..]))`` and ``movel(pose_trans(Plane_1, W1))`` with ``global Plane_1 =
+    p[..]``: the targets are in Plane_1's frame and written back in it (a stand-in UR controller
+    evaluates pose_trans and lands the real robot on the wanted poses); a feature the script does not
+    define (the installation's) keeps its line, noted; the feature's own literal is never rewritten."""
+    from hykin.compensation import urscript
+    from hykin.kinematics.ik import ik
+
+    m = exact("ur10", 11)
+    nom = m.nominal
+    home = np.array([0.2, -1.5, 1.6, -1.6, -1.5, 0.3])
+    q = home + np.random.default_rng(4).normal(0, 0.1, (3, 6))
+    want = fk(m.robot_, q)
+    F = se3.make_transform(se3.rotvec_to_matrix(np.array([0.1, -0.2, 0.7])), np.array([0.4, -0.3, 0.05]))
+    loc = se3.invert(F) @ want
+
+    def p(T):
+        return "p[" + ", ".join(f"{v:.9f}" for v in (*T[:3, 3], *se3.matrix_to_rotvec(T[:3, :3]))) + "]"
+
+    prog = (
+        "def job():\n"
+        f"  movej([{', '.join(f'{v:.5f}' for v in home)}], a=1.4, v=1.05)\n"
+        f"  global Plane_1 = {p(F)}\n"
+        f"  global W1 = {p(loc[1])}\n"
+        f"  movel(pose_trans(Plane_1, {p(loc[0])}), a=1.2, v=0.25)\n"
+        "  movel(pose_trans(Plane_1, W1), a=1.2, v=0.25)\n"
+        f"  movel(pose_trans(Plane_2, {p(loc[2])}), a=1.2, v=0.25)\n"
+        "end\n"
+    )
+    res = compensate_program(m, prog, urscript, frame="measurement")
+    assert [t.line for t in res.targets] == [4, 5] and not res.failed
+    assert any("feature Plane_2, which this script does not define" in n for n in res.notes)
+    assert _diff(prog, res.text) == {4, 5}  # W1's and the inline literal; Plane_1 and Plane_2's line kept
+    order = [1, 0]  # in the text W1's literal (line 4) comes before the inline one (line 5)
+    assert np.abs(np.stack([t.pose for t in res.targets]) - want[order]).max() < 1e-8
+    new, _ = urscript.find_targets(res.text, nom)
+    cur = home
+    for k, t in zip(order, new):  # stand-in controller: pose_trans(Plane_1, literal), IK nearest
+        r = ik(nom, t.pose[None], all_branches=True).nearest_to(cur, nom.lower, nom.upper)
+        cur = r.q[0]
+        assert np.linalg.norm(fk(m.robot_, cur[None])[0, :3, 3] - want[k, :3, 3]) * 1e3 < 2e-3
+
+
+def _diff(a: str, b: str) -> set:
+    la, lb = a.split("\n"), b.split("\n")
+    return {i for i, (x, y) in enumerate(zip(la, lb), 1) if x != y}

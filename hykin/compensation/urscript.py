@@ -3,7 +3,10 @@
 Targets: a pose literal that is the first argument of ``movel``/``movej``/``movep``/``movec`` (or the
 second of ``movec``), or is assigned to a variable (``global``/``local`` or plain ``name = p[...]``)
 that some ``movel/movej/movep/movec`` call uses directly. Every other pose literal (``set_tcp``,
-``pose_trans``/``pose_add`` offsets, force frames) is kept and listed in the notes. ``set_tcp(p[...])``
+``pose_trans``/``pose_add`` offsets, force frames) is kept and listed in the notes, except a move to
+``pose_trans(F, p[...])`` or ``pose_trans(F, name)`` where the script assigns feature ``F`` a pose literal
+(``global Plane_1 = p[...]``): that target is taken in ``F``'s frame and written back in it (a feature
+the script does not define, e.g. one of the installation, is kept and noted). ``set_tcp(p[...])``
 sets the TCP of the targets after it in text order: their compensation uses the tool delta
 ``inv(nominal tool) · tcp`` (before any ``set_tcp`` the installation TCP is taken to be the robot
 file's tool). ``movej([j1, ..., j6])`` joint moves restart the branch walk (:mod:`.programs`).
@@ -27,6 +30,8 @@ _POSE = re.compile(r"(?<![\w.])p\s*\[\s*" + r"\s*,\s*".join([f"({NUMBER})"] * 6)
 _MOVE_FIRST = re.compile(r"\b(?:movel|movej|movep|movec)\s*\(\s*$")
 _MOVEC_SECOND = re.compile(r"\bmovec\s*\(\s*(?:p\s*\[[^\]]*\]|\w+)\s*,\s*$")
 _SET_TCP = re.compile(r"\bset_tcp\s*\(\s*$")
+_MOVE_FEATURE = re.compile(r"\b(?:movel|movej|movep|movec)\s*\(\s*pose_trans\s*\(\s*([A-Za-z_]\w*)\s*,\s*$")
+_MOVE_VIA = re.compile(r"\b(?:movel|movej|movep|movec)\s*\(\s*pose_trans\s*\(\s*([A-Za-z_]\w*)\s*,\s*([A-Za-z_]\w*)\s*\)")
 _ASSIGN = re.compile(r"(?:^|[;:])\s*(?:global\s+|local\s+)?([A-Za-z_]\w*)\s*=\s*$")
 
 
@@ -45,6 +50,18 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
     for m in re.finditer(r"\bmovec\s*\([^,()]*,\s*([A-Za-z_]\w*)\s*[,)]", clean):
         used.add(m.group(1))
     used.discard("p")
+    via = {}  # variable -> features it is moved to through pose_trans(feature, variable)
+    for m in _MOVE_VIA.finditer(clean):
+        via.setdefault(m.group(2), set()).add(m.group(1))
+    # a frame that is itself moved to is rewritten too: what pose_trans composes with it is an offset
+    # from a moving pose (kept, as before), not a target in a fixed feature
+    via = {k: f for k, f in via.items() if not (f & (used | set(via)))}
+    features = {}  # name -> [(position, pose)] of its pose-literal assignments
+    for m in _POSE.finditer(clean):
+        a = _ASSIGN.search(clean[clean.rfind("\n", 0, m.start()) + 1 : m.start()])
+        if a is not None:
+            v = np.array([float(g) for g in m.groups()])
+            features.setdefault(a.group(1), []).append((m.start(), se3.make_transform(se3.rotvec_to_matrix(v[3:]), v[:3])))
     jm = _joint_moves(clean, robot.dof)
     targets, notes = [], []
     tcp = None
@@ -60,18 +77,37 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
             tcp = pose
             notes.append(f"line {line}: set_tcp pose kept; later targets use this TCP")
             continue
-        if not (_MOVE_FIRST.search(prefix) or _MOVEC_SECOND.search(prefix)):
+        frame, feature = None, None
+        f = _MOVE_FEATURE.search(prefix)
+        if f is not None and f.group(1) not in used and f.group(1) not in via:
+            feature = f.group(1)
+        elif not (_MOVE_FIRST.search(prefix) or _MOVEC_SECOND.search(prefix)):
             a = _ASSIGN.search(prefix)
-            if a is None or a.group(1) not in used:
+            if a is None or (a.group(1) not in used and a.group(1) not in via):
                 notes.append(f"line {line}: pose literal not used as a move target (offset, frame, ...): kept")
                 continue
             name = a.group(1)
+            if name in via:
+                if len(via[name]) > 1 or name in used:
+                    where = sorted(via[name]) + (["base"] if name in used else [])
+                    notes.append(f"line {line}: {name} is moved to in several frames ({', '.join(where)}): kept")
+                    continue
+                feature = next(iter(via[name]))
+        if feature is not None:
+            defs = [T for pos, T in features.get(feature, []) if pos < m.start()]
+            if not defs:
+                notes.append(f"line {line}: move relative to feature {feature}, which this script does not define as "
+                             "a pose (an installation feature?): kept")
+                continue
+            frame = defs[-1]
+            pose = frame @ pose
         resets = [q for pos, q in jm if prev_end <= pos < m.start()]
         spans = [(m.start(i) - m.start(), m.end(i) - m.start()) for i in range(1, 7)]
         targets.append(ProgramTarget(
             start=m.start(), end=m.end(), line=line, pose=pose, name=name, kind="p[]",
             tool_delta=None if tcp is None else se3.invert(robot.tool) @ tcp,
             reset=resets[-1] if resets else None, parts={"spans": spans, "rv": v[3:], "literal": text[m.start():m.end()]},
+            frame=frame,
         ))
         prev_end = m.end()
     return targets, notes
