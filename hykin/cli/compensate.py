@@ -62,8 +62,11 @@ def compensate_cmd(
     if frame not in ("auto", "measurement", "base"):
         raise CLIError(f"--frame must be auto, measurement or base, got {frame!r}")
     context = list(context or [])
-    companion = [inp.with_suffix(x) for x in (".src", ".dat")] if inp.suffix.lower() in (".src", ".dat") else []
-    check_output(out, [inp, model, *context, *companion], force)
+    if kind == "krl" and inp.suffix.lower() in (".src", ".dat"):  # the companion file beside it is read too
+        sib = inp.with_suffix(".src" if inp.suffix.lower() == ".dat" else ".dat")
+        if sib.is_file() and not any(Path(c).resolve() == sib.resolve() for c in context):
+            context = [sib, *context]
+    check_output(out, [inp, model, *context], force)
     if not inp.is_file():
         raise CLIError(f"{inp}: no such file")
     mdl = load_model(model)
@@ -98,23 +101,23 @@ def _tool_delta(mdl, text: str | None, length_unit: str, angle_unit: str):
     if text is None:
         return None
     from ..geometry import se3
+    from ..io.dataset import ANGLE_UNITS, LENGTH_UNITS, check_units
 
+    check_units("--tool", length_unit, angle_unit)
     try:
         v = np.array([float(x) for x in text.split(",")])
     except ValueError:
         v = np.array([])
     if v.shape not in ((3,), (6,)) or not np.isfinite(v).all():
         raise CLIError(f"--tool: expected x,y,z or x,y,z,roll,pitch,yaw (numbers), got {text!r}")
-    L = 1e-3 if length_unit == "mm" else 1.0
-    A = np.pi / 180 if angle_unit == "deg" else 1.0
-    xyz, rpy = v[:3] * L, (v[3:] if v.size == 6 else np.zeros(3)) * A
+    xyz = v[:3] * LENGTH_UNITS[length_unit]
+    rpy = (v[3:] if v.size == 6 else np.zeros(3)) * ANGLE_UNITS[angle_unit]
     if np.linalg.norm(xyz) > 2.0:
         raise CLIError(f"--tool: a TCP {np.linalg.norm(xyz):.4g} m from the flange; if its numbers are mm, add "
                        "--length-unit mm")
     if np.abs(rpy).max() > 2 * np.pi + 1e-9:
         raise CLIError(f"--tool: angles up to {np.abs(rpy).max():.4g} rad; if they are degrees, add --angle-unit deg")
-    tcp = se3.xyzrpy_to_transform(xyz[None], rpy[None])[0]
-    return se3.invert(mdl.nominal.tool) @ tcp
+    return se3.invert(mdl.nominal.tool) @ se3.xyzrpy_to_transform(xyz, rpy)
 
 
 def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_unit: str, angle_unit: str,
@@ -180,10 +183,6 @@ def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, fram
 
     fmt = {"urscript": urscript, "krl": krl, "rapid": rapid}[kind]
     text = inp.read_bytes().decode("latin-1")  # one char per byte: unchanged bytes stay unchanged
-    if kind == "krl" and inp.suffix.lower() in (".src", ".dat"):  # the companion file, beside it, comes too
-        sib = inp.with_suffix(".src" if inp.suffix.lower() == ".dat" else ".dat")
-        if sib.is_file() and not any(Path(c).resolve() == sib.resolve() for c in context):
-            context = [sib, *context]
     for c in context:
         if not Path(c).is_file():
             raise CLIError(f"--context {c}: no such file")
@@ -197,7 +196,7 @@ def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, fram
         con.print(f"note: {inp}:{note}", highlight=False)
     if not res.targets:
         raise CLIError(f"{inp}: no Cartesian targets found (format {kind}); nothing written")
-    unknown = {t.line for t in res.targets if t.error}  # frames the program does not define (RAPID work objects)
+    unknown = {t.line for t in res.targets if t.error}  # frames the files do not define (work objects, bases)
     for line, reason in res.failed:
         what = "target's frame unknown" if line in unknown else "target unreachable"
         con.print(f"{'warning' if skip else 'error'}: {inp}:{line}: {what} ({reason})", highlight=False)

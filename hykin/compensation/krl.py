@@ -93,7 +93,8 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
 
     sgn = default_axis_signs(robot) if axis_signs is None else np.asarray(axis_signs, dtype=np.float64)
     clean = _clean(text)
-    used = _motion_names(clean) | (_motion_names(_clean(context)) if context else set())
+    ctx_clean = _clean(context) if context else ""
+    used = _motion_names(clean) | _motion_names(ctx_clean)
     targets, notes = [], []
     last_joint, prev_end = None, 0
     for m in _AGG.finditer(clean):
@@ -151,16 +152,11 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
         prev_end = m.end()
     # the base and tool of each target: the selections in force where the .src moves to it
     text_is_src = bool(_motion_uses(clean)) or not context
-    src_clean = clean if text_is_src else _clean(context)
+    src_clean = clean if text_is_src else ctx_clean
     motions = [(p, name, None) for p, name in _motion_uses(src_clean)]
     motions += [(t.start, None, k) for k, t in enumerate(targets) if not t.name]
-    fr = frames_of_targets(src_clean, text_is_src, targets, robot, [clean, _clean(context)] if context else [clean],
-                           motions, matrix_from_abc)
-    for t, W, D, err in zip(targets, fr.frame, fr.tool_delta, fr.error):
-        t.frame, t.tool_delta, t.error = W, D, err
-        if W is not None:
-            t.pose = W @ t.pose
-    return targets, notes + fr.notes
+    fr = frames_of_targets(src_clean, text_is_src, targets, robot, [clean, ctx_clean], motions)
+    return targets, notes + fr.apply(targets)
 
 
 def format_target(t: ProgramTarget, command: np.ndarray, q, robot, axis_signs=None) -> str:

@@ -37,20 +37,22 @@ _SELECT = re.compile(
 _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 
 
-def _aggregate_frame(body: str, matrix_from_abc) -> np.ndarray | None:
+def _aggregate_frame(body: str) -> np.ndarray | None:
+    """A complete ``X, Y, Z`` (mm), ``A, B, C`` (deg) aggregate as a (4, 4) frame (m), else None.
+    ``R = Rz(A) Ry(B) Rx(C)`` is URDF roll-pitch-yaw ``(C, B, A)``."""
     comps = {m.group(1).upper(): float(m.group(2)) for m in re.finditer(r"\b([XYZABC])\s+(" + _NUMBER + ")", body)}
     if not all(k in comps for k in "XYZABC"):
         return None
-    return se3.make_transform(matrix_from_abc(comps["A"], comps["B"], comps["C"]),
-                              np.array([comps["X"], comps["Y"], comps["Z"]]) * 1e-3)
+    return se3.xyzrpy_to_transform(np.array([comps["X"], comps["Y"], comps["Z"]]) * 1e-3,
+                                   np.radians([comps["C"], comps["B"], comps["A"]]))
 
 
-def _declared(cleans: list, matrix_from_abc) -> tuple[dict, dict]:
+def _declared(cleans: list) -> tuple[dict, dict]:
     """``({("base"|"tool", n): (4, 4)}, {FDAT name: {"TOOL_NO": n, "BASE_NO": n, "IPO_FRAME": str}})``."""
     frames, fdat = {}, {}
     for clean in cleans:
         for m in _FRAME_DATA.finditer(clean):
-            T = _aggregate_frame(m.group(3), matrix_from_abc)
+            T = _aggregate_frame(m.group(3))
             if T is not None:
                 frames[(m.group(1).upper()[:4].lower(), int(m.group(2)))] = T
         for m in _FDAT.finditer(clean):
@@ -62,7 +64,7 @@ def _declared(cleans: list, matrix_from_abc) -> tuple[dict, dict]:
     return frames, fdat
 
 
-def _walk(clean: str, fdat: dict, matrix_from_abc) -> list:
+def _walk(clean: str, fdat: dict) -> list:
     """Selections in text order: ``[(position, "base"|"tool", value)]``; value: an int (data index), a
     ``(4, 4)`` frame, or a str (why it is unknown)."""
     out = []
@@ -88,7 +90,7 @@ def _walk(clean: str, fdat: dict, matrix_from_abc) -> list:
             elif m.group("null"):
                 out.append((m.start(), kind, 0))
             elif m.group("agg") is not None:
-                T = _aggregate_frame(m.group("agg"), matrix_from_abc)
+                T = _aggregate_frame(m.group("agg"))
                 out.append((m.start(), kind, T if T is not None else f"${kind.upper()} = {{..}} is not a complete frame"))
             else:
                 out.append((m.start(), kind, f"${kind.upper()} = {m.group('expr').strip()[:40]}: an expression hykin "
@@ -114,14 +116,14 @@ def _state_at(positions: np.ndarray, states: list, pos: int) -> tuple:
     return states[i - 1] if i else (0, 0)
 
 
-def frames_of_targets(src_clean: str, text_is_src: bool, targets: list, robot, cleans: list, motions: list,
-                      matrix_from_abc) -> TargetFrames:
+def frames_of_targets(src_clean: str, text_is_src: bool, targets: list, robot, cleans: list,
+                      motions: list) -> TargetFrames:
     """Frames of ``targets`` (of the file read) from the base/tool selections of ``src_clean`` (the
     ``.src`` text with comments blanked: the file read itself when ``text_is_src``, else its
     companion), the data declared in ``cleans`` (every text read) and ``motions``: ``[(position in
     src_clean, target name (upper case) or None, index of an inline target or None)]``."""
-    frames, fdat = _declared(cleans, matrix_from_abc)
-    positions, states = _states(_walk(src_clean, fdat, matrix_from_abc))
+    frames, fdat = _declared(cleans)
+    positions, states = _states(_walk(src_clean, fdat))
     uses: dict = {}
     by_name: dict = {}
     for k, t in enumerate(targets):

@@ -97,6 +97,14 @@ class TargetFrames:
         self.tool_delta.append(D)
         self.error.append(err)
 
+    def apply(self, targets: list) -> list:
+        """Set each target's frame, tool delta and error, its pose to ``frame · literal``; returns the notes."""
+        for t, W, D, err in zip(targets, self.frame, self.tool_delta, self.error):
+            t.frame, t.tool_delta, t.error = W, D, err
+            if W is not None:
+                t.pose = W @ t.pose
+        return self.notes
+
 
 @dataclass
 class ProgramResult:

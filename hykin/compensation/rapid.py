@@ -61,12 +61,7 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
             name=decl.group(1) if decl else "", kind="robtarget", config={"conf": conf},
             parts={"spans": spans, "literal": text[m.start():m.end()], "quat": quat},
         ))
-    fr = frames_of_targets(clean, text, targets, robot, data, line_of)
-    for t, W, D, err in zip(targets, fr.frame, fr.tool_delta, fr.error):
-        t.frame, t.tool_delta, t.error = W, D, err
-        if W is not None:
-            t.pose = W @ t.pose
-    return targets, fr.notes
+    return targets, frames_of_targets(clean, text, targets, robot, data, line_of).apply(targets)
 
 
 def _blank(text: str) -> str:
