@@ -379,6 +379,12 @@ def test_urscript_moves_relative_to_a_feature_the_script_defines():
     assert [t.line for t in res.targets] == [4, 5] and not res.failed
     assert any("feature Plane_2, which this script does not define" in n for n in res.notes)
     assert _diff(prog, res.text) == {4, 5}  # W1's and the inline literal; Plane_1 and Plane_2's line kept
+    # the feature's pose where the move is counts: W1 may be assigned before Plane_1 is
+    swapped = prog.replace(f"  global Plane_1 = {p(F)}\n  global W1 = {p(loc[1])}\n",
+                           f"  global W1 = {p(loc[1])}\n  global Plane_1 = {p(F)}\n")
+    assert swapped != prog
+    r2 = compensate_program(m, swapped, urscript, frame="measurement")
+    assert [t.line for t in r2.targets] == [3, 5] and np.abs(r2.targets[0].pose - want[1]).max() < 1e-8
     order = [1, 0]  # in the text W1's literal (line 4) comes before the inline one (line 5)
     assert np.abs(np.stack([t.pose for t in res.targets]) - want[order]).max() < 1e-8
     new, _ = urscript.find_targets(res.text, nom)

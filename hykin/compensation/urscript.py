@@ -50,12 +50,12 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
     for m in re.finditer(r"\bmovec\s*\([^,()]*,\s*([A-Za-z_]\w*)\s*[,)]", clean):
         used.add(m.group(1))
     used.discard("p")
-    via = {}  # variable -> features it is moved to through pose_trans(feature, variable)
+    via = {}  # variable -> {feature: position of the first move to pose_trans(feature, variable)}
     for m in _MOVE_VIA.finditer(clean):
-        via.setdefault(m.group(2), set()).add(m.group(1))
+        via.setdefault(m.group(2), {}).setdefault(m.group(1), m.start())
     # a frame that is itself moved to is rewritten too: what pose_trans composes with it is an offset
     # from a moving pose (kept, as before), not a target in a fixed feature
-    via = {k: f for k, f in via.items() if not (f & (used | set(via)))}
+    via = {k: f for k, f in via.items() if not (set(f) & (used | set(via)))}
     features = {}  # name -> [(position, pose)] of its pose-literal assignments
     for m in _POSE.finditer(clean):
         a = _ASSIGN.search(clean[clean.rfind("\n", 0, m.start()) + 1 : m.start()])
@@ -77,7 +77,7 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
             tcp = pose
             notes.append(f"line {line}: set_tcp pose kept; later targets use this TCP")
             continue
-        frame, feature = None, None
+        frame, feature, at = None, None, m.start()  # at: where the move is (the feature's pose there counts)
         f = _MOVE_FEATURE.search(prefix)
         if f is not None and f.group(1) not in used and f.group(1) not in via:
             feature = f.group(1)
@@ -92,9 +92,9 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
                     where = sorted(via[name]) + (["base"] if name in used else [])
                     notes.append(f"line {line}: {name} is moved to in several frames ({', '.join(where)}): kept")
                     continue
-                feature = next(iter(via[name]))
+                (feature, at), = via[name].items()
         if feature is not None:
-            defs = [T for pos, T in features.get(feature, []) if pos < m.start()]
+            defs = [T for pos, T in features.get(feature, []) if pos < at]
             if not defs:
                 notes.append(f"line {line}: move relative to feature {feature}, which this script does not define as "
                              "a pose (an installation feature?): kept")
