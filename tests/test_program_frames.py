@@ -192,6 +192,10 @@ def test_cli_refuses_unknown_work_object_and_takes_context(tmp_path, capsys):
     ctx = tmp_path / "frames.sys"
     full = _module(tcp, UF @ OF, abb_confdata(m.nominal, q))
     ctx.write_text("MODULE frames(SYSMODULE)\n" + "\n".join(ln for ln in full.splitlines() if "wobjdata" in ln) + "\nENDMODULE\n")
+    for bad in ("-1", "91", "nan"):
+        code, _, err = run(["compensate", str(model), str(prog), "-o", str(out), "--frame", "measurement",
+                            "--context", str(ctx), "--config-slack-deg", bad], capsys)
+        assert code != 0 and not out.exists() and "--config-slack-deg must be within 0-90 deg" in err
     code, o, err = run(["compensate", str(model), str(prog), "-o", str(out), "--frame", "measurement",
                         "--context", str(ctx)], capsys)
     assert code == 0, err

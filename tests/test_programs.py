@@ -226,3 +226,142 @@ def test_program_of_a_tracker_frame_model_is_in_the_controller_frame():
     r = ik(nom, cmd, all_branches=True).nearest_to(q, nom.lower, nom.upper)
     real = se3.invert(m.robot_.base) @ fk(m.robot_, r.q)
     assert se3.pose_error(real, want)[0].max() < 2e-3
+
+
+# ------------------------------------------------------------------------ the stretched elbow (reach edge)
+
+
+def _stretched_q(nom, n: int, seed: int) -> np.ndarray:
+    """``n`` random joints with the elbow 0.05-0.8° from stretched (either side): the reach boundary,
+    found by bisection on joint 3 (independent of the matchers: only arm_geometry's sign is used)."""
+    from hykin.compensation.branches import arm_geometry
+
+    rng = np.random.default_rng(seed)
+    q = nom.random_joints(n, seed, margin=0.3)
+    q[:, 4] = np.abs(q[:, 4]) + 0.3
+    ones = np.ones(nom.dof)
+    lo, hi = np.full(n, -np.pi / 2), np.full(n, np.pi / 2)
+    for _ in range(60):  # the elbow angle grows with joint 3 through 0 at the stretched pose
+        mid = 0.5 * (lo + hi)
+        qm = q.copy()
+        qm[:, 2] = mid
+        pos = arm_geometry(nom, qm, ones)[1] > 0
+        hi, lo = np.where(pos, mid, hi), np.where(pos, lo, mid)
+    q[:, 2] = 0.5 * (lo + hi) + rng.choice([-1.0, 1.0], n) * np.radians(rng.uniform(0.05, 0.8, n))
+    return q
+
+
+@pytest.mark.parametrize("preset", ["ur5", "rx160", "abb-irb2400"])
+def test_abb_forward_side_is_the_nominal_robots_for_its_calibrated_copy(preset):
+    """The elbow flag of confdata: "forward" is read off the nominal robot's zero pose. An arm stretched
+    at zero (UR, Stäubli) names forward e > 0; a calibrated copy (a fraction of a degree kinked either
+    way at zero) must name the same side, or every fallback on it picks the other elbow."""
+    from hykin.compensation.branches import arm_geometry
+
+    nom = exact(preset, 0).nominal
+    q = nom.random_joints(300, 2, margin=0.1)
+    e = arm_geometry(nom, q, np.ones(6))[1]
+    q = q[np.abs(e) > np.radians(3)]  # clear of the stretched elbow on every copy
+    ref = abb_confdata(nom, q)
+    zero = np.clip(np.zeros((1, 6)), nom.lower, nom.upper)
+    stretched = abs(arm_geometry(nom, zero, np.ones(6))[1][0]) < 1e-9
+    assert stretched == (preset != "abb-irb2400")
+    if stretched:  # forward = e > 0
+        assert np.array_equal((ref[:, 3] >> 1) & 1, (arm_geometry(nom, q, np.ones(6))[1] < 0).astype(int))
+    flipped = 0
+    for seed in range(8):
+        cal = exact(preset, seed).robot_
+        e0 = arm_geometry(cal, np.clip(np.zeros((1, 6)), cal.lower, cal.upper), np.ones(6))[1][0]
+        flipped += e0 < 0
+        # the elbow bit (the overhead bit has its own singularity, over axis 1, not at issue here)
+        assert np.array_equal(abb_confdata(cal, q, reference=nom)[:, 3] & 2, ref[:, 3] & 2)
+    if stretched:
+        assert 0 < flipped < 8  # the copies' own zero poses disagree: the reference is what makes them agree
+
+
+def _flags_reached(rob, T, reference=None, kuka=False) -> list:
+    """Per pose ``T`` ``(N, 4, 4)`` the set of cfx (or S) values of ``rob``'s solutions within its limits."""
+    from hykin.compensation.branches import candidate_solutions
+
+    q, ok = candidate_solutions(rob, T)
+    N, K, n = q.shape
+    f = (kuka_status(rob, np.nan_to_num(q.reshape(-1, n)))[0] if kuka else
+         abb_confdata(rob, np.nan_to_num(q.reshape(-1, n)), reference=reference)[:, 3]).reshape(N, K)
+    return [set(f[i][ok[i]].tolist()) for i in range(N)]
+
+
+@pytest.mark.parametrize("preset,seed", [("ur5", 0), ("ur5", 4), ("rx160", 1), ("rx160", 2)])
+def test_rapid_targets_at_the_stretched_elbow_keep_their_branch_or_take_the_other_flag_with_a_note(preset, seed):
+    """Targets 0.05-0.8° from the stretched elbow, where the real robot (the deviated copy) reaches
+    further than the nominal (an ABB arm's axis 3 cannot stretch it within its limits): every one is
+    compensated; the stand-in controller (the nominal solution with the confdata written) puts the real
+    robot on the target; the flags are the program's unless the real robot has no solution with them
+    (then only the elbow / overhead flag differs, noted); with config_slack_deg=0 those fail.
+    (rx160 seed 2: a Stäubli arm stretched is also nearly over axis 1, and one target's overhead flag
+    differs between the robots.)"""
+    m = exact(preset, seed)
+    nom = m.nominal
+    q = _stretched_q(nom, 30, seed)
+    tcp = fk(m.robot_, q)
+    cf = abb_confdata(nom, q)
+    xyz, quat = se3.transform_to_pose(tcp)
+    body = "".join(
+        f"    MoveL [[{xyz[k, 0] * 1e3:.6f},{xyz[k, 1] * 1e3:.6f},{xyz[k, 2] * 1e3:.6f}],"
+        f"[{quat[k, 0]:.10f},{quat[k, 1]:.10f},{quat[k, 2]:.10f},{quat[k, 3]:.10f}],"
+        f"[{cf[k, 0]},{cf[k, 1]},{cf[k, 2]},{cf[k, 3]}],[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]], v200, fine, tool0;\n"
+        for k in range(len(q)))
+    mod = "MODULE edge\n  PROC main()\n" + body + "  ENDPROC\nENDMODULE\n"
+    res = compensate_program(m, mod, rapid, frame="measurement")
+    assert not res.failed, res.failed
+    new, _ = rapid.find_targets(res.text, nom)
+    conf = np.array([t.config["conf"] for t in new])
+    qc = match_abb_confdata(nom, np.stack([t.pose for t in new]), conf)
+    assert not np.isnan(qc).any()
+    assert se3.pose_error(fk(m.robot_, qc), tcp)[0].max() < 2e-3
+    # the real robot's own flags at the joints it goes to: the program's, except the noted rows, and
+    # those only where the real robot has no solution with the program's flags
+    own = abb_confdata(m.robot_, qc, reference=nom)
+    other = own[:, 3] != cf[:, 3]
+    assert np.all((own[other, 3] ^ cf[other, 3]) & ~6 == 0)  # only the overhead / elbow bits
+    reached = _flags_reached(m.robot_, np.stack([t.pose for t in res.targets]), reference=nom)
+    assert all(cf[k, 3] not in reached[k] for k in np.flatnonzero(other))
+    noted = [n for n in res.notes if "singular pose" in n]
+    assert bool(other.any()) == bool(noted)
+    if other.any():
+        assert f"{int(other.sum())} targets" in noted[0]
+        strict = compensate_program(m, mod, rapid, frame="measurement", config_slack_deg=0)
+        assert len(strict.failed) == int(other.sum())
+        assert all("configuration data" in r for _, r in strict.failed)
+    with pytest.raises(ValueError, match="config_slack_deg"):
+        compensate_program(m, mod, rapid, config_slack_deg=-1)
+
+
+def test_krl_targets_at_the_stretched_elbow_are_compensated_where_the_real_robot_has_their_status():
+    """KUKA's S bits 0 and 1 at the reach boundary: the same fallback as RAPID's flags. A target fails
+    only where the real robot has no solution with the program's S (its non-spherical wrist can
+    shorten the reach with one wrist flag: checked on its own IK solutions)."""
+    m = exact("kuka-kr6-r900", 2)
+    nom = m.nominal
+    q = _stretched_q(nom, 30, 2)
+    tcp = fk(m.robot_, q)
+    S, T = kuka_status(nom, q)
+    lines = []
+    for k in range(len(q)):
+        a, b, c = krl.abc_from_matrix(tcp[k, :3, :3])
+        x, y, z = tcp[k, :3, 3] * 1e3
+        lines.append(f"LIN {{X {x:.5f}, Y {y:.5f}, Z {z:.5f}, A {a:.6f}, B {b:.6f}, C {c:.6f}, S {S[k]}, T {T[k]}}}")
+    src = "DEF edge()\n" + "\n".join(lines) + "\nEND\n"
+    res = compensate_program(m, src, krl, frame="measurement")
+    failed = np.array([line - 2 for line, _ in res.failed], dtype=int)
+    reached = _flags_reached(m.robot_, np.stack([t.pose for t in res.targets]), kuka=True)
+    assert len(failed) <= 2 and all(S[k] not in reached[k] for k in failed)
+    done = np.setdiff1d(np.arange(len(q)), failed)
+    new = krl.find_targets(res.text, nom)[0]
+    qc = match_kuka_status(nom, np.stack([new[k].pose for k in done]), [new[k].config["S"] for k in done],
+                           [new[k].config["T"] for k in done])
+    assert not np.isnan(qc).any()
+    assert se3.pose_error(fk(m.robot_, qc), tcp[done])[0].max() < 2e-3
+    own, _ = kuka_status(m.robot_, qc)
+    other = own != S[done]
+    assert np.all((own[other] ^ S[done][other]) & ~3 == 0)
+    assert bool(other.any()) == any("singular pose" in n for n in res.notes)

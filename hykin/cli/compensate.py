@@ -51,6 +51,7 @@ def compensate_cmd(
     fmt: str | None = typer.Option(None, "--format", help="Input format: csv, urscript, krl, rapid (default: by suffix)."),
     context: list[Path] | None = typer.Option(None, "--context", help="More files the program needs (repeatable). KRL: the companion .src/.dat (read from beside the input by default) and $config.dat (BASE_DATA/TOOL_DATA). RAPID: modules declaring the tooldata/wobjdata the program uses."),
     tool: str | None = typer.Option(None, "--tool", help="CSV: the targets are poses of another TCP than the model's: x,y,z[,roll,pitch,yaw] of that TCP in the flange frame, as the tool table of a robot file (xyz, rpy), in --length-unit / --angle-unit (programs name their tool: set_tcp, tooldata, TOOL_DATA)."),
+    config_slack_deg: float = typer.Option(1.0, "--config-slack-deg", help="Programs: a target the real robot reaches only with the other elbow / overhead flag than its configuration data (S, confdata) say, within this angle of that flag's singular pose (stretched elbow, wrist centre on axis 1), is written with the flag it reaches, with a note; 0 refuses it."),
     axis_signs: str | None = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the robot preset)."),
     payload_kg: float | None = typer.Option(None, "--payload-kg", help="Payload (kg, at the TCP) the robot carries while executing these targets: the model deflects under it (default: the robot file's payload)."),
     force: bool = Force,
@@ -61,6 +62,8 @@ def compensate_cmd(
     kind = _format_of(inp, fmt)
     if frame not in ("auto", "measurement", "base"):
         raise CLIError(f"--frame must be auto, measurement or base, got {frame!r}")
+    if not (0 <= config_slack_deg <= 90):
+        raise CLIError(f"--config-slack-deg must be within 0-90 deg, got {config_slack_deg}")
     context = list(context or [])
     if kind == "krl" and inp.suffix.lower() in (".src", ".dat"):  # the companion file beside it is read too
         sib = inp.with_suffix(".src" if inp.suffix.lower() == ".dat" else ".dat")
@@ -93,7 +96,7 @@ def compensate_cmd(
         raise CLIError(f"--tool applies to CSV targets; {inp} is a {kind} program, which names its own tool "
                        "(URScript set_tcp, RAPID tooldata, KRL TOOL_DATA via --context)")
     else:
-        _compensate_program(mdl, inp, out, kind, joints, frame, skip_unreachable, context, signs)
+        _compensate_program(mdl, inp, out, kind, joints, frame, skip_unreachable, context, signs, config_slack_deg)
 
 
 def _tool_delta(mdl, text: str | None, length_unit: str, angle_unit: str):
@@ -177,7 +180,7 @@ def _summary(comp, out: Path, n: int) -> None:
 
 
 def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, frame: str, skip: bool,
-                        context: list, signs) -> None:
+                        context: list, signs, slack_deg: float) -> None:
     from ..compensation import krl, rapid, urscript
     from ..compensation.programs import compensate_program
 
@@ -188,7 +191,7 @@ def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, fram
             raise CLIError(f"--context {c}: no such file")
     ctx = "\n".join(Path(c).read_bytes().decode("latin-1") for c in context)
     try:
-        res = compensate_program(mdl, text, fmt, frame=frame, axis_signs=signs, context=ctx)
+        res = compensate_program(mdl, text, fmt, frame=frame, axis_signs=signs, context=ctx, config_slack_deg=slack_deg)
     except ValueError as e:
         raise CLIError(f"{inp}: {str(e).splitlines()[0]}") from None
     con = console()

@@ -9,10 +9,12 @@ Geometry used (hykin joint frames, :func:`hykin.kinematics.fk.fk_frames`; contro
 
 * wrist centre ``pw``: the point of axis 4 nearest axis 5 (the wrist centre of a spherical wrist);
 * *overhead*: ``(pw - o1) · x1 < 0`` — wrist centre behind joint 1, ``x1`` the x axis of link
-  frame 1 (the direction the arm points at ``A1``), ``o1`` a point on axis 1;
-* *elbow*: ``c = ((o3 - o2) × (pw - o3)) · (s3 z3)``, the side of the line through axes 2 and 3 the
-  wrist centre lies on; ``c = 0`` is the stretched-elbow singularity and ``c`` grows with ``A3``
-  (rotating the forearm positively about ``s3 z3``), so ``c >= 0`` ⟺ ``A3 >= φ``.
+  frame 1 (the direction the arm points at ``A1``), ``o1`` a point on axis 1; its lean
+  ``atan2(-(pw - o1) · x1, |(pw - o1) · z1|)`` (rad, > 0 overhead) is 0 with the wrist centre on axis 1;
+* *elbow*: the angle ``e = atan2(((o3 - o2) × (pw - o3)) · (s3 z3), (o3 - o2) · (pw - o3))`` (rad)
+  between the lower arm and the line from axis 3 to the wrist centre, signed by the side of the line
+  through axes 2 and 3 the wrist centre lies on; ``e = 0`` is the stretched-elbow singularity and ``e``
+  grows with ``A3`` (rotating the forearm positively about ``s3 z3``), so ``e >= 0`` ⟺ ``A3 >= φ``.
 
 KUKA (KSS 8 manuals, "Status and Turn"; what we assumed — check one pose on the controller):
 ``S`` bit 0 = overhead area, bit 1 = ``A3 >= φ`` (elbow), bit 2 = ``A5 <= 0``; ``T`` bit i = ``A(i+1) < 0``.
@@ -20,7 +22,17 @@ KUKA (KSS 8 manuals, "Status and Turn"; what we assumed — check one pose on th
 ABB (RAPID reference, ``confdata``): ``cf1, cf4, cf6`` = quadrant ``floor(A / 90°)`` of axes 1, 4, 6;
 ``cfx`` = 4·(wrist centre behind axis 1) + 2·(wrist centre backward of the lower arm) + (``A5 < 0``),
 "backward" being the side of the lower-arm line opposite to the wrist centre at the robot's zero
-pose (the ABB table's numbering of cfx 0..7 as we read it).
+pose (the ABB table's numbering of cfx 0..7 as we read it). An arm stretched at its zero pose (UR,
+Stäubli: ``e = 0`` there) takes forward as ``e > 0`` (``A3 > φ``, as KUKA's bit 1). The side is read
+off the *nominal* robot: a calibrated copy of a stretched arm has ``e`` of either sign at zero, and
+must name the same side forward (``reference``).
+
+Near a singular configuration a flag can lack a solution on one side. At the reach boundary the two
+elbow solutions merge at ``e = 0``; with the wrist centre on axis 1 the two shoulder solutions merge
+(lean 0). A calibrated robot, whose singular poses lie a fraction of a degree from the nominal's, may
+reach a target taught just on one side only just on the other. The matchers' ``slack_rad`` then
+accepts the other elbow / overhead flag where that flag's angle is within ``slack_rad`` of 0 (the wrist
+flag always has both sides: ``(A4 + π, -A5, A6 + π)``).
 
 Both assume the robot file's joints ARE the controller's axes up to a sign per joint
 (``axis_signs``: the preset ``kuka-kr6-r900`` has ``q = (-A1, A2, A3, -A4, A5, -A6)``,
@@ -36,6 +48,7 @@ from ..kinematics.robot import Robot
 
 __all__ = [
     "abb_confdata",
+    "arm_angles",
     "arm_geometry",
     "candidate_solutions",
     "default_axis_signs",
@@ -69,7 +82,14 @@ def _closest_on_first(o1, z1, o2, z2):
 
 
 def arm_geometry(robot: Robot, q: np.ndarray, axis_signs=None) -> tuple[np.ndarray, np.ndarray]:
-    """``(overhead (M,) bool, elbow (M,) float)`` for joints ``q`` ``(M, n)`` (module docstring)."""
+    """``(overhead (M,) bool, elbow (M,) rad)`` for joints ``q`` ``(M, n)`` (module docstring)."""
+    lean, elbow = arm_angles(robot, q, axis_signs)
+    return lean > 0, elbow
+
+
+def arm_angles(robot: Robot, q: np.ndarray, axis_signs=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(lean (M,) rad, elbow (M,) rad)``: the signed angles whose signs are the overhead and elbow
+    flags, 0 at their singular configurations (module docstring)."""
     from ..kinematics.fk import fk_frames
 
     if robot.dof < 5:
@@ -81,9 +101,11 @@ def arm_geometry(robot: Robot, q: np.ndarray, axis_signs=None) -> tuple[np.ndarr
     pw = _closest_on_first(o[:, 3], z[:, 3], o[:, 4], z[:, 4])
     x1 = fr.link[:, 0, :3, 0]
     x1 = x1 - np.sum(x1 * z[:, 0], -1, keepdims=True) * z[:, 0]  # in the plane normal to axis 1
-    overhead = np.sum((pw - o[:, 0]) * x1, -1) < 0
-    elbow = np.sum(np.cross(o[:, 2] - o[:, 1], pw - o[:, 2]) * (s[2] * z[:, 2]), -1)
-    return overhead, elbow
+    r = pw - o[:, 0]
+    lean = np.arctan2(-np.sum(r * x1, -1), np.abs(np.sum(r * z[:, 0], -1)))
+    lower, upper = o[:, 2] - o[:, 1], pw - o[:, 2]
+    elbow = np.arctan2(np.sum(np.cross(lower, upper) * (s[2] * z[:, 2]), -1), np.sum(lower * upper, -1))
+    return lean, elbow
 
 
 def kuka_status(robot: Robot, q, axis_signs=None) -> tuple[np.ndarray, np.ndarray]:
@@ -97,19 +119,27 @@ def kuka_status(robot: Robot, q, axis_signs=None) -> tuple[np.ndarray, np.ndarra
     return S, T
 
 
+# |e| (rad) at the zero pose below which the arm counts as stretched there: a nominal stretched arm
+# gives ~1e-16 (rounding), an ABB arm ~1.5
+_STRETCHED_RAD = 1e-9
+
+
 def _abb_sigma(robot: Robot, s) -> float:
-    """Sign making "forward of the lower arm" the side the wrist centre has at the zero pose."""
+    """Sign making "forward of the lower arm" the side the wrist centre has at the zero pose (+1 where
+    the arm is stretched there)."""
     _, e0 = arm_geometry(robot, np.clip(np.zeros((1, robot.dof)), robot.lower, robot.upper), s)
-    return 1.0 if e0[0] >= 0 else -1.0
+    return -1.0 if e0[0] < -_STRETCHED_RAD else 1.0
 
 
-def abb_confdata(robot: Robot, q, axis_signs=None) -> np.ndarray:
-    """ABB ``confdata`` ``(M, 4)`` int ``[cf1, cf4, cf6, cfx]`` of joints ``q`` ``(M, 6)`` rad."""
+def abb_confdata(robot: Robot, q, axis_signs=None, reference: Robot | None = None) -> np.ndarray:
+    """ABB ``confdata`` ``(M, 4)`` int ``[cf1, cf4, cf6, cfx]`` of joints ``q`` ``(M, 6)`` rad.
+    ``reference``: the robot whose zero pose says which side of the lower arm is forward (default
+    ``robot``; pass the nominal robot when ``robot`` is its calibrated copy: module docstring)."""
     q = np.asarray(q, dtype=np.float64).reshape(-1, robot.dof)
     s = np.ones(robot.dof) if axis_signs is None else np.asarray(axis_signs, dtype=np.float64)
     A = q * s
     overhead, elbow = arm_geometry(robot, q, s)
-    backward = elbow * _abb_sigma(robot, s) < 0
+    backward = elbow * _abb_sigma(robot if reference is None else reference, s) < 0
     quad = np.floor(A[:, [0, 3, 5]] / (np.pi / 2) + 1e-12).astype(int)
     cfx = 4 * overhead.astype(int) + 2 * backward.astype(int) + (A[:, 4] < 0).astype(int)
     return np.concatenate([quad, cfx[:, None]], axis=1)
@@ -146,13 +176,31 @@ def _pick(q: np.ndarray, ok: np.ndarray, cost: np.ndarray, allowed: np.ndarray) 
     return out
 
 
-def match_kuka_status(robot: Robot, T_world, S, T=None, axis_signs=None) -> np.ndarray:
+def _flag_match(robot: Robot, q: np.ndarray, got: np.ndarray, want: np.ndarray, bits: tuple[int, int], axis_signs,
+                slack_rad: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(allowed (N, K) bool, extra cost (N, K))``: candidates ``q`` ``(N, K, n)`` whose flags ``got``
+    equal ``want``, and, with ``slack_rad > 0``, those whose differing flags are only the overhead /
+    elbow bits ``bits`` with that flag's angle within ``slack_rad`` of 0 (module docstring), at a cost
+    that puts every exact match first."""
+    exact = got == want
+    if slack_rad <= 0:
+        return exact, np.zeros(got.shape)
+    s = np.ones(robot.dof) if axis_signs is None else np.asarray(axis_signs, dtype=np.float64)
+    lean, e = arm_angles(robot, np.nan_to_num(q.reshape(-1, robot.dof)), s)
+    near = (np.where(np.abs(lean) <= slack_rad, bits[0], 0) | np.where(np.abs(e) <= slack_rad, bits[1], 0)).reshape(got.shape)
+    allowed = (np.bitwise_xor(got, want) & ~near) == 0
+    return allowed, np.where(exact, 0.0, 1e6)
+
+
+def match_kuka_status(robot: Robot, T_world, S, T=None, axis_signs=None, slack_rad: float = 0.0) -> np.ndarray:
     """Nominal joints ``(N, n)`` of each target with status ``S`` (exact) and turn ``T`` (fewest
     differing bits; ``-1`` or ``None`` = not given: the representation nearest zero). NaN rows where no
-    nominal solution has that ``S``."""
+    nominal solution has that ``S``. ``slack_rad``: where none has, accept the other overhead / elbow
+    bit within that angle of its singular configuration (module docstring)."""
     q, ok = candidate_solutions(robot, np.asarray(T_world, dtype=np.float64))
     N, K, n = q.shape
-    Sc, Tc = kuka_status(robot, np.nan_to_num(q.reshape(-1, n)), axis_signs)
+    signs = default_axis_signs(robot) if axis_signs is None else axis_signs
+    Sc, Tc = kuka_status(robot, np.nan_to_num(q.reshape(-1, n)), signs)
     Sc, Tc = Sc.reshape(N, K), Tc.reshape(N, K)
     S = np.asarray(S, dtype=int).reshape(N, 1)
     Tg = np.full((N, 1), -1) if T is None else np.asarray(T, dtype=int).reshape(N, 1)
@@ -160,19 +208,26 @@ def match_kuka_status(robot: Robot, T_world, S, T=None, axis_signs=None) -> np.n
     bits = np.zeros_like(diff, dtype=float)
     for b in range(n):
         bits += (diff >> b) & 1
-    cost = np.where(Tg >= 0, bits * 1e3, 0.0) + np.abs(np.nan_to_num(q)).sum(-1)
-    return _pick(q, ok, cost, Sc == S)
+    allowed, extra = _flag_match(robot, q, Sc, S, (1, 2), signs, slack_rad)
+    cost = np.where(Tg >= 0, bits * 1e3, 0.0) + np.abs(np.nan_to_num(q)).sum(-1) + extra
+    return _pick(q, ok, cost, allowed)
 
 
-def match_abb_confdata(robot: Robot, T_world, conf, axis_signs=None) -> np.ndarray:
+def match_abb_confdata(robot: Robot, T_world, conf, axis_signs=None, reference: Robot | None = None,
+                       slack_rad: float = 0.0) -> np.ndarray:
     """Nominal joints ``(N, n)`` with ``cfx`` equal and the quadrants ``cf1, cf4, cf6`` nearest the
-    given ``conf`` ``(N, 4)``; NaN rows where no nominal solution has that ``cfx``."""
+    given ``conf`` ``(N, 4)`` (ties: the joints nearest zero); NaN rows where no nominal solution has
+    that ``cfx``. ``reference``: as
+    :func:`abb_confdata`; ``slack_rad``: as :func:`match_kuka_status` (``cfx`` bits 2 and 1)."""
     q, ok = candidate_solutions(robot, np.asarray(T_world, dtype=np.float64))
     N, K, n = q.shape
-    cc = abb_confdata(robot, np.nan_to_num(q.reshape(-1, n)), axis_signs).reshape(N, K, 4)
+    cc = abb_confdata(robot, np.nan_to_num(q.reshape(-1, n)), axis_signs, reference).reshape(N, K, 4)
     conf = np.asarray(conf, dtype=int).reshape(N, 1, 4)
-    cost = np.abs(cc[..., :3] - conf[..., :3]).sum(-1).astype(float)
-    return _pick(q, ok, cost, cc[..., 3] == conf[..., 3])
+    allowed, extra = _flag_match(robot, q, cc[..., 3], conf[..., 3], (4, 2), axis_signs, slack_rad)
+    # quadrants first; then (axes 2, 3, 5 carry none) the representation nearest zero, as a controller
+    # whose axes 2, 3 stay within ±180° has them (a joint range over 360° has several)
+    cost = np.abs(cc[..., :3] - conf[..., :3]).sum(-1) + 1e-3 * np.abs(np.nan_to_num(q)).sum(-1) + extra
+    return _pick(q, ok, cost, allowed)
 
 
 class Candidates:

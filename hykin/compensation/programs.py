@@ -11,8 +11,10 @@ Branches: a target with configuration data (KUKA ``S``/``T``, ABB ``confdata``) 
 solution matching it; a target without gets the nominal solution nearest the previous target's
 (a controller moving through the program in text order), restarting from the joints of the last
 joint-space move before it when the format has those. Where the nominal robot has no such solution,
-the calibrated robot's is taken (the nominal model only hints; the hybrid model is solved), and a
-target without configuration data that neither reaches starts from the previous joints. Control flow
+the calibrated robot's is taken (the nominal model only hints; the hybrid model is solved); where
+that has none either only because the target lies within ``config_slack_deg`` of a singular pose
+(stretched elbow, wrist centre on axis 1), the calibrated robot's with that flag flipped, with a note.
+A target without configuration data that neither reaches starts from the previous joints. Control flow
 (loops, branches, calls) is not followed: text order stands for execution order.
 
 Unreachable targets: :class:`ProgramResult` lists them (line, reason); the caller refuses to write
@@ -35,6 +37,10 @@ __all__ = ["NUMBER", "ProgramResult", "ProgramTarget", "TargetFrames", "comment_
            "splice_numbers"]
 
 NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+# a calibrated robot's singular poses (stretched elbow, wrist centre on axis 1) lie a fraction of a
+# degree from the nominal's (joint offsets, link lengths): within this angle of one, a target may be
+# reachable with one value of that configuration flag only
+CONFIG_SLACK_DEG = 1.0
 
 
 @dataclass
@@ -157,11 +163,15 @@ def comment_mask(text: str, comment: str, quote: str = '"') -> np.ndarray:
     return mask
 
 
-def _branch_joints(model, targets: list, Tm: np.ndarray, T_cal: np.ndarray, axis_signs, fmt: str) -> np.ndarray:
+def _branch_joints(model, targets: list, Tm: np.ndarray, T_cal: np.ndarray, axis_signs,
+                   slack_rad: float) -> tuple[np.ndarray, np.ndarray]:
     """Joints ``(N, n)`` choosing each target's branch (module docstring): the nominal solution that the
     configuration data (or the walk) mean; where the nominal robot has none, the calibrated robot's
-    (targets ``T_cal`` in its world); a target without configuration data and no solution on either
-    takes the previous joints (the hybrid model decides). NaN only where configuration data match nothing."""
+    (targets ``T_cal`` in its world), and where that has none either, the calibrated robot's with the
+    other elbow / overhead flag within ``slack_rad`` of that flag's singular pose (:mod:`.branches`); a
+    target without configuration data and no solution on either takes the previous joints (the hybrid
+    model decides). NaN only where configuration data match nothing. Also returns the rows that took
+    another flag ``(N,)`` bool."""
     from ..kinematics.ik import ik
     from .branches import default_axis_signs, match_abb_confdata, match_kuka_status, nearest_candidate
 
@@ -171,14 +181,20 @@ def _branch_joints(model, targets: list, Tm: np.ndarray, T_cal: np.ndarray, axis
     has_s = np.array(["S" in t.config for t in targets], dtype=bool)
     has_c = np.array(["conf" in t.config for t in targets], dtype=bool)
     signs_cal = default_axis_signs(nom) if axis_signs is None else axis_signs
-    for rob, TT, signs in ((nom, Tm, axis_signs), (model.robot_, T_cal, signs_cal)):
-        i = np.flatnonzero(has_s & ~np.isfinite(qb).all(1))
+    passes = ((nom, Tm, axis_signs, 0.0), (model.robot_, T_cal, signs_cal, 0.0))
+    if slack_rad > 0:
+        passes += ((model.robot_, T_cal, signs_cal, slack_rad),)
+    for rob, TT, signs, slack in passes:
+        open_before = ~np.isfinite(qb).all(1)
+        i = np.flatnonzero(has_s & open_before)
         if i.size:
             qb[i] = match_kuka_status(rob, TT[i], [targets[k].config["S"] for k in i],
-                                      [targets[k].config.get("T", -1) for k in i], signs)
-        i = np.flatnonzero(has_c & ~np.isfinite(qb).all(1))
-        if i.size:
-            qb[i] = match_abb_confdata(rob, TT[i], np.array([targets[k].config["conf"] for k in i]), signs)
+                                      [targets[k].config.get("T", -1) for k in i], signs, slack)
+        i = np.flatnonzero(has_c & open_before)
+        if i.size:  # the calibrated robot names forward as the nominal does (branches.abb_confdata)
+            qb[i] = match_abb_confdata(rob, TT[i], np.array([targets[k].config["conf"] for k in i]),
+                                       axis_signs, reference=nom, slack_rad=slack)
+    other_flag = (has_s | has_c) & open_before & np.isfinite(qb).all(1) if slack_rad > 0 else np.zeros(N, bool)
     free = np.flatnonzero(~has_s & ~has_c)
     if free.size:
         sols = []
@@ -199,23 +215,37 @@ def _branch_joints(model, targets: list, Tm: np.ndarray, T_cal: np.ndarray, axis
                 if pick is not None:
                     break
             qb[k] = cur if pick is None else pick
-    return qb
+    return qb, other_flag
 
 
 def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs=None, context: str = "",
-                       **ik_kw) -> ProgramResult:
+                       config_slack_deg: float = CONFIG_SLACK_DEG, **ik_kw) -> ProgramResult:
     """Compensate every Cartesian target of ``text`` (a program in format module ``fmt``: one of
     :mod:`.urscript`, :mod:`.krl`, :mod:`.rapid`). ``context``: text of a companion file (KRL: the
     ``.src`` beside a ``.dat``, whose motion statements tell which variables are targets; RAPID: modules
     declaring the ``tooldata``/``wobjdata`` the program uses).
     ``frame``: how program poses map into the model's measurement frame (:mod:`.targets`).
+    ``config_slack_deg``: a target whose configuration data the real robot cannot meet only because
+    its elbow is within this angle of stretched (the reach boundary) or its wrist centre of axis 1 takes
+    the other elbow / overhead flag, with a note; 0 refuses it (:mod:`.branches`).
     Returns a :class:`ProgramResult`; unreachable targets keep their literal and are listed in ``failed``.
     """
+    if not (config_slack_deg >= 0 and config_slack_deg <= 90):
+        raise ValueError(f"config_slack_deg must be within 0-90 deg, got {config_slack_deg}")
     targets, notes = fmt.find_targets(text, model.nominal, context=context, axis_signs=axis_signs)
     if not targets:
         return ProgramResult(text=text, targets=[], comp=None, failed=[], notes=notes)
     ok = [k for k, t in enumerate(targets) if not t.error]
-    comp = _solve(model, [targets[k] for k in ok], frame, axis_signs, fmt, ik_kw) if ok else None
+    comp = None
+    if ok:
+        comp, other = _solve(model, [targets[k] for k in ok], frame, axis_signs, np.radians(config_slack_deg), ik_kw)
+        moved = [targets[k] for k, o in zip(ok, other) if o and comp.success[ok.index(k)]]
+        if moved:
+            lines = ", ".join(str(t.line) for t in moved[:8]) + (" ..." if len(moved) > 8 else "")
+            notes = [*notes, f"{moved[0].line}: {len(moved)} targets (lines {lines}) lie within "
+                             f"{config_slack_deg:g}° of a singular pose (stretched elbow, wrist centre on axis 1), "
+                             "where the real robot reaches them only with the other elbow / overhead flag: their "
+                             "configuration data are rewritten to it (--config-slack-deg 0 refuses them)"]
     comp = _scatter(comp, ok, targets, model.nominal.dof, frame)
     pieces, last, failed = [], 0, []
     for k, t in enumerate(targets):
@@ -231,8 +261,10 @@ def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs
     return ProgramResult(text="".join(pieces), targets=targets, comp=comp, failed=failed, notes=notes)
 
 
-def _solve(model, targets: list, frame: str, axis_signs, fmt, ik_kw: dict) -> Compensation:
-    """:class:`Compensation` of ``targets`` (all with known frames), branches as the program means them."""
+def _solve(model, targets: list, frame: str, axis_signs, slack_rad: float,
+           ik_kw: dict) -> tuple[Compensation, np.ndarray]:
+    """:class:`Compensation` of ``targets`` (all with known frames), branches as the program means them,
+    and which targets took another configuration flag ``(N,)`` bool (:func:`_branch_joints`)."""
     from .frames import resolve_frame, to_model_frame
 
     T = np.stack([t.pose for t in targets])
@@ -242,9 +274,9 @@ def _solve(model, targets: list, frame: str, axis_signs, fmt, ik_kw: dict) -> Co
     # (= the measurement frame; the controller base sits at nominal.base in it)
     T_nom = (T if fr == "measurement" else model.nominal.base @ T) @ se3.invert(D)
     T_cal = se3.invert(model.frame_pre_) @ to_model_frame(model, T, fr) @ se3.invert(D) @ se3.invert(model.frame_post_)
-    qb = _branch_joints(model, targets, T_nom, T_cal, axis_signs, fmt)
+    qb, other_flag = _branch_joints(model, targets, T_nom, T_cal, axis_signs, slack_rad)
     reason = "no solution with the program's configuration data"
-    return compensate(model, T, q_branch=qb, frame=fr, tool_delta=D, branch_reason=reason, **ik_kw)
+    return compensate(model, T, q_branch=qb, frame=fr, tool_delta=D, branch_reason=reason, **ik_kw), other_flag
 
 
 def _scatter(comp: Compensation | None, rows: list, targets: list, n: int, frame: str) -> Compensation:
