@@ -233,6 +233,11 @@ def test_empty_files_and_bad_units(tmp_path):
     _expect(p, ["row 2", "9 cells", "header has 10"])
     (tmp_path / "semi.csv").write_text("q1;x;y;z\n0;0;0;0\n")
     _expect(tmp_path / "semi.csv", ["';'-separated", "hykin import table semi.csv --suggest"])
+    # with decimal commas the rows split on the commas: still named as a ';' file, not a ragged row
+    (tmp_path / "eu.csv").write_text("q1 [deg];x [mm];y [mm];z [mm]\n12,5;100,25;-3,5;410,0\n")
+    _expect(tmp_path / "eu.csv", ["';'-separated", "hykin import table eu.csv --suggest"])
+    (tmp_path / "eu_ragged.csv").write_text("q1,x,y,z\n12,5,100,25,-3,5,410,0\n")  # a comma file: the row error
+    _expect(tmp_path / "eu_ragged.csv", ["row 1", "8 cells", "header has 4"])
     (tmp_path / "tab.csv").write_text("q1\tx\ty\tz\n0\t0\t0\t0\n")
     _expect(tmp_path / "tab.csv", ["tab-separated", "name it .tsv"])
     (tmp_path / "tab.tsv").write_text("q1\tx\ty\tz\n0\t0\t0\t0\n")

@@ -38,7 +38,15 @@ from .dataset import (
     validate_joints,
     validate_poses,
 )
-from .text_table import delimiter_name, detect_delimiter, float_column, lenient_column, read_delimited, with_file_line
+from .text_table import (
+    delimiter_name,
+    detect_delimiter,
+    float_column,
+    lenient_column,
+    read_delimited,
+    read_lines,
+    with_file_line,
+)
 
 __all__ = ["read_dataset", "read_joints", "read_poses", "write_dataset"]
 
@@ -154,15 +162,26 @@ def _open_table(path: str | Path) -> _Table:
         return _open_parquet(path)
     if suffix not in (".csv", ".txt", ".tsv"):
         raise DatasetError(f"{where}: unknown dataset file type {suffix!r}; expected .csv or .parquet", file=where)
-    t = read_delimited(path, delimiter="\t" if suffix == ".tsv" else ",", allow_empty_names=True,
-                       layout_hint="is that the file's delimiter?")
-    if len(t.header) == 1 and (d := detect_delimiter(t.header[0], ".")) in ("\t", ";", "|"):
-        tsv = ": name it .tsv" if d == "\t" else " (or tab-separated as .tsv)"
-        raise DatasetError(f"{where}: the header is one column {t.header[0][:60]!r}...: the file looks "
-                           f"{delimiter_name(d)}-separated; datasets are comma-separated{tsv}; any other layout: "
-                           f"hykin import table {Path(path).name} --suggest", file=where)
+    try:
+        t = read_delimited(path, delimiter="\t" if suffix == ".tsv" else ",", allow_empty_names=True,
+                           layout_hint="is that the file's delimiter?")
+    except DatasetError:
+        # a ';'-separated export with decimal commas splits its rows on the commas: say what the file is
+        first = next((ln for ln in read_lines(Path(path), None, where) if ln.strip()), "")
+        _check_header(where, path, [first] if "," not in first else [])
+        raise
+    _check_header(where, path, t.header)
     return _Table(where, t.header, lambda c: float_column(t, c, finite=False), lambda c: lenient_column(t.col(c)),
                   t.line_offset(), {}, t.lines)
+
+
+def _check_header(where: str, path, header: list) -> None:
+    """Refuse a header that is one column holding another delimiter (a ';'/tab/'|'-separated file)."""
+    if len(header) == 1 and (d := detect_delimiter(header[0], ".")) in ("\t", ";", "|"):
+        tsv = ": name it .tsv" if d == "\t" else " (or tab-separated as .tsv)"
+        raise DatasetError(f"{where}: the header is one column {header[0][:60]!r}...: the file looks "
+                           f"{delimiter_name(d)}-separated; datasets are comma-separated{tsv}; any other layout: "
+                           f"hykin import table {Path(path).name} --suggest", file=where)
 
 
 def _open_parquet(path) -> _Table:
