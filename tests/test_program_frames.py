@@ -200,6 +200,18 @@ def test_cli_refuses_unknown_work_object_and_takes_context(tmp_path, capsys):
                         "--context", str(ctx)], capsys)
     assert code == 0, err
     assert out.exists() and out.read_text() != prog.read_text()
+    # two context files, the work object broken in the second: the message names that file and its line
+    tools = tmp_path / "tools.sys"
+    tools.write_text("MODULE tools(SYSMODULE)\n  ! tools of the cell\n\n  PERS tooldata tOther:=[TRUE," + _f(TF)
+                     + ",[1,[0,0,1],[1,0,0,0],0,0,0]];\nENDMODULE\n")
+    broken = tmp_path / "broken.sys"
+    broken.write_text("MODULE frames(SYSMODULE)\n  ! the fixture\n  TASK PERS wobjdata wTable:=[FALSE,TRUE,\"\","
+                      "[[1,2,3],[1,0,0 0]]," + _f(OF) + "];\nENDMODULE\n")
+    out2 = tmp_path / "job2.mod"
+    code, _, err = run(["compensate", str(model), str(prog), "-o", str(out2), "--frame", "measurement",
+                        "--context", str(tools), "--context", str(broken)], capsys)
+    assert code != 0 and not out2.exists()
+    assert "wobjdata wTable (broken.sys, line 3) could not be read" in err, err
 
 
 def _krl_frame(T) -> str:

@@ -189,11 +189,14 @@ def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, fram
     for c in context:
         if not Path(c).is_file():
             raise CLIError(f"--context {c}: no such file")
-    ctx = "\n".join(Path(c).read_bytes().decode("latin-1") for c in context)
+    texts = [Path(c).read_bytes().decode("latin-1") for c in context]
+    ctx = "\n".join(texts)
     try:
         res = compensate_program(mdl, text, fmt, frame=frame, axis_signs=signs, context=ctx, config_slack_deg=slack_deg)
     except ValueError as e:
-        raise CLIError(f"{inp}: {str(e).splitlines()[0]}") from None
+        raise CLIError(f"{inp}: {_context_lines(str(e).splitlines()[0], context, texts)}") from None
+    res.notes = [_context_lines(n, context, texts) for n in res.notes]
+    res.failed = [(line, _context_lines(r, context, texts)) for line, r in res.failed]
     con = console()
     for note in res.notes:
         con.print(f"note: {inp}:{note}", highlight=False)
@@ -224,6 +227,22 @@ def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, fram
         con.print("note: the model's fitted base is far from the nominal one (tracker-frame data): program poses "
                   "taken in the controller's base frame (--frame base)", highlight=False)
     _summary(res.comp, out, len(res.targets))
+
+
+def _context_lines(msg: str, paths: list, texts: list) -> str:
+    """``msg`` with each "--context, line N" (N counted in the joined context files) as "FILE, line n"."""
+    import re
+
+    starts = np.cumsum([0] + [t.count("\n") + 1 for t in texts])  # first joined line of each file, 0-based
+
+    def one(m):
+        n = int(m.group(1)) - 1
+        k = int(np.searchsorted(starts, n, side="right")) - 1
+        if not 0 <= k < len(paths):
+            return m.group(0)
+        return f"{Path(paths[k]).name}, line {n - starts[k] + 1}"
+
+    return re.sub(r"--context, line (\d+)", one, msg)
 
 
 @app.command("serve")
