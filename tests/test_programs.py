@@ -331,7 +331,7 @@ def test_rapid_targets_at_the_stretched_elbow_keep_their_branch_or_take_the_othe
         assert f"{int(other.sum())} targets" in noted[0]
         strict = compensate_program(m, mod, rapid, frame="measurement", config_slack_deg=0)
         assert len(strict.failed) == int(other.sum())
-        assert all("configuration data" in r for _, r in strict.failed)
+        assert all("configuration data (cfx " in r and "the real robot reaches it with cfx" in r for _, r in strict.failed)
     with pytest.raises(ValueError, match="config_slack_deg"):
         compensate_program(m, mod, rapid, config_slack_deg=-1)
 
@@ -355,6 +355,8 @@ def test_krl_targets_at_the_stretched_elbow_are_compensated_where_the_real_robot
     failed = np.array([line - 2 for line, _ in res.failed], dtype=int)
     reached = _flags_reached(m.robot_, np.stack([t.pose for t in res.targets]), kuka=True)
     assert len(failed) <= 2 and all(S[k] not in reached[k] for k in failed)
+    for (_, r), k in zip(res.failed, failed):  # the reason names the S asked for and those the robot has
+        assert f"(S {S[k]}); the real robot reaches it with S {', '.join(str(v) for v in sorted(reached[k]))}" in r
     done = np.setdiff1d(np.arange(len(q)), failed)
     new = krl.find_targets(res.text, nom)[0]
     qc = match_kuka_status(nom, np.stack([new[k].pose for k in done]), [new[k].config["S"] for k in done],

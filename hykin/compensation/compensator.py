@@ -141,12 +141,12 @@ class Compensator:
                           pos_err_mm=float(pe[0]), ang_err_deg=float(ae[0]))
 
     def __call__(self, targets, q_branch=None, *, tool_delta=None, position_only: bool = False,
-                 branch_reason: str = "no solution on the requested branch") -> Compensation:
+                 branch_reason: str | np.ndarray = "no solution on the requested branch") -> Compensation:
         """Compensate targets ``(N, 4, 4)`` (or ``(N, 3)`` positions), m, in :attr:`frame`.
 
         ``q_branch`` ``(N, dof)`` / ``(dof,)``: joints choosing each target's branch (NaN rows: no branch,
-        the target fails with ``branch_reason``); default the walk of the module docstring.
-        ``tool_delta``: :mod:`hykin.compensation.targets`. Returns a :class:`Compensation`."""
+        the target fails with ``branch_reason``: one text, or ``(N,)`` texts per row); default the walk of
+        the module docstring. ``tool_delta``: :mod:`hykin.compensation.targets`. Returns a :class:`Compensation`."""
         from ..hybrid.ik_result import support_of
 
         T, pos_in = parse_targets(targets)
@@ -175,7 +175,7 @@ class Compensator:
         return Tm if D is None else Tm @ se3.invert(D)
 
     def solve(self, T: np.ndarray, hint: np.ndarray, D: np.ndarray | None = None, pos_only: bool = False,
-              branch_reason: str = "no solution on the requested branch"):
+              branch_reason: str | np.ndarray = "no solution on the requested branch"):
         """Targets ``(N, 4, 4)`` (:attr:`frame`) and branch hints ``(N, dof)`` -> ``(q, command, success,
         reason, pos_err_mm, ang_err_deg)``, NaN joints and command where unsuccessful."""
         N, n = len(T), self.dof
@@ -398,7 +398,7 @@ class Compensator:
 
 
 def compensate(model, T_target, *, q_branch=None, frame: str = "measurement", position_only: bool = False,
-               tool_delta=None, branch_reason: str = "no solution on the requested branch", **kw) -> Compensation:
+               tool_delta=None, branch_reason: str | np.ndarray = "no solution on the requested branch", **kw) -> Compensation:
     """Compensated commands for targets ``T_target`` ``(N, 4, 4)`` (or ``(N, 3)`` positions), m:
     ``Compensator(model, frame=frame, **kw)(T_target, q_branch, ...)`` (:class:`Compensator`).
 

@@ -164,14 +164,14 @@ def comment_mask(text: str, comment: str, quote: str = '"') -> np.ndarray:
 
 
 def _branch_joints(model, targets: list, Tm: np.ndarray, T_cal: np.ndarray, axis_signs,
-                   slack_rad: float) -> tuple[np.ndarray, np.ndarray]:
+                   slack_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Joints ``(N, n)`` choosing each target's branch (module docstring): the nominal solution that the
     configuration data (or the walk) mean; where the nominal robot has none, the calibrated robot's
     (targets ``T_cal`` in its world), and where that has none either, the calibrated robot's with the
     other elbow / overhead flag within ``slack_rad`` of that flag's singular pose (:mod:`.branches`); a
     target without configuration data and no solution on either takes the previous joints (the hybrid
     model decides). NaN only where configuration data match nothing. Also returns the rows that took
-    another flag ``(N,)`` bool."""
+    another flag ``(N,)`` bool and, for the NaN rows, why ``(N,)`` (:func:`_unmatched_reasons`)."""
     from ..kinematics.ik import ik
     from .branches import default_axis_signs, match_abb_confdata, match_kuka_status, nearest_candidate
 
@@ -215,7 +215,32 @@ def _branch_joints(model, targets: list, Tm: np.ndarray, T_cal: np.ndarray, axis
                 if pick is not None:
                     break
             qb[k] = cur if pick is None else pick
-    return qb, other_flag
+    return qb, other_flag, _unmatched_reasons(model, targets, T_cal, ~np.isfinite(qb).all(1), axis_signs, signs_cal)
+
+
+def _unmatched_reasons(model, targets: list, T_cal: np.ndarray, rows: np.ndarray, axis_signs, signs_cal) -> np.ndarray:
+    """``(N,)`` why each of ``rows`` has no branch: its configuration data and those the real robot (the
+    calibrated chain; targets ``T_cal``) has solutions with within its limits, or that it has none."""
+    from .branches import abb_confdata, candidate_solutions, kuka_status
+
+    why = np.full(len(targets), "", dtype=object)
+    i = np.flatnonzero(rows)
+    if not i.size:
+        return why
+    rob, nom = model.robot_, model.nominal
+    q, ok = candidate_solutions(rob, T_cal[i])
+    M, K, n = q.shape
+    qz = np.nan_to_num(q.reshape(-1, n))
+    S = kuka_status(rob, qz, signs_cal)[0].reshape(M, K)
+    cfx = abb_confdata(rob, qz, axis_signs, reference=nom)[:, 3].reshape(M, K)
+    for r, k in enumerate(i):
+        cfg = targets[k].config
+        name, want, have = ("S", cfg["S"], S[r]) if "S" in cfg else ("cfx", cfg["conf"][3], cfx[r])
+        found = sorted({int(v) for v in have[ok[r]]})
+        why[k] = (f"no solution with the program's configuration data ({name} {want}); " + (
+            f"the real robot reaches it with {name} {', '.join(str(v) for v in found)}" if found else
+            "the real robot reaches it in no configuration within its joint limits"))
+    return why
 
 
 def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs=None, context: str = "",
@@ -274,8 +299,7 @@ def _solve(model, targets: list, frame: str, axis_signs, slack_rad: float,
     # (= the measurement frame; the controller base sits at nominal.base in it)
     T_nom = (T if fr == "measurement" else model.nominal.base @ T) @ se3.invert(D)
     T_cal = se3.invert(model.frame_pre_) @ to_model_frame(model, T, fr) @ se3.invert(D) @ se3.invert(model.frame_post_)
-    qb, other_flag = _branch_joints(model, targets, T_nom, T_cal, axis_signs, slack_rad)
-    reason = "no solution with the program's configuration data"
+    qb, other_flag, reason = _branch_joints(model, targets, T_nom, T_cal, axis_signs, slack_rad)
     return compensate(model, T, q_branch=qb, frame=fr, tool_delta=D, branch_reason=reason, **ik_kw), other_flag
 
 
