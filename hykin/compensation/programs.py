@@ -56,6 +56,9 @@ class ProgramTarget:
     objects: ``pose = frame · literal``), or None (the base frame).
     error: why the target cannot be compensated before solving (an unknown work object ...), or ``""``.
     reset: joints ``(n,)`` of the last joint-space move before the target, or None.
+    order: where the target is executed, as a sort key (a declared variable: the position of the first
+    motion that uses it, e.g. in the ``.src`` of a ``.dat`` point), or None (the literal's ``start``);
+    the walk of targets without configuration data goes in this order.
     parts: format-specific parse (number spans and texts) used to write the literal back.
     """
 
@@ -71,6 +74,7 @@ class ProgramTarget:
     parts: dict = field(default_factory=dict)
     frame: np.ndarray | None = None
     error: str = ""
+    order: int | None = None
 
 
 @dataclass
@@ -203,18 +207,23 @@ def _branch_joints(model, targets: list, Tm: np.ndarray, T_cal: np.ndarray, axis
             sols.append((rob, np.asarray(br.q, dtype=np.float64).reshape(free.size, -1, n),
                          np.asarray(br.success, dtype=bool).reshape(free.size, -1)))
         cur = np.clip(np.zeros(n), nom.lower, nom.upper)
-        # a walk in program order: each choice depends on the joints the previous target left
-        for j, k in enumerate(free):
-            if targets[k].reset is not None:
-                cur = np.asarray(targets[k].reset, dtype=np.float64)
-            if k > 0 and np.isfinite(qb[k - 1]).all() and targets[k].reset is None:
-                cur = qb[k - 1]
-            pick = None
-            for rob, q, ok in sols:
-                pick = nearest_candidate(rob, q[j], ok[j], cur) if ok[j].any() else None
-                if pick is not None:
-                    break
-            qb[k] = cur if pick is None else pick
+        slot = {int(k): j for j, k in enumerate(free)}
+        prev = None
+        # a walk in execution order: each choice depends on the joints the previous target left
+        for k in sorted(range(N), key=lambda k: (targets[k].start if targets[k].order is None else targets[k].order, k)):
+            j = slot.get(k)
+            if j is not None:
+                if targets[k].reset is not None:
+                    cur = np.asarray(targets[k].reset, dtype=np.float64)
+                elif prev is not None and np.isfinite(qb[prev]).all():
+                    cur = qb[prev]
+                pick = None
+                for rob, q, ok in sols:
+                    pick = nearest_candidate(rob, q[j], ok[j], cur) if ok[j].any() else None
+                    if pick is not None:
+                        break
+                qb[k] = cur if pick is None else pick
+            prev = k
     return qb, other_flag, _unmatched_reasons(model, targets, T_cal, ~np.isfinite(qb).all(1), axis_signs, signs_cal)
 
 
