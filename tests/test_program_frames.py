@@ -414,3 +414,56 @@ def test_urscript_moves_relative_to_a_feature_the_script_defines():
 def _diff(a: str, b: str) -> set:
     la, lb = a.split("\n"), b.split("\n")
     return {i for i, (x, y) in enumerate(zip(la, lb), 1) if x != y}
+
+
+def test_rapid_targets_in_one_line_ifs_routine_parameters_and_assignments(setup):
+    """Moves hykin must follow to know a target's frames: a compact IF (``IF c MoveL p, ..;``), an IF
+    with its THEN on one line, a robtarget passed to a routine of the module (the routine's moves on
+    that parameter), a literal assigned to a VAR robtarget inside a routine. Each lands through the
+    stand-in controller in wTable with tGun; a robtarget passed only to a routine the module does not
+    define fails, saying so; one only written to the teach pendant keeps the default frames."""
+    m, q, D, W, tcp, cf = setup
+    loc = se3.invert(W) @ tcp
+    mod = (
+        "MODULE cell\n"
+        "  PERS tooldata tGun:=[TRUE," + _f(TF) + ",[2.5,[0,0,80],[1,0,0,0],0,0,0]];\n"
+        "  TASK PERS wobjdata wTable:=[FALSE,TRUE,\"\"," + _f(UF) + "," + _f(OF) + "];\n"
+        f"  CONST robtarget pA:={_robt(loc[0], cf[0])};\n"
+        f"  CONST robtarget pB:={_robt(loc[1], cf[1])};\n"
+        f"  CONST robtarget pC:={_robt(loc[2], cf[2])};\n"
+        "  CONST robtarget pX:=[[500,0,600],[0,0,1,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];\n"
+        f"  CONST robtarget pY:={_robt(fk(m.robot_, q[:1])[0], cf[0])};\n"
+        "  VAR robtarget pT;\n"
+        "  PERS bool bPart:=TRUE;\n"
+        "  PROC main()\n"
+        "    IF bPart MoveL pA, v100, fine, tGun\\WObj:=wTable;\n"
+        "    IF bPart THEN MoveJ pB, v1000, z50, tGun\\WObj:=wTable; ENDIF\n"
+        "    PickAt 10, pC;\n"
+        f"    pT := {_robt(loc[3], cf[3])};\n"
+        "    MoveJ pT, v1000, z50, tGun\\WObj:=wTable;\n"
+        "    ExtPick pX;\n"
+        "    TPWrite \"at\" \\Pos:=pY;\n"
+        "  ENDPROC\n"
+        "  PROC PickAt(num n, robtarget pt, \\switch Slow)\n"
+        "    MoveL Offs(pt, 0, 0, 50), v500, z10, tGun\\WObj:=wTable;\n"
+        "    MoveL pt, v100, fine, tGun\\WObj:=wTable;\n"
+        "  ENDPROC\n"
+        "ENDMODULE\n"
+    )
+    res = compensate_program(m, mod, rapid, frame="measurement")
+    names = [t.name for t in res.targets]
+    assert names == ["pA", "pB", "pC", "pX", "pY", ""]  # pT's literal is inline in its assignment
+    for k in (0, 1, 2, 5):
+        t = res.targets[k]
+        assert not t.error and np.allclose(t.frame, W) and np.allclose(t.tool_delta, D), (k, t.error)
+    assert res.targets[4].frame is None and not res.targets[4].error  # TPWrite moves nothing
+    assert [line for line, _ in res.failed] == [7], res.failed
+    assert "used only as an argument of ExtPick (line 17), a routine this module does not define" in res.failed[0][1]
+    # the stand-in controller: the rewritten literals in wTable with tGun, on their confdata
+    new, _ = rapid.find_targets(res.text, m.nominal, context="")
+    nom = m.nominal
+    rows = [0, 1, 2, 5]
+    flange = np.stack([new[k].pose @ se3.invert(D) for k in rows])  # W · literal: the wanted flange pose
+    qc = match_abb_confdata(nom, flange, np.array([new[k].config["conf"] for k in rows]))
+    got = fk(m.robot_, qc) @ D
+    assert np.linalg.norm(got[:, :3, 3] - tcp[:, :3, 3], axis=1).max() * 1e3 < 2e-3

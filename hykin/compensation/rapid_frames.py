@@ -201,33 +201,94 @@ def _positional_spans(body: str, offset: int) -> list[tuple[int, int]]:
     return spans
 
 
+_MOTION_WORD = re.compile(r"(?<![\w.])(" + "|".join(sorted(MOTION_ARGUMENTS, key=len, reverse=True)) + r")\b",
+                          re.IGNORECASE)
+
+
 def _statements(clean: str):
     """``(start, instruction (lower case), body start, end)`` of each simple statement: the text between
     two ``;`` from its first line that starts with a word other than a keyword (``PROC main()``,
-    ``IF .. THEN``, declarations and the like stand on lines of their own before it)."""
+    ``IF .. THEN``, declarations and the like stand on lines of their own before it). A motion
+    instruction anywhere in that text is the statement (``IF bPart MoveL p1, ..;`` -- a compact IF --
+    and ``IF c THEN MoveJ p2, ..; ENDIF`` on one line)."""
     last = 0
     while last < len(clean):
         end = clean.find(";", last)
         end = len(clean) if end < 0 else end
-        first = _WORD.match(clean, last, end)  # a statement after another on the same line
-        for m in ([first] if first else []) + list(_LINE_WORD.finditer(clean, last, end)):
-            if m.group(1).lower() not in _NOT_INSTRUCTIONS:
-                yield m.start(1), m.group(1).lower(), m.end(1), end
-                break
+        mw = _MOTION_WORD.search(clean, last, end)
+        if mw:
+            yield mw.start(1), mw.group(1).lower(), mw.end(1), end
+        else:
+            first = _WORD.match(clean, last, end)  # a statement after another on the same line
+            for m in ([first] if first else []) + list(_LINE_WORD.finditer(clean, last, end)):
+                if m.group(1).lower() not in _NOT_INSTRUCTIONS:
+                    yield m.start(1), m.group(1).lower(), m.end(1), end
+                    break
         last = end + 1
+
+
+# instructions that take data but move nothing: a robtarget passed to them keeps the default frames
+_NO_MOTION = {"tpwrite", "errwrite", "errlog", "write", "writebin", "writeanybin", "tperase", "waittime", "stop",
+              "exit", "break", "confl", "confj", "singarea", "velset", "accset", "pathresol", "storepath", "restopath"}
+_ASSIGN = re.compile(r"(?<![\w.])([A-Za-z_]\w*)\s*(?:\{[^{}]*\})?\s*:=\s*(?=\[)")
+_PROC = re.compile(r"\bPROC\s+([A-Za-z_]\w*)\s*\(([^)]*)\)", re.IGNORECASE)
+_ENDPROC = re.compile(r"\bENDPROC\b", re.IGNORECASE)
+
+
+def _named(parts: list, clean: str, starts, names: dict, own: dict, proc, proc_uses: dict) -> set:
+    """Target indices of the literals in the text spans ``parts`` and of the robtargets named there
+    (``Offs(p10, ..)``, ``path{i}``); a name that is a robtarget parameter ``own`` of routine ``proc``
+    queues ``(proc, index)`` under ``proc_uses[None]`` for the caller to give the statement's frames."""
+    hit = set()
+    for a, b in parts:
+        hit.update(range(int(np.searchsorted(starts, a)), int(np.searchsorted(starts, b))))
+        for n in _IDENT.finditer(clean, a, b):
+            name = n.group(0).lower()
+            hit.update(names.get(name, ()))
+            if name in own:
+                proc_uses.setdefault(None, []).append((proc, own[name]))
+    return hit
+
+
+def _robtarget_params(clean: str) -> tuple[dict, list]:
+    """The module's routines with robtarget parameters: ``({proc (lower): {param (lower): positional
+    index}}, [(body start, body end, proc)])``. Optional parameters (``\\name``) are passed by name, not
+    position: they get no index."""
+    params, bodies = {}, []
+    for m in _PROC.finditer(clean):
+        e = _ENDPROC.search(clean, m.end())
+        bodies.append((m.end(), e.start() if e else len(clean), m.group(1).lower()))
+        pos, own = 0, {}
+        for p in m.group(2).split(","):
+            words = _IDENT.findall(p)
+            if p.strip().startswith("\\") or not words:
+                continue
+            if "robtarget" in (w.lower() for w in words[:-1]):
+                own[words[-1].lower()] = pos
+            pos += 1
+        if own:
+            params[m.group(1).lower()] = own
+    return params, bodies
 
 
 def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, line_of) -> TargetFrames:
     """Frames of ``targets`` (:class:`hykin.compensation.programs.ProgramTarget` of this module, in order)
-    from the motion statements of ``clean``/``text`` and the declarations ``data`` (module docstring)."""
+    from the motion statements of ``clean``/``text`` and the declarations ``data`` (module docstring).
+
+    A robtarget passed to a routine of the module takes the frames of the routine's motions on that
+    parameter; one passed to a routine the module does not define, and moved to nowhere else, fails
+    (its tool and work object are not known)."""
     starts = np.array([t.start for t in targets], dtype=np.int64)  # in text order (found left to right)
-    names = {}  # declared robtarget name (lower) -> indices of its literals
-    for m in _ROBT_DECL.finditer(clean):
+    names = {}  # robtarget name (lower) -> indices of the literals declared or assigned to it
+    for m in list(_ROBT_DECL.finditer(clean)) + list(_ASSIGN.finditer(clean)):
         i = m.end()
         if i < len(clean) and clean[i] == "[":
             end = bracket_end(clean, i)
-            names.setdefault(m.group(1).lower(), []).extend(
+            names.setdefault(m.group(1).lower(), set()).update(
                 range(int(np.searchsorted(starts, i)), int(np.searchsorted(starts, end))))
+    params, bodies = _robtarget_params(clean)
+    proc_uses: dict = {}  # (proc, positional index) -> [(tool, wobj, line)] of its motions on that parameter
+    calls = []  # (routine, body start, end, line): statements calling something not a known motion
     uses: dict = {}  # target index -> [(tool name or None, wobj name, line)]
     for start, word, body_at, end in _statements(clean):
         body = clean[body_at:end]
@@ -236,9 +297,11 @@ def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, l
         wm = _WOBJ.search(body)
         wobj = wm.group(1) if wm else "wobj0"
         spec = MOTION_ARGUMENTS.get(word)
-        if spec is None and not wm:
-            continue  # not a motion we know, no work object named: the default frames
         line = line_of(text, start)
+        if spec is None and not wm:
+            if word not in _NO_MOTION:
+                calls.append((word, body_at, end, line))
+            continue  # not a motion we know, no work object named: the default frames
         if spec is None:  # another instruction naming a work object: every robtarget in it
             parts = [(body_at, end)]
             tool = ...  # not known: agrees with the tool of the target's other uses
@@ -246,17 +309,35 @@ def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, l
             spans = _positional_spans(body, body_at)
             parts = [spans[i] for i in spec[0] if i < len(spans)]
             tool = clean[slice(*spans[spec[1]])].strip() if spec[1] < len(spans) else None
-        hit = set()
-        for a, b in parts:
-            hit.update(range(int(np.searchsorted(starts, a)), int(np.searchsorted(starts, b))))
-            for n in _IDENT.finditer(clean, a, b):  # declared robtargets named there (Offs(p10, ..), path{i})
-                hit.update(names.get(n.group(0).lower(), ()))
-        for j in hit:
+        own = next((params.get(p, {}) for a, b, p in bodies if a <= start < b), {})
+        proc = next((p for a, b, p in bodies if a <= start < b), None)
+        for j in _named(parts, clean, starts, names, own, proc, proc_uses):
             uses.setdefault(j, []).append((tool, wobj, line))
+        for key in proc_uses.pop(None, ()):
+            proc_uses.setdefault(key, []).append((tool, wobj, line))
+    unknown = {}  # target index -> (routine, line) it is passed to, which the module does not define
+    for word, body_at, end, line in calls:
+        spans = _positional_spans(clean[body_at:end], body_at)
+        shown = clean[body_at - len(word):body_at]  # as written
+        for k, (a, b) in enumerate(spans):
+            hit = _named([(a, b)], clean, starts, names, {}, None, {})
+            if word in params:
+                for j in hit:
+                    uses.setdefault(j, []).extend(proc_uses.get((word, k), []))
+            else:
+                for j in hit:
+                    unknown.setdefault(j, (shown, line))
     out = TargetFrames()
     noted = set()
     for j in range(len(targets)):
         resolved = []
+        if j not in uses and j in unknown:
+            word, line = unknown[j]
+            out.add([(None, None, f"used only as an argument of {word} (line {line}), a routine this module does not "
+                                  "define: the tool and work object the robot moves to it with are unknown (move to it "
+                                  "with a Move instruction here, or compensate the module that defines the routine)",
+                      "")], "")
+            continue
         for tool, wobj, line in uses.get(j, [(None, "wobj0", 0)]):
             W, err = _wobj(wobj, data)
             D, terr, note = (TargetFrames.ANY_TOOL, "", "") if tool is ... else _tool(tool, data, robot)
