@@ -458,7 +458,12 @@ def test_rapid_targets_in_one_line_ifs_routine_parameters_and_assignments(setup)
         assert not t.error and np.allclose(t.frame, W) and np.allclose(t.tool_delta, D), (k, t.error)
     assert res.targets[4].frame is None and not res.targets[4].error  # TPWrite moves nothing
     assert [line for line, _ in res.failed] == [7], res.failed
-    assert "used only as an argument of ExtPick (line 17), a routine this module does not define" in res.failed[0][1]
+    assert "used only as an argument of ExtPick (line 17), a routine neither this module nor a --context" in res.failed[0][1]
+    # ExtPick defined in a context module: pX takes the frames of its moves there
+    lib = ("MODULE lib(SYSMODULE)\n  PROC ExtPick(robtarget p)\n    MoveL RelTool(p, 0, 0, -30), v200, z5, tGun"
+           "\\WObj:=wTable;\n    MoveL p, v50, fine, tGun\\WObj:=wTable;\n  ENDPROC\nENDMODULE\n")
+    rc = compensate_program(m, mod, rapid, frame="measurement", context=lib)
+    assert rc.targets[3].frame is not None and np.allclose(rc.targets[3].frame, W) and not rc.targets[3].error
     # the stand-in controller: the rewritten literals in wTable with tGun, on their confdata
     new, _ = rapid.find_targets(res.text, m.nominal, context="")
     nom = m.nominal

@@ -42,7 +42,8 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
     """``(targets, notes)`` of a RAPID module text; ``context``: the text of further modules whose
     ``tooldata``/``wobjdata`` declarations the program uses (module docstring)."""
     clean = _blank(text)
-    data = read_frame_data(_blank(context), context, "--context, ", line_of) if context else {}
+    ctx_clean = _blank(context) if context else ""
+    data = read_frame_data(ctx_clean, context, "--context, ", line_of) if context else {}
     data.update(read_frame_data(clean, text, "", line_of))
     targets = []
     for m in _ROBT.finditer(clean):
@@ -61,7 +62,7 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
             name=decl.group(1) if decl else "", kind="robtarget", config={"conf": conf},
             parts={"spans": spans, "literal": text[m.start():m.end()], "quat": quat},
         ))
-    return targets, frames_of_targets(clean, text, targets, robot, data, line_of).apply(targets)
+    return targets, frames_of_targets(clean, text, targets, robot, data, line_of, ctx_clean, context).apply(targets)
 
 
 def _blank(text: str) -> str:

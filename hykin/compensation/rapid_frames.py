@@ -271,25 +271,16 @@ def _robtarget_params(clean: str) -> tuple[dict, list]:
     return params, bodies
 
 
-def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, line_of) -> TargetFrames:
-    """Frames of ``targets`` (:class:`hykin.compensation.programs.ProgramTarget` of this module, in order)
-    from the motion statements of ``clean``/``text`` and the declarations ``data`` (module docstring).
-
-    A robtarget passed to a routine of the module takes the frames of the routine's motions on that
-    parameter; one passed to a routine the module does not define, and moved to nowhere else, fails
-    (its tool and work object are not known)."""
-    starts = np.array([t.start for t in targets], dtype=np.int64)  # in text order (found left to right)
-    names = {}  # robtarget name (lower) -> indices of the literals declared or assigned to it
-    for m in list(_ROBT_DECL.finditer(clean)) + list(_ASSIGN.finditer(clean)):
-        i = m.end()
-        if i < len(clean) and clean[i] == "[":
-            end = bracket_end(clean, i)
-            names.setdefault(m.group(1).lower(), set()).update(
-                range(int(np.searchsorted(starts, i)), int(np.searchsorted(starts, end))))
+def _scan(clean: str, text: str, starts, names: dict, line_of, where: str = ""):
+    """One module's motion statements: ``(uses, proc_uses, calls, params)`` -- per target index its
+    ``[(tool name or None or ..., wobj name, line label)]``; per ``(routine, positional index)`` the same
+    for its moves on that robtarget parameter; the statements calling something not a known motion
+    ``[(routine, body start, end, line)]``; the routines' robtarget parameters (:func:`_robtarget_params`).
+    ``where``: prefix of the line labels (a context module's name)."""
     params, bodies = _robtarget_params(clean)
-    proc_uses: dict = {}  # (proc, positional index) -> [(tool, wobj, line)] of its motions on that parameter
-    calls = []  # (routine, body start, end, line): statements calling something not a known motion
-    uses: dict = {}  # target index -> [(tool name or None, wobj name, line)]
+    proc_uses: dict = {}
+    calls = []
+    uses: dict = {}
     for start, word, body_at, end in _statements(clean):
         body = clean[body_at:end]
         if re.match(r"\s*(?:\{[^}]*\})?\s*:=", body):  # an assignment, not an instruction
@@ -297,7 +288,7 @@ def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, l
         wm = _WOBJ.search(body)
         wobj = wm.group(1) if wm else "wobj0"
         spec = MOTION_ARGUMENTS.get(word)
-        line = line_of(text, start)
+        line = line_of(text, start) if not where else f"{where}{line_of(text, start)}"
         if spec is None and not wm:
             if word not in _NO_MOTION:
                 calls.append((word, body_at, end, line))
@@ -309,13 +300,35 @@ def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, l
             spans = _positional_spans(body, body_at)
             parts = [spans[i] for i in spec[0] if i < len(spans)]
             tool = clean[slice(*spans[spec[1]])].strip() if spec[1] < len(spans) else None
-        own = next((params.get(p, {}) for a, b, p in bodies if a <= start < b), {})
         proc = next((p for a, b, p in bodies if a <= start < b), None)
-        for j in _named(parts, clean, starts, names, own, proc, proc_uses):
+        for j in _named(parts, clean, starts, names, params.get(proc, {}), proc, proc_uses):
             uses.setdefault(j, []).append((tool, wobj, line))
         for key in proc_uses.pop(None, ()):
             proc_uses.setdefault(key, []).append((tool, wobj, line))
-    unknown = {}  # target index -> (routine, line) it is passed to, which the module does not define
+    return uses, proc_uses, calls, params
+
+
+def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, line_of,
+                      context_clean: str = "", context: str = "") -> TargetFrames:
+    """Frames of ``targets`` (:class:`hykin.compensation.programs.ProgramTarget` of this module, in order)
+    from the motion statements of ``clean``/``text`` and the declarations ``data`` (module docstring).
+
+    A robtarget passed to a routine of the module or of the ``context`` modules takes the frames of the
+    routine's motions on that parameter; one passed to a routine defined in neither, and moved to
+    nowhere else, fails (its tool and work object are not known)."""
+    starts = np.array([t.start for t in targets], dtype=np.int64)  # in text order (found left to right)
+    names = {}  # robtarget name (lower) -> indices of the literals declared or assigned to it
+    for m in list(_ROBT_DECL.finditer(clean)) + list(_ASSIGN.finditer(clean)):
+        i = m.end()
+        if i < len(clean) and clean[i] == "[":
+            end = bracket_end(clean, i)
+            names.setdefault(m.group(1).lower(), set()).update(
+                range(int(np.searchsorted(starts, i)), int(np.searchsorted(starts, end))))
+    _, proc_uses, _, params = _scan(context_clean, context, starts[:0], {}, line_of, "--context, line ")
+    uses, own_uses, calls, own_params = _scan(clean, text, starts, names, line_of)
+    params.update(own_params)
+    proc_uses.update(own_uses)
+    unknown = {}  # target index -> (routine, line) it is passed to, which no module read defines
     for word, body_at, end, line in calls:
         spans = _positional_spans(clean[body_at:end], body_at)
         shown = clean[body_at - len(word):body_at]  # as written
@@ -333,10 +346,9 @@ def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, l
         resolved = []
         if j not in uses and j in unknown:
             word, line = unknown[j]
-            out.add([(None, None, f"used only as an argument of {word} (line {line}), a routine this module does not "
-                                  "define: the tool and work object the robot moves to it with are unknown (move to it "
-                                  "with a Move instruction here, or compensate the module that defines the routine)",
-                      "")], "")
+            out.add([(None, None, f"used only as an argument of {word} (line {line}), a routine neither this module "
+                                  "nor a --context module defines: the tool and work object the robot moves to it with "
+                                  "are unknown (give the module that defines it with --context)", "")], "")
             continue
         for tool, wobj, line in uses.get(j, [(None, "wobj0", 0)]):
             W, err = _wobj(wobj, data)
@@ -345,6 +357,7 @@ def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, l
                 noted.add(tool.lower())
                 out.notes.append(f"{line}: {note}")
             label = "tool?" if tool is ... else tool or "tool0"
-            resolved.append((W, D, err or terr, f"line {line}: {label} \\WObj:={wobj}"))
+            at = f"line {line}" if isinstance(line, int) else line
+            resolved.append((W, D, err or terr, f"{at}: {label} \\WObj:={wobj}"))
         out.add(resolved, "used with different tools or work objects")
     return out
