@@ -127,6 +127,8 @@ def seed_robot_of(model, seed_robot):
     for name in ("nominal", "robot"):  # HybridModel: robot = nominal, robot_ = calibrated
         nom = getattr(model, name, None)
         if isinstance(nom, Robot) and nom is not cls and nom.dof == cls.dof and has_closed_form(nom):
-            return nom
+            # in the calibrated robot's base and tool: a model fitted on tracker data has its base metres
+            # from the nominal one, whose closed form would seed targets it does not reach
+            return nom.copy(base=cls.base, tool=cls.tool)
     return closed_form_proxy(cls)
 
