@@ -196,3 +196,57 @@ def test_converged_by_a_sane_criterion():
     # the torch path (no numba kernel) gives the same
     out_t = deflected_joints(r, torch.as_tensor(q), compliance=torch.as_tensor(C)).numpy()
     np.testing.assert_allclose(out_t, out, atol=1e-9)
+
+
+def test_a_robot_file_with_stiffness_is_evaluated_queried_and_solved_as_it_predicts(tmp_path, capsys):
+    """A calibrated robot file (`hykin calibrate`) carries joint stiffness: `evaluate`, `fk` and `ik`
+    on it use the deflecting robot under the data's payload column (they used the rigid chain: 1.8 mm
+    on rx160-virtual, and IK joints that landed 2 mm off). Reference: compliant_fk of the same file."""
+    import csv
+
+    from cli_run import run
+
+    from hykin.evaluation.evaluate import evaluate_model
+    from hykin.io.dataset import Dataset
+    from hykin.io.dataset_files import write_dataset
+    from hykin.io.robot_toml import save_robot_toml
+
+    rob = load_robot("rx160")
+    rob = rob.copy(stiffness_nm_per_rad=np.array([5.2e5, 2.6e5, 1.35e4, 1.35e4, 1.35e4, 1e4]), payload_kg=20.0)
+    path = tmp_path / "cal.toml"
+    save_robot_toml(rob, path)
+    q = rob.random_joints(30, 3, margin=0.1)
+    kg = np.where(np.arange(30) < 15, 0.0, 12.0)
+    T = compliant_fk(rob, q, payload_kg=kg)
+    assert np.linalg.norm(T[:, :3, 3] - fk(rob, q)[:, :3, 3], axis=1).mean() > 1e-3  # mm-scale deflection
+    ds = Dataset.from_poses(q, T, extra={"payload_kg": kg}, source="t")
+    res = evaluate_model(load_robot(path), ds)
+    assert res.stats["nominal"].pos_mean_mm < 1e-6
+    data = tmp_path / "d.csv"
+    write_dataset(ds, data)
+    code, out, err = run(["evaluate", path, data], capsys)
+    assert code == 0 and "nominal" in out, err
+    # fk: the file's payload (20 kg) unless the joints file carries a column
+    joints = tmp_path / "j.csv"
+    with open(joints, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow([f"q{j + 1}" for j in range(6)])
+        w.writerows(q.tolist())
+    code, _, err = run(["fk", path, joints, "-o", tmp_path / "p.csv"], capsys)
+    assert code == 0, err
+    with open(tmp_path / "p.csv") as f:
+        P = np.array([[float(r[k]) for k in "xyz"] for r in csv.DictReader(f)])
+    assert np.abs(P - compliant_fk(rob, q)[:, :3, 3]).max() < 1e-9
+    # ik: joints that put the deflecting robot on the targets (the true joints, seeded nearby)
+    targets = tmp_path / "t.csv"
+    write_dataset(Dataset.from_poses(q[:10], compliant_fk(rob, q[:10])), targets)
+    seeds = tmp_path / "s.csv"
+    with open(seeds, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow([f"q{j + 1}" for j in range(6)])
+        w.writerows((q[:10] + 0.01).tolist())
+    code, _, err = run(["ik", path, targets, "-o", tmp_path / "q.csv", "--seed-joints", seeds], capsys)
+    assert code == 0, err
+    with open(tmp_path / "q.csv") as f:
+        Q = np.array([[float(r[f"q{j + 1}"]) for j in range(6)] for r in csv.DictReader(f)])
+    assert np.abs(Q - q[:10]).max() < 1e-8

@@ -23,7 +23,7 @@ from .common import (
     write_rows,
 )
 
-PAYLOAD_HELP = ("Payload mass (kg, at the TCP) for a file without a payload_kg column; a model file deflects "
+PAYLOAD_HELP = ("Payload mass (kg, at the TCP) for a file without a payload_kg column; a model file, or a robot file with joint stiffness, deflects "
                 "the joints under it (default: the file's column, else the robot file's payload).")
 
 @app.command("fk")
@@ -51,7 +51,7 @@ def fk_cmd(
     from ..io.dataset import Dataset
     from ..io.dataset_files import read_joints, write_dataset
     from ..io.plausibility import check_joint_unit
-    from ..kinematics.fk import fk
+    from ..kinematics.classical import classical_fk
 
     check_output(out, (model, joints), force)
     mdl, rob = load_model_or_robot(model, base_link, tip_link)
@@ -61,7 +61,10 @@ def fk_cmd(
     if mdl is None:
         if station is not None or tool is not None:
             raise CLIError(f"--station/--tool: {model} is a robot, not a model fitted on data with stations or tools")
-        T = fk(rob, q)
+        from ..io.payload import payload_from_columns, payload_kwargs
+
+        # a robot file with joint stiffness (a calibrated one) deflects under its payload or the given one
+        T = classical_fk(rob, q, **payload_kwargs(payload_from_columns(extra, len(q), str(joints), payload_kg)))
     else:
         from ..hybrid.stations import station_transform
 
@@ -126,10 +129,24 @@ def ik_cmd(
     nearest = not all_branches
     if nearest and q_cur is None:
         q_cur = np.zeros((len(T), rob.dof))  # nearest to the zero pose when no seed is given
-    if mdl is None:
+    if mdl is None and not rob.has_compliance:
         from ..kinematics.ik_rows import classical_ik_rows
 
         rows = classical_ik_rows(rob, T, q_cur if nearest else None, position_only)
+    elif mdl is None:  # joint stiffness: solved on the deflecting robot (the rigid closed form seeds it)
+        from ..hybrid.ik import hybrid_ik, ik_result_to_rows
+        from ..io.payload import payload_from_columns
+        from ..kinematics.classical import ClassicalModel
+
+        target = T[:, :3, 3] if position_only else T
+        pl = payload_from_columns(pose_extra, len(T), str(poses), payload_kg)
+        if pl is None:
+            res = hybrid_ik(ClassicalModel(rob), target, all_branches=True, q_current=q_cur, nearest=nearest,
+                            position_only=position_only)
+            rows = ik_result_to_rows(res, robot=rob, targets=target)
+        else:
+            rows = _ik_rows_per_payload(lambda kg, com: ClassicalModel(rob, kg, com), target, pl, q_cur, nearest,
+                                        position_only, None)
     else:
         from ..hybrid.ik import hybrid_ik, ik_result_to_rows
         from ..io.payload import payload_from_columns
@@ -143,7 +160,10 @@ def ik_cmd(
                             temperature_c=temp)
             rows = ik_result_to_rows(res, robot=mdl.robot_, targets=target)
         else:  # one solve per distinct payload, rows back in target order
-            rows = _ik_rows_per_payload(mdl, target, pl, q_cur, nearest, position_only, temp)
+            from ..io.payload import model_with_payload
+
+            rows = _ik_rows_per_payload(lambda kg, com: model_with_payload(mdl, kg, com), target, pl, q_cur, nearest,
+                                        position_only, temp)
         from ..hybrid.model import support_report
 
         qs = np.stack([np.asarray(rows[f"q{j + 1}"], dtype=np.float64) for j in range(rob.dof)], 1)
@@ -158,11 +178,10 @@ def ik_cmd(
     typer.echo(f"wrote {len(ok)} solution rows for {n_targets} targets to {out} ({solved} solved, {n_targets - solved} failed)")
 
 
-def _ik_rows_per_payload(mdl, target, pl, q_cur, nearest: bool, position_only: bool, temp) -> dict:
-    """Hybrid IK rows when targets carry payloads: one solve per distinct (mass, centre of mass),
-    on the model carrying that payload; ``target`` numbering of the whole file."""
+def _ik_rows_per_payload(carrying, target, pl, q_cur, nearest: bool, position_only: bool, temp) -> dict:
+    """Hybrid IK rows when targets carry payloads: one solve per distinct (mass, centre of mass), on
+    the model ``carrying(kg, com or None)`` returns for it; ``target`` numbering of the whole file."""
     from ..hybrid.ik import hybrid_ik, ik_result_to_rows
-    from ..io.payload import model_with_payload
 
     kg, com = pl
     key = np.column_stack([kg, np.zeros((len(kg), 3)) if com is None else com])
@@ -170,7 +189,7 @@ def _ik_rows_per_payload(mdl, target, pl, q_cur, nearest: bool, position_only: b
     parts = []
     for u in range(len(uniq)):
         idx = np.flatnonzero(inv.reshape(-1) == u)
-        m = model_with_payload(mdl, float(uniq[u, 0]), None if com is None else uniq[u, 1:])
+        m = carrying(float(uniq[u, 0]), None if com is None else uniq[u, 1:])
         t = None if temp is None else np.asarray(temp)[idx]
         res = hybrid_ik(m, target[idx], all_branches=True, q_current=None if q_cur is None else q_cur[idx],
                         nearest=nearest, position_only=position_only, temperature_c=t)

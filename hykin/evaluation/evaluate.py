@@ -15,7 +15,7 @@ from ..io.payload import (
     payload_kwargs,
     payload_of,
 )
-from ..kinematics.fk import fk
+from ..kinematics.classical import classical_fk
 from ..kinematics.robot import Robot
 from .metrics import ErrorStats, error_stats, format_table
 
@@ -103,14 +103,16 @@ _FIT_ROWS = 2000  # at most this many evenly spread rows fit the nominal row's f
 
 
 def nominal_row(nominal: Robot, q: np.ndarray, T_meas: np.ndarray, position_only: bool,
-                always_fit: bool = False) -> tuple[np.ndarray, str]:
+                always_fit: bool = False, payload: dict | None = None) -> tuple[np.ndarray, str]:
     """The nominal row of an evaluation: poses ``(N, 4, 4)`` and label. One definition: the nominal
     robot with the robot file's base and tool (label ``"nominal"``) when those frames fit the data, else
     (data in a tracker's frame, another tool, ``always_fit`` for a registered model) the nominal robot
-    with base and tool fitted to these poses by a rigid fit (label :data:`NOMINAL_FITTED`)."""
+    with base and tool fitted to these poses by a rigid fit (label :data:`NOMINAL_FITTED`). A robot
+    file with joint stiffness deflects under ``payload`` (:func:`hykin.io.payload.payload_kwargs` of
+    the data; default its own payload): a calibrated robot file is evaluated as it predicts."""
     from ..calibration.frames import fit_frames
 
-    T = fk(nominal, q)
+    T = classical_fk(nominal, q, **(payload or {}))
     if len(T) < 4:
         return T, "nominal"
     sel = np.unique(np.linspace(0, len(T) - 1, min(len(T), _FIT_ROWS)).astype(np.int64))
@@ -143,17 +145,18 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
     dist = None
     registered = not isinstance(model, Robot) and not (
         np.array_equal(getattr(model, "frame_pre_", np.eye(4)), np.eye(4)) and np.array_equal(getattr(model, "frame_post_", np.eye(4)), np.eye(4)))
+    pkw = payload_kwargs(payload_of(data))  # per-row payload deflects the calibrated model (and compliant files)
     if isinstance(model, Robot):
-        preds["nominal"], labels["nominal"] = nominal_row(model, data.q, T_meas, pos_only)
+        preds["nominal"], labels["nominal"] = nominal_row(model, data.q, T_meas, pos_only, payload=pkw)
     else:
         nominal = getattr(model, "nominal", None)
         if nominal is not None:
             # a registered model's frames belong to it: the nominal row fits its own (one definition)
-            preds["nominal"], labels["nominal"] = nominal_row(nominal, data.q, T_meas, pos_only, always_fit=registered)
+            preds["nominal"], labels["nominal"] = nominal_row(nominal, data.q, T_meas, pos_only, always_fit=registered,
+                                                              payload=pkw)
         from ..calibration.thermal import temperature_of
 
         temp = temperature_of(data)  # used by models that identified thermal expansion
-        pkw = payload_kwargs(payload_of(data))  # per-row payload deflects the calibrated model
         if getattr(model, "calibration", None) is not None or getattr(model, "calibrate", False):
             preds["calibrated"] = model.predict_classical(data.q, temperature_c=temp, **pkw)
         preds["hybrid"] = model.predict(data.q, temperature_c=temp, **pkw)

@@ -11,7 +11,7 @@ import numpy as np
 from .fk import fk, fk_torch
 from .robot import Robot
 
-__all__ = ["classical_fk", "classical_fk_torch"]
+__all__ = ["ClassicalModel", "classical_fk", "classical_fk_torch"]
 
 
 def classical_fk(robot: Robot, q: np.ndarray, payload_kg=None, payload_com_m=None) -> np.ndarray:
@@ -32,3 +32,18 @@ def classical_fk_torch(robot: Robot, q, payload_kg=None, payload_com_m=None):
 
         return compliant_fk_torch(robot, q, payload_kg=payload_kg, payload_com_m=payload_com_m)
     return fk_torch(robot, q)
+
+
+class ClassicalModel:
+    """A robot (file) as a model: ``predict(q)`` is :func:`classical_fk`, with the robot's joint
+    compliance under ``payload_kg`` / ``payload_com_m`` (default the robot's payload). What the hybrid
+    IK solver (:func:`hykin.hybrid.ik.hybrid_ik`) needs to solve a calibrated robot file with
+    stiffness exactly: the rigid closed form only seeds it."""
+
+    def __init__(self, robot: Robot, payload_kg=None, payload_com_m=None):
+        self.robot = self.robot_ = self.nominal = robot
+        self.payload_kg, self.payload_com_m = payload_kg, payload_com_m
+
+    def predict(self, q, temperature_c=None) -> np.ndarray:
+        """TCP poses ``(N, 4, 4)`` m of joints ``q`` ``(N, n)``; ``temperature_c`` is not modelled."""
+        return classical_fk(self.robot, np.asarray(q, dtype=np.float64), self.payload_kg, self.payload_com_m)
