@@ -161,6 +161,13 @@ def test_register_calibrated_robot_api_and_cli(rx160, tmp_path, capsys):
     reg = load_robot(str(out))
     err = se3.pose_error(fk(reg, ds.q), ds.poses())[0]
     assert err.mean() < 0.06  # mm: the registered robot file predicts the series in its frame
+    assert "no orientation columns" not in capsys.readouterr().err
+    # a position-only series registers the tool's position; the CLI says its orientation was not
+    write_dataset(Dataset(q=ds.q, xyz_m=ds.xyz_m, source="p"), tmp_path / "p.csv")
+    with pytest.raises(SystemExit) as e:
+        main(["register", str(rob_file), str(tmp_path / "p.csv"), "-o", str(tmp_path / "reg_p.toml")])
+    assert e.value.code in (0, None)
+    assert "p.csv has no orientation columns: the tool's orientation was not registered" in capsys.readouterr().err
     # a wrong robot file is refused with one line, nothing written
     bad_out = tmp_path / "bad.toml"
     save_robot_toml(load_robot("ur10"), tmp_path / "ur10.toml")

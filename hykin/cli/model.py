@@ -17,6 +17,7 @@ from .common import (
     UnitCheck,
     app,
     check_output,
+    console,
     load_model,
     load_model_or_robot,
     load_robot_spec,
@@ -297,6 +298,10 @@ def register_cmd(
     else:
         new.save(out)
     typer.echo(info.report())
+    if not ds.has_orientation:  # positions show the tool's position and the base, never the tool's rotation
+        console().print(f"[yellow]warning:[/] {series} has no orientation columns: the tool's orientation was not "
+                        "registered; the written file's orientations keep the previous tool's (register a series "
+                        "with orientation if the tool was changed or remounted)", highlight=False)
     typer.echo(f"registered {'robot' if hasattr(new, 'to_robot') else 'model'} written to {out}")
 
 
