@@ -201,6 +201,17 @@ def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, fram
     for note in res.notes:
         con.print(f"note: {inp}:{note}", highlight=False)
     if not res.targets:
+        # a KRL .src whose points all live in its .dat (inline forms): one call per file, so the .src
+        # goes to -o unchanged and the .dat is the file to compensate
+        dat = inp.with_suffix(".dat")
+        rest = [t for c, t in zip(context, texts) if Path(c).resolve() != dat.resolve()]
+        if kind == "krl" and inp.suffix.lower() == ".src" and dat.is_file() and not joints and fmt.find_targets(
+                dat.read_bytes().decode("latin-1"), mdl.nominal, context="\n".join([text, *rest]), axis_signs=signs)[0]:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_bytes(inp.read_bytes())
+            con.print(f"note: {inp}: no Cartesian targets of its own; its points are in {dat.name}: written "
+                      f"unchanged to {out} (compensate {dat.name} too)", highlight=False)
+            return
         raise CLIError(f"{inp}: no Cartesian targets found (format {kind}); nothing written")
     unknown = {t.line for t in res.targets if t.error}  # frames the files do not define (work objects, bases)
     for line, reason in res.failed:

@@ -6,15 +6,18 @@ and turn (decimal or ``'B010'`` binary), meaning as in :mod:`.branches`. Only th
 ``X, Y, Z, A, B, C, S, T`` are replaced; components, order, spacing, ``E1..E6`` are kept.
 
 Targets: complete Cartesian aggregates (all of ``X, Y, Z, A, B, C``) that are ``E6POS``/``POS`` (by
-prefix or declaration), untyped ones in a motion statement (``PTP/LIN/CIRC`` and ``SPTP/SLIN/SCIRC``),
-and ``FRAME`` ones inline in a motion statement or declared under a name some motion statement of
-this file or its companion (``.src`` for a ``.dat``) uses. Kept and noted: relative motions
-(``*_REL``), partial aggregates (KRL fills the missing components from the current pose, which we
-cannot know), ``FRAME`` data not used as a motion target (``$BASE``/``$TOOL``/``BASE_DATA``/
-``TOOL_DATA``), assignments to system variables (``$TOOL = {...}``, ``$BASE``, ``BASE_DATA[i]``,
-``TOOL_DATA[i]``). ``PTP {A1 .., A6 ..}`` joint moves restart the branch walk (axis angles, degrees,
-controller signs). Each target is taken in the base and with the tool the program selects where it
-moves to it (:mod:`.krl_frames`: ``$BASE``/``$TOOL``, ``BAS(#BASE, n)``, ``FDAT_ACT``; ``BASE_DATA``/
+prefix or declaration), untyped ones a motion statement moves to (``PTP/LIN/CIRC``, ``SPTP/SLIN/SCIRC``,
+``SPL``: :mod:`.krl_motions`), and ``FRAME`` ones inline in a motion statement or assigned to a
+variable (declared ``FRAME`` on any line of this file or its companion) some motion statement moves to.
+Kept and noted: relative motions (``*_REL``), partial aggregates (KRL fills the missing components
+from the current pose, which we cannot know), ``FRAME`` data not moved to (``$BASE``/``$TOOL``/
+``BASE_DATA``/``TOOL_DATA``, ``fTool = {..}``, offsets), frame operands of geometric expressions
+(``LIN XP1 : {..}``), aggregates in ``WITH`` clauses, assignments to system variables (``$TOOL =
+{...}``, ``$BASE``, ``BASE_DATA[i]``, ``TOOL_DATA[i]``). Each target is walked (branch without ``S``/
+``T``) where the ``.src`` first moves to it, restarted at the last ``PTP``/``SPTP`` joint move before
+(axis aggregates or ``AXIS``/``E6AXIS`` variables, degrees, controller signs). Each target is taken in
+the base and with the tool the program selects where it moves to it (:mod:`.krl_frames`: ``$BASE``/
+``$TOOL``, ``BAS(#BASE, n)``, ``FDAT_ACT``, spline ``WITH`` clauses, ``FRAME`` variables; ``BASE_DATA``/
 ``TOOL_DATA`` from ``$config.dat`` in ``context``; base 0 = the robot base, tool 0 = the robot file's
 tool) and written back in that base. Numbers are written with 4 decimals (mm) and 5 (deg).
 """
@@ -28,6 +31,7 @@ import numpy as np
 
 from ..geometry import se3
 from .krl_frames import frames_of_targets
+from .krl_motions import axis_values, declared_types, joint_moves, parse_motions, point_of, set_execution_order
 from .programs import NUMBER, ProgramTarget, comment_mask, line_of, splice_numbers
 
 __all__ = ["SUFFIXES", "abc_from_matrix", "find_targets", "format_target", "matrix_from_abc"]
@@ -35,7 +39,6 @@ __all__ = ["SUFFIXES", "abc_from_matrix", "find_targets", "format_target", "matr
 SUFFIXES = (".src", ".dat")
 _AGG = re.compile(r"\{([^{}]*)\}")
 _COMP = re.compile(r"([A-Za-z_]\w*)\s+(" + NUMBER + r"|'[Bb][01]+')")
-_MOTION = re.compile(r"\b(?:S?PTP|S?LIN|S?CIRC)(_REL)?\b", re.IGNORECASE)
 _DECL = re.compile(r"(?:\bDECL\s+)?(?:\bGLOBAL\s+)?\b(E6POS|POS|FRAME|E6AXIS|AXIS)\s+([A-Za-z_$]\w*)\s*=\s*$", re.IGNORECASE)
 _ASSIGN = re.compile(r"([A-Za-z_$][\w.$\[\]]*)\s*=\s*$")
 _CART = ("X", "Y", "Z", "A", "B", "C")
@@ -68,35 +71,83 @@ def _int_value(tok: str) -> int:
     return int(tok[2:-1], 2) if tok.startswith("'") else int(float(tok))
 
 
-def _motion_uses(clean: str) -> list:
-    """``[(position, variable name (upper case))]`` of the variables motion statements move to."""
-    uses = []
-    for m in re.finditer(r"\b(?:S?PTP|S?LIN)\s+([A-Za-z_$]\w*)", clean, re.IGNORECASE):
-        uses.append((m.start(), m.group(1).upper()))
-    for m in re.finditer(r"\bS?CIRC\s+([A-Za-z_$]\w*)\s*,\s*([A-Za-z_$]\w*)", clean, re.IGNORECASE):
-        uses += [(m.start(), m.group(1).upper()), (m.start(), m.group(2).upper())]
-    return uses
-
-
-def _motion_names(clean: str) -> set:
-    return {name for _, name in _motion_uses(clean)}
-
-
 def _clean(text: str) -> str:
     mask = comment_mask(text, ";", '"')
     return "".join(" " if m else c for c, m in zip(text, mask[: len(text)]))
 
 
+def _key(name: str) -> str:
+    """A variable name as motions name it: upper case, no spaces (``pts[1]``)."""
+    return re.sub(r"\s+", "", name).upper()
+
+
+def _points(motions: list, types: dict) -> list:
+    """``[(motion, argument index, operands, index of the point or None, why not known)]``."""
+    return [(mo, i, ops, *point_of(ops, types)) for mo in motions for i, ops in enumerate(mo.points)]
+
+
+def _roles(points: list) -> dict:
+    """``{aggregate start: (role, motion)}`` of the aggregates moved to: role ``"point"`` (the target),
+    ``"rel"`` (a relative motion's), ``"operand"`` (a frame in a geometric expression), ``"unsplit"`` (in
+    an expression whose point is not known). Aggregates in ``WITH`` clauses are not among them."""
+    roles = {}
+    for mo, _, ops, pi, _why in points:
+        for i, op in enumerate(ops):
+            if op.what == "agg":
+                role = "rel" if mo.rel else "point" if i == pi else "unsplit" if pi is None else "operand"
+                roles[op.start] = (role, mo)
+    return roles
+
+
+def _in_spans(pos: int, starts: np.ndarray, spans: list) -> bool:
+    """Whether ``pos`` lies in one of ``spans`` (``[(start, end)]``, disjoint, ``starts`` sorted)."""
+    i = int(np.searchsorted(starts, pos, side="right")) - 1
+    return i >= 0 and pos < spans[i][1]
+
+
+def _kept(role, line: int) -> str | None:
+    """The note of an aggregate of a motion statement that is not a target (None: it may be one)."""
+    if role is None or role[0] == "point":
+        return None
+    what, mo = role
+    if what == "rel":
+        return f"line {line}: relative motion ({mo.verb}_REL): kept"
+    if what == "operand":
+        return f"line {line}: frame operand of a geometric expression ({mo.verb} ... : ...): kept"
+    return f"line {line}: aggregate in a geometric expression whose point hykin cannot tell: kept"
+
+
+def _pose_of(comps: dict) -> tuple[np.ndarray, float]:
+    """``((4, 4) pose (m), A (deg))`` of a complete aggregate's ``{component: (start, end, token)}``."""
+    v = {k: float(comps[k][2]) for k in _CART}
+    R = matrix_from_abc(v["A"], v["B"], v["C"])
+    return se3.make_transform(R, np.array([v["X"], v["Y"], v["Z"]]) * 1e-3), v["A"]
+
+
 def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[list, list]:
-    """``(targets, notes)`` of a KRL ``.src`` or ``.dat`` text; ``context``: the companion file."""
+    """``(targets, notes)`` of a KRL ``.src`` or ``.dat`` text; ``context``: the companion file (and
+    ``$config.dat``). Each target's ``order`` is where the ``.src`` first moves to it and its ``reset``
+    the joints of a joint move just before (:mod:`.krl_motions`)."""
     from .branches import default_axis_signs
 
     sgn = default_axis_signs(robot) if axis_signs is None else np.asarray(axis_signs, dtype=np.float64)
     clean = _clean(text)
     ctx_clean = _clean(context) if context else ""
-    used = _motion_names(clean) | _motion_names(ctx_clean)
+    own, own_spans = parse_motions(clean)
+    ctx, ctx_spans = parse_motions(ctx_clean)
+    # the .src is the file read, unless that has no motions (a .dat) and the context has (its .src)
+    text_is_src = bool(own) or not ctx
+    src_clean, motions, spans = (clean, own, own_spans) if text_is_src else (ctx_clean, ctx, ctx_spans)
+    others = [ctx_clean] if text_is_src else [clean]
+    types = declared_types([clean, ctx_clean])
+    points = _points(motions, types)
+    spans = sorted(spans)
+    starts = np.array([a for a, _ in spans], dtype=np.int64)
+    roles = _roles(points) if text_is_src else {}
+    used = {ops[pi].key for _, _, ops, pi, _ in points + (_points(ctx, types) if text_is_src else [])
+            if pi is not None and ops[pi].what == "var"}
     targets, notes = [], []
-    last_joint, prev_end = None, 0
+    axes = [f"A{i + 1}" for i in range(robot.dof)]
     for m in _AGG.finditer(clean):
         body, b0 = m.group(1), m.start(1)
         line = line_of(text, m.start())
@@ -107,24 +158,28 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
         comps = {}
         for c in _COMP.finditer(body, tm.end() if tm else 0):
             comps[c.group(1).upper()] = (c.start(2), c.end(2), c.group(2))
-        mot = _MOTION.search(prefix)
-        decl = _DECL.search(prefix)
-        name = decl.group(2) if decl else (_ASSIGN.search(prefix).group(1) if _ASSIGN.search(prefix) else "")
-        kind = kind or (decl.group(1).upper() if decl else "")
-        axes = [f"A{i + 1}" for i in range(robot.dof)]
-        if mot and not mot.group(1) and all(a in comps for a in axes) and "X" not in comps:
-            last_joint = (m.start(), sgn * np.radians([float(comps[a][2]) for a in axes]))
-            continue
+        role = roles.get(m.start())
+        if role and role[0] == "point" and all(a in comps for a in axes) and "X" not in comps:
+            continue  # a joint move: it restarts the walk (krl_motions.joint_moves)
         if not any(k in comps for k in _CART):
             continue  # not a Cartesian aggregate (axis data, other structures)
-        if mot and mot.group(1):
-            notes.append(f"line {line}: relative motion ({mot.group(0)}): kept")
+        if text_is_src and _in_spans(m.start(), starts, spans):
+            notes.append(f"line {line}: aggregate in a WITH clause (a system variable for one motion): kept")
             continue
+        why = _kept(role, line)
+        if why:
+            notes.append(why)
+            continue
+        mot = role is not None
+        decl = _DECL.search(prefix)
+        name = decl.group(2) if decl else (_ASSIGN.search(prefix).group(1) if _ASSIGN.search(prefix) else "")
+        # a variable declared on another line (DECL FRAME fTool ... fTool = {..}) has that type
+        kind = kind or (decl.group(1).upper() if decl else types.get(re.sub(r"\[.*", "", _key(name)), ""))
         if not all(k in comps for k in _CART):
             notes.append(f"line {line}: partial Cartesian aggregate (missing "
                          f"{', '.join(k for k in _CART if k not in comps)}): kept")
             continue
-        if kind == "FRAME" and not mot and name.upper() not in used:
+        if kind == "FRAME" and not mot and _key(name) not in used:
             notes.append(f"line {line}: FRAME {name or '(unnamed)'} is not a motion target (base/tool data?): kept")
             continue
         if kind not in ("", "E6POS", "POS", "FRAME"):
@@ -136,27 +191,62 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
         if kind == "" and not mot and not name:
             notes.append(f"line {line}: untyped aggregate outside a motion statement: kept")
             continue
-        v = {k: float(comps[k][2]) for k in _CART}
-        pose = se3.make_transform(matrix_from_abc(v["A"], v["B"], v["C"]), np.array([v["X"], v["Y"], v["Z"]]) * 1e-3)
+        pose, a_deg = _pose_of(comps)
         cfg = {k: _int_value(comps[k][2]) for k in ("S", "T") if k in comps}
         if "T" in cfg and "S" not in cfg:
             cfg = {}
         keys = [k for k in (*_CART, "S", "T") if k in comps and (k in _CART or k in cfg)]
-        spans = [(b0 + comps[k][0] - m.start(), b0 + comps[k][1] - m.start()) for k in keys]
-        reset = last_joint[1] if last_joint is not None and last_joint[0] >= prev_end else None
+        spans_k = [(b0 + comps[k][0] - m.start(), b0 + comps[k][1] - m.start()) for k in keys]
         targets.append(ProgramTarget(
             start=m.start(), end=m.end(), line=line, pose=pose, name=name, kind=kind or "POS", config=cfg,
-            reset=reset, parts={"keys": keys, "spans": spans, "literal": text[m.start():m.end()], "A": v["A"],
-                                "tokens": {k: comps[k][2] for k in keys}, "axis_signs": sgn},
+            parts={"keys": keys, "spans": spans_k, "literal": text[m.start():m.end()], "A": a_deg,
+                   "tokens": {k: comps[k][2] for k in keys}, "axis_signs": sgn},
         ))
-        prev_end = m.end()
-    # the base and tool of each target: the selections in force where the .src moves to it
-    text_is_src = bool(_motion_uses(clean)) or not context
-    src_clean = clean if text_is_src else ctx_clean
-    motions = [(p, name, None) for p, name in _motion_uses(src_clean)]
-    motions += [(t.start, None, k) for k, t in enumerate(targets) if not t.name]
-    fr = frames_of_targets(src_clean, text_is_src, targets, robot, [clean, ctx_clean], motions)
+    uses, first = _uses(targets, points, text_is_src)
+    jm = joint_moves(motions, axis_values(src_clean, others, robot.dof, sgn), robot.dof, sgn)
+    set_execution_order(targets, first, len(src_clean), jm)
+    fr = frames_of_targets(src_clean, others, motions, spans, uses, targets, robot, types)
     return targets, notes + fr.apply(targets)
+
+
+def _assigned(ks: list, targets: list, pos: int, text_is_src: bool) -> list:
+    """Of the literals ``ks`` of one variable, those a motion at ``pos`` moves to: in the ``.src``, the
+    last assigned before it (a variable assigned twice holds one literal at a time); else all."""
+    if not text_is_src or len(ks) < 2:
+        return ks
+    before = [k for k in ks if targets[k].start < pos]
+    return [max(before, key=lambda k: targets[k].start)] if before else ks
+
+
+def _uses(targets: list, points: list, text_is_src: bool) -> tuple[list, dict]:
+    """``(uses, first)``: the motions using each target (``[(motion, target index, left operands,
+    right operands, why the point is unknown)]``) and where each is first executed ``{target index:
+    position in the .src}``: an inline target at its literal, a variable at the first motion to it at or
+    after its literal (the .src's own variables) or anywhere (a .dat's)."""
+    by_name: dict = {}
+    for k, t in enumerate(targets):
+        if t.name:
+            by_name.setdefault(_key(t.name), []).append(k)
+    by_start = {t.start: k for k, t in enumerate(targets)} if text_is_src else {}
+    uses, seen = [], {}
+    for mo, ai, ops, pi, why in points:
+        if mo.rel:
+            continue
+        # an expression whose point is unknown: every target in it fails with the reason
+        for i in ([pi] if pi is not None else range(len(ops))):
+            op = ops[i]
+            if op.what == "agg":
+                hits = [by_start[op.start]] if op.start in by_start else []
+            else:
+                hits = _assigned(by_name.get(op.key, []), targets, mo.pos, text_is_src)
+            for k in hits:
+                uses.append((mo, k, ops[:i], ops[i + 1:], why))
+                seen.setdefault(k, []).append(targets[k].start if op.what == "agg" else mo.pos + ai)
+    first = {}
+    for k, pos in seen.items():
+        after = [p for p in pos if text_is_src and p >= targets[k].start]
+        first[k] = min(after) if after else min(pos)
+    return uses, first
 
 
 def format_target(t: ProgramTarget, command: np.ndarray, q, robot, axis_signs=None) -> str:

@@ -1,19 +1,27 @@
 """KUKA KRL: the base and tool each target is used with.
 
 A KRL Cartesian target is a pose of ``$TOOL`` in ``$BASE``. The program selects them, in text order,
-with ``$BASE = BASE_DATA[n]`` / ``$TOOL = TOOL_DATA[n]`` (or ``$NULLFRAME``, or a frame aggregate),
-``BAS(#BASE, n)`` / ``BAS(#TOOL, n)``, and the inline forms' ``FDAT_ACT = FPn`` (``BASE_NO``,
-``TOOL_NO`` and ``IPO_FRAME`` of ``DECL FDAT FPn = {...}`` in the ``.dat``). ``BASE_DATA[n]`` and
-``TOOL_DATA[n]`` are declared in the controller's ``$config.dat`` (``BASE_DATA[1]={X ..,Y ..,Z ..,A
-..,B ..,C ..}``); hykin reads them from the program and the ``--context`` files.
+with ``$BASE = BASE_DATA[n]`` / ``$TOOL = TOOL_DATA[n]`` (or ``$NULLFRAME``, a frame aggregate, a
+``FRAME`` variable the program assigns an aggregate), ``BAS(#BASE, n)`` / ``BAS(#TOOL, n)``, the inline
+forms' ``FDAT_ACT = FPn`` (``BASE_NO``, ``TOOL_NO`` and ``IPO_FRAME`` of ``DECL FDAT FPn = {...}`` in the
+``.dat``), and the spline inline forms' ``WITH $TOOL = STOOL2(FPn), $BASE = SBASE(FPn.BASE_NO),
+$IPO_MODE = SIPO_MODE(FPn.IPO_FRAME)`` (the same ``FDAT`` data). ``BASE_DATA[n]`` and ``TOOL_DATA[n]``
+are declared in the controller's ``$config.dat`` (``BASE_DATA[1]={X ..,Y ..,Z ..,A ..,B ..,C ..}``);
+hykin reads them from the program and the ``--context`` files.
+
+A ``WITH`` selection is taken for its own motion (a ``SPLINE`` block's for the block's motions). Whether
+it outlasts the motion is not taken for granted: a later motion without its own selection, whose
+frame would differ either way, fails and says so.
 
 Per target (the selection in force at the motion statement that uses it; before any, base 0 and the
 robot file's tool): the frame ``W`` = ``BASE_DATA[n]`` the pose is written in (``$WORLD`` taken as
 ``$ROBROOT``, base 0 = the robot base frame) and the tool delta ``D = inv(robot file's tool) ·
 TOOL_DATA[n]``. Tool 0 and tools whose data were not read are the robot file's tool (a note names
-them). A target fails, with the reason, when its base is not declared in what was read, is set by an
-expression hykin cannot evaluate, is an external TCP (``IPO_FRAME #TCP``), or when one target is used
-with two different frames.
+them). A point moved to inside a geometric expression ``L : P : R`` with known frames ``L``, ``R`` is
+in frame ``W · L`` with the TCP ``TOOL · inv(R)``: the controller then sends the flange where the
+compensated ``P`` puts it. A target fails, with the reason, when its base or tool is not declared in
+what was read (tools: noted instead), is set by an expression hykin cannot evaluate, is an external TCP
+(``IPO_FRAME #TCP``), or when one target is used with two different frames.
 """
 
 from __future__ import annotations
@@ -23,18 +31,21 @@ import re
 import numpy as np
 
 from ..geometry import se3
-from .programs import TargetFrames
+from .krl_motions import is_declaration
+from .programs import TargetFrames, line_of
 
-__all__ = ["frames_of_targets"]
+__all__ = ["frame_variables", "frames_of_targets"]
 
 _FRAME_DATA = re.compile(r"\b(BASE_DATA|TOOL_DATA)\s*\[\s*(\d+)\s*\]\s*=\s*\{([^{}]*)\}", re.IGNORECASE)
 _FDAT = re.compile(r"\bFDAT\s+([A-Za-z_]\w*)\s*=\s*\{([^{}]*)\}", re.IGNORECASE)
 _SELECT = re.compile(
-    r"(?P<var>\$BASE|\$TOOL)\s*=(?!=)\s*(?:(?P<data>BASE_DATA|TOOL_DATA)\s*\[\s*(?P<n>\d+)\s*\]|(?P<null>\$NULLFRAME|\$WORLD)\b"
-    r"|\{(?P<agg>[^{}]*)\}|(?P<expr>[^\n]*))"
+    r"(?P<var>\$BASE|\$TOOL|\$IPO_MODE)\s*=(?!=)\s*(?P<expr>[^\n]*)"
     r"|\bBAS\s*\(\s*#(?P<bas>BASE|TOOL)\s*,\s*(?P<bn>\d+)\s*\)"
     r"|\bFDAT_ACT\s*=\s*(?P<fdat>[A-Za-z_]\w*)", re.IGNORECASE)
+_FRAME_ASSIGN = re.compile(r"(?<![\w$.])([A-Za-z_][\w]*)\s*(\.\s*[A-Za-z]\w*)?\s*=(?!=)\s*([^\n]*)")
 _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+_INDEX = r"(?:(?P<i>\d+)|(?P<f>[A-Za-z_]\w*)\s*\.\s*(?P<field>BASE_NO|TOOL_NO))"
+_KINDS = ("base", "tool", "ipo")
 
 
 def _aggregate_frame(body: str) -> np.ndarray | None:
@@ -64,106 +75,240 @@ def _declared(cleans: list) -> tuple[dict, dict]:
     return frames, fdat
 
 
-def _walk(clean: str, fdat: dict) -> list:
-    """Selections in text order: ``[(position, "base"|"tool", value)]``; value: an int (data index), a
-    ``(4, 4)`` frame, or a str (why it is unknown)."""
-    out = []
-    for m in _SELECT.finditer(clean):
-        if m.group("fdat"):
-            d = fdat.get(m.group("fdat").upper())
-            if d is None:
-                out.append((m.start(), "base", f"FDAT_ACT = {m.group('fdat')}: its FDAT declaration (the .dat) was not read"))
+def frame_variables(src_clean: str, others: list, types: dict) -> dict:
+    """``{variable (upper case): [(position in src_clean, or -1 elsewhere, value)]}`` of the variables
+    declared ``FRAME``: value ``(4, 4)`` for a complete aggregate, else a str (why it is unknown: a
+    partial aggregate, an expression, a component assignment ``f.X = ..``)."""
+    out: dict = {}
+    for clean, here in [(c, False) for c in others] + [(src_clean, True)]:
+        for m in _FRAME_ASSIGN.finditer(clean):
+            name = m.group(1).upper()
+            if types.get(name) != "FRAME":
                 continue
-            if d["IPO_FRAME"] == "TCP":
-                out.append((m.start(), "base", f"{m.group('fdat')} moves relative to an external TCP (IPO_FRAME #TCP): "
-                                               "not supported"))
-            elif d["BASE_NO"] is not None:
-                out.append((m.start(), "base", d["BASE_NO"]))
-            if d["TOOL_NO"] is not None:
-                out.append((m.start(), "tool", d["TOOL_NO"]))
+            rhs = m.group(3).strip()
+            agg = re.fullmatch(r"\{(?:\s*FRAME\s*:)?([^{}]*)\}", rhs, re.IGNORECASE)
+            T = _aggregate_frame(agg.group(1)) if agg and not m.group(2) else None
+            where = f"line {line_of(clean, m.start())}{'' if here else ' of a companion file'}"
+            why = T if T is not None else f"{m.group(1)}{m.group(2) or ''} = {rhs[:30]} ({where}): not a frame aggregate"
+            pos = m.start() if here and not is_declaration(clean, m.start()) else -1
+            out.setdefault(name, []).append((pos, why))
+    return out
+
+
+def _index(expr: str, fdat: dict) -> int | str:
+    """A data index: a number, or ``FPn.BASE_NO`` / ``FPn.TOOL_NO`` of a declared ``FDAT``."""
+    m = re.fullmatch(r"\s*" + _INDEX + r"\s*", expr, re.IGNORECASE)
+    if m is None:
+        return f"index {expr.strip()[:30]}: an expression hykin cannot evaluate"
+    if m.group("i") is not None:
+        return int(m.group("i"))
+    d = fdat.get(m.group("f").upper())
+    if d is None:
+        return f"{m.group('f')}: its FDAT declaration (the .dat) was not read"
+    n = d[m.group("field").upper()]
+    return n if n is not None else f"{m.group('f')} has no {m.group('field').upper()}"
+
+
+class _Selections:
+    """Evaluates the right-hand sides of ``$BASE``/``$TOOL``/``$IPO_MODE`` assignments: a base or tool is
+    an int (data index, 0 = none), a (4, 4) frame, or a str (why it is unknown); the interpolation mode
+    ``"BASE"``, ``"TCP"`` or a str."""
+
+    def __init__(self, fdat: dict, fvars: dict, types: dict):
+        self.fdat, self.fvars, self.types = fdat, fvars, types
+
+    def is_frame(self, name: str) -> bool:
+        """Whether ``name`` is a variable declared ``FRAME`` (or assigned like one)."""
+        return name.upper() in self.fvars or self.types.get(name.upper()) == "FRAME"
+
+    def fdat_act(self, name: str) -> list:
+        """``[(kind, value)]`` that ``FDAT_ACT = name`` selects."""
+        d = self.fdat.get(name.upper())
+        if d is None:
+            why = f"FDAT_ACT = {name}: its FDAT declaration (the .dat) was not read"
+            return [("base", why), ("tool", why)]
+        out = [("ipo", d["IPO_FRAME"])]
+        out += [("base", d["BASE_NO"])] if d["BASE_NO"] is not None else []
+        return out + ([("tool", d["TOOL_NO"])] if d["TOOL_NO"] is not None else [])
+
+    def assign(self, var: str, expr: str, pos: int) -> list:
+        """``[(kind, value)]`` that ``var = expr`` (at ``pos`` in the ``.src``) selects; other variables: []."""
+        var, e = var.upper(), expr.strip()
+        if var == "$IPO_MODE":
+            return [("ipo", self._ipo(e))]
+        if var not in ("$BASE", "$TOOL"):
+            return []
+        kind = var[1:].lower()
+        return [(kind, self._frame(kind, e, pos))]
+
+    def _ipo(self, e: str) -> str:
+        m = re.fullmatch(r"#(BASE|TCP)", e, re.IGNORECASE) or re.fullmatch(
+            r"SIPO_MODE\s*\(\s*([A-Za-z_]\w*)\s*\.\s*IPO_FRAME\s*\)", e, re.IGNORECASE)
+        if m is None:
+            return f"$IPO_MODE = {e[:40]}: an expression hykin cannot evaluate"
+        if m.group(1).upper() in ("BASE", "TCP") and e.startswith("#"):
+            return m.group(1).upper()
+        d = self.fdat.get(m.group(1).upper())
+        return d["IPO_FRAME"] if d else f"{m.group(1)}: its FDAT declaration (the .dat) was not read"
+
+    def _frame(self, kind: str, e: str, pos: int):
+        data = re.fullmatch(r"(BASE_DATA|TOOL_DATA)\s*\[(.*)\]", e, re.IGNORECASE)
+        call = re.fullmatch(r"(STOOL2|SBASE)\s*\((.*)\)", e, re.IGNORECASE)
+        if data and data.group(1).upper()[:4].lower() == kind:
+            return _index(data.group(2), self.fdat)
+        if call and (call.group(1).upper() == "SBASE") == (kind == "base"):
+            if call.group(1).upper() == "SBASE":
+                return _index(call.group(2), self.fdat)
+            return _index(call.group(2).strip() + ".TOOL_NO", self.fdat)  # STOOL2(F): TOOL_DATA[F.TOOL_NO]
+        if re.fullmatch(r"\$(NULLFRAME|WORLD|ROBROOT)", e, re.IGNORECASE):
+            return 0
+        agg = re.fullmatch(r"\{(?:\s*FRAME\s*:)?([^{}]*)\}", e, re.IGNORECASE)
+        if agg:
+            T = _aggregate_frame(agg.group(1))
+            return T if T is not None else f"${kind.upper()} = {{..}} is not a complete frame"
+        if re.fullmatch(r"[A-Za-z_]\w*", e) and self.is_frame(e):
+            return self.variable(e, pos)
+        return f"${kind.upper()} = {e[:40]}: an expression hykin cannot evaluate"
+
+    def variable(self, name: str, pos: int):
+        """The value of ``FRAME`` variable ``name`` at ``pos``: its last assignment before, else its
+        declaration elsewhere (the ``.dat``), else a str."""
+        vals = [v for p, v in self.fvars.get(name.upper(), []) if p < pos]
+        return vals[-1] if vals else f"FRAME {name} is not assigned a frame aggregate before it is used here"
+
+
+def _persistent_events(src_clean: str, with_spans: list, sel: _Selections) -> list:
+    """``[(position, kind, value)]``: the selections outside ``WITH`` clauses, in text order."""
+    blank = list(src_clean)
+    for a, b in with_spans:  # WITH items select for their motion only: taken per motion
+        blank[a:b] = " " * (b - a)
+    text = "".join(blank)
+    out = []
+    for m in _SELECT.finditer(text):
+        if m.group("fdat"):
+            out += [(m.start(), k, v) for k, v in sel.fdat_act(m.group("fdat"))]
         elif m.group("bas"):
             out.append((m.start(), m.group("bas").lower(), int(m.group("bn"))))
         else:
-            kind = m.group("var")[1:].lower()
-            if m.group("n") is not None:
-                out.append((m.start(), kind, int(m.group("n"))))
-            elif m.group("null"):
-                out.append((m.start(), kind, 0))
-            elif m.group("agg") is not None:
-                T = _aggregate_frame(m.group("agg"))
-                out.append((m.start(), kind, T if T is not None else f"${kind.upper()} = {{..}} is not a complete frame"))
-            else:
-                out.append((m.start(), kind, f"${kind.upper()} = {m.group('expr').strip()[:40]}: an expression hykin "
-                                             "cannot evaluate"))
+            out += [(m.start(), k, v) for k, v in sel.assign(m.group("var"), m.group("expr"), m.start())]
     return out
 
 
-def _states(events: list) -> tuple[np.ndarray, list]:
-    """``(positions (E,), states)``: the ``(base, tool)`` in force after each selection event."""
-    base, tool, states = 0, 0, []
-    for _, kind, value in events:
-        if kind == "base":
-            base = value
-        else:
-            tool = value
-        states.append((base, tool))
-    return np.array([p for p, _, _ in events], dtype=np.int64), states
+def _same(a, b) -> bool:
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and np.allclose(a, b, atol=1e-12)
+    return a == b
 
 
-def _state_at(positions: np.ndarray, states: list, pos: int) -> tuple:
-    """The ``(base, tool)`` in force at ``pos`` (base 0 and tool 0 before any selection)."""
-    i = int(np.searchsorted(positions, pos))  # events strictly before pos
-    return states[i - 1] if i else (0, 0)
+def motion_states(src_clean: str, motions: list, with_spans: list, sel: _Selections) -> dict:
+    """``{id(motion): {"base", "tool", "ipo": value}}``: the selections in force at each motion: the
+    persistent ones, overridden by the ``SPLINE`` block's and the motion's own ``WITH`` items. A kind a
+    motion does not select itself, where an earlier ``WITH`` selected another value since the last
+    persistent selection, is a str: it depends on whether that ``WITH`` outlasted its motion."""
+    events = _persistent_events(src_clean, with_spans, sel)
+    state = {"base": 0, "tool": 0, "ipo": "BASE"}
+    scoped: dict = {}  # kind -> (value, position) of the last WITH selection since the persistent one
+    out, i = {}, 0
+    for mo in sorted(motions, key=lambda mo: mo.pos):
+        while i < len(events) and events[i][0] < mo.pos:
+            _, kind, value = events[i]
+            state[kind] = value
+            scoped.pop(kind, None)
+            i += 1
+        own = {}
+        for var, expr, pos in mo.block_items + mo.with_items:
+            own.update(dict(sel.assign(var, expr, pos)))
+        st = dict(state)
+        for kind in _KINDS:
+            if kind in own:
+                st[kind] = own[kind]
+                scoped[kind] = (own[kind], mo.pos)
+            elif kind in scoped and not _same(scoped[kind][0], state[kind]):
+                st[kind] = (f"${'IPO_MODE' if kind == 'ipo' else kind.upper()} of this motion depends on whether the "
+                            f"WITH selection of line {line_of(src_clean, scoped[kind][1])} outlasts its motion: select "
+                            "it before the motion or in its own WITH")
+        out[id(mo)] = st
+    return out
 
 
-def frames_of_targets(src_clean: str, text_is_src: bool, targets: list, robot, cleans: list,
-                      motions: list) -> TargetFrames:
-    """Frames of ``targets`` (of the file read) from the base/tool selections of ``src_clean`` (the
-    ``.src`` text with comments blanked: the file read itself when ``text_is_src``, else its
-    companion), the data declared in ``cleans`` (every text read) and ``motions``: ``[(position in
-    src_clean, target name (upper case) or None, index of an inline target or None)]``."""
-    frames, fdat = _declared(cleans)
-    positions, states = _states(_walk(src_clean, fdat))
-    uses: dict = {}
-    by_name: dict = {}
-    for k, t in enumerate(targets):
-        if t.name:
-            by_name.setdefault(t.name.upper(), []).append(k)
-    for pos, name, inline in motions:
-        state = _state_at(positions, states, pos)
-        hits = [inline] if inline is not None and text_is_src else by_name.get(name, []) if name else []
-        for k in hits:
-            uses.setdefault(k, []).append(state)
-    out = TargetFrames()
-    noted = set()
+def _operand_frame(op, sel: _Selections, pos: int):
+    """The frame ``(4, 4)`` of an operand of a geometric expression (an aggregate or a ``FRAME``
+    variable), else a str."""
+    if op.what == "agg":
+        T = _aggregate_frame(re.sub(r"^\{\s*[A-Za-z_]\w*\s*:", "{", op.text)[1:-1])
+        return T if T is not None else f"{op.text[:30]} is not a complete frame"
+    if op.what == "var" and sel.is_frame(op.key):
+        return sel.variable(op.text, pos)
+    return f"{op.text[:30]}: hykin cannot evaluate this operand of a geometric expression"
+
+
+def _product(ops: list, sel: _Selections, pos: int):
+    """The product of the operands' frames (None for no operand), or a str."""
+    T = None
+    for op in ops:
+        F = _operand_frame(op, sel, pos)
+        if isinstance(F, str):
+            return F
+        T = F if T is None else T @ F
+    return T
+
+
+def frames_of_targets(src_clean: str, others: list, motions: list, with_spans: list, uses: list, targets: list,
+                      robot, types: dict) -> TargetFrames:
+    """Frames of ``targets`` (of the file read) from the selections of ``src_clean`` (the ``.src`` text
+    with comments blanked), its ``motions`` and ``with_spans`` (:func:`.krl_motions.parse_motions`), the
+    data declared in it and ``others`` (the other texts read, comments blanked), the variables' ``types``
+    and ``uses``: ``[(motion, target index, left operands, right operands, error)]`` (the operands of the
+    geometric expression around the point; error: why the point is not known, or "")."""
+    frames, fdat = _declared([src_clean, *others])
+    sel = _Selections(fdat, frame_variables(src_clean, others, types), types)
+    states = motion_states(src_clean, motions, with_spans, sel)
+    per: dict = {}
+    for mo, k, left, right, err in uses:
+        L = _product(left, sel, mo.pos)
+        R = _product(right, sel, mo.pos)
+        per.setdefault(k, []).append((states[id(mo)], err or (L if isinstance(L, str) else "")
+                                      or (R if isinstance(R, str) else ""), L, R))
+    out, noted = TargetFrames(), set()
+    default = ({"base": 0, "tool": 0, "ipo": "BASE"}, "", None, None)
     for k in range(len(targets)):
-        resolved = []
-        for base, tool in uses.get(k, [(0, 0)]):
-            W, err = None, ""
-            if isinstance(base, str):
-                err = base
-            elif isinstance(base, np.ndarray):
-                W = base
-            elif base != 0:
-                W = frames.get(("base", base))
-                if W is None:
-                    err = (f"base {base} (BASE_DATA[{base}]) is not declared in what was read: its pose is unknown "
-                           "(give the controller's $config.dat with --context)")
-            D = None
-            if isinstance(tool, str) and tool not in noted:
-                noted.add(tool)
-                out.notes.append(f"{targets[k].line}: {tool}: the TCP is taken to be the robot file's tool")
-            elif isinstance(tool, np.ndarray):
-                D = se3.invert(robot.tool) @ tool
-            elif isinstance(tool, int) and tool != 0:
-                T = frames.get(("tool", tool))
-                if T is not None:
-                    D = se3.invert(robot.tool) @ T
-                elif tool not in noted:
-                    noted.add(tool)
-                    out.notes.append(f"{targets[k].line}: tool {tool} (TOOL_DATA[{tool}]) was not read: its TCP is "
-                                     "taken to be the robot file's tool (give $config.dat with --context)")
-            label = f"base {base if isinstance(base, int) else '(frame)'}, tool {tool if isinstance(tool, int) else '(frame)'}"
-            resolved.append((W, D, err, label))
-        out.add(resolved, "used with different bases or tools")
+        out.add([_resolve(st, err, L, R, frames, robot, targets[k].line, out.notes, noted)
+                 for st, err, L, R in per.get(k, [default])], "used with different bases or tools")
     return out
+
+
+def _resolve(st: dict, err: str, L, R, frames: dict, robot, line: int, notes: list, noted: set) -> tuple:
+    """``(W, D, error, label)`` of one use: the base frame (times the expression's left frames), the tool
+    delta (the tool times the inverse of its right frames), why it is unknown, a label for messages."""
+    base, tool, ipo = st["base"], st["tool"], st["ipo"]
+    W = None
+    if isinstance(base, str):
+        err = err or base
+    elif isinstance(base, np.ndarray):
+        W = base
+    elif base != 0:
+        W = frames.get(("base", base))
+        if W is None:
+            err = err or (f"base {base} (BASE_DATA[{base}]) is not declared in what was read: its pose is unknown "
+                          "(give the controller's $config.dat with --context)")
+    if ipo != "BASE":
+        err = err or (ipo if ipo != "TCP" else "it moves relative to an external TCP (IPO_FRAME #TCP): not supported")
+    T = None  # the program's TCP in the flange frame; None: the robot file's tool
+    if isinstance(tool, str):
+        err = err or tool
+    elif isinstance(tool, np.ndarray):
+        T = tool
+    elif tool != 0:
+        T = frames.get(("tool", tool))
+        if T is None and tool not in noted:
+            noted.add(tool)
+            notes.append(f"{line}: tool {tool} (TOOL_DATA[{tool}]) was not read: its TCP is taken to be the robot "
+                         "file's tool (give $config.dat with --context)")
+    if isinstance(L, np.ndarray):
+        W = L if W is None else W @ L
+    if isinstance(R, np.ndarray):  # moving TOOL to P · R = moving TOOL · inv(R) to P
+        T = (robot.tool if T is None else T) @ se3.invert(R)
+    D = None if T is None else se3.invert(robot.tool) @ T
+    label = (f"base {base if isinstance(base, int) else '(frame)'}, tool {tool if isinstance(tool, int) else '(frame)'}"
+             + (" in a geometric expression" if L is not None or R is not None else ""))
+    return W, D, err, label
