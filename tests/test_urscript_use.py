@@ -380,3 +380,31 @@ def test_get_inverse_kin_without_qnear_walks_from_the_current_joints():
     assert not res.failed and _diff_lines(prog, res.text) == {2, 6}
     got = _controller(m, res.text, [(0, TCP_A, None), (2, TCP_A, None)], q0)
     assert _err_mm(got, want).max() < 2e-3
+
+
+def test_cli_no_frame_hint_when_targets_fail_for_an_unknown_tcp(tmp_path, capsys):
+    """Targets that fail because the script's TCP cannot be read are not 'out of reach': the CLI's
+    '--frame base' hint (for most targets unreachable) stays silent; the reason is printed."""
+    import warnings
+
+    from cli_run import run
+    from comp_models import tiny_model_file
+
+    from hykin.hybrid.model import HybridModel
+
+    model = tiny_model_file()
+    m = HybridModel.load(model)
+    q = m.nominal.random_joints(3, 4, margin=0.3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        T = m.predict(q)
+    lines = ["def job():", "  set_tcp(get_tcp_offset())"]
+    for k in range(3):
+        rv = se3.matrix_to_rotvec(T[k, :3, :3])
+        lines.append("  movel(p[" + ", ".join(f"{v:.7f}" for v in (*T[k, :3, 3], *rv)) + "], a=1.2, v=0.25)")
+    prog = tmp_path / "job.script"
+    prog.write_text("\n".join(lines + ["end", ""]))
+    out = tmp_path / "out.script"
+    code, o, err = run(["compensate", model, prog, "-o", out, "--frame", "measurement", "--skip-unreachable"], capsys)
+    assert code == 0 and out.read_text() == prog.read_text()
+    assert "TCP unknown" in err and "hint:" not in err + o, err + o

@@ -168,7 +168,10 @@ def _summary(comp, out: Path, n: int) -> None:
         if far:
             line += f", {far} of them beyond the arm's reach"
     typer.echo(line)
-    if 2 * int((~ok).sum()) > n:  # most targets failed: the usual cause is the targets' frame
+    # most targets out of reach: the usual cause is the targets' frame (not when they failed for a frame,
+    # TCP or configuration the program does not define: their reasons say so)
+    solvable = [r for r in comp.reason[~ok] if str(r).startswith(("unreachable", "blocked"))]
+    if 2 * len(solvable) > n:
         from ..compensation.frames import other_frame
 
         other, name = other_frame(comp.frame)
