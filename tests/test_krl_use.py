@@ -311,3 +311,30 @@ def test_cli_src_without_own_targets_is_copied_unchanged(tmp_path, capsys):
     lone.write_bytes(src.read_bytes())
     code, _, err = run(["compensate", model, lone, "-o", tmp_path / "lone_out.src"], capsys)
     assert code != 0 and "no Cartesian targets found" in err and not (tmp_path / "lone_out.src").exists()
+
+
+def test_a_lin_without_status_keeps_the_configuration_the_robot_is_in():
+    """KSS ignores S/T on continuous-path motions: a LIN keeps the arm's status S. From a PTP with A5 just
+    below 0 (S bit 2 set) and A4/A6 80° off the target's, a LIN to a POS without S/T is reached on the
+    flipped wrist (A5 < 0), though the solution nearest in joint space has A5 > 0: hykin must solve that
+    branch (the nearest one would make the real robot land mm off). The stand-in controller here keeps S."""
+    m = exact("kuka-kr6-r900", 31)
+    nom = m.nominal
+    A_t = np.array([20.0, -80.0, 95.0, 30.0, 1.0, 40.0])  # the target's joints, A5 > 0
+    A_c = np.array([20.0, -80.0, 95.0, 110.0, -0.5, 120.0])  # where the PTP leaves the robot, A5 < 0
+    q_t, q_c = _q(nom, A_t), _q(nom, A_c)
+    want = fk(m.robot_, q_t[None])[0]  # the truth robot's TCP at the target joints
+    src = f"DEF t()\nPTP {{{_axes(nom, q_c)}}}\nLIN {{{_xyzabc(want)}}}\nEND\n"
+    res = compensate_program(m, src, krl, frame="measurement")
+    assert not res.failed and res.targets[0].config.get("keep_status")
+    pose, _ = _lit(res.text, 3)
+    sols = ik(nom, pose[None], all_branches=True)
+    S_c = kuka_status(nom, q_c[None])[0][0]
+    ok = sols.success[0] & (kuka_status(nom, np.nan_to_num(sols.q[0]))[0] == S_c)
+    d = np.where(ok, np.linalg.norm(np.nan_to_num(sols.q[0]) - q_c, axis=1), np.inf)
+    q_ctrl = sols.q[0][int(np.argmin(d))]  # the controller: same S, nearest
+    assert (q_ctrl[4] * default_axis_signs(nom)[4]) < 0  # the flipped wrist
+    assert _landed_mm(m, [q_ctrl], [np.eye(4)], [want])[0] < 2e-3
+    # the joint-space nearest solution (what the walk took before) is the other wrist
+    near = ik(nom, pose[None], all_branches=True).nearest_to(q_c, nom.lower, nom.upper).q[0]
+    assert kuka_status(nom, near[None])[0][0] != S_c

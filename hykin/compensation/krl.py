@@ -42,6 +42,7 @@ _COMP = re.compile(r"([A-Za-z_]\w*)\s+(" + NUMBER + r"|'[Bb][01]+')")
 _DECL = re.compile(r"(?:\bDECL\s+)?(?:\bGLOBAL\s+)?\b(E6POS|POS|FRAME|E6AXIS|AXIS)\s+([A-Za-z_$]\w*)\s*=\s*$", re.IGNORECASE)
 _ASSIGN = re.compile(r"([A-Za-z_$][\w.$\[\]]*)\s*=\s*$")
 _CART = ("X", "Y", "Z", "A", "B", "C")
+_CP_VERBS = {"LIN", "CIRC", "SLIN", "SCIRC", "SPL"}  # continuous-path motions (the robot keeps its S)
 
 
 def matrix_from_abc(a_deg, b_deg, c_deg) -> np.ndarray:
@@ -202,9 +203,12 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
             parts={"keys": keys, "spans": spans_k, "literal": text[m.start():m.end()], "A": a_deg,
                    "tokens": {k: comps[k][2] for k in keys}, "axis_signs": sgn},
         ))
-    uses, first = _uses(targets, points, text_is_src)
+    uses, first, verb = _uses(targets, points, text_is_src)
     jm = joint_moves(motions, axis_values(src_clean, others, robot.dof, sgn), robot.dof, sgn)
     set_execution_order(targets, first, len(src_clean), jm)
+    for k, v in verb.items():  # a continuous-path motion keeps the arm's configuration (S): KSS ignores S there
+        if v in _CP_VERBS and "S" not in targets[k].config:
+            targets[k].config["keep_status"] = True
     fr = frames_of_targets(src_clean, others, motions, spans, uses, targets, robot, types)
     return targets, notes + fr.apply(targets)
 
@@ -218,11 +222,11 @@ def _assigned(ks: list, targets: list, pos: int, text_is_src: bool) -> list:
     return [max(before, key=lambda k: targets[k].start)] if before else ks
 
 
-def _uses(targets: list, points: list, text_is_src: bool) -> tuple[list, dict]:
-    """``(uses, first)``: the motions using each target (``[(motion, target index, left operands,
-    right operands, why the point is unknown)]``) and where each is first executed ``{target index:
-    position in the .src}``: an inline target at its literal, a variable at the first motion to it at or
-    after its literal (the .src's own variables) or anywhere (a .dat's)."""
+def _uses(targets: list, points: list, text_is_src: bool) -> tuple[list, dict, dict]:
+    """``(uses, first, verb)``: the motions using each target (``[(motion, target index, left operands,
+    right operands, why the point is unknown)]``), where each is first executed ``{target index:
+    position in the .src}`` (an inline target at its literal, a variable at the first motion to it at or
+    after its literal (the .src's own variables) or anywhere (a .dat's)) and that motion's verb."""
     by_name: dict = {}
     for k, t in enumerate(targets):
         if t.name:
@@ -241,12 +245,12 @@ def _uses(targets: list, points: list, text_is_src: bool) -> tuple[list, dict]:
                 hits = _assigned(by_name.get(op.key, []), targets, mo.pos, text_is_src)
             for k in hits:
                 uses.append((mo, k, ops[:i], ops[i + 1:], why))
-                seen.setdefault(k, []).append(targets[k].start if op.what == "agg" else mo.pos + ai)
-    first = {}
+                seen.setdefault(k, []).append((targets[k].start if op.what == "agg" else mo.pos + ai, mo.verb))
+    first, verb = {}, {}
     for k, pos in seen.items():
-        after = [p for p in pos if text_is_src and p >= targets[k].start]
-        first[k] = min(after) if after else min(pos)
-    return uses, first
+        after = [p for p in pos if text_is_src and p[0] >= targets[k].start]
+        first[k], verb[k] = min(after) if after else min(pos)
+    return uses, first, verb
 
 
 def format_target(t: ProgramTarget, command: np.ndarray, q, robot, axis_signs=None) -> str:

@@ -50,7 +50,9 @@ class ProgramTarget:
     start, end: character span of the literal to replace. line: 1-based line number.
     pose: ``(4, 4)`` wanted TCP pose in the controller's base frame (m).
     name: variable name (``""`` for an inline literal). kind: e.g. ``"p[]"``, ``"E6POS"``, ``"robtarget"``.
-    config: configuration data read from the program (``{"S": 6, "T": 27}``, ``{"conf": [0, 0, 0, 1]}``).
+    config: configuration data read from the program (``{"S": 6, "T": 27}``, ``{"conf": [0, 0, 0, 1]}``);
+    ``{"keep_status": True}``: a KRL continuous-path target without ``S``, walked on the KUKA status the
+    previous joints have.
     tool_delta: ``(4, 4)`` program TCP relative to the nominal tool (URScript ``set_tcp``) or None.
     frame: ``(4, 4)`` the frame the literal is written in, in the controller's base frame (RAPID work
     objects: ``pose = frame · literal``), or None (the base frame).
@@ -218,13 +220,27 @@ def _branch_joints(model, targets: list, Tm: np.ndarray, T_cal: np.ndarray, axis
                 elif prev is not None and np.isfinite(qb[prev]).all():
                     cur = qb[prev]
                 pick = None
-                for rob, q, ok in sols:
-                    pick = nearest_candidate(rob, q[j], ok[j], cur) if ok[j].any() else None
+                for (rob, q, ok), signs in zip(sols, (axis_signs, signs_cal)):
+                    allowed = ok[j]
+                    if targets[k].config.get("keep_status") and allowed.any():
+                        allowed = _same_status(rob, q[j], allowed, cur, signs)
+                    pick = nearest_candidate(rob, q[j], allowed, cur) if allowed.any() else None
                     if pick is not None:
                         break
                 qb[k] = cur if pick is None else pick
             prev = k
     return qb, other_flag, _unmatched_reasons(model, targets, T_cal, ~np.isfinite(qb).all(1), axis_signs, signs_cal)
+
+
+def _same_status(rob, q: np.ndarray, ok: np.ndarray, cur: np.ndarray, signs) -> np.ndarray:
+    """``ok`` ``(K,)`` narrowed to the solutions ``q`` ``(K, n)`` with the KUKA status ``S`` of the
+    joints ``cur`` (a continuous-path motion keeps it); ``ok`` itself where none has it (the motion would
+    cross a singularity: the nearest solution stands)."""
+    from .branches import kuka_status
+
+    S = kuka_status(rob, np.vstack([cur[None], np.nan_to_num(q)]), signs)[0]
+    same = ok & (S[1:] == S[0])
+    return same if same.any() else ok
 
 
 def _unmatched_reasons(model, targets: list, T_cal: np.ndarray, rows: np.ndarray, axis_signs, signs_cal) -> np.ndarray:
