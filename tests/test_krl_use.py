@@ -4,7 +4,8 @@ Each program here is built from a deviated truth robot (``comp_models.exact``: t
 is the truth): the targets are where the truth robot's program TCP is at chosen joints. After
 compensation a stand-in KUKA controller executes the written program with the NOMINAL model, in
 execution order: ``PTP`` joint moves set the joints; a target with ``S``/``T`` takes the nominal solution
-with exactly those; one without the nominal solution nearest the joints the robot is at; each in the
+with exactly those; one without the nominal solution nearest the joints the robot is at (a LIN/CIRC
+step that the test marks "cp": nearest among those with the status S the robot is in); each in the
 base and with the tool the program selects there (``W · literal [· R] · inv(D)``). The truth robot at
 those joints must put the program's TCP on the wanted pose (2e-3 mm).
 """
@@ -54,7 +55,8 @@ def _status(nom, q) -> str:
 def _controller(m, steps) -> list:
     """Joints of a stand-in KUKA controller (nominal model) per ``("pose", flange (4, 4), config)`` step of
     ``steps`` (``("joint", q)`` steps move there): the solution with the config's S/T where it has them,
-    else the one nearest the joints the robot is at."""
+    else the one nearest the joints the robot is at; a ``"cp"`` step (LIN/CIRC without S) keeps the
+    status S the robot is in (nearest among those)."""
     nom = m.nominal
     cur, out = np.clip(np.zeros(nom.dof), nom.lower, nom.upper), []
     for kind, value, *cfg in steps:
@@ -63,6 +65,11 @@ def _controller(m, steps) -> list:
             continue
         if cfg and "S" in cfg[0]:
             cur = match_kuka_status(nom, value[None], [cfg[0]["S"]], [cfg[0]["T"]])[0]
+        elif kind == "cp":
+            sols = ik(nom, value[None], all_branches=True)
+            qz = np.nan_to_num(sols.q[0])
+            same = sols.success[0] & (kuka_status(nom, qz)[0] == kuka_status(nom, cur[None])[0][0])
+            cur = qz[int(np.argmin(np.where(same, np.linalg.norm(qz - cur, axis=1), np.inf)))]
         else:
             cur = ik(nom, value[None], all_branches=True).nearest_to(cur, nom.lower, nom.upper).q[0]
         out.append(cur)
@@ -132,8 +139,8 @@ def test_dat_points_without_status_are_walked_in_the_order_the_src_moves_to_them
 
 
 def test_src_variable_is_walked_where_it_is_moved_to():
-    """``DECL POS pC = {..}`` at the top of an expert .src, moved to at the end after a joint move and an
-    inline target: its branch is the one nearest the inline target's joints."""
+    """``DECL POS pC = {..}`` at the top of an expert .src, moved to at the end by a LIN after a joint
+    move and an inline target: its branch keeps the status of the joint move before it."""
     m = exact("kuka-kr6-r900", 9)
     nom = m.nominal
     qj = _q(nom, [10, -80, 95, 20, 40, -30])
@@ -151,7 +158,7 @@ def test_src_variable_is_walked_where_it_is_moved_to():
     res = compensate_program(m, src, krl, frame="measurement")
     assert not res.failed and [t.line for t in res.targets] == [2, 5]
     assert _diff(src, res.text) == {2, 5}
-    qs = _controller(m, [("joint", qj), ("pose", *_lit(res.text, 5)), ("joint", qa), ("pose", *_lit(res.text, 2))])
+    qs = _controller(m, [("joint", qj), ("cp", *_lit(res.text, 5)), ("joint", qa), ("cp", *_lit(res.text, 2))])
     err = _landed_mm(m, qs, [np.eye(4)] * 2, tcp)
     assert err.max() < 2e-3, err
     pc, inline = res.targets
