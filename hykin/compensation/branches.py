@@ -57,6 +57,7 @@ __all__ = [
     "match_kuka_status",
     "nearest_candidate",
     "sequential_nearest",
+    "walk_nearest",
 ]
 
 TWO_PI = 2.0 * np.pi
@@ -277,7 +278,14 @@ def sequential_nearest(robot: Robot, T_world, q_start=None, polish: bool = True)
 
     br = ik(robot, np.asarray(T_world, dtype=np.float64), all_branches=True, polish=polish)
     q = np.asarray(br.q, dtype=np.float64).reshape(len(br.q), -1, robot.dof)
-    ok = np.asarray(br.success, dtype=bool).reshape(len(q), -1)
+    return walk_nearest(robot, q, np.asarray(br.success, dtype=bool).reshape(len(q), -1), q_start)
+
+
+def walk_nearest(robot: Robot, q: np.ndarray, ok: np.ndarray, q_start=None) -> np.ndarray:
+    """Joints ``(N, n)``: each row's candidate of ``q`` ``(N, K, n)`` (valid where ``ok`` ``(N, K)``)
+    nearest the previous row's pick, over every 2π representation within the limits (the first nearest
+    ``q_start``, default zero clipped into the limits); NaN rows where none is valid (the walk continues
+    from the last pick)."""
     cur = np.clip(np.zeros(robot.dof), robot.lower, robot.upper) if q_start is None else np.asarray(q_start, float)
     out = np.full((len(q), robot.dof), np.nan)
     cand = Candidates(robot, q, ok)

@@ -54,6 +54,7 @@ __all__ = ["Compensator", "StepResult", "compensate", "model_tolerance"]
 _FLOOR_MM, _FLOOR_DEG = 1e-4, 1e-4
 _POLISH_M = 1e-9  # rows the first solve leaves above this (m, rad) are re-solved with the hybrid Jacobian
 _BLOCKED = "blocked by a joint limit"
+_POS_ONLY_SEEDS = 8  # numerical position-only IK starts per target for the walk's hints (no closed form)
 
 
 @dataclass
@@ -374,12 +375,17 @@ class Compensator:
         """Branch hints without ``q_branch`` (module docstring): nominal solutions nearest the previous
         target's; where the nominal robot has none, the calibrated robot's, else the previous joints."""
         from ..kinematics.ik import ik
-        from .branches import nearest_candidate, sequential_nearest
+        from .branches import nearest_candidate, sequential_nearest, walk_nearest
 
         nom, N, n = self.nominal, len(T), self.dof
         start = np.clip(np.zeros(n), nom.lower, nom.upper)
-        if pos_only:
-            return np.tile(start, (N, 1))
+        if pos_only:  # no closed form for positions: the calibrated robot's numerical solutions from a few
+            # fixed seeds (in its own world: a tracker-frame model's base is metres from the nominal one), walked
+            Tr = self._robot_world(self.model_targets(T, None))
+            seeds = np.vstack([start, nom.random_joints(_POS_ONLY_SEEDS - 1, 0, margin=0.1)])
+            sols = [ik(self.robot, Tr, q_seed=s, position_only=True) for s in seeds]
+            qb = walk_nearest(self.robot, np.stack([r.q for r in sols], 1), np.stack([r.success for r in sols], 1))
+            return np.where(np.isfinite(qb).all(1, keepdims=True), qb, start)
         T_nom = nom.base @ T if self.frame == "base" else T  # the target in the nominal robot's world
         if D is not None:
             T_nom = T_nom @ se3.invert(D)
