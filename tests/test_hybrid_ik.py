@@ -367,3 +367,29 @@ def test_every_branch_of_a_model_fitted_in_the_tracker_frame():
     assert np.array_equal(found, np.asarray(ref.n_solutions)), (found, ref.n_solutions)
     near = hybrid_ik(m, T, nearest=True, q_current=q + 0.01)
     assert np.abs(near.q - q).max() < 1e-7
+
+
+def test_nearest_returns_the_current_joints_branch_of_a_fitted_model():
+    """hybrid_ik(nearest=True, q_current=q) on targets the model reaches exactly at q returns q: the
+    current joints seed a solution of their own (a 7-DOF arm has no finite branches to choose from: 40
+    of 40 came back elsewhere), and a solution a few mrad beyond the sampled joints (fade weight ~1) is
+    not traded for an in-support branch radians away (UR10: 5 of 40, up to 4.1 rad)."""
+    import sys
+    import warnings
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from comp_models import tiny_model_file
+
+    from hykin.hybrid.model import HybridModel
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = HybridModel.load(tiny_model_file())
+        q = m.nominal.random_joints(40, 21, margin=0.15)
+        T = m.predict(q)
+        res = hybrid_ik(m, T, all_branches=True, q_current=q, nearest=True)
+        assert len(res) == 40 and res.success.all()
+        assert np.abs(res.q - q).max() < 1e-6
+        out = np.flatnonzero(m.support_distance(q) > 0)
+        assert out.size  # some of these joints lie just outside the sampled ones

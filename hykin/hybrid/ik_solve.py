@@ -195,6 +195,12 @@ def errors_of(prob: IKProblem, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return pe, ae
 
 
+# nearest=True prefers solutions whose network correction applies at least this much (fade weight) over
+# nearer ones beyond the training support: a support distance of a few mrad (a gap between training
+# samples, weight ~1) must not send the arm to another branch radians away
+_USABLE_FADE = 0.5
+
+
 def hybrid_ik_from_seeds(
     model,
     T_target,
@@ -227,7 +233,8 @@ def hybrid_ik_from_seeds(
     Rows per target: its distinct successful solutions; a target with none gets one failed row (its
     best attempt and the reason; NaN joints when no seed existed). ``keep_failed=True`` keeps every
     failed branch as well. ``nearest=True`` with ``q_current`` ``(N, dof)`` keeps one solution per
-    target: inside the training support if any, then nearest in joint space (Euclidean).
+    target: inside the training support (or where the network correction still applies at least half:
+    fade weight >= 0.5) if any, then nearest in joint space (Euclidean).
     """
     robot = check_model(model)
     T, pos_only_in = parse_targets(T_target)
@@ -374,6 +381,9 @@ def hybrid_ik_from_seeds(
     if nearest:
         dj = np.linalg.norm(qm - qc[:, None], axis=2)
         ins_m = ins.reshape(N, B)
+        fw = getattr(model, "fade_weight", None)
+        if fw is not None:  # just outside the sampled joints the correction still applies: no branch change
+            ins_m = ins_m | (np.asarray(fw(np.nan_to_num(q)), dtype=np.float64).reshape(N, B) >= _USABLE_FADE)
         score = np.where(okm & ~dup, dj + np.where(ins_m, 0.0, 1e6), np.inf)
         pick = np.argmin(score, axis=1)
         sel = np.zeros((N, B), dtype=bool)
