@@ -74,7 +74,57 @@ def _loads(raw):
 
 
 def _first_line(e: Exception) -> str:
-    return str(e).splitlines()[0] if str(e) else type(e).__name__
+    return _text(str(e).splitlines()[0] if str(e) else type(e).__name__)
+
+
+def _text(s: str) -> str:
+    """``s`` writable as UTF-8 JSON: a lone surrogate (``"\\ud800"`` in a request) becomes its escape
+    text ``\\ud800``; any other text is unchanged."""
+    try:
+        s.encode("utf-8")
+        return s
+    except UnicodeEncodeError:
+        return s.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
+_ORJSON_INTS = (-(2**63), 2**64 - 1)  # the integers orjson reads and writes exactly
+
+
+def _has_float(v) -> bool:
+    """Whether the JSON value ``v`` holds a float anywhere (no recursion: ids may nest 1024 deep)."""
+    todo = [v]
+    while todo:
+        x = todo.pop()
+        if type(x) is float:
+            return True
+        if type(x) is list:
+            todo.extend(x)
+        elif type(x) is dict:
+            todo.extend(x.values())
+    return False
+
+
+def _echo_id(i, raw):
+    """The ``id`` of a stream message as the reply echoes it: the value itself, or its exact JSON text
+    (``orjson.Fragment``) where orjson cannot write it (an integer beyond 64 bits, which orjson also reads
+    as a float: the message is then read again with the standard library). RequestError when the id
+    cannot be written as JSON at all (a lone surrogate in a string, nesting past the writers' depth)."""
+    t = type(i)
+    if (t is str and i.isascii()) or i is None or t is bool or (t is int and _ORJSON_INTS[0] <= i <= _ORJSON_INTS[1]):
+        return i
+    try:
+        if _has_float(i):  # an integer over 64 bits reads as a float in orjson: take the exact value
+            i = json.loads(raw)["id"]
+        try:
+            _dumps([i])  # as deep as in the reply object
+            return i
+        except orjson.JSONEncodeError as e:
+            if not hasattr(orjson, "Fragment"):
+                raise ValueError(_first_line(e)) from None
+            return orjson.Fragment(json.dumps(i, ensure_ascii=False, allow_nan=False).encode("utf-8"))
+    except (ValueError, TypeError, UnicodeError, RecursionError, KeyError) as e:
+        raise RequestError(f"the message's 'id' cannot be echoed ({_first_line(e)}): use an id writable as JSON "
+                           f"(no lone surrogate \\ud800-\\udfff); this reply has no 'id' and the target was not computed") from None
 
 
 def create_app(model, limits: ServiceLimits | None = None, identity: dict | None = None):
@@ -109,7 +159,7 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
         counts[f"refused_{kind}"] += 1
         if limits.refusal_delay_s:
             await asyncio.sleep(limits.refusal_delay_s)
-        return Response(_dumps({"detail": detail}), status_code=status, media_type="application/json", headers=headers)
+        return Response(_dumps({"detail": _text(detail)}), status_code=status, media_type="application/json", headers=headers)
 
     def _parse(raw: bytes, parse):
         return parse(_loads(raw))
@@ -184,7 +234,7 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
                     raw = msg.get("text") if msg.get("text") is not None else msg.get("bytes")
                     body = _loads(raw)
                     if isinstance(body, dict) and "id" in body:
-                        reply["id"] = body["id"]
+                        reply["id"] = _echo_id(body["id"], raw)
                     T, q_prev = h.parse_step(body, q_last)
                     out = await worker.run(STREAM, h.step, T, q_prev, frame)
                     reply.update(out)
@@ -192,14 +242,19 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
                         q_last = np.asarray(out["q"], dtype=np.float64)
                     counts["answered_stream"] += 1
                 except RequestError as e:
-                    reply["error"] = str(e)
+                    reply["error"] = _text(str(e))
                 except QueueFull as e:
                     reply["error"] = str(e)
                 except (ValueError, TypeError, UnicodeDecodeError, RecursionError) as e:
                     reply["error"] = f"malformed message: {_first_line(e)}"
                 if "error" in reply:
                     counts["refused_stream_message"] += 1
-                await ws.send_text(_dumps(reply).decode())
+                try:
+                    text = _dumps(reply).decode()
+                except (TypeError, ValueError) as e:  # never expected: still one reply and the stream open
+                    counts["refused_stream_message"] += "error" not in reply
+                    text = _dumps({"seq": seq, "error": f"the reply cannot be written: {_first_line(e)}"}).decode()
+                await ws.send_text(text)
         except WebSocketDisconnect:
             pass
 

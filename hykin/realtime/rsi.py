@@ -3,13 +3,15 @@
 Per message (:mod:`.rsi_xml`): the setpoint ``RSol`` (controller base frame) is compensated on the
 branch of the axis positions ``AIPos`` (:meth:`hykin.compensation.compensator.Compensator.step`,
 warm-started from them); the answer ``RKorr`` is the command minus the setpoint, componentwise
-(X Y Z mm; A B C deg, each difference wrapped to ±180°): a controller that adds it to the setpoint
+(X Y Z mm; A B C deg, each difference wrapped to ±180°, of the command's two A B C solutions the
+one nearer the setpoint's, see :func:`korr_of`): a controller that adds it to the setpoint
 and runs its nominal model moves the real robot (per the model) onto the setpoint. Absolute mode
 sends that correction; incremental mode sends its change since the last answer (RSI adds it up).
 
 * A message that cannot be parsed, or whose ``IPOC`` is not after the last answered one (a repeat,
   an old or foreign message), is not answered.
-* A setpoint that cannot be compensated (no solution, a correction over the limits, any internal
+* A setpoint that cannot be compensated (no solution, a correction over the limits: the position
+  shift in mm and the rotation angle between setpoint and command in degrees, any internal
   error) is answered with a zero correction and its ``IPOC``: the robot goes on uncorrected (absolute
   mode: at the setpoint; incremental: keeping the corrections so far). After ``max_failures`` in a
   row :func:`hykin.realtime.udp_bridge.run_bridge` stops answering and RSI's timeout stops the robot.
@@ -36,13 +38,28 @@ def pose_of(xyzabc) -> np.ndarray:
     return se3.make_transform(matrix_from_abc(v[3], v[4], v[5]), v[:3] * 1e-3)
 
 
+def _wrap(d):
+    """Angles (deg) wrapped to ``[-180, 180)``."""
+    return (np.asarray(d, dtype=np.float64) + 180.0) % 360.0 - 180.0
+
+
 def korr_of(command: np.ndarray, setpoint) -> np.ndarray:
     """``(6,)`` componentwise correction (mm, deg) from ``setpoint`` (X..C) to the pose ``command``
-    ``(4, 4)`` (m): ``setpoint + korr`` (angles modulo 360°) describes ``command``."""
+    ``(4, 4)`` (m): ``setpoint + korr`` (angles modulo 360°) describes ``command``.
+
+    Of the command's two ``A B C`` solutions, ``(A, B, C)`` (``|B| <= 90``) and ``(A+180, 180-B,
+    C+180)``, the one nearer the setpoint's (least sum of squared wrapped differences) is used: the
+    same as the first wherever ``B`` is away from ±90°, and across ``B = ±90°`` the one that does not
+    flip ``A`` and ``C`` by 180°. Near ``B = ±90°`` (gimbal lock) a small rotation may still need large
+    ``dA``, ``dC`` (with ``A ∓ C`` nearly kept): the limits of :class:`RsiHandler` are therefore on the
+    real rotation angle, not on these components."""
     sp = np.asarray(setpoint, dtype=np.float64)
-    abc = np.array(abc_from_matrix(command[:3, :3], sp[3]))
-    d = abc - sp[3:]
-    return np.concatenate([command[:3, 3] * 1e3 - sp[:3], (d + 180.0) % 360.0 - 180.0])
+    a, b, c = abc_from_matrix(command[:3, :3], sp[3])
+    d = _wrap(np.array([a, b, c]) - sp[3:])
+    d2 = _wrap(np.array([a + 180.0, 180.0 - b, c + 180.0]) - sp[3:])
+    if float(np.sum(d2 * d2)) < float(np.sum(d * d)):
+        d = d2
+    return np.concatenate([command[:3, 3] * 1e3 - sp[:3], d])
 
 
 class RsiHandler:
@@ -73,8 +90,11 @@ class RsiHandler:
         if not r.success:
             raise ValueError(f"not compensated: {r.reason}")
         k = korr_of(r.command, setpoint)
-        if np.linalg.norm(k[:3]) > self.max_mm or np.abs(k[3:]).max() > self.max_deg:
-            raise ValueError(f"correction {np.linalg.norm(k[:3]):.2f} mm / {np.abs(k[3:]).max():.3f} deg over the limit "
+        # the limits are on the real shift and rotation (as ``hykin egm``): near B = ±90° a tiny rotation
+        # has large componentwise dA, dC
+        dp, da = se3.pose_error(np.asarray(r.command, dtype=np.float64)[None], pose_of(setpoint)[None])
+        if not (np.isfinite(k).all() and dp[0] <= self.max_mm and da[0] <= self.max_deg):
+            raise ValueError(f"correction {dp[0]:.2f} mm / {da[0]:.3f} deg over the limit "
                              f"({self.max_mm:g} mm, {self.max_deg:g} deg)")
         return k
 
@@ -97,7 +117,12 @@ class RsiHandler:
             self.last_reason = f"{type(e).__name__}: {e}"
             k, kind = None, "failure"
         if self.cfg.mode == "incremental":  # the sum as the controller adds it: of the values as written
-            send = np.zeros(6) if k is None else np.round(k - self.sent_sum, DECIMALS)
+            if k is None:
+                send = np.zeros(6)
+            else:  # angle increments modulo 360° (the controller's sum describes the same pose)
+                inc = k - self.sent_sum
+                inc[3:] = np.where(np.abs(inc[3:]) > 180.0, _wrap(inc[3:]), inc[3:])
+                send = np.round(inc, DECIMALS)
             self.sent_sum = self.sent_sum + send
         else:
             send = np.zeros(6) if k is None else k
