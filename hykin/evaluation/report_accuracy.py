@@ -14,8 +14,101 @@ import numpy as np
 from .report import mm
 from .report_figures import joint_bins
 
-__all__ = ["Hotspot", "axis_rows", "iso_rows", "joint_hotspot", "per_payload_rows", "per_temperature_rows",
-           "reach_hotspot", "support_rows"]
+__all__ = ["FEW_FIT_POSES", "BaseFrame", "Hotspot", "axis_rows", "base_frame", "distinct_poses", "display_name",
+           "iso_rows", "joint_hotspot", "measured_in_model_frame", "nominal_words", "per_payload_rows",
+           "per_temperature_rows", "reach_hotspot", "support_rows"]
+
+#: a nominal row whose base and tool were fitted to fewer distinct test poses than this is not a
+#: meaningful reference (the rigid fit of 12 frame parameters absorbs much of the nominal error)
+FEW_FIT_POSES = 20
+
+
+@dataclass
+class BaseFrame:
+    """The robot's base frame in the measurement frame: ``T`` ``(4, 4)`` maps base-frame coordinates to
+    the frame the model predicts in (the test data's frame, a station model's reference station).
+    ``words``: what it is, for the report ("the calibrated robot base", ...); ``is_base``: False when no
+    base is known and the figures stay in the measurement frame."""
+
+    T: np.ndarray
+    words: str
+    is_base: bool = True
+
+    @property
+    def name(self) -> str:
+        """The frame's name for a caption: "base frame" or "measurement frame"."""
+        return "base frame" if self.is_base else "measurement frame"
+
+    def points(self, xyz_m: np.ndarray) -> np.ndarray:
+        """Positions ``(N, 3)`` (m) in the measurement frame -> the base frame."""
+        xyz = np.asarray(xyz_m, float)
+        return (xyz - self.T[:3, 3]) @ self.T[:3, :3]
+
+    def vectors(self, v: np.ndarray | None) -> np.ndarray | None:
+        """Free vectors ``(N, 3)`` (position errors, rotation vectors) -> base-frame components."""
+        return None if v is None else np.asarray(v, float) @ self.T[:3, :3]
+
+    def poses(self, T: np.ndarray) -> np.ndarray:
+        """Poses ``(N, 4, 4)`` in the measurement frame -> the base frame."""
+        from ..geometry import se3
+
+        return se3.invert(self.T) @ np.asarray(T, float)
+
+
+def measured_in_model_frame(model, data):
+    """``data`` in the frame ``model`` predicts in (a station / tool model's reference station and
+    tool, :func:`hykin.hybrid.stations.in_model_frame`); ``data`` itself otherwise."""
+    if data is None or getattr(model, "station_frames_", None) is None:
+        return data
+    from ..hybrid.stations import in_model_frame
+
+    return in_model_frame(model, data)
+
+
+def base_frame(model, data=None, labels: dict | None = None) -> BaseFrame:
+    """The base frame the report's base-frame figures use. A fitted model (``robot_``): its calibrated
+    robot base, behind its registration frame (``frame_pre_ · robot_.base``). A :class:`Robot`: its
+    file's base, or, when the evaluation fitted the nominal row's frames to ``data`` (``labels``
+    ``"nominal"`` is :data:`hykin.evaluation.evaluate.NOMINAL_FITTED`), that fitted base. Otherwise
+    the identity (figures stay in the measurement frame)."""
+    from .evaluate import NOMINAL_FITTED
+
+    rob = getattr(model, "robot_", None)
+    if rob is not None:
+        pre = np.asarray(getattr(model, "frame_pre_", np.eye(4)), float)
+        reg = not np.array_equal(pre, np.eye(4))
+        return BaseFrame(pre @ np.asarray(rob.base, float),
+                         "the calibrated robot base" + (" (through the model's registration frame)" if reg else ""))
+    base = getattr(model, "base", None)
+    if base is None:
+        return BaseFrame(np.eye(4), "the measurement frame (no robot base known)", False)
+    if (labels or {}).get("nominal") == NOMINAL_FITTED and data is not None and len(data) >= 4:
+        from ..calibration.frames import fit_frames
+        from ..kinematics.classical import classical_fk
+
+        B, _ = fit_frames(classical_fk(model, data.q), data.poses(), position_only=not data.has_orientation)
+        return BaseFrame(B @ np.asarray(base, float), "the robot base fitted to these poses")
+    return BaseFrame(np.asarray(base, float), "the robot file's base")
+
+
+def distinct_poses(q: np.ndarray, tol: float = 1e-6) -> int:
+    """The number of distinct joint configurations among the rows of ``q`` (rounded to ``tol``)."""
+    q = np.asarray(q, float)
+    return int(len(np.unique(np.round(q / tol), axis=0))) if len(q) else 0
+
+
+def display_name(res, key: str) -> str:
+    """A row's name for a reader: the evaluation's label (e.g. "nominal + fitted frames"), else its key."""
+    return (getattr(res, "labels", None) or {}).get(key, key)
+
+
+def nominal_words(res) -> str:
+    """What the nominal row is, in words."""
+    from .evaluate import NOMINAL_FITTED
+
+    if display_name(res, "nominal") == NOMINAL_FITTED:
+        return "nominal kinematics with base and tool fitted to these poses"
+    return "nominal kinematics (the robot file's base and tool)"
 
 AXIS_HEADER = ["model", "quantity", "mean", "std", "p95 of |·|", "max of |·|", "unit"]
 
@@ -25,12 +118,17 @@ def _stat_row(name: str, what: str, v: np.ndarray, unit: str, signed: bool) -> l
     return [name, what, float(v.mean() if signed else a.mean()), float(v.std()), float(np.percentile(a, 95)), float(a.max()), unit]
 
 
-def axis_rows(vectors: dict) -> list[list]:
-    """Rows of :data:`AXIS_HEADER` per model (``vectors``: name -> ``(dp_mm (N, 3), dr_deg (N, 3) or None)``):
-    position |e| and its x, y, z components, then orientation |e| and rx, ry, rz. For a component the
-    mean is signed (a bias), the std its spread; for |e| the mean is of the norm."""
+def axis_rows(vectors: dict, frame: BaseFrame | None = None, labels: dict | None = None) -> list[list]:
+    """Rows of :data:`AXIS_HEADER` per model (``vectors``: name -> ``(dp_mm (N, 3), dr_deg (N, 3) or None)``,
+    in the measurement frame): position |e| and its x, y, z components, then orientation |e| and rx, ry,
+    rz. ``frame``: the components are taken along its axes (the robot's base frame; default the
+    measurement frame's). ``labels``: name -> the name shown. For a component the mean is signed (a
+    bias), the std its spread; for |e| the mean is of the norm."""
     rows = []
-    for name, (dp, dr) in vectors.items():
+    for key, (dp, dr) in vectors.items():
+        name = (labels or {}).get(key, key)
+        if frame is not None:
+            dp, dr = frame.vectors(dp), frame.vectors(dr)
         rows.append(_stat_row(name, "position |e|", np.linalg.norm(dp, axis=1), "mm", False))
         rows += [_stat_row(name, f"  {ax}", dp[:, k], "mm", True) for k, ax in enumerate("xyz")]
         if dr is not None:
@@ -81,16 +179,21 @@ def joint_hotspot(q: np.ndarray, err_mm: np.ndarray, revolute, n_bins: int = 6, 
     return best
 
 
-def reach_hotspot(xyz_m: np.ndarray, err_mm: np.ndarray, n_bins: int = 6) -> Hotspot | None:
-    """The bin of horizontal reach ``sqrt(x² + y²)`` (m, base frame) with the highest mean error."""
+def reach_hotspot(xyz_m: np.ndarray, err_mm: np.ndarray, n_bins: int = 6, frame: BaseFrame | None = None) -> Hotspot | None:
+    """The bin of horizontal reach ``sqrt(x² + y²)`` (m) with the highest mean error. ``xyz_m``: positions
+    in the robot's base frame, or, with ``frame``, in the measurement frame (mapped into ``frame``).
+    Reach from the measurement frame's origin means nothing: callers pass base-frame positions."""
+    xyz_m = np.asarray(xyz_m, float) if frame is None else frame.points(xyz_m)
     r = np.hypot(xyz_m[:, 0], xyz_m[:, 1])
     return _hot(r, err_mm, "horizontal reach", "m", n_bins, 0.05)
 
 
-def iso_rows(data, predicted: dict) -> tuple[list[list], str]:
+def iso_rows(data, predicted: dict, frame: BaseFrame | None = None, labels: dict | None = None) -> tuple[list[list], str]:
     """ISO 9283 AP per model and RP, when ``data`` carries a ``pose_id`` (or ``pose``) column: the poses
     whose id occurs at least twice (blank / NaN ids: ordinary test poses) must share their joints. Returns ``(rows, note)``; no rows and the reason otherwise.
-    Commanded pose: each model's prediction at the pose's joints; attained: the measurement."""
+    Commanded pose: each model's prediction at the pose's joints; attained: the measurement (both in
+    the frame the model predicts in). ``frame``: AP_x/y/z and AP_a/b/c along its axes (the robot's base
+    frame; default the measurement frame's). ``labels``: name -> the name shown."""
     from .iso9283 import ISOError, iso9283_pose
 
     extra = getattr(data, "extra", None) or {}
@@ -105,10 +208,13 @@ def iso_rows(data, predicted: dict) -> tuple[list[list], str]:
     if not sel.any():
         return [], "not computed: no pose_id in the test data occurs more than once (ISO 9283 needs repeated cycles)."
     T_meas = data.poses()[sel]
+    to = (lambda T: T) if frame is None else frame.poses
+    T_meas = to(T_meas)
     rows = []
     try:
-        for name, T in predicted.items():
-            r = iso9283_pose(T[sel], T_meas, ids[sel], tol_m=1e-9, tol_rad=1e-9)
+        for key, T in predicted.items():
+            name = (labels or {}).get(key, key)
+            r = iso9283_pose(to(np.asarray(T)[sel]), T_meas, ids[sel], tol_m=1e-9, tol_rad=1e-9)
             for i, pid in enumerate(r.pose_ids):
                 pid = int(pid) if isinstance(pid, float) and pid.is_integer() else pid
                 ang = [None] * 3 if not data.has_orientation else list(map(float, r.ap_abc_deg[i]))  # position-only data
@@ -116,8 +222,9 @@ def iso_rows(data, predicted: dict) -> tuple[list[list], str]:
                              *ang, float(r.rp_mm[i])])
     except ISOError as e:
         return [], f"not computed: {e}"
+    ax = "base" if frame is None or frame.is_base else "measurement-frame"
     return rows, ("AP: distance of the mean attained position from the commanded one (the model's prediction); "
-                  "AP_a/b/c: mean angle deviations about base x/y/z; RP: ISO 9283 position repeatability "
+                  f"AP_x/y/z: its components along {ax} x/y/z; AP_a/b/c: mean angle deviations about {ax} x/y/z; RP: ISO 9283 position repeatability "
                   "l̄ + 3 S_l (a property of the robot, the same for every model).")
 
 
@@ -150,20 +257,20 @@ def support_rows(model, q: np.ndarray, revolute) -> tuple[list[list], int]:
 SUPPORT_HEADER = ["joint", "unit", "trained from", "trained to", "test range", "test rows outside"]
 
 
-def per_payload_rows(per_payload: dict | None) -> list[list]:
+def per_payload_rows(per_payload: dict | None, labels: dict | None = None) -> list[list]:
     """Rows (payload kg, model, n, position mean / p95 mm, orientation mean deg) of
-    :func:`hykin.io.payload.errors_per_payload`."""
+    :func:`hykin.io.payload.errors_per_payload`; ``labels``: name -> the name shown."""
     rows = []
     for kg, row in (per_payload or {}).items():
         for name, d in row.items():
-            rows.append([f"{kg:g}", name, d["n"], d["pos_mean_mm"], d["pos_p95_mm"], d.get("rot_mean_deg")])
+            rows.append([f"{kg:g}", (labels or {}).get(name, name), d["n"], d["pos_mean_mm"], d["pos_p95_mm"], d.get("rot_mean_deg")])
     return rows
 
 
 PAYLOAD_HEADER = ["payload [kg]", "model", "n", "position mean [mm]", "position p95 [mm]", "orientation mean [deg]"]
 
 
-def per_temperature_rows(temp_c, errors: dict, n_bins: int = 4) -> list[list]:
+def per_temperature_rows(temp_c, errors: dict, n_bins: int = 4, labels: dict | None = None) -> list[list]:
     """Rows (temperature range °C, model, n, position mean / p95 mm, orientation mean deg) over
     ``n_bins`` equal-count temperature bins; empty when the temperature does not vary."""
     if temp_c is None:
@@ -180,7 +287,7 @@ def per_temperature_rows(temp_c, errors: dict, n_bins: int = 4) -> list[list]:
         if not sel.any():
             continue
         for name, (p, a) in errors.items():
-            rows.append([f"{edges[b]:.{dec}f} … {edges[b + 1]:.{dec}f}", name, int(sel.sum()), float(p[sel].mean()),
+            rows.append([f"{edges[b]:.{dec}f} … {edges[b + 1]:.{dec}f}", (labels or {}).get(name, name), int(sel.sum()), float(p[sel].mean()),
                          float(np.percentile(p[sel], 95)), None if a is None else float(a[sel].mean())])
     return rows
 

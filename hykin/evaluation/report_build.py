@@ -30,7 +30,7 @@ from .report_figures import (
 )
 from .report_ik import HEADER as IK_HEADER
 from .report_ik import time_hybrid_ik
-from .report_summary import accuracy_sentences, final_model, metadata_sentences
+from .report_summary import accuracy_sentences, final_model, metadata_sentences, nominal_meaningless
 
 __all__ = ["build_report", "evaluation_report", "write_report"]
 
@@ -63,7 +63,8 @@ def build_report(model, test=None, *, model_path=None, test_path=None, title: st
     cal = _calibration(model)
     cal_rows = calibration_rows(cal, robot, getattr(model, "robot_", None)) if cal else []
 
-    summary = accuracy_sentences(res, test, rev, model) if res is not None else metadata_sentences(model)
+    frame = acc.base_frame(model, acc.measured_in_model_frame(model, test), res.labels) if res is not None else None
+    summary = accuracy_sentences(res, test, rev, model, frame) if res is not None else metadata_sentences(model)
     if cal:
         summary += calibration_summary(cal, cal_rows)[:2]
     meta = getattr(model, "metadata", None) or {}
@@ -81,7 +82,7 @@ def build_report(model, test=None, *, model_path=None, test_path=None, title: st
         rep.table(DATA_HEADER, drows, "Data", text_cols=2)
 
     if res is not None:
-        _accuracy_sections(rep, model, test, res, rev)
+        _accuracy_sections(rep, model, test, res, rev, frame)
     if cal:
         _calibration_section(rep, cal, cal_rows)
     if ik_targets and hasattr(model, "predict_classical"):
@@ -89,23 +90,35 @@ def build_report(model, test=None, *, model_path=None, test_path=None, title: st
     return rep, res
 
 
-def _accuracy_sections(rep: Report, model, test, res, rev) -> None:
+def _accuracy_sections(rep: Report, model, test, res, rev, frame: acc.BaseFrame | None = None) -> None:
     names = list(res.vectors)
+    labels = {k: acc.display_name(res, k) for k in names}
+    tm = acc.measured_in_model_frame(model, test)  # the rows in the frame the model predicts in
+    if frame is None:
+        frame = acc.base_frame(model, tm, res.labels)
+    nom = labels.get("nominal", "nominal")
     rep.heading("Accuracy on the test data")
-    rep.note("nominal: the robot's nominal kinematics; calibrated: the calibrated classical model; hybrid: calibrated "
-             "model plus the learned residual networks. Errors are predicted minus measured. For |e| the mean is of "
-             "the error's length; for a component (x, y, z in the base frame; rx, ry, rz rotations about them) the "
+    axes = ("x, y, z in the robot's base frame (" + frame.words + ")" if frame.is_base
+            else "x, y, z in the measurement frame: no robot base is known")
+    rep.note(f"{nom}: the robot's {acc.nominal_words(res)}; calibrated: the calibrated classical model; hybrid: calibrated "
+             "model plus the learned residual networks. Errors are predicted minus measured. For |e| the mean is of the "
+             f"error's length; for a component ({axes}; rx, ry, rz rotations about them) the "
              "mean is signed (a bias) and the std its spread.")
-    rep.table(acc.AXIS_HEADER, acc.axis_rows(res.vectors), text_cols=2)
+    few = nominal_meaningless(res, test)
+    if few is not None:
+        rep.note(f"The {nom} row is not meaningful here: its base and tool were fitted to only {few} distinct test poses, "
+                 "a fit that absorbs much of the nominal model's error.")
+    rep.table(acc.AXIS_HEADER, acc.axis_rows(res.vectors, frame, labels), text_cols=2)
     last = final_model(res)
-    rep.figure(distributions_figure({k: res.errors[k] for k in names}),
-               f"Error distributions on the test data, {', '.join(names)} (log scale).")
+    rep.figure(distributions_figure({labels[k]: res.errors[k] for k in names}),
+               f"Error distributions on the test data, {', '.join(labels[k] for k in names)} (log scale).")
 
     rep.heading("Where the error is")
-    rep.figure(joint_error_figure(test.q, {k: res.errors[k][0] for k in names}, rev),
+    rep.figure(joint_error_figure(test.q, {labels[k]: res.errors[k][0] for k in names}, rev),
                f"Position error against each joint: lines are mean errors per joint bin, dots the {last} model's test poses.")
-    rep.figure(spatial_error_figure(test.xyz_m, res.errors[last][0], last),
-               f"Test positions (base frame) seen from above (x–y) and from the sides, coloured by the {last} model's position error.")
+    rep.figure(spatial_error_figure(frame.points(tm.xyz_m), res.errors[last][0], last),
+               f"Test positions ({frame.name}{', ' + frame.words if frame.is_base else ''}) seen from above (x–y) "
+               f"and from the sides, coloured by the {last} model's position error.")
     if res.regions:
         rep.note("Per joint quartile (registered model; mean mm): nominal + rigid fit is the nominal robot with base and "
                  "tool fitted to all of these poses.")
@@ -113,7 +126,7 @@ def _accuracy_sections(rep: Report, model, test, res, rev) -> None:
         rep.table(["region", "n", *keys], [[r["region"], r["n"], *(r[k][0] for k in keys)] for r in res.regions])
 
     rep.heading("ISO 9283 pose accuracy and repeatability")
-    rows, note = acc.iso_rows(test, res.predicted)
+    rows, note = acc.iso_rows(tm, res.predicted, frame, labels)
     if rows:
         rep.table(acc.ISO_HEADER, rows, text_cols=2)
     rep.note(note)
@@ -124,10 +137,10 @@ def _accuracy_sections(rep: Report, model, test, res, rev) -> None:
         rep.table(acc.SUPPORT_HEADER, srows, text_cols=2)
         rep.note(f"{n_out} of {res.n} test poses lie outside the training support (outside a joint's trained range, or "
                  "in a gap between training poses); the network correction fades to the calibrated model there.")
-    prow = acc.per_payload_rows(res.per_payload)
+    prow = acc.per_payload_rows(res.per_payload, labels)
     from ..calibration.thermal import temperature_of
 
-    trow = acc.per_temperature_rows(temperature_of(test), res.errors)
+    trow = acc.per_temperature_rows(temperature_of(test), res.errors, labels=labels)
     if prow or trow:
         rep.heading("Per payload and temperature")
         if prow:

@@ -8,9 +8,18 @@ from __future__ import annotations
 import numpy as np
 
 from .report import deg, mm
-from .report_accuracy import joint_hotspot, reach_hotspot
+from .report_accuracy import (
+    FEW_FIT_POSES,
+    base_frame,
+    display_name,
+    distinct_poses,
+    joint_hotspot,
+    measured_in_model_frame,
+    nominal_words,
+    reach_hotspot,
+)
 
-__all__ = ["accuracy_sentences", "final_model", "metadata_sentences"]
+__all__ = ["accuracy_sentences", "final_model", "metadata_sentences", "nominal_meaningless"]
 
 
 def final_model(res) -> str:
@@ -26,9 +35,22 @@ def _pct(a: float, b: float) -> str:
     return f"{r:.1f} %" if r < 99.9 else f"{r:.4g} %"
 
 
-def accuracy_sentences(res, data, revolute, model=None) -> list[str]:
+def nominal_meaningless(res, data) -> int | None:
+    """The number of distinct test poses when the nominal row's base and tool were fitted to fewer than
+    :data:`FEW_FIT_POSES` of them (its error then says little about the nominal model); else None."""
+    from .evaluate import NOMINAL_FITTED
+
+    if display_name(res, "nominal") != NOMINAL_FITTED or data is None:
+        return None
+    n = distinct_poses(data.q)
+    return n if n < FEW_FIT_POSES else None
+
+
+def accuracy_sentences(res, data, revolute, model=None, frame=None) -> list[str]:
     """Sentences on the test data: accuracy of the final model, share of the nominal error removed
-    (and by the calibration alone), where the largest errors remain, poses outside the training data."""
+    (and by the calibration alone), where the largest errors remain, poses outside the training data.
+    ``frame``: the :class:`~.report_accuracy.BaseFrame` reach is measured in (default that of ``model``);
+    the nominal row is named as the evaluation labels it (nominal + fitted frames for tracker-frame data)."""
     name = final_model(res)
     s = res.stats[name]
     out = []
@@ -38,8 +60,16 @@ def accuracy_sentences(res, data, revolute, model=None) -> list[str]:
         line += f" and {deg(s.ang_mean_deg)} in orientation (95 % within {deg(s.ang_p95_deg)})"
     out.append(line + ".")
     nom = res.stats.get("nominal")
-    if nom is not None and name != "nominal":
-        line = (f"It removes {_pct(s.pos_mean_mm, nom.pos_mean_mm)} of the nominal model's mean position error "
+    few = nominal_meaningless(res, data) if nom is not None else None
+    nom_label = display_name(res, "nominal")
+    if few is not None and name != "nominal":
+        out.append(f"The {nom_label} row ({nominal_words(res)}) rests on only {few} distinct test poses: a rigid fit "
+                   f"of base and tool to so few poses absorbs much of the nominal model's error, so its figure "
+                   f"({mm(nom.pos_mean_mm)}) is not meaningful and no share of the nominal error removed is given.")
+    elif nom is not None and name != "nominal":
+        what = ("the nominal model's mean position error" if nom_label == "nominal" else
+                f"the mean position error of the {nom_label} row, the robot's {nominal_words(res)}")
+        line = (f"It removes {_pct(s.pos_mean_mm, nom.pos_mean_mm)} of {what} "
                 f"({mm(nom.pos_mean_mm)} → {mm(s.pos_mean_mm)})")
         if nom.ang_mean_deg is not None and s.ang_mean_deg is not None:
             line += f" and {_pct(s.ang_mean_deg, nom.ang_mean_deg)} of its orientation error ({deg(nom.ang_mean_deg)} → {deg(s.ang_mean_deg)})"
@@ -49,7 +79,12 @@ def accuracy_sentences(res, data, revolute, model=None) -> list[str]:
         out.append(line + ".")
     e = res.errors[name][0]
     hot = joint_hotspot(np.asarray(data.q), e, revolute)
-    reach = reach_hotspot(np.asarray(data.xyz_m), e)
+    dm = measured_in_model_frame(model, data)
+    if frame is None:
+        frame = base_frame(model, dm, getattr(res, "labels", None))
+    reach = reach_hotspot(np.asarray(dm.xyz_m), e, frame=frame)
+    if reach is not None and not frame.is_base:
+        reach.what = "horizontal distance from the measurement frame's origin"
     where = [h.words() for h in (hot, reach) if h is not None and h.mean_mm > 1.2 * h.overall_mm]
     if where:
         out.append("The largest remaining errors are at " + "; and at ".join(where) + ".")
