@@ -4,6 +4,7 @@
 * :func:`read_toml` — the file's table (SpecError on a missing file or bad TOML).
 * :func:`rel_path` — a path key resolved against the file's folder (SpecError when missing).
 * :func:`robot_spec` — a robot key: a file next to the spec, else a preset name (checked by loading it).
+* :func:`inputs_sha256` — SHA-256 over input files' bytes and options (what `--resume` compares).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from pathlib import Path
 
 from ..io.toml_compat import tomllib
 
-__all__ = ["SpecError", "check_keys", "read_toml", "rel_path", "robot_spec"]
+__all__ = ["SpecError", "check_keys", "inputs_sha256", "read_toml", "rel_path", "robot_spec"]
 
 
 class SpecError(ValueError):
@@ -66,3 +67,20 @@ def robot_spec(path: Path, key: str, value) -> str:
         msg = str(e).strip().splitlines()
         raise SpecError(f"{path}: {key} = {value!r}: {msg[0] if msg else type(e).__name__}") from None
     return spec
+
+
+def inputs_sha256(sources, options: dict) -> str:
+    """SHA-256 over what a run's results depend on (the one implementation for sweep and fleet
+    ``--resume``): each of ``sources`` (a file: its bytes' SHA-256; a preset name or None: its repr),
+    then ``options`` as sorted JSON."""
+    import hashlib
+    import json
+
+    from ..io.fingerprint import file_fingerprint
+
+    h = hashlib.sha256()
+    for src in sources:
+        fp = file_fingerprint(src)
+        h.update((fp["sha256"] if fp else repr(src)).encode() + b"\0")
+    h.update(json.dumps(options, sort_keys=True, default=str).encode())
+    return h.hexdigest()

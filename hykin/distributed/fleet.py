@@ -4,7 +4,8 @@ Each robot (:class:`hykin.distributed.fleet_file.FleetRobot`) is one task, :func
 (:func:`hykin.distributed.trials.fit_model`, the `hykin fit` path), the model file ``DIR/<name>.hykin``,
 evaluate on its test set (nominal / calibrated / hybrid), and where a series is given register it
 (:func:`hykin.measure.register.register_model`, the `hykin register` path), evaluate the registered model
-on the series' poses not used to register it, and write ``DIR/<name>-registered.hykin`` (the files come
+on the series' poses not used to register it (none when ``poses`` covers the series: the registered error
+is then left empty, NaN, and ``n_registered_held_out`` is 0), and write ``DIR/<name>-registered.hykin`` (the files come
 back to the driver as bytes, which writes them, so the output folder need not be shared with the workers). A robot that fails is a row with its error; the others go on.
 Writes ``DIR/summary.csv`` (the one CSV writer) and ``DIR/summary.md`` (a markdown table).
 
@@ -16,19 +17,18 @@ the others run again.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
+from .files import inputs_sha256
 from .fleet_file import FleetRobot, FleetSpec
 from .ray_session import check_resources, ray_session
 from .trial_pool import first_line
 from .trials import ERROR_COLUMNS, error_columns, evaluate_noted, fit_model, gpu_fit_options
 
-__all__ = ["SUMMARY_COLUMNS", "inputs_hash", "kept_rows", "robot_job", "run_fleet", "summary_markdown"]
+__all__ = ["SUMMARY_COLUMNS", "inputs_hash", "kept_rows", "registered_note", "robot_job", "run_fleet", "summary_markdown"]
 
 SUMMARY_COLUMNS = ("name", "status", "error", "n_train", "n_test", *ERROR_COLUMNS, "fit_s",
                    "registered_hybrid_pos_mean_mm", "registered_hybrid_ang_mean_deg", "n_registered_held_out", "model",
@@ -71,26 +71,22 @@ def robot_job(entry: FleetRobot) -> dict:
             row["registered_model"] = f"{entry.name}-registered.hykin"
             row["files"][row["registered_model"]] = _model_bytes(new)
             rest = np.setdiff1d(np.arange(len(series)), info.used_index)  # the poses not used to register
-            res, _ = evaluate_noted(new, series.subset(rest) if rest.size else series)
-            ev = error_columns(res)
-            row.update(registered_hybrid_pos_mean_mm=ev["hybrid_pos_mean_mm"],
-                       registered_hybrid_ang_mean_deg=ev["hybrid_ang_mean_deg"], n_registered_held_out=int(rest.size))
+            row.update(registered_hybrid_pos_mean_mm=float("nan"), registered_hybrid_ang_mean_deg=float("nan"),
+                       n_registered_held_out=int(rest.size))
+            if rest.size:  # no held-out poses (poses >= the series' length): no held-out error, left empty
+                res, _ = evaluate_noted(new, series.subset(rest))
+                ev = error_columns(res)
+                row.update(registered_hybrid_pos_mean_mm=ev["hybrid_pos_mean_mm"],
+                           registered_hybrid_ang_mean_deg=ev["hybrid_ang_mean_deg"])
     except Exception as e:  # noqa: BLE001 - a failing robot is recorded; the fleet goes on
         row.update(status="failed", error=first_line(e), files={})
     return row
 
 
 def inputs_hash(entry: FleetRobot) -> str:
-    """SHA-256 over what a robot's results depend on: the robot file's bytes (a preset: its name), the
-    train / test / register files' bytes, ``poses`` and the fit options."""
-    from ..io.fingerprint import file_fingerprint
-
-    h = hashlib.sha256()
-    for src in (entry.robot, entry.train, entry.test, entry.register):
-        fp = file_fingerprint(src)
-        h.update((fp["sha256"] if fp else repr(src)).encode() + b"\0")
-    h.update(json.dumps({"poses": entry.poses, "fit": entry.fit}, sort_keys=True, default=str).encode())
-    return h.hexdigest()
+    """SHA-256 over what a robot's results depend on (:func:`hykin.distributed.files.inputs_sha256`): the
+    robot file's bytes (a preset: its name), the train / test / register files' bytes, ``poses`` and the fit options."""
+    return inputs_sha256((entry.robot, entry.train, entry.test, entry.register), {"poses": entry.poses, "fit": entry.fit})
 
 
 def kept_rows(spec: FleetSpec, out: Path) -> dict:
@@ -178,9 +174,19 @@ def _run_robots(spec: FleetSpec, todo: list, out: Path, rows: dict, address, num
                 what = "fitted (no test set: no test errors)"
             else:
                 what = f"hybrid {row['hybrid_pos_mean_mm']:.4f} mm on its test set"
-            if row.get("registered_hybrid_pos_mean_mm") is not None:
-                what += f", registered series {row['registered_hybrid_pos_mean_mm']:.4f} mm"
+            what += registered_note(row)
             log(f"fleet: robot {len(rows)}/{len(spec.robots)} {name}: {what}; elapsed {time.perf_counter() - t0:.0f} s")
+
+
+def registered_note(row: dict) -> str:
+    """The progress line's words on a robot's registered model: its error on the held-out poses of the
+    series, or that none were held out (every pose of the series registered it: no held-out error)."""
+    if row.get("registered_model") in (None, ""):
+        return ""
+    n, err = row.get("n_registered_held_out"), row.get("registered_hybrid_pos_mean_mm")
+    if not n or err is None or err != err:
+        return ", registered (no held-out poses: every pose of the series was used to register, no held-out error)"
+    return f", registered series {err:.4f} mm on {n} held-out poses"
 
 
 def _write_summary(path: Path, rows: list) -> None:
@@ -191,17 +197,20 @@ def _write_summary(path: Path, rows: list) -> None:
 
 def summary_markdown(rows: list) -> str:
     """A markdown table of the fleet: robot, status, nominal / calibrated / hybrid mean errors (mm) on
-    its test set, the registered model's error on its new series, fit time, and the failures."""
+    its test set, the registered model's error on the poses of its new series not used to register it
+    and how many those are (blank error when none), fit time, and the failures."""
     def f(r, k, fmt="{:.4f}"):
         v = r.get(k, "")
         return "" if v == "" or v != v else fmt.format(v)
 
     lines = ["# hykin fleet summary", "",
-             "| robot | status | nominal mm | calibrated mm | hybrid mm | registered hybrid mm | fit s |",
-             "|---|---|---|---|---|---|---|"]
+             "| robot | status | nominal mm | calibrated mm | hybrid mm | registered hybrid mm (held out) "
+             "| registered held-out poses | fit s |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['name']} | {r['status']} | {f(r, 'nominal_pos_mean_mm')} | {f(r, 'calibrated_pos_mean_mm')} | "
-                     f"{f(r, 'hybrid_pos_mean_mm')} | {f(r, 'registered_hybrid_pos_mean_mm')} | {f(r, 'fit_s', '{:.1f}')} |")
+                     f"{f(r, 'hybrid_pos_mean_mm')} | {f(r, 'registered_hybrid_pos_mean_mm')} | "
+                     f"{f(r, 'n_registered_held_out', '{:.0f}')} | {f(r, 'fit_s', '{:.1f}')} |")
     failed = [r for r in rows if r["status"] != "ok"]
     if failed:
         lines += ["", "Failures:", ""] + [f"- {r['name']}: {r['error']}" for r in failed]

@@ -5,7 +5,8 @@
 cpus_per_robot = 1
 gpus_per_robot = 0
 [[robot]]
-name = "cell-3"             # letters, digits, . _ -; unique; names the output files
+name = "cell-3"             # letters, digits, . _ -; unique ignoring case; names the output files
+                            # (cell-3.hykin, cell-3-registered.hykin: no other name may be "cell-3-registered")
 robot = "cell3.toml"        # a robot file or preset name
 train = "cell3_train.csv"
 test = "cell3_test.csv"     # optional
@@ -56,6 +57,21 @@ class FleetSpec:
     gpus_per_robot: float = 0.0
 
 
+def _check_outputs(p: Path, i: int, name: str, outputs: dict) -> None:
+    """SpecError (one line naming both entries) when robot #``i`` ``name`` would write a model file another
+    entry writes: ``NAME.hykin`` and ``NAME-registered.hykin`` are each robot's, compared ignoring case
+    (case-insensitive file systems), so no name may equal another's, nor another's NAME-registered."""
+    for fname in (f"{name}.hykin", f"{name}-registered.hykin"):
+        other = outputs.get(fname.lower())
+        if other is not None:
+            j, oname = other
+            raise SpecError(f"{p}: [[robot]] #{i} name = {name!r} and [[robot]] #{j} name = {oname!r} would both write "
+                            f"{fname} (names must differ ignoring case, and no name may be another's NAME-registered: "
+                            "that is its registered model's file)")
+    for fname in (f"{name}.hykin", f"{name}-registered.hykin"):
+        outputs[fname.lower()] = (i, name)
+
+
 def read_fleet(path: str | Path) -> FleetSpec:
     """Parse and check the fleet file ``path`` (SpecError naming the file, entry and key on a mistake)."""
     p, t = read_toml(path)
@@ -63,7 +79,7 @@ def read_fleet(path: str | Path) -> FleetSpec:
     entries = t.get("robot")
     if not isinstance(entries, list) or not entries:
         raise SpecError(f"{p}: no [[robot]] entries (give one per robot)")
-    robots, seen = [], set()
+    robots, outputs = [], {}  # output name (lower case) -> (entry number, robot name) that writes it
     for i, e in enumerate(entries, 1):
         where = f"[[robot]] #{i} "
         if not isinstance(e, dict):
@@ -72,9 +88,7 @@ def read_fleet(path: str | Path) -> FleetSpec:
         name = e.get("name")
         if not isinstance(name, str) or not _NAME.match(name):
             raise SpecError(f"{p}: {where}name = {name!r}: expected letters, digits, '.', '_' or '-' (it names the output files)")
-        if name in seen:
-            raise SpecError(f"{p}: {where}name = {name!r} is used twice (names must be unique)")
-        seen.add(name)
+        _check_outputs(p, i, name, outputs)
         where = f"[[robot]] {name!r} "
         fit = e.get("fit", {})
         if not isinstance(fit, dict):

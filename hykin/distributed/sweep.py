@@ -7,7 +7,9 @@ slot of the file's [resources] CPUs/GPUs, one torch + hykin import each, one tor
 CPU); each trial is :func:`hykin.distributed.trials.run_trial`. A trial that raises (or whose worker
 dies) is run once more, then recorded with its error; it never stops the sweep. Every finished trial
 is appended to ``DIR/trials.jsonl`` and ``DIR/results.csv`` is rewritten, so an interrupted sweep
-keeps what finished and ``resume=True`` reruns only the trials without an ``ok`` record.
+keeps what finished and ``resume=True`` reruns only the trials without an ``ok`` record made with the
+same inputs (each record holds ``inputs_sha256``, :func:`hykin.distributed.sweep_file.sweep_inputs_hash`:
+the robot file, train / test files and ``subsample_seed``; a changed input reruns its trials).
 """
 
 from __future__ import annotations
@@ -19,11 +21,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .ray_session import check_resources, ray_session
-from .sweep_file import SweepSpec, trial_key
+from .sweep_file import SweepSpec, sweep_inputs_hash, trial_key
 from .trial_pool import run_trials
 from .trials import ERROR_COLUMNS, gpu_fit_options
 
-__all__ = ["SweepOutcome", "run_sweep", "write_results", "plot_results"]
+__all__ = ["SweepOutcome", "kept_records", "run_sweep", "write_results", "plot_results"]
 
 RESULT_COLUMNS = ("status", "error", "attempts", *ERROR_COLUMNS, "fit_s", "eval_s", "steps", "epochs", "test_note")
 
@@ -46,19 +48,28 @@ class SweepOutcome:
 
 
 def _read_records(path: Path) -> dict:
-    """key -> row of ``trials.jsonl`` (later lines win)."""
+    """key -> record ``{"key", "inputs_sha256", "row"}`` of ``trials.jsonl`` (later lines win)."""
     out = {}
     if path.is_file():
         for line in path.read_text(encoding="utf-8").splitlines():
             if line.strip():
                 r = json.loads(line)
-                out[r["key"]] = r["row"]
+                out[r["key"]] = r
     return out
+
+
+def kept_records(path: Path, inputs_sha256: str) -> tuple[dict, int]:
+    """``(key -> row, n_changed)``: the rows of ``trials.jsonl`` recorded with the inputs ``inputs_sha256``
+    (:func:`hykin.distributed.sweep_file.sweep_inputs_hash` now), and how many were recorded with other
+    inputs (or, written before hashes were recorded, unknown ones): those are dropped, so they run again."""
+    recs = _read_records(path)
+    kept = {k: r["row"] for k, r in recs.items() if r.get("inputs_sha256") == inputs_sha256}
+    return kept, len(recs) - len(kept)
 
 
 def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, resume: bool = False,
               num_cpus: int | None = None, log=print) -> SweepOutcome:
-    """Run the trials of ``spec`` (those without an ``ok`` record when ``resume``) and write
+    """Run the trials of ``spec`` (when ``resume``: those without an ``ok`` record made with the same inputs) and write
     ``out_dir/results.csv`` and ``out_dir/error_vs_n_train.png``. ``log``: one progress line per call."""
     from ..io.dataset_files import read_dataset
     from ..io.robot_file import load_robot
@@ -70,7 +81,8 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
         raise ValueError(f"{out}: holds an earlier sweep (results.csv); use --resume to finish it or another -o")
     trials = spec.trials()
     keys = [trial_key(t) for t in trials]
-    records = _read_records(records_path) if resume else {}
+    inputs = sweep_inputs_hash(spec)  # the robot / train / test files and subsample_seed as the trials start
+    records, n_changed = kept_records(records_path, inputs) if resume else ({}, 0)
     todo = [i for i, k in enumerate(keys) if records.get(k, {}).get("status") != "ok"]
     rob = load_robot(spec.robot)
     train = read_dataset(spec.train, robot=rob)
@@ -92,7 +104,7 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
     def on_done(i, row):
         records[keys[i]] = row
         with open(records_path, "a", encoding="utf-8") as fh:
-            fh.write(json.dumps({"key": keys[i], "row": row}) + "\n")
+            fh.write(json.dumps({"key": keys[i], "inputs_sha256": inputs, "row": row}) + "\n")
         write_results(out / "results.csv", rows_now(), columns)
         n_done[0] += 1
         el = time.perf_counter() - t_start
@@ -104,6 +116,9 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
         log(f"sweep: trial {n_done[0]}/{len(todo)} done (#{i} {opts}): {what}; elapsed {el:.0f} s, ETA {eta:.0f} s")
 
     if resume:
+        if n_changed:
+            log(f"sweep: {n_changed} recorded trials of {records_path} were run on other (or unrecorded) inputs (robot file, train / "
+                "test data or subsample_seed changed since): they run again")
         log(f"sweep: {len(trials) - len(todo)} of {len(trials)} trials kept from {records_path}, {len(todo)} to run")
     if todo:
         with ray_session(address, num_cpus) as ray:

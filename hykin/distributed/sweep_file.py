@@ -12,7 +12,7 @@ min_steps = [2000]
 n_train = [1000, 4000]      # optional: nested subsets of train (the first n of one fixed permutation)
 [random]                    # optional: `samples` draws of these keys for each grid combination
 samples = 4
-seed = 0
+seed = 0                    # the seed of the random draws (one int); the fits' seeds go in [grid] seed = [...]
 lr_key = ...                # a list (uniform choice) or {uniform = [lo, hi]} / {loguniform = [lo, hi]}
 [resources]
 cpus_per_trial = 1
@@ -35,9 +35,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..hybrid.fit_options import FIT_OPTIONS, model_kwargs
-from .files import SpecError, check_keys, read_toml, rel_path, robot_spec
+from .files import SpecError, check_keys, inputs_sha256, read_toml, rel_path, robot_spec
 
-__all__ = ["SWEEP_KEYS", "SweepSpec", "read_sweep", "trial_key"]
+__all__ = ["SWEEP_KEYS", "SweepSpec", "read_sweep", "sweep_inputs_hash", "trial_key"]
 
 SWEEP_KEYS = ("robot", "train", "test", "subsample_seed", "grid", "random", "resources")
 GRID_KEYS = (*FIT_OPTIONS, "n_train")
@@ -91,8 +91,16 @@ class SweepSpec:
 
 
 def trial_key(options: dict) -> str:
-    """A trial's identity for resuming: its options as sorted JSON."""
+    """A trial's identity for resuming: its options as sorted JSON (with :func:`sweep_inputs_hash`, which
+    must also be unchanged for a recorded trial to be kept)."""
     return json.dumps(options, sort_keys=True, default=str)
+
+
+def sweep_inputs_hash(spec: SweepSpec) -> str:
+    """SHA-256 over what every trial's result depends on besides its options
+    (:func:`hykin.distributed.files.inputs_sha256`, the one used by the fleet): the robot file's bytes (a
+    preset: its name), the train and test files' bytes and ``subsample_seed``."""
+    return inputs_sha256((spec.robot, spec.train, spec.test), {"subsample_seed": spec.subsample_seed})
 
 
 def _check_value(path: Path, where: str, key: str, v) -> None:
@@ -122,7 +130,12 @@ def read_sweep(path: str | Path) -> SweepSpec:
                 _check_value(p, "[grid] ", k, v)
     grid = {k: v for g in grids for k, v in g.items()}
     rnd = dict(t.get("random", {}))
-    samples, rseed = int(rnd.pop("samples", 1 if rnd else 0)), rnd.pop("seed", 0)
+    samples, rseed = rnd.pop("samples", 1 if rnd else 0), rnd.pop("seed", 0)
+    if isinstance(rseed, bool) or not isinstance(rseed, int):
+        raise SpecError(f"{p}: [random] seed = {rseed!r}: [random] seed is the seed of the random draws (one "
+                        "integer, e.g. seed = 0); the fits' seeds go in [grid] (e.g. [grid] seed = [0, 1])")
+    if isinstance(samples, bool) or not isinstance(samples, int):
+        raise SpecError(f"{p}: [random] samples = {samples!r}: expected an integer (draws per grid combination)")
     check_keys(p, "[random] ", rnd, GRID_KEYS)
     for k, v in rnd.items():
         if k in grid:
