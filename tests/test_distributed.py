@@ -10,6 +10,7 @@ import warnings
 
 import numpy as np
 import pytest
+from shared_fixtures import residual_data, write_text
 
 from cli_run import run
 from procs import descendants
@@ -17,23 +18,14 @@ from hykin.distributed.fleet_file import read_fleet
 from hykin.distributed.files import SpecError
 from hykin.distributed.sweep_file import read_sweep, trial_key
 from hykin.distributed.trials import ERROR_COLUMNS, fit_model, nested_subset, run_trial
-from hykin.geometry.se3 import rotvec_to_matrix
-from hykin.io.dataset import Dataset
 from hykin.io.dataset_files import write_dataset
 from hykin.io.robot_file import load_robot
-from hykin.kinematics.fk import fk
 
 # the model's own out-of-range warning is expected here: the queries are random joints
 pytestmark = pytest.mark.filterwarnings("ignore::hykin.hybrid.errors.OutOfRangeWarning")
 
 
-def _data(robot, n, seed):
-    """Poses with a smooth residual the classical model cannot express (so calibration leaves > 0.01 mm)."""
-    q = robot.random_joints(n, seed, margin=0.1)
-    T = fk(robot, q)
-    T[:, :3, 3] += 2e-4 * np.stack([np.sin(q[:, 0]), np.cos(q[:, 1]), np.sin(q[:, 2] + q[:, 1])], 1)
-    T[:, :3, :3] = rotvec_to_matrix(1e-4 * np.stack([np.cos(q[:, 0]), np.sin(q[:, 3]), 0.5 * q[:, 1]], 1)) @ T[:, :3, :3]
-    return Dataset.from_poses(q, T, orientation=True)
+_data = residual_data
 
 
 @pytest.fixture(scope="module")
@@ -46,9 +38,7 @@ def files(tmp_path_factory):
     return d
 
 
-def _write(path, text):
-    path.write_text(text, encoding="utf-8")
-    return path
+_write = write_text
 
 
 GOOD_SWEEP = 'robot = "rx160"\ntrain = "train.csv"\ntest = "test.csv"\n'

@@ -8,7 +8,6 @@ answers. The 2,000-request loop is marked slow; the default suite runs 200.
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -16,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_fixtures import free_port
 from comp_models import tiny_model_file
 
 from hykin import fk
@@ -28,10 +28,7 @@ httpx = pytest.importorskip("httpx")
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+_free_port = free_port
 
 
 @pytest.fixture(scope="module")

@@ -11,12 +11,12 @@ surrogate (an in-process uvicorn server on 127.0.0.1).
 from __future__ import annotations
 
 import json
-import socket
 import threading
 import time
 
 import numpy as np
 import pytest
+from shared_fixtures import free_port
 from comp_models import tiny_model_file
 
 from hykin.geometry import se3
@@ -25,10 +25,7 @@ pytestmark = pytest.mark.filterwarnings("ignore::hykin.hybrid.errors.OutOfRangeW
 httpx = pytest.importorskip("httpx")
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+_free_port = free_port
 
 
 @pytest.fixture(scope="module")

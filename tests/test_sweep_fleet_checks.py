@@ -11,25 +11,20 @@ import shutil
 
 import numpy as np
 import pytest
+from shared_fixtures import residual_data, write_text
 
 from cli_run import run
 from hykin.distributed.files import SpecError
 from hykin.distributed.fleet_file import read_fleet
 from hykin.distributed.sweep_file import read_sweep, sweep_inputs_hash
 from hykin.distributed.trials import ERROR_COLUMNS
-from hykin.io.dataset import Dataset
 from hykin.io.dataset_files import write_dataset
 from hykin.io.robot_file import load_robot
-from hykin.kinematics.fk import fk
 
 pytestmark = pytest.mark.filterwarnings("ignore::hykin.hybrid.errors.OutOfRangeWarning")
 
 
-def _data(robot, n, seed):
-    q = robot.random_joints(n, seed, margin=0.1)
-    T = fk(robot, q)
-    T[:, :3, 3] += 2e-4 * np.stack([np.sin(q[:, 0]), np.cos(q[:, 1]), np.sin(q[:, 2] + q[:, 1])], 1)
-    return Dataset.from_poses(q, T, orientation=True)
+_data = residual_data
 
 
 @pytest.fixture(scope="module")
@@ -42,9 +37,7 @@ def files(tmp_path_factory):
     return d
 
 
-def _write(path, text):
-    path.write_text(text, encoding="utf-8")
-    return path
+_write = write_text
 
 
 def _robot(name, register=False):
