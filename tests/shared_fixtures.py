@@ -32,3 +32,35 @@ def write_text(path, text: str):
     """Write ``text`` (UTF-8) to ``path``; returns ``path``."""
     path.write_text(text, encoding="utf-8")
     return path
+
+
+def sweep_files(d, n_day2: int):
+    """rx160 train (240), test (80) and day-2 (``n_day2``) datasets of :func:`residual_data` in ``d``."""
+    from hykin.io.dataset_files import write_dataset
+    from hykin.io.robot_file import load_robot
+
+    rob = load_robot("rx160")
+    write_dataset(residual_data(rob, 240, 1), d / "train.csv")
+    write_dataset(residual_data(rob, 80, 2), d / "test.csv")
+    write_dataset(residual_data(rob, n_day2, 3), d / "day2.csv")
+    return d
+
+
+def start_server(model, port: int, limits, identity):
+    """``hykin serve``'s app for ``model`` on 127.0.0.1:``port`` in a thread; returns ``(server, thread)``
+    once it has started (``server.should_exit = True`` then ``thread.join()`` stops it)."""
+    import threading
+    import time
+
+    import uvicorn
+
+    from hykin.compensation.service import uvicorn_config
+
+    srv = uvicorn.Server(uvicorn_config(model, "127.0.0.1", port, limits, identity))
+    th = threading.Thread(target=srv.run, daemon=True)
+    th.start()
+    t0 = time.time()
+    while not srv.started:
+        assert th.is_alive() and time.time() - t0 < 60, "in-process server did not start"
+        time.sleep(0.05)
+    return srv, th

@@ -10,7 +10,7 @@ import warnings
 
 import numpy as np
 import pytest
-from shared_fixtures import residual_data, write_text
+from shared_fixtures import residual_data, sweep_files, write_text
 
 from cli_run import run
 from procs import descendants
@@ -18,7 +18,6 @@ from hykin.distributed.fleet_file import read_fleet
 from hykin.distributed.files import SpecError
 from hykin.distributed.sweep_file import read_sweep, trial_key
 from hykin.distributed.trials import ERROR_COLUMNS, fit_model, nested_subset, run_trial
-from hykin.io.dataset_files import write_dataset
 from hykin.io.robot_file import load_robot
 
 # the model's own out-of-range warning is expected here: the queries are random joints
@@ -30,12 +29,7 @@ _data = residual_data
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
-    d = tmp_path_factory.mktemp("dist")
-    rob = load_robot("rx160")
-    write_dataset(_data(rob, 240, 1), d / "train.csv")
-    write_dataset(_data(rob, 80, 2), d / "test.csv")
-    write_dataset(_data(rob, 60, 3), d / "day2.csv")
-    return d
+    return sweep_files(tmp_path_factory.mktemp("dist"), 60)
 
 
 _write = write_text

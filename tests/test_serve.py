@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from shared_fixtures import free_port
+from shared_fixtures import free_port, start_server
 from comp_models import tiny_model_file
 
 from hykin import fk
@@ -151,11 +151,6 @@ DELAY_S = 0.05
 
 @pytest.fixture(scope="module")
 def guarded():
-    import threading
-
-    import uvicorn
-
-    from hykin.compensation.service import uvicorn_config
     from hykin.compensation.service_guard import ServiceLimits, model_identity
     from hykin.hybrid.model import HybridModel
 
@@ -164,13 +159,7 @@ def guarded():
     port = _free_port()
     limits = ServiceLimits(max_body_bytes=64 * 1024, max_message_bytes=1024, token=TOKEN, refusal_delay_s=DELAY_S)
     t_load = time.time()
-    srv = uvicorn.Server(uvicorn_config(m, "127.0.0.1", port, limits, model_identity(mp)))
-    th = threading.Thread(target=srv.run, daemon=True)
-    th.start()
-    t0 = time.time()
-    while not srv.started:
-        assert th.is_alive() and time.time() - t0 < 60, "in-process server did not start"
-        time.sleep(0.05)
+    srv, th = start_server(m, port, limits, model_identity(mp))
     client = httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=60)
     yield client, m, mp, port, t_load
     client.close()

@@ -11,12 +11,10 @@ surrogate (an in-process uvicorn server on 127.0.0.1).
 from __future__ import annotations
 
 import json
-import threading
-import time
 
 import numpy as np
 import pytest
-from shared_fixtures import free_port
+from shared_fixtures import free_port, start_server
 from comp_models import tiny_model_file
 
 from hykin.geometry import se3
@@ -30,22 +28,13 @@ _free_port = free_port
 
 @pytest.fixture(scope="module")
 def server():
-    import uvicorn
-
-    from hykin.compensation.service import uvicorn_config
     from hykin.compensation.service_guard import ServiceLimits, model_identity
     from hykin.hybrid.model import HybridModel
 
     mp = tiny_model_file()
     m = HybridModel.load(mp)
     port = _free_port()
-    srv = uvicorn.Server(uvicorn_config(m, "127.0.0.1", port, ServiceLimits(refusal_delay_s=0.0), model_identity(mp)))
-    th = threading.Thread(target=srv.run, daemon=True)
-    th.start()
-    t0 = time.time()
-    while not srv.started:
-        assert th.is_alive() and time.time() - t0 < 60, "in-process server did not start"
-        time.sleep(0.05)
+    srv, th = start_server(m, port, ServiceLimits(refusal_delay_s=0.0), model_identity(mp))
     client = httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=60)
     yield client, m, port
     client.close()

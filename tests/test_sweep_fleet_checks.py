@@ -11,14 +11,13 @@ import shutil
 
 import numpy as np
 import pytest
-from shared_fixtures import residual_data, write_text
+from shared_fixtures import residual_data, sweep_files, write_text
 
 from cli_run import run
 from hykin.distributed.files import SpecError
 from hykin.distributed.fleet_file import read_fleet
 from hykin.distributed.sweep_file import read_sweep, sweep_inputs_hash
 from hykin.distributed.trials import ERROR_COLUMNS
-from hykin.io.dataset_files import write_dataset
 from hykin.io.robot_file import load_robot
 
 pytestmark = pytest.mark.filterwarnings("ignore::hykin.hybrid.errors.OutOfRangeWarning")
@@ -29,12 +28,7 @@ _data = residual_data
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
-    d = tmp_path_factory.mktemp("checks")
-    rob = load_robot("rx160")
-    write_dataset(_data(rob, 240, 1), d / "train.csv")
-    write_dataset(_data(rob, 80, 2), d / "test.csv")
-    write_dataset(_data(rob, 12, 3), d / "day2.csv")
-    return d
+    return sweep_files(tmp_path_factory.mktemp("checks"), 12)
 
 
 _write = write_text
