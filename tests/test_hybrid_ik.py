@@ -393,3 +393,19 @@ def test_nearest_returns_the_current_joints_branch_of_a_fitted_model():
         assert np.abs(res.q - q).max() < 1e-6
         out = np.flatnonzero(m.support_distance(q) > 0)
         assert out.size  # some of these joints lie just outside the sampled ones
+
+
+def test_nearest_on_a_redundant_arm_returns_the_current_joints():
+    """7 DOF (no closed form, no finite set of branches): the current joints seed a solution of their
+    own, so targets reached exactly at them come back there (every one came back elsewhere, ~1.7 rad)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from comp_models import exact
+
+    m = exact("kuka-iiwa14", 3)
+    q = m.nominal.random_joints(12, 21, margin=0.15)
+    res = hybrid_ik(m, fk(m.robot_, q), all_branches=True, q_current=q, nearest=True)
+    assert len(res) == 12 and res.success.all()
+    assert np.abs(res.q - q).max() < 1e-6

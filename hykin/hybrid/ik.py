@@ -104,8 +104,9 @@ def hybrid_ik(
     closed form; otherwise numerical IK). ``q_seed`` ``(N, dof)`` / ``(N, S, dof)``: extra seeds for
     the classical IK (with ``all_branches=False``, the only seeds). ``q_current`` ``(N, dof)`` or
     ``(dof,)``: current joints; with ``nearest=True`` only the solution nearest to them is kept per
-    target (where the network correction applies preferred: :func:`hybrid_ik_from_seeds`), and they
-    seed a solution of their own; without a seed they also seed position-only IK.
+    target (where the network correction applies preferred: :func:`hybrid_ik_from_seeds`), and, for a
+    robot without a closed form (7 DOF), they seed a solution of their own; without a seed they also
+    seed position-only IK.
     ``delta_rad``: half-width of the box around each classical solution (default 3°).
     ``seed_robot``: robot whose closed form seeds the branches (default: the calibrated robot if it has
     one, else the nominal robot — ``model.nominal`` or a HybridModel's ``model.robot`` — else
@@ -131,12 +132,14 @@ def hybrid_ik(
     pos_only = bool(position_only or pos_only_in)
     N = T.shape[0]
     seeds = q_seed
-    if seeds is None and q_current is not None and (pos_only or not all_branches or nearest):
-        # nearest: the current joints seed a solution of their own (a redundant arm has no finite set of
-        # branches to pick from; a branch's seed may converge elsewhere)
+    sr = seed_robot_of(model, seed_robot)
+    # nearest without a closed form (a redundant arm has no finite set of branches: numerical ones may all
+    # lie elsewhere): the current joints seed a solution of their own
+    own = nearest and sr is None
+    if seeds is None and q_current is not None and (pos_only or not all_branches or own):
         seeds = np.broadcast_to(np.asarray(q_current, dtype=np.float64).reshape(-1, robot.dof), (N, robot.dof))
     q0, labels, _ = classical_seeds(robot, T, all_branches=all_branches, q_seed=seeds, position_only=pos_only,
-                                     seed_robot=seed_robot_of(model, seed_robot))
+                                     seed_robot=sr)
     return hybrid_ik_from_seeds(
         model, T[:, :3, 3] if pos_only else T, q0, branch=labels, delta_rad=delta_rad, position_only=pos_only,
         tol_m=tol_m, q_current=q_current, nearest=nearest, **kwargs,
