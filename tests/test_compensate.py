@@ -256,3 +256,28 @@ def test_cli_payload_kg_compensates_for_the_load_the_robot_carries(tmp_path, cap
         p_err = np.linalg.norm(true_poses(vr, q_exec, payload_kg=np.full(40, 12.0))[:, :3, 3] - T_t[:, :3, 3], axis=1)
         errs[name] = p_err.mean() * 1e3
     assert errs["loaded"] < 0.3 and errs["loaded"] < errs["file"] / 3, errs
+
+
+def test_serve_and_bridges_take_the_payload_the_robot_carries(capsys):
+    """`serve`, `rsi` and `egm` take --payload-kg as `compensate` does (one helper): a bad mass is refused
+    in one line before anything listens, and the model they run is the one carrying that mass (its
+    prediction equals the model's under payload_kg)."""
+    import warnings
+
+    from cli_run import run as run_cli
+
+    from hykin.cli.common import with_payload
+    from hykin.hybrid.model import HybridModel
+
+    mp = tiny_model_file()
+    for cmd in (["serve", mp, "--port", "1"], ["rsi", mp, "--listen", "127.0.0.1:1"], ["egm", mp, "--listen", "127.0.0.1:1"]):
+        for bad in ("-1", "nan", "inf"):
+            code, _, err = run_cli([*cmd, "--payload-kg", bad], capsys)
+            assert code != 0 and "--payload-kg must be a finite mass >= 0 kg" in err, (cmd, err)
+    m = HybridModel.load(mp)
+    q = m.nominal.random_joints(5, 1, margin=0.2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        loaded = with_payload(m, 7.5)
+        assert np.abs(loaded.predict(q) - m.predict(q, payload_kg=np.full(5, 7.5))).max() < 1e-12
+    assert with_payload(m, None) is m

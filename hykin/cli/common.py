@@ -265,6 +265,27 @@ def load_model(spec) -> object:
     return HybridModel.load(spec)
 
 
+PayloadKg = typer.Option(None, "--payload-kg", help="Payload (kg, at the TCP) the robot carries while it runs: "
+                         "the model deflects under it (default: the robot file's payload).")
+
+
+def with_payload(mdl, payload_kg: float | None):
+    """``mdl`` carrying ``payload_kg`` (:func:`hykin.io.payload.model_with_payload`; None: unchanged). A mass
+    that is not finite and >= 0 is refused; one outside the payloads the model was trained on warns."""
+    if payload_kg is None:
+        return mdl
+    from ..io.payload import model_with_payload, payload_outside
+
+    if not (payload_kg >= 0 and payload_kg < float("inf")):
+        raise CLIError(f"--payload-kg must be a finite mass >= 0 kg, got {payload_kg}")
+    if payload_outside(getattr(mdl, "payload_range_", None), payload_kg).any():
+        rng = mdl.payload_range_
+        console().print(f"[yellow]warning:[/] {payload_kg:g} kg lies outside the payloads the model was trained on "
+                        f"({rng.lower_kg:g}-{rng.upper_kg:g} kg): the physics carries it, the networks hold their "
+                        "nearest trained payload", highlight=False)
+    return model_with_payload(mdl, payload_kg)
+
+
 # --------------------------------------------------------------------------- commands
 
 

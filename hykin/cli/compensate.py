@@ -17,7 +17,9 @@ from .common import (
     check_rt_priority,
     console,
     load_model,
+    PayloadKg,
     parse_axis_signs,
+    with_payload,
     write_rows,
 )
 
@@ -72,18 +74,7 @@ def compensate_cmd(
     check_output(out, [inp, model, *context], force)
     if not inp.is_file():
         raise CLIError(f"{inp}: no such file")
-    mdl = load_model(model)
-    if payload_kg is not None:
-        from ..io.payload import model_with_payload, payload_outside
-
-        if not (payload_kg >= 0 and payload_kg < float("inf")):
-            raise CLIError(f"--payload-kg must be a finite mass >= 0 kg, got {payload_kg}")
-        if payload_outside(getattr(mdl, "payload_range_", None), payload_kg).any():
-            rng = mdl.payload_range_
-            console().print(f"[yellow]warning:[/] {payload_kg:g} kg lies outside the payloads the model was trained on "
-                            f"({rng.lower_kg:g}-{rng.upper_kg:g} kg): the physics carries it, the networks hold their "
-                            "nearest trained payload", highlight=False)
-        mdl = model_with_payload(mdl, payload_kg)
+    mdl = with_payload(load_model(model), payload_kg)
     signs = parse_axis_signs(axis_signs, mdl.nominal.dof)
     th = getattr(mdl, "thermal_", None)
     if th is not None and th.coefficient_per_k != 0.0:
@@ -275,6 +266,7 @@ def serve_cmd(
     max_connections: int = typer.Option(64, "--max-connections", help="Open connections (503 above)."),
     refusal_delay_ms: float = typer.Option(100.0, "--refusal-delay-ms", help="Every refused request is answered after "
                                            "this delay, which slows a client flooding bad requests (0: at once)."),
+    payload_kg: float | None = PayloadKg,
     rt_priority: int = typer.Option(0, "--rt-priority", metavar="N", help="Serve under SCHED_FIFO at this priority "
                                     "(1-99; its threads inherit it), so that other processes cannot delay a streamed "
                                     "answer; 0 (default): normal priority. Without the right it runs at normal priority and says so."),
@@ -298,7 +290,7 @@ def serve_cmd(
         raise CLIError(str(e)) from None
     limits = ServiceLimits(max_targets=max_targets, max_body_bytes=max_body_kb * 1024, max_message_bytes=max_message_bytes,
                            queue=queue, max_connections=max_connections, refusal_delay_s=refusal_delay_ms / 1e3, token=token)
-    mdl = load_model(model)
+    mdl = with_payload(load_model(model), payload_kg)
     identity = model_identity(model)
     typer.echo(f"hykin serve: {mdl.nominal.name} (sha256 {identity['model_sha256'] or identity['file_sha256']}) on "
                f"http://{host}:{port} (GET /health, POST /fk /ik /compensate, WebSocket /stream"

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from .common import CLIError, app, check_rt_priority, load_model, parse_axis_signs
+from .common import CLIError, PayloadKg, app, check_rt_priority, load_model, parse_axis_signs, with_payload
 
 _LISTEN = typer.Option(..., "--listen", metavar="HOST:PORT", help="HOST:PORT to receive the controller's datagrams on.")
 _CONTROLLER = typer.Option(None, "--controller", metavar="HOST:PORT", help="HOST:PORT of the controller: datagrams from anyone else are "
@@ -30,7 +30,7 @@ _SIGNS = typer.Option(None, "--axis-signs", metavar="S1,..,SN", help="Controller
 
 
 def _bridge_setup(model: str, listen: str, controller: str | None, frame: str, max_failures: int, period_ms: float,
-                  axis_signs: str | None):
+                  axis_signs: str | None, payload_kg: float | None):
     """(model, compensator, bound socket, controller address, axis signs, controller-to-target frame)."""
     import numpy as np
 
@@ -53,7 +53,7 @@ def _bridge_setup(model: str, listen: str, controller: str | None, frame: str, m
         ctrl = parse_listen(controller) if controller else None
     except ValueError as e:
         raise CLIError(str(e).replace("--listen", "--controller")) from None
-    mdl = load_model(model)
+    mdl = with_payload(load_model(model), payload_kg)
     comp = Compensator(mdl, frame=frame)
     signs = parse_axis_signs(axis_signs, mdl.nominal.dof)
     signs = default_axis_signs(mdl.nominal) if signs is None else signs
@@ -90,7 +90,7 @@ def _bridge_command(name: str, period_help: str, extra: tuple = ()):
         ("period_ms", float, typer.Option(4.0, "--period-ms", metavar="MS", help=period_help)),
         ("max_failures", int, _MAX_FAILURES), ("max_correction_mm", float, _MAX_MM),
         ("max_correction_deg", float, _MAX_DEG), ("idle_exit_s", float, _IDLE), ("rt_priority", int, _RT),
-        ("spin", bool, _SPIN))
+        ("spin", bool, _SPIN), ("payload_kg", float | None, PayloadKg))
 
     def register(fn):
         def cmd(**kw) -> None:
@@ -113,7 +113,7 @@ def _bridge_command(name: str, period_help: str, extra: tuple = ()):
     ("mode", str | None, typer.Option(None, "--mode", metavar="absolute|incremental", help="absolute or incremental "
                                       "correction (default: the config's, else absolute); must match RSI's POSCORR object."))))
 def rsi_cmd(model, listen, config, mode, controller, frame, axis_signs, period_ms, max_failures, max_correction_mm,
-            max_correction_deg, idle_exit_s, rt_priority, spin) -> None:
+            max_correction_deg, idle_exit_s, rt_priority, spin, payload_kg) -> None:
     """KUKA RSI Ethernet peer: answers each <Rob> message with the RKorr that puts the real robot on the setpoint."""
     from ..realtime.rsi import RsiHandler
     from ..realtime.rsi_xml import RsiConfig, read_config
@@ -124,7 +124,7 @@ def rsi_cmd(model, listen, config, mode, controller, frame, axis_signs, period_m
         cfg = read_config(config, mode) if config is not None else RsiConfig(mode=mode or "absolute")
     except ValueError as e:
         raise CLIError(str(e)) from None
-    mdl, comp, sock, ctrl, signs, base = _bridge_setup(model, listen, controller, frame, max_failures, period_ms, axis_signs)
+    mdl, comp, sock, ctrl, signs, base = _bridge_setup(model, listen, controller, frame, max_failures, period_ms, axis_signs, payload_kg)
     h = RsiHandler(comp.step, base, mdl.nominal.dof, signs, cfg, period_ms, max_correction_mm, max_correction_deg)
     typer.echo(f"hykin rsi: {mdl.nominal.name} on udp://{listen} ({cfg.mode}, <Sen Type=\"{cfg.sen_type}\"> "
                f"<{cfg.korr_tag}>, frame {comp.frame})")
@@ -133,11 +133,11 @@ def rsi_cmd(model, listen, config, mode, controller, frame, axis_signs, period_m
 
 @_bridge_command("egm", "EGM cycle, ms: answers later than this count as late.")
 def egm_cmd(model, listen, controller, frame, axis_signs, period_ms, max_failures, max_correction_mm, max_correction_deg,
-            idle_exit_s, rt_priority, spin) -> None:
+            idle_exit_s, rt_priority, spin, payload_kg) -> None:
     """ABB EGM peer (pose guidance): answers each EgmRobot with the pose that puts the real robot on the planned one."""
     from ..realtime.egm import EgmHandler
 
-    mdl, comp, sock, ctrl, signs, base = _bridge_setup(model, listen, controller, frame, max_failures, period_ms, axis_signs)
+    mdl, comp, sock, ctrl, signs, base = _bridge_setup(model, listen, controller, frame, max_failures, period_ms, axis_signs, payload_kg)
     h = EgmHandler(comp.step, base, mdl.nominal.dof, signs, max_correction_mm, max_correction_deg)
     typer.echo(f"hykin egm: {mdl.nominal.name} on udp://{listen} (pose guidance, frame {comp.frame})")
     _serve("egm", sock, h, period_ms, max_failures, ctrl, idle_exit_s, rt_priority, spin)
