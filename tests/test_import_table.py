@@ -508,3 +508,15 @@ def test_random_layouts_round_trip(tmp_path, seed):
     if form != "none":
         assert _rot_err(ds.rotations(), R) < 1e-12
     assert list(ds.extra) == []  # nothing kept unless asked
+
+
+def test_a_wrong_euler_convention_is_refused_naming_the_euler_options(tmp_path, capsys):
+    """KUKA A,B,C imported as rpy (roll and yaw swapped): the orientations no longer fit the robot, and
+    the refusal points at the Euler options, not only at quaternion orders."""
+    rob, q, T, nest, P, path = _layout3(tmp_path)
+    out = tmp_path / "rpy.csv"
+    code, _, err = run(["import", "table", path, "-o", out, "--joints", "A1..A6", "--angle-unit", "deg", "--position", "X,Y,Z",
+                        "--length-unit", "mm", "--euler", "A,B,C", "--euler-convention", "rpy", "--euler-unit", "deg"], capsys)
+    assert code == 0, err  # the import cannot know: the robot is not given
+    _refused(capsys, ["calibrate", "kuka-kr6-r900", out, "-o", tmp_path / "cal.toml"], tmp_path / "cal.toml",
+             "--euler-convention", "KUKA A,B,C")

@@ -136,6 +136,12 @@ def _pairs(n: int, ref_R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return i[keep], j[keep]
 
 
+# an Euler import with the wrong convention or angle order gives rotations that look reordered or inverted
+_EULER_HINT = ("; data imported from Euler angles (hykin import table --euler): check --euler-convention, "
+               "--euler-extrinsic/--euler-intrinsic and the order of the angle columns (KUKA A,B,C: "
+               "--euler-convention kuka)")
+
+
 def check_orientation_order(robot: Robot, q, quat_wxyz, *, where: str = "<data>", T_nominal=None) -> float | None:
     """Compare measured orientations (unit quaternions as read, scalar first) with the robot's
     rotations at joints ``q``; raises :class:`PlausibilityError` when the scalar-last reading fits
@@ -193,12 +199,12 @@ def check_orientation_order(robot: Robot, q, quat_wxyz, *, where: str = "<data>"
                      "(tool->base rotation); give the base->tool rotation as qw,qx,qy,qz")
         raise PlausibilityError(
             f"{where}: {cause} (rotations fit robot {robot.name!r} to {best:.2g}° so read vs "
-            f"{mis['wxyz']:.2g}° as given)")
+            f"{mis['wxyz']:.2g}° as given){_EULER_HINT}")
     raise PlausibilityError(
         f"{where}: measured orientations do not match the rotations of robot {robot.name!r} at these joints "
         f"(median misfit {mis['wxyz']:.2g}° after the best frame rotation): check the quaternion convention "
         "(unit, scalar first, base->tool rotation), the joint order, the robot file (twists, joint order, "
-        "angle_unit), or drop the orientation columns")
+        f"angle_unit), or drop the orientation columns{_EULER_HINT}")
 
 
 def check_joint_unit(robot: Robot, q, *, where: str = "<joints>", angle_unit: str = "rad") -> None:
