@@ -270,10 +270,10 @@ def test_serve_and_bridges_take_the_payload_the_robot_carries(capsys):
     from hykin.hybrid.model import HybridModel
 
     mp = tiny_model_file()
-    for cmd in (["serve", mp, "--port", "1"], ["rsi", mp, "--listen", "127.0.0.1:1"], ["egm", mp, "--listen", "127.0.0.1:1"]):
-        for bad in ("-1", "nan", "inf"):
-            code, _, err = run_cli([*cmd, "--payload-kg", bad], capsys)
-            assert code != 0 and "--payload-kg must be a finite mass >= 0 kg" in err, (cmd, err)
+    for cmd, bad in ((["serve", mp, "--port", "1"], "-1"), (["rsi", mp, "--listen", "127.0.0.1:1"], "nan"),
+                     (["egm", mp, "--listen", "127.0.0.1:1"], "inf")):
+        code, _, err = run_cli([*cmd, "--payload-kg", bad], capsys)
+        assert code != 0 and "--payload-kg must be a finite mass >= 0 kg" in err, (cmd, err)
     m = HybridModel.load(mp)
     q = m.nominal.random_joints(5, 1, margin=0.2)
     with warnings.catch_warnings():

@@ -290,7 +290,8 @@ def _flags_reached(rob, T, reference=None, kuka=False) -> list:
     return [set(f[i][ok[i]].tolist()) for i in range(N)]
 
 
-@pytest.mark.parametrize("preset,seed", [("ur5", 0), ("ur5", 4), ("rx160", 1), ("rx160", 2)])
+@pytest.mark.parametrize("preset,seed", [("ur5", 0), pytest.param("ur5", 4, marks=pytest.mark.slow),
+                                         pytest.param("rx160", 1, marks=pytest.mark.slow), ("rx160", 2)])
 def test_rapid_targets_at_the_stretched_elbow_keep_their_branch_or_take_the_other_flag_with_a_note(preset, seed):
     """Targets 0.05-0.8° from the stretched elbow, where the real robot (the deviated copy) reaches
     further than the nominal (an ABB arm's axis 3 cannot stretch it within its limits): every one is
