@@ -15,7 +15,7 @@ from .report import mm
 from .report_figures import joint_bins
 
 __all__ = ["FEW_FIT_POSES", "BaseFrame", "Hotspot", "axis_rows", "base_frame", "distinct_poses", "display_name",
-           "iso_rows", "joint_hotspot", "measured_in_model_frame", "nominal_words", "per_payload_rows",
+           "iso_rows", "joint_hotspot", "nominal_words", "per_payload_rows",
            "per_temperature_rows", "reach_hotspot", "support_rows"]
 
 #: a nominal row whose base and tool were fitted to fewer distinct test poses than this is not a
@@ -53,16 +53,6 @@ class BaseFrame:
         from ..geometry import se3
 
         return se3.invert(self.T) @ np.asarray(T, float)
-
-
-def measured_in_model_frame(model, data):
-    """``data`` in the frame ``model`` predicts in (a station / tool model's reference station and
-    tool, :func:`hykin.hybrid.stations.in_model_frame`); ``data`` itself otherwise."""
-    if data is None or getattr(model, "station_frames_", None) is None:
-        return data
-    from ..hybrid.stations import in_model_frame
-
-    return in_model_frame(model, data)
 
 
 def base_frame(model, data=None, labels: dict | None = None) -> BaseFrame:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..hybrid.stations import in_model_frame
 from . import report_accuracy as acc
 from .evaluate import evaluate_model
 from .report import Report
@@ -63,7 +64,7 @@ def build_report(model, test=None, *, model_path=None, test_path=None, title: st
     cal = _calibration(model)
     cal_rows = calibration_rows(cal, robot, getattr(model, "robot_", None)) if cal else []
 
-    frame = acc.base_frame(model, acc.measured_in_model_frame(model, test), res.labels) if res is not None else None
+    frame = acc.base_frame(model, in_model_frame(model, test), res.labels) if res is not None else None
     summary = accuracy_sentences(res, test, rev, model, frame) if res is not None else metadata_sentences(model)
     if cal:
         summary += calibration_summary(cal, cal_rows)[:2]
@@ -93,7 +94,7 @@ def build_report(model, test=None, *, model_path=None, test_path=None, title: st
 def _accuracy_sections(rep: Report, model, test, res, rev, frame: acc.BaseFrame | None = None) -> None:
     names = list(res.vectors)
     labels = {k: acc.display_name(res, k) for k in names}
-    tm = acc.measured_in_model_frame(model, test)  # the rows in the frame the model predicts in
+    tm = in_model_frame(model, test)  # the rows in the frame the model predicts in
     if frame is None:
         frame = acc.base_frame(model, tm, res.labels)
     nom = labels.get("nominal", "nominal")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..hybrid.stations import in_model_frame
 from .report import deg, mm
 from .report_accuracy import (
     FEW_FIT_POSES,
@@ -14,7 +15,6 @@ from .report_accuracy import (
     display_name,
     distinct_poses,
     joint_hotspot,
-    measured_in_model_frame,
     nominal_words,
     reach_hotspot,
 )
@@ -79,7 +79,7 @@ def accuracy_sentences(res, data, revolute, model=None, frame=None) -> list[str]
         out.append(line + ".")
     e = res.errors[name][0]
     hot = joint_hotspot(np.asarray(data.q), e, revolute)
-    dm = measured_in_model_frame(model, data)
+    dm = in_model_frame(model, data)
     if frame is None:
         frame = base_frame(model, dm, getattr(res, "labels", None))
     reach = reach_hotspot(np.asarray(dm.xyz_m), e, frame=frame)
