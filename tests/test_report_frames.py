@@ -172,6 +172,7 @@ def test_iso_ap_xyz_in_base_frame(tracker, evaluated):
     assert row[3] == pytest.approx(np.linalg.norm(ap), rel=1e-3, abs=1e-6)
 
 
+@pytest.mark.slow  # a full report build (5 s): the default suite keeps the wording and few-poses checks
 def test_report_positions_plot_labels_and_json(tracker, evaluated, monkeypatch):
     """The full report: the positions plot gets base-frame positions; the nominal row is named
     "nominal + fitted frames" in tables and words; evaluation.json keeps the key "nominal"."""
