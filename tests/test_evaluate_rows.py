@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hykin.calibration.frames import fit_frames
-from hykin.evaluation.evaluate import NOMINAL_FITTED, evaluate_model
+from hykin.evaluation.evaluate import NOMINAL_FITTED, ROBOT_FILE, evaluate_model
 from hykin.geometry import se3
 from hykin.io.dataset import Dataset
 from hykin.io.robot_file import load_robot
@@ -39,11 +39,16 @@ def test_tracker_frame_nominal_row_is_fitted_and_labelled():
     assert res.stats["nominal"].pos_mean_mm < 5.0  # not metres of frame offset
     assert NOMINAL_FITTED in res.table() and "fitted to these poses" in res.table()
     assert json.loads(res.json())["labels"]["nominal"] == NOMINAL_FITTED
+    # and the file as written, first: what fk / ik / compensate would give with it (metres off here)
+    assert list(res.stats)[0] == "file" and res.labels["file"] == ROBOT_FILE
+    as_written = np.linalg.norm(Tn[:, :3, 3] - ds.xyz_m, axis=1).mean() * 1e3
+    assert res.stats["file"].pos_mean_mm == pytest.approx(as_written, rel=1e-12) and as_written > 1000
+    assert ROBOT_FILE in res.table() and "a tool offset held at its prior" in res.table()
 
 
 def test_robot_frame_nominal_row_keeps_the_robot_file_frames():
     ds = _data(np.eye(4))
     res = evaluate_model(ROB, ds)
-    assert res.labels["nominal"] == "nominal"
+    assert res.labels["nominal"] == "nominal" and "file" not in res.stats  # one row: the file's frames fit
     ref = np.linalg.norm(fk(ROB, ds.q)[:, :3, 3] - ds.xyz_m, axis=1).mean() * 1e3
     assert res.stats["nominal"].pos_mean_mm == pytest.approx(ref, rel=1e-12)

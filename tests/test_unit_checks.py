@@ -94,3 +94,20 @@ def test_cli_fit_evaluate_accept_a_total_station_30_m_away(tmp_path, capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "millimetres" in err[0], err
+
+
+def test_joints_beyond_2pi_inside_the_robot_limits_are_radians(tmp_path):
+    """An IRB2400-like axis 6 of ±400°: 6.73 rad (385.5°) is a correct value in radians, not degrees."""
+    import math
+
+    from hykin.io.dataset import DatasetError, validate_joints
+    from hykin.io.robot_file import load_robot
+
+    rob = load_robot("abb-irb2400")
+    rob = rob.copy(lower=np.r_[rob.lower[:5], -math.radians(400)], upper=np.r_[rob.upper[:5], math.radians(400)])
+    q = np.zeros((3, 6))
+    q[1, 5] = math.radians(385.5)
+    validate_joints(q, rob)  # accepted
+    q[1, 5] = 45.0  # degrees read as radians: beyond 2π and the limits
+    with pytest.raises(DatasetError, match="beyond ±2π and the robot limits: likely degrees passed as radians"):
+        validate_joints(q, rob)

@@ -70,6 +70,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Callable
 
 import numpy as np
@@ -112,8 +113,10 @@ from .result import (
     orientation_weight_from_sigmas,
     residual_stats,
 )
+from .identifiability import identifiable_columns, parameter_scales
 from .inputs import calibration_inputs
-from .stations import check_groups, frame_starts, row_groups
+from .outliers import DEFAULT_RATIO, OUTLIER_MODES, OutlierWarning, find_outliers, row_errors, subset_rows
+from .stations import check_groups, frame_starts, row_groups, station_rms
 
 __all__ = [
     "CalibrationError",
@@ -143,37 +146,6 @@ def _reference_rows(groups) -> np.ndarray:
     st = groups.rows_of("station", 0)
     both = st & groups.rows_of("tool", 0)
     return np.flatnonzero(both if both.sum() >= 12 else st)
-
-
-# --------------------------------------------------------------------------- identifiability
-
-
-def _identifiable(J_s: np.ndarray, rank_tol: float, negligible_tol: float) -> tuple[np.ndarray, np.ndarray]:
-    """Mask of identifiable columns of the scaled Jacobian (priority order) and the ratios |R_kk|/‖col‖."""
-    norms = np.linalg.norm(J_s, axis=0)
-    if J_s.shape[0] == 0 or not np.any(norms > 0):
-        return np.zeros(J_s.shape[1], bool), np.zeros(J_s.shape[1])
-    import torch
-
-    R = torch.linalg.qr(torch.from_numpy(np.ascontiguousarray(J_s)), mode="r")[1].numpy()
-    m = min(R.shape)
-    rkk = np.zeros(J_s.shape[1])
-    rkk[:m] = np.abs(np.diag(R[:m, :m]))
-    ratio = np.where(norms > 0, rkk / np.where(norms > 0, norms, 1.0), 0.0)
-    mask = (ratio > rank_tol) & (norms > negligible_tol * norms.max())
-    return mask, ratio
-
-
-def parameter_scales(robot: Robot, *, base: bool = True, tool: bool = True, compliance: bool = True) -> np.ndarray:
-    """``(P,)`` typical deviation of each candidate parameter (:func:`parameter_names` order): the
-    scaling :func:`calibrate` applies to the identification Jacobian (1 mm, 1 mrad, 1e-6 rad/N·m)."""
-    return np.array([scale_of(s) for s in candidate_specs(robot, base=base, tool=tool, compliance=compliance)])
-
-
-def identifiable_columns(J_scaled: np.ndarray, rank_tol: float = 1e-6, negligible_tol: float = 1e-9):
-    """Identifiability test of :func:`calibrate` on a scaled Jacobian ``(rows, P)`` whose columns are
-    in priority order: ``(mask (P,) bool, ratio |R_kk| / ‖column‖ (P,))``."""
-    return _identifiable(np.asarray(J_scaled, dtype=np.float64), rank_tol, negligible_tol)
 
 
 # --------------------------------------------------------------------------- LM step
@@ -404,6 +376,8 @@ def calibrate(
     payload_com_m=None,
     priors: dict | None = None,
     noise_m: float | None = None,
+    outliers: str = "drop",
+    outlier_ratio: float = DEFAULT_RATIO,
 ) -> CalibrationResult:
     """Identify geometry, base, tool and joint compliance of ``robot`` from measured poses.
 
@@ -439,6 +413,11 @@ def calibrate(
     ``excitation_mm``; ``refuse_tolerances``). noise_m: measurement noise per coordinate (m) that
     weights the priors and gives the posterior covariance; None: estimated from the residuals.
 
+    outliers: rows more than ``outlier_ratio`` typical errors off the calibrated model
+    (:mod:`hykin.calibration.outliers`) are ``"drop"``: left out and the calibration repeated without
+    them (at most 2 % of the rows; the result's ``outliers`` names them, an :class:`OutlierWarning`
+    says so), ``"warn"``: named only, ``"keep"``: not tested.
+
     Excitation (which parameters the data can tell; the others are held at the robot file's value,
     :mod:`hykin.calibration.priors`) is decided at the current estimate: after base and tool are
     found, and again at the solution (a further pass runs when the excited set changed there).
@@ -452,6 +431,9 @@ def calibrate(
         raise CalibrationError(f"orientation_weight_m_per_rad must be a positive number or 'auto', got {orientation_weight_m_per_rad!r}")
     if not auto_w and not (orientation_weight_m_per_rad > 0 and math.isfinite(orientation_weight_m_per_rad)):
         raise CalibrationError(f"orientation_weight_m_per_rad must be a positive number, got {orientation_weight_m_per_rad}")
+    if outliers not in OUTLIER_MODES or not (outlier_ratio > 1 and math.isfinite(outlier_ratio)):
+        raise CalibrationError(f"outliers must be one of {', '.join(OUTLIER_MODES)} and outlier_ratio a number > 1, "
+                               f"got {outliers!r}, {outlier_ratio!r}")
     if noise_m is not None and not (noise_m > 0 and math.isfinite(noise_m)):
         raise CalibrationError(f"noise_m must be a positive number (m) or None, got {noise_m}")
     try:
@@ -563,6 +545,23 @@ def calibrate(
         res.message += (f"; start: base and tool from the nominal kinematics ({reg.rms_m * 1e3:.3g} mm RMS, robot "
                         f"file frames {reg.rms_before_m * 1e3:.3g} mm)" if reg.rms_m < reg.rms_before_m
                         else "; start: the robot file's base and tool")
+    same = dict(params=params, compliance=compliance, base=base, tool=tool, position_only=position_only,
+                orientation_weight_m_per_rad=orientation_weight_m_per_rad, max_iter=max_iter, tol=tol, rank_tol=rank_tol,
+                negligible_tol=negligible_tol, initial=initial, restarts=restarts, max_deviation=max_deviation,
+                checks=checks, payload_kg=payload_kg, payload_com_m=payload_com_m, priors=priors, noise_m=noise_m,
+                outliers="keep")
+    if outliers != "keep":
+        found = find_outliers(*row_errors(model_poses(state1, q, pl, groups), xyz, R_meas, state1.pts), outlier_ratio)
+        if found is not None and outliers == "drop" and found.droppable:
+            keep = np.setdiff1d(np.arange(q.shape[0]), found.rows)
+            sub = lambda v: subset_rows(v, keep, q.shape[0])
+            res = calibrate(robot, sub(data), **{**same, "payload_kg": sub(payload_kg), "payload_com_m": sub(payload_com_m)})
+            found.dropped = True
+        if found is not None:
+            res.outliers = found
+            warnings.warn(OutlierWarning(found.message(getattr(data, "source", None) or None)), stacklevel=2)
+        if found is not None and found.dropped:
+            return res
     if checks:
         defl = None
         if np.any(state1.c):
@@ -571,11 +570,7 @@ def calibrate(
             defl = np.max(np.abs(state1.c * tau), axis=0)
         from .consistency import OrientationConflictError, check_orientation_consistency  # vs the positions' own residual
 
-        recal = lambda d, po: calibrate(
-            robot, d, params=params, compliance=compliance, base=base, tool=tool, position_only=po,
-            orientation_weight_m_per_rad=orientation_weight_m_per_rad, max_iter=max_iter, tol=tol, rank_tol=rank_tol,
-            negligible_tol=negligible_tol, initial=initial, restarts=restarts, max_deviation=max_deviation, checks=False,
-            payload_kg=payload_kg, payload_com_m=payload_com_m, priors=priors, noise_m=noise_m)
+        recal = lambda d, po: calibrate(robot, d, **{**same, "position_only": po, "checks": False})
         try:
             try:
                 check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl,
@@ -585,11 +580,8 @@ def calibrate(
         except CalibrationError as e:
             if groups is None or isinstance(e, OrientationConflictError):
                 raise
-            rp, _ = residual(model_poses(state1, q, pl, groups), xyz, None, 1.0, state1.pts)
-            e2 = np.sum(rp.reshape(q.shape[0], -1) ** 2, 1) / (rp.size // q.shape[0] // 3)
-            rms = np.sqrt(np.bincount(groups.station, e2) / np.bincount(groups.station)) * 1e3
-            per = ", ".join(f"{lab} {v:.3g} mm" for lab, v in zip(groups.station_labels, rms))
-            raise CalibrationError(f"{e}; or a wrong station/tool label on some rows (RMS per station: {per})") from None
+            raise CalibrationError(f"{e}; or a wrong station/tool label on some rows (RMS per station: "
+                                   f"{station_rms(residual(model_poses(state1, q, pl, groups), xyz, None, 1.0, state1.pts)[0], groups)})") from None
         check_orientation_consistency(res, data, recal, lim["orientation_conflict"])
     return res
 

@@ -96,6 +96,8 @@ class CalibrationResult:
     status: list[str] = field(default_factory=list)
     prior_std: np.ndarray | None = None
     correlated_with: list = field(default_factory=list)
+    #: rows far off the calibrated model (:class:`hykin.calibration.outliers.Outliers`; row indices into the data given)
+    outliers: object | None = None
 
     @property
     def identified_names(self) -> list[str]:
@@ -127,7 +129,9 @@ class CalibrationResult:
         cor = [n for n, s in zip(self.names, st) if s == "correlated"]
         return (f"calibration: {len(self.identified_names)} identified, {len(cor)} correlated"
                 + (f" ({', '.join(cor)})" if cor else "") + f", {len(held)} held at prior"
-                + (f" ({', '.join(held)})" if held else "") + f"; {self.after['pos_rms_mm']:.4g} mm RMS")
+                + (f" ({', '.join(held)})" if held else "") + f"; {self.after['pos_rms_mm']:.4g} mm RMS"
+                + ("" if self.outliers is None else f"; {len(self.outliers.rows)} outlier rows "
+                   + ("left out" if self.outliers.dropped else "kept")))
 
     def report(self) -> str:
         """Human-readable table (lengths in mm, angles in deg, compliance in µrad/(N·m)): deviation from
@@ -158,6 +162,8 @@ class CalibrationResult:
             if key in self.before:
                 lines.append(f"{lab:<14} {self.before[key]:10.6f} {self.after[key]:12.6f}")
         lines.append("identified at the solution: " + (", ".join(self.identified_names) or "none"))
+        if self.outliers is not None:
+            lines.append("outliers: " + self.outliers.message())
         fr = self.station_frames
         if fr is not None:  # several stations / tools: every frame (hykin.calibration.stations)
             from ..geometry.se3 import transform_to_xyzrpy
@@ -208,6 +214,7 @@ class CalibrationResult:
             "seconds": self.seconds,
             "point_offsets_m": None if self.point_offsets_m is None else np.asarray(self.point_offsets_m).tolist(),
             "station_frames": None if self.station_frames is None else self.station_frames.to_dict(),
+            "outliers": None if self.outliers is None else self.outliers.to_dict(),
         }
 
 

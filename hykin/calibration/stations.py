@@ -340,3 +340,12 @@ def add_frames(frames: StationFrames | None, labels: tuple[str | None, str | Non
             setattr(out, attr_l, (*labels_now, lab))
             setattr(out, attr_f, np.concatenate([getattr(out, attr_f), F[None]]))
     return out, (np.eye(4) if station is not None else pre), (np.eye(4) if tool is not None else post)
+
+
+def station_rms(rp: np.ndarray, groups: RowGroups) -> str:
+    """``"A 0.02 mm, B 3.1 mm"``: RMS per station of the position residual ``rp`` ``(N·K, 3)`` m
+    (sample-major, every reflector: :func:`hykin.calibration.jacobian.residual`)."""
+    n = groups.station.shape[0]
+    e2 = np.sum(rp.reshape(n, -1) ** 2, 1) / (rp.size // n // 3)
+    rms = np.sqrt(np.bincount(groups.station, e2) / np.bincount(groups.station)) * 1e3
+    return ", ".join(f"{lab} {v:.3g} mm" for lab, v in zip(groups.station_labels, rms))

@@ -40,14 +40,22 @@ def _prior_help() -> str:
 
 
 Prior = typer.Option(None, "--prior", help=_prior_help())
+Outliers = typer.Option(
+    "drop", "--outliers",
+    help="Poses far off the calibrated model (a lost beam, a wrong point name): drop (leave them out of the fit "
+         "and name them), warn (name them only) or keep (no test).")
+OutlierRatio = typer.Option(
+    12.0, "--outlier-ratio",
+    help="A pose is an outlier beyond this many typical errors (median-based, per coordinate) off the calibrated model.")
 
 
-def _calibration_options(orientation_weight: str, max_deviation: str | None, prior: list[str] | None = None) -> dict:
+def _calibration_options(orientation_weight: str, max_deviation: str | None, prior: list[str] | None = None,
+                         outliers: str = "drop", outlier_ratio: float = 12.0) -> dict:
     """``calibrate`` keyword arguments from the CLI options (CLIError on bad values)."""
     from ..hybrid.fit_options import calibration_options
 
     try:
-        return calibration_options(orientation_weight, max_deviation, prior)
+        return calibration_options(orientation_weight, max_deviation, prior, outliers, outlier_ratio)
     except ValueError as e:
         raise CLIError(str(e)) from None
 
@@ -74,6 +82,8 @@ def fit_cmd(
     orientation_weight: str = OrientationWeight,
     max_deviation: str | None = MaxDeviation,
     prior: list[str] | None = Prior,
+    outliers: str = Outliers,
+    outlier_ratio: float = OutlierRatio,
     region_cv: bool = typer.Option(False, "--region-cv", help="Choose the calibration's parameter set by region-blocked validation."),
     fade_cv: int = typer.Option(0, "--fade-cv", help="Measure the fade by leave-one-region-out over this many regions (>= 2; 0 = fixed fade)."),
     length_unit: str = LengthUnit,
@@ -95,7 +105,7 @@ def fit_cmd(
         kw = model_kwargs(arch=arch, recipe=recipe, calibrate=calibrate, device=device, seed=seed,
                           max_minutes=max_minutes, thermal=thermal, min_steps=min_steps, max_epochs=max_epochs,
                           orientation_weight=orientation_weight, max_deviation=max_deviation, prior=prior,
-                          region_cv=region_cv, fade_cv=fade_cv)
+                          region_cv=region_cv, fade_cv=fade_cv, outliers=outliers, outlier_ratio=outlier_ratio)
     except ValueError as e:
         raise CLIError(str(e)) from None
     check_output(out, (robot, train, val), force)  # before any long work
@@ -186,6 +196,8 @@ def calibrate_cmd(
     orientation_weight: str = OrientationWeight,
     max_deviation: str | None = MaxDeviation,
     prior: list[str] | None = Prior,
+    outliers: str = Outliers,
+    outlier_ratio: float = OutlierRatio,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     unit_check: bool = UnitCheck,
@@ -205,7 +217,8 @@ def calibrate_cmd(
     rob = load_robot_spec(robot, base_link, tip_link)
     _check_robot_out(rob, out)
     ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
-    res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation, prior))
+    res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation, prior, outliers,
+                                                                                  outlier_ratio))
     typer.echo(res.report())
     _write_calibrated(res.robot, out)
     if res.station_frames is not None:  # several stations / tools: the file holds the reference's frames
@@ -258,6 +271,8 @@ def register_cmd(
                                       help="Fall back to the nominal model + frames when it predicts the registration poses "
                                            "better (leave-one-pose-out): pose (worse in position or orientation), "
                                            "position (position only) or off."),
+    outliers: str = Outliers,
+    outlier_ratio: float = OutlierRatio,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     unit_check: bool = UnitCheck,
@@ -275,7 +290,8 @@ def register_cmd(
         raise CLIError(f"--nominal-check must be pose, position or off, got {nominal_check!r}")
     if not (0.0 <= alpha < 1.0) or not tolerance > 0 or not noise_mm >= 0:
         raise CLIError(f"--alpha must be in [0, 1), --tolerance > 0, --noise-mm >= 0 (got {alpha}, {tolerance}, {noise_mm})")
-    w = _calibration_options(orientation_weight, None).get("orientation_weight_m_per_rad", "auto")
+    o = _calibration_options(orientation_weight, None, None, outliers, outlier_ratio)
+    w = o.get("orientation_weight_m_per_rad", "auto")
     mdl, rob = load_model_or_robot(model)
     if mdl is None:
         from ..measure.robot_model import RobotModel
@@ -286,7 +302,8 @@ def register_cmd(
     ds = read_dataset(series, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     new, info = register_model(mdl, ds, n_poses=poses, refit="frames" if frames_only else "auto", orientation_weight=w,
                                alpha=alpha, tolerance=tolerance, noise_mm=noise_mm,
-                               check_nominal=False if nominal_check == "off" else nominal_check)
+                               check_nominal=False if nominal_check == "off" else nominal_check,
+                               outliers=o.get("outliers", "drop"), outlier_ratio=o.get("outlier_ratio", 12.0))
     if hasattr(new, "to_robot") and out.suffix.lower() == ".urdf":
         from ..io.urdf import robot_to_urdf
 

@@ -19,7 +19,7 @@ from ..kinematics.classical import classical_fk
 from ..kinematics.robot import Robot
 from .metrics import ErrorStats, error_stats, format_table
 
-__all__ = ["NOMINAL_FITTED", "EvalResult", "evaluate_model", "evaluate_per_payload", "joint_region_rows",
+__all__ = ["NOMINAL_FITTED", "ROBOT_FILE", "EvalResult", "evaluate_model", "evaluate_per_payload", "joint_region_rows",
            "nominal_row"]
 
 
@@ -81,6 +81,10 @@ class EvalResult:
         t = format_table({self.labels.get(k, k): v for k, v in self.stats.items()})
         if self.labels.get("nominal") == NOMINAL_FITTED:
             t += f"\n{NOMINAL_FITTED}: the nominal robot with base and tool frames fitted to these poses (rigid fit)."
+        if "file" in self.stats:
+            t += (f"\n{ROBOT_FILE}: the robot file with its own base and tool, as fk, ik and compensate use it; more than "
+                  f"{FRAME_FIT_FACTOR:g}x the error with fitted frames: the data are in another frame or with another tool "
+                  f"than the file's, or the file's base or tool is wrong (e.g. a tool offset held at its prior).")
         if self.support_distance is not None:
             n_out = int(np.sum(self.support_distance > 0))
             t += f"\n{n_out} of {self.n} samples lie outside the training region (network correction faded there)."
@@ -96,6 +100,7 @@ class EvalResult:
 
 
 NOMINAL_FITTED = "nominal + fitted frames"
+ROBOT_FILE = "robot file as written"
 #: the robot file's frames are kept for the nominal row unless fitting base and tool to the data
 #: lowers its mean position error by more than this factor (data in another frame, another tool)
 FRAME_FIT_FACTOR = 2.0
@@ -148,6 +153,9 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
     pkw = payload_kwargs(payload_of(data))  # per-row payload deflects the calibrated model (and compliant files)
     if isinstance(model, Robot):
         preds["nominal"], labels["nominal"] = nominal_row(model, data.q, T_meas, pos_only, payload=pkw)
+        if labels["nominal"] == NOMINAL_FITTED:  # the file as written first: its own frames may be what is wrong
+            preds = {"file": classical_fk(model, data.q, **pkw), **preds}
+            labels["file"] = ROBOT_FILE
     else:
         nominal = getattr(model, "nominal", None)
         if nominal is not None:

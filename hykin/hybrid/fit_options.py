@@ -17,16 +17,20 @@ FIT_OPTIONS: dict = {
     "arch": "default", "recipe": "default", "calibrate": True, "device": "cpu", "seed": 0,
     "max_minutes": None, "thermal": "auto", "min_steps": None, "max_epochs": None,
     "orientation_weight": "auto", "max_deviation": None, "prior": None, "region_cv": False, "fade_cv": 0,
+    "outliers": "drop", "outlier_ratio": 12.0,
 }
 
 _THERMAL = {"auto": "auto", "on": True, "off": False}
 
 
 def calibration_options(orientation_weight="auto", max_deviation: str | None = None,
-                        prior: list[str] | None = None) -> dict:
+                        prior: list[str] | None = None, outliers: str = "drop", outlier_ratio: float = 12.0) -> dict:
     """``calibrate`` keyword arguments from ``--orientation-weight`` (m/rad or 'auto'),
-    ``--max-deviation`` (KIND=VALUE[,...]; only the kinds given bound their kind) and ``--prior``
-    (KIND=VALUE strings); ValueError on bad values."""
+    ``--max-deviation`` (KIND=VALUE[,...]; only the kinds given bound their kind), ``--prior``
+    (KIND=VALUE strings), ``--outliers`` (drop, warn, keep) and ``--outlier-ratio`` (> 1; defaults are
+    left out of the keywords); ValueError on bad values."""
+    from ..calibration.outliers import DEFAULT_RATIO, OUTLIER_MODES
+
     from ..calibration.checks import parse_max_deviation
     from ..calibration.priors import DEFAULT_PRIORS, parse_kind_values, parse_priors
 
@@ -45,6 +49,18 @@ def calibration_options(orientation_weight="auto", max_deviation: str | None = N
     if prior:
         pri = parse_priors(prior)
         kw["priors"] = {k: v for k, v in pri.items() if v != DEFAULT_PRIORS[k]}  # kinds given (resolved: valid)
+    if outliers not in OUTLIER_MODES:
+        raise ValueError(f"--outliers must be one of {', '.join(OUTLIER_MODES)}, got {outliers!r}")
+    try:
+        ratio = float(outlier_ratio)
+    except (TypeError, ValueError):
+        ratio = float("nan")
+    if not (1 < ratio < float("inf")):
+        raise ValueError(f"--outlier-ratio must be a number > 1 (typical errors), got {outlier_ratio!r}")
+    if outliers != "drop":
+        kw["outliers"] = outliers
+    if ratio != DEFAULT_RATIO:
+        kw["outlier_ratio"] = ratio
     return kw
 
 
@@ -71,7 +87,7 @@ def model_kwargs(**options) -> dict:
     fade_cv = int(o["fade_cv"])
     if fade_cv == 1 or fade_cv < 0:
         raise ValueError(f"--fade-cv must be 0 (off) or >= 2 regions, got {fade_cv}")
-    cal_kw = calibration_options(o["orientation_weight"], o["max_deviation"], o["prior"])
+    cal_kw = calibration_options(o["orientation_weight"], o["max_deviation"], o["prior"], o["outliers"], o["outlier_ratio"])
     if o["region_cv"]:
         cal_kw["select"] = "region-cv"
     device = o["device"]

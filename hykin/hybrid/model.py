@@ -249,6 +249,11 @@ class HybridModel:
             payload_of(val)
         self._skipped = {}  # optional steps that failed (hykin.hybrid.optional): name -> cause
         self._calibrate_on(train, progress=progress)
+        out = getattr(self.calibration_, "outliers", None)
+        if out is not None and out.dropped:  # rows far off the calibrated model (hykin.calibration.outliers)
+            keep = np.setdiff1d(np.arange(len(q)), out.rows)
+            train = train_in = train.subset(keep)
+            q, kg_all = q[keep], kg_all[keep]
         self.station_frames_ = stations.fit_station_frames(self, train)  # several stations: data in one frame
         train_in, val_in = train, val = tuple(stations.in_model_frame(self, d) for d in (train, val))
         temp = None if self.thermal is False else temperature_of(train)

@@ -13,6 +13,7 @@ later (simpler) candidate.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -92,6 +93,7 @@ def select_calibration(robot, ds, candidates: dict[str, dict] | None = None, n_b
                          "drop --region-cv (the full calibration is used)")
     from ..calibration.frames import fit_frames, select_representative
     from ..geometry.se3 import pose_error
+    from ..calibration.outliers import OutlierWarning
     from ..kinematics.classical import classical_fk
 
     cands = CANDIDATES if candidates is None else candidates
@@ -107,7 +109,9 @@ def select_calibration(robot, ds, candidates: dict[str, dict] | None = None, n_b
                 continue
             fit_rows = np.flatnonzero(lab != k)
             fit_rows = fit_rows[np.linspace(0, len(fit_rows) - 1, min(max_rows, len(fit_rows))).astype(int)]
-            res = calibrate(robot, ds.subset(fit_rows), **(base_kw | candidate_kwargs(robot, kw)))
+            with warnings.catch_warnings():  # the fit on all rows names the outliers once
+                warnings.simplefilter("ignore", OutlierWarning)
+                res = calibrate(robot, ds.subset(fit_rows), **(base_kw | candidate_kwargs(robot, kw)))
             T_meas = ds.poses()[hold]
             T_mod = classical_fk(res.robot, ds.q[hold])  # with joint compliance when identified
             reg = select_representative(T_meas, n_register, seed, position_only=pos_only)

@@ -62,7 +62,8 @@ QUAT_NORM_TOL = 1e-3  # |‖q‖ - 1| above this is an error; below, the quatern
 MAX_SPREAD_M = 50.0
 SPREAD_PER_REACH = 10.0
 MAX_POSITION_M = MAX_SPREAD_M  # former name (an absolute distance limit, now a spread limit)
-DEG_AS_RAD_MARGIN = 0.1  # rad beyond 2π before revolute joints are called "degrees"
+DEG_AS_RAD_MARGIN = 0.4 * math.pi  # rad beyond 2π (2π·1.2 in all, docs/import-table.md) before revolute joints
+# are called "degrees" when no robot is given; with one, its own limits count too (±400° axes)
 
 
 class DatasetError(ValueError):
@@ -346,10 +347,14 @@ def validate_joints(
         names = [c for c, m in zip(qn, rev & ~cont) if m]
         hint = ("declare angle_unit='deg' (CLI: --angle-unit deg)" if angle_unit == "rad"
                 else "check the file: the values were declared in degrees")
-        big = np.abs(qr) > 2 * math.pi + DEG_AS_RAD_MARGIN
+        reach = 2 * math.pi + DEG_AS_RAD_MARGIN  # a value within the robot's own limits is radians (±400° axes)
+        if robot is not None:
+            reach = np.maximum(reach, np.maximum(np.abs(robot.lower), np.abs(robot.upper))[rev & ~cont] + limit_tol)
+        big = np.abs(qr) > reach
         if big.any():
             r, c = np.argwhere(big)[0]
-            raise row_error(where, f"joint value {qr[r, c]:.6g} rad is beyond ±2π: likely degrees passed as radians; {hint}",
+            raise row_error(where, f"joint value {qr[r, c]:.6g} rad is beyond ±2π"
+                       f"{'' if robot is None else ' and the robot limits'}: likely degrees passed as radians; {hint}",
                        r, names[c], line_offset)
         integral = np.all(np.abs(qr - np.round(qr)) < 1e-9)
         if integral and np.max(np.abs(qr)) > math.pi and qr.size > 1:

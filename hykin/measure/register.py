@@ -45,6 +45,7 @@ configurations where the model is least accurate) and 3-10 % for random choice.
 from __future__ import annotations
 
 import copy
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,6 +57,7 @@ from ..calibration.frames import (
     select_representative,
     select_spread,
 )
+from ..calibration.outliers import DEFAULT_RATIO, OutlierWarning, find_outliers
 from ..calibration.result import orientation_weight_from_sigmas
 from ..calibration.stations import add_frames, series_labels
 from ..geometry.se3 import (
@@ -106,6 +108,7 @@ class RegistrationInfo:
     nominal_check: str = ""  # registered model vs nominal + frames, leave-one-pose-out
     nominal_figures: dict = field(default_factory=dict)  # mean LOO errors of both (mm, deg)
     fell_back: bool = False  # the returned model is the nominal robot with fitted frames
+    outliers: object | None = None  # rows of the series far off the model (hykin.calibration.outliers.Outliers)
 
 
     def report(self) -> str:
@@ -141,6 +144,8 @@ class RegistrationInfo:
             s += f" ({self.n_fade_swapped} selected poses in the fade zone of the network correction replaced by their nearest validated neighbours)"
         if not self.converged:
             s += f" (WARNING: solver did not converge: {self.message})"
+        if self.outliers is not None and self.outliers.dropped:
+            s += f"; {len(self.outliers.rows)} outlier rows left out"
         return s
 
 
@@ -279,7 +284,7 @@ def _select_extra(prob: _Problem, x0: np.ndarray, cands: list[str]) -> tuple[lis
     leave-one-pose-out error of the linearised fit: each kept parameter lowers it by >= 3 % and is
     >= 3 std from zero).
     Returns the chosen names and, for each candidate left out, why."""
-    from ..calibration.calibrate import identifiable_columns
+    from ..calibration.identifiability import identifiable_columns
 
     why: dict[str, str] = {}
     if not cands:
@@ -336,8 +341,14 @@ def _select_extra(prob: _Problem, x0: np.ndarray, cands: list[str]) -> tuple[lis
 def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, select: str = "representative",
                    refit: str | tuple = "auto", max_residual_ratio: float | None = None, check_networks: bool = True,
                    orientation_weight: float | str = "auto", alpha: float = 1e-3, tolerance: float = 3.0,
-                   noise_mm: float = NOISE_MM, noise_deg: float = NOISE_DEG, check_nominal: bool | str = True):
+                   noise_mm: float = NOISE_MM, noise_deg: float = NOISE_DEG, check_nominal: bool | str = True,
+                   outliers: str = "drop", outlier_ratio: float = DEFAULT_RATIO):
     """Register ``series`` to ``model`` from ``n_poses`` poses; returns ``(new_model, info)``.
+
+    ``outliers`` (``"drop"``, ``"warn"``, ``"keep"``; :mod:`hykin.calibration.outliers`): rows of the
+    series more than ``outlier_ratio`` typical errors off the model with frames fitted on the
+    registration poses (a lost beam) are left out of the registration and of the figures on the rest
+    (``info.outliers``, an :class:`~hykin.calibration.outliers.OutlierWarning` names them).
 
     ``orientation_weight``: m/rad weight of the orientation residuals, or ``"auto"`` (default):
     ``sigma_pos / sigma_rot`` of a first frames fit at 1 m/rad on the registration poses (the rule of
@@ -432,7 +443,6 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
     if getattr(new, "fade", False) is not False and hasattr(new, "fade_weight") and check_networks:
         # The networks were validated on the training data only: keep their correction for this
         # series only where its own registration poses show that it helps (issue 13).
-        import warnings
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -444,6 +454,21 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
             new.fade_offset_ = -(new.fade_width_ + 1.0)  # w = 0 at every support distance >= 0
             T_model = new.predict(series.q, temperature_c=temp, **pl_kw)
     w = 1.0 if orientation_weight == "auto" else float(orientation_weight)
+    if outliers != "keep":  # a lost beam among the series: against frames fitted on the registration poses
+        B, E, _ = fit_frames_solution(T_model[idx], T_meas[idx], position_only=pos_only, orientation_weight_m_per_rad=w)
+        p0, a0 = pose_error(B @ T_model @ E, T_meas)
+        found = find_outliers(p0 * 1e-3, None if pos_only else np.radians(a0), outlier_ratio)
+        if found is not None:
+            found.dropped = outliers == "drop" and found.droppable
+            warnings.warn(OutlierWarning(found.message(getattr(series, "source", None) or None)
+                                         .replace("calibrated model", "registered model")), stacklevel=2)
+        if found is not None and found.dropped:
+            new_model, info = register_model(
+                model, series.subset(np.setdiff1d(np.arange(len(series)), found.rows)), n_poses, seed, select, refit,
+                max_residual_ratio, check_networks, orientation_weight, alpha, tolerance, noise_mm, noise_deg,
+                check_nominal, outliers="keep")
+            info.outliers = found
+            return new_model, info
     B, E, sol = fit_frames_solution(T_model[idx], T_meas[idx], position_only=pos_only, orientation_weight_m_per_rad=w)
     if orientation_weight == "auto" and not pos_only:  # sigma_pos / sigma_rot of this fit, as the calibration's auto
         T_fit = B @ T_model[idx] @ E

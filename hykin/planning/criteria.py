@@ -2,7 +2,7 @@
 
 The Jacobian is :func:`hykin.calibration.jacobian.identification_jacobian` (geometry, base, tool, joint
 compliance: exactly what :func:`hykin.calibration.calibrate.calibrate` estimates), scaled like the calibration
-scales it (:func:`hykin.calibration.calibrate.parameter_scales`: 1 mm, 1 mrad, 1e-6 rad/N·m) and expressed in
+scales it (:func:`hykin.calibration.identifiability.parameter_scales`: 1 mm, 1 mrad, 1e-6 rad/N·m) and expressed in
 mm of TCP displacement per typical deviation, restricted to the parameters the calibration would
 estimate (:func:`hykin.calibration.priors.excitation`, the calibration's test, on a spread sample of the
 candidate pool; the others it holds at the robot file's value).
@@ -22,10 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..calibration.calibrate import (
-    identification_jacobian,
-    parameter_scales,
-)
+from ..calibration.identifiability import parameter_scales
+from ..calibration.jacobian import identification_jacobian
 from ..kinematics.robot import Robot
 
 __all__ = ["IdentificationModel", "identification_model", "information", "observability", "scaled_rows"]
