@@ -20,7 +20,7 @@ from .progress import Progress
 from .train import train_net
 
 __all__ = ["calibrate_on", "error_metrics", "input_range", "residual_targets", "split_validation", "train_networks",
-           "training_metadata"]
+           "training_metadata", "without_outliers"]
 
 
 def residual_targets(robot, ds) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
@@ -151,6 +151,16 @@ def training_metadata(model, train, val, *, n_split: tuple[int, int, int], has_o
         "inputs": {"periodic": model.periodic, "joint1": model.joint1},
         "thermal": None if model.thermal_ is None else model.thermal_.to_dict(),
     }
+
+
+def without_outliers(calibration, train, q: np.ndarray, kg: np.ndarray):
+    """``(train, q (N, dof), kg (N,))`` without the rows the calibration left out as outliers
+    (:mod:`hykin.calibration.outliers`): the networks do not learn a lost beam either."""
+    out = getattr(calibration, "outliers", None)
+    if out is None or not out.dropped:
+        return train, q, kg
+    keep = np.setdiff1d(np.arange(len(q)), out.rows)
+    return train.subset(keep), q[keep], kg[keep]
 
 
 def calibrate_on(model, ds, progress: bool = False):

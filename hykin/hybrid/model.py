@@ -68,8 +68,7 @@ from ..io.payload import payload_kwargs, payload_of, payload_range_of
 from ..io.robot_file import load_robot
 from ..kinematics.classical import classical_fk, classical_fk_torch
 from ..kinematics.robot import Robot
-from . import bands, fast_fk, fast_nets, fitting, inputs, persistence, stations
-from . import support as sup_
+from . import bands, fast_fk, fast_nets, fitting, inputs, persistence, stations, support as sup_
 from .errors import HybridError, OutOfRangeWarning
 from .nets import ResidualNet
 from .optional import optional_step
@@ -249,11 +248,8 @@ class HybridModel:
             payload_of(val)
         self._skipped = {}  # optional steps that failed (hykin.hybrid.optional): name -> cause
         self._calibrate_on(train, progress=progress)
-        out = getattr(self.calibration_, "outliers", None)
-        if out is not None and out.dropped:  # rows far off the calibrated model (hykin.calibration.outliers)
-            keep = np.setdiff1d(np.arange(len(q)), out.rows)
-            train = train_in = train.subset(keep)
-            q, kg_all = q[keep], kg_all[keep]
+        train, q, kg_all = fitting.without_outliers(self.calibration_, train, q, kg_all)
+        train_in = train
         self.station_frames_ = stations.fit_station_frames(self, train)  # several stations: data in one frame
         train_in, val_in = train, val = tuple(stations.in_model_frame(self, d) for d in (train, val))
         temp = None if self.thermal is False else temperature_of(train)
