@@ -138,3 +138,22 @@ def test_register_leaves_a_lost_beam_out_of_the_registration_and_the_figures():
         warnings.simplefilter("ignore")
         _, kept = register_model(mdl, ds, n_poses=20, outliers="keep", alpha=0.0)
     assert kept.outliers is None and kept.n_total == 40
+
+
+def test_a_row_slipped_in_one_file_is_named_as_such():
+    """Errors that jump from one row on (joints and measurements out of step) name that row; a file
+    whose errors are large everywhere, or that only has a few outliers, is not called out of step."""
+    from hykin.calibration.outliers import step_change
+
+    rng = np.random.default_rng(2)
+    e = np.linalg.norm(rng.standard_normal((800, 3)), axis=1) * 1e-4
+    assert step_change(e) is None and step_change(e * 1e3) is None
+    e2 = e.copy()
+    e2[600:] = np.linalg.norm(rng.standard_normal((200, 3)), axis=1) * 0.1  # rows 601.. slipped
+    r, ratio = step_change(e2)
+    assert r == 600 and ratio > 100
+    got = find_outliers(e2)
+    assert got.step == (600, pytest.approx(ratio)) and "from data row 601 on the poses fit" in got.message("s.csv")
+    e3 = e.copy()
+    e3[[5, 700]] = 0.05  # two lost beams: outliers, no step
+    assert find_outliers(e3).step is None

@@ -10,14 +10,18 @@ model, the largest over the reflectors; orientation: rotation angle) against the
 distance has that median. A row is an outlier when ``e_i > ratio · s`` and ``e_i`` exceeds a floor
 (noise-free data fit to rounding; the floor keeps rounding from being called an outlier).
 
-The default ratio 12 was chosen on clean data: calibrated with hykin, the largest row of five virtual
-robots (3,000 poses each: rx160 with and without noise, ur10, kr-payload) lay 4.4–8.5 s off and
-the public tracker sets ipa-robot-accuracy A/B and serial-robots-ur5 4.6–9.2 s (``/tmp``-free
-script: ``benchmarks/bench_outliers.py``). A Gaussian row beyond 12 s has probability ~1e-30.
+The default ratio 12 was chosen on clean data (``benchmarks/bench_outliers.py``, 3,000 poses each):
+calibrated with hykin, the largest row of the virtual robots rx160-nongeo, ur10 and kr-payload lay
+4.7–5.7 s off, of the public tracker sets ipa-robot-accuracy A / B and serial-robots-ur5 5.6 / 9.2 /
+4.6 s. A Gaussian row beyond 12 s has probability ~1e-30. Ten lost beams of 1, 2 and 5 mm among 3,000
+ur10-virtual poses were all found, no other row; keeping them made the calibrated held-out error
+1.03x, 1.10x and 1.67x that of dropping them.
 
-At most ``max_fraction`` of the rows are dropped (2 %): more than that is not a few bad points but a
+At most ``MAX_FRACTION`` of the rows are dropped (2 %): more than that is not a few bad points but a
 robot file or data that do not fit, which the calibration's own checks judge; those rows are only
-named. Fewer than ``MIN_ROWS`` rows give no reliable median: no test.
+named, and when the rows from one row on fit ``STEP_RATIO`` (5) times worse than those before
+(:func:`step_change`) the message says joints and measurements are out of step. Fewer than
+``MIN_ROWS`` rows give no reliable median: no test.
 """
 
 from __future__ import annotations
@@ -29,7 +33,8 @@ import numpy as np
 
 from .jacobian import residual
 
-__all__ = ["DEFAULT_RATIO", "OUTLIER_MODES", "Outliers", "OutlierWarning", "find_outliers", "row_errors", "subset_rows"]
+__all__ = ["DEFAULT_RATIO", "OUTLIER_MODES", "Outliers", "OutlierWarning", "find_outliers", "row_errors", "step_change",
+           "subset_rows"]
 
 #: median of the distance of an isotropic 3-D Gaussian error, in units of its per-coordinate σ
 MAXWELL_MEDIAN = 1.5382
@@ -39,6 +44,7 @@ MIN_ROWS = 20
 FLOOR_M = 50e-6  # below any robot's repeatability: noise-free fits are never "outliers"
 FLOOR_RAD = math.radians(0.005)
 OUTLIER_MODES = ("drop", "warn", "keep")
+STEP_RATIO = 5.0  # rows from some row on this many times worse than before: a row slipped in one file
 
 
 class OutlierWarning(UserWarning):
@@ -63,6 +69,9 @@ class Outliers:
     ratio: float
     n_rows: int
     dropped: bool = False
+    #: ``(first row, ratio)``: from that 0-based row on the rows fit ``ratio`` x worse than before
+    #: (:func:`step_change`), or None
+    step: tuple[int, float] | None = None
 
     @property
     def droppable(self) -> bool:
@@ -81,6 +90,10 @@ class Outliers:
         what = ("left out of the fit (--outliers keep uses them)" if self.dropped else
                 "kept: more than 2 % of the rows, so the robot file or the data may not fit" if not self.droppable else
                 "kept (--outliers warn; --outliers drop leaves them out)")
+        if self.step is not None:
+            return (f"{head}from data row {self.step[0] + 1} on the poses fit {self.step[1]:.3g}x worse than the rows before "
+                    f"({k} of {self.n_rows} more than {self.ratio:g}x the typical error off the calibrated model): joints "
+                    f"and measurements out of step (a row missing or doubled in one of the files)? {what}")
         return (f"{head}{k} of {self.n_rows} poses lie more than {self.ratio:g}x the typical error ({typ} per "
                 f"coordinate) off the calibrated model: data rows {shown} ({size}); a lost beam, a reflector in the "
                 f"wrong nest or a wrong point name or station label? {what}")
@@ -124,10 +137,30 @@ def find_outliers(pos_err_m: np.ndarray, rot_err_rad: np.ndarray | None = None, 
     if not bad.any():
         return None
     rows = np.flatnonzero(bad)
-    return Outliers(rows=rows, pos_mm=pos_err_m[rows] * 1e3,
-                    rot_deg=None if rot_err_rad is None else np.degrees(np.asarray(rot_err_rad)[rows]),
-                    typical_pos_mm=s_p * 1e3, typical_rot_deg=None if s_r is None else math.degrees(s_r),
-                    ratio=float(ratio), n_rows=n)
+    out = Outliers(rows=rows, pos_mm=pos_err_m[rows] * 1e3,
+                   rot_deg=None if rot_err_rad is None else np.degrees(np.asarray(rot_err_rad)[rows]),
+                   typical_pos_mm=s_p * 1e3, typical_rot_deg=None if s_r is None else math.degrees(s_r),
+                   ratio=float(ratio), n_rows=n)
+    if not out.droppable:
+        out.step = step_change(pos_err_m)
+    return out
+
+
+def step_change(e: np.ndarray, min_rows: int = 10, min_ratio: float = STEP_RATIO) -> tuple[int, float] | None:
+    """``(r, ratio)`` when the rows from ``r`` on fit ``ratio`` >= ``min_ratio`` times worse (geometric mean
+    of the errors ``e`` ``(N,)``) than the rows before, at the split that best separates the two (both at
+    least ``min_rows``): the signature of joints and measurements out of step by a row. Else None."""
+    le = np.log(np.maximum(np.asarray(e, dtype=np.float64), 1e-12))
+    n = le.shape[0]
+    if n < 2 * min_rows:
+        return None
+    c = np.cumsum(le)
+    r = np.arange(min_rows, n - min_rows + 1)
+    before, after = c[r - 1] / r, (c[-1] - c[r - 1]) / (n - r)
+    score = (after - before) * np.sqrt(r * (n - r) / n)  # a two-sample t-like statistic on log errors
+    k = int(np.argmax(score))
+    ratio = float(np.exp(after[k] - before[k]))
+    return (int(r[k]), ratio) if ratio >= min_ratio else None
 
 
 def subset_rows(data, keep: np.ndarray, n_rows: int):

@@ -137,9 +137,9 @@ def _pairs(n: int, ref_R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 # an Euler import with the wrong convention or angle order gives rotations that look reordered or inverted
-_EULER_HINT = ("; data imported from Euler angles (hykin import table --euler): check --euler-convention, "
-               "--euler-extrinsic/--euler-intrinsic and the order of the angle columns (KUKA A,B,C: "
-               "--euler-convention kuka)")
+_EULER_HINT = ("; if these orientations were converted from Euler angles (hykin import table --euler), the "
+               "quaternion reading is not the cause: check --euler-convention, --euler-extrinsic/--euler-intrinsic "
+               "and the order of the angle columns (KUKA A,B,C: --euler-convention kuka)")
 
 
 def check_orientation_order(robot: Robot, q, quat_wxyz, *, where: str = "<data>", T_nominal=None) -> float | None:
