@@ -77,3 +77,17 @@ def test_simulated_egm_follows_the_path_under_a_flood(abb):
     err, ang = path_errors(abb, run.q, targets)
     base_err, _ = path_errors(abb, ik(nom, targets, q_seed=run.q).q, targets)
     assert base_err.mean() > 0.5 and err.max() < 1e-3 and ang.max() < 1e-5
+
+
+def test_a_restarted_session_is_answered_again(abb):
+    nom = abb.nominal
+    q0 = np.radians([10.0, 20, -10, 30, 40, -20])
+    P = _path(nom, 2, q0)
+    h = EgmHandler(exact_step(abb), np.eye(4), 6, np.ones(6))
+    msg = lambda seq: format_robot(seq, 4 * seq, P[0], np.degrees(q0), P[0])
+    assert h(msg(5000)).kind == "ok" and h(msg(5001)).kind == "ok"
+    assert h(msg(3)).kind == "ignored:stale seqno" and h(msg(5002)).kind == "ok"  # one stray: ignored
+    assert h(msg(1)).kind == "ignored:stale seqno"  # a new session's first message
+    o = h(msg(2))
+    assert o.kind == "ok" and o.skipped == 0 and parse_sensor(o.reply)[0] == 2
+    assert h(msg(3)).kind == "ok" and h(msg(2)).kind == "ignored:stale seqno"

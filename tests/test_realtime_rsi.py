@@ -326,3 +326,21 @@ def test_cli_rsi_refuses_an_rt_priority_out_of_range_in_one_line(tmp_path, capsy
         main(["rsi", str(mp), "--listen", f"127.0.0.1:{port}", "--rt-priority", "150"])
     err = capsys.readouterr().err.strip().splitlines()
     assert e.value.code == 2 and len(err) == 1 and "--rt-priority" in err[0] and "150" in err[0]
+
+
+def test_a_restarted_controller_is_answered_again(kuka):
+    """A controller that restarts counts IPOC from far behind: after two consecutive such messages the
+    bridge answers again; one stray old datagram, or repeats, stay unanswered."""
+    nom = kuka.nominal
+    q0 = np.radians([10.0, -80, 100, 20, 50, -30])
+    sp = _path(nom, 2, q0)
+    h = RsiHandler(exact_step(kuka), np.eye(4), 6, SIGNS, RsiConfig())
+    msg = lambda ipoc: format_rob(ipoc, sp[0], sp[0], np.degrees(q0 * SIGNS), RsiConfig())
+    assert h(msg(900_000)).kind == "ok" and h(msg(900_004)).kind == "ok"
+    assert h(msg(5_000)).kind == "ignored:stale IPOC"  # a stray old datagram ...
+    assert h(msg(900_008)).kind == "ok"  # ... and the session goes on
+    assert h(msg(900_004)).kind == "ignored:stale IPOC"  # a repeat
+    assert h(msg(6_000)).kind == "ignored:stale IPOC"  # the restart's first message
+    o = h(msg(6_004))  # its second, 4 ms later: a new count
+    assert o.kind == "ok" and o.skipped == 0 and parse_sen(o.reply, RsiConfig())[0] == 6_004
+    assert h(msg(6_008)).kind == "ok" and h(msg(6_004)).kind == "ignored:stale IPOC"

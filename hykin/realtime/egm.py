@@ -7,7 +7,9 @@ on the branch of the feedback joints (``feedBack.joints``, deg), and the answer 
 the compensated pose in ``planned.cartesian`` with the robot's ``seqno`` and ``tm`` echoed and
 ``mtype = MSGTYPE_CORRECTION``. A pose that cannot be compensated is answered with the planned pose
 itself (no correction); a message that cannot be parsed, lacks the planned pose or joints, or whose
-``seqno`` is not after the last answered one (modulo 2^32) is not answered.
+``seqno`` is not after the last answered one (modulo 2^32) is not answered; except a session started
+again: two consecutive messages more than ``RESTART_BEHIND`` behind that follow each other start a
+new count (:class:`hykin.realtime.udp_bridge.RestartWatch`).
 """
 
 from __future__ import annotations
@@ -15,12 +17,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import se3
-from .udp_bridge import Outcome
+from .udp_bridge import Outcome, RestartWatch
 
 __all__ = ["EgmHandler", "format_robot", "format_sensor", "parse_robot", "parse_sensor"]
 
 
 _PB: tuple = ()
+RESTART_BEHIND = 250  # seqnos behind the last answered one (1 s at 4 ms) that may be a new session
 
 
 def _pb():
@@ -119,6 +122,7 @@ class EgmHandler:
         self.signs = np.asarray(axis_signs, dtype=np.float64)
         self.max_mm, self.max_deg = float(max_correction_mm), float(max_correction_deg)
         self.last_seq: int | None = None
+        self.restart = RestartWatch(RESTART_BEHIND, 10)
         self.last_reason = ""
 
     def command(self, planned: np.ndarray, joints_deg) -> np.ndarray:
@@ -141,8 +145,11 @@ class EgmHandler:
         if self.last_seq is not None:
             gap = (seq - self.last_seq) % 2**32
             if gap == 0 or gap >= 2**31:
-                return Outcome(None, "ignored:stale seqno")
+                if not self.restart.restarted(seq, (self.last_seq - seq) % 2**32):
+                    return Outcome(None, "ignored:stale seqno")
+                gap = 1  # a new session: its own count
             skipped = gap - 1
+        self.restart.clear()
         self.last_seq = seq
         try:
             T, kind = self.command(planned, joints), "ok"

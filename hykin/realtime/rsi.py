@@ -9,7 +9,9 @@ and runs its nominal model moves the real robot (per the model) onto the setpoin
 sends that correction; incremental mode sends its change since the last answer (RSI adds it up).
 
 * A message that cannot be parsed, or whose ``IPOC`` is not after the last answered one (a repeat,
-  an old or foreign message), is not answered.
+  an old or foreign message), is not answered; except a controller that restarted: two consecutive
+  messages more than ``RESTART_BEHIND_MS`` behind that follow each other start a new count
+  (:class:`hykin.realtime.udp_bridge.RestartWatch`; incremental mode starts its sum again).
 * A setpoint that cannot be compensated (no solution, a correction over the limits: the position
   shift in mm and the rotation angle between setpoint and command in degrees, any internal
   error) is answered with a zero correction and its ``IPOC``: the robot goes on uncorrected (absolute
@@ -25,11 +27,12 @@ import numpy as np
 from ..compensation.krl import abc_from_matrix, matrix_from_abc
 from ..geometry import se3
 from .rsi_xml import RsiConfig, RsiMessageError, format_sen, parse_rob
-from .udp_bridge import Outcome
+from .udp_bridge import Outcome, RestartWatch
 
 __all__ = ["DECIMALS", "RsiHandler", "korr_of", "pose_of"]
 
 DECIMALS = 5  # of RKorr as written (mm, deg)
+RESTART_BEHIND_MS = 1000  # an IPOC this far behind the last answered one may be a restarted controller
 
 
 def pose_of(xyzabc) -> np.ndarray:
@@ -80,6 +83,7 @@ class RsiHandler:
         self.period_ms = float(period_ms)
         self.max_mm, self.max_deg = float(max_correction_mm), float(max_correction_deg)
         self.last_ipoc: int | None = None
+        self.restart = RestartWatch(RESTART_BEHIND_MS, int(10 * max(self.period_ms, 1.0)))
         self.sent_sum = np.zeros(6)  # incremental mode: what the controller has added up
         self.last_reason = ""
 
@@ -105,7 +109,10 @@ class RsiHandler:
             self.last_reason = str(e)
             return Outcome(None, "ignored:malformed")
         if self.last_ipoc is not None and msg.ipoc <= self.last_ipoc:
-            return Outcome(None, "ignored:stale IPOC")
+            if not self.restart.restarted(msg.ipoc, self.last_ipoc - msg.ipoc):
+                return Outcome(None, "ignored:stale IPOC")
+            self.last_ipoc, self.sent_sum = None, np.zeros(6)  # a new RSI context: its own count and sum
+        self.restart.clear()
         skipped = 0
         if self.last_ipoc is not None:
             skipped = max(int(round((msg.ipoc - self.last_ipoc) / self.period_ms)) - 1, 0)

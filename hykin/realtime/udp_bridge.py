@@ -22,7 +22,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 
-__all__ = ["BridgeStats", "Outcome", "arrival_time", "bind_udp", "parse_listen", "raise_priority", "run_bridge"]
+__all__ = ["BridgeStats", "Outcome", "RestartWatch", "arrival_time", "bind_udp", "parse_listen", "raise_priority", "run_bridge"]
 
 _log = logging.getLogger("hykin.realtime")
 _DRAIN = 256  # datagrams read at most per turn when behind
@@ -37,6 +37,34 @@ class Outcome:
     reply: bytes | None
     kind: str
     skipped: int = 0
+
+
+class RestartWatch:
+    """A controller that restarts (a new RSI context, an EGM session started again) counts its stamp
+    (``IPOC``, ``seqno``) from a value far behind the last answered one. One such message is not enough
+    (a stray old or foreign datagram): a restart is taken when ``confirm`` consecutive messages lie
+    more than ``behind`` counts behind and each follows the previous by 1 to ``step`` counts."""
+
+    def __init__(self, behind: int, step: int, confirm: int = 2):
+        self.behind, self.step, self.confirm = int(behind), int(step), int(confirm)
+        self._run: list[int] = []
+
+    def restarted(self, stamp: int, behind_by: int) -> bool:
+        """Whether ``stamp``, ``behind_by`` counts behind the last answered one, confirms a restart."""
+        if behind_by <= self.behind:
+            self._run = []
+            return False
+        if self._run and not (0 < stamp - self._run[-1] <= self.step):
+            self._run = []
+        self._run.append(int(stamp))
+        if len(self._run) >= self.confirm:
+            self._run = []
+            return True
+        return False
+
+    def clear(self) -> None:
+        """An in-order message was answered: no restart under way."""
+        self._run = []
 
 
 @dataclass
