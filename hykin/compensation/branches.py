@@ -50,6 +50,7 @@ __all__ = [
     "abb_confdata",
     "arm_angles",
     "arm_geometry",
+    "best_fitting",
     "candidate_solutions",
     "default_axis_signs",
     "kuka_status",
@@ -239,7 +240,7 @@ class Candidates:
         q = np.asarray(q, dtype=np.float64)
         self.qz = np.nan_to_num(q)
         self.k_lo, self.k_hi = representation_range(self.qz, robot.lower, robot.upper)
-        rev = np.array([t == "revolute" for t in robot.joint_type])
+        rev = np.array([t == "revolute" for t in robot.independent_joint_type])  # (n,) like q (mimic joints excluded)
         self.shift = TWO_PI * (rev & (self.k_lo <= self.k_hi))  # 2π where a revolute joint can move into the limits
         self.valid = np.asarray(ok, dtype=bool) & np.isfinite(q).all(-1)
         self.lower, self.upper = robot.lower, robot.upper
@@ -265,7 +266,22 @@ def nearest_candidate(robot: Robot, q: np.ndarray, ok: np.ndarray, cur: np.ndarr
     return Candidates(robot, np.asarray(q)[None], np.asarray(ok)[None]).nearest(0, cur)
 
 
-def sequential_nearest(robot: Robot, T_world, q_start=None, polish: bool = True) -> np.ndarray:
+def best_fitting(ok: np.ndarray, pos_err_m: np.ndarray, ang_err_rad: np.ndarray, factor: float = 10.0,
+                 floor: float = 1e-6) -> np.ndarray:
+    """``ok`` ``(N, K)`` restricted to the solutions whose residual (m + rad) is within ``factor`` times
+    their target's best plus ``floor``: of an under-actuated arm's least-squares solutions, the branches
+    that fit the target (the other elbow of a SCARA whose axes are not quite parallel tilts the tool
+    ~0.1° otherwise: it does not reach a pose the first reaches to 1e-3°). Exact solutions (residual
+    ~1e-10) all stay."""
+    with np.errstate(invalid="ignore"):
+        res = np.asarray(pos_err_m, dtype=np.float64) + np.asarray(ang_err_rad, dtype=np.float64)
+    res = np.where(ok & np.isfinite(res), res, np.inf)
+    best = res.min(axis=1, keepdims=True)
+    return ok & (res <= factor * best + floor)
+
+
+def sequential_nearest(robot: Robot, T_world, q_start=None, polish: bool = True,
+                       least_squares: tuple[float, float] | None = None) -> np.ndarray:
     """Joints ``(N, n)`` a controller moving through the targets in order would pick: each target's
     nominal solution nearest the previous one (the first nearest ``q_start``, default zero clipped into
     the limits), over every branch and 2π representation within the limits. NaN rows for unreachable
@@ -273,12 +289,18 @@ def sequential_nearest(robot: Robot, T_world, q_start=None, polish: bool = True)
 
     ``polish=False`` (branch hints, refined afterwards anyway): a robot's own closed-form solutions as
     found (to 1e-9 m / rad), not polished to 1e-10 by LM (:func:`hykin.kinematics.ik.ik`'s ``polish``):
-    the polish was a quarter of a compensated batch's time."""
+    the polish was a quarter of a compensated batch's time. ``least_squares`` ``(m, rad)``: an
+    under-actuated arm's (fewer than 6 joints) least-squares solutions within these count too
+    (:func:`hykin.kinematics.ik.ik`: it matches an arbitrary pose only in that sense), those that fit
+    it best (:func:`best_fitting`)."""
     from ..kinematics.ik import ik
 
-    br = ik(robot, np.asarray(T_world, dtype=np.float64), all_branches=True, polish=polish)
+    br = ik(robot, np.asarray(T_world, dtype=np.float64), all_branches=True, polish=polish, least_squares=least_squares)
     q = np.asarray(br.q, dtype=np.float64).reshape(len(br.q), -1, robot.dof)
-    return walk_nearest(robot, q, np.asarray(br.success, dtype=bool).reshape(len(q), -1), q_start)
+    ok = np.asarray(br.success, dtype=bool).reshape(len(q), -1)
+    if least_squares is not None:
+        ok = best_fitting(ok, br.pos_err_m, br.ang_err_rad)
+    return walk_nearest(robot, q, ok, q_start)
 
 
 def walk_nearest(robot: Robot, q: np.ndarray, ok: np.ndarray, q_start=None) -> np.ndarray:

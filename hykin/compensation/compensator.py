@@ -25,7 +25,13 @@ Success tolerance (``tolerance_mm``, ``tolerance_deg``): by default ``tolerance_
 model's own held-out mean hybrid error (training metadata: ``val``, else ``held_out``, else ``train``
 metrics), at least 1e-4 mm / 1e-4 deg (the hybrid IK's own threshold; also the value for models
 without metrics). A solution that misses the target by less than half of what the model itself is
-uncertain about is as good as exact for the robot; the LM normally reaches ~1e-12 m anyway. Failures
+uncertain about is as good as exact for the robot; the LM normally reaches ~1e-12 m anyway. An
+under-actuated arm (fewer than 6 joints) matches an arbitrary (measured) pose only in the least-squares
+sense: a row at a least-squares solution (the joints cannot reduce the error further) also succeeds
+when its error is within the model's accuracy (:func:`hykin.hybrid.ik_result.model_accuracy`, the
+held-out maximum error; the rule of :func:`hykin.hybrid.ik.hybrid_ik`). Without a ``q_branch`` the
+hints of such an arm are its least-squares solutions, of the branches that fit the target best
+(:func:`hykin.compensation.branches.best_fitting`). Failures
 carry a categorised reason: ``"blocked by a joint limit: ..."``, ``"unreachable for the model: ..."``
 (no solution within the limits near the meant branch; residual given; ``"unreachable for the model: out of
 reach, ..."`` when the target is farther from the robot's base than the arm reaches, naming the other
@@ -74,8 +80,9 @@ class StepResult:
 def model_tolerance(model, fraction: float = 0.5) -> tuple[float, float]:
     """``(mm, deg)``: ``fraction`` of the model's held-out mean hybrid position / orientation error
     (module docstring), at least 1e-4 mm / 1e-4 deg."""
-    met = (getattr(model, "metadata", None) or {}).get("metrics", {}) or {}
-    src = met.get("val") or met.get("held_out") or met.get("train") or {}
+    from ..hybrid.ik_result import model_metrics
+
+    src = model_metrics(model)
     out = []
     for key, floor in (("hybrid_pos_mean_mm", _FLOOR_MM), ("hybrid_rot_mean_deg", _FLOOR_DEG)):
         v = src.get(key)
@@ -97,7 +104,7 @@ class Compensator:
     def __init__(self, model, *, frame: str = "measurement", tolerance_mm: float | None = None,
                  tolerance_deg: float | None = None, tolerance_fraction: float = 0.5,
                  max_move_rad: float = np.radians(30.0), **ik_kw):
-        from ..hybrid.ik_result import classical_robot
+        from ..hybrid.ik_result import classical_robot, model_accuracy, underactuated
 
         self.model = model
         self.nominal = model.nominal
@@ -110,6 +117,10 @@ class Compensator:
         if not (self.tolerance_mm > 0 and self.tolerance_deg > 0):
             raise ValueError(f"tolerances must be > 0, got {self.tolerance_mm} mm, {self.tolerance_deg} deg")
         self.max_move_rad = float(max_move_rad)
+        self._lsq = None  # (m, rad): an under-actuated arm's least-squares acceptance (module docstring)
+        if underactuated(self.robot, False):
+            am, ad = model_accuracy(model)
+            self._lsq = (max(self.tolerance_mm, am or 0.0) * 1e-3, np.radians(max(self.tolerance_deg, ad or 0.0)))
         self.ik_kw = ik_kw
         self.lower = np.asarray(self.robot.lower, dtype=np.float64)
         self.upper = np.asarray(self.robot.upper, dtype=np.float64)
@@ -319,6 +330,8 @@ class Compensator:
                                       fd=True)
                 self._keep_better(j, q, pe, ae, q3, p3, a3)
         ok = self._ok(pe, ae)
+        if not ok.all() and self._lsq is not None and not pos_only:
+            ok = self._least_squares_ok(Tm, q, pe, ae, ok)
         reason = None  # every row within the tolerance
         if not ok.all():
             at_lim = ((q <= lo_j + 1e-9) | (q >= hi_j - 1e-9)).any(1)
@@ -328,6 +341,20 @@ class Compensator:
                                              + f" (tolerance {self.tolerance_mm:.3g} mm)")
                                for o, w, p, a in zip(ok, what, pe, ae)], dtype=object)
         return q, pe * 1e3, np.degrees(ae), reason
+
+    def _least_squares_ok(self, Tm, q, pe, ae, ok) -> np.ndarray:
+        """``ok`` plus the rows at a least-squares solution within the model's accuracy (under-actuated
+        arms; module docstring), not on a joint limit. ``pe``, ``ae``: m, rad."""
+        from ..hybrid.ik_solve import IKProblem, stationary
+
+        at_lim = ((q <= self.lower + 1e-9) | (q >= self.upper - 1e-9)).any(1)
+        i = np.flatnonzero(~ok & ~at_lim & (pe <= self._lsq[0]) & (ae <= self._lsq[1]))
+        if not i.size:
+            return ok
+        prob = IKProblem(self.model, self.robot, Tm[i], False, 1.0)
+        ok = ok.copy()
+        ok[i] = stationary(prob, q[i], np.arange(i.size), self.tolerance_mm * 1e-3, np.radians(self.tolerance_deg))
+        return ok
 
     @staticmethod
     def _keep_better(i, q, pe, ae, q2, p2, a2) -> None:
@@ -374,8 +401,9 @@ class Compensator:
     def _walk(self, T: np.ndarray, D, pos_only: bool) -> np.ndarray:
         """Branch hints without ``q_branch`` (module docstring): nominal solutions nearest the previous
         target's; where the nominal robot has none, the calibrated robot's, else the previous joints."""
+        from ..hybrid.ik_seeds import LSQ_SEED
         from ..kinematics.ik import ik
-        from .branches import nearest_candidate, sequential_nearest, walk_nearest
+        from .branches import best_fitting, nearest_candidate, sequential_nearest, walk_nearest
 
         nom, N, n = self.nominal, len(T), self.dof
         start = np.clip(np.zeros(n), nom.lower, nom.upper)
@@ -389,13 +417,13 @@ class Compensator:
         T_nom = nom.base @ T if self.frame == "base" else T  # the target in the nominal robot's world
         if D is not None:
             T_nom = T_nom @ se3.invert(D)
-        qb = sequential_nearest(nom, T_nom, None, polish=False)  # hints: solved on the model next
+        qb = sequential_nearest(nom, T_nom, None, polish=False, least_squares=LSQ_SEED)  # hints: solved on the model next
         miss = np.flatnonzero(~np.isfinite(qb).all(1))
         if miss.size:
             Tr = self._robot_world(self.model_targets(T[miss], None if D is None else D[miss]))
-            br = ik(self.robot, Tr, all_branches=True)
+            br = ik(self.robot, Tr, all_branches=True, least_squares=LSQ_SEED)
             qc = np.asarray(br.q, dtype=np.float64).reshape(len(miss), -1, n)
-            okc = np.asarray(br.success, dtype=bool).reshape(len(miss), -1)
+            okc = best_fitting(np.asarray(br.success, dtype=bool).reshape(len(miss), -1), br.pos_err_m, br.ang_err_rad)
             for j, i in enumerate(miss):  # few rows: the walk continues from the joints before
                 prev = next((qb[k] for k in range(i - 1, -1, -1) if np.isfinite(qb[k]).all()), start)
                 pick = nearest_candidate(self.robot, qc[j], okc[j], prev)

@@ -29,6 +29,13 @@ Method (Ojer et al. 2024, §1.3), batched over every target × branch:
    converged onto another branch's root restart from the other root of the local quadratic model
    (``more_roots``). A restart counts only when it is a new, distinct solution.
 
+5. Under-actuated arms (fewer than 6 joints: SCARA, palletizer) cannot match all six components of an
+   arbitrary (measured) pose: the answer is the least-squares solution. Their classical seeds are the
+   calibrated arm's least-squares solutions (``least_squares`` of :func:`hykin.kinematics.ik.ik`), and a
+   row succeeds when the joints can reduce the error no further and what is left is within the model's
+   own accuracy (its held-out maximum error, :func:`~hykin.hybrid.ik_result.model_accuracy`);
+   :func:`~hykin.hybrid.ik_solve.hybrid_ik_from_seeds`.
+
 Solutions of one target closer than ``dedupe_rad`` (max joint difference) are merged.
 :func:`branch_count_report` compares the distinct solutions per target with the closed form of the
 nominal robot and explains each difference (joint limit, singularity / workspace edge, or unexplained). Failed rows
@@ -115,7 +122,9 @@ def hybrid_ik(
     for a model with a thermal coefficient (:meth:`HybridModel.targets_at_reference`); errors are
     then reported at the reference temperature (they differ by ``alpha dT`` relative, ~1e-5).
     Success needs ``pos_err_mm <= success_mm`` (1e-4) and ``ang_err_deg <= success_deg`` (1e-4) and
-    joints within limits. Other keywords go to :func:`hybrid_ik_from_seeds` (``widen`` = 5,
+    joints within limits; for an under-actuated arm (fewer than 6 joints, full poses) also a least-squares
+    solution whose error is within the model's accuracy (``underactuated_mm`` / ``underactuated_deg``,
+    default :func:`~hykin.hybrid.ik_result.model_accuracy`: module docstring, step 5). Other keywords go to :func:`hybrid_ik_from_seeds` (``widen`` = 5,
     ``orientation_weight_m`` = 1, ``success_mm``, ``success_deg``, ``max_iter`` = 60,
     ``jacobian_mode``, ``keep_failed``, ``dedupe_rad``, ``torch_threads`` = 1: torch threads while solving,
     ``restarts`` = 16: random starts in the widened box for rows that stalled near the target — local
@@ -123,7 +132,11 @@ def hybrid_ik(
     singularities of step 4 of the module docstring).
     Returns a :class:`HybridIKResult`: per target its distinct successful solutions (one per branch;
     joints with a range over 2π in the closed form's representation, nearest zero — or nearest
-    ``q_current`` with ``nearest=True``: the hybrid model is not 2π-periodic), or one failed row.
+    ``q_current`` with ``nearest=True``: the hybrid model is not 2π-periodic, so ``q ± 2π`` is another
+    configuration that would need a solve of its own; it is tried only for targets no representation
+    nearest zero reaches), or one failed row. Classical IK rows (``hykin ik`` on a robot file,
+    :func:`hykin.kinematics.ik_rows.classical_ik_rows`) list every 2π copy within the limits instead, for
+    robots with at most 8 per solution (not a UR arm: 64).
     """
     robot = check_model(model)
     if temperature_c is not None and hasattr(model, "targets_at_reference"):

@@ -17,7 +17,8 @@ from ..kinematics.robot import Robot
 
 __all__ = [
     "DEFAULT_DELTA_RAD", "ROW_FIELDS", "HybridIKError", "HybridIKResult", "check_model", "classical_robot",
-    "parse_targets", "predict_quiet", "support_of", "torch_threads",
+    "model_accuracy", "model_metrics", "parse_targets", "predict_quiet", "support_of", "torch_threads",
+    "underactuated",
 ]
 
 DEFAULT_DELTA_RAD = float(np.radians(3.0))
@@ -82,6 +83,36 @@ ROW_FIELDS = (
 
 
 # --------------------------------------------------------------------------- inputs
+
+
+def model_metrics(model) -> dict:
+    """The model's own held-out accuracy (training metadata ``metrics``: ``val``, else ``held_out``, else
+    ``train``; ``{}`` for a model without them)."""
+    met = (getattr(model, "metadata", None) or {}).get("metrics", {}) or {}
+    return met.get("val") or met.get("held_out") or met.get("train") or {}
+
+
+def model_accuracy(model) -> tuple[float | None, float | None]:
+    """``(mm, deg)``: how far the model's own poses are from measured ones: its held-out maximum hybrid
+    position / orientation error, else 3 × the mean (:func:`model_metrics`); None where unknown.
+
+    The tolerance of the part of a pose an under-actuated arm cannot control (:func:`underactuated`):
+    a measured target differs from the model's pose by the model's error, and its uncontrollable part
+    is never larger, so an arm that misses a target by less than the model misses measured poses
+    reaches it as well as the model can tell."""
+    src = model_metrics(model)
+    out = []
+    for kind, unit in (("pos", "mm"), ("rot", "deg")):
+        mx, mean = src.get(f"hybrid_{kind}_max_{unit}"), src.get(f"hybrid_{kind}_mean_{unit}")
+        v = mx if mx is not None and np.isfinite(mx) else (3.0 * mean if mean is not None and np.isfinite(mean) else None)
+        out.append(None if v is None else float(v))
+    return out[0], out[1]
+
+
+def underactuated(robot: Robot, position_only: bool) -> bool:
+    """Fewer joints than the IK residual has components (< 6 for poses, < 3 for positions): an arbitrary
+    (measured) target has no exact solution, only a least-squares one."""
+    return robot.dof < (3 if position_only else 6)
 
 
 def classical_robot(model) -> Robot:

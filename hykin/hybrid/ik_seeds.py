@@ -11,7 +11,12 @@ from ..kinematics.ik_closed_form import has_closed_form
 from ..kinematics.robot import Robot
 from .ik_result import classical_robot
 
-__all__ = ["boundary_seeds", "classical_seeds", "closed_form_proxy", "seed_robot_of"]
+__all__ = ["LSQ_SEED", "boundary_seeds", "classical_seeds", "closed_form_proxy", "seed_robot_of"]
+
+#: ``(m, rad)``: an under-actuated arm's least-squares classical solutions that miss a target by less
+#: than this seed the hybrid solve (the target is a hybrid or measured pose, off the classical arm's
+#: reachable poses by its correction: ~1-3 mm / 0.2° on a real arm)
+LSQ_SEED = (0.01, float(np.radians(2.0)))
 
 
 
@@ -75,7 +80,8 @@ def classical_seeds(robot: Robot, T: np.ndarray, *, all_branches: bool = True, q
     any closed form, from ik's numerical multi-start search. ``q_seed`` ``(N, dof)`` / ``(N, S, dof)``
     adds one numerical solution per seed (the only ones when ``all_branches=False``). Branches with
     no classical solution are re-seeded from targets pulled ``pull_m`` towards the base (see
-    :func:`boundary_seeds`). Returns ``q0`` ``(N, B, dof)`` (NaN where a branch has no classical solution), ``branch``
+    :func:`boundary_seeds`). An under-actuated arm (fewer than 6 joints) reaches most poses only in the
+    least-squares sense: its least-squares solutions within :data:`LSQ_SEED` seed it. Returns ``q0`` ``(N, B, dof)`` (NaN where a branch has no classical solution), ``branch``
     ``(N, B)`` str labels and ``ok`` ``(N, B)`` bool (the classical solver reports success).
     """
     N, n = T.shape[0], robot.dof
@@ -91,7 +97,7 @@ def classical_seeds(robot: Robot, T: np.ndarray, *, all_branches: bool = True, q
 
     if all_branches and not position_only:
         sr = seed_robot if seed_robot is not None else closed_form_proxy(robot)
-        br = classical_ik(robot, T, all_branches=True, seed_robot=sr)
+        br = classical_ik(robot, T, all_branches=True, seed_robot=sr, least_squares=LSQ_SEED)
         q, ok = np.array(br.q, dtype=np.float64), np.array(br.success, dtype=bool)
         if sr is not None and (~ok).any():
             # a branch just outside the joint limits (or failing the classical polish) still seeds the
@@ -108,11 +114,11 @@ def classical_seeds(robot: Robot, T: np.ndarray, *, all_branches: bool = True, q
     if q_seed is not None:
         qs = np.asarray(q_seed, dtype=np.float64).reshape(N, -1, n)
         for s in range(qs.shape[1]):
-            r = classical_ik(robot, T, q_seed=qs[:, s], position_only=position_only)
+            r = classical_ik(robot, T, q_seed=qs[:, s], position_only=position_only, least_squares=LSQ_SEED)
             lab = np.full(N, "seed" if qs.shape[1] == 1 else f"seed{s}", dtype=object)
             _add(r.q, r.success, lab)
     if not outs_q:
-        r = classical_ik(robot, T, position_only=position_only)
+        r = classical_ik(robot, T, position_only=position_only, least_squares=LSQ_SEED)
         _add(r.q, r.success, np.where(np.asarray(r.label, dtype=object) == "", "numeric", r.label))
     return np.concatenate(outs_q, 1), np.concatenate(outs_b, 1), np.concatenate(outs_ok, 1)
 

@@ -18,14 +18,16 @@ from .ik_result import (
     HybridIKError,
     HybridIKResult,
     check_model,
+    model_accuracy,
     parse_targets,
     support_of,
+    underactuated,
 )
 from .ik_result import torch_threads as torch_threads_ctx
 from .ik_roots import duplicates, pick_new
 from .ik_roots import more_roots as search_more_roots
 
-__all__ = ["IKProblem", "box_lm", "errors_of", "hybrid_ik_from_seeds", "run_polished", "run_rows"]
+__all__ = ["IKProblem", "box_lm", "controllable_error", "errors_of", "hybrid_ik_from_seeds", "run_polished", "run_rows"]
 
 class IKProblem:
     """Residuals and Jacobians of rows (targets repeated per branch), numpy float64."""
@@ -56,11 +58,10 @@ class IKProblem:
 
     def exact_jac(self, q: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """Exact Jacobian ``(k, m, dof)`` of the residual by autograd of ``predict_torch``."""
-        import torch
-
         pt = getattr(self.model, "predict_torch", None)
         if pt is None:
             return self.fd_jac(q, rows)
+        import torch
         qt = torch.tensor(q, dtype=torch.float64, requires_grad=True)
         Tt = torch.as_tensor(self.T[rows], dtype=torch.float64)
         P = pt(qt).to(torch.float64)
@@ -142,9 +143,47 @@ def box_lm(prob: IKProblem, q0: np.ndarray, rows: np.ndarray, lo: np.ndarray, hi
     return res.q, res.r, res.aux[0], res.iterations
 
 
+def controllable_error(prob: IKProblem, q: np.ndarray, rows: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(m, rad)`` ``(k,)``: the part of the residual ``r`` ``(k, m)`` at ``q`` that the joints can still
+    reduce: its projection onto the columns of the hybrid Jacobian (central differences). Zero at a
+    least-squares solution; what is left (``r`` minus it) the arm cannot control."""
+    Q, _ = np.linalg.qr(prob.fd_jac(q, rows))
+    rc = np.einsum("kij,kj->ki", Q, np.einsum("kji,kj->ki", Q, r))
+    return errors_of(prob, rc)
+
+
+def stationary(prob: IKProblem, q: np.ndarray, rows: np.ndarray, success_m: float, success_rad: float) -> np.ndarray:
+    """``(k,)`` bool: ``q`` is a least-squares solution of its row (:func:`controllable_error` within
+    ``success_m`` / ``success_rad``): the joints cannot reduce the error any further."""
+    if not len(q):
+        return np.zeros(0, dtype=bool)
+    r, _ = prob.residual(q, rows)
+    cp, ca = controllable_error(prob, q, rows, r)
+    return (cp <= success_m) & (ca <= success_rad)
+
+
+def lsq_ok(prob: IKProblem, q, rows, r, ok, lim, success_m, success_rad, lsq) -> np.ndarray:
+    """``ok`` plus the rows of an under-actuated arm (``lsq`` ``(m, rad)`` set, else ``ok`` itself) at a
+    least-squares solution (:func:`controllable_error` within ``success_m`` / ``success_rad``, not on a
+    joint limit) whose residual is within ``lsq``: the model's accuracy (:func:`hykin.hybrid.ik_result.model_accuracy`)."""
+    if lsq is None:
+        return ok
+    pe, ae = errors_of(prob, r)
+    cand = np.flatnonzero(~ok & ~lim & (pe <= lsq[0]) & (ae <= lsq[1]))
+    if not cand.size:
+        return ok
+    cp, ca = controllable_error(prob, q[cand], rows[cand], r[cand])
+    ok = ok.copy()
+    ok[cand] = (cp <= success_m) & (ca <= success_rad)
+    return ok
+
+
 def run_rows(prob: IKProblem, q0: np.ndarray, rows: np.ndarray, delta: float, widen: float, *,
               tol_m: float, tol_rad: float, success_m: float, success_rad: float, max_iter: int,
-              jac_mode: str):
+              jac_mode: str, lsq=None):
+    """Box solve (:func:`box_lm`) of ``rows`` from ``q0`` in ``q0 ± delta``, rows pinned on the box
+    re-solved once in a box ``widen`` times larger. ``lsq`` ``(m, rad)``: an under-actuated arm's
+    least-squares acceptance (:func:`lsq_ok`). Returns ``(q, pe_m, ae_rad, ok, on_box, at_limit, iterations)``."""
     robot = prob.robot
     lo_j, hi_j = robot.lower[None], robot.upper[None]
     lo = np.maximum(q0 - delta, lo_j)
@@ -166,8 +205,9 @@ def run_rows(prob: IKProblem, q0: np.ndarray, rows: np.ndarray, delta: float, wi
         pe, ae = errors_of(prob, r)
         ok = (pe <= success_m) & (ae <= success_rad)
         at_box = ((q <= lo + eps) & (lo > lo_j + eps)) | ((q >= hi - eps) & (hi < hi_j - eps))
-    at_lim = (q <= lo_j + eps) | (q >= hi_j - eps)
-    return q, pe, ae, ok, at_box.any(1), at_lim.any(1), it
+    at_lim = ((q <= lo_j + eps) | (q >= hi_j - eps)).any(1)
+    ok = lsq_ok(prob, q, rows, r, ok, at_lim | at_box.any(1), success_m, success_rad, lsq)
+    return q, pe, ae, ok, at_box.any(1), at_lim, it
 
 
 def run_polished(prob: IKProblem, q0: np.ndarray, rows: np.ndarray, delta: float, widen: float, *,
@@ -225,6 +265,8 @@ def hybrid_ik_from_seeds(
     restarts: int = 16,
     more_roots: bool = True,
     sing_rel: float = 0.02,
+    underactuated_mm: float | None = None,
+    underactuated_deg: float | None = None,
 ) -> HybridIKResult:
     """Hybrid refinement of given classical solutions ``q0`` ``(N, dof)`` or ``(N, B, dof)``.
 
@@ -235,6 +277,15 @@ def hybrid_ik_from_seeds(
     failed branch as well. ``nearest=True`` with ``q_current`` ``(N, dof)`` keeps one solution per
     target: inside the training support (or where the network correction still applies at least half:
     fade weight >= 0.5) if any, then nearest in joint space (Euclidean).
+
+    Under-actuated arms (fewer than 6 joints, full poses; :func:`hykin.hybrid.ik_result.underactuated`)
+    cannot match all six components of an arbitrary (e.g. measured) pose: the answer is the
+    least-squares solution. A row succeeds there when the joints can reduce the error no further (its
+    controllable part, :func:`controllable_error`, within ``success_mm`` / ``success_deg``) and the
+    error left is within ``underactuated_mm`` / ``underactuated_deg`` (default: the model's own
+    accuracy, :func:`hykin.hybrid.ik_result.model_accuracy`: its held-out maximum error; without
+    metrics, ``success_mm`` / ``success_deg``: exact poses only). The residual is reported as for
+    any row.
     """
     robot = check_model(model)
     T, pos_only_in = parse_targets(T_target)
@@ -267,6 +318,12 @@ def hybrid_ik_from_seeds(
     if jacobian_mode not in ("frozen-fd", "frozen", "exact"):
         raise HybridIKError(f"hybrid IK: jacobian_mode must be 'frozen-fd', 'frozen' or 'exact', got {jacobian_mode!r}")
 
+    lsq = None
+    if underactuated(robot, pos_only):
+        acc_mm, acc_deg = model_accuracy(model)
+        acc_mm = acc_mm if underactuated_mm is None else underactuated_mm
+        acc_deg = acc_deg if underactuated_deg is None else underactuated_deg
+        lsq = (max(success_mm, acc_mm or 0.0) * 1e-3, np.radians(max(success_deg, acc_deg or 0.0)))
     tgt = np.repeat(np.arange(N), B)
     flat_q0 = q0.reshape(N * B, n)
     use = usable.reshape(-1)
@@ -287,7 +344,7 @@ def hybrid_ik_from_seeds(
             qq, p_, a_, o_, box, lim, itr = run_polished(
                 prob, np.clip(flat_q0[ui], robot.lower, robot.upper), rows, float(delta_rad), float(widen),
                 tol_m=tol_m, tol_rad=tol_rad, success_m=success_mm * 1e-3, success_rad=np.radians(success_deg),
-                max_iter=max_iter, jac_mode=jacobian_mode,
+                max_iter=max_iter, jac_mode=jacobian_mode, lsq=lsq,
             )
             # Rows that stalled close to the target (a local minimum of the flat cost near a
             # singularity): multi-start inside the widened box. A target with no solution yet keeps the
@@ -295,6 +352,9 @@ def hybrid_ik_from_seeds(
             solved_t = np.zeros(N, dtype=bool)
             solved_t[rows[o_]] = True
             retry = ~o_ & ~box & ~lim & (p_ < 1e-3)
+            if lsq is not None and retry.any():  # an under-actuated arm's least-squares solution: no other nearby
+                ri = np.flatnonzero(retry)
+                retry[ri[stationary(prob, qq[ri], rows[ri], success_mm * 1e-3, np.radians(success_deg))]] = False
             if restarts > 0 and retry.any():
                 ri = np.flatnonzero(retry)
                 rng = np.random.default_rng(0)
@@ -304,7 +364,7 @@ def hybrid_ik_from_seeds(
                 q2, p2, a2, o2, b2, l2, i2 = run_rows(
                     prob, qs, rows[rep], float(delta_rad), float(widen), tol_m=tol_m, tol_rad=tol_rad,
                     success_m=success_mm * 1e-3, success_rad=np.radians(success_deg), max_iter=max_iter,
-                    jac_mode=jacobian_mode,
+                    jac_mode=jacobian_mode, lsq=lsq,
                 )
                 score = np.where(o2, 0.0, p2 + np.where(np.isfinite(a2), a2, 0.0)).reshape(ri.size, restarts)
                 best = np.argmin(score, axis=1)
@@ -339,7 +399,7 @@ def hybrid_ik_from_seeds(
                         q2, p2, a2, o2, b2, l2, i2 = run_rows(
                             prob, np.clip(qs, robot.lower, robot.upper), rows[rep], float(delta_rad), float(widen),
                             tol_m=tol_m, tol_rad=tol_rad, success_m=success_mm * 1e-3,
-                            success_rad=np.radians(success_deg), max_iter=max_iter, jac_mode=jacobian_mode,
+                            success_rad=np.radians(success_deg), max_iter=max_iter, jac_mode=jacobian_mode, lsq=lsq,
                         )
                         for k in np.flatnonzero(o2):  # few rows: plain loop is fine here
                             r0 = rep[k]
@@ -351,7 +411,7 @@ def hybrid_ik_from_seeds(
                 run = lambda q0_, rows_: run_polished(
                     prob, q0_, rows_, float(delta_rad), float(widen), tol_m=tol_m, tol_rad=tol_rad,
                     success_m=success_mm * 1e-3, success_rad=np.radians(success_deg), max_iter=max_iter,
-                    jac_mode=jacobian_mode)
+                    jac_mode=jacobian_mode, lsq=lsq)
                 search_more_roots(prob, flat_q0[ui], labels.reshape(-1)[ui], st, rows, ui % B, N, B, rev, dedupe_rad,
                             sing_rel, run)
         q[ui], pe[ui], ae[ui], ok[ui], it[ui] = qq, p_, a_, o_, itr
@@ -359,6 +419,13 @@ def hybrid_ik_from_seeds(
             box, f"needs more than ±{np.degrees(widen * delta_rad):.3g}° from the classical solution",
             np.where(lim, "blocked by a joint limit", "did not converge (target unreachable for the hybrid model?)"),
         )
+        if lsq is not None:  # at a least-squares solution that misses by more than the model's accuracy
+            f = np.flatnonzero(~o_ & ~box & ~lim)
+            if f.size:
+                stat = stationary(prob, qq[f], rows[f], success_mm * 1e-3, np.radians(success_deg))
+                rs = rs.astype(object)
+                rs[f[stat]] = (f"the arm ({n} joints) cannot match this pose: its least-squares solution misses by more "
+                               f"than the model's accuracy ({lsq[0] * 1e3:.3g} mm / {np.degrees(lsq[1]):.3g} deg)")
         msg = np.array([f"{s}: residual {a * 1e3:.3g} mm / {np.degrees(b):.3g} deg" for s, a, b in zip(rs, p_, a_)],
                        dtype=object)
         reason[ui] = np.where(o_, "", msg)

@@ -331,21 +331,23 @@ def solve_lm(robot: Robot, T_world, q0, position_only: bool = False, tol_m: floa
     return q, pe, ae, it
 
 
-def _attempt(robot: Robot, T, q0, position_only, tol_m, tol_rad, max_iter):
+def _attempt(robot: Robot, T, q0, position_only, tol_m, tol_rad, max_iter, lsq=None):
     """Free LM from ``q0``, result moved to its 2π-representation nearest ``q0`` within limits; where
     that is still outside the limits (another branch is needed, or a redundant robot), a bounded LM
-    from the clipped joints. Returns ``(q, pe, ae, it, ok)``."""
+    from the clipped joints. Returns ``(q, pe, ae, it, ok)``. ``lsq`` ``(m, rad)``: accept where LM
+    stopped within these (least-squares solutions of an under-actuated arm, :func:`ik`)."""
     q, pe, ae, it = solve_lm(robot, T, q0, position_only, tol_m, tol_rad, max_iter, bounded=False)
     rev = _revolute(robot)
     q = np.where(rev, nearest_representation(q, q0, robot.lower, robot.upper), q)
-    conv = (pe <= tol_m) & (ae <= tol_rad)
+    acc_m, acc_rad = (tol_m, tol_rad) if lsq is None else (max(tol_m, lsq[0]), max(tol_rad, lsq[1]))
+    conv = (pe <= acc_m) & (ae <= acc_rad)
     inl = robot.within_limits(q, tol=0.0)
     fix = np.flatnonzero(conv & ~inl)
     if fix.size:
         q2, pe2, ae2, it2 = solve_lm(robot, T[fix], np.clip(q[fix], robot.lower, robot.upper), position_only, tol_m,
                                      tol_rad, max_iter, bounded=True)
         q[fix], pe[fix], ae[fix], it[fix] = q2, pe2, ae2, it[fix] + it2
-    ok = (pe <= tol_m) & (ae <= tol_rad) & robot.within_limits(q, tol=0.0)
+    ok = (pe <= acc_m) & (ae <= acc_rad) & robot.within_limits(q, tol=0.0)
     bad = np.flatnonzero(~ok)
     if bad.size:  # failed rows: report the clipped joints and their true residual, never joints outside limits
         q[bad] = np.clip(q[bad], robot.lower, robot.upper)
@@ -363,10 +365,11 @@ def _final_check(robot, T, q, position_only):
 
 def ik_numeric(robot: Robot, T_world, q_seed=None, position_only: bool = False, tol_m: float = 1e-10,
                tol_rad: float = 1e-10, max_iter: int = 50, restarts: int = 40,
-               rng: np.random.Generator | int | None = 0) -> IKResult:
+               rng: np.random.Generator | int | None = 0, lsq=None) -> IKResult:
     """LM from ``q_seed`` (default: middle of the joint limits), then up to ``restarts`` rounds of
     random seeds (uniform within limits) for the targets still failing (the later half of the rounds
-    with ``4 * max_iter`` iterations). Failed targets return their best joints, clipped to the limits."""
+    with ``4 * max_iter`` iterations). Failed targets return their best joints, clipped to the limits.
+    ``lsq`` ``(m, rad)``: success within these (least-squares solutions, :func:`ik`)."""
     T, _ = as_targets(T_world)
     N, n = len(T), robot.dof
     rng = np.random.default_rng(rng)
@@ -374,7 +377,7 @@ def ik_numeric(robot: Robot, T_world, q_seed=None, position_only: bool = False, 
         mid = 0.5 * (robot.lower + robot.upper)
         q_seed = np.where(np.isfinite(mid), mid, 0.0)
     q_seed = np.broadcast_to(np.asarray(q_seed, dtype=np.float64), (N, n))
-    q, pe, ae, it, ok = _attempt(robot, T, q_seed, position_only, tol_m, tol_rad, max_iter)
+    q, pe, ae, it, ok = _attempt(robot, T, q_seed, position_only, tol_m, tol_rad, max_iter, lsq)
     for r in range(restarts):
         bad = np.flatnonzero(~ok)
         if bad.size == 0:
@@ -382,12 +385,13 @@ def ik_numeric(robot: Robot, T_world, q_seed=None, position_only: bool = False, 
         # the second half of the restarts allows 4x the iterations (slow convergence near limits)
         mi = max_iter if r < restarts // 2 else 4 * max_iter
         q2, pe2, ae2, it2, ok2 = _attempt(robot, T[bad], robot.random_joints(bad.size, rng), position_only, tol_m,
-                                          tol_rad, mi)
+                                          tol_rad, mi, lsq)
         better = ok2 | ((pe2 + ae2) < (pe[bad] + ae[bad]))
         sel = bad[better]
         q[sel], pe[sel], ae[sel], it[sel], ok[sel] = q2[better], pe2[better], ae2[better], it2[better], ok2[better]
     pe, ae = _final_check(robot, T, q, position_only)
-    success = (pe <= tol_m) & (ae <= tol_rad) & robot.within_limits(q, tol=0.0)
+    am, ar = (tol_m, tol_rad) if lsq is None else (max(tol_m, lsq[0]), max(tol_rad, lsq[1]))
+    success = (pe <= am) & (ae <= ar) & robot.within_limits(q, tol=0.0)
     return IKResult(q=q, success=success, pos_err_m=pe, ang_err_rad=ae, branch=np.full(N, -1),
                     label=np.full(N, "", dtype=object), iterations=it)
 
@@ -398,16 +402,20 @@ def _revolute(robot):
 
 def ik_all_numeric(robot: Robot, T_world, n_seeds: int = 200, position_only: bool = False,
                    tol_m: float = 1e-10, tol_rad: float = 1e-10, max_iter: int = 50, dedup_tol: float = 1e-6,
-                   rng: np.random.Generator | int | None = 0, max_solutions: int | None = None) -> IKBranches:
+                   rng: np.random.Generator | int | None = 0, max_solutions: int | None = None,
+                   lsq=None) -> IKBranches:
     """Exhaustive numerical search: LM from ``n_seeds`` random seeds per target, successes kept,
     duplicates (modulo 2π on revolute joints, to ``dedup_tol`` rad) removed. Counts branches the way
-    :func:`ik_closed_form` does."""
+    :func:`ik_closed_form` does. ``lsq`` ``(m, rad)``: success within these (least-squares solutions of
+    an under-actuated arm, :func:`ik`; duplicates then to ``max(dedup_tol, 1e-5)``)."""
     T, _ = as_targets(T_world)
     N, n = len(T), robot.dof
     rng = np.random.default_rng(rng)
     q0 = robot.random_joints(N * n_seeds, rng)
     TT = np.repeat(T, n_seeds, axis=0)
-    q, _, _, _, ok = _attempt(robot, TT, q0, position_only, tol_m, tol_rad, max_iter)
+    q, _, _, _, ok = _attempt(robot, TT, q0, position_only, tol_m, tol_rad, max_iter, lsq)
+    if lsq is not None:  # least-squares minima: LM stops where the cost stops falling, ~1e-8 apart
+        dedup_tol, tol_m, tol_rad = max(dedup_tol, 1e-5), max(tol_m, lsq[0]), max(tol_rad, lsq[1])
     ok = ok.reshape(N, n_seeds)
     q = q.reshape(N, n_seeds, n)
     rev = _revolute(robot)
@@ -492,18 +500,24 @@ def _polish_branches(robot: Robot, T, sols: IKSolutions, position_only, tol_m, t
 def ik(robot: Robot, T_world, q_seed=None, all_branches: bool = False, position_only: bool = False,
        method: str = "auto", seed_robot: Robot | None = None, tol_m: float = 1e-10, tol_rad: float = 1e-10,
        max_iter: int = 50, restarts: int = 40, n_seeds: int = 64,
-       rng: np.random.Generator | int | None = 0, polish: bool = True) -> IKResult | IKBranches:
+       rng: np.random.Generator | int | None = 0, polish: bool = True,
+       least_squares: tuple[float, float] | None = None) -> IKResult | IKBranches:
     """Inverse kinematics of world TCP targets ``T_world`` ``(N, 4, 4)`` (or one ``(4, 4)``).
 
     method: ``"auto"`` (closed form + LM polish where :func:`has_closed_form` holds for ``robot`` or
     ``seed_robot``, else numerical), ``"closed_form"`` (error when none), ``"numeric"`` (LM only).
     q_seed: ``(N, dof)`` or ``(dof,)``: numerical seed, and the joints the returned branch is nearest
     to (default: zero clipped into limits). all_branches: return an :class:`IKBranches` with every
-    distinct solution; otherwise an :class:`IKResult`. position_only: 3-D residual (orientation free;
+    distinct solution (modulo 2π, each nearest zero within the limits; ``hykin ik --all-branches`` adds
+    the 2π copies: :func:`hykin.kinematics.ik_rows.turn_copies`); otherwise an :class:`IKResult`. position_only: 3-D residual (orientation free;
     the closed form does not apply). Unreachable targets come back with ``success = False``.
     polish: with ``all_branches`` and a robot that has its own closed form, ``False`` returns its
     solutions as found (to 1e-9 m / rad) instead of polished by LM to ``tol_m`` / ``tol_rad``: for
     branch hints that are refined afterwards anyway (the polish is most of the time of a batch).
+    least_squares ``(m, rad)``: for an under-actuated robot (fewer joints than the residual has
+    components: < 6 for poses, < 3 for positions) a target off the arm's reachable poses has no exact
+    solution; also accept where LM stops (the least-squares solution) within these bounds. For seeds
+    and branch hints that a hybrid solve refines; ignored for other robots.
     """
     T, _ = as_targets(T_world)
     N, n = len(T), robot.dof
@@ -560,7 +574,8 @@ def ik(robot: Robot, T_world, q_seed=None, all_branches: bool = False, position_
             for f in ("q", "success", "pos_err_m", "ang_err_rad", "branch", "label", "iterations"):
                 getattr(res, f)[miss] = getattr(sub, f)
         return res
+    lsq = least_squares if least_squares is not None and n < (3 if position_only else 6) else None
     if all_branches:
         return ik_all_numeric(robot, T, n_seeds=n_seeds, position_only=position_only, tol_m=tol_m, tol_rad=tol_rad,
-                              max_iter=max_iter, rng=rng)
-    return ik_numeric(robot, T, q_seed, position_only, tol_m, tol_rad, max_iter, restarts, rng)
+                              max_iter=max_iter, rng=rng, lsq=lsq)
+    return ik_numeric(robot, T, q_seed, position_only, tol_m, tol_rad, max_iter, restarts, rng, lsq=lsq)

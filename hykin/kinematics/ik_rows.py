@@ -17,7 +17,10 @@ from .ik import ik
 from .ik_reasons import categorise, failure_reasons
 from .robot import Robot
 
-__all__ = ["classical_ik_rows", "ik_rows"]
+__all__ = ["MAX_TURN_COPIES", "classical_ik_rows", "ik_rows", "turn_copies"]
+
+#: most 2π representations per solution that ``hykin ik --all-branches`` lists (:func:`turn_copies`)
+MAX_TURN_COPIES = 8
 
 
 def ik_rows(target, branch, q, success, pos_err_mm, ang_err_deg, reason, *, robot: Robot | None = None,
@@ -64,17 +67,47 @@ def ik_rows(target, branch, q, success, pos_err_mm, ang_err_deg, reason, *, robo
     return cols
 
 
+def turn_copies(robot: Robot, q: np.ndarray, ok: np.ndarray, max_copies: int = MAX_TURN_COPIES):
+    """Every 2π representation within the limits of each solution ``q`` ``(N, K, n)`` (valid where ``ok``
+    ``(N, K)``): a revolute joint whose range exceeds 2π reaches the same pose at ``q + 2πk`` (the
+    robot's FK is 2π-periodic; a controller turns the axis differently). Returns ``(q (N, K·G, n), ok
+    (N, K·G), src (K·G,))``: slot ``src`` of ``q`` each copy comes from, the solution itself first and
+    then its copies; copies outside the limits are not ``ok``. A robot whose solutions may have more
+    than ``max_copies`` representations (a UR arm: six ±360° joints, 64 per solution) is returned
+    unchanged: each solution once, in its representation nearest zero."""
+    q = np.asarray(q, dtype=np.float64)
+    N, K, n = q.shape
+    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    span = np.asarray(robot.upper, dtype=np.float64) - np.asarray(robot.lower, dtype=np.float64)
+    wide = np.flatnonzero(rev & np.isfinite(span) & (span > 2 * np.pi + 1e-9))
+    reps = np.floor(span[wide] / (2 * np.pi)) + 1  # most representations of one angle within the limits
+    if wide.size == 0 or np.prod(reps) > max_copies:
+        return q, np.asarray(ok, dtype=bool), np.arange(K)
+    axes = [np.concatenate([[0.0], np.arange(1, c), -np.arange(1, c)]) for c in reps.astype(int)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, wide.size)  # (G, w), zero shift first
+    shift = np.zeros((len(grid), n))
+    shift[:, wide] = 2 * np.pi * grid
+    qq = (q[:, :, None, :] + shift[None, None]).reshape(N, -1, n)
+    inside = np.all((qq >= robot.lower) & (qq <= robot.upper), axis=-1)
+    okq = np.repeat(np.asarray(ok, dtype=bool), len(grid), axis=1) & inside
+    okq[:, :: len(grid)] = np.asarray(ok, dtype=bool)  # the solution itself as found
+    return qq, okq, np.repeat(np.arange(K), len(grid))
+
+
 def classical_ik_rows(robot: Robot, T: np.ndarray, q_current=None, position_only: bool = False) -> dict[str, np.ndarray]:
     """:func:`ik_rows` of classical IK on ``robot`` for targets ``T`` ``(N, 4, 4)`` (world, m): every
-    solution branch, or with ``q_current`` ``(N, dof)`` the one nearest it. A target without a solution
-    gets one row (branch ``""``, its smallest residual over the branches, a categorised reason)."""
+    solution branch, each in every 2π representation within the joint limits (:func:`turn_copies`: at
+    most :data:`MAX_TURN_COPIES` per solution, else the one nearest zero), or with ``q_current``
+    ``(N, dof)`` the one nearest it. A target without a solution gets one row (branch ``""``, its
+    smallest residual over the branches, a categorised reason)."""
     br = ik(robot, T, all_branches=True, position_only=position_only)
     if q_current is not None:
         r = br.nearest_to(q_current, robot.lower, robot.upper)
         q, ok, pe, ae = r.q[:, None], r.success[:, None], r.pos_err_m[:, None], r.ang_err_rad[:, None]
         lab = np.asarray(r.label)[:, None]
     else:
-        q, ok, pe, ae, lab = br.q, br.success, br.pos_err_m, br.ang_err_rad, br.label
+        q, ok, src = turn_copies(robot, br.q, br.success)
+        pe, ae, lab = br.pos_err_m[:, src], br.ang_err_rad[:, src], np.asarray(br.label, dtype=object)[:, src]
     failed = ~ok.any(axis=1)
     keep = ok.copy()
     keep[failed, 0] = True  # a failed target: one row saying why
