@@ -63,7 +63,8 @@ columns: ``|R_kk| / sqrt(N)`` is the RMS effect of a one-tolerance change that n
 explains (:func:`hykin.calibration.priors.excitation`). Reported per parameter (:class:`CalibrationResult`):
 identified, correlated (|posterior correlation| >= 0.99 with named others), held at prior, at bound 0.
 Standard deviations come from the posterior covariance ``(Jᵀ Σ⁻¹ J + diag(τ⁻²))⁻¹`` with separate
-residual variances for position and orientation rows.
+residual variances for position and orientation rows, plus what the parameters held at prior may be
+off by, carried through the fit (the "consider" covariance, :func:`hykin.calibration.posterior.posterior`).
 """
 
 from __future__ import annotations
@@ -326,7 +327,8 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
         message += "; " + ", ".join(names[k] for k in np.flatnonzero(at_bound)) + " at the bound 0 (rigid; no std)"
     est = np.flatnonzero(mask & ~at_bound)
     sig2_p, sig2_o = noise_variances(rp, ro, est.size, pri.noise_m)
-    sd, corr, strong, partners = posterior(lin, est, tol_si, scale, sig2_p, sig2_o, names)
+    sd, corr, strong, partners = posterior(lin, est, tol_si, scale, sig2_p, sig2_o, names,
+                                           held=np.flatnonzero(~mask & np.isfinite(tol_si)), bound=np.flatnonzero(at_bound))
     std = np.where(np.isfinite(tol_si), tol_si, np.nan)  # held at prior: the prior's std
     std[at_bound] = np.nan
     std[est] = sd

@@ -58,7 +58,14 @@ pass against 537. Off by default while the figures measured with the fixed floor
 **Estimate.** The estimated parameters are the maximum a posteriori under Gaussian priors: prior
 rows ``(σ / τ_k) (δ_k - μ_k)`` (``σ`` the measurement noise per coordinate, m; ``τ_k`` the tolerance;
 ``μ_k`` the robot file's value, a deviation 0) are added to the normal equations of the one LM
-(:func:`hykin.kinematics.lm.normal_equations_step`). Posterior covariance: ``(Jᵀ Σ⁻¹ J + diag(τ⁻²))⁻¹``.
+(:func:`hykin.kinematics.lm.normal_equations_step`). Posterior covariance of the estimated ones
+(:func:`hykin.calibration.posterior.posterior`): ``A_e⁻¹ + K Σ_h Kᵀ`` with ``A_e = J_eᵀ Σ⁻¹ J_e +
+diag(τ_e⁻²)``; the second ("consider") term carries the held parameters' tolerances ``Σ_h = diag(τ_h²)``
+through the fit, ``K = A_e⁻¹ J_eᵀ Σ⁻¹ J_h``: a held parameter is not known exactly, and what the
+estimated ones absorbed of its error is theirs. Held parameters that the estimated frames (base, tool,
+stations) reproduce exactly (``theta1``/``d1`` against the base, the last joint against the tool) are a
+convention of those frames and left out. An estimated parameter with ``|ρ| >= 0.99`` to a held one (at
+least 98 % of its variance is that tolerance) is reported "correlated with" it, never "identified".
 """
 
 from __future__ import annotations

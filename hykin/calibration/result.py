@@ -8,11 +8,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..geometry.se3 import transform_to_xyzrpy
 from ..kinematics.robot import Robot
 
-__all__ = ["CalibrationResult", "orientation_weight_from_sigmas", "residual_stats"]
+__all__ = ["CalibrationResult", "frame_text", "orientation_weight_from_sigmas", "residual_stats"]
 
-ORIENTATION_WEIGHT_BOUNDS = (1e-3, 1e3)  # m/rad: the automatic weight stays within these
+ORIENTATION_WEIGHT_BOUNDS = (1e-3, 1e3)
+#: parameter-name prefixes of further stations' and tools' frames: they start from the data, not the robot file
+_NO_FILE_VALUE = ("station[", "tool[")  # m/rad: the automatic weight stays within these
+
+
+def frame_text(T: np.ndarray) -> str:
+    """``xyz [x, y, z] mm, rpy [r, p, y] deg`` of a frame ``(4, 4)`` in the robot file's convention
+    (:func:`hykin.geometry.se3.transform_to_xyzrpy`, as ``[base]`` / ``[tool]`` are written)."""
+    xyz, rpy = transform_to_xyzrpy(np.asarray(T, dtype=np.float64))
+    return (f"xyz [{', '.join(f'{v:.4f}' for v in xyz * 1e3)}] mm, "
+            f"rpy [{', '.join(f'{v:.4f}' for v in np.degrees(rpy))}] deg")
 
 
 def orientation_weight_from_sigmas(sigma_pos_m: float, sigma_rot_rad: float) -> float:
@@ -135,7 +146,13 @@ class CalibrationResult:
 
     def report(self) -> str:
         """Human-readable table (lengths in mm, angles in deg, compliance in µrad/(N·m)): deviation from
-        the robot file, posterior std, prior tolerance and status of every parameter."""
+        the robot file, posterior std, prior tolerance and status of every parameter; then the residuals,
+        the frames as written to the robot file (xyz mm, rpy deg) and every station's / tool's frame.
+
+        Frame rows (``base.*``, ``tool.*``) are the deviation twist from the robot file's frame, not rpy:
+        translation and rotation vector of ``T_file⁻¹ · T`` (in the file frame's axes). Further stations'
+        and tools' rows (``station[B].*``, ``tool[T].*``) have no robot-file value: their deviation column
+        is ``-`` (the fit started from a frame of its own) and their frames are listed below the table."""
         n_id = len(self.identified_names)
         n_est = int(np.sum(self.identifiable))
         lines = [
@@ -149,13 +166,26 @@ class CalibrationResult:
         status = self.status or ["identified" if m else "held at prior" for m in self.identifiable]
         prior = self.prior_std if self.prior_std is not None else np.full(len(self.names), np.nan)
         cw = self.correlated_with or [[] for _ in self.names]
+        held = {n for n, s in zip(self.names, status) if s == "held at prior"}
+        by_held = False
         for n, v, s, u, st, p, c in zip(self.names, self.values, self.std, self.units, status, prior, cw):
             f, un = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg"), "c": (1e6, "µrad/N·m")}[u]
             ss = f"{s * f:12.6f}" if np.isfinite(s) else f"{'-':>12}"
             ps = f"{p * f:10.4g}" if np.isfinite(p) else f"{'none':>10}"
+            vs = f"{'-':>14}" if n.startswith(_NO_FILE_VALUE) else f"{v * f:14.6f}"
             if st == "correlated":
-                st = "correlated with " + ", ".join(f"{a} ({r:+.3f})" for a, r in c)
-            lines.append(f"{n:<10} {v * f:14.6f} {ss} {ps}  {un:<9} {st}")
+                st = "correlated with " + ", ".join(f"{a} ({r:+.3f}{'; held at prior' if a in held else ''})" for a, r in c)
+                by_held = by_held or any(a in held for a, _ in c)
+            lines.append(f"{n:<10} {vs} {ss} {ps}  {un:<9} {st}")
+        if any(n.startswith(("base.", "tool.")) for n in self.names):
+            lines.append("base.* / tool.* rows: deviation twist from the robot file's frame T_file (not rpy): x, y, z "
+                         "(mm) and rx, ry, rz (deg, rotation vector) of T_file^-1 · T; the frames themselves: below")
+        if any(n.startswith(_NO_FILE_VALUE) for n in self.names):
+            lines.append("station[..] / tool[..] rows: no robot-file value (deviation -); std of the same twist "
+                         "at the solution; the frames themselves: below")
+        if by_held:
+            lines.append("correlated with a parameter held at prior: that parameter's tolerance, propagated through the "
+                         "fit, makes at least 98 % of the std (the data tell the combination, the robot file the split)")
         lines.append(f"{'':<10} {'before':>14} {'after':>12}")
         for key, lab in (("pos_mean_mm", "pos mean mm"), ("pos_p95_mm", "pos p95 mm"), ("pos_max_mm", "pos max mm"),
                          ("rot_mean_deg", "rot mean deg"), ("rot_p95_deg", "rot p95 deg"), ("rot_max_deg", "rot max deg")):
@@ -166,8 +196,6 @@ class CalibrationResult:
             lines.append("outliers: " + self.outliers.message())
         fr = self.station_frames
         if fr is not None:  # several stations / tools: every frame (hykin.calibration.stations)
-            from ..geometry.se3 import transform_to_xyzrpy
-
             for kind, labels, Ts in (("station", fr.station_labels, fr.station_bases), ("tool", fr.tool_labels, fr.tool_frames)):
                 if len(labels) > 1:
                     xyz, rpy = transform_to_xyzrpy(np.asarray(Ts))
@@ -175,6 +203,8 @@ class CalibrationResult:
                                  f", first = reference): " + "; ".join(
                                      f"{lab}: [{', '.join(f'{v:.6f}' for v in p)}] [{', '.join(f'{v:.4f}' for v in np.degrees(r))}]"
                                      for lab, p, r in zip(labels, xyz, rpy)))
+        lines.append(f"frames of the calibrated robot, as written to the robot file: base (measurement frame -> robot "
+                     f"base) {frame_text(self.robot.base)}; tool (flange -> TCP) {frame_text(self.robot.tool)}")
         held = [n for n, s in zip(self.names, status) if s == "held at prior"]
         if held:
             lines.append("held at prior (the data do not excite them; the robot file's value): " + ", ".join(held))

@@ -336,6 +336,19 @@ def _stream_rms_bound(model, max_rms_mm: float | None) -> float:
     return max(_STREAM_RMS_MODEL_MIN_MM, _STREAM_RMS_MODEL_X * float(err))
 
 
+def _not_a_stream(e, robot_log: Path, tracker_stream: Path) -> str:
+    """The one line of a :class:`~hykin.measure.stream_checks.NotAStreamError` (static data given to
+    ``import stream``), naming the file that samples too slowly and the import for static data."""
+    where = robot_log if e.which == "robot log" else tracker_stream
+    period = e.period_robot_s if e.which == "robot log" else e.period_tracker_s
+    what = (f"one tracker point per robot sample ({e.n_tracker} points, {e.n_robot} robot samples): a static campaign "
+            "(the robot stops, one measurement per stop)" if e.static else "static measurements, one per stop")
+    return (f"{where}: not a stream: a sample every {period:.3g} s (median; robot log {e.period_robot_s:.3g} s, tracker "
+            f"{e.period_tracker_s:.3g} s), {what}; `import stream` would interpolate across the moves between stops. "
+            "For static data put each stop's joints and tracker point in one row (joined by stop name or nearest time) "
+            f"and use `hykin import table`; if these are streams, --max-gap S (above {period:.3g} s) accepts them")
+
+
 @import_app.command("stream")
 def import_stream_cmd(
     robot_log: Path = typer.Argument(..., help="Robot joint log: a time column and the joints."),
@@ -361,7 +374,8 @@ def import_stream_cmd(
                                       "the default with a robot file) or positions (accurate model; the default with a model file)."),
     max_offset: float = typer.Option(1.0, "--max-offset", help="Search the offset within ± this (s).", min=0.0),
     max_speed: float = typer.Option(0.1, "--max-speed", help="Drop samples where the TCP moves faster (m/s); 0 keeps all.", min=0.0),
-    max_gap: float | None = typer.Option(None, "--max-gap", help="Longest tracker gap bridged (s; default 3 tracker periods)."),
+    max_gap: float | None = typer.Option(None, "--max-gap", help="Longest tracker gap bridged (s; default 3 tracker "
+                                         "periods); logs sampling slower than max(0.5 s, this) are refused as static data."),
     frame: str = typer.Option("tracker", "--frame", help="tracker (keep the tracker frame) or fit (robot base by the rigid map of the clock fit)."),
     max_rms_mm: float | None = typer.Option(None, "--max-rms-mm", metavar="MM", min=0.0, help="Refuse when the robot's "
                                             "positions, rigidly mapped, stay further than this RMS from the tracker's (default: "
@@ -371,7 +385,7 @@ def import_stream_cmd(
     force: bool = Force,
 ) -> None:
     """Align a robot joint log with a tracker stream (clock offset, interpolation) into a dataset."""
-    from ..measure.streams import align_streams
+    from ..measure.streams import MIN_JOIN_CORRELATION, ClockRangeError, NotAStreamError, align_streams
 
     if frame not in ("tracker", "fit"):
         raise CLIError(f"import stream: --frame must be tracker or fit, got {frame!r}")
@@ -399,12 +413,29 @@ def import_stream_cmd(
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # out-of-range counts belong to evaluation, not to a clock fit
             p_robot = model.predict(q_r)[:, :3, 3]
-    a = align_streams(t_r, q_r, t_t, p_t, quat_t, rob, clock=offset, p_robot=p_robot,
-                      max_speed_m_s=max_speed or None, max_gap_s=max_gap, fit_drift=fit_drift,
-                      T_base_tracker="fit" if frame == "fit" else None,
-                      **({} if offset is not None else {"method": method, "max_offset_s": max_offset}))
+    try:
+        a = align_streams(t_r, q_r, t_t, p_t, quat_t, rob, clock=offset, p_robot=p_robot,
+                          max_speed_m_s=max_speed or None, max_gap_s=max_gap, fit_drift=fit_drift,
+                          T_base_tracker="fit" if frame == "fit" else None,
+                          **({} if offset is not None else {"method": method, "max_offset_s": max_offset}))
+    except NotAStreamError as e:
+        raise CLIError(_not_a_stream(e, robot_log, tracker_stream)) from None
+    except ClockRangeError as e:
+        raise CLIError(f"{tracker_stream}: the clock offset found, {e.offset_s * 1e3:.4g} ms, lies at the edge of the "
+                       f"search range ±{e.half_s:g} s (--max-offset): the range's limit, not a result; the true offset "
+                       "lies beyond it (give --max-offset S wider, or --offset S if known) or the two files do not "
+                       "belong together") from None
     ds = a.dataset
-    rms_mm, bound = a.info["clock"].rms_m * 1e3, _stream_rms_bound(model, max_rms_mm)
+    clk = a.info["clock"]
+    rms_mm, bound = clk.rms_m * 1e3, _stream_rms_bound(model, max_rms_mm)
+    if offset is None and rms_mm > bound and max_rms_mm is None and clk.correlation < MIN_JOIN_CORRELATION:
+        # the speed profiles do not match at the offset found: no clock joins these files (measured in
+        # stream_checks.MIN_JOIN_CORRELATION); the positions' distance is then that of a bad join, not of a tool
+        raise CLIError(f"{tracker_stream}: no clock offset joins the two files: the TCP speed profiles of "
+                       f"{robot_log} and the tracker correlate at most {clk.correlation:.2f} (at {clk.offset_s * 1e3:.4g} "
+                       f"ms; a right join >= {MIN_JOIN_CORRELATION:g}) and the positions stay {rms_mm:.3g} mm RMS apart: "
+                       f"the offset lies beyond ±{max_offset:g} s (--max-offset), the files do not belong together, or "
+                       "the joint columns' order or --angle-unit is wrong (--max-rms-mm MM accepts the join)")
     if offset is None and rms_mm > bound and model is None and max_rms_mm is None:
         # a robot file without the tool (calibration identifies it) is as far off as another robot: say it, write
         typer.echo(f"warning: the robot file's positions stay {rms_mm:.3g} mm RMS from the tracker's after the best "

@@ -314,7 +314,7 @@ def register_cmd(
         save_robot_toml(new.to_robot(), out)
     else:
         new.save(out)
-    typer.echo(info.report())
+    typer.echo(info.report(robot=getattr(mdl, "robot_", None)))
     if not ds.has_orientation:  # positions show the tool's position and the base, never the tool's rotation
         console().print(f"[yellow]warning:[/] {series} has no orientation columns: the tool's orientation was not "
                         "registered; the written file's orientations keep the previous tool's (register a series "

@@ -308,9 +308,10 @@ def support_report(model, q) -> dict:
     if out["outside"]:
         per = ", ".join(f"q{j}: {c}" for j, c in out["per_joint"].items())
         holes = int(((d > 0) & ~(ex.max(1) > 0)).sum())
+        parts = ([f"outside the trained joint range: {per}"] if per else []) \
+            + ([f"in holes of the training data: {holes}"] if holes else [])
         out["message"] = (f"{out['outside']} of {len(q)} queries lie outside the training region of the networks"
-                          + (f" (outside the trained joint range: {per}" if per else " (")
-                          + (f"; in holes of the training data: {holes})" if holes else ")")
+                          + (f" ({'; '.join(parts)})" if parts else "")
                           + "; the correction fades to the calibrated model there")
     return out
 

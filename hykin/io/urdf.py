@@ -26,6 +26,7 @@ the element.
 
 from __future__ import annotations
 
+import difflib
 import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -197,7 +198,12 @@ def load_urdf_string(
     if tip_link is None:
         tip_link = _default_tip(base_link, children, joints, path_to, where)
     elif tip_link not in links:
-        raise RobotFileError(f"{where}: tip_link '{tip_link}' is not a link")
+        leaves, tips = _tip_candidates(base_link, children, joints)
+        close = difflib.get_close_matches(tip_link, list(links), n=1)
+        raise RobotFileError(f"{where}: tip_link '{tip_link}' is not a link"
+                             + (f" (did you mean '{close[0]}'?)" if close else "")
+                             + f"; the tips below '{base_link}' are: {', '.join(tips or sorted(leaves))} "
+                             "(--tip LINK on the command line)")
     chain = path_to(tip_link)
 
     def inertial(ln: str) -> tuple[float, np.ndarray]:
@@ -236,6 +242,7 @@ def load_urdf_string(
         names.append(j["name"])
     if not origins:
         raise RobotFileError(f"{where}: no movable joint between '{base_link}' and '{tip_link}'")
+    _check_metres(chain, where)
     mimic = _mimic_table([j for j in chain if j["type"] != "fixed"], {j["name"]: j for j in joints.values()},
                          base_link, tip_link, where)
     indep = [i for i in range(len(names)) if mimic[i, 0] < 0]
@@ -267,11 +274,36 @@ def load_urdf_string(
     )
 
 
-def _default_tip(base_link: str, children: dict, joints: dict, path_to, where: str) -> str:
-    """The chain end below ``base_link`` when no tip is named: the one tip, where a *tip* is a leaf
-    link whose own branch (from the last link with several children) holds a movable joint; a
-    dead-end branch of fixed joints only (a camera or sensor frame bolted to a link) is no tip.
-    Several tips: refused in one line naming them. Only dead ends: the one with most movable joints."""
+#: Longest serial chain (m) a URDF may describe, summed over the joint origins from the first movable
+#: joint to the tip. The longest serial machines are truck-mounted concrete-pump booms (up to ~100 m);
+#: industrial arms reach 0.3-4.7 m; a chain written in mm reads 1000x too long, and the smallest arms
+#: (desktop arms, 0.3-0.5 m of links) then add up to 300 m and more. URDF has no unit field (it is SI).
+MAX_CHAIN_LENGTH_M = 120.0
+
+
+def _check_metres(chain: list[dict], where: str) -> None:
+    """Refuse a chain whose joint origins add up to more than :data:`MAX_CHAIN_LENGTH_M`: lengths
+    written in mm. The origins before the first movable joint place the robot in its cell and are
+    not counted; the message names the joint with the longest origin after it."""
+    first = next(i for i, j in enumerate(chain) if j["type"] in _MOVABLE)
+    arm = chain[first + 1:]
+    if not arm:
+        return
+    lengths = np.array([np.linalg.norm(j["origin"][:3, 3]) for j in arm])
+    total = float(lengths.sum())
+    if total <= MAX_CHAIN_LENGTH_M:
+        return
+    j = arm[int(np.argmax(lengths))]
+    xyz = " ".join(f"{v:g}" for v in j["origin"][:3, 3])
+    raise RobotFileError(f"{where}: joint '{j['name']}' <origin xyz=\"{xyz}\">: the joint origins from "
+                         f"'{chain[first]['name']}' to the tip add up to {total:.4g} m, implausible for a serial arm "
+                         f"(at most {MAX_CHAIN_LENGTH_M:g} m): lengths look like mm (URDF uses metres); divide every "
+                         "origin xyz (and prismatic limits) by 1000")
+
+
+def _tip_candidates(base_link: str, children: dict, joints: dict) -> tuple[list[str], list[str]]:
+    """``(leaves, tips)`` below ``base_link``: every leaf link, and the *tips*: leaves whose own branch
+    (from the last link with several children) holds a movable joint (sorted)."""
     leaves, stack = [], [base_link]
     while stack:  # depth-first over the tree below base_link
         ln = stack.pop()
@@ -279,8 +311,6 @@ def _default_tip(base_link: str, children: dict, joints: dict, path_to, where: s
         if not kids:
             leaves.append(ln)
         stack.extend(kids)
-    if len(leaves) == 1:
-        return leaves[0]
 
     def own_branch_moves(leaf: str) -> bool:
         ln = leaf
@@ -290,7 +320,17 @@ def _default_tip(base_link: str, children: dict, joints: dict, path_to, where: s
             ln = joints[ln]["parent"]
         return ln != base_link and joints[ln]["type"] in _MOVABLE
 
-    tips = sorted(lf for lf in leaves if own_branch_moves(lf))
+    return leaves, sorted(lf for lf in leaves if own_branch_moves(lf))
+
+
+def _default_tip(base_link: str, children: dict, joints: dict, path_to, where: str) -> str:
+    """The chain end below ``base_link`` when no tip is named: the one tip, where a *tip* is a leaf
+    link whose own branch (from the last link with several children) holds a movable joint; a
+    dead-end branch of fixed joints only (a camera or sensor frame bolted to a link) is no tip.
+    Several tips: refused in one line naming them. Only dead ends: the one with most movable joints."""
+    leaves, tips = _tip_candidates(base_link, children, joints)
+    if len(leaves) == 1:
+        return leaves[0]
     if len(tips) == 1:
         return tips[0]
     if len(tips) > 1:

@@ -111,14 +111,26 @@ class RegistrationInfo:
     outliers: object | None = None  # rows of the series far off the model (hykin.calibration.outliers.Outliers)
 
 
-    def report(self) -> str:
-        """Multi-line report: the summary, then each re-fitted parameter (value ± std) and what was left out."""
+    def report(self, robot=None) -> str:
+        """The summary, each re-fitted parameter (value ± std), what was left out, the fitted frames.
+        ``base.*`` / ``tool.*`` values are changes (rotation vector, translation) of ``frame_pre``
+        (new base = ``frame_pre · base``) and ``frame_post`` (new tool = ``tool · frame_post``), not frames;
+        ``robot`` (the model's robot before, ``model.robot_``): also the resulting base and tool."""
+        from ..calibration.result import frame_text
+
         lines = [self.summary()]
         if self.used_ang_mean_deg is not None:
             lines.append(f"orientation weight {self.orientation_weight_m_per_rad:.3g} m/rad")
         if self.parameters:
-            lines.append("re-fitted (value ± std): " + ", ".join(
+            lines.append("re-fitted (value ± std; base.*, tool.*: changes, frame_pre / frame_post below): " + ", ".join(
                 f"{p.name} {p.value:+.4f} ± {p.std:.4f} {p.unit}" for p in self.parameters))
+        lines.append(f"frame_pre (measurement frame -> the model's world; new base = frame_pre · base): "
+                     f"{frame_text(self.frame_pre)}")
+        lines.append(f"frame_post (old TCP -> new TCP; new tool = tool · frame_post): {frame_text(self.frame_post)}")
+        if robot is not None:
+            lines.append(f"resulting frames (as a robot file writes them): base (measurement frame -> robot base) "
+                         f"{frame_text(self.frame_pre @ robot.base)}; tool (flange -> TCP) "
+                         f"{frame_text(robot.tool @ self.frame_post)}")
         extra = [p.name for p in self.parameters if p.name.endswith(".zero") or p.name == "thermal.scale"]
         lines.append("joint zeros / thermal state re-fitted: " + (", ".join(extra) if extra else "none"))
         for line in (self.network_check, self.nominal_check, self.consistency):

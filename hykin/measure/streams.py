@@ -17,6 +17,10 @@ optionally orientations) at another rate and clock (e.g. 3 kHz). The clock model
 * :func:`align_streams` — everything together: robot samples paired with tracker poses, dropping
   samples where the TCP moves faster than ``max_speed_m_s`` or the tracker has no valid data.
 
+Refused (:mod:`hykin.measure.stream_checks`): logs that sample slower than a stream (a static
+campaign, one record per stop: :class:`NotAStreamError`) and a clock offset at the edge of its
+search range (:class:`ClockRangeError`).
+
 Times in seconds, positions in metres, quaternions scalar-first ``(qw, qx, qy, qz)``.
 The robot's TCP (``robot.tool``) must be the tracked point (the SMR centre) for the offset fit.
 """
@@ -33,10 +37,21 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from ..geometry.rigid import rigid_residual_jacobian, umeyama
 from ..geometry.se3 import make_transform
+from .stream_checks import (
+    MIN_JOIN_CORRELATION,
+    ClockRangeError,
+    NotAStreamError,
+    StreamError,
+    check_is_stream,
+    check_offset_inside,
+)
 
 __all__ = [
     "AlignedStreams",
     "ClockModel",
+    "ClockRangeError",
+    "MIN_JOIN_CORRELATION",
+    "NotAStreamError",
     "Resampled",
     "StreamError",
     "align_streams",
@@ -45,10 +60,6 @@ __all__ = [
     "resample_tracker",
     "tcp_speed",
 ]
-
-
-class StreamError(ValueError):
-    """Malformed stream input (shapes, non-increasing timestamps, too little valid data)."""
 
 
 @dataclass(frozen=True)
@@ -259,17 +270,23 @@ def estimate_clock(t_robot, q_robot, t_tracker, p_tracker, robot=None, *, p_robo
 
     The rigid map at the final clock (``T_tracker_base``) and its residual RMS are reported in both
     cases. The motion must change speed (a constant-speed move has no timing information).
+
+    Raises :class:`NotAStreamError` when either log samples slower than
+    ``max(stream_checks.MAX_STREAM_PERIOD_S, max_gap_s)`` (median: static data), and :class:`ClockRangeError` when
+    the offset found lies within two grid steps of ``±max_offset_s`` (the range's limit, no result).
     """
     if method not in ("speed", "positions"):
         raise StreamError(f"method must be 'speed' or 'positions', got {method!r}")
     t_r = _times(t_robot, "t_robot")
     p_r, _ = _robot_positions(robot, q_robot, p_robot, t_r.size)
     t_t, p_t, _ = _clean_tracker(t_tracker, p_tracker)
+    check_is_stream(t_r, t_t, max_gap_s)
     gap = _default_gap(t_t) if max_gap_s is None else float(max_gap_s)
     dt = float(grid_dt_s)
     b, m_r, a, m_t = _speed_profiles(t_r, p_r, t_t, p_t, gap, dt, smooth_s)
     coarse, corr = _ncc_offset(a, m_t, t_t[0], b, m_r, t_r[0], dt, 0.0, max_offset_s,
                                0.1 * min(m_t.sum(), m_r.sum()))
+    check_offset_inside(coarse, 0.0, max_offset_s, dt)
     t_ref = 0.5 * (t_r[0] + t_r[-1])
     if method == "speed":
         K = int((t_r[-1] - t_r[0]) // window_s)
@@ -288,8 +305,10 @@ def estimate_clock(t_robot, q_robot, t_tracker, p_tracker, robot=None, *, p_robo
                 ja = max(int(np.floor((t_r[0] + i0 * dt + coarse - 0.2 - t_t[0]) / dt)), 0)
                 jb = min(int(np.ceil((t_r[0] + i1 * dt + coarse + 0.2 - t_t[0]) / dt)), a.size)
                 try:  # a window mostly without beam (fast moves, dropouts) has no timing of its own: skip it
-                    ok_[k], _ = _ncc_offset(a[ja:jb], m_t[ja:jb], t_t[0] + ja * dt, b[i0:i1], m_r[i0:i1],
-                                            t_r[0] + i0 * dt, dt, coarse, 0.1, 0.25 * m_r[i0:i1].sum())
+                    o_k, _ = _ncc_offset(a[ja:jb], m_t[ja:jb], t_t[0] + ja * dt, b[i0:i1], m_r[i0:i1],
+                                         t_r[0] + i0 * dt, dt, coarse, 0.1, 0.25 * m_r[i0:i1].sum())
+                    check_offset_inside(o_k, coarse, 0.1, dt)  # a window's range limit is no timing either
+                    ok_[k] = o_k
                 except StreamError:
                     pass
             good = np.isfinite(ok_)
@@ -447,6 +466,7 @@ def align_streams(t_robot, q_robot, t_tracker, p_tracker, quat_tracker=None, rob
     q = np.asarray(q, dtype=np.float64)
     if q.ndim != 2 or q.shape[0] != t_r.size:
         raise StreamError(f"q_robot: expected shape ({t_r.size}, dof), got {q.shape}")
+    check_is_stream(t_r, _clean_tracker(t_tracker, p_tracker)[0], max_gap_s)
     if clock is None:
         clock = estimate_clock(t_r, q, t_tracker, p_tracker, robot, p_robot=p_robot, fit_drift=fit_drift,
                                max_gap_s=max_gap_s, **clock_kw)
