@@ -281,3 +281,20 @@ def test_serve_and_bridges_take_the_payload_the_robot_carries(capsys):
         loaded = with_payload(m, 7.5)
         assert np.abs(loaded.predict(q) - m.predict(q, payload_kg=np.full(5, 7.5))).max() < 1e-12
     assert with_payload(m, None) is m
+
+
+def test_shift_of_a_tracker_frame_model_is_seen_from_the_real_base():
+    """A model fitted in a tracker's frame (its base metres away): the shift is the command's distance to
+    the target seen from the robot's real base (the nominal model's error, mm), not the tracker's offset."""
+    nom = load_robot("ur10")
+    truth = deviate(nom, 5)
+    B = se3.make_transform(se3.rotvec_to_matrix(np.array([0.0, 0.0, 2.1])), np.array([3.0, -1.5, 0.4]))
+    truth = truth.copy(base=B @ truth.base)  # calibrated in the tracker's frame
+    m = ExactModel(nom, truth)
+    q = nom.random_joints(20, 3, margin=0.15)
+    T = m.predict(q)  # targets in the tracker's frame
+    c = compensate(m, T, q_branch=q, frame="measurement")
+    assert c.success.all()
+    T_base = np.linalg.inv(truth.base) @ T  # the targets seen from the real base (reference)
+    ref = np.linalg.norm(c.command[:, :3, 3] - T_base[:, :3, 3], axis=1) * 1e3
+    assert np.allclose(c.shift_mm, ref, atol=1e-9) and c.shift_mm.max() < 50

@@ -127,6 +127,10 @@ class Compensator:
         self._rev = np.array([t == "revolute" for t in self.robot.independent_joint_type])  # (dof,) like the limits
         self._base_fit = fitted_base(model) if self.frame == "base" else None
         self._nom_base_inv = se3.invert(self.nominal.base)
+        # targets in the measurement frame, seen from the controller's base (the shift): through the fitted
+        # base where it is far from the nominal one (a tracker's frame), else as the controller places them
+        self._ctrl_of_meas = (se3.invert(fitted_base(model)) if resolve_frame(model, "auto") == "base"
+                              else self._nom_base_inv)
         self._pre_inv = se3.invert(np.asarray(model.frame_pre_, dtype=np.float64))
         self._post_inv = se3.invert(np.asarray(model.frame_post_, dtype=np.float64))
         self._reach_m = robot_reach_m(self.robot)
@@ -170,7 +174,7 @@ class Compensator:
         else:
             qb = np.array(np.broadcast_to(np.asarray(q_branch, dtype=np.float64), (N, n)))
         q, cmd, ok, reason, pe, ae = self.solve(T, qb, D, pos_only, branch_reason)
-        T_ctrl = T if self.frame == "base" else self._nom_base_inv @ T
+        T_ctrl = T if self.frame == "base" else self._ctrl_of_meas @ T
         dpos = np.linalg.norm(cmd[:, :3, 3] - T_ctrl[:, :3, 3], axis=1) * 1e3
         dang = np.full(N, np.nan)
         if ok.any() and not pos_only:
