@@ -227,3 +227,26 @@ def test_full_fade_uses_nearest_neighbour_gap(fitted):
         assert np.allclose(fitted.fade_weight(q_in), 1.0)
     finally:
         fitted.fade = True
+
+
+def test_max_seconds_is_one_budget_for_both_networks(monkeypatch):
+    """--max-minutes bounds network training as a whole: the first network gets half, the second what
+    is left (here all of it, the stand-in training taking no time)."""
+    from hykin.hybrid import fitting
+    from hykin.hybrid.train import TrainResult, get_recipe
+
+    got = []
+
+    def fake(net, Xt, yt, Xv, yv, recipe, *, seed, device, max_seconds, callback):
+        got.append(max_seconds)
+        return TrainResult(epochs=1, best_epoch=1, best_val=0.0, final_train=0.0, seconds=0.0, stopped="done", steps=1)
+
+    monkeypatch.setattr(fitting, "train_net", fake)
+    X, y = np.zeros((8, 6)), np.zeros((8, 3))
+    kw = dict(arch="default", n_in=6, in_lower=-np.ones(6), in_upper=np.ones(6), recipe=get_recipe("default"), seed=0,
+              device="cpu", progress=False)
+    fitting.train_networks({"pos": (y, None), "rot": (y, None)}, X, None, max_seconds=60.0, **kw)
+    assert got[0] == pytest.approx(30.0, abs=1.0) and got[1] == pytest.approx(60.0, abs=1.0)
+    got.clear()
+    fitting.train_networks({"pos": (y, None), "rot": (None, None)}, X, None, max_seconds=60.0, **kw)  # positions only
+    assert got == [pytest.approx(60.0, abs=1.0)]

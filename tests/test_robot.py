@@ -187,7 +187,7 @@ HEAD = 'name = "x"\nconvention = "dh"\nangle_unit = "deg"\n'
         (HEAD + GOOD_JOINT + "colour = 3\n", ["joints[1]", "colour"]),
         (HEAD + GOOD_JOINT + "[tool]\nxyz = [0, 0]\n", ["[tool].xyz", "3"]),
         (HEAD + GOOD_JOINT + "[tool]\nrot = [0, 0, 0]\n", ["[tool]", "rot"]),
-        (HEAD + GOOD_JOINT.replace("min = -90", "min = 100"), ["joint 1", "min > max"]),
+        (HEAD + GOOD_JOINT.replace("min = -90", "min = 100"), ["joints[1]", "min = 100 is above max = 90"]),
         (HEAD + GOOD_JOINT + "mass = -1\n", ["joints[1].mass"]),
         (HEAD + GOOD_JOINT + "stiffness = 0\n", ["joints[1].stiffness"]),
         (HEAD.replace('angle_unit = "deg"', 'angle_unit = "grad"') + GOOD_JOINT, ["angle_unit", "grad"]),
@@ -321,3 +321,49 @@ def test_chain_cache_follows_geometry_changes():
     c = r.copy(a_m=r.a_m * 2)  # copies are independent and writeable
     c.theta_rad[0] = 0.3
     assert not np.allclose(fk(c, q), fk(r, q))
+
+
+_SIX = """name = "own"
+convention = "dh"
+length_unit = "mm"
+angle_unit = "{au}"
+{top}
+[[joints]]
+a = 150
+alpha = {alpha}
+d = 450
+theta = {theta}
+min = {lo}
+max = {hi}
+[[joints]]
+a = 600
+alpha = 0
+d = 0
+min = -1.5
+max = 1.5
+[tool]
+xyz = [0, 0, 100]
+rpy = {rpy}
+"""
+
+
+def _own(au="deg", alpha=-90, theta=0, lo=-170, hi=170, rpy="[0, 0, 0]", top=""):
+    from hykin.io.robot_toml import robot_from_toml_text
+
+    return robot_from_toml_text(_SIX.format(au=au, alpha=alpha, theta=theta, lo=lo, hi=hi, rpy=rpy, top=top), "own.toml")
+
+
+def test_robot_file_values_in_the_wrong_angle_unit_are_refused_naming_the_key():
+    from hykin.io.robot_file import RobotFileError
+
+    r = _own(theta=45, lo=-400, hi=400, rpy="[0, 90, 180]")  # correct degree values, a ±400° axis
+    assert r.upper[0] == pytest.approx(np.radians(400)) and r.theta_rad[0] == pytest.approx(np.pi / 4)
+    r = _own(au="rad", alpha=-1.5707963, lo=-6.98, hi=6.98)  # the same in radians
+    assert r.upper[0] == pytest.approx(6.98)
+    for kw, msg in [(dict(theta=-1.5707963), r"joints\[1\]\.theta: -1\.5707963 deg is -π/2 .* a radian value"),
+                    (dict(rpy="[0, 0, 3.14159265]"), r"\[tool\]\.rpy: 3\.1415927 deg is π"),
+                    (dict(au="rad", alpha=-1.5708, lo=-170, hi=170), r"joints\[1\]: a joint limit of 170 rad .* look like degrees"),
+                    (dict(lo=160, hi=-100), r"joints\[1\]: min = 160 is above max = -100"),
+                    (dict(top="payload = -5"), r"payload = -5: must be a mass >= 0")]:
+        with pytest.raises(RobotFileError, match=msg):
+            _own(**kw)

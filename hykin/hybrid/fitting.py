@@ -92,21 +92,27 @@ def train_networks(targets: dict, Xt, Xv, *, arch: str, n_in: int, in_lower, in_
     """Train one residual network per entry of ``targets`` (key ``"pos"``/``"rot"`` -> ``(yt (N, 3),
     yv (M, 3) or None)``; a None ``yt`` is skipped) on inputs ``Xt`` ``(N, n_in)``, validated on ``Xv``
     (``(M, n_in)`` or None). Inputs are normalised by ``in_lower``/``in_upper`` ``(n_in,)``. Torch seed
-    ``seed`` (+1 for ``"rot"``). Returns ``(nets, results, timings)`` keyed by network."""
+    ``seed`` (+1 for ``"rot"``). ``max_seconds``: for all networks together (each gets an even share of
+    what is left when it starts). Returns ``(nets, results, timings)`` keyed by network."""
     dt = torch.float64 if recipe.dtype == "float64" else torch.float32
     nets, results, timings = {}, {}, {}
     cb_ctx = Progress(progress)
+    todo = [k for k, (yt, _) in targets.items() if yt is not None]
+    t_end = None if max_seconds is None else time.perf_counter() + float(max_seconds)
     with cb_ctx:
         for key, (yt, yv) in targets.items():
             if yt is None:
                 continue
+            budget = None  # max_seconds is for all networks: each gets an even share of what is left
+            if t_end is not None:
+                budget = max(t_end - time.perf_counter(), 0.0) / (len(todo) - todo.index(key))
             torch.manual_seed(seed + (0 if key == "pos" else 1))
             net = make_net(arch, n_in, 3, dtype=dt)
             net.set_input_range(in_lower, in_upper)
             t1 = time.perf_counter()
             use_val = Xv is not None and yv is not None
             results[key] = train_net(net, Xt, yt, Xv if use_val else None, yv if use_val else None, recipe,
-                                     seed=seed, device=device, max_seconds=max_seconds, callback=cb_ctx.callback(key))
+                                     seed=seed, device=device, max_seconds=budget, callback=cb_ctx.callback(key))
             cb_ctx.stage_done(f"training {key}", f"{results[key].steps:,} steps")
             cb_ctx.budget_cut(key, results[key])
             timings[f"train_{key}_s"] = time.perf_counter() - t1

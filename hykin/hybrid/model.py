@@ -102,7 +102,7 @@ class HybridModel:
     leave-one-region-out at the end of fit (:mod:`hykin.hybrid.fade`; sets the fitted fade_offset_ and fade_width_; 0 = off).
     periodic: "wrap" (revolute joints on the circle) or "none"; joint1: "input" or "frame";
     input_joints: 1-based joints the networks see (default all; module docstring, "Input representation").
-    device: "cpu" or "cuda". seed: training seed. max_seconds: training time budget per network.
+    device: "cpu" or "cuda". seed: training seed. max_seconds: training time budget for the networks together.
     val_fraction: share of the training set held out for validation when ``fit`` gets no ``val``
     (default the recipe's).
     thermal: identify a linear thermal expansion coefficient from the training data's temperature

@@ -118,6 +118,8 @@ def payload_from_columns(extra: dict, n_rows: int, where: str, payload_kg=None):
     if payload_kg is not None and "payload_kg" in extra:
         raise DatasetError(f"{where}: column 'payload_kg' and the option --payload-kg both give the payload; drop one",
                            file=where, column="payload_kg")
+    if payload_kg is not None and not (float(payload_kg) >= 0 and float(payload_kg) < float("inf")):
+        raise DatasetError(f"--payload-kg must be a finite mass >= 0 kg, got {payload_kg}")
     return payload_of(SimpleNamespace(extra=extra, source=where), payload_kg, n_rows=n_rows)
 
 

@@ -64,6 +64,7 @@ def _frame(tbl: dict | None, where: str, L: float, A: float) -> np.ndarray:
 
 
 _JOINT_KEYS = ("a", "alpha", "d", "theta", "beta", "min", "max", "mass", "com", "stiffness", "type", "name")
+_MAX_LIMIT_TURNS = 2.0  # a revolute limit beyond two turns either way (±720°) under angle_unit = 'rad': degrees
 _TOP_KEYS = ("name", "convention", "length_unit", "angle_unit", "joints", "tool", "base", "payload", "gravity", "source")
 # Geometry a user must write for every joint: a silently defaulted link length or twist is a wrong
 # robot. ``theta`` (the joint offset) and ``beta`` default to 0, the usual reading of a DH table
@@ -128,6 +129,8 @@ def robot_from_dict(doc: dict, where: str = "<robot>") -> Robot:
         lim_scale = L if jt == "prismatic" else A
         for k in ("min", "max"):
             cols[k].append(_number(_get(j, k, w, required=True), f"{w}.{k}") * lim_scale)
+        if cols["min"][-1] > cols["max"][-1]:
+            raise RobotFileError(f"{w}: min = {j['min']} is above max = {j['max']} (swapped?)")
         cols["mass"].append(_number(j.get("mass", 0.0), f"{w}.mass"))
         if cols["mass"][-1] < 0:
             raise RobotFileError(f"{w}.mass: must be >= 0")
@@ -153,7 +156,31 @@ def robot_from_dict(doc: dict, where: str = "<robot>") -> Robot:
             raise RobotFileError(f"{where}: joints[{k + 1}]: a twist or joint offset of {fixed.max():.6g} rad (more than "
                                  f"a full turn) is implausible: the values look like degrees under angle_unit = 'rad' "
                                  f"(set angle_unit = 'deg')")
+        rev = np.array([t == "revolute" for t in types])
+        lim = np.abs(np.concatenate([np.asarray(cols["min"])[rev], np.asarray(cols["max"])[rev]]))
+        if lim.size and lim.max() > _MAX_LIMIT_TURNS * 2 * math.pi:  # ±170 "rad" is 27 turns
+            k = int(np.flatnonzero(rev)[int(np.argmax(lim)) % int(rev.sum())])
+            raise RobotFileError(f"{where}: joints[{k + 1}]: a joint limit of {lim.max():.6g} rad ({lim.max() / (2 * math.pi):.3g} "
+                                 f"turns) is implausible: the limits look like degrees under angle_unit = 'rad' (set "
+                                 f"angle_unit = 'deg'; a joint that turns without end: type it continuous in a URDF)")
+    if au == "deg":  # a fixed angle of exactly ±π/4 ... ±2π "degrees" is a radian value in a degree file
+        fixed = np.degrees(np.concatenate([cols["alpha"], cols["theta"], cols["beta"]]))
+        labels = [f"joints[{i + 1}].{f}" for f in ("alpha", "theta", "beta") for i in range(len(joints))]
+        for frame in ("base", "tool"):
+            rpy = doc.get(frame, {}).get("rpy") if isinstance(doc.get(frame), dict) else None
+            if isinstance(rpy, list) and len(rpy) == 3 and all(isinstance(v, (int, float)) for v in rpy):
+                fixed, labels = np.r_[fixed, np.asarray(rpy, dtype=np.float64)], labels + [f"[{frame}].rpy"] * 3
+        quarter = np.abs(fixed) / (math.pi / 4)
+        hit = (np.abs(fixed) > 0.5) & (np.abs(quarter - np.round(quarter)) < 1e-5) & (np.round(quarter) <= 8)
+        if hit.any():
+            k = int(np.flatnonzero(hit)[0])
+            n4 = int(np.round(quarter[k]))
+            frac = {1: "π/4", 2: "π/2", 3: "3π/4", 4: "π", 5: "5π/4", 6: "3π/2", 7: "7π/4", 8: "2π"}[n4]
+            raise RobotFileError(f"{where}: {labels[k]}: {fixed[k]:.8g} deg is {'-' if fixed[k] < 0 else ''}{frac} to 1e-5: "
+                                 f"a radian value under angle_unit = 'deg' (write it in degrees)")
     payload = _number(doc.get("payload", 0.0), f"{where}: payload")
+    if not payload >= 0:
+        raise RobotFileError(f"{where}: payload = {payload:g}: must be a mass >= 0 (kg)")
     gravity = _vec3(doc["gravity"], f"{where}: gravity") if "gravity" in doc else np.array([0.0, 0.0, -9.81])
     return Robot(
         name=name,
