@@ -42,7 +42,7 @@ DEFAULT_RATIO = 12.0
 MAX_FRACTION = 0.02
 MIN_ROWS = 20
 FLOOR_M = 50e-6  # below any robot's repeatability: noise-free fits are never "outliers"
-FLOOR_RAD = math.radians(0.005)
+FLOOR_RAD = math.radians(0.01)  # a T-Mac orientation is good to a few 0.001°
 OUTLIER_MODES = ("drop", "warn", "keep")
 STEP_RATIO = 5.0  # rows from some row on this many times worse than before: a row slipped in one file
 
