@@ -256,6 +256,26 @@ def test_cli_payload_kg_compensates_for_the_load_the_robot_carries(tmp_path, cap
         p_err = np.linalg.norm(true_poses(vr, q_exec, payload_kg=np.full(40, 12.0))[:, :3, 3] - T_t[:, :3, 3], axis=1)
         errs[name] = p_err.mean() * 1e3
     assert errs["loaded"] < 0.3 and errs["loaded"] < errs["file"] / 3, errs
+    # a payload_kg column: each target compensated for the load it carries (12 kg, 0 kg alternately)
+    kg = np.where(np.arange(40) % 2 == 0, 12.0, 0.0)
+    T_m = true_poses(vr, q_t, payload_kg=kg)
+    xyz, quat = se3.transform_to_pose(T_m)
+    tm = tmp_path / "targets_kg.csv"
+    with open(tm, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["x", "y", "z", "qw", "qx", "qy", "qz"] + [f"q{j + 1}" for j in range(6)] + ["payload_kg"])
+        for i in range(40):
+            w.writerow([repr(float(v)) for v in (*xyz[i], *quat[i], *q_t[i], kg[i])])
+    code, _, err = run_cli(["compensate", mp, tm, "-o", tmp_path / "mixed.csv"], capsys)
+    assert code == 0, err
+    with open(tmp_path / "mixed.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    Tc = se3.pose_to_transform(np.array([[float(r[k]) for k in ("x", "y", "z")] for r in rows]),
+                               np.array([[float(r[k]) for k in ("qw", "qx", "qy", "qz")] for r in rows]))
+    p_err = np.linalg.norm(true_poses(vr, _controller(nom, Tc, q_t), payload_kg=kg)[:, :3, 3] - T_m[:, :3, 3], axis=1)
+    assert p_err.mean() * 1e3 < 0.3 and p_err[kg == 12].mean() * 1e3 < errs["file"] / 3
+    code, _, err = run_cli(["compensate", mp, tm, "-o", tmp_path / "both.csv", "--payload-kg", "12"], capsys)
+    assert code == 2 and "both give the payload" in err
 
 
 def test_serve_and_bridges_take_the_payload_the_robot_carries(capsys):

@@ -157,3 +157,4 @@ def test_a_row_slipped_in_one_file_is_named_as_such():
     e3 = e.copy()
     e3[[5, 700]] = 0.05  # two lost beams: outliers, no step
     assert find_outliers(e3).step is None
+

@@ -204,3 +204,41 @@ def test_bands_with_and_without_temperature_cover(session, model):
         b_t, _ = model.predict_uncertainty(q2, 0.95, temperature_c=t2)
         b_n, _ = model.predict_uncertainty(q2, 0.95)
     assert b_n.mean() >= b_t.mean()  # without the temperature the drift is part of the band
+
+
+def test_cli_compensate_reads_the_targets_temperature(model, session, tmp_path, capsys):
+    """CSV targets with a temperature_c column are compensated at that temperature: executed by the
+    nominal controller on the true robot at 21 °C they land on the targets (truth: the simulator)."""
+    import csv
+
+    from cli_run import run as run_cli
+
+    from hykin.kinematics.ik import ik
+
+    vr, _, _ = session
+    nom = vr.nominal
+    q = nom.random_joints(20, np.random.default_rng(8), margin=0.3)
+    temp = np.full(20, 21.0)
+    T = true_poses(vr, q, temperature_c=temp)
+    xyz, quat = se3.transform_to_pose(T)
+    mp, tp, out = tmp_path / "m.hykin", tmp_path / "t.csv", tmp_path / "c.csv"
+    model.save(mp)
+    with open(tp, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["x", "y", "z", "qw", "qx", "qy", "qz"] + [f"q{j + 1}" for j in range(6)] + ["temperature_c"])
+        for i in range(20):
+            w.writerow([repr(float(v)) for v in (*xyz[i], *quat[i], *q[i], temp[i])])
+    code, _, err = run_cli(["compensate", mp, tp, "-o", out, "--joints"], capsys)
+    assert code == 0, err
+    with open(out, newline="") as f:
+        qc = np.array([[float(r[f"q{j + 1}"]) for j in range(6)] for r in csv.DictReader(f)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        at_t = model.predict(qc, temperature_c=temp)  # the model at the targets' temperature (its own predict)
+        at_ref = model.predict(qc)  # ... and at its reference
+    err_t = np.linalg.norm(at_t[:, :3, 3] - T[:, :3, 3], axis=1) * 1e3
+    err_ref = np.linalg.norm(at_ref[:, :3, 3] - T[:, :3, 3], axis=1) * 1e3
+    assert err_t.max() < 1e-3 and err_ref.mean() > 0.01, (err_t.max(), err_ref.mean())
+    # and on the true robot at that temperature the joints land within the model's accuracy
+    land = np.linalg.norm(true_poses(vr, qc, temperature_c=temp)[:, :3, 3] - T[:, :3, 3], axis=1) * 1e3
+    assert land.mean() < 0.2

@@ -457,6 +457,8 @@ def calibrate(
     specs = select_specs(candidate_specs(robot, base=base, tool=tool, compliance=compliance, n_points=K,
                                          stations=groups.station_labels[1:] if groups else (),
                                          tools=groups.tool_labels[1:] if groups else ()), params)
+    if R_meas is None and K > 1:  # reflectors fix where the tool body is, not how its TCP frame is turned: the file's
+        specs = [s for s in specs if not (s.group in ("tool", "tools") and s.field in ("rx", "ry", "rz"))]
     names = {s.name for s in specs}
     frames = [s for s in specs if s.group in ("base", "tool", "point", "station", "tools")]
     pts_zero = np.zeros((K, 3))

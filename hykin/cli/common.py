@@ -286,6 +286,16 @@ def with_payload(mdl, payload_kg: float | None):
     return model_with_payload(mdl, payload_kg)
 
 
+def warn_orientation_unmeasured(mdl, what: str) -> None:
+    """Warn once that ``mdl`` was fitted on positions only when ``what`` (e.g. "the written poses")
+    depends on the TCP's orientation: that is the robot file's tool orientation, never measured."""
+    meta = getattr(mdl, "metadata", None) or {}
+    if mdl is not None and meta.get("has_orientation") is False:
+        console().print(f"[yellow]warning:[/] the model was fitted on positions only: its TCP orientation is the robot "
+                        f"file's tool orientation, never measured; {what} (use positions, or fit on data with orientations)",
+                        highlight=False)
+
+
 # --------------------------------------------------------------------------- commands
 
 

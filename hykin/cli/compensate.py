@@ -19,7 +19,9 @@ from .common import (
     load_model,
     PayloadKg,
     parse_axis_signs,
+    temperature_of,
     with_payload,
+    warn_orientation_unmeasured,
     write_rows,
 )
 
@@ -74,16 +76,20 @@ def compensate_cmd(
     check_output(out, [inp, model, *context], force)
     if not inp.is_file():
         raise CLIError(f"{inp}: no such file")
+    if kind == "csv":  # the file's payload and temperature columns, else --payload-kg / the reference temperature
+        mdl = load_model(model)
+        parse_axis_signs(axis_signs, mdl.nominal.dof)
+        D = _tool_delta(mdl, tool, length_unit, angle_unit)
+        _compensate_csv(mdl, inp, out, joints, "measurement" if frame == "auto" else frame, length_unit, angle_unit, D,
+                        payload_kg)
+        return
     mdl = with_payload(load_model(model), payload_kg)
     signs = parse_axis_signs(axis_signs, mdl.nominal.dof)
     th = getattr(mdl, "thermal_", None)
     if th is not None and th.coefficient_per_k != 0.0:
         console().print(f"note: the model has thermal expansion; targets are compensated at its reference "
                         f"{th.reference_c:.2f} °C", highlight=False)
-    if kind == "csv":
-        D = _tool_delta(mdl, tool, length_unit, angle_unit)
-        _compensate_csv(mdl, inp, out, joints, "measurement" if frame == "auto" else frame, length_unit, angle_unit, D)
-    elif tool is not None:
+    if tool is not None:
         raise CLIError(f"--tool applies to CSV targets; {inp} is a {kind} program, which names its own tool "
                        "(URScript set_tcp, RAPID tooldata, KRL TOOL_DATA via --context)")
     else:
@@ -115,11 +121,24 @@ def _tool_delta(mdl, text: str | None, length_unit: str, angle_unit: str):
 
 
 def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_unit: str, angle_unit: str,
-                    tool_delta=None) -> None:
+                    tool_delta=None, payload_kg: float | None = None) -> None:
+    """CSV targets; per-row ``payload_kg`` / ``payload_com_*`` columns: one compensation per distinct payload
+    on the model carrying it; a ``temperature_c`` column: the targets mapped to the model's reference
+    temperature (where its joints are solved; the controller's nominal model has no temperature)."""
+    from ..compensation.frames import to_model_frame
+    from ..compensation.result import merge_parts
     from ..compensation.targets import command_rows, compensate
     from ..io.dataset_files import read_joints, read_poses
+    from ..io.payload import model_with_payload, payload_from_columns
 
-    T, has_rot = read_poses(inp, length_unit=length_unit)
+    T, has_rot, extra = read_poses(inp, length_unit=length_unit, extras=True)
+    pl = payload_from_columns(extra, len(T), str(inp), payload_kg) if "payload_kg" in extra else None
+    if pl is None:
+        mdl = with_payload(mdl, payload_kg)
+    temp = temperature_of(mdl, extra, inp)
+    if temp is not None:
+        T = mdl.targets_at_reference(to_model_frame(mdl, T, frame), temp)
+        frame = "measurement"
     if tool_delta is not None and not has_rot:
         raise CLIError(f"{inp}: --tool needs the targets' orientations (qw,qx,qy,qz columns): where another TCP "
                        "lies depends on them")
@@ -127,7 +146,30 @@ def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_
     qb = None
     if all(f"q{j + 1}" in _columns(inp) for j in range(n)):
         qb, _ = read_joints(inp, dof=n, angle_unit=angle_unit, robot=mdl.nominal)
-    comp = compensate(mdl, T if has_rot else T[:, :3, 3], q_branch=qb, frame=frame, tool_delta=tool_delta)
+    if has_rot:
+        warn_orientation_unmeasured(mdl, "the targets' orientations are compensated with that")
+    target = T if has_rot else T[:, :3, 3]
+    if pl is None:
+        comp = compensate(mdl, target, q_branch=qb, frame=frame, tool_delta=tool_delta)
+    else:
+        from ..io.payload import payload_outside
+
+        kg, com = pl
+        n_out = int(payload_outside(getattr(mdl, "payload_range_", None), kg).sum())
+        if n_out:
+            rng = mdl.payload_range_
+            console().print(f"[yellow]warning:[/] {n_out} of {len(kg)} targets carry payloads outside those the model was "
+                            f"trained on ({rng.lower_kg:g}-{rng.upper_kg:g} kg): the physics carries them, the networks "
+                            "hold their nearest trained payload", highlight=False)
+        key = np.column_stack([kg, np.zeros((len(kg), 3)) if com is None else com])
+        uniq, inv = np.unique(key, axis=0, return_inverse=True)
+        parts = []
+        for u in range(len(uniq)):
+            idx = np.flatnonzero(inv.reshape(-1) == u)
+            m = model_with_payload(mdl, float(uniq[u, 0]), None if com is None else uniq[u, 1:])
+            parts.append((idx, compensate(m, target[idx], q_branch=None if qb is None else qb[idx], frame=frame,
+                                          tool_delta=tool_delta)))
+        comp = merge_parts(parts, len(T))
     write_rows(command_rows(comp, joints_only=joints), out)
     _summary(comp, out, len(T))
 

@@ -157,6 +157,9 @@ def import_table_cmd(
     decimal: str | None = DecimalOpt,
     skip_rows: int | None = SkipOpt,
     header_row: int | None = HeaderOpt,
+    group_rows: str | None = typer.Option(
+        None, "--group-rows", help="1-based lines above the header naming column groups, joined in front of repeated "
+        "names (Motive/Vicon multi-line headers; default: found when names repeat)."),
     comment: str | None = CommentOpt,
     drop_rows: str | None = typer.Option(None, "--drop-rows", help="1-based file lines to drop, comma-separated (e.g. a units line)."),
     where: list[str] | None = typer.Option(None, "--where", help="Row filter 'column op value' (== != < <= > >=); repeat to AND."),
@@ -176,7 +179,7 @@ def import_table_cmd(
         rotvec=_csv_names(rotvec), rotvec_unit=rotvec_unit, points=[_csv_names(p) for p in point or []],
         time=time, time_unit=time_unit, temperature=temperature, temperature_unit=temperature_unit, payload=payload,
         keep=[c for k in keep or [] for c in _csv_names(k)], ignore=_csv_names(ignore), delimiter=delimiter,
-        decimal=decimal, skip_rows=skip_rows, header_row=header_row, comment=comment,
+        decimal=decimal, skip_rows=skip_rows, header_row=header_row, group_rows=_csv_names(group_rows), comment=comment,
         drop_rows=_csv_names(drop_rows), where=list(where or []), encoding=encoding, dof=dof, check_units=unit_check,
     )
     if suggest:
@@ -199,14 +202,18 @@ def _suggest(path: Path, map_path: Path | None, opts: dict) -> None:
     from ..measure.table_import import guess_layout, read_text_table
     from ..measure.table_map import suggest_map
 
-    layout = {k: opts[k] for k in ("delimiter", "decimal", "skip_rows", "header_row", "comment", "encoding")}
+    layout = {k: opts[k] for k in ("delimiter", "decimal", "skip_rows", "header_row", "group_rows", "comment", "encoding",
+                                   "drop_rows")}
     m = _build_map(map_path, layout)
     guessed = {}
     if all(layout[k] is None for k in ("skip_rows", "header_row")) and map_path is None:
         guessed = guess_layout(path, m)
-        m = _build_map(None, {**layout, **{k: v for k, v in guessed.items() if layout.get(k) is None}})
+        m = _build_map(None, {**layout, **{k: v for k, v in guessed.items() if layout.get(k) is None and k != "units"}})
     t = read_text_table(path, m)
-    typer.echo(suggest_map(t.header, t.rows[:50], delimiter=t.delimiter, decimal=m.decimal, skip_rows=m.skip_rows), nl=False)
+    typer.echo(suggest_map(t.header, t.rows[:50], delimiter=t.delimiter, decimal=m.decimal,
+                           skip_rows=m.skip_rows, group_rows=t.group_lines,
+                           drop_rows=m.drop_rows, units=dict(zip(t.header, guessed.get("units") or [])),
+                           header_row=m.header_row), nl=False)
 
 
 # --------------------------------------------------------------------------- three SMRs

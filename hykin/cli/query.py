@@ -20,6 +20,7 @@ from .common import (
     console,
     load_model_or_robot,
     temperature_of,
+    warn_orientation_unmeasured,
     write_rows,
 )
 
@@ -83,6 +84,7 @@ def fk_cmd(
             if band_deg is not None:
                 extra["ang_band95_deg"] = band_deg
     write_dataset(Dataset.from_poses(q, T, extra=extra, source=str(joints)), out)
+    warn_orientation_unmeasured(mdl, "the orientation columns written are that, not the robot's")
     fr = None if mdl is None else getattr(mdl, "station_frames_", None)
     where = (f"station {station!r}" if station is not None else f"the reference station {fr.reference_station!r}") if fr else ""
     where += f", tool {tool!r}" if tool is not None else f", reference tool {fr.tool_labels[0]!r}" if fr and len(fr.tool_labels) > 1 else ""
@@ -119,6 +121,8 @@ def ik_cmd(
         check_target_reach(mdl.robot_ if mdl is not None else rob, T, where=str(poses), length_unit=length_unit,
                            frame=None if mdl is None else mdl.frame_pre_)
     position_only = position_only or not has_rot
+    if not position_only:
+        warn_orientation_unmeasured(mdl, "the targets' orientations are solved for that (--position-only ignores them)")
     q_cur = None
     if seed_joints is not None:
         q_cur, _ = read_joints(seed_joints, dof=rob.dof, angle_unit=angle_unit, robot=rob, unit_check=unit_check)

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..geometry import se3
 
-__all__ = ["Compensation", "command_rows", "first_row_per_target"]
+__all__ = ["Compensation", "command_rows", "first_row_per_target", "merge_parts"]
 
 
 @dataclass
@@ -38,6 +38,21 @@ class Compensation:
 
     def __len__(self) -> int:
         return int(self.success.shape[0])
+
+
+def merge_parts(parts: list[tuple[np.ndarray, Compensation]], n_rows: int) -> Compensation:
+    """One :class:`Compensation` of ``n_rows`` targets from ``parts``: ``(row indices (k,), Compensation of
+    those k rows)`` covering every row once (e.g. one part per payload)."""
+    first = parts[0][1]
+    out = {}
+    for name in ("command", "q", "success", "reason", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg",
+                 "in_support", "q_branch"):
+        a = getattr(first, name)
+        full = np.empty((n_rows, *a.shape[1:]), dtype=a.dtype)
+        for idx, c in parts:
+            full[idx] = getattr(c, name)
+        out[name] = full
+    return Compensation(frame=first.frame, **out)
 
 
 def first_row_per_target(res) -> np.ndarray:

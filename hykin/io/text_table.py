@@ -15,14 +15,14 @@ from __future__ import annotations
 
 import csv
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .dataset import DatasetError
 
-__all__ = ["TextTable", "delimiter_name", "detect_delimiter", "float_column", "lenient_column", "read_delimited", "read_lines",
+__all__ = ["TextTable", "delimiter_name", "detect_delimiter", "float_column", "group_names", "lenient_column", "read_delimited", "read_lines",
            "split_lines", "with_file_line"]
 
 _DELIMITER_NAMES = {",": "','", ";": "';'", "\t": "tab", " ": "whitespace", "|": "'|'"}
@@ -38,6 +38,7 @@ class TextTable:
     rows: list[list[str]]
     lines: np.ndarray
     delimiter: str
+    group_lines: list[int] = field(default_factory=list)
 
     def col(self, name: str) -> list[str]:
         """The cells of column ``name`` (text), one per row."""
@@ -111,6 +112,8 @@ def read_delimited(
     drop_lines=(),
     encoding: str | None = None,
     allow_empty_names: bool = False,
+    groups: bool = False,
+    group_lines=None,
     layout_hint: str = "declare delimiter, skip_rows or comment if this is not the layout",
 ) -> TextTable:
     """Read a delimited text file: one header line (``header=False``: columns named 1, 2, ...), then
@@ -122,6 +125,12 @@ def read_delimited(
     another number of cells than the header is an error naming its row and line (``layout_hint``
     says what to check). Duplicate (and, unless ``allow_empty_names``, empty) column names are
     errors. A header without data rows gives a table with no rows.
+
+    ``groups`` (the table importer's multi-row headers, OptiTrack Motive, Vicon): names that repeat
+    or are empty get the labels of group lines above the header joined in front (``"Tool Rotation
+    X"``, :func:`group_names`): the 1-based file lines ``group_lines``, or, when None, the fewest of
+    the lines directly above the header (up to a blank line) that make the names unique. A name still
+    empty becomes ``col<k>`` (k = 1-based column number).
     """
     where = str(path)
     text = read_lines(Path(path), encoding, where)
@@ -133,24 +142,33 @@ def read_delimited(
         raise DatasetError(f"{where}: no lines left after skipping {skip_rows} line(s), blank and comment lines",
                            file=where)
     delim = delimiter or detect_delimiter(numbered[0][1], decimal)
-    if not header:
-        width = len(split_lines([numbered[0][1]], delim)[0])
-        names, body = [str(k + 1) for k in range(width)], numbered
-    else:
-        names, body = split_lines([numbered[0][1]], delim)[0], numbered[1:]
     drop = set(drop_lines)
-    body = [(i, ln) for i, ln in body if i not in drop]
+    if not header:
+        body = [(i, ln) for i, ln in numbered if i not in drop]
+        width = len(split_lines([body[0][1]], delim)[0]) if body else 0
+        names = [str(k + 1) for k in range(width)]
+    else:
+        names, body = split_lines([numbered[0][1]], delim)[0], [(i, ln) for i, ln in numbered[1:] if i not in drop]
+    raw_width = len(names)
     cells = split_lines([ln for _, ln in body], delim)
     while names and names[-1] == "" and all(len(r) == len(names) and r[-1] == "" for r in cells):
         names, cells = names[:-1], [r[:-1] for r in cells]  # every line ends with the delimiter
+    used_groups: list[int] = []
+    if header and groups:
+        names, used_groups = group_names(text, numbered[0][0], names, raw_width, delim, comment, group_lines, where)
     seen = set()
     for h in names:
         if h == "" and not allow_empty_names:
             raise DatasetError(f"{where}, line {numbered[0][0]}: the header has an empty column name", file=where)
         if h in seen:
-            raise DatasetError(f"{where}, column '{h}': appears twice in the header", file=where, column=h)
+            hint = ""
+            if groups:
+                hint = (f"; no line above the header (line {numbered[0][0]}) tells the columns apart: name the lines that "
+                        "label the groups with group_rows = [..] (--group-rows), or read without a header (header_row = 0 "
+                        "with skip_rows = the lines above the data; columns named 1, 2, ...)")
+            raise DatasetError(f"{where}, column '{h}': appears twice in the header{hint}", file=where, column=h)
         seen.add(h)
-    t = TextTable(where, names, cells, np.array([i for i, _ in body], dtype=np.int64), delim)
+    t = TextTable(where, names, cells, np.array([i for i, _ in body], dtype=np.int64), delim, used_groups)
     for r, row in enumerate(cells):
         if len(row) > len(names) and not any(row[len(names):]):
             cells[r] = row[:len(names)]  # trailing delimiter(s) on this line only
@@ -158,6 +176,85 @@ def read_delimited(
             raise t.error(r, None, f"has {len(row)} cells, the header has {len(names)} "
                           f"(delimiter: {delimiter_name(delim)}; {layout_hint})")
     return t
+
+
+def _align_group(cells: list[str], raw_width: int, width: int) -> list[str] | None:
+    """A group line's cells under the header's ``width`` columns (``raw_width`` before trailing empty
+    names were cut): extra leading empty cells dropped (the line is aligned on its right end), trailing
+    empty cells cut, a short line padded; None when it cannot be aligned."""
+    if len(cells) > raw_width and not any(cells[:len(cells) - raw_width]):
+        cells = cells[len(cells) - raw_width:]
+    if any(cells[width:]):
+        return None
+    cells = cells[:width] + [""] * (width - len(cells))
+    if sum(1 for c in cells if c) * 2 < width:  # sparse (Vicon: the label over the first column of its group)
+        last = ""
+        cells = [last := c if c else last for c in cells]
+    return cells
+
+
+def _joined(names: list[str], rows: list[list[str]]) -> list[str]:
+    """Names with the group labels of ``rows`` joined in front where a name repeats or is empty, and on
+    every column of such a group (same labels); empty names left empty."""
+    need = {j for j, h in enumerate(names) if h == "" or names.count(h) > 1}
+    labels = [tuple(r[j] for r in rows) for j in range(len(names))]
+    tagged = {labels[j] for j in need if any(labels[j])}
+    out = []
+    for j, h in enumerate(names):
+        if j in need or labels[j] in tagged:
+            out.append(" ".join([c for c in labels[j] if c] + ([h] if h else [])))
+        else:
+            out.append(h)
+    return out
+
+
+def _n_dup(names: list[str]) -> int:
+    return sum(1 for h in names if h == "" or names.count(h) > 1)
+
+
+def group_names(text: list[str], header_line: int, names: list[str], raw_width: int, delim: str, comment: str | None,
+                group_lines, where: str) -> tuple[list[str], list[int]]:
+    """Unique column names for a header whose names repeat (see :func:`read_delimited`, ``groups``):
+    ``(names, the group lines used)``. Lines chosen automatically label groups (at most half as many
+    labels as repeated names), each one taken only when it tells more columns apart."""
+    if group_lines is None and not _n_dup(names):
+        return names, []
+    cand: dict[int, list[str]] = {}
+    if group_lines is not None:
+        for ln in group_lines:
+            if not 1 <= ln < header_line or not text[ln - 1].strip():
+                raise DatasetError(f"{where}, line {ln}: group_rows must name non-blank lines above the header "
+                                   f"(line {header_line})", file=where)
+            cells = _align_group(split_lines([text[ln - 1]], delim)[0], raw_width, len(names))
+            if cells is None:
+                raise DatasetError(f"{where}, line {ln}: has more cells than the header (line {header_line}) and cannot "
+                                   "label its columns; is it a group line?", file=where)
+            cand[ln] = cells
+        chosen = sorted(cand)
+    else:
+        ln = header_line - 1
+        while ln >= 1 and header_line - ln <= 8 and text[ln - 1].strip() and not (comment and text[ln - 1].lstrip().startswith(comment)):
+            cells = _align_group(split_lines([text[ln - 1]], delim)[0], raw_width, len(names))
+            if cells is None:
+                break
+            dup = [j for j, h in enumerate(names) if h == "" or names.count(h) > 1]
+            labels = {cells[j] for j in dup if cells[j]}
+            if labels and len(labels) * 2 <= max(len(dup), 2):
+                cand[ln] = cells
+            ln -= 1
+        chosen = []
+        while _n_dup(_joined(names, [cand[c] for c in sorted(chosen)])) and len(chosen) < len(cand):
+            def score(c):
+                rows = [cand[x] for x in sorted(chosen + [c])]
+                labels = set(cand[c])
+                return (_n_dup(_joined(names, rows)), -len(labels), -sum(bool(re.search("[A-Za-z]", x)) for x in labels))
+            best = min((c for c in cand if c not in chosen), key=score)
+            if score(best)[0] >= _n_dup(_joined(names, [cand[c] for c in sorted(chosen)])):
+                break
+            chosen.append(best)
+        chosen.sort()
+    out = _joined(names, [cand[c] for c in chosen])
+    return [h or f"col{j + 1}" for j, h in enumerate(out)], chosen
 
 
 def float_column(t: TextTable, name: str, decimal: str = ".", *, allow_missing: bool = False,

@@ -99,12 +99,15 @@ def read_text_table(path: str | Path, m: TableMap | None = None) -> TextTable:
     (:func:`hykin.io.text_table.read_delimited`), then ``m.where`` filters; no data rows is an error.
 
     Blank lines and ``comment`` lines are skipped anywhere; a trailing delimiter on every line is
-    tolerated; a row with another number of cells than the header is an error naming its line.
+    tolerated; a row with another number of cells than the header is an error naming its line. Header
+    names that repeat (Motive's X,Y,Z per rigid body and marker) get the labels of the group lines
+    above the header (``group_rows``, else found) joined in front; empty names become ``col<k>``.
     """
     m = m or TableMap()
-    skip = m.skip_rows if m.header_row is None else max(m.header_row - 1, 0)
+    skip = m.skip_rows if not m.header_row else m.header_row - 1  # header_row = 0: no header, skip_rows still apply
     t = read_delimited(path, delimiter=m.delimiter, decimal=m.decimal, skip_rows=skip, header=m.header_row != 0,
-                       comment=m.comment, drop_lines=m.drop_rows, encoding=m.encoding)
+                       comment=m.comment, drop_lines=m.drop_rows, encoding=m.encoding, groups=True,
+                       group_lines=m.group_rows)
     if m.where:
         _filter_rows(t, m.where, m.decimal)
     if not t.rows:
@@ -113,24 +116,56 @@ def read_text_table(path: str | Path, m: TableMap | None = None) -> TextTable:
     return t
 
 
+_UNIT_CELL = re.compile(r"(?i)^[\[(]?\s*(mm|m|cm|um|µm|in|ft|deg|degrees?|rad|radians?|°|s|sec|ms|us|ns|c|°c|k|kg|n|nm|"
+                        r"hz|%|-|mm/s|m/s|deg/s|rad/s)\s*[\])]?$")
+
+
+def _units_line(cells: list[str]) -> bool:
+    """A line of units under a header (``,,deg,deg,mm,...``): no number, every cell empty or a unit."""
+    return any(_UNIT_CELL.match(c) for c in cells) and all(not c or _UNIT_CELL.match(c) for c in cells)
+
+
 def guess_layout(path: str | Path, m: TableMap | None = None) -> dict:
-    """Guess ``skip_rows`` (metadata lines above the header), the delimiter and a decimal comma, for
-    :func:`~hykin.measure.table_map.suggest_map` only (the user confirms them in the mapping)."""
+    """Guess ``skip_rows`` (metadata lines above the header), the delimiter, a decimal comma and a units
+    line under the header (``drop_rows``; ``units`` = its cells, one per column), for
+    :func:`~hykin.measure.table_map.suggest_map` only (the user confirms them in the mapping).
+
+    The header is the first line of at least two cells, most of them non-empty names (not a group line
+    such as Vicon's ``,,UR5Tool:Tool,,,``), followed (after an optional units line) by numeric rows of
+    its width (Motive's group lines are not); failing that, the first line followed by rows of its width."""
     m = m or TableMap()
     where = str(path)
     text = read_lines(Path(path), m.encoding, where)
     numbered = [(i, ln) for i, ln in enumerate(text) if ln.strip() and not (m.comment and ln.lstrip().startswith(m.comment))]
-    for k, (i, ln) in enumerate(numbered[:30]):
-        delim = m.delimiter or detect_delimiter(ln, m.decimal)
-        width = len(split_lines([ln], delim)[0])
-        nxt = split_lines([x for _, x in numbered[k + 1:k + 21]], delim)
-        if width > 1 and nxt and all(len(r) == width or (len(r) == width + 1 and not r[-1]) for r in nxt):
-            out = {"skip_rows": i, "delimiter": delim}
-            cells = [c for r in nxt for c in r]
-            if m.decimal == "." and delim != "," and any(re.fullmatch(r"[+-]?\d*,\d+", c) for c in cells):
-                out["decimal"] = ","
-            return out
+    for strict in (True, False):  # first a named header over numeric rows, else the first line of the rows' width
+        for k, (i, ln) in enumerate(numbered[:30]):
+            delim = m.delimiter or detect_delimiter(ln, m.decimal)
+            head = split_lines([ln], delim)[0]
+            width = len(head)
+            if width < 2 or (strict and (sum(1 for c in head if c) * 4 < width * 3 or _numeric_line(head, m.decimal))):
+                continue
+            nxt = split_lines([x for _, x in numbered[k + 1:k + 21]], delim)
+            units = None
+            if strict and nxt and len(nxt[0]) in (width, width + 1) and _units_line(nxt[0]):
+                units, nxt = nxt[0][:width], nxt[1:]
+            if strict and not (nxt and _numeric_line(nxt[0], m.decimal)):
+                continue
+            if nxt and all(len(r) == width or (len(r) == width + 1 and not r[-1]) for r in nxt):
+                out = {"skip_rows": i, "delimiter": delim}
+                cells = [c for r in nxt for c in r]
+                if m.decimal == "." and delim != "," and any(re.fullmatch(r"[+-]?\d*,\d+", c) for c in cells):
+                    out["decimal"] = ","
+                if units is not None:
+                    out["drop_rows"] = [numbered[k + 1][0] + 1]
+                    out["units"] = units
+                return out
     return {}
+
+
+def _numeric_line(cells: list[str], decimal: str) -> bool:
+    """At least 80 % of the non-empty cells are numbers (a data row, not a header or group line)."""
+    full = [c for c in cells if c]
+    return bool(full) and sum(not math.isnan(_num_or_nan(c, decimal)) for c in full) >= 0.8 * len(full)
 
 
 @dataclass
@@ -162,18 +197,41 @@ def _require(t: TextTable, names: list[str], role: str) -> None:
                           f"the header is: {', '.join(t.header)}")
 
 
-def _check_further_joints(t: TextTable, joints: list[str], used: set[str], m: TableMap) -> None:
-    """Refuse a header column that continues the joints' numbering (``joint_7`` next to joint_1..6)."""
-    for j in joints[-1:]:
-        mm = re.fullmatch(r"(.*?)(\d+)(\D*)", j)
+def _check_further_joints(t: TextTable, joints: list[str], used: set[str], m: TableMap, q_raw: np.ndarray) -> None:
+    """Refuse a header column that continues the joints' numbering (``joint_7`` next to joint_1..6).
+
+    Text columns and frame counters (integers increasing every row) are never joints. Without a header
+    (names ``"1", "2", ...``) the name is no evidence: only the columns next to the mapped ones are
+    looked at, and refused only when their values vary like the joints' (within 1.5 x the joints'
+    largest magnitude, a range of at least a tenth of theirs, not increasing every row: a time column)."""
+    bare = all(j.isdigit() for j in joints)
+    if bare:
+        nums = [int(j) for j in joints]
+        cands = [str(k) for k in (min(nums) - 1, max(nums) + 1)]
+    else:
+        mm = re.fullmatch(r"(.*?)(\d+)(\D*)", joints[-1])
         if not mm:
             return
         rx = re.compile(re.escape(mm.group(1)) + r"(\d+)" + re.escape(mm.group(3)))
-        for h in t.header:
-            k = rx.fullmatch(h)
-            if k and h not in used and h not in m.ignore and h not in m.keep_names():
-                raise t.error(None, h, f"looks like a further joint that the mapping leaves out (joints: {', '.join(joints)}); "
-                              "map it under joints, or list it under ignore if it is not a joint of this arm")
+        cands = [h for h in t.header if rx.fullmatch(h)]
+    for h in cands:
+        if h not in t.header or h in used or h in m.ignore or h in m.keep_names():
+            continue
+        v = lenient_column(t.col(h), m.decimal)
+        if v.dtype.kind != "f":
+            continue  # text: not a joint
+        v = v[np.isfinite(v)]
+        rising = len(v) >= 3 and bool((np.diff(v) > 0).all())
+        if rising and np.array_equal(v, np.round(v)):
+            continue  # a frame counter
+        if bare:
+            qa = np.abs(q_raw)
+            span = float(np.median(np.ptp(q_raw, axis=0))) if len(q_raw) else 0.0
+            if rising or not len(v) or np.abs(v).max() > 1.5 * qa.max() or np.ptp(v) < 0.1 * span:
+                continue
+        raise t.error(None, h, f"looks like a further joint that the mapping leaves out (joints: {', '.join(joints)}"
+                      f"{'; its values vary like theirs' if bare else ''}); map it under joints, or list it under ignore if "
+                      "it is not a joint of this arm")
 
 
 def _spread(xyz: np.ndarray) -> float:
@@ -252,7 +310,8 @@ def check_lever_arms(t: TextTable, m: TableMap, xyz_m: np.ndarray, P_m: np.ndarr
                    f"{off.size} rows (median {med * 1e3:.4g} mm): not on the same rigid tool")
         if why:
             raise TableMapError(f"{t.where}, columns {cols}: reflector {k + 2} {why}; an uncertainty, sensor or index "
-                                "column is not a reflector: leave it out of points", file=t.where, column=m.points[k][0])
+                                "column is not a reflector: leave it out of points (if they are the position, the columns may be swapped: "
+                                f"is position = {', '.join(m.position or [])} the rotation?)", file=t.where, column=m.points[k][0])
 
 
 def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool = True, need_position: bool = True,
@@ -295,10 +354,10 @@ def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool 
         who = f"robot {robot.name!r}" if robot is not None else f"dof = {want}"
         raise t.error(None, jn[-1], f"the mapping names {len(jn)} joint column(s) ({', '.join(jn)}) but {who} "
                       f"has {want} joints")
-    if jn:
-        _check_further_joints(t, jn, set(used), m)
     rev = np.array([jt == "revolute" for jt in robot.independent_joint_type], bool) if robot is not None else np.ones(len(jn), bool)
     q_raw = _stack(t, jn, d) if jn else None
+    if jn:
+        _check_further_joints(t, jn, set(used), m, q_raw)
     xyz_raw = _stack(t, m.position, d, allow_missing) if m.position else None
     ang_raw = ang_unit = None
     if m.orientation in ("euler", "rotvec"):

@@ -87,7 +87,9 @@ class TableMap:
         further-joint check should not complain about.
     Layout: delimiter (None = detect ``\\t ; , |`` else whitespace), decimal (``.``/``,``),
         skip_rows (lines above the header), header_row (1-based line of the header; 0 = no header,
-        columns named ``"1", "2", ...``), comment (lines starting with it are skipped), drop_rows
+        columns named ``"1", "2", ...``; skip_rows and drop_rows still apply), group_rows (1-based
+        lines above the header whose labels are joined in front of names that repeat or are empty:
+        Motive's ``"Tool Rotation X"``; None = found when names repeat, ``[]`` = none), comment (lines starting with it are skipped), drop_rows
         (1-based file lines), where (row filters ``"col op value"``, op in ``== != < <= > >=``,
         all must hold), encoding (None = UTF-8, else cp1252).
     dof: expected joint count; check_units: refuse values that look like the wrong unit.
@@ -124,6 +126,7 @@ class TableMap:
     decimal: str = "."
     skip_rows: int = 0
     header_row: int | None = None
+    group_rows: list[int] | None = None
     comment: str | None = None
     drop_rows: list[int] = field(default_factory=list)
     where: list[str] = field(default_factory=list)
@@ -195,13 +198,13 @@ def table_map_from_dict(d: dict, where: str = "<mapping>") -> TableMap:
             elif not isinstance(v, (list, tuple)) or not all(isinstance(s, str) for s in v):
                 raise TableMapError(f"{where}: {k} must be a list of strings, got {v!r}", file=where, column=k)
             v = dict(v) if isinstance(v, dict) else list(v)
-        elif k == "drop_rows":
+        elif k in ("drop_rows", "group_rows"):
             if isinstance(v, str):
                 v = [s.strip() for s in v.split(",") if s.strip()]
             try:
                 v = [int(x) for x in v]
             except (TypeError, ValueError):
-                raise TableMapError(f"{where}: drop_rows must be a list of 1-based line numbers, got {v!r}",
+                raise TableMapError(f"{where}: {k} must be a list of 1-based line numbers, got {v!r}",
                                     file=where, column=k) from None
         elif k in ("skip_rows", "header_row", "dof"):
             if isinstance(v, bool) or not isinstance(v, int) or v < 0 or (k == "dof" and v < 1):
@@ -344,8 +347,19 @@ def _triples(header: list[str]) -> list[tuple[str, str, str]]:
     return out
 
 
-def _quads(header: list[str]) -> list[tuple[str, str, str, str]]:
+def _quads(header: list[str], values=None) -> list[tuple[str, str, str, str]]:
+    """Quaternion columns, scalar first: ``qw..qz``-like names (w, x, y, z, with q/quat/rot/ori in the
+    name: Motive's ``"Tool Rotation W"``), Leica's ``Q0, QX, QY, QZ`` and ``q0..q3``; the last only
+    when the sample rows (``values(column)``) have unit norm (else they are joints)."""
     out = []
+
+    def unit(cand):
+        if values is None:
+            return False
+        v = [values(c, signed=True) for c in cand]
+        n = min(len(x) for x in v)
+        return n > 0 and all(abs(math.sqrt(sum(x[i] ** 2 for x in v)) - 1.0) < 1e-3 for i in range(n))
+
     for h in header:
         for m in re.finditer(r"[wW]", h):
             i = m.start()
@@ -353,7 +367,28 @@ def _quads(header: list[str]) -> list[tuple[str, str, str, str]]:
             if all(c in header for c in cand) and re.search(r"(?i)q|quat|rot|ori", h):
                 out.append(tuple(cand))
                 break
+        for m in re.finditer(r"0", h):
+            i = m.start()
+            for axes in ("XYZ", "xyz", "123"):
+                cand = [h] + [h[:i] + a + h[i + 1:] for a in axes]
+                if all(c in header for c in cand) and re.search(r"(?i)q|quat|rot|ori", h) and (axes != "123" or unit(cand)):
+                    out.append(tuple(cand))
+                    break
     return out
+
+
+_ROT_WORDS = {"r", "rot", "rotation", "rotations", "angle", "angles", "ang", "euler", "ori", "orient", "orientation", "rv",
+              "rotvec", "helical", "q", "quat", "quaternion"}
+
+
+def _rotation_triple(t) -> bool:
+    """A triple named as angles (Vicon ``RX``, ``Rot X``, ``Tool Rotation X``, Leica ``QX``), never a position."""
+    h, k = t[0], 0
+    for k in range(len(h)):
+        if h[k] in "xX" and t[1] == h[:k] + ("Y" if h[k] == "X" else "y") + h[k + 1:]:
+            break
+    stem = re.sub(r"([a-z])([A-Z])", r"\1 \2", h[:k] + " " + h[k + 1:])
+    return any(w.lower() in _ROT_WORDS for w in re.findall(r"[A-Za-z]+", stem))
 
 
 _NOT_MEASURED = re.compile(r"(?i)goal|target|cmd|command|nominal|std|sigma|dif|err|_t$|(^|_)t_|set|desired|flange|vel|speed")
@@ -384,23 +419,38 @@ def _unit_in_name(name: str, units: dict) -> str | None:
     return None
 
 
+def _toml_list(names) -> str:
+    return "[" + ", ".join('"' + c + '"' for c in names) + "]"
+
+
 def suggest_map(header: list[str], sample_rows: list[list[str]] | None = None, *, delimiter: str | None = None,
-                decimal: str = ".", skip_rows: int = 0) -> str:
+                decimal: str = ".", skip_rows: int = 0, group_rows: list[int] | None = None,
+                drop_rows: list[int] | None = None, units: dict[str, str] | None = None,
+                header_row: int | None = None) -> str:
     """A suggested mapping (TOML text with comments) for ``header``; every guess is marked CHECK.
 
-    ``sample_rows`` (a few data rows as text) let it guess units from magnitudes.
+    ``sample_rows`` (a few data rows as text) let it guess units from magnitudes; ``units`` (column ->
+    unit, from a units line under the header, dropped by ``drop_rows``) name them. ``group_rows``: the
+    lines above the header whose labels were joined into repeated names (Motive), printed back.
     """
     rows = sample_rows or []
+    units = {c: u for c, u in (units or {}).items() if u}
 
-    def values(col):
+    def values(col, signed=False):
         i = header.index(col)
         out = []
         for r in rows:
             try:
-                out.append(abs(float(r[i].replace(decimal, "."))))
+                v = float(r[i].replace(decimal, "."))
+                out.append(v if signed else abs(v))
             except (ValueError, IndexError):
                 pass
         return out
+
+    def unit_of(col, table):
+        u = units.get(col, "").lower().strip("[]()")
+        u = {"°": "deg", "degree": "deg", "degrees": "deg", "radian": "rad", "radians": "rad", "µm": "um"}.get(u, u)
+        return u if u in table else None
 
     lines = ["# hykin import table: suggested mapping. CHECK every line, then pass it with --map.",
              f"# header: {', '.join(header)}"]
@@ -408,11 +458,22 @@ def suggest_map(header: list[str], sample_rows: list[list[str]] | None = None, *
         lines.append(f"delimiter = {({chr(9): 'tab', ' ': 'whitespace'}).get(delimiter, delimiter)!r}".replace("'", '"'))
     if decimal != ".":
         lines.append(f'decimal = "{decimal}"')
-    if skip_rows:
+    if header_row:
+        lines.append(f"header_row = {header_row}")
+    elif skip_rows:
         lines.append(f"skip_rows = {skip_rows}")
+    if header_row == 0:
+        lines.append("header_row = 0  # no header: columns named 1, 2, ...")
+    if group_rows:
+        lines.append(f"group_rows = {list(group_rows)}  # lines above the header naming the groups of repeated "
+                     "names (joined in front: the names above)")
+    if drop_rows:
+        lines.append(f"drop_rows = {list(drop_rows)}  # the units line under the header")
+    quads = _quads(header, values)
+    in_quad = {c for qd in quads for c in qd}
     fams: dict[str, list[tuple[int, str, str | None]]] = {}
     for h in header:
-        m = None if never_position(h) else _JOINT_RX.match(h)
+        m = None if never_position(h) or h in in_quad else _JOINT_RX.match(h)
         if m:
             fams.setdefault(m.group(1).lower(), []).append((int(m.group(2)), h, m.group(3)))
     ros = [h for h in header if re.search(r"(?i)_joint$", h)]
@@ -425,34 +486,49 @@ def suggest_map(header: list[str], sample_rows: list[list[str]] | None = None, *
     elif ros:
         joints = ros
     if joints:
-        lines.append(f"joints = [{', '.join(repr(j).replace(chr(39), chr(34)) for j in joints)}]  # CHECK order base to tip")
+        lines.append(f"joints = {_toml_list(joints)}  # CHECK order base to tip")
         big = max((v for j in joints for v in values(j)), default=0.0)
+        named = unit_of(joints[0], ANGLE_UNITS_RAD)
         unit_hint = unit_hint or _unit_in_name(joints[0], ANGLE_UNITS_RAD)
-        unit = unit_hint or ("deg" if big > 2 * math.pi * 1.2 else "rad")
-        why = "from the column names" if unit_hint else (f"largest value {big:.4g}" if rows else "no data seen")
+        unit = named or unit_hint or ("deg" if big > 2 * math.pi * 1.2 else "rad")
+        why = ("from the units line" if named else "from the column names" if unit_hint else
+               f"largest value {big:.4g}" if rows else "no data seen")
         lines.append(f'angle_unit = "{unit}"  # CHECK ({why})')
     else:
         lines.append('# joints = ["J1", "J2", ...]  # no joint columns recognised')
-    quads = _quads(header)
-    trips = [t for t in _triples([h for h in header if h not in joints and not any(h in qd for qd in quads)])
-             if not any(never_position(c) for c in t)]
+    all_trips = _triples([h for h in header if h not in joints and h not in in_quad])
+    rot = [t for t in all_trips if _rotation_triple(t) and not _NOT_MEASURED.search(t[0]) and not never_position(t[0])]
+    trips = [t for t in all_trips if not any(never_position(c) for c in t) and not _rotation_triple(t)]
     meas = [t for t in trips if not _NOT_MEASURED.search(t[0])] or trips
+    vicon = "Sub Frame" in header and bool(rot)  # Vicon Nexus: RX, RY, RZ are helical angles (a rotation vector)
+    has_ori = bool(quads) or vicon or all(k in {h.lower() for h in header} for k in "abc") or \
+        all(k in {h.lower() for h in header} for k in ("roll", "pitch", "yaw"))
     if meas:
         pos, rest = meas[0], [t for t in meas[1:]]
-        lines.append(f"position = [{', '.join(chr(34) + c + chr(34) for c in pos)}]  # CHECK")
+        lines.append(f"position = {_toml_list(pos)}  # CHECK")
         big = max((math.sqrt(sum(v * v for v in r)) for r in zip(*(values(c) for c in pos))), default=0.0)
-        named = _unit_in_name(pos[0], LENGTH_UNITS_M)
-        why = "from the column names" if named else (f"largest distance {big:.4g}" if rows else "no data seen")
+        from_line = unit_of(pos[0], LENGTH_UNITS_M)
+        named = from_line or _unit_in_name(pos[0], LENGTH_UNITS_M)
+        why = ("from the units line" if from_line else "from the column names" if named else
+               f"largest distance {big:.4g}" if rows else "no data seen")
         lines.append(f'length_unit = "{named or ("mm" if big > 50 else "m")}"  # CHECK ({why})')
-        pts = [t for t in rest if not re.search(r"(?i)r[xyz]|rot|angle", t[0]) and not _NOT_MEASURED.search(t[0])]
-        if pts:
-            lines.append("points = [" + ", ".join("[" + ", ".join(f'"{c}"' for c in t) + "]" for t in pts) + "]  # CHECK further reflectors")
+        pts = [t for t in rest if not _NOT_MEASURED.search(t[0])]
+        if pts and has_ori:
+            lines.append("# further reflectors / markers (the pose is complete without them; their cells must never be "
+                         "empty, a lost marker's are):")
+            lines.append("# points = [" + ", ".join(_toml_list(t) for t in pts) + "]")
+        elif pts:
+            lines.append("points = [" + ", ".join(_toml_list(t) for t in pts) + "]  # CHECK further reflectors")
     else:
         lines.append('# position = ["X", "Y", "Z"]  # no position columns recognised')
     low = {h.lower(): h for h in header}
     if quads:
-        lines.append(f"quaternion = [{', '.join(chr(34) + c + chr(34) for c in quads[0])}]  # CHECK")
+        lines.append(f"quaternion = {_toml_list(quads[0])}  # CHECK (scalar first)")
         lines.append('quaternion_order = "wxyz"  # order of the names above')
+    elif vicon:
+        lines.append(f"rotvec = {_toml_list(rot[0])}  # CHECK: Vicon's helical angles (axis·angle); Euler angles if "
+                     "your export says so")
+        lines.append(f'rotvec_unit = "{unit_of(rot[0][0], ANGLE_UNITS_RAD) or "deg"}"  # CHECK')
     elif all(k in low for k in "abc"):
         lines.append(f'euler = ["{low["a"]}", "{low["b"]}", "{low["c"]}"]  # CHECK: KUKA A, B, C')
         lines.append('euler_convention = "kuka"  # intrinsic Z, Y\', X\'\'')
@@ -461,20 +537,18 @@ def suggest_map(header: list[str], sample_rows: list[list[str]] | None = None, *
         lines.append(f'euler = ["{low["roll"]}", "{low["pitch"]}", "{low["yaw"]}"]  # CHECK')
         lines.append('euler_convention = "rpy"  # extrinsic x, y, z')
         lines.append('euler_unit = "rad"  # CHECK')
-    else:
-        rot = [t for t in _triples(header) if re.search(r"(?i)r[xyz]|rot|angle", t[0]) and not _NOT_MEASURED.search(t[0])]
-        if rot:
-            lines.append(f"# orientation columns {', '.join(rot[0])}: the convention cannot be read from the names. Either")
-            lines.append(f"# euler = [{', '.join(chr(34) + c + chr(34) for c in rot[0])}]")
-            lines.append('# euler_convention = "XYZ"   # uppercase intrinsic, lowercase extrinsic; CHECK your tracker manual')
-            lines.append('# euler_unit = "deg"')
-            lines.append(f"# or rotvec = [{', '.join(chr(34) + c + chr(34) for c in rot[0])}]  # axis·angle (e.g. URScript)")
+    elif rot:
+        lines.append(f"# orientation columns {', '.join(rot[0])}: the convention cannot be read from the names. Either")
+        lines.append(f"# euler = {_toml_list(rot[0])}")
+        lines.append('# euler_convention = "XYZ"   # uppercase intrinsic, lowercase extrinsic; CHECK your tracker manual')
+        lines.append(f'# euler_unit = "{unit_of(rot[0][0], ANGLE_UNITS_RAD) or "deg"}"')
+        lines.append(f"# or rotvec = {_toml_list(rot[0])}  # axis·angle (e.g. URScript)")
     for h in header:
         if re.search(r"(?i)temp", h):
             lines.append(f'temperature = "{h}"  # -> temperature_c; temperature_unit = "C"')
             break
     for h in header:
-        if re.fullmatch(r"(?i)(time|timestamp|t|time_s|t_s)", h):
+        if re.fullmatch(r"(?i)(time|timestamp|t)([ _]?(s|\(s\)|\[s\]|\(seconds\)|sec))?", h):
             lines.append(f'# time = "{h}"  # -> time_s, for `hykin import stream`; time_unit = "s"')
             break
     return "\n".join(lines) + "\n"
