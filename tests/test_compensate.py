@@ -318,3 +318,16 @@ def test_shift_of_a_tracker_frame_model_is_seen_from_the_real_base():
     T_base = np.linalg.inv(truth.base) @ T  # the targets seen from the real base (reference)
     ref = np.linalg.norm(c.command[:, :3, 3] - T_base[:, :3, 3], axis=1) * 1e3
     assert np.allclose(c.shift_mm, ref, atol=1e-9) and c.shift_mm.max() < 50
+
+
+def test_a_model_without_thermal_expansion_says_it_does_not_use_the_temperatures(tmp_path, capsys):
+    from cli_run import run as run_cli
+
+    mp = tiny_model_file()
+    jp = tmp_path / "j.csv"
+    jp.write_text("q1,q2,q3,q4,q5,q6,temperature_c\n0.1,-1.2,1.3,-1.4,-1.5,0.2,38\n")
+    code, _, err = run_cli(["fk", mp, jp, "-o", tmp_path / "fk.csv"], capsys)
+    assert code == 0 and "has a temperature column, but the model has no thermal expansion" in err
+    jp.write_text("q1,q2,q3,q4,q5,q6,temperature_c\n0.1,-1.2,1.3,-1.4,-1.5,0.2,311.15\n")
+    code, _, err = run_cli(["fk", mp, jp, "-o", tmp_path / "fk2.csv"], capsys)
+    assert code == 2 and "look like kelvin" in err and not (tmp_path / "fk2.csv").exists()

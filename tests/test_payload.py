@@ -222,3 +222,25 @@ def test_warns_for_payloads_outside_the_trained_payloads(vr):
         warnings.simplefilter("always")
         m.predict(q[:5], payload_kg=[12.0, 12.0, 0.0, 12.0, 20.0])
     assert any("2 of 5 payloads lie outside the trained payloads [12, 12] kg" in str(w.message) for w in rec)
+
+
+def test_payload_and_temperature_in_the_wrong_unit_are_refused_naming_row_and_column():
+    """Grams as kg, a centre of mass in mm as m, kelvin or °F as °C: one line naming the row, the column
+    and the likely unit; values a real cell sees pass."""
+    from hykin.calibration.thermal import temperature_from
+    from hykin.io.dataset import DatasetError
+    from hykin.io.payload import payload_from_columns
+
+    ok = payload_from_columns({"payload_kg": np.array([0.0, 1300.0]), "payload_com_x": np.array([0.0, 1.2]),
+                               "payload_com_y": np.zeros(2), "payload_com_z": np.zeros(2)}, 2, "f.csv")
+    assert ok[0][1] == 1300.0 and ok[1][1, 0] == 1.2
+    with pytest.raises(DatasetError, match=r"f\.csv, row 2, column 'payload_kg': 20000 kg, .* look like grams"):
+        payload_from_columns({"payload_kg": np.array([10.0, 20000.0])}, 2, "f.csv")
+    with pytest.raises(DatasetError, match=r"row 1, columns payload_com_x, .* look like mm"):
+        payload_from_columns({"payload_kg": np.array([10.0]), "payload_com_x": np.array([50.0]),
+                              "payload_com_y": np.array([-30.0]), "payload_com_z": np.array([120.0])}, 1, "f.csv")
+    assert temperature_from({"temperature_c": np.array([-5.0, 22.0, 55.0])}, "t.csv")[2] == 55.0
+    with pytest.raises(ValueError, match=r"t\.csv: column 'temperature_c', row 2: 299\.15 °C .* look like kelvin"):
+        temperature_from({"temperature_c": np.array([22.0, 299.15])}, "t.csv")
+    with pytest.raises(ValueError, match=r"row 1: 91\.4 °C .* look like °F"):
+        temperature_from({"temperature_c": np.array([91.4, 75.2])}, "t.csv")

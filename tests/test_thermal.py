@@ -242,3 +242,10 @@ def test_cli_compensate_reads_the_targets_temperature(model, session, tmp_path, 
     # and on the true robot at that temperature the joints land within the model's accuracy
     land = np.linalg.norm(true_poses(vr, qc, temperature_c=temp)[:, :3, 3] - T[:, :3, 3], axis=1) * 1e3
     assert land.mean() < 0.2
+    # joints at temperatures the model never saw: a warning with the count
+    jp = tmp_path / "j.csv"
+    jp.write_text("q1,q2,q3,q4,q5,q6,temperature_c\n" + "".join(
+        ",".join(repr(float(v)) for v in q[i]) + f",{t}\n" for i, t in zip(range(3), (22.0, 40.0, 41.0))))
+    code, _, err = run_cli(["fk", mp, jp, "-o", tmp_path / "fk.csv"], capsys)
+    lo, hi = model.thermal_.range_c
+    assert code == 0 and f"2 of 3 rows of {jp} lie outside the temperatures the model was trained on ({lo:.2f}-{hi:.2f}" in err

@@ -73,6 +73,11 @@ class ThermalFit:
                 "reference_c": self.reference_c, "range_c": list(self.range_c), "note": self.note}
 
 
+#: °C a robot cell (and a robot's structure in it) stays within; beyond: kelvin or °F, not Celsius. A
+#: room at 68-95 °F reads 20-35 in °C too; those rows are inside and cannot be told from Celsius.
+MIN_CELL_C, MAX_CELL_C = -40.0, 80.0
+
+
 def temperature_from(extra: dict, where: str = "<dataset>") -> np.ndarray | None:
     """The temperature column (°C, ``(N,)`` float64) among extra columns ``{name: (N,)}``, or None.
     Raises ``ValueError`` naming the file, column and row on a non-numeric or non-finite value."""
@@ -85,6 +90,12 @@ def temperature_from(extra: dict, where: str = "<dataset>") -> np.ndarray | None
             bad = ~np.isfinite(t)
             if bad.any():
                 raise ValueError(f"{where}: column '{name}', row {int(np.argmax(bad)) + 1}: non-finite temperature")
+            hot = (t > MAX_CELL_C) | (t < MIN_CELL_C)
+            if hot.any():
+                r = int(np.argmax(hot))
+                unit = "kelvin (subtract 273.15)" if t[r] > 200 else "°F (°C = (°F - 32) / 1.8)" if t[r] > MAX_CELL_C else "not °C"
+                raise ValueError(f"{where}: column '{name}', row {r + 1}: {t[r]:g} °C is outside what a robot cell sees "
+                                 f"({MIN_CELL_C:g} to {MAX_CELL_C:g} °C): the values look like {unit}")
             return t
     return None
 

@@ -324,11 +324,22 @@ def temperature_of(mdl, extra: dict, path) -> np.ndarray | None:
 
     th = getattr(mdl, "thermal_", None)
     if th is None or th.coefficient_per_k == 0.0:
+        t = temperature_from(extra, str(path))  # checked (units) even when unused
+        if t is not None and mdl is not None:
+            why = "its fit kept none" if th is not None else "its training data had one temperature, or none"
+            console().print(f"[yellow]note:[/] {path} has a temperature column, but the model has no thermal expansion "
+                            f"({why}): the temperatures are not used", highlight=False)
         return None
     t = temperature_from(extra, str(path))
     if t is None:
         console().print(f"[yellow]note:[/] the model compensates thermal expansion ({th.coefficient_per_k * 1e6:.2f} µm/m/K) "
                          f"but {path} has no temperature_c column: results at the reference {th.reference_c:.2f} °C")
+        return t
+    lo, hi = th.range_c
+    n_out = int(np.sum((t < lo) | (t > hi)))
+    if n_out:
+        console().print(f"[yellow]warning:[/] {n_out} of {len(t)} rows of {path} lie outside the temperatures the model was "
+                        f"trained on ({lo:.2f}-{hi:.2f} °C): its expansion is extrapolated there", highlight=False)
     return t
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import typer
 
 from .common import (
@@ -217,6 +218,12 @@ def calibrate_cmd(
     rob = load_robot_spec(robot, base_link, tip_link)
     _check_robot_out(rob, out)
     ds = read_dataset(data, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
+    from ..calibration.thermal import temperature_of
+
+    t = temperature_of(ds)  # checked (units) though unused here
+    if t is not None and np.ptp(t) > 0:
+        console().print(f"[yellow]note:[/] {data} has temperatures {t.min():.2f}-{t.max():.2f} °C: hykin calibrate fits no "
+                        "thermal expansion (hykin fit does); the robot file is the fit over all of them", highlight=False)
     res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation, prior, outliers,
                                                                                   outlier_ratio))
     typer.echo(res.report())

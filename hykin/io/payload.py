@@ -52,6 +52,10 @@ def _where(data) -> str:
     return getattr(data, "source", "") or "<dataset>"
 
 
+MAX_PAYLOAD_KG = 3000.0  # above any serial robot's rated payload (the largest carry 2.3 t): grams, not kg
+MAX_COM_M = 3.0  # a payload's centre of mass this far from the TCP: mm, not m
+
+
 def payload_of(data, payload_kg=None, payload_com_m=None, n_rows: int | None = None):
     """Per-row payload of ``data``: ``(kg (N,), com (N, 3) m tool frame or None)``, or None.
 
@@ -93,6 +97,11 @@ def payload_of(data, payload_kg=None, payload_com_m=None, n_rows: int | None = N
         r = int(np.argmax(bad))
         raise DatasetError(f"{where}, row {r + 1}, column 'payload_kg': {float(kg[r])!r} is not a mass >= 0 kg", file=where,
                            row=r + 1, column="payload_kg")
+    if kg.max() > MAX_PAYLOAD_KG:  # the largest serial robots carry 2.3 t
+        r = int(np.argmax(kg))
+        raise DatasetError(f"{where}, row {r + 1}, column 'payload_kg': {float(kg[r]):g} kg, more than any serial robot "
+                           f"carries ({MAX_PAYLOAD_KG:g} kg): the values look like grams (payload_kg is in kg)",
+                           file=where, row=r + 1, column="payload_kg")
     if com is not None:
         com = np.asarray(com, dtype=np.float64)
         com = np.broadcast_to(com.reshape(1, 3), (N, 3)).copy() if com.size == 3 else com
@@ -103,6 +112,12 @@ def payload_of(data, payload_kg=None, payload_com_m=None, n_rows: int | None = N
             r, c = np.argwhere(bad)[0]
             raise DatasetError(f"{where}, row {r + 1}, column '{_COM_COLUMNS[c]}': non-finite centre of mass",
                                file=where, row=int(r) + 1, column=_COM_COLUMNS[c])
+        far = np.linalg.norm(com, axis=1) > MAX_COM_M
+        if far.any():
+            r = int(np.argmax(far))
+            raise DatasetError(f"{where}, row {r + 1}, columns {', '.join(_COM_COLUMNS)}: a centre of mass "
+                               f"{np.linalg.norm(com[r]):.4g} m from the TCP (at most {MAX_COM_M:g} m on any tool): the values "
+                               "look like mm (payload_com_* are in m)", file=where, row=r + 1, column=_COM_COLUMNS[0])
         if not np.any(com):
             com = None  # all at the TCP: the same as no column
     return kg, com

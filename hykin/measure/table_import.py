@@ -165,7 +165,7 @@ def guess_layout(path: str | Path, m: TableMap | None = None) -> dict:
 def _numeric_line(cells: list[str], decimal: str) -> bool:
     """At least 80 % of the non-empty cells are numbers (a data row, not a header or group line)."""
     full = [c for c in cells if c]
-    return bool(full) and sum(not math.isnan(_num_or_nan(c, decimal)) for c in full) >= 0.8 * len(full)
+    return bool(full) and sum(not math.isnan(_num_or_nan(c.replace(",", "."), ".")) for c in full) >= 0.8 * len(full)
 
 
 @dataclass
