@@ -340,3 +340,20 @@ def test_floors_from_the_residual_identify_what_the_fixed_floor_held():
     assert "excitation floors from the residual" in low.message
     assert low.after["pos_rms_mm"] < 0.6 * fixed.after["pos_rms_mm"]
     assert err(fixed.robot) > 1.5 * c.floor_mm and err(low.robot) < 1.1 * c.floor_mm
+
+
+def test_precise_data_note_names_only_parameters_the_data_could_tell():
+    """The note for data far more precise than the excitation floor lists held geometry, not what the
+    frames or parallel axes make unidentifiable whatever the data (d1/theta1, the last joint, d of
+    parallel axes, the tool, compliances)."""
+    from types import SimpleNamespace
+
+    from hykin.calibration.priors import precise_data_note
+
+    res = SimpleNamespace(held_names=["d1", "theta1", "d3", "d4", "alpha5", "a6", "theta6", "tool.rx", "c2"],
+                          names=["beta2", "beta3", "d3", "d4", "alpha5"], robot=SimpleNamespace(n_chain=6),
+                          after={"pos_rms_mm": 0.05})
+    note = precise_data_note(res, SimpleNamespace(floor_m=2e-4))
+    assert "holds alpha5 at the robot file" in note and "4x below the 0.2 mm" in note
+    res.held_names = ["d1", "a6", "c1"]
+    assert precise_data_note(res, SimpleNamespace(floor_m=2e-4)) == ""

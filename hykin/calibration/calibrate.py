@@ -107,7 +107,7 @@ from .params import (
     select_specs,
 )
 from .posterior import PriorContext, noise_variances, posterior, prior_system, prior_weight, reset_held
-from .priors import excitation, prior_tolerances, residual_floors, resolve_priors
+from .priors import PRECISE_NOTE, excitation, precise_data_note, prior_tolerances, residual_floors, resolve_priors
 from .result import (
     CalibrationError,
     CalibrationResult,
@@ -513,6 +513,8 @@ def calibrate(
             res, rel, _ = run(res.robot, specs, ww, max_iter, pts=res.point_offsets_m, fr=res.station_frames, pr=low)
             iters += res.iterations
             res.message += f"; excitation floors from the residual: {low.floor_m * 1e3:.3g} mm, {math.degrees(low.floor_rad):.3g} deg"
+        elif not pri_kinds["excitation_residual"] and residual_floors(pri, res.after, PRECISE_NOTE) is not None:
+            res.notes = [n for n in [precise_data_note(res, pri)] if n]
         return res, rel, iters
 
     best = None

@@ -84,7 +84,9 @@ __all__ = [
     "excitation",
     "kind_of",
     "parse_kind_values",
+    "PRECISE_NOTE",
     "parse_priors",
+    "precise_data_note",
     "prior_tolerances",
     "residual_floors",
     "resolve_priors",
@@ -282,3 +284,26 @@ def residual_floors(pri, after: dict, c: float):
         ratio = max(ratio, math.radians(after["rot_rms_deg"]) / pri.floor_rad)
     s = c * ratio
     return replace(pri, floor_m=s * pri.floor_m, floor_rad=s * pri.floor_rad) if s < 1 else None
+
+
+#: the note of :func:`precise_data_note` when the fit leaves less than 1 / PRECISE_NOTE of the floors
+PRECISE_NOTE = 2.0
+
+
+def precise_data_note(res, pri) -> str:
+    """A note for a fit that leaves less than the excitation floors (module docstring) while it holds
+    geometry at the robot file: data that precise (a CMM, a tracker on a well-modelled arm) may
+    identify those with ``excitation_residual = 1``; "" when no geometry parameter is held."""
+    # compliances, and what the frames reproduce whatever the data (d1 / theta1 against the base)
+    last = str(res.robot.n_chain)  # the last joint's parameters against the tool
+    par = {n[4:] for n in res.names if n.startswith("beta")}  # joints k (beta k) parallel to the next one
+    joint = lambda n: n[len(n.rstrip("0123456789")):]
+    parallel_d = lambda n: n.startswith("d") and joint(n).isdigit() and (joint(n) in par or str(int(joint(n)) - 1) in par)
+    held = [n for n in res.held_names if not (n[:1] == "c" and n[1:].isdigit()) and n not in ("d1", "theta1")
+            and not n.startswith(("tool.", "tool[")) and joint(n) != last and not parallel_d(n)]
+    if not held:
+        return ""
+    r = res.after["pos_rms_mm"]
+    return (f"the fit leaves {r:.3g} mm RMS, {pri.floor_m * 1e3 / max(r, 1e-12):.3g}x below the {pri.floor_m * 1e3:.3g} mm "
+            f"excitation floor, and holds {', '.join(held)} at the robot file; with data this precise, "
+            "--prior excitation_residual=1 identifies those the data excite above the fit's own residual")

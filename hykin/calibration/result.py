@@ -109,6 +109,8 @@ class CalibrationResult:
     correlated_with: list = field(default_factory=list)
     #: rows far off the calibrated model (:class:`hykin.calibration.outliers.Outliers`; row indices into the data given)
     outliers: object | None = None
+    #: notes for the user (e.g. :func:`hykin.calibration.priors.precise_data_note`)
+    notes: list = field(default_factory=list)
 
     @property
     def identified_names(self) -> list[str]:

@@ -121,6 +121,8 @@ def fit_cmd(
     model.save(out)
     if model.calibration_ is not None:
         typer.echo(model.calibration_.summary())
+        for note in getattr(model.calibration_, "notes", []):
+            console().print(f"note: {note}", highlight=False)
     if model.thermal_ is not None:
         typer.echo(f"thermal expansion: {model.thermal_.note} (reference {model.thermal_.reference_c:.2f} °C)")
     if model.fade_calibration_ is not None:
@@ -227,6 +229,8 @@ def calibrate_cmd(
     res = calibrate(rob, ds, compliance=compliance, **_calibration_options(orientation_weight, max_deviation, prior, outliers,
                                                                                   outlier_ratio))
     typer.echo(res.report())
+    for note in res.notes:
+        console().print(f"note: {note}", highlight=False)
     _write_calibrated(res.robot, out)
     if res.station_frames is not None:  # several stations / tools: the file holds the reference's frames
         fr = res.station_frames
