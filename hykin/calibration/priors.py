@@ -277,10 +277,10 @@ def residual_floors(pri, after: dict, c: float):
     the floors' ratio, so the excitation test ranks the parameters as with the fixed floors (its rank
     test is invariant to it): lowering each floor to its own residual would, with noise-free
     orientations, drop the orientation floor to ~1e-9 deg and let those rows decide alone."""
-    if not c > 0:
+    if not (c > 0 and pri.floor_m > 0):  # no floors (excitation_mm = 0): the plain rank test, nothing to lower
         return None
     ratio = after["pos_rms_mm"] * 1e-3 / pri.floor_m
-    if "rot_rms_deg" in after:
+    if "rot_rms_deg" in after and pri.floor_rad > 0:
         ratio = max(ratio, math.radians(after["rot_rms_deg"]) / pri.floor_rad)
     s = c * ratio
     return replace(pri, floor_m=s * pri.floor_m, floor_rad=s * pri.floor_rad) if s < 1 else None
