@@ -64,3 +64,13 @@ def start_server(model, port: int, limits, identity):
         assert th.is_alive() and time.time() - t0 < 60, "in-process server did not start"
         time.sleep(0.05)
     return srv, th
+
+
+def sine_trajectory(seed: int = 1):
+    """``t (N,) s -> q (N, 6) rad``: a smooth multi-sine joint trajectory (stream tests)."""
+    rng = np.random.default_rng(seed)
+    q0 = np.array([0.1, -0.3, 0.6, 0.0, 0.5, 0.0])
+    A = np.array([0.5, 0.3, 0.3, 0.6, 0.4, 0.8])
+    f = np.array([0.11, 0.07, 0.13, 0.17, 0.19, 0.23])
+    ph = rng.uniform(0, 6, 6)
+    return lambda t: q0 + A * np.sin(2 * np.pi * f * np.asarray(t)[:, None] + ph)

@@ -13,18 +13,14 @@ from hykin.io.robot_file import load_robot
 from hykin.kinematics.fk import fk
 from hykin.measure.stream_checks import MAX_STREAM_PERIOD_S, check_is_stream
 from hykin.measure.streams import ClockRangeError, NotAStreamError, align_streams, estimate_clock
+from shared_fixtures import sine_trajectory
 
 B = se3.xyzrpy_to_transform([2.0, -1.0, 0.3], [0.1, -0.2, 1.0])  # robot base in the tracker frame
 ROBOT = load_robot("rx160")
 
 
 def _traj(seed):
-    rng = np.random.default_rng(seed)
-    q0 = np.array([0.1, -0.3, 0.6, 0.0, 0.5, 0.0])
-    A = np.array([0.5, 0.3, 0.3, 0.6, 0.4, 0.8])
-    f = np.array([0.11, 0.07, 0.13, 0.17, 0.19, 0.23])
-    ph = rng.uniform(0, 6, 6)
-    return lambda t: q0 + A * np.sin(2 * np.pi * f * np.asarray(t)[:, None] + ph)
+    return sine_trajectory(seed)
 
 
 def _stream(offset, T=12.0, seed=1, tracker_seed=None):

@@ -15,18 +15,14 @@ from hykin.measure.streams import (
     resample_tracker,
     tcp_speed,
 )
+from shared_fixtures import sine_trajectory
 
 B = se3.xyzrpy_to_transform([2.0, -1.0, 0.3], [0.1, -0.2, 1.0])  # robot base in tracker frame
 OFFSET = 0.0373
 
 
 def _traj(seed=1):
-    rng = np.random.default_rng(seed)
-    q0 = np.array([0.1, -0.3, 0.6, 0.0, 0.5, 0.0])
-    A = np.array([0.5, 0.3, 0.3, 0.6, 0.4, 0.8])
-    f = np.array([0.11, 0.07, 0.13, 0.17, 0.19, 0.23])
-    ph = rng.uniform(0, 6, 6)
-    return lambda t: q0 + A * np.sin(2 * np.pi * f * np.asarray(t)[:, None] + ph)
+    return sine_trajectory(seed)
 
 
 def _streams(T=20.0, offset=OFFSET, drift=0.0, noise=15e-6, dropouts=8, seed=1):
