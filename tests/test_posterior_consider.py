@@ -76,7 +76,7 @@ def test_consider_covariance_matches_monte_carlo_over_noise_and_held_parameters(
             if other.startswith("h"):
                 h = int(other[1:])
                 mc_rho = -np.corrcoef(err[:, a], x[:, h])[0, 1]
-                assert rho == pytest.approx(mc_rho, abs=0.003)
+                assert rho == pytest.approx(mc_rho, abs=0.01)  # Monte-Carlo error (1 - rho²) / sqrt(M) ~ 0.002
     assert any(o == "h5" for lst in partners.values() for o, _ in lst)  # e1/e2 dominated by h5: "correlated"
     # the 4-tuple API gives the same std
     np.testing.assert_allclose(posterior(_lin(Jp, Jo), est, tol, np.full(7, SCALE), sp ** 2, so ** 2, names)[0], sd)

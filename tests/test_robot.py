@@ -367,3 +367,13 @@ def test_robot_file_values_in_the_wrong_angle_unit_are_refused_naming_the_key():
                     (dict(top="payload = -5"), r"payload = -5: must be a mass >= 0")]:
         with pytest.raises(RobotFileError, match=msg):
             _own(**kw)
+
+
+def test_robot_file_limits_in_radians_under_degrees_and_a_payload_in_grams_are_refused():
+    from hykin.io.robot_file import RobotFileError
+
+    with pytest.raises(RobotFileError, match=r"joints\[1\]\.min: -3\.14159 deg is -π .* a radian value"):
+        _own(lo=-3.14159, hi=3.14159)
+    with pytest.raises(RobotFileError, match=r"payload = 5000 kg, more than any serial robot carries"):
+        _own(top="payload = 5000")
+    assert _own(lo=-180, hi=180, top="payload = 2300").payload_kg == 2300

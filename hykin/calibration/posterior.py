@@ -226,7 +226,10 @@ def posterior_parts(lin: dict, est: np.ndarray, tol_si: np.ndarray, scale: np.nd
             if abs(rho) >= CORRELATED:
                 partners.setdefault(a, []).append((names[est[b]], rho))
                 partners.setdefault(b, []).append((names[est[a]], rho))
-        for j in np.flatnonzero(np.abs(rho_h[a]) >= CORRELATED):
+        share = rho_h[a] ** 2  # the fraction of the variance each held parameter brings
+        # dominated by held parameters together (d3 between held d2 and d4: half each) or by one alone
+        big = np.flatnonzero(share >= 0.05) if share.sum() >= CORRELATED ** 2 else np.flatnonzero(np.abs(rho_h[a]) >= CORRELATED)
+        for j in big:
             partners.setdefault(a, []).append((names[held[j]], float(rho_h[a, j])))
     return sd_s * scale[est], corr, strong, partners, sd_d * scale[est]
 

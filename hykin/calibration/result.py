@@ -160,7 +160,9 @@ class CalibrationResult:
         lines = [
             f"Calibration of {self.robot.name!r}: {self.n_samples} samples, "
             f"{'position only' if self.position_only else f'full pose (w = {self.orientation_weight_m_per_rad:g} m/rad)'}, "
-            f"{n_id} identified, {n_est - n_id} correlated, {len(self.names) - n_est} held at prior (of {len(self.names)}), "
+            f"{n_id} identified, {sum(st == 'correlated' for st in self.status) if self.status else n_est - n_id} correlated, "
+            + (f"{sum(st == 'at bound 0' for st in self.status)} at bound 0, " if "at bound 0" in self.status else "")
+            + f"{len(self.names) - n_est} held at prior (of {len(self.names)}), "
             f"{self.iterations} iterations, {'converged' if self.converged else 'NOT converged'} ({self.message}), "
             f"{self.seconds:.2f} s",
             f"{'parameter':<10} {'deviation':>14} {'std':>12} {'prior':>10}  {'unit':<9} status",

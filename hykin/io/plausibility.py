@@ -205,7 +205,8 @@ def check_orientation_order(robot: Robot, q, quat_wxyz, *, where: str = "<data>"
         f"(median misfit {mis['wxyz']:.2g}° after the best frame rotation): check the quaternion convention "
         "(unit, scalar first, base->tool rotation), the joint order, the robot file (twists, joint zero offsets, "
         "DH vs MDH convention, angle_unit: a calibration of the positions alone, without the orientation columns, "
-        f"names the parameter that is off), or drop the orientation columns{_EULER_HINT}")
+        "names the parameter that is off), whether joints and measurements are out of step (a row missing or doubled "
+        f"in one of the files), or drop the orientation columns{_EULER_HINT}")
 
 
 def check_joint_unit(robot: Robot, q, *, where: str = "<joints>", angle_unit: str = "rad") -> None:

@@ -18,6 +18,7 @@ import numpy as np
 from ..geometry import se3
 from ..kinematics.robot import Robot, RobotFileError
 
+from .payload import MAX_PAYLOAD_KG
 from .toml_compat import tomllib
 
 __all__ = [
@@ -164,8 +165,11 @@ def robot_from_dict(doc: dict, where: str = "<robot>") -> Robot:
                                  f"turns) is implausible: the limits look like degrees under angle_unit = 'rad' (set "
                                  f"angle_unit = 'deg'; a joint that turns without end: type it continuous in a URDF)")
     if au == "deg":  # a fixed angle of exactly ±π/4 ... ±2π "degrees" is a radian value in a degree file
-        fixed = np.degrees(np.concatenate([cols["alpha"], cols["theta"], cols["beta"]]))
-        labels = [f"joints[{i + 1}].{f}" for f in ("alpha", "theta", "beta") for i in range(len(joints))]
+        rev_j = [i for i, t in enumerate(types) if t == "revolute"]
+        fixed = np.degrees(np.concatenate([cols["alpha"], cols["theta"], cols["beta"], np.asarray(cols["min"])[rev_j],
+                                           np.asarray(cols["max"])[rev_j]]))
+        labels = ([f"joints[{i + 1}].{f}" for f in ("alpha", "theta", "beta") for i in range(len(joints))]
+                  + [f"joints[{i + 1}].{f}" for f in ("min", "max") for i in rev_j])
         for frame in ("base", "tool"):
             rpy = doc.get(frame, {}).get("rpy") if isinstance(doc.get(frame), dict) else None
             if isinstance(rpy, list) and len(rpy) == 3 and all(isinstance(v, (int, float)) for v in rpy):
@@ -181,6 +185,9 @@ def robot_from_dict(doc: dict, where: str = "<robot>") -> Robot:
     payload = _number(doc.get("payload", 0.0), f"{where}: payload")
     if not payload >= 0:
         raise RobotFileError(f"{where}: payload = {payload:g}: must be a mass >= 0 (kg)")
+    if payload > MAX_PAYLOAD_KG:
+        raise RobotFileError(f"{where}: payload = {payload:g} kg, more than any serial robot carries ({MAX_PAYLOAD_KG:g} kg): "
+                             "grams? (payload is in kg)")
     gravity = _vec3(doc["gravity"], f"{where}: gravity") if "gravity" in doc else np.array([0.0, 0.0, -9.81])
     return Robot(
         name=name,
