@@ -42,3 +42,14 @@ def test_several_reflectors_without_orientations_keep_the_files_tool_rotation(tm
     assert np.abs(res.point_offsets_m[1:] - ref).max() < 1e-4
     q2 = nom.random_joints(50, 5, margin=0.1)
     assert np.abs(calibrated_fk(res.robot, q2)[:, :3, 3] - fk(true, q2)[:, :3, 3]).max() < 1e-4
+
+
+def test_fk_does_not_pass_measured_reflector_columns_off_as_predictions(tmp_path, capsys):
+    from cli_run import run
+
+    f = tmp_path / "j.csv"
+    f.write_text("q1,q2,q3,q4,q5,q6,x2,y2,z2,tag\n0.1,-1.2,1.3,-1.4,-1.5,0.2,9,9,9,7\n")
+    code, _, err = run(["fk", "ur5", f, "-o", tmp_path / "o.csv"], capsys)
+    assert code == 0, err
+    head = (tmp_path / "o.csv").read_text().splitlines()[0].split(",")
+    assert "x2" not in head and "tag" in head and head[6:9] == ["x", "y", "z"]

@@ -57,6 +57,8 @@ def fk_cmd(
     check_output(out, (model, joints), force)
     mdl, rob = load_model_or_robot(model, base_link, tip_link)
     q, extra = read_joints(joints, dof=rob.dof, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
+    # measured further reflectors (x2, y2, z2, ...) would read as predicted ones beside the predicted x, y, z
+    extra = {k: v for k, v in extra.items() if not (k[:1] in "xyz" and k[1:].isdigit())}
     if unit_check:
         check_joint_unit(rob, q, where=str(joints), angle_unit=angle_unit)
     if mdl is None:
