@@ -331,3 +331,18 @@ def test_a_model_without_thermal_expansion_says_it_does_not_use_the_temperatures
     jp.write_text("q1,q2,q3,q4,q5,q6,temperature_c\n0.1,-1.2,1.3,-1.4,-1.5,0.2,311.15\n")
     code, _, err = run_cli(["fk", mp, jp, "-o", tmp_path / "fk2.csv"], capsys)
     assert code == 2 and "look like kelvin" in err and not (tmp_path / "fk2.csv").exists()
+
+
+def test_a_calibrated_tcp_far_from_the_robot_files_tool_is_named(capsys):
+    """The commands are poses of the robot file's TCP: when the calibrated one is far from it (a file
+    without the tool the data were measured with), the controller would be sent the wrong TCP's poses."""
+    from hykin.cli.compensate import _warn_tool_mismatch
+
+    nom = load_robot("ur10")
+    far = nom.copy(tool=nom.tool @ se3.make_transform(se3.rotvec_to_matrix(np.radians([0.0, 0.0, 30.0])),
+                                                      np.array([0.0, 0.05, 0.11])))
+    _warn_tool_mismatch(ExactModel(nom, far))
+    err = capsys.readouterr().err
+    assert "the calibrated TCP is 120.8 mm / 30.00 deg from the robot file's tool" in err and "[tool]" in err
+    _warn_tool_mismatch(ExactModel(nom, deviate(nom, 2)))  # a calibration's few mm: no warning
+    assert "calibrated TCP" not in capsys.readouterr().err

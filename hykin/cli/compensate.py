@@ -132,6 +132,8 @@ def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_
     from ..io.payload import model_with_payload, payload_from_columns
 
     T, has_rot, extra = read_poses(inp, length_unit=length_unit, extras=True)
+    if tool_delta is None:
+        _warn_tool_mismatch(mdl)
     pl = payload_from_columns(extra, len(T), str(inp), payload_kg) if "payload_kg" in extra else None
     if pl is None:
         mdl = with_payload(mdl, payload_kg)
@@ -172,6 +174,25 @@ def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_
         comp = merge_parts(parts, len(T))
     write_rows(command_rows(comp, joints_only=joints), out)
     _summary(comp, out, len(T))
+
+
+#: the calibrated TCP this far from the robot file's (mm, deg): the file lacks the tool the data were measured with
+TOOL_MISMATCH_MM, TOOL_MISMATCH_DEG = 20.0, 5.0
+
+
+def _warn_tool_mismatch(mdl) -> None:
+    """Warn when the model's calibrated tool (with its registration) is far from the robot file's: the
+    commands are poses of the file's TCP, which the controller must then have as its tool."""
+    from ..geometry import se3
+
+    E = se3.invert(mdl.nominal.tool) @ mdl.robot_.tool @ np.asarray(getattr(mdl, "frame_post_", np.eye(4)))
+    mm = float(np.linalg.norm(E[:3, 3]) * 1e3)
+    deg = float(np.degrees(np.linalg.norm(se3.matrix_to_rotvec(E[:3, :3]))))
+    if mm > TOOL_MISMATCH_MM or deg > TOOL_MISMATCH_DEG:
+        console().print(f"[yellow]warning:[/] the calibrated TCP is {mm:.1f} mm / {deg:.2f} deg from the robot file's tool: "
+                        "the commands are poses of the robot file's TCP (and shift_mm includes that offset); the "
+                        "controller must use that tool, or put the controller's TCP into the robot file's \\[tool], or "
+                        "give it with --tool", highlight=False)
 
 
 def _columns(path: Path) -> list:
