@@ -335,7 +335,7 @@ class HybridModel:
                 self.meta_["fade_calibration"] = persistence.json_safe(fc.to_dict())
         if self._skipped:
             self.meta_["optional_steps_failed"] = dict(self._skipped)
-        self.meta_["metrics"]["train"] = self._metrics(train_in)
+        self.meta_["metrics"]["train"] = fitting.train_metrics(self, train_in)  # and rows far off the hybrid model
         if val_in is not None:
             self.meta_["metrics"]["val"] = self._metrics(val_in)
         elif len(iv):  # the rows held out from network training (the calibration saw them)
