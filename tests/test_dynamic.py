@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from cli_run import run as _run
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -91,6 +92,7 @@ def test_cli_plan_trajectory_simulate_stream_import(tmp_path, capsys):
     assert "PTP XP10" in src and "WAIT" not in src and "$OUT" not in src  # the robot does not stop to measure
 
 
+@pytest.mark.slow  # a fit of a 3,000-pose stream (9 s of the default suite's 240 s budget on 2 cores)
 def test_cli_import_stream_second_pass_with_a_fitted_model_times_the_clock_on_its_positions(tmp_path, capsys):
     """Import with the robot file, fit, import again with the model file: the second clock fit uses the
     model's hybrid positions (method positions by default) and stays within 0.05 ms of the truth
