@@ -520,3 +520,19 @@ def test_a_wrong_euler_convention_is_refused_naming_the_euler_options(tmp_path, 
     assert code == 0, err  # the import cannot know: the robot is not given
     _refused(capsys, ["calibrate", "kuka-kr6-r900", out, "-o", tmp_path / "cal.toml"], tmp_path / "cal.toml",
              "--euler-convention", "KUKA A,B,C")
+
+
+def test_an_empty_cell_names_the_row_and_how_to_leave_such_rows_out(tmp_path, capsys):
+    """A lost marker leaves an empty cell: refused naming row and column, with the --where that drops
+    such rows; with it the other rows are imported unchanged."""
+    f = tmp_path / "m.csv"
+    f.write_text("J1,J2,J3,J4,J5,J6,X,Y,Z\n" + "\n".join(
+        f"{10 + i},20,30,40,50,60,{100 + i},200,{'' if i == 2 else 300}" for i in range(5)) + "\n")
+    args = ["import", "table", f, "--joints", "J1..J6", "--angle-unit", "deg", "--position", "X,Y,Z",
+            "--length-unit", "mm", "--no-unit-check"]
+    code, _, err = run([*args, "-o", tmp_path / "a.csv"], capsys)
+    assert code == 2 and "row 3" in err and "column 'Z'" in err and "--where 'Z != '" in err
+    code, _, err = run([*args, "-o", tmp_path / "b.csv", "--where", "Z != "], capsys)
+    assert code == 0, err
+    ds = read_dataset(tmp_path / "b.csv")
+    assert len(ds) == 4 and np.allclose(ds.xyz_m[:, 0], [0.100, 0.101, 0.103, 0.104])

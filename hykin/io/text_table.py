@@ -280,7 +280,8 @@ def float_column(t: TextTable, name: str, decimal: str = ".", *, allow_missing: 
             except ValueError:
                 raw = cells[r]
                 if not raw.strip():
-                    cause = "cell '(empty)' is not a number: the cell is empty"
+                    cause = (f"cell '(empty)' is not a number: the cell is empty (a marker or beam lost in that row? "
+                             f"leave such rows out with where = [\"{name} != \"] (--where '{name} != '))")
                 elif decimal == "." and re.fullmatch(r"[+-]?\d*,\d+([eE][+-]?\d+)?", raw):
                     cause = f"{raw!r} looks like a decimal comma: declare decimal = \",\" (--decimal ,)"
                 elif decimal == "," and re.fullmatch(r"[+-]?\d*\.\d+([eE][+-]?\d+)?", raw):
