@@ -268,3 +268,23 @@ def test_classical_all_branches_list_every_turn_of_a_wide_joint():
     ur = load_robot("ur10")
     Tu = fk(ur, np.array([[0.3, -1.0, 1.2, -0.5, 0.7, 0.2]]))
     assert len(classical_ik_rows(ur, Tu)["target"]) == 8
+
+
+def test_a_robot_file_names_an_orientation_the_arm_cannot_take():
+    """Classical IK of a 4-joint robot (no model, so no accuracy to accept a least-squares solution): a
+    pose whose orientation is 0.01 deg off every one the arm takes at that position fails saying so,
+    and the position alone solves."""
+    from hykin.geometry import se3
+    from hykin.kinematics.fk import fk
+    from hykin.kinematics.ik_rows import classical_ik_rows
+
+    rob = scara_robot()
+    q = np.array([[0.3, 0.5, 0.1, 0.2], [-0.4, 1.0, 0.05, -1.0]])
+    T = fk(rob, q)
+    T[:, :3, :3] = T[:, :3, :3] @ se3.rotvec_to_matrix(np.radians([[0.01, 0.0, 0.0]] * 2))
+    rows = classical_ik_rows(rob, T, None, False)
+    assert not np.any(rows["success"])
+    assert all("the arm has 4 joints and takes no orientation" in r for r in rows["reason"])
+    pos = classical_ik_rows(rob, T, None, True)
+    ok = np.asarray(pos["success"], dtype=bool)
+    assert set(np.asarray(pos["target"], dtype=int)[ok]) == {0, 1}  # every target's position is solved

@@ -85,6 +85,11 @@ def failure_reasons(robot: Robot, T_target, position_only: bool = False, q_best=
     out[:] = "not converged: the solver did not reach the target"
     out[cf] = ("out of reach: no joint configuration of the robot reaches this pose" if closed
                else "not converged: numerical IK found no solution (the pose may be out of reach)")
+    if robot.dof < 6 and not position_only and (cf & ~far & ~lim).any():  # an arm that cannot take every orientation
+        t = np.flatnonzero(cf & ~far & ~lim)
+        pos_ok = ik(robot, T[t], all_branches=True, position_only=True).success.any(axis=1)
+        out[t[pos_ok]] = (f"not converged: the arm has {robot.dof} joints and takes no orientation within 1e-4 deg of this "
+                          "one at this position (the position alone is reachable: solve positions only, e.g. --position-only)")
     out[~lim & sing] = "singular: the solver stalled at a singular configuration"
     out[lim] = "joint limits: the pose is reachable only with joints outside their limits"
     out[far] = f"out of reach: farther from the base than the robot reaches ({robot_reach_m(robot):.3g} m)"
