@@ -78,8 +78,9 @@ class Outliers:
         """Few enough to be bad points rather than a misfit (at most ``MAX_FRACTION`` of the rows)."""
         return len(self.rows) <= max(1, int(MAX_FRACTION * self.n_rows))
 
-    def message(self, source: str | None = None) -> str:
-        """One line: which rows (1-based data rows), how far off, what was done and the option."""
+    def message(self, source: str | None = None, against: str = "the calibrated model", tail: str | None = None) -> str:
+        """One line: which rows (1-based data rows), how far off ``against`` which model, the likely cause and
+        what was done with the option (``tail`` replaces those two)."""
         k = len(self.rows)
         shown = ", ".join(str(int(r) + 1) for r in self.rows[:12]) + (f" and {k - 12} more" if k > 12 else "")
         size = f"{self.pos_mm.min():.3g}–{self.pos_mm.max():.3g} mm" if k > 1 else f"{self.pos_mm[0]:.3g} mm"
@@ -92,11 +93,11 @@ class Outliers:
                 "kept (--outliers warn; --outliers drop leaves them out)")
         if self.step is not None:
             return (f"{head}from data row {self.step[0] + 1} on the poses fit {self.step[1]:.3g}x worse than the rows before "
-                    f"({k} of {self.n_rows} more than {self.ratio:g}x the typical error off the calibrated model): joints "
+                    f"({k} of {self.n_rows} more than {self.ratio:g}x the typical error off {against}): joints "
                     f"and measurements out of step (a row missing or doubled in one of the files)? {what}")
+        tail = tail or f"a lost beam, a reflector in the wrong nest or a wrong point name or station label? {what}"
         return (f"{head}{k} of {self.n_rows} poses lie more than {self.ratio:g}x the typical error ({typ} per "
-                f"coordinate) off the calibrated model: data rows {shown} ({size}); a lost beam, a reflector in the "
-                f"wrong nest or a wrong point name or station label? {what}")
+                f"coordinate) off {against}: data rows {shown} ({size}); {tail}")
 
     def to_dict(self) -> dict:
         """JSON-able (0-based rows, mm, deg)."""

@@ -274,16 +274,26 @@ def with_payload(mdl, payload_kg: float | None):
     that is not finite and >= 0 is refused; one outside the payloads the model was trained on warns."""
     if payload_kg is None:
         return mdl
-    from ..io.payload import model_with_payload, payload_outside
+    from ..io.payload import model_with_payload
 
     if not (payload_kg >= 0 and payload_kg < float("inf")):
         raise CLIError(f"--payload-kg must be a finite mass >= 0 kg, got {payload_kg}")
-    if payload_outside(getattr(mdl, "payload_range_", None), payload_kg).any():
-        rng = mdl.payload_range_
-        console().print(f"[yellow]warning:[/] {payload_kg:g} kg lies outside the payloads the model was trained on "
-                        f"({rng.lower_kg:g}-{rng.upper_kg:g} kg): the physics carries it, the networks hold their "
-                        "nearest trained payload", highlight=False)
+    warn_payloads_outside(mdl, payload_kg, f"{payload_kg:g} kg lies")
     return model_with_payload(mdl, payload_kg)
+
+
+def warn_payloads_outside(mdl, kg, what: str) -> None:
+    """Warn when payloads ``kg`` (kg, scalar or ``(N,)``) lie outside those ``mdl`` was trained on; ``what``
+    opens the line (``{n}``: how many lie outside)."""
+    from ..io.payload import payload_outside
+
+    n = int(payload_outside(getattr(mdl, "payload_range_", None), kg).sum())
+    if n:
+        rng = mdl.payload_range_
+        console().print(f"[yellow]warning:[/] {what.format(n=n)} outside the payloads the model was trained on "
+                        f"({rng.lower_kg:g}-{rng.upper_kg:g} kg): the physics carries {'it' if np.ndim(kg) == 0 else 'them'}, "
+                        "the networks hold their "
+                        "nearest trained payload", highlight=False)
 
 
 def warn_orientation_unmeasured(mdl, what: str) -> None:

@@ -20,8 +20,9 @@ from .common import (
     PayloadKg,
     parse_axis_signs,
     temperature_of,
-    with_payload,
     warn_orientation_unmeasured,
+    warn_payloads_outside,
+    with_payload,
     write_rows,
 )
 
@@ -154,23 +155,11 @@ def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_
     if pl is None:
         comp = compensate(mdl, target, q_branch=qb, frame=frame, tool_delta=tool_delta)
     else:
-        from ..io.payload import payload_outside
+        from ..io.payload import payload_groups
 
-        kg, com = pl
-        n_out = int(payload_outside(getattr(mdl, "payload_range_", None), kg).sum())
-        if n_out:
-            rng = mdl.payload_range_
-            console().print(f"[yellow]warning:[/] {n_out} of {len(kg)} targets carry payloads outside those the model was "
-                            f"trained on ({rng.lower_kg:g}-{rng.upper_kg:g} kg): the physics carries them, the networks "
-                            "hold their nearest trained payload", highlight=False)
-        key = np.column_stack([kg, np.zeros((len(kg), 3)) if com is None else com])
-        uniq, inv = np.unique(key, axis=0, return_inverse=True)
-        parts = []
-        for u in range(len(uniq)):
-            idx = np.flatnonzero(inv.reshape(-1) == u)
-            m = model_with_payload(mdl, float(uniq[u, 0]), None if com is None else uniq[u, 1:])
-            parts.append((idx, compensate(m, target[idx], q_branch=None if qb is None else qb[idx], frame=frame,
-                                          tool_delta=tool_delta)))
+        warn_payloads_outside(mdl, pl[0], "{n} of " + f"{len(T)} targets carry payloads")
+        parts = [(idx, compensate(model_with_payload(mdl, kg, com), target[idx], q_branch=None if qb is None else qb[idx],
+                                  frame=frame, tool_delta=tool_delta)) for idx, kg, com in payload_groups(pl)]
         comp = merge_parts(parts, len(T))
     write_rows(command_rows(comp, joints_only=joints), out)
     _summary(comp, out, len(T))

@@ -188,14 +188,11 @@ def _ik_rows_per_payload(carrying, target, pl, q_cur, nearest: bool, position_on
     """Hybrid IK rows when targets carry payloads: one solve per distinct (mass, centre of mass), on
     the model ``carrying(kg, com or None)`` returns for it; ``target`` numbering of the whole file."""
     from ..hybrid.ik import hybrid_ik, ik_result_to_rows
+    from ..io.payload import payload_groups
 
-    kg, com = pl
-    key = np.column_stack([kg, np.zeros((len(kg), 3)) if com is None else com])
-    uniq, inv = np.unique(key, axis=0, return_inverse=True)
     parts = []
-    for u in range(len(uniq)):
-        idx = np.flatnonzero(inv.reshape(-1) == u)
-        m = carrying(float(uniq[u, 0]), None if com is None else uniq[u, 1:])
+    for idx, kg, com in payload_groups(pl):
+        m = carrying(kg, com)
         t = None if temp is None else np.asarray(temp)[idx]
         res = hybrid_ik(m, target[idx], all_branches=True, q_current=None if q_cur is None else q_cur[idx],
                         nearest=nearest, position_only=position_only, temperature_c=t)

@@ -20,7 +20,7 @@ from .progress import Progress
 from .train import train_net
 
 __all__ = ["calibrate_on", "error_metrics", "input_range", "residual_targets", "split_validation", "train_networks",
-           "train_metrics", "training_metadata", "without_outliers"]
+           "predictions", "train_metrics", "training_metadata", "without_outliers"]
 
 
 def residual_targets(robot, ds) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
@@ -194,8 +194,24 @@ def calibrate_on(model, ds, progress: bool = False):
     return model.robot_, model.calibration_
 
 
+def predictions(model, ds) -> tuple[np.ndarray, np.ndarray]:
+    """``(T_classical, T_hybrid)`` ``(N, 4, 4)`` of a fitted ``model`` at the rows of ``ds`` (their temperature
+    and payload columns), out-of-range warnings silenced (the metrics' own business)."""
+    import warnings
+
+    from ..calibration.thermal import temperature_of
+    from ..io.payload import payload_kwargs, payload_of
+    from .errors import OutOfRangeWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutOfRangeWarning)
+        t = temperature_of(ds)
+        pkw = payload_kwargs(payload_of(ds))
+        return model.predict_classical(ds.q, temperature_c=t, **pkw), model.predict(ds.q, temperature_c=t, **pkw)
+
+
 def train_metrics(model, train) -> dict:
-    """``model._metrics(train)`` (the training rows' errors), and an :class:`~hykin.calibration.outliers.OutlierWarning`
+    """:func:`error_metrics` of the training rows, and an :class:`~hykin.calibration.outliers.OutlierWarning`
     naming training rows far off the fitted hybrid model (:func:`hykin.calibration.outliers.find_outliers`,
     the calibration's ``outliers`` / ``outlier_ratio``): a lost beam of 1 mm hides under a calibrated model
     that leaves 0.15 mm, not under a hybrid one that leaves 0.02 mm. Named only (they were trained on):
@@ -204,17 +220,12 @@ def train_metrics(model, train) -> dict:
     import warnings
 
     from ..calibration.outliers import DEFAULT_RATIO, OutlierWarning, find_outliers, row_errors
-    from ..calibration.thermal import temperature_of
-    from ..io.payload import payload_kwargs, payload_of
-    from .errors import OutOfRangeWarning
 
-    metrics = model.score(train)
+    T_c, T_h = predictions(model, train)
+    metrics = error_metrics(train, T_c, T_h)
     kw = model.calibrate_kw or {}
     if not model.calibrate or kw.get("outliers", "drop") == "keep":
         return metrics
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", OutOfRangeWarning)
-        T_h = model.predict(train.q, temperature_c=temperature_of(train), **payload_kwargs(payload_of(train)))
     found = find_outliers(*row_errors(T_h, train.xyz_m, train.poses()[:, :3, :3] if train.has_orientation else None,
                                       None), float(kw.get("outlier_ratio", DEFAULT_RATIO)))
     if found is not None and found.droppable:
@@ -222,8 +233,8 @@ def train_metrics(model, train) -> dict:
         if cal is not None and cal.dropped:  # row numbers of the file: the rows the calibration left out come back
             keep = np.setdiff1d(np.arange(cal.n_rows), cal.rows)
             found.rows, found.n_rows = keep[found.rows], cal.n_rows
-        warnings.warn(OutlierWarning(
-            found.message(getattr(train, "source", None) or None).replace("off the calibrated model", "off the fitted hybrid "
-            "model").split("; a lost beam")[0] + "; lost beams that the calibrated model's larger error hid? They were "
-            "trained on: leave them out of the file (hykin import table --where) and fit again"), stacklevel=2)
+        warnings.warn(OutlierWarning(found.message(
+            getattr(train, "source", None) or None, "the fitted hybrid model",
+            "lost beams that the calibrated model's larger error hid? They were trained on: leave them out of the "
+            "file (hykin import table --where) and fit again")), stacklevel=2)
     return metrics

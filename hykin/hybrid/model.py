@@ -359,13 +359,7 @@ class HybridModel:
 
     def _metrics(self, ds) -> dict:
         """Mean/max position (mm) and orientation (deg) errors of classical and hybrid on ``ds``."""
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", OutOfRangeWarning)
-            t = temperature_of(ds)
-            pkw = payload_kwargs(payload_of(ds))
-            T_c = self.predict_classical(ds.q, temperature_c=t, **pkw)
-            T_h = self.predict(ds.q, temperature_c=t, **pkw)
-        return fitting.error_metrics(ds, T_c, T_h)
+        return fitting.error_metrics(ds, *fitting.predictions(self, ds))
 
     def score(self, ds) -> dict:
         """Error metrics (mm, deg) of the classical and the hybrid prediction on dataset ``ds``."""

@@ -32,6 +32,7 @@ __all__ = [
     "model_with_payload",
     "payload_column",
     "payload_from_columns",
+    "payload_groups",
     "payload_kwargs",
     "payload_of",
     "payload_outside",
@@ -235,6 +236,16 @@ def payload_range_of(kg: np.ndarray) -> PayloadRange:
     kg = np.asarray(kg, dtype=np.float64)
     vals = np.unique(np.round(kg, 6))
     return PayloadRange(float(kg.min()), float(kg.max()), vals[:32].tolist())
+
+
+def payload_groups(payload) -> list[tuple[np.ndarray, float, np.ndarray | None]]:
+    """``[(row indices, kg, com (3,) m or None)]``: the rows of each distinct (mass, centre of mass) of a
+    per-row ``payload`` ``(kg (N,), com (N, 3) or None)`` (:func:`payload_of`), for one solve per load."""
+    kg, com = payload
+    key = np.column_stack([kg, np.zeros((len(kg), 3)) if com is None else com])
+    uniq, inv = np.unique(key, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    return [(np.flatnonzero(inv == u), float(uniq[u, 0]), None if com is None else uniq[u, 1:]) for u in range(len(uniq))]
 
 
 def payload_outside(rng: PayloadRange | None, kg, tol_kg: float = 1e-6) -> np.ndarray:

@@ -472,8 +472,8 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
         found = find_outliers(p0 * 1e-3, None if pos_only else np.radians(a0), outlier_ratio)
         if found is not None:
             found.dropped = outliers == "drop" and found.droppable
-            warnings.warn(OutlierWarning(found.message(getattr(series, "source", None) or None)
-                                         .replace("calibrated model", "registered model")), stacklevel=2)
+            warnings.warn(OutlierWarning(found.message(getattr(series, "source", None) or None, "the registered model")),
+                          stacklevel=2)
         if found is not None and found.dropped:
             new_model, info = register_model(
                 model, series.subset(np.setdiff1d(np.arange(len(series)), found.rows)), n_poses, seed, select, refit,
