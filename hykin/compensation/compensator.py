@@ -349,16 +349,14 @@ class Compensator:
     def _least_squares_ok(self, Tm, q, pe, ae, ok) -> np.ndarray:
         """``ok`` plus the rows at a least-squares solution within the model's accuracy (under-actuated
         arms; module docstring), not on a joint limit. ``pe``, ``ae``: m, rad."""
-        from ..hybrid.ik_solve import IKProblem, stationary
+        from ..hybrid.ik_solve import IKProblem, accept_least_squares, stationary
+
+        def at_least_squares(i):
+            prob = IKProblem(self.model, self.robot, Tm[i], False, 1.0)
+            return stationary(prob, q[i], np.arange(i.size), self.tolerance_mm * 1e-3, np.radians(self.tolerance_deg))
 
         at_lim = ((q <= self.lower + 1e-9) | (q >= self.upper - 1e-9)).any(1)
-        i = np.flatnonzero(~ok & ~at_lim & (pe <= self._lsq[0]) & (ae <= self._lsq[1]))
-        if not i.size:
-            return ok
-        prob = IKProblem(self.model, self.robot, Tm[i], False, 1.0)
-        ok = ok.copy()
-        ok[i] = stationary(prob, q[i], np.arange(i.size), self.tolerance_mm * 1e-3, np.radians(self.tolerance_deg))
-        return ok
+        return accept_least_squares(ok, at_lim, pe, ae, self._lsq, at_least_squares)
 
     @staticmethod
     def _keep_better(i, q, pe, ae, q2, p2, a2) -> None:

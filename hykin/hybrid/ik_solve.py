@@ -27,7 +27,7 @@ from .ik_result import torch_threads as torch_threads_ctx
 from .ik_roots import duplicates, pick_new
 from .ik_roots import more_roots as search_more_roots
 
-__all__ = ["IKProblem", "box_lm", "controllable_error", "errors_of", "hybrid_ik_from_seeds", "run_polished", "run_rows"]
+__all__ = ["IKProblem", "accept_least_squares", "box_lm", "controllable_error", "errors_of", "hybrid_ik_from_seeds", "run_polished", "run_rows"]
 
 class IKProblem:
     """Residuals and Jacobians of rows (targets repeated per branch), numpy float64."""
@@ -168,13 +168,24 @@ def lsq_ok(prob: IKProblem, q, rows, r, ok, lim, success_m, success_rad, lsq) ->
     joint limit) whose residual is within ``lsq``: the model's accuracy (:func:`hykin.hybrid.ik_result.model_accuracy`)."""
     if lsq is None:
         return ok
-    pe, ae = errors_of(prob, r)
-    cand = np.flatnonzero(~ok & ~lim & (pe <= lsq[0]) & (ae <= lsq[1]))
+
+    def at_least_squares(cand):
+        cp, ca = controllable_error(prob, q[cand], rows[cand], r[cand])
+        return (cp <= success_m) & (ca <= success_rad)
+
+    return accept_least_squares(ok, lim, *errors_of(prob, r), lsq, at_least_squares)
+
+
+def accept_least_squares(ok, lim, pe_m, ae_rad, lsq, at_least_squares) -> np.ndarray:
+    """``ok`` ``(n,)`` plus the rows not on a joint limit (``lim``) whose errors ``pe_m`` / ``ae_rad`` are
+    within the model's accuracy ``lsq`` ``(m, rad)`` and that ``at_least_squares(rows)`` (``(k,)`` bool)
+    finds at a least-squares solution. The one acceptance rule of under-actuated arms, for
+    :func:`lsq_ok` and the compensator (which has the errors but not the residuals)."""
+    cand = np.flatnonzero(~ok & ~lim & (pe_m <= lsq[0]) & (ae_rad <= lsq[1]))
     if not cand.size:
         return ok
-    cp, ca = controllable_error(prob, q[cand], rows[cand], r[cand])
     ok = ok.copy()
-    ok[cand] = (cp <= success_m) & (ca <= success_rad)
+    ok[cand] = at_least_squares(cand)
     return ok
 
 
