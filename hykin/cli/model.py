@@ -159,9 +159,13 @@ def evaluate_cmd(
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     unit_check: bool = UnitCheck,
+    fit_frames: bool = typer.Option(False, "--fit-frames", help="Fit base and tool of every row to the test poses "
+                                    "(data in another frame than the model's: a moved tracker, another tool; the 12 "
+                                    "fitted frame parameters flatter the figures). Without it such data are refused "
+                                    "(register the model first)."),
 ) -> None:
     """Before/after error table (mean, std, p95, max; position mm, orientation deg)."""
-    from ..evaluation.evaluate import evaluate_model
+    from ..evaluation.evaluate import FrameMismatchError, evaluate_model
     from ..evaluation.report_build import evaluation_report
     from ..io.dataset_files import read_dataset
 
@@ -171,7 +175,10 @@ def evaluate_cmd(
         check_output(report, (model, test), force=True, directory=True)
     mdl, rob = load_model_or_robot(model, base_link, tip_link)
     ds = read_dataset(test, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
-    res = evaluate_model(mdl if mdl is not None else rob, ds)
+    try:
+        res = evaluate_model(mdl if mdl is not None else rob, ds, fit_frames=fit_frames)
+    except FrameMismatchError as e:
+        raise CLIError(f"{e} (or --fit-frames: every row with base and tool fitted to these poses)") from None
     if as_json:
         typer.echo(json.dumps(res.to_dict(), indent=2))
     else:

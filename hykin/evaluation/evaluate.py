@@ -19,8 +19,8 @@ from ..kinematics.classical import classical_fk
 from ..kinematics.robot import Robot
 from .metrics import ErrorStats, error_stats, format_table
 
-__all__ = ["NOMINAL_FITTED", "ROBOT_FILE", "EvalResult", "evaluate_model", "evaluate_per_payload", "joint_region_rows",
-           "nominal_row"]
+__all__ = ["NOMINAL_FITTED", "ROBOT_FILE", "EvalResult", "FrameMismatchError", "check_model_frame", "evaluate_model", "evaluate_per_payload", "joint_region_rows",
+           "nominal_row", "with_fitted_frames"]
 
 
 @dataclass
@@ -46,6 +46,25 @@ class EvalResult:
     vectors: dict[str, tuple[np.ndarray, np.ndarray | None]] = field(repr=False, default_factory=dict)
     #: row name -> ``(N, 4, 4)`` predicted poses, m (for ISO 9283 and the report)
     predicted: dict[str, np.ndarray] = field(repr=False, default_factory=dict)
+    #: test rows far off the last row's model (:func:`hykin.calibration.outliers.find_outliers`): named,
+    #: counted in the figures; ``outliers_of``: that row's name
+    outliers: object | None = None
+    outliers_of: str = ""
+    #: ISO 9283 per pose (set by the report: ``{"columns": [...], "rows": [[...]], "note": str}``), or None
+    iso9283: dict | None = None
+
+    def outlier_line(self) -> str:
+        """One line naming the test rows far off the model, with the figures without them ("" if none)."""
+        o = self.outliers
+        if o is None:
+            return ""
+        keep = np.ones(self.n, bool)
+        keep[o.rows] = False
+        p = self.errors[self.outliers_of][0][keep]
+        name = self.labels.get(self.outliers_of, self.outliers_of)
+        return o.message(self.dataset, against=f"the {name} model",
+                         tail=(f"a lost beam, a reflector in the wrong nest or a wrong point name? They are counted in the "
+                               f"figures above; without them the {name} row is {p.mean():.4g} mm mean, {p.max():.4g} mm max"))
 
     def region_table(self) -> str:
         """Per joint-region mean errors (mm / deg): hybrid vs calibrated vs nominal + fitted frames (registered models)."""
@@ -75,6 +94,10 @@ class EvalResult:
             d["regions"] = self.regions
         if self.labels:
             d["labels"] = dict(self.labels)
+        if self.outliers is not None:
+            d["outliers"] = {"model": self.outliers_of, **self.outliers.to_dict()}
+        if self.iso9283 is not None:
+            d["iso9283"] = self.iso9283
         return d
 
     def table(self) -> str:
@@ -88,6 +111,8 @@ class EvalResult:
         if self.support_distance is not None:
             n_out = int(np.sum(self.support_distance > 0))
             t += f"\n{n_out} of {self.n} samples lie outside the training region (network correction faded there)."
+        if self.outliers is not None:
+            t += "\n" + self.outlier_line()
         if self.per_payload is not None:
             t += "\nError per payload:\n" + format_payload_table(self.per_payload)
         if self.regions:
@@ -104,6 +129,9 @@ ROBOT_FILE = "robot file as written"
 #: the robot file's frames are kept for the nominal row unless fitting base and tool to the data
 #: lowers its mean position error by more than this factor (data in another frame, another tool)
 FRAME_FIT_FACTOR = 2.0
+#: test data of at least this many distinct poses (joints rounded to 1e-3 rad) are checked to be in the
+#: model's frame (:func:`check_model_frame`)
+FRAME_CHECK_POSES = 20
 _FIT_ROWS = 2000  # at most this many evenly spread rows fit the nominal row's frames
 
 
@@ -115,14 +143,10 @@ def nominal_row(nominal: Robot, q: np.ndarray, T_meas: np.ndarray, position_only
     with base and tool fitted to these poses by a rigid fit (label :data:`NOMINAL_FITTED`). A robot
     file with joint stiffness deflects under ``payload`` (:func:`hykin.io.payload.payload_kwargs` of
     the data; default its own payload): a calibrated robot file is evaluated as it predicts."""
-    from ..calibration.frames import fit_frames
-
     T = classical_fk(nominal, q, **(payload or {}))
     if len(T) < 4:
         return T, "nominal"
-    sel = np.unique(np.linspace(0, len(T) - 1, min(len(T), _FIT_ROWS)).astype(np.int64))
-    B, E = fit_frames(T[sel], T_meas[sel], position_only=position_only)
-    T_fit = B @ T @ E
+    T_fit = with_fitted_frames(T, T_meas, position_only)
     if always_fit:
         return T_fit, NOMINAL_FITTED
     e_file = np.linalg.norm(T[:, :3, 3] - T_meas[:, :3, 3], axis=1).mean()
@@ -130,19 +154,66 @@ def nominal_row(nominal: Robot, q: np.ndarray, T_meas: np.ndarray, position_only
     return (T_fit, NOMINAL_FITTED) if e_file > FRAME_FIT_FACTOR * e_fit else (T, "nominal")
 
 
-def evaluate_model(model, data: Dataset) -> EvalResult:
+def with_fitted_frames(T: np.ndarray, T_meas: np.ndarray, position_only: bool) -> np.ndarray:
+    """Predicted poses ``T`` ``(N, 4, 4)`` with base and tool fitted to the measured ``T_meas`` by a rigid
+    fit (at most :data:`_FIT_ROWS` evenly spread rows fit them): ``B · T · E``."""
+    from ..calibration.frames import fit_frames
+
+    sel = np.unique(np.linspace(0, len(T) - 1, min(len(T), _FIT_ROWS)).astype(np.int64))
+    B, E = fit_frames(T[sel], T_meas[sel], position_only=position_only)
+    return B @ T @ E
+
+
+def _mean_mm(T: np.ndarray, T_meas: np.ndarray) -> float:
+    return float(np.linalg.norm(T[:, :3, 3] - T_meas[:, :3, 3], axis=1).mean() * 1e3)
+
+
+class FrameMismatchError(ValueError):
+    """Test data not in the model's frame (:func:`check_model_frame`)."""
+
+
+def check_model_frame(data: Dataset, T_model: np.ndarray, T_meas: np.ndarray, position_only: bool,
+                      nominal_mm: float | None, what: str = "hybrid model") -> None:
+    """Refuse (:class:`FrameMismatchError`, one line) test data that are not in the model's frame (a moved tracker,
+    another tool): the model's poses ``T_model`` are worse than the nominal robot's (mean ``nominal_mm``,
+    its frames fitted where needed) and more than :data:`FRAME_FIT_FACTOR` times worse than with base
+    and tool fitted to the data. Both are needed: a good model in its own frame beats the nominal
+    robot, and a frame error is what a rigid fit removes. Data of fewer than :data:`FRAME_CHECK_POSES`
+    distinct poses are not tested (the fit's 12 parameters absorb too much there)."""
+    from .report_accuracy import distinct_poses
+
+    if len(T_meas) < 4 or distinct_poses(data.q, tol=1e-3) < FRAME_CHECK_POSES:
+        return
+    e_model = _mean_mm(T_model, T_meas)
+    if nominal_mm is not None and e_model <= nominal_mm:
+        return
+    e_fit = _mean_mm(with_fitted_frames(T_model, T_meas, position_only), T_meas)
+    if e_model <= FRAME_FIT_FACTOR * e_fit:
+        return
+    nom = "" if nominal_mm is None else f", the nominal robot {nominal_mm:.4g} mm"
+    raise FrameMismatchError(
+        f"{data.source or '<dataset>'}: the poses are not in the model's frame (a moved tracker, another tool, or the "
+        f"model's base or tool is wrong): the {what} is {e_model:.4g} mm off them, {e_fit:.4g} mm with base and tool "
+        f"fitted to them{nom}; register the model to a series measured in this frame first (hykin register MODEL "
+        f"SERIES -o MODEL2; docs/registration.md) and evaluate MODEL2")
+
+
+def evaluate_model(model, data: Dataset, *, fit_frames: bool = False) -> EvalResult:
     """Errors of the nominal, calibrated and hybrid predictions of ``model`` against ``data``.
 
     ``model`` is a :class:`hykin.hybrid.model.HybridModel` or a plain :class:`Robot` (nominal FK only).
     The nominal row (:func:`nominal_row`) is labelled ``"nominal + fitted frames"`` where its frames
     were fitted to the data (tracker-frame data, registered models); its key stays ``"nominal"``.
     A model fitted on several stations / tools compares each row in its own station's and tool's frame
-    (the data are mapped into the model's frame, :func:`hykin.hybrid.stations.in_model_frame`).
+    (the data are mapped into the model's frame, :func:`hykin.hybrid.stations.in_model_frame`); data
+    of several stations for a model of one frame are refused (DatasetError).
+    Data in another frame than the model's are refused (:func:`check_model_frame`) unless
+    ``fit_frames``: then the calibrated and hybrid rows, like the nominal one, have base and tool fitted
+    to the data (labels ``"... + fitted frames"``; 12 parameters fitted to the test poses flatter them).
     """
-    if getattr(model, "station_frames_", None) is not None:  # several stations / tools: each row's own frame
-        from ..hybrid.stations import in_model_frame
+    from ..hybrid.stations import in_model_frame
 
-        data = in_model_frame(model, data)
+    data = in_model_frame(model, data)  # several stations / tools: each row in its own frame
     T_meas = data.poses()
     pos_only = not data.has_orientation
     preds: dict[str, np.ndarray] = {}
@@ -152,7 +223,8 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
         np.array_equal(getattr(model, "frame_pre_", np.eye(4)), np.eye(4)) and np.array_equal(getattr(model, "frame_post_", np.eye(4)), np.eye(4)))
     pkw = payload_kwargs(payload_of(data))  # per-row payload deflects the calibrated model (and compliant files)
     if isinstance(model, Robot):
-        preds["nominal"], labels["nominal"] = nominal_row(model, data.q, T_meas, pos_only, payload=pkw)
+        preds["nominal"], labels["nominal"] = nominal_row(model, data.q, T_meas, pos_only, always_fit=fit_frames,
+                                                          payload=pkw)
         if labels["nominal"] == NOMINAL_FITTED:  # the file as written first: its own frames may be what is wrong
             preds = {"file": classical_fk(model, data.q, **pkw), **preds}
             labels["file"] = ROBOT_FILE
@@ -160,7 +232,7 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
         nominal = getattr(model, "nominal", None)
         if nominal is not None:
             # a registered model's frames belong to it: the nominal row fits its own (one definition)
-            preds["nominal"], labels["nominal"] = nominal_row(nominal, data.q, T_meas, pos_only, always_fit=registered,
+            preds["nominal"], labels["nominal"] = nominal_row(nominal, data.q, T_meas, pos_only, always_fit=registered or fit_frames,
                                                               payload=pkw)
         from ..calibration.thermal import temperature_of
 
@@ -168,6 +240,14 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
         if getattr(model, "calibration", None) is not None or getattr(model, "calibrate", False):
             preds["calibrated"] = model.predict_classical(data.q, temperature_c=temp, **pkw)
         preds["hybrid"] = model.predict(data.q, temperature_c=temp, **pkw)
+        if fit_frames:
+            for k in ("calibrated", "hybrid"):
+                if k in preds:
+                    preds[k] = with_fitted_frames(preds[k], T_meas, pos_only)
+                    labels[k] = f"{k} + fitted frames"
+        else:
+            check_model_frame(data, preds["hybrid"], T_meas, pos_only,
+                              _mean_mm(preds["nominal"], T_meas) if "nominal" in preds else None)
         if hasattr(model, "support_distance"):
             dist = np.asarray(model.support_distance(data.q))
     stats, errors, vectors = {}, {}, {}
@@ -181,9 +261,15 @@ def evaluate_model(model, data: Dataset) -> EvalResult:
     if registered and "nominal" in preds:
         regions = joint_region_rows(data.q, {labels.get(k, k): errors[k] for k in ("hybrid", "calibrated", "nominal")
                                              if k in errors})
+    from ..calibration.outliers import find_outliers
+
+    last = list(errors)[-1]  # the hybrid model (a robot file: its last row)
+    p_mm, a_deg = errors[last]
+    found = find_outliers(p_mm * 1e-3, None if a_deg is None else np.radians(a_deg))
     return EvalResult(
         dataset=data.source, n=len(data), position_only=pos_only, stats=stats, errors=errors, support_distance=dist,
         per_payload=evaluate_per_payload(errors, data), regions=regions, labels=labels, vectors=vectors, predicted=preds,
+        outliers=found, outliers_of=last if found is not None else "",
     )
 
 

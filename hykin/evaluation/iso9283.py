@@ -126,13 +126,15 @@ def iso9283_pose(commanded, attained, pose_id, *, orientation: str = "euler", to
     for k, pid in enumerate(order):
         rows = np.flatnonzero(ids == pid)
         if rows.size < 2:
-            raise ISOError(f"pose {pid!r}: needs at least 2 cycles for repeatability, got {rows.size}")
-        Cc = C[rows[0]]
+            raise ISOError(f"pose {str(pid)!r}: needs at least 2 cycles for repeatability, got {rows.size}")
+        Cc = C[rows[0]].copy()
+        Cc[:3, 3] = C[rows, :3, 3].mean(0)  # cycles within the tolerance: their mean commanded position
         dev_p = np.abs(C[rows, :3, 3] - Cc[:3, 3]).max()
         dev_r = np.linalg.norm(rotation_difference_rotvec(C[rows, :3, :3], Cc[:3, :3]), axis=-1).max()
         if dev_p > tol_m or dev_r > tol_rad:
-            raise ISOError(f"pose {pid!r}: commanded poses differ between cycles by {dev_p * 1e3:.3g} mm / "
-                           f"{np.degrees(dev_r):.3g} deg (rows {rows[:5].tolist()}...)")
+            raise ISOError(f"pose {str(pid)!r}: commanded poses differ between cycles by up to {dev_p * 1e3:.3g} mm / "
+                           f"{np.degrees(dev_r):.3g} deg (tolerance {tol_m * 1e3:.3g} mm / {np.degrees(tol_rad):.3g} deg; "
+                           f"rows {rows[:5].tolist()}...)")
         x = A[rows, :3, 3]
         bar = x.mean(0)
         ap_xyz[k] = (bar - Cc[:3, 3]) * 1e3

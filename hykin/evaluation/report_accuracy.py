@@ -15,8 +15,13 @@ from .report import mm
 from .report_figures import joint_bins
 
 __all__ = ["FEW_FIT_POSES", "BaseFrame", "Hotspot", "axis_rows", "base_frame", "distinct_poses", "display_name",
-           "iso_rows", "joint_hotspot", "nominal_words", "per_payload_rows",
+           "iso_rows", "joint_hotspot", "nominal_words", "per_payload_rows", "support_note",
            "per_temperature_rows", "reach_hotspot", "support_rows"]
+
+#: the rows of one ISO 9283 pose id are visits of one pose when the model places them within this of
+#: each other (m, rad): measured joints of repeated visits differ by encoder noise (~1e-5 rad, 0.01 mm)
+ISO_SAME_POSE_M = 1e-4
+ISO_SAME_POSE_RAD = np.radians(0.01)
 
 #: a nominal row whose base and tool were fitted to fewer distinct test poses than this is not a
 #: meaningful reference (the rigid fit of 12 frame parameters absorbs much of the nominal error)
@@ -187,12 +192,17 @@ def iso_rows(data, predicted: dict, frame: BaseFrame | None = None, labels: dict
     from .iso9283 import ISOError, iso9283_pose
 
     extra = getattr(data, "extra", None) or {}
-    ids = extra.get("pose_id", extra.get("pose"))  # `hykin simulate --plan iso-cube` labels its poses in "pose"
+    col = "pose_id" if "pose_id" in extra else "pose"
+    ids = extra.get(col)  # `hykin simulate --plan iso-cube` labels its poses in "pose"
     if ids is None:
         return [], ("not computed: the test data have no pose_id column (ISO 9283 needs each test pose "
                     "approached repeatedly, e.g. 30 cycles of the poses P1 … P5, labelled in a pose_id column).")
     ids = np.asarray(ids)
-    ok = np.isfinite(ids) if ids.dtype.kind == "f" else np.ones(len(ids), bool)  # blank ids: ordinary test poses
+    if ids.dtype.kind == "f":
+        ok = np.isfinite(ids)
+    else:  # text: blank (and "nan") cells are ordinary test poses too
+        ids = np.char.strip(ids.astype(str))
+        ok = (ids != "") & (np.char.lower(ids) != "nan")
     uniq, inv, cnt = np.unique(np.where(ok, ids, ids[ok][0] if ok.any() else 0), return_inverse=True, return_counts=True)
     sel = ok & (cnt[inv] >= 2)  # poses measured once are ordinary test poses, not ISO cycles
     if not sel.any():
@@ -204,14 +214,16 @@ def iso_rows(data, predicted: dict, frame: BaseFrame | None = None, labels: dict
     try:
         for key, T in predicted.items():
             name = (labels or {}).get(key, key)
-            r = iso9283_pose(to(np.asarray(T)[sel]), T_meas, ids[sel], tol_m=1e-9, tol_rad=1e-9)
+            r = iso9283_pose(to(np.asarray(T)[sel]), T_meas, ids[sel], tol_m=ISO_SAME_POSE_M, tol_rad=ISO_SAME_POSE_RAD)
             for i, pid in enumerate(r.pose_ids):
                 pid = int(pid) if isinstance(pid, float) and pid.is_integer() else pid
                 ang = [None] * 3 if not data.has_orientation else list(map(float, r.ap_abc_deg[i]))  # position-only data
                 rows.append([name, str(pid), int(r.n[i]), float(r.ap_mm[i]), *map(float, r.ap_xyz_mm[i]),
                              *ang, float(r.rp_mm[i])])
     except ISOError as e:
-        return [], f"not computed: {e}"
+        return [], (f"not computed: {getattr(data, 'source', '') or 'test data'}, column '{col}': {e}; the rows of one "
+                    f"pose id must be visits of one pose (their joints may differ by encoder noise, up to "
+                    f"{ISO_SAME_POSE_M * 1e3:g} mm / {np.degrees(ISO_SAME_POSE_RAD):g} deg at the TCP)")
     ax = "base" if frame is None or frame.is_base else "measurement-frame"
     return rows, ("AP: distance of the mean attained position from the commanded one (the model's prediction); "
                   f"AP_x/y/z: its components along {ax} x/y/z; AP_a/b/c: mean angle deviations about {ax} x/y/z; RP: ISO 9283 position repeatability "
@@ -237,11 +249,25 @@ def support_rows(model, q: np.ndarray, revolute) -> tuple[list[list], int]:
             rows.append([f"joint {j + 1}", "not a network input", None, None, None, 0])
             continue
         f, unit = (np.degrees, "deg") if revolute[j] else ((lambda v: v * 1e3), "mm")
+        if revolute[j] and np.isfinite(model.wrap_centre_[j]):
+            unit = "deg, folded"  # whole turns folded (support_note)
         out = int(np.sum((qn[:, j] < lo[j]) | (qn[:, j] > hi[j])))
         rows.append([f"joint {j + 1}", unit, f(float(lo[j])), f(float(hi[j])),
                      f"{f(float(qn[:, j].min())):.4g} … {f(float(qn[:, j].max())):.4g}", out])
     n_out = int(np.sum(np.asarray(model.support_distance(q)) > 0))
     return rows, n_out
+
+
+def support_note(model) -> str:
+    """What the "deg, folded" joints of :func:`support_rows` mean ("" when no joint is folded)."""
+    c = np.asarray(getattr(model, "wrap_centre_", None) if getattr(model, "wrap_centre_", None) is not None else [], float)
+    mask = np.asarray(getattr(model, "input_mask_", np.ones(c.shape, bool)), bool)
+    folded = [j for j in range(c.size) if np.isfinite(c[j]) and mask[j]]
+    if not folded:
+        return ""
+    parts = ", ".join(f"joint {j + 1} into {np.degrees(c[j]) - 180:.4g} … {np.degrees(c[j]) + 180:.4g}°" for j in folded)
+    return ("Folded joints are shown as the networks see them: q and q ± 360° are one input, so their angles are "
+            f"moved by whole turns ({parts}); a trained range there may lie outside the joint limits.")
 
 
 SUPPORT_HEADER = ["joint", "unit", "trained from", "trained to", "test range", "test rows outside"]

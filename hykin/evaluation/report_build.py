@@ -128,6 +128,7 @@ def _accuracy_sections(rep: Report, model, test, res, rev, frame: acc.BaseFrame 
 
     rep.heading("ISO 9283 pose accuracy and repeatability")
     rows, note = acc.iso_rows(tm, res.predicted, frame, labels)
+    res.iso9283 = {"columns": list(acc.ISO_HEADER), "rows": rows, "note": note}  # evaluation.json too
     if rows:
         rep.table(acc.ISO_HEADER, rows, text_cols=2)
     rep.note(note)
@@ -137,7 +138,8 @@ def _accuracy_sections(rep: Report, model, test, res, rev, frame: acc.BaseFrame 
         rep.heading("Training support")
         rep.table(acc.SUPPORT_HEADER, srows, text_cols=2)
         rep.note(f"{n_out} of {res.n} test poses lie outside the training support (outside a joint's trained range, or "
-                 "in a gap between training poses); the network correction fades to the calibrated model there.")
+                 "in a gap between training poses); the network correction fades to the calibrated model there. "
+                 + acc.support_note(model))
     prow = acc.per_payload_rows(res.per_payload, labels)
     from ..calibration.thermal import temperature_of
 
@@ -155,18 +157,21 @@ def _accuracy_sections(rep: Report, model, test, res, rev, frame: acc.BaseFrame 
 def _calibration_section(rep: Report, cal: dict, rows) -> None:
     rep.heading("Calibration")
     rep.bullets(calibration_summary(cal, rows))
-    rep.note("Deviation = identified − nominal (base and tool: the correction in the nominal frame). Posterior std: "
+    rep.note("Deviation = identified − nominal; for base and tool, the correction along the nominal frame's own axes (the "
+             "notes give identified − nominal where the two differ). Posterior std: "
              "the standard deviation of the identified value (residual noise and prior); prior std: the tolerance the "
              "calibration assumed for the robot file's value (blank: uninformative). Status (docs/calibration-priors.md): "
              "identified; correlated with the named parameters (|ρ| ≥ 0.99: the data tell their combination, the priors "
-             "the split); held at prior (greyed: these poses do not excite it, so it keeps the robot file's value and "
+             "the split; a partner held at prior keeps the robot file's value, so this parameter takes the whole "
+             "combination); held at prior (greyed: these poses do not excite it, so it keeps the robot file's value and "
              "its posterior std is the prior's); at bound 0 (a compliance held rigid). Base/tool rx, ry, rz: rotation vector.")
     rep.table(CAL_HEADER, [r.cells() for r in rows], text_cols=CAL_TEXT, digits=6, row_classes=["held" if r.held else "" for r in rows])
     names, corr = cal.get("correlation_names") or [], np.asarray(cal.get("correlation") or [])
     if len(names) >= 2 and corr.shape == (len(names), len(names)):
         rep.figure(correlation_figure(names, corr),
                    "Correlation of the identified parameters (red +1, blue −1): strongly correlated pairs are hard "
-                   "to tell apart from these poses.")
+                   "to tell apart from these poses. Parameters held at prior are not shown; a partner named in the "
+                   "table's status that is missing here is one of them.")
 
 
 def _ik_section(rep: Report, model, test, n: int, seed: int) -> None:

@@ -146,6 +146,10 @@ def calibration_rows(calib: dict, nominal: Robot, calibrated: Robot | None = Non
                 notes.append("differs from nominal (> 3 σ)")
             else:
                 notes.append("agrees with nominal (< 3 σ)")
+        if ident and n0 is not None and n1 is not None and name.startswith(("base.", "tool.")) \
+                and abs((n1 - n0) - dev) > 1e-9 * max(1.0, abs(n1)):  # a correction along the nominal frame's axes
+            notes.append(f"deviation along the nominal {name.split('.')[0]} frame's axes; identified − nominal "
+                         f"{(n1 - n0) * f:+.4g}")
         named = {b for b, _ in partners}
         more = [(b, r) for b, r in strong.get(name, []) if b not in named]
         if more:

@@ -85,8 +85,11 @@ def data_rows(model, test=None, test_path=None) -> list[list]:
             continue
         fp = meta.get(fkey)
         if role == "training" and meta.get("val_hash") is None and meta.get("n_val"):
-            role = (f"training (calibration on all rows; networks on {meta.get('n_train')}, validated on "
-                    f"{meta.get('n_val')} held out)")
+            held = int(meta.get("n_total") or 0) - int(meta.get("n_train") or 0)
+            rest = held - int(meta.get("n_val"))
+            role = (f"training (calibration on all rows; networks on {meta.get('n_train')}; {held} held out from "
+                    f"them: {meta.get('n_val')} validate their training"
+                    + (f", {rest} fit the prediction bands" if rest > 0 else "") + ")")
         if fp:
             rows.append([role, Path(fp["path"]).name, n, fp["bytes"], f"file {fp['sha256'][:16]}…"])
         else:  # a dataset built in memory, or a model fitted before hykin recorded its files

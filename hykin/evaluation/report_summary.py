@@ -78,11 +78,15 @@ def accuracy_sentences(res, data, revolute, model=None, frame=None) -> list[str]
             line += f"; the calibration alone removes {_pct(cal.pos_mean_mm, nom.pos_mean_mm)} ({mm(cal.pos_mean_mm)})"
         out.append(line + ".")
     e = res.errors[name][0]
-    hot = joint_hotspot(np.asarray(data.q), e, revolute)
+    keep = np.ones(len(e), bool)  # far-off rows (a lost beam) named, not blamed on a joint range
+    if getattr(res, "outliers", None) is not None:
+        keep[res.outliers.rows] = False
+        out.append(res.outlier_line() + ".")
+    hot = joint_hotspot(np.asarray(data.q)[keep], e[keep], revolute)
     dm = in_model_frame(model, data)
     if frame is None:
         frame = base_frame(model, dm, getattr(res, "labels", None))
-    reach = reach_hotspot(np.asarray(dm.xyz_m), e, frame=frame)
+    reach = reach_hotspot(np.asarray(dm.xyz_m)[keep], e[keep], frame=frame)
     if reach is not None and not frame.is_base:
         reach.what = "horizontal distance from the measurement frame's origin"
     where = [h.words() for h in (hot, reach) if h is not None and h.mean_mm > 1.2 * h.overall_mm]

@@ -40,12 +40,33 @@ def in_model_frame(model, ds, *, line_offset: int | None = 1):
     without its ``station``/``tool`` columns; ``ds`` itself when the model has one frame. A row of a
     station or tool the model does not know is a :class:`hykin.io.dataset.DatasetError` (row, column)."""
     fr = getattr(model, "station_frames_", None)
-    if ds is None or fr is None:
+    if ds is None:
+        return ds
+    if fr is None:
+        _check_one_frame(ds)
         return ds
     flange = None
     if not ds.has_orientation and len(fr.tool_labels) > 1:
         flange = classical_fk(model.robot_.copy(tool=np.eye(4)), ds.q)[:, :3, :3]
     return to_reference(ds, fr, flange, line_offset=line_offset)
+
+
+def _check_one_frame(ds) -> None:
+    """Refuse (:class:`hykin.io.dataset.DatasetError`) data with several stations or tools for a model
+    fitted in one frame: it would compare every row in that frame (metres off, without a word)."""
+    groups = row_groups(ds, len(ds))
+    if groups is None:
+        return
+    for col, labels in (("station", groups.station_labels), ("tool", groups.tool_labels)):
+        if len(labels) > 1:
+            from ..io.dataset import DatasetError
+
+            shown = ", ".join(repr(str(x)) for x in labels[:4]) + (", ..." if len(labels) > 4 else "")
+            raise DatasetError(
+                f"{ds.source or '<dataset>'}: column '{col}' names {len(labels)} {col}s ({shown}) but the model was "
+                f"fitted with one {col} (no '{col}' column): its poses are in one frame; register the model to each "
+                f"{col}'s rows, one series at a time (hykin register; docs/stations.md), or fit with the column",
+                file=ds.source, column=col)
 
 
 def station_transform(model, station: str | None, tool: str | None = None) -> tuple[np.ndarray, np.ndarray]:

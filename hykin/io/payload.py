@@ -57,6 +57,20 @@ MAX_PAYLOAD_KG = 3000.0  # above any serial robot's rated payload (the largest c
 MAX_COM_M = 3.0  # a payload's centre of mass this far from the TCP: mm, not m
 
 
+def _not_numeric(where: str, values):
+    """The first cell of column payload_kg that is not a number, named by its data row (an error path)."""
+    from .dataset import DatasetError
+
+    for r, v in enumerate(np.asarray(values, dtype=object).reshape(-1)):
+        try:
+            float(v)
+        except (TypeError, ValueError):
+            what = "an empty cell" if str(v).strip() == "" else f"{str(v)!r} is not a number"
+            return DatasetError(f"{where}, row {r + 1}, column 'payload_kg': {what} (every row needs its payload in kg, "
+                                "0 without one)", file=where, row=r + 1, column="payload_kg")
+    return DatasetError(f"{where}: column 'payload_kg': not numeric", file=where, column="payload_kg")
+
+
 def payload_of(data, payload_kg=None, payload_com_m=None, n_rows: int | None = None):
     """Per-row payload of ``data``: ``(kg (N,), com (N, 3) m tool frame or None)``, or None.
 
@@ -89,7 +103,7 @@ def payload_of(data, payload_kg=None, payload_com_m=None, n_rows: int | None = N
     try:
         kg = np.asarray(kg, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
-        raise DatasetError(f"{where}: column 'payload_kg': not numeric", file=where, column="payload_kg") from None
+        raise _not_numeric(where, kg) from None
     kg = np.full(N, float(kg[0])) if kg.size == 1 else kg
     if kg.shape != (N,):
         raise DatasetError(f"{where}: payload_kg has {kg.size} values for {N} rows", file=where, column="payload_kg")
