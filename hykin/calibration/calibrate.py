@@ -116,7 +116,7 @@ from .result import (
 )
 from .identifiability import identifiable_columns, parameter_scales
 from .inputs import calibration_inputs
-from .outliers import DEFAULT_RATIO, OUTLIER_MODES, OutlierWarning, find_outliers, row_errors, subset_rows
+from .outliers import DEFAULT_RATIO, OUTLIER_MODES, OutlierWarning, find_outliers, row_errors, rows_out_of_step, subset_rows
 from .stations import check_groups, frame_starts, row_groups, station_rms
 
 __all__ = [
@@ -584,8 +584,9 @@ def calibrate(
             except CalibrationError as e0:  # a quaternion re-read that explains the positions names the cause
                 check_orientation_consistency(res, data, recal, lim["orientation_conflict"], refused=e0)
         except CalibrationError as e:
-            if groups is None or isinstance(e, OrientationConflictError):
-                raise
+            if groups is None or isinstance(e, OrientationConflictError):  # else: joints a row out of step?
+                shift = "" if isinstance(e, OrientationConflictError) else rows_out_of_step(data, res.after["pos_rms_mm"], recal)
+                raise (CalibrationError(f"{e}{shift}") if shift else e) from None
             raise CalibrationError(f"{e}; or a wrong station/tool label on some rows (RMS per station: "
                                    f"{station_rms(residual(model_poses(state1, q, pl, groups), xyz, None, 1.0, state1.pts)[0], groups)})") from None
         check_orientation_consistency(res, data, recal, lim["orientation_conflict"])

@@ -33,7 +33,7 @@ import numpy as np
 
 from .jacobian import residual
 
-__all__ = ["DEFAULT_RATIO", "OUTLIER_MODES", "Outliers", "OutlierWarning", "find_outliers", "row_errors", "step_change",
+__all__ = ["DEFAULT_RATIO", "OUTLIER_MODES", "Outliers", "OutlierWarning", "find_outliers", "row_errors", "rows_out_of_step", "step_change",
            "subset_rows"]
 
 #: median of the distance of an isotropic 3-D Gaussian error, in units of its per-coordinate σ
@@ -44,6 +44,7 @@ MIN_ROWS = 20
 FLOOR_M = 50e-6  # below any robot's repeatability: noise-free fits are never "outliers"
 FLOOR_RAD = math.radians(0.01)  # a T-Mac orientation is good to a few 0.001°
 OUTLIER_MODES = ("drop", "warn", "keep")
+SHIFT_ROWS = 200  # rows_out_of_step tests the first rows only
 STEP_RATIO = 5.0  # rows from some row on this many times worse than before: a row slipped in one file
 
 
@@ -176,3 +177,32 @@ def subset_rows(data, keep: np.ndarray, n_rows: int):
         return tuple(subset_rows(a, keep, n_rows) for a in data)
     a = np.asarray(data)
     return a[keep] if a.ndim >= 1 and a.shape[0] == n_rows else data
+
+
+def rows_out_of_step(data, rms_mm: float, recalibrate, factor: float = STEP_RATIO) -> str:
+    """A refused calibration's likely cause when the whole file is out of step: the joints of one row
+    belong to the measurement of the next (a row missing or doubled at the top of one file). The
+    calibration is repeated on the positions with the joints shifted by one row each way
+    (``recalibrate(data, position_only) -> CalibrationResult``, checks off); when one leaves ``factor``
+    times less than ``rms_mm`` (the refused fit's position RMS), ``"; ..."`` naming the shift and its
+    residual, else ``""``. Only for a Dataset of at least ``2 * MIN_ROWS`` rows; its first ``SHIFT_ROWS``
+    rows are tested (an error path: two more calibrations, kept small)."""
+    import dataclasses
+
+    from .result import CalibrationError
+
+    n = min(len(getattr(data, "q", ())), SHIFT_ROWS)  # the first rows tell: two calibrations stay cheap
+    if not (dataclasses.is_dataclass(data) and hasattr(data, "subset")) or n < 2 * MIN_ROWS:
+        return ""
+    for lead, words in ((1, "each row's measurement belongs to the next row's joints"),
+                        (-1, "each row's measurement belongs to the previous row's joints")):
+        meas = data.subset(np.arange(n - 1) if lead == 1 else np.arange(1, n))
+        shifted = dataclasses.replace(meas, q=np.asarray(data.q)[1:n] if lead == 1 else np.asarray(data.q)[:n - 1])
+        try:
+            rms = float(recalibrate(shifted, True).after["pos_rms_mm"])
+        except (CalibrationError, ValueError):
+            continue
+        if factor * rms < rms_mm:
+            return (f"; joints and measurements look one row out of step ({words}: shifted so, the positions leave "
+                    f"{rms:.3g} mm RMS instead of {rms_mm:.3g}): a row missing or doubled at the top of one file?")
+    return ""
