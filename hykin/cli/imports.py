@@ -343,17 +343,44 @@ def _stream_rms_bound(model, max_rms_mm: float | None) -> float:
     return max(_STREAM_RMS_MODEL_MIN_MM, _STREAM_RMS_MODEL_X * float(err))
 
 
-def _not_a_stream(e, robot_log: Path, tracker_stream: Path) -> str:
+def _not_a_stream(e, robot_log: Path, tracker_stream: Path, maps=(None, None)) -> str:
     """The one line of a :class:`~hykin.measure.stream_checks.NotAStreamError` (static data given to
-    ``import stream``), naming the file that samples too slowly and the import for static data."""
+    ``import stream``), naming the file that samples too slowly and the import for static data (and the
+    time unit, when the slow log samples ~1000x slower than the other)."""
     where = robot_log if e.which == "robot log" else tracker_stream
     period = e.period_robot_s if e.which == "robot log" else e.period_tracker_s
+    other = e.period_tracker_s if e.which == "robot log" else e.period_robot_s
+    has_map = (maps[0] if e.which == "robot log" else maps[1]) is not None
     what = (f"one tracker point per robot sample ({e.n_tracker} points, {e.n_robot} robot samples): a static campaign "
             "(the robot stops, one measurement per stop)" if e.static else "static measurements, one per stop")
     return (f"{where}: not a stream: a sample every {period:.3g} s (median; robot log {e.period_robot_s:.3g} s, tracker "
             f"{e.period_tracker_s:.3g} s), {what}; `import stream` would interpolate across the moves between stops. "
             "For static data put each stop's joints and tracker point in one row (joined by stop name or nearest time) "
-            f"and use `hykin import table`; if these are streams, --max-gap S (above {period:.3g} s) accepts them")
+            f"and use `hykin import table`; if these are streams, --max-gap S (above {period:.3g} s) accepts them"
+            + (f" -- but first check the {e.which}'s time unit: a sample ~{period / max(other, 1e-300):.3g}x slower than the "
+               f"{'tracker' if e.which == 'robot log' else 'robot log'}'s suggests {e.time_unit_hint} read as s "
+               f"({_time_unit_fix(e.which, e.time_unit_hint, has_map)})" if getattr(e, "time_unit_hint", None) else ""))
+
+
+def _time_unit_fix(which: str, unit: str, has_map: bool) -> str:
+    """Where the time unit of ``which`` ("robot log" / "tracker") is set: its map or the option."""
+    opt = "--robot-time-unit" if which == "robot log" else "--tracker-time-unit"
+    mp = "--robot-map" if which == "robot log" else "--tracker-map"
+    return f"time_unit = \"{unit}\" in the map ({mp})" if has_map else f"{opt} {unit}"
+
+
+def _time_unit_slip(e, robot_log: Path, tracker_stream: Path, maps) -> str:
+    """The one line of a :class:`~hykin.measure.stream_checks.TimeUnitError`: the log whose time is likely
+    in ms (us, ns) read as s, and where to say so."""
+    where = robot_log if e.which == "robot log" else tracker_stream
+    has_map = (maps[0] if e.which == "robot log" else maps[1]) is not None
+    slow, fast = ((e.period_robot_s, e.period_tracker_s) if e.which == "robot log"
+                  else (e.period_tracker_s, e.period_robot_s))
+    other = "tracker" if e.which == "robot log" else "robot log"
+    return (f"{where}: the {e.which} samples every {slow:.3g} s, the {other} every {fast:.3g} s, and lasts "
+            f"{(e.span_robot_s if e.which == 'robot log' else e.span_tracker_s):.4g} s against "
+            f"{(e.span_tracker_s if e.which == 'robot log' else e.span_robot_s):.4g} s: the {e.which}'s time is likely "
+            f"in {e.unit}, read as s: {_time_unit_fix(e.which, e.unit, has_map)}")
 
 
 @import_app.command("stream")
@@ -392,7 +419,14 @@ def import_stream_cmd(
     force: bool = Force,
 ) -> None:
     """Align a robot joint log with a tracker stream (clock offset, interpolation) into a dataset."""
-    from ..measure.streams import MIN_JOIN_CORRELATION, ClockRangeError, NotAStreamError, align_streams
+    from ..measure.streams import (
+        MIN_JOIN_CORRELATION,
+        ClockRangeError,
+        NoOverlapError,
+        NotAStreamError,
+        TimeUnitError,
+        align_streams,
+    )
 
     if frame not in ("tracker", "fit"):
         raise CLIError(f"import stream: --frame must be tracker or fit, got {frame!r}")
@@ -425,8 +459,20 @@ def import_stream_cmd(
                           max_speed_m_s=max_speed or None, max_gap_s=max_gap, fit_drift=fit_drift,
                           T_base_tracker="fit" if frame == "fit" else None,
                           **({} if offset is not None else {"method": method, "max_offset_s": max_offset}))
+    except TimeUnitError as e:
+        raise CLIError(_time_unit_slip(e, robot_log, tracker_stream, (robot_map, tracker_map))) from None
     except NotAStreamError as e:
-        raise CLIError(_not_a_stream(e, robot_log, tracker_stream)) from None
+        raise CLIError(_not_a_stream(e, robot_log, tracker_stream, (robot_map, tracker_map))) from None
+    except NoOverlapError as e:
+        rr, tr = getattr(e, "robot_range_s", None), getattr(e, "tracker_range_s", None)
+        if rr is None or tr is None:
+            raise CLIError(f"{tracker_stream}: {e}") from None
+        raise CLIError(f"{tracker_stream}: its times ({tr[0]:.6f} to {tr[1]:.6f} s) and those of {robot_log} "
+                       f"({rr[0]:.6f} to {rr[1]:.6f} s) do not overlap within the offset search ±{e.half_s:g} s "
+                       f"(--max-offset): the clocks count from different origins (e.g. one on the epoch)? Give the "
+                       f"offset t_tracker - t_robot with --offset S (about {(tr[0] + tr[1] - rr[0] - rr[1]) / 2:.6f} s here, from the middles of the two logs; it is then "
+                       "taken as known, not fitted) or widen --max-offset S; or check --robot-time-unit / "
+                       "--tracker-time-unit") from None
     except ClockRangeError as e:
         raise CLIError(f"{tracker_stream}: the clock offset found, {e.offset_s * 1e3:.4g} ms, lies at the edge of the "
                        f"search range ±{e.half_s:g} s (--max-offset): the range's limit, not a result; the true offset "

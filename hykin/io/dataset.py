@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -37,6 +38,7 @@ __all__ = [
     "concat",
     "dataset_hash",
     "joint_columns",
+    "label_cells",
     "revolute_mask",
     "row_error",
     "row_labels",
@@ -50,6 +52,9 @@ POSITION_COLUMNS = ("x", "y", "z")
 QUAT_COLUMNS = ("qw", "qx", "qy", "qz")
 #: optional label columns: rows of one instrument placement / one tool (or reflector mount) share a frame
 STATION_COLUMN, TOOL_COLUMN = "station", "tool"
+#: columns that hold labels, not numbers: read and carried as text exactly as written ("01" and "1" are two
+#: stations, tool "007" stays "007"); ``pose_id`` / ``pose`` name ISO 9283 poses
+LABEL_COLUMNS = (STATION_COLUMN, TOOL_COLUMN, "pose_id", "pose")
 LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
 ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
 
@@ -230,10 +235,31 @@ def concat(datasets: Sequence[Dataset], source: str | None = None) -> Dataset:
     )
 
 
+#: a number written without leading zeros ("2", "2.0", "-1.5", "1e3"; not "01", "007", "0.50" is one): such a
+#: label reads as before text labels were kept (``2.0`` -> ``"2"``, ``2.50`` -> ``"2.5"``)
+_PLAIN_NUMBER = re.compile(r"[+-]?(?:0|[1-9]\d*)(?:\.\d*)?(?:[eE][+-]?\d+)?")
+
+
+def _canonical_label(cell: str) -> str:
+    """A label cell as written; plain numbers (no leading zeros) as :func:`row_labels` wrote numbers."""
+    if not _PLAIN_NUMBER.fullmatch(cell):
+        return cell
+    x = float(cell)
+    if not math.isfinite(x):
+        return cell
+    return str(int(x)) if x == round(x) else repr(x)
+
+
+def label_cells(cells) -> np.ndarray:
+    """``(N,)`` str: a label column's cells as written (stripped of surrounding blanks), never parsed as
+    numbers -- "01" and "1" stay two labels (see :data:`LABEL_COLUMNS`)."""
+    return np.char.strip(np.asarray(list(cells), dtype=str))
+
+
 def row_labels(ds: Dataset, column: str, *, line_offset: int | None = 1) -> np.ndarray | None:
     """``(N,)`` str labels of the label column ``column`` (``"station"``, ``"tool"``) of ``ds``, or None
-    without it. Any label is accepted: text as read (stripped), numbers as written (``2.0`` -> ``"2"``).
-    An empty or non-finite cell is a :class:`DatasetError` naming the row and the column."""
+    without it. Any label is accepted: text as read (stripped; "01" and "1" are two labels), numbers
+    and plain-number text as written (``2.0`` / ``"2.0"`` -> ``"2"``). An empty, "nan" or non-finite cell is a :class:`DatasetError` naming the row and the column."""
     if column not in ds.extra:
         return None
     v = np.asarray(ds.extra[column])
@@ -246,8 +272,8 @@ def row_labels(ds: Dataset, column: str, *, line_offset: int | None = 1) -> np.n
                             int(np.argmax(bad)), column, line_offset)
         whole = np.all(f == np.round(f))
         return np.array([str(int(x)) if whole else repr(float(x)) for x in f], dtype=str)
-    out = np.char.strip(v.astype(str))
-    empty = out == ""
+    out = np.array([_canonical_label(c) for c in np.char.strip(v.astype(str))], dtype=str)
+    empty = (out == "") | (np.char.lower(out) == "nan")
     if empty.any():
         raise row_error(where, f"empty {column} label (every row needs one when the column is given)",
                         int(np.argmax(empty)), column, line_offset)

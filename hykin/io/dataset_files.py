@@ -24,6 +24,7 @@ from ..geometry import se3
 from .csv_writer import DATASET_STYLE, write_csv
 from .dataset import (
     ANGLE_UNITS,
+    LABEL_COLUMNS,
     LENGTH_UNITS,
     POSITION_COLUMNS,
     QUAT_COLUMNS,
@@ -32,6 +33,7 @@ from .dataset import (
     check_finite,
     check_units,
     joint_columns,
+    label_cells,
     revolute_mask,
     row_error,
     validate,
@@ -136,10 +138,14 @@ class _Table:
     line_offset: int | None
     metadata: dict
     lines: np.ndarray | None = None
+    text: object = None  # (name) -> str (N,) cells as written (text files; label columns)
 
     def extras(self, skip) -> dict[str, np.ndarray]:
+        """Extra columns: label columns (station, tool, pose_id, pose) as text as written ("01" stays "01"),
+        others as numbers when every cell is one."""
         skip = set(skip)
-        return {c: self.lenient(c) for c in self.header if c not in skip}
+        return {c: (self.text(c) if self.text is not None and c in LABEL_COLUMNS else self.lenient(c))
+                for c in self.header if c not in skip}
 
 
 @contextmanager
@@ -172,7 +178,7 @@ def _open_table(path: str | Path) -> _Table:
         raise
     _check_header(where, path, t.header)
     return _Table(where, t.header, lambda c: float_column(t, c, finite=False), lambda c: lenient_column(t.col(c)),
-                  t.line_offset(), {}, t.lines)
+                  t.line_offset(), {}, t.lines, lambda c: label_cells(t.col(c)))
 
 
 def _check_header(where: str, path, header: list) -> None:

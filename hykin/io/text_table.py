@@ -85,12 +85,20 @@ def delimiter_name(delimiter: str) -> str:
 
 
 def detect_delimiter(header_line: str, decimal: str) -> str:
-    """The delimiter a header line uses: tab, ';', '|', ',' (unless decimal comma), else whitespace."""
+    """The delimiter a header line uses: tab, ';', '|', ',' (with a decimal comma: only a comma outside
+    quoted fields, ``"A1","A2"`` / ``"-101,03","2,5"``, or between names without blanks, ``A1,A2``), else
+    whitespace."""
     for d in ("\t", ";", "|"):
         if d in header_line:
             return d
     if "," in header_line and decimal != ",":
         return ","
+    if "," in header_line:
+        outside = re.sub(r'"[^"]*"', "", header_line.strip())
+        if '"' in header_line and "," in outside:
+            return ","  # quoted fields separated by commas (the decimal commas sit inside the quotes)
+        if "," in outside and not re.search(r"\s", outside) and re.search(r"[A-Za-z_]", outside):
+            return ","  # names separated by commas, no blanks: not a whitespace-separated line
     return " "
 
 
@@ -257,13 +265,31 @@ def group_names(text: list[str], header_line: int, names: list[str], raw_width: 
     return [h or f"col{j + 1}" for j, h in enumerate(out)], chosen
 
 
+_UNIT_CELL = re.compile(r"[\[(]?\s*(?:[a-zA-Zµ°%/]+[a-zA-Z0-9µ°%/^*.]*|°)\s*[\])]?")
+
+
+def _units_row(cells: list[str]) -> bool:
+    """Whether a row reads like a units line: no number in it, some cells units (``mm``, ``[deg]``, ``°``)."""
+    full = [c.strip() for c in cells if c.strip()]
+    if not full:
+        return False
+    for c in full:
+        try:
+            float(c.replace(",", "."))
+            return False
+        except ValueError:
+            pass
+    return all(_UNIT_CELL.fullmatch(c) for c in full)
+
+
 def float_column(t: TextTable, name: str, decimal: str = ".", *, allow_missing: bool = False,
-                 finite: bool = True) -> np.ndarray:
+                 finite: bool = True, empty_hint: str | None = None) -> np.ndarray:
     """Column ``name`` as float64 ``(N,)``.
 
     Empty and non-numeric cells are errors naming the row, line and likely cause (decimal comma,
-    units line under the header). ``finite``: NaN/inf cells are errors too. ``allow_missing``: empty
-    and NaN cells become NaN (a tracker stream losing the beam).
+    thousands separator, units line under the header). ``finite``: NaN/inf cells are errors too.
+    ``allow_missing``: empty and NaN cells become NaN (a tracker stream losing the beam).
+    ``empty_hint``: what to do about an empty cell (default: leave such rows out with ``where``).
     """
     cells = t.col(name)
     conv = [c.replace(decimal, ".") for c in cells] if decimal != "." else cells
@@ -279,9 +305,24 @@ def float_column(t: TextTable, name: str, decimal: str = ".", *, allow_missing: 
                 float(c)
             except ValueError:
                 raw = cells[r]
-                if not raw.strip():
-                    cause = (f"cell '(empty)' is not a number: the cell is empty (a marker or beam lost in that row? "
-                             f"leave such rows out with where = [\"{name} != \"] (--where '{name} != '))")
+                line = int(t.lines[r]) if len(t.lines) > r else r + 2
+                if r == 0 and _units_row(t.rows[0]):
+                    units = ", ".join(repr(c) for c in t.rows[0] if c.strip())
+                    shown = repr(raw) if raw.strip() else "'(empty)'"
+                    cause = (f"cell {shown} is not a number: row 1 looks like a units "
+                             f"line under the header ({units}): drop it with drop_rows = [{line}] (--drop-rows "
+                             f"{line}; --skip-rows skips lines above the header)")
+                elif not raw.strip():
+                    cause = ("cell '(empty)' is not a number: the cell is empty " + (empty_hint or (
+                        f"(a marker or beam lost in that row? leave such rows out with where = [\"{name} != \"] "
+                        f"(--where '{name} != '))")))
+                elif decimal == "," and re.fullmatch(r"[+-]?\d{1,3}(\.\d{3})+(,\d*)?", raw):
+                    cause = (f"{raw!r} has a thousands separator '.' (European digit grouping, "
+                             f"{raw.replace('.', '').replace(',', '.')} with a decimal point): export the file "
+                             "without digit grouping (thousands separators)")
+                elif decimal == "." and re.fullmatch(r"[+-]?\d{1,3}(,\d{3})+(\.\d*)?", raw):
+                    cause = (f"{raw!r} has a thousands separator ',' (digit grouping, {raw.replace(',', '')}): export "
+                             "the file without digit grouping (thousands separators)")
                 elif decimal == "." and re.fullmatch(r"[+-]?\d*,\d+([eE][+-]?\d+)?", raw):
                     cause = f"{raw!r} looks like a decimal comma: declare decimal = \",\" (--decimal ,)"
                 elif decimal == "," and re.fullmatch(r"[+-]?\d*\.\d+([eE][+-]?\d+)?", raw):

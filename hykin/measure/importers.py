@@ -134,7 +134,8 @@ def import_ur5(path: str | Path) -> Dataset:
         raise DatasetError(f"{where}: not a serial-robots-ur5 file: missing column(s) {', '.join(missing)} "
                            f"(expected {', '.join(_UR5_COLUMNS)})", file=where, column=missing[0])
     _refuse_unknown_columns(where, header, set(_UR5_COLUMNS) | {"step_order"}, "serial-robots-ur5", 6)
-    num = {c: float_column(t, c, finite=False) for c in _UR5_COLUMNS}
+    num = {c: float_column(t, c, finite=False, empty_hint="(import ur5 reads every row and has no row filter: delete "
+                           "or complete that row in the file)") for c in _UR5_COLUMNS}
     if num["x_t"].size == 0:
         raise DatasetError(f"{where}: the file has a header but no data rows", file=where)
     q = np.radians(np.stack([num[f"joint_{i}"] for i in range(1, 7)], axis=1))

@@ -40,8 +40,10 @@ from ..geometry.se3 import make_transform
 from .stream_checks import (
     MIN_JOIN_CORRELATION,
     ClockRangeError,
+    NoOverlapError,
     NotAStreamError,
     StreamError,
+    TimeUnitError,
     check_is_stream,
     check_offset_inside,
 )
@@ -51,9 +53,11 @@ __all__ = [
     "ClockModel",
     "ClockRangeError",
     "MIN_JOIN_CORRELATION",
+    "NoOverlapError",
     "NotAStreamError",
     "Resampled",
     "StreamError",
+    "TimeUnitError",
     "align_streams",
     "estimate_clock",
     "estimate_time_offset",
@@ -211,6 +215,9 @@ def _ncc_offset(a, m_t, t_t0, b, m_r, t_r0, dt, center, half, min_overlap):
     """Offset (tracker − robot time) maximising the normalised cross-correlation of speed profiles
     ``a`` (tracker grid from ``t_t0``) and ``b`` (robot grid from ``t_r0``), searched in
     ``center ± half``; parabolic sub-sample refinement. Returns (offset, peak NCC)."""
+    if a.size == 0 or b.size == 0 or m_t.sum() <= min_overlap or m_r.sum() <= min_overlap:
+        raise NoOverlapError("robot and tracker streams do not overlap in time within the offset search range",
+                             center_s=center, half_s=half)
     num = correlate(a, b, mode="full", method="fft")
     Ea = correlate(a * a, m_r, mode="full", method="fft")
     Eb = correlate(m_t, b * b, mode="full", method="fft")
@@ -219,7 +226,8 @@ def _ncc_offset(a, m_t, t_t0, b, m_r, t_r0, dt, center, half, min_overlap):
     offs = t_t0 - t_r0 + lags * dt
     keep = (np.abs(offs - center) <= half) & (overlap > min_overlap)
     if not keep.any():
-        raise StreamError("robot and tracker streams do not overlap in time within the offset search range")
+        raise NoOverlapError("robot and tracker streams do not overlap in time within the offset search range",
+                             center_s=center, half_s=half)
     den = np.sqrt(np.clip(Ea * Eb, 1e-300, None))
     ncc = np.where(keep, num / den, -np.inf)
     k = int(np.argmax(ncc))
@@ -284,8 +292,15 @@ def estimate_clock(t_robot, q_robot, t_tracker, p_tracker, robot=None, *, p_robo
     gap = _default_gap(t_t) if max_gap_s is None else float(max_gap_s)
     dt = float(grid_dt_s)
     b, m_r, a, m_t = _speed_profiles(t_r, p_r, t_t, p_t, gap, dt, smooth_s)
-    coarse, corr = _ncc_offset(a, m_t, t_t[0], b, m_r, t_r[0], dt, 0.0, max_offset_s,
-                               0.1 * min(m_t.sum(), m_r.sum()))
+    try:
+        coarse, corr = _ncc_offset(a, m_t, t_t[0], b, m_r, t_r[0], dt, 0.0, max_offset_s,
+                                   0.1 * min(m_t.sum(), m_r.sum()))
+    except NoOverlapError:
+        raise NoOverlapError(
+            f"robot and tracker streams do not overlap in time within the offset search range 0 ± {max_offset_s:g} s: "
+            f"robot log times {t_r[0]:.6g} to {t_r[-1]:.6g} s, tracker {t_t[0]:.6g} to {t_t[-1]:.6g} s (offset about "
+            f"{0.5 * (t_t[0] + t_t[-1] - t_r[0] - t_r[-1]):.6g} s?)", robot_range_s=(float(t_r[0]), float(t_r[-1])),
+            tracker_range_s=(float(t_t[0]), float(t_t[-1])), center_s=0.0, half_s=float(max_offset_s)) from None
     check_offset_inside(coarse, 0.0, max_offset_s, dt)
     t_ref = 0.5 * (t_r[0] + t_r[-1])
     if method == "speed":

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..io.dataset import Dataset, DatasetError, validate
+from ..io.dataset import LABEL_COLUMNS, Dataset, DatasetError, label_cells, validate
 from ..io.text_table import (
     TextTable,
     detect_delimiter,
@@ -33,6 +33,7 @@ from ..io.text_table import (
     split_lines,
     with_file_line,
 )
+from .orientation_names import check_orientation_names
 from .table_map import (
     ANGLE_UNITS_RAD,
     LENGTH_UNITS_M,
@@ -152,8 +153,11 @@ def guess_layout(path: str | Path, m: TableMap | None = None) -> dict:
                 continue
             if nxt and all(len(r) == width or (len(r) == width + 1 and not r[-1]) for r in nxt):
                 out = {"skip_rows": i, "delimiter": delim}
+                if not strict and all(c and not math.isnan(_num_or_nan(c.replace(",", "."), ".")) for c in head):
+                    out["header_row"] = 0  # the first line is numbers like the rows under it: no header
                 cells = [c for r in nxt for c in r]
-                if m.decimal == "." and delim != "," and any(re.fullmatch(r"[+-]?\d*,\d+", c) for c in cells):
+                # (comma-delimited: a cell holds a comma only when quoted, "-101,03" -- a decimal comma too)
+                if m.decimal == "." and any(re.fullmatch(r"[+-]?\d*,\d+", c) for c in cells):
                     out["decimal"] = ","
                 if units is not None:
                     out["drop_rows"] = [numbered[k + 1][0] + 1]
@@ -343,6 +347,8 @@ def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool 
     used: dict[str, str] = {}
     for names, role in roles:
         _require(t, names, role)
+    check_orientation_names(m, t.where)
+    for names, role in roles:
         for c in names:
             if c in used and role != "keep":
                 raise t.error(None, c, f"is mapped twice (as {used[c]} and as {role})")
@@ -382,8 +388,8 @@ def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool 
         extra["payload_kg"] = float_column(t, m.payload, d)
     if keep_all:
         keep.update({c: c for c in t.header if c not in used})
-    for c, new in keep.items():
-        extra[new] = lenient_column(t.col(c), d)
+    for c, new in keep.items():  # labels (station, tool, pose_id, pose) as written: "01" and "1" are two stations
+        extra[new] = label_cells(t.col(c)) if new in LABEL_COLUMNS else lenient_column(t.col(c), d)
     return MappedTable(t, q, jn, xyz, quat, P, time_s, extra)
 
 
