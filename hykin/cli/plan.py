@@ -34,6 +34,7 @@ def plan_cmd(
     region: str | None = typer.Option(None, "--region", help="Joint ranges lo:hi per joint, comma-separated (deg; ':' keeps a limit)."),
     box: str | None = typer.Option(None, "--box", help="Cartesian box for the reflector: xmin,ymin,zmin,xmax,ymax,zmax (world frame)."),
     tracker: str | None = typer.Option(None, "--tracker", help="Tracker position X,Y,Z (world frame): enables the line-of-sight test."),
+    max_tracker_distance: float = typer.Option(100.0, "--max-tracker-distance-m", help="Farthest tracker from the robot base (m): a farther --tracker is refused as a unit slip (laser trackers reach ~80 m).", min=0.0),
     max_incidence: float = typer.Option(30.0, "--max-incidence", help="Max angle (deg) between reflector axis and tracker direction (SMR ~30, 6-D probe ~45)."),
     reflector_offset: str = typer.Option("0,0,0", "--reflector-offset", help="Reflector point in the tool frame X,Y,Z."),
     reflector_axis: str = typer.Option("0,0,1", "--reflector-axis", help="Reflector normal in the tool frame."),
@@ -109,6 +110,7 @@ def plan_cmd(
             keep_out_m=[parse_box(b, f"--keep-out {k + 1}", length_unit) for k, b in enumerate(keep_out or [])],
             floor_z_m=None if floor is None else floor * f, body=body_check,
             link_radii_m=None if link_radii is None else _floats(link_radii, "--link-radii") * f,
+            max_tracker_distance_m=max_tracker_distance, length_unit=length_unit,
         ).check(rob)
         speeds = np.where(np.array([t == "revolute" for t in rob.independent_joint_type]), np.radians(speed), speed * 1e-3)
         if model is not None:
@@ -123,7 +125,7 @@ def plan_cmd(
     if c.tracker_m is None:
         con.print("note: no --tracker given: the line of sight to the tracker was not checked", highlight=False)
     if not body_check:
-        con.print("note: --no-body-check: self-collision, floor and keep-out boxes were not checked for the robot's body",
+        con.print("note: --no-body-check: the robot's body was not checked (self-collision, floor, keep-out boxes, tracker inside it)",
                   highlight=False)
     dropped, via = p.info.get("dropped", 0), p.info.get("via", 0)
     if dropped:

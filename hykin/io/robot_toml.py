@@ -66,6 +66,13 @@ def _frame(tbl: dict | None, where: str, L: float, A: float) -> np.ndarray:
 
 _JOINT_KEYS = ("a", "alpha", "d", "theta", "beta", "min", "max", "mass", "com", "stiffness", "type", "name")
 _MAX_LIMIT_TURNS = 2.0  # a revolute limit beyond two turns either way (±720°) under angle_unit = 'rad': degrees
+# Revolute limits that all lie within ±2π "degrees" (±6.2832, plus rounding of the last written digit)
+# under angle_unit = 'deg' are radians: no arm's every joint turns by less than 6.3°. Only tested with at
+# least _RAD_LIMITS_MIN_JOINTS revolute joints each spanning at least _RAD_LIMITS_MIN_SPAN (57° if
+# radians), the shape of a real arm's limits written in radians; sub-degree test robots are left alone.
+_RAD_LIMITS_AS_DEG = 2 * math.pi + 1e-3
+_RAD_LIMITS_MIN_JOINTS = 3
+_RAD_LIMITS_MIN_SPAN = 1.0
 _TOP_KEYS = ("name", "convention", "length_unit", "angle_unit", "joints", "tool", "base", "payload", "gravity", "source")
 # Geometry a user must write for every joint: a silently defaulted link length or twist is a wrong
 # robot. ``theta`` (the joint offset) and ``beta`` default to 0, the usual reading of a DH table
@@ -182,6 +189,8 @@ def robot_from_dict(doc: dict, where: str = "<robot>") -> Robot:
             frac = {1: "π/4", 2: "π/2", 3: "3π/4", 4: "π", 5: "5π/4", 6: "3π/2", 7: "7π/4", 8: "2π"}[n4]
             raise RobotFileError(f"{where}: {labels[k]}: {fixed[k]:.8g} deg is {'-' if fixed[k] < 0 else ''}{frac} to 1e-5: "
                                  f"a radian value under angle_unit = 'deg' (write it in degrees)")
+    if au == "deg":
+        _check_limits_not_radians(where, types, cols["min"], cols["max"])
     payload = _number(doc.get("payload", 0.0), f"{where}: payload")
     if not payload >= 0:
         raise RobotFileError(f"{where}: payload = {payload:g}: must be a mass >= 0 (kg)")
@@ -209,6 +218,23 @@ def robot_from_dict(doc: dict, where: str = "<robot>") -> Robot:
         gravity_base=gravity,
         source=str(doc.get("source", "")),
     )
+
+
+def _check_limits_not_radians(where: str, types, lower_rad, upper_rad) -> None:
+    """Refuse revolute limits (rad, read from degrees) that all lie within ±2π degrees: radian values under
+    angle_unit = 'deg' (±2.967 "deg" for ±170°), which would plan and calibrate a sliver of the workspace.
+    Tested when at least 3 revolute joints each span at least 1 "degree" (module constants)."""
+    rev = [i for i, t in enumerate(types) if t == "revolute"]
+    if len(rev) < _RAD_LIMITS_MIN_JOINTS:
+        return
+    lo, hi = np.degrees(np.asarray(lower_rad)[rev]), np.degrees(np.asarray(upper_rad)[rev])
+    lim = np.abs(np.concatenate([lo, hi]))
+    if lim.max() <= _RAD_LIMITS_AS_DEG and np.min(hi - lo) >= _RAD_LIMITS_MIN_SPAN:
+        i = int(np.argmax(lim))
+        key = f"joints[{rev[i % len(rev)] + 1}].{'min' if i < len(rev) else 'max'}"
+        raise RobotFileError(f"{where}: {key}: every revolute joint limit lies within ±{2 * math.pi:.4f} "
+                             f"(largest {lim.max():.6g} deg): the limits look like radians under angle_unit = 'deg' "
+                             f"(write them in degrees, or set angle_unit = 'rad')")
 
 
 def load_robot_toml(path: str | Path) -> Robot:

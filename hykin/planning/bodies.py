@@ -24,7 +24,8 @@ floor when it touches the floor in at least 95 % of them (the base column and th
 floor-mounted robot stand on it). Everything else must keep clear in every checked configuration.
 
 Keep-out boxes are tested with the body sampled every half radius along each segment and the box
-grown by the radius (conservative by at most a few percent of the radius).
+grown by the radius (conservative by at most a few percent of the radius). Points (the tracker) are
+tested by their distance to each capsule's segments (:func:`point_clearance`).
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ import numpy as np
 from ..kinematics.fk import fk_frames
 from ..kinematics.robot import Robot, robot_reach_m
 
-__all__ = ["BodyModel", "body_clear", "body_model", "body_segments", "segment_distance"]
+__all__ = ["BodyModel", "body_clear", "body_model", "body_name", "body_segments", "point_clearance", "segment_distance"]
 
 _TOOL_RADIUS_M = 0.02
 #: a pair (or a body and the floor) touching in at least this share of spread configurations overlaps by
@@ -164,9 +165,10 @@ def body_model(robot: Robot, radii_m=None, floor_z_m: float | None = None, n_str
 
 
 def body_clear(robot: Robot, q, bm: BodyModel, floor_z_m: float | None = None, keep_out_m=(),
-               chunk: int = 4096) -> np.ndarray:
-    """``(N,)`` bool: the body (capsules of ``bm``) clears the floor, the keep-out boxes and itself at
-    each configuration of ``q`` ``(N, dof)``. Evaluated in chunks of ``chunk`` configurations."""
+               chunk: int = 4096, points_m=()) -> np.ndarray:
+    """``(N,)`` bool: the body (capsules of ``bm``) clears the floor, the keep-out boxes, the points
+    ``points_m`` (``(3,)`` each, m, world frame: the tracker) and itself at each configuration of ``q``
+    ``(N, dof)``. Evaluated in chunks of ``chunk`` configurations."""
     q = np.asarray(q, dtype=np.float64).reshape(-1, robot.dof)
     ok = np.ones(len(q), bool)
     for s in range(0, len(q), chunk):
@@ -178,6 +180,8 @@ def body_clear(robot: Robot, q, bm: BodyModel, floor_z_m: float | None = None, k
             good &= np.all(_floor_clearance(seg, body, bm.radii_m, floor_z_m)[:, bm.floor_bodies] >= 0, axis=1)
         for box in keep_out_m:
             good &= ~_hits_box(seg, body, bm.radii_m, np.asarray(box, dtype=np.float64))
+        for pt in points_m:
+            good &= np.all(_point_clearance(seg, body, bm.radii_m, pt) >= 0, axis=1)
         ok[s : s + chunk] = good
     return ok
 
@@ -197,3 +201,27 @@ def _hits_box(seg: np.ndarray, body: np.ndarray, radii: np.ndarray, box: np.ndar
         inside = np.all((pts >= box[0] - r) & (pts <= box[1] + r), axis=-1)
         hit |= inside.reshape(len(seg), -1).any(axis=1)
     return hit
+
+
+def _point_clearance(seg: np.ndarray, body: np.ndarray, radii: np.ndarray, point) -> np.ndarray:
+    """``(N, B)`` distance (m) from ``point`` to the surface of each capsule (< 0: inside)."""
+    pt = np.asarray(point, dtype=np.float64).reshape(3)
+    d = segment_distance(seg[..., 0, :], seg[..., 1, :], pt, pt)  # (N, S)
+    out = np.empty((seg.shape[0], len(radii)))
+    for b in range(len(radii)):
+        out[:, b] = d[:, body == b].min(axis=1) - radii[b]
+    return out
+
+
+def point_clearance(robot: Robot, q, bm: BodyModel, point) -> np.ndarray:
+    """``(N, B)`` distance (m) from ``point`` (``(3,)``, world frame) to each capsule of ``bm`` at the
+    configurations ``q`` ``(N, dof)``; negative: the point lies that deep inside the body."""
+    seg, body = body_segments(robot, q)
+    return _point_clearance(seg, body, bm.radii_m, point)
+
+
+def body_name(robot: Robot, b: int) -> str:
+    """Name of body ``b`` of the capsule model: "base column", "link k" or "tool"."""
+    if b == 0:
+        return "base column"
+    return "tool" if b == robot.n_chain + 1 else f"link {b}"

@@ -12,7 +12,12 @@ A pose ``q`` is *feasible* for a :class:`Constraints` when
   ``p`` crosses no keep-out box;
 * the reflector point is inside no keep-out box;
 * the robot's body (capsules along the chain, :mod:`.bodies`) clears itself, the floor plane
-  ``z = floor_z_m`` (world frame) and the keep-out boxes (``body``, on by default).
+  ``z = floor_z_m`` (world frame), the keep-out boxes and the tracker point (``body``, on by default).
+
+Refused up front by :meth:`Constraints.check`, before any candidate is drawn: a tracker farther than
+``max_tracker_distance_m`` (:data:`MAX_TRACKER_DISTANCE_M`, 100 m) from the robot base (a unit slip),
+inside a keep-out box, or inside the robot's body in every pose of the region; a Cartesian box whose
+nearest point lies beyond the robot's reach.
 
 The robot's own links are **not** checked as obstacles of the beam; a user who needs it adds
 keep-out boxes around fixed obstacles, and the incidence cone already removes most self-occlusion
@@ -25,16 +30,19 @@ joint deflection moves the TCP by millimetres, far below what changes an inciden
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..kinematics.fk import fk
-from ..kinematics.robot import Robot
-from .bodies import BodyModel, body_clear, body_model
+from ..kinematics.robot import Robot, robot_reach_m
+from .bodies import BodyModel, body_clear, body_model, body_name, point_clearance
 
 __all__ = [
+    "MAX_TRACKER_DISTANCE_M",
     "Constraints",
+    "check_box_reach",
+    "check_tracker",
     "PlanningError",
     "feasible",
     "incidence_deg",
@@ -44,6 +52,12 @@ __all__ = [
     "region_bounds",
     "segment_hits_box",
 ]
+
+
+#: Farthest tracker from the robot base (m): laser trackers measure out to about 80 m radius (e.g. 160 m
+#: diameter with an SMR), cameras and 6-D probes much less, so a tracker beyond 100 m is a unit slip
+#: (millimetres given as metres) or a wrong frame. ``Constraints.max_tracker_distance_m`` lifts it.
+MAX_TRACKER_DISTANCE_M = 100.0
 
 
 class PlanningError(ValueError):
@@ -61,7 +75,9 @@ class Constraints:
     in the tool frame. keep_out_m: list of ``(2, 3)`` boxes. min_range_m: closest tracker distance.
     floor_z_m: floor height (world frame) or None. body: check the robot's body (self-collision,
     floor, keep-out boxes). link_radii_m: ``(n_chain + 2,)`` capsule radii or None (estimated,
-    :mod:`.bodies`). bodies: the capsule model, set by :meth:`check`.
+    :mod:`.bodies`). bodies: the capsule model, set by :meth:`check`. max_tracker_distance_m: farthest
+    tracker from the robot base (m; default :data:`MAX_TRACKER_DISTANCE_M`, ``inf`` lifts it). length_unit:
+    the unit the user typed lengths in ("m" or "mm"), for the hints of messages only.
     """
 
     lower: np.ndarray | None = None
@@ -77,24 +93,30 @@ class Constraints:
     body: bool = True
     link_radii_m: np.ndarray | None = None
     bodies: BodyModel | None = None
+    max_tracker_distance_m: float = MAX_TRACKER_DISTANCE_M
+    length_unit: str = "m"
 
     def check(self, robot: Robot) -> Constraints:
-        """Validated copy with the region resolved against ``robot`` (raises :class:`PlanningError`)."""
+        """Validated copy with the region resolved against ``robot`` (raises :class:`PlanningError`).
+
+        Refused before any sampling: a tracker farther than ``max_tracker_distance_m`` from the robot
+        base, inside a keep-out box or inside the robot's body in every pose of the region, and a
+        Cartesian box beyond the robot's reach (:func:`check_tracker`, :func:`check_box_reach`)."""
         lo, hi = region_bounds(robot, self.lower, self.upper)
         box = None if self.box_m is None else _box(self.box_m, "box")
         tr = None
         if self.tracker_m is not None:
             tr = np.asarray(self.tracker_m, dtype=np.float64).reshape(-1)
             if tr.shape != (3,) or not np.isfinite(tr).all():
-                raise PlanningError(f"tracker position must be 3 finite numbers (m), got {self.tracker_m!r}")
+                raise PlanningError(f"tracker position must be 3 finite numbers (m), got {_plain(self.tracker_m)}")
         if not (0.0 < float(self.max_incidence_deg) <= 90.0):
             raise PlanningError(f"max incidence must be in (0, 90] deg, got {self.max_incidence_deg}")
         ax = np.asarray(self.reflector_axis, dtype=np.float64).reshape(-1)
         if ax.shape != (3,) or not np.linalg.norm(ax) > 0:
-            raise PlanningError(f"reflector axis must be a non-zero 3-vector, got {self.reflector_axis!r}")
+            raise PlanningError(f"reflector axis must be a non-zero 3-vector, got {_plain(self.reflector_axis)}")
         off = np.asarray(self.reflector_offset_m, dtype=np.float64).reshape(-1)
         if off.shape != (3,) or not np.isfinite(off).all():
-            raise PlanningError(f"reflector offset must be 3 finite numbers (m), got {self.reflector_offset_m!r}")
+            raise PlanningError(f"reflector offset must be 3 finite numbers (m), got {_plain(self.reflector_offset_m)}")
         ko = [_box(b, f"keep-out box {k + 1}") for k, b in enumerate(self.keep_out_m)]
         floor = None if self.floor_z_m is None else float(self.floor_z_m)
         if floor is not None and not np.isfinite(floor):
@@ -105,9 +127,75 @@ class Constraints:
                 bodies = body_model(robot, self.link_radii_m, floor)
             except ValueError as e:
                 raise PlanningError(str(e)) from None
-        return Constraints(lo, hi, box, tr, float(self.max_incidence_deg), off, ax / np.linalg.norm(ax), ko,
-                           float(self.min_range_m), floor, bool(self.body), None if bodies is None else bodies.radii_m,
-                           bodies)
+        if box is not None:
+            check_box_reach(robot, box, off, self.length_unit)
+        if tr is not None:
+            check_tracker(robot, tr, ko, bodies, lo, hi, self.max_tracker_distance_m, self.length_unit)
+        return replace(self, lower=lo, upper=hi, box_m=box, tracker_m=tr, max_incidence_deg=float(self.max_incidence_deg),
+                       reflector_offset_m=off, reflector_axis=ax / np.linalg.norm(ax), keep_out_m=ko,
+                       min_range_m=float(self.min_range_m), floor_z_m=floor, body=bool(self.body),
+                       link_radii_m=None if bodies is None else bodies.radii_m, bodies=bodies)
+
+
+def _plain(v) -> str:
+    """Numbers of ``v`` as plain text ``"0, 0, 0"`` (no numpy repr in a message)."""
+    try:
+        return ", ".join(f"{float(x):g}" for x in np.ravel(np.asarray(v, dtype=np.float64)))
+    except (TypeError, ValueError):
+        return repr(v)
+
+
+def check_tracker(robot: Robot, tracker_m: np.ndarray, keep_out_m, bodies: BodyModel | None, lower, upper,
+                  max_distance_m: float | None = MAX_TRACKER_DISTANCE_M, length_unit: str = "m",
+                  n_poses: int = 256) -> None:
+    """Refuse (:class:`PlanningError`) a tracker position (m, world frame) that no plan can use: farther
+    than ``max_distance_m`` from the robot base (None: no bound), inside a keep-out box (every beam
+    crosses it), or inside the robot's body (capsules of ``bodies``) in each of ``n_poses`` spread
+    poses of the region ``[lower, upper]`` (the base column is fixed: a tracker in it is always inside).
+    ``length_unit``: the unit the user typed lengths in, for the hint of the message only."""
+    base = robot.base[:3, 3]
+    dist = float(np.linalg.norm(tracker_m - base))
+    if max_distance_m is not None and dist > max_distance_m:
+        hint = ("millimetres given as metres? use --length-unit mm" if length_unit == "m"
+                else "no laser tracker or camera measures that far")
+        raise PlanningError(f"--tracker is {dist:.6g} m from the robot base, farther than the {max_distance_m:g} m "
+                            f"any laser tracker or camera reaches (--max-tracker-distance-m lifts it): {hint}")
+    for k, b in enumerate(keep_out_m):
+        if np.all((tracker_m >= b[0]) & (tracker_m <= b[1])):
+            raise PlanningError(f"the tracker lies inside keep-out box {k + 1}: every beam would cross it "
+                                f"(move the tracker or the box)")
+    if bodies is None:
+        return
+    from ..sim.sampling import uniform
+
+    q = uniform(robot, n_poses, np.random.default_rng([0, 43]), lower=lower, upper=upper)
+    cl = point_clearance(robot, q, bodies, tracker_m)  # (N, B), < 0 inside
+    if np.all(cl.min(axis=1) < 0):
+        i = int(np.argmax(cl.min(axis=1)))  # the pose where it is least deep inside
+        b = int(np.argmin(cl[i]))
+        raise PlanningError(f"the tracker lies {-cl[i, b]:.3g} m inside the robot's {body_name(robot, b)} (capsule radius "
+                            f"{bodies.radii_m[b]:.3g} m, --link-radii) in every pose of the region: give a tracker "
+                            f"position outside the robot, in the world frame ([base] of the robot file applied)")
+
+
+def check_box_reach(robot: Robot, box_m: np.ndarray, reflector_offset_m=None, length_unit: str = "m") -> None:
+    """Refuse (:class:`PlanningError`) a Cartesian box (m, world frame) whose nearest point is farther
+    from the robot base than the robot reaches (:func:`robot_reach_m` plus the reflector offset).
+    ``length_unit``: the unit the user typed lengths in, for the hint of the message only."""
+    base = robot.base[:3, 3]
+    off = 0.0 if reflector_offset_m is None else float(np.linalg.norm(reflector_offset_m))
+    reach = robot_reach_m(robot) + off
+    dist = _box_distance(base, box_m)
+    if dist > reach:
+        slip = length_unit == "m" and _box_distance(base, box_m * 1e-3) <= reach
+        raise PlanningError(f"no pose can meet the constraints: the --box's nearest point is {dist:.4g} m from the robot "
+                            f"base, beyond its reach of {reach:.4g} m (box in the world frame, [base] applied"
+                            + ("; millimetres given as metres? use --length-unit mm)" if slip else ")"))
+
+
+def _box_distance(p: np.ndarray, box_m: np.ndarray) -> float:
+    """Distance (m) from point ``p`` to the nearest point of the box ``(2, 3)`` (0 inside)."""
+    return float(np.linalg.norm(np.clip(p, box_m[0], box_m[1]) - p))
 
 
 def _box(b, what: str) -> np.ndarray:
@@ -120,19 +208,31 @@ def _box(b, what: str) -> np.ndarray:
     return a
 
 
-def region_bounds(robot: Robot, lower=None, upper=None) -> tuple[np.ndarray, np.ndarray]:
-    """``(lower, upper)`` ``(dof,)`` of the working region, checked to lie within the joint limits."""
+def region_bounds(robot: Robot, lower=None, upper=None, angle_unit: str = "rad") -> tuple[np.ndarray, np.ndarray]:
+    """``(lower, upper)`` ``(dof,)`` of the working region, checked to lie within the joint limits.
+
+    ``angle_unit`` ("rad" or "deg"): the unit the user typed revolute ranges in, for messages only
+    (the bounds are rad, m for prismatic joints)."""
     lo = robot.lower.copy() if lower is None else np.asarray(lower, dtype=np.float64).reshape(-1)
     hi = robot.upper.copy() if upper is None else np.asarray(upper, dtype=np.float64).reshape(-1)
     if lo.shape != (robot.dof,) or hi.shape != (robot.dof,):
         raise PlanningError(f"region: expected {robot.dof} joint ranges, got {lo.size}")
     for j in range(robot.dof):
+        f, u = _joint_unit(robot, j, angle_unit)
+        rng = f"[{lo[j] * f:.6g}, {hi[j] * f:.6g}] {u}"
         if not (np.isfinite(lo[j]) and np.isfinite(hi[j]) and lo[j] < hi[j]):
-            raise PlanningError(f"region: joint {j + 1} range [{lo[j]:.6g}, {hi[j]:.6g}] is empty or not finite")
+            raise PlanningError(f"region: joint {j + 1} range {rng} is empty or not finite")
         if lo[j] < robot.lower[j] - 1e-9 or hi[j] > robot.upper[j] + 1e-9:
-            raise PlanningError(f"region: joint {j + 1} range [{lo[j]:.6g}, {hi[j]:.6g}] exceeds the joint limits "
-                                f"[{robot.lower[j]:.6g}, {robot.upper[j]:.6g}]")
+            raise PlanningError(f"region: joint {j + 1} range {rng} exceeds the joint limits "
+                                f"[{robot.lower[j] * f:.6g}, {robot.upper[j] * f:.6g}] {u}")
     return np.maximum(lo, robot.lower), np.minimum(hi, robot.upper)
+
+
+def _joint_unit(robot: Robot, j: int, angle_unit: str) -> tuple[float, str]:
+    """Factor from SI to the display unit of independent joint ``j``, and the unit's name."""
+    if robot.independent_joint_type[j] != "revolute":
+        return 1.0, "m"
+    return (180.0 / np.pi, "deg") if angle_unit == "deg" else (1.0, "rad")
 
 
 def reflector_pose(robot: Robot, q, c: Constraints) -> tuple[np.ndarray, np.ndarray]:
@@ -191,7 +291,8 @@ def feasible(robot: Robot, q, c: Constraints) -> np.ndarray:
                 ok &= ~segment_hits_box(np.broadcast_to(c.tracker_m, p.shape), p, b)
     rows = np.flatnonzero(ok)  # the body test, the costliest, only where everything else holds
     if c.bodies is not None and rows.size:
-        ok[rows] = body_clear(robot, q[rows], c.bodies, c.floor_z_m, c.keep_out_m)
+        ok[rows] = body_clear(robot, q[rows], c.bodies, c.floor_z_m, c.keep_out_m,
+                              points_m=() if c.tracker_m is None else (c.tracker_m,))
     elif c.floor_z_m is not None and rows.size:  # no body model: at least the TCP stays above the floor
         ok[rows] = fk(robot, q[rows])[:, 2, 3] >= c.floor_z_m
     return ok
@@ -236,4 +337,4 @@ def parse_region(robot: Robot, text: str, angle_unit: str = "deg") -> tuple[np.n
                 hi[j] = float(b) * f
         except ValueError:
             raise PlanningError(f"region: joint {j + 1}: not a number in {s!r}") from None
-    return region_bounds(robot, lo, hi)
+    return region_bounds(robot, lo, hi, angle_unit)

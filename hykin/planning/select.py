@@ -118,12 +118,13 @@ class Plan:
 
 
 def _move_check(robot: Robot, c: Constraints):
-    """``(M, dof) -> (M,) bool`` for configurations met while moving (body, floor, keep-out), or None."""
+    """``(M, dof) -> (M,) bool`` for configurations met while moving (body, floor, keep-out, tracker), or None."""
     from ..kinematics.fk import fk
     from .bodies import body_clear
 
     if c.bodies is not None:
-        return lambda Q: body_clear(robot, Q, c.bodies, c.floor_z_m, c.keep_out_m)
+        pts = () if c.tracker_m is None else (c.tracker_m,)
+        return lambda Q: body_clear(robot, Q, c.bodies, c.floor_z_m, c.keep_out_m, points_m=pts)
     if c.floor_z_m is not None:
         return lambda Q: fk(robot, Q)[:, 2, 3] >= c.floor_z_m
     return None
@@ -262,11 +263,22 @@ def candidate_pool(robot: Robot, c: Constraints, n_needed: int, seed: int = 0, p
         ok = feasible(robot, q, c)
         if ok.sum() >= max(2 * n_needed, pool // 4) or size >= max_pool:
             if ok.sum() < n_needed:
-                raise PlanningError(
-                    f"only {int(ok.sum())} of {size} candidate poses meet the constraints (region, box, line of sight, "
-                    f"keep-out) for {n_needed} poses: relax them (e.g. --max-incidence, --box, tracker position)")
+                raise PlanningError(_too_few_message(int(ok.sum()), size, n_needed))
             return q[ok], size
         size = min(4 * size, max_pool)
+
+
+def _too_few_message(n_ok: int, size: int, n_needed: int) -> str:
+    """One-line refusal when ``n_ok`` of ``size`` candidates are feasible and ``n_needed`` are needed:
+    names the constraints and ``--pool``, with a pool size expected to hold the poses needed with a 25 % margin."""
+    what = "(region, box, line of sight, keep-out, body)"
+    relax = "relax them (e.g. --max-incidence, --box, tracker position)"
+    if n_ok == 0:
+        return (f"only 0 of {size} candidate poses meet the constraints {what} for {n_needed} poses: {relax}; "
+                f"a larger --pool than {size} draws more candidates but is unlikely to help when none passed")
+    more = int(np.ceil(size * 1.25 * n_needed / n_ok / 1000.0)) * 1000
+    return (f"only {n_ok} of {size} candidate poses meet the constraints {what} for {n_needed} poses: draw more "
+            f"candidates (--pool {more} should hold enough) or {relax}")
 
 
 def plan_poses(robot: Robot, n: int, constraints: Constraints | None = None, *, seed: int = 0, pool: int = 20_000,
