@@ -25,6 +25,11 @@ _SPIN = typer.Option(False, "--spin", help="Poll the socket without sleeping: no
                      "(for a core set aside for the bridge).")
 _MAX_MM = typer.Option(50.0, "--max-correction-mm", metavar="MM", help="A larger correction is a failure (answered neutrally).")
 _MAX_DEG = typer.Option(5.0, "--max-correction-deg", metavar="DEG", help="A larger rotation correction is a failure.")
+_MIS_MM = typer.Option(20.0, "--max-mismatch-mm", metavar="MM", help="The controller's actual pose (RSI RIst, EGM "
+                       "feedBack.cartesian) farther than this from the nominal FK of its axes is a set-up error (axis "
+                       "signs, robot file, tool or base frame): a failure (answered neutrally). Well above the nominal "
+                       "model's own error of a few mm.")
+_MIS_DEG = typer.Option(2.0, "--max-mismatch-deg", metavar="DEG", help="As --max-mismatch-mm, for the rotation.")
 _SIGNS = typer.Option(None, "--axis-signs", metavar="S1,..,SN", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the "
                       "robot preset: -1,1,1,-1,1,-1 for kuka-kr*, else +1).")
 
@@ -64,8 +69,19 @@ def _bridge_setup(model: str, listen: str, controller: str | None, frame: str, m
     return mdl, comp, sock, ctrl, signs, (mdl.nominal.base if comp.frame == "measurement" else np.eye(4))
 
 
+def _nominal_fk(nominal):
+    """``q -> (4, 4)``: the nominal TCP pose in the controller's base frame (what RIst / feedBack.cartesian hold)."""
+    import numpy as np
+
+    from ..geometry import se3
+    from ..kinematics.fk import fk
+
+    base_inv = se3.invert(np.asarray(nominal.base, dtype=np.float64))
+    return lambda q: base_inv @ fk(nominal, np.asarray(q, dtype=np.float64))
+
+
 def _serve(name: str, sock, handler, period_ms: float, max_failures: int, ctrl, idle_exit_s: float, rt_priority: int,
-           spin: bool) -> None:
+           spin: bool, extra=None) -> None:
     from ..realtime.udp_bridge import raise_priority, run_bridge
 
     if spin:  # a SCHED_FIFO thread that never sleeps is throttled by the kernel (sched_rt_runtime_us): pauses
@@ -75,7 +91,7 @@ def _serve(name: str, sock, handler, period_ms: float, max_failures: int, ctrl, 
     with sock:
         st = run_bridge(sock, handler, period_s=period_ms / 1e3, max_failures=max_failures, controller=ctrl,
                         idle_exit_s=idle_exit_s, spin=spin)
-    typer.echo(f"hykin {name}: {st.stopped}; {st.summary()}")
+    typer.echo(f"hykin {name}: {st.stopped}; {st.summary()}{extra() if extra else ''}")
     if "consecutive failures" in st.stopped:
         raise typer.Exit(3)
 
@@ -89,12 +105,20 @@ def _bridge_command(name: str, period_help: str, extra: tuple = ()):
         ("controller", str | None, _CONTROLLER), ("frame", str, _FRAME), ("axis_signs", str | None, _SIGNS),
         ("period_ms", float, typer.Option(4.0, "--period-ms", metavar="MS", help=period_help)),
         ("max_failures", int, _MAX_FAILURES), ("max_correction_mm", float, _MAX_MM),
-        ("max_correction_deg", float, _MAX_DEG), ("idle_exit_s", float, _IDLE), ("rt_priority", int, _RT),
+        ("max_correction_deg", float, _MAX_DEG), ("max_mismatch_mm", float, _MIS_MM), ("max_mismatch_deg", float, _MIS_DEG),
+        ("idle_exit_s", float, _IDLE), ("rt_priority", int, _RT),
         ("spin", bool, _SPIN), ("payload_kg", float | None, PayloadKg))
 
     def register(fn):
         def cmd(**kw) -> None:
             check_rt_priority(kw["rt_priority"])  # before the model is loaded and the socket bound
+            from ..realtime.udp_bridge import check_limits
+
+            try:
+                check_limits(**{k: kw[k] for k in ("max_correction_mm", "max_correction_deg", "max_mismatch_mm",
+                                                    "max_mismatch_deg", "idle_exit_s")})
+            except ValueError as e:
+                raise CLIError(str(e)) from None
             fn(**kw)
 
         cmd.__name__, cmd.__doc__ = f"{name}_cmd", fn.__doc__
@@ -113,7 +137,7 @@ def _bridge_command(name: str, period_help: str, extra: tuple = ()):
     ("mode", str | None, typer.Option(None, "--mode", metavar="absolute|incremental", help="absolute or incremental "
                                       "correction (default: the config's, else absolute); must match RSI's POSCORR object."))))
 def rsi_cmd(model, listen, config, mode, controller, frame, axis_signs, period_ms, max_failures, max_correction_mm,
-            max_correction_deg, idle_exit_s, rt_priority, spin, payload_kg) -> None:
+            max_correction_deg, max_mismatch_mm, max_mismatch_deg, idle_exit_s, rt_priority, spin, payload_kg) -> None:
     """KUKA RSI Ethernet peer: answers each <Rob> message with the RKorr that puts the real robot on the setpoint."""
     from ..realtime.rsi import RsiHandler
     from ..realtime.rsi_xml import RsiConfig, read_config
@@ -125,19 +149,29 @@ def rsi_cmd(model, listen, config, mode, controller, frame, axis_signs, period_m
     except ValueError as e:
         raise CLIError(str(e)) from None
     mdl, comp, sock, ctrl, signs, base = _bridge_setup(model, listen, controller, frame, max_failures, period_ms, axis_signs, payload_kg)
-    h = RsiHandler(comp.step, base, mdl.nominal.dof, signs, cfg, period_ms, max_correction_mm, max_correction_deg)
+    h = RsiHandler(comp.step, base, mdl.nominal.dof, signs, cfg, period_ms, max_correction_mm, max_correction_deg,
+                   _nominal_fk(mdl.nominal), max_mismatch_mm, max_mismatch_deg)
+
+    def extra() -> str:
+        out = f"; RIst checked in {h.mismatch_checked} cycles (largest gap to FK(AIPos) {h.mismatch_max[0]:.3g} mm / " \
+              f"{h.mismatch_max[1]:.3g} deg)" if h.mismatch_checked else "; RIst not sent: not checked"
+        if h.incremental:
+            out += f"; new RSI contexts {h.new_sessions}, answers the controller did not apply {h.lost_answers} (re-synchronised)"
+        return out
+
     typer.echo(f"hykin rsi: {mdl.nominal.name} on udp://{listen} ({cfg.mode}, <Sen Type=\"{cfg.sen_type}\"> "
                f"<{cfg.korr_tag}>, frame {comp.frame})")
-    _serve("rsi", sock, h, period_ms, max_failures, ctrl, idle_exit_s, rt_priority, spin)
+    _serve("rsi", sock, h, period_ms, max_failures, ctrl, idle_exit_s, rt_priority, spin, extra)
 
 
 @_bridge_command("egm", "EGM cycle, ms: answers later than this count as late.")
 def egm_cmd(model, listen, controller, frame, axis_signs, period_ms, max_failures, max_correction_mm, max_correction_deg,
-            idle_exit_s, rt_priority, spin, payload_kg) -> None:
+            max_mismatch_mm, max_mismatch_deg, idle_exit_s, rt_priority, spin, payload_kg) -> None:
     """ABB EGM peer (pose guidance): answers each EgmRobot with the pose that puts the real robot on the planned one."""
     from ..realtime.egm import EgmHandler
 
     mdl, comp, sock, ctrl, signs, base = _bridge_setup(model, listen, controller, frame, max_failures, period_ms, axis_signs, payload_kg)
-    h = EgmHandler(comp.step, base, mdl.nominal.dof, signs, max_correction_mm, max_correction_deg)
+    h = EgmHandler(comp.step, base, mdl.nominal.dof, signs, max_correction_mm, max_correction_deg,
+                   _nominal_fk(mdl.nominal), max_mismatch_mm, max_mismatch_deg)
     typer.echo(f"hykin egm: {mdl.nominal.name} on udp://{listen} (pose guidance, frame {comp.frame})")
     _serve("egm", sock, h, period_ms, max_failures, ctrl, idle_exit_s, rt_priority, spin)

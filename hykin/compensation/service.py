@@ -10,10 +10,13 @@ Endpoints (SI units: m, rad; poses as ``[x, y, z, qw, qx, qy, qz]``):
 * ``POST /fk`` ``{"q": [[q1..qn], ...]}`` → ``{"poses": [...], "in_support": [...]}``
 * ``POST /ik`` ``{"targets": [[x,y,z,qw,qx,qy,qz] or [x,y,z], ...], "q_current": [[..]] or [..]}`` →
   per target the hybrid-IK solution nearest ``q_current`` (default zero): ``q`` (null when
-  unreachable), ``success``, ``pos_err_mm``, ``ang_err_deg``, ``reason``.
+  unreachable), ``success``, ``pos_err_mm``, ``ang_err_deg``, ``reason`` (the CLI's), ``in_support``,
+  ``support_distance``, ``outside_support`` and a ``warning`` when targets lie outside the training support.
 * ``POST /compensate`` ``{"targets": ..., "q_current": optional, "frame": "measurement"|"base"|"auto"}``
   → ``commands`` (controller base frame, null when unreachable), ``q``, ``success``, ``pos_err_mm``,
-  ``ang_err_deg``, ``shift_mm``, ``status``, ``frame``.
+  ``ang_err_deg``, ``shift_mm``, ``status``, ``frame``, and the support fields of ``/ik``.
+* Joints (``q``, ``q_current``) get the CLI's checks (degrees passed as radians, joint limits) and
+  targets a unit check (over 50 reaches from the base: millimetres): 422 naming field, row, column.
 * ``WebSocket /stream[?frame=...]``: one JSON message per target,
   ``{"target": [x,y,z,qw,qx,qy,qz], "q": [..joints..], "id": any}`` (``q``: the robot's current
   joints, which choose the branch; optional after the first answered target, then the last answer's
@@ -25,11 +28,12 @@ Endpoints (SI units: m, rad; poses as ``[x, y, z, qw, qx, qy, qz]``):
 Refusals (:mod:`.service_guard`; limits in :class:`~hykin.compensation.service_guard.ServiceLimits`):
 400 malformed JSON or header, 401 missing/wrong bearer token (``WWW-Authenticate: Bearer``), 413 body
 over the size limit (refused from its ``Content-Length`` before it is read; the connection is closed),
-422 wrong fields/shapes/values, 503 the model queue is full (``Retry-After: 1``) or too many open
-connections (uvicorn's own, at once). Every HTTP refusal is a JSON ``{"detail": reason}`` answered
+422 wrong fields/shapes/values, 503 the model queue is full (``Retry-After: 1``) or more than
+``max_connections`` requests and streams in progress (:class:`ConnectionLimit`, ``Retry-After: 1``,
+counted as ``refused_connections``). Every HTTP refusal is a JSON ``{"detail": reason}`` answered
 after ``refusal_delay_s`` (0.1 s): a client flooding bad requests is slowed to ``max_connections /
-refusal_delay_s`` requests/s. WebSocket: the handshake is refused with 403 (close code 1008) on a
-wrong token or frame; a message over the size limit closes the stream with 1009. Checks run on the
+refusal_delay_s`` requests/s. WebSocket: the handshake is refused with 403 and a JSON reason on a
+wrong token or ``frame`` parameter; a message over the size limit closes the stream with 1009. Checks run on the
 event loop and never wait for the model. Model calls run on one thread, streaming steps before
 queued batches; a streaming step runs at once on the event loop when the model is idle.
 
@@ -50,7 +54,7 @@ import orjson
 from .service_guard import BATCH, STREAM, BodyTooLarge, ModelWorker, QueueFull, ServiceLimits, model_identity, read_body, token_ok
 from .service_requests import Handlers, RequestError
 
-__all__ = ["MAX_TARGETS", "RequestError", "create_app", "serve", "uvicorn_config"]
+__all__ = ["MAX_TARGETS", "ConnectionLimit", "RequestError", "create_app", "serve", "uvicorn_config"]
 
 MAX_TARGETS = ServiceLimits.max_targets
 _INLINE_BYTES = 64 * 1024  # bodies up to this size are parsed on the event loop, larger ones in a thread
@@ -154,6 +158,7 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
         worker.close()
 
     app = FastAPI(title="hykin compensation service", version=__version__, lifespan=lifespan)
+    app.add_middleware(ConnectionLimit, limit=limits.max_connections, counts=counts)
 
     async def _refuse(status: int, detail: str, kind: str, headers: dict | None = None):
         counts[f"refused_{kind}"] += 1
@@ -214,11 +219,20 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
     @app.websocket("/stream")
     async def stream(ws: WebSocket):
         frame = ws.query_params.get("frame", "measurement")
-        if not token_ok(ws.headers, limits.token) or frame not in h.frames:
+        why = None
+        if not token_ok(ws.headers, limits.token):
+            why = "missing or wrong bearer token (Authorization: Bearer <token>)"
+        elif frame not in h.frames:
+            why = f"query parameter 'frame' must be one of {', '.join(h.frames)}, got {_text(repr(frame))}"
+        if why is not None:  # HTTP 403 with the reason as JSON (the close code 1008 where the server cannot)
             counts["refused_stream_handshake"] += 1
             if limits.refusal_delay_s:
                 await asyncio.sleep(limits.refusal_delay_s)
-            await ws.close(code=1008)
+            if "websocket.http.response" in ws.scope.get("extensions", {}):
+                await ws.send_denial_response(Response(_dumps({"detail": why}), status_code=403,
+                                                       media_type="application/json"))
+            else:
+                await ws.close(code=1008, reason=why[:120])
             return
         await ws.accept()
         counts["stream_connections"] += 1
@@ -261,6 +275,52 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
     return app
 
 
+class _DenialLogFilter(logging.Filter):
+    """uvicorn's websockets-sansio logs "ASGI callable returned without completing handshake" after an HTTP
+    denial response that it did send (its flag is not set on that path): not an error, so not logged."""
+
+    def filter(self, record):
+        return "without completing handshake" not in record.getMessage()
+
+
+logging.getLogger("uvicorn.error").addFilter(_DenialLogFilter())
+
+
+class ConnectionLimit:
+    """ASGI middleware: at most ``limit`` requests and streams in progress at once (``GET /health`` is
+    not counted); one more is refused at once with 503, ``Retry-After: 1`` and a JSON reason (a
+    WebSocket handshake: the same as an HTTP denial response), counted as ``refused_connections``."""
+
+    def __init__(self, app, limit: int, counts):
+        self.app, self.limit, self.counts, self.active = app, int(limit), counts, 0
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] not in ("http", "websocket") or scope.get("path") == "/health":
+            return await self.app(scope, receive, send)
+        if self.active >= self.limit:
+            self.counts["refused_connections"] += 1
+            body = _dumps({"detail": f"busy: {self.active} requests and streams in progress (limit {self.limit}, "
+                                     f"hykin serve --max-connections); retry later"})
+            headers = [(b"content-type", b"application/json"), (b"retry-after", b"1"),
+                       (b"content-length", str(len(body)).encode())]
+            if scope["type"] == "http":
+                await send({"type": "http.response.start", "status": 503, "headers": headers})
+                await send({"type": "http.response.body", "body": body})
+            elif "websocket.http.response" in scope.get("extensions", {}):
+                await receive()  # websocket.connect
+                await send({"type": "websocket.http.response.start", "status": 503, "headers": headers})
+                await send({"type": "websocket.http.response.body", "body": body})
+            else:
+                await receive()
+                await send({"type": "websocket.close", "code": 1013, "reason": "busy: too many connections"})
+            return
+        self.active += 1
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            self.active -= 1
+
+
 def uvicorn_config(model, host: str, port: int, limits: ServiceLimits | None = None, identity: dict | None = None):
     """The ``uvicorn.Config`` of the service: the app, and uvicorn's own limits set from ``limits``
     (open connections, WebSocket message size)."""
@@ -270,8 +330,10 @@ def uvicorn_config(model, host: str, port: int, limits: ServiceLimits | None = N
     # websockets-sansio: uvicorn's WebSocket protocol on websockets' sans-I/O core (uvicorn >= 0.35). Measured
     # on loopback at 250 Hz, one target per message: p50 0.90 / p99 1.86 ms and 0.70 ms of server CPU per
     # message, against 1.19-1.37 / 2.36-6.36 ms and 0.95-1.13 ms with uvicorn's default websockets protocol
+    # the limit on requests and streams is the app's (ConnectionLimit: a JSON reason, counted); uvicorn's own
+    # (a bare 503, counting idle keep-alive connections and the refused one itself) is only a backstop
     return uvicorn.Config(create_app(model, limits, identity), host=host, port=port, log_level="warning",
-                          limit_concurrency=limits.max_connections, ws_max_size=limits.max_message_bytes,
+                          limit_concurrency=2 * limits.max_connections + 16, ws_max_size=limits.max_message_bytes,
                           ws="websockets-sansio")
 
 

@@ -58,8 +58,16 @@ def warm_compensator(model) -> _Compensators:
 
 def step(comps: _Compensators, T: np.ndarray, q_prev: np.ndarray, frame: str) -> dict:
     """One streamed target ``T`` ``(4, 4)`` from the joints ``q_prev`` ``(n,)`` -> the reply fields."""
-    r = comps(frame).step(T, q_prev)
-    return _step_reply(r.success, r.command, r.q, r.pos_err_mm, r.ang_err_deg, r.reason)
+    c = comps(frame)
+    r = c.step(T, q_prev)
+    out = _step_reply(r.success, r.command, r.q, r.pos_err_mm, r.ang_err_deg, r.reason)
+    if r.success:  # the CLI's in_support column: where the network correction fades
+        out.update({k: v[0] if isinstance(v, list) else v
+                    for k, v in _support_fields(c.model, np.asarray(r.q, dtype=np.float64)[None], np.array([True]),
+                                                "compensated targets").items() if k in ("in_support", "support_distance")})
+    else:
+        out.update(in_support=False, support_distance=None)
+    return out
 
 
 def _step_reply(ok: bool, command, q, pos_err_mm: float, ang_err_deg: float, reason: str) -> dict:
@@ -164,6 +172,67 @@ def _floats(a) -> list:
     return [_float(x) for x in np.asarray(a, dtype=np.float64).tolist()]
 
 
+#: a target farther than this many times the arm's reach from its base is in millimetres, not metres
+MM_AS_M_REACHES = 50.0
+
+
+def check_joints(q: np.ndarray, robot, key: str) -> np.ndarray:
+    """``q`` ``(N, dof)`` when it passes the CLI's joint checks (:func:`hykin.io.dataset.validate_joints`:
+    degrees passed as radians, the robot's joint limits); :class:`RequestError` naming the field, row,
+    column and cause otherwise. A within-limits row of not all whole numbers passes without the full check."""
+    from ..io.dataset import DatasetError, validate_joints
+
+    cont = np.asarray(robot.continuous, dtype=bool)
+    inside = ((q >= robot.lower - 1e-6) & (q <= robot.upper + 1e-6)) | cont
+    if inside.all() and not np.all(np.abs(q - np.round(q)) < 1e-9):
+        return q
+    names = [f"q{j + 1}" for j in range(q.shape[1])]
+    try:
+        validate_joints(q, robot, where=key, line_offset=None)
+    except DatasetError as e:
+        cause = str(e).split(": ", 1)[1] if ": " in str(e) else str(e)
+        cause = cause.replace("declare angle_unit='deg' (CLI: --angle-unit deg)", "the service takes radians")
+        row = (e.row or 1) - 1
+        col = names.index(e.column) if e.column in names else None
+        where = f"'{key}' row {row}" + ("" if col is None else f", column {col} ({e.column})")
+        raise RequestError(f"{where}: {cause}") from None
+    return q
+
+
+def check_reach(T: np.ndarray, robot, key: str = "targets") -> None:
+    """:class:`RequestError` naming the row when a target lies more than :data:`MM_AS_M_REACHES` reaches
+    from the robot's base (and from the origin): millimetres passed as metres (the service takes metres)."""
+    from ..kinematics.robot import robot_reach_m
+
+    p = T[:, :3] if T.ndim == 2 else T[:, :3, 3]
+    reach = float(robot_reach_m(robot))
+    d = np.minimum(np.linalg.norm(p - np.asarray(robot.base)[:3, 3], axis=1), np.linalg.norm(p, axis=1))
+    far = d > MM_AS_M_REACHES * reach
+    if far.any():
+        i = int(np.argmax(far))
+        raise RequestError(f"'{key}' row {i}: position {d[i]:.6g} m from the robot's base, where the arm reaches "
+                           f"{reach:.3g} m: likely millimetres passed as metres (the service takes metres)")
+
+
+def _support_fields(model, q: np.ndarray, ok: np.ndarray, what: str) -> dict:
+    """``in_support`` (the CLI's column: joints inside the model's training support, False where not
+    solved), ``support_distance`` (0 inside; None where not solved), ``outside_support`` (count of solved
+    rows outside) and a ``warning`` when there are any."""
+    from ..hybrid.ik_result import support_of
+
+    dist, sup = support_of(model, q)
+    ok = np.asarray(ok, dtype=bool)
+    inside = sup & ok
+    n_out = int((ok & ~sup).sum())
+    out = {"in_support": inside.tolist(), "support_distance": [_float(max(d, 0.0)) if k else None
+                                                              for d, k in zip(dist.tolist(), ok.tolist())],
+           "outside_support": n_out}
+    if n_out:
+        out["warning"] = (f"{n_out} {what} need joints outside the model's training support: the correction fades to "
+                          "the calibrated model there")
+    return out
+
+
 def check_keys(body, allowed: set) -> dict:
     """``body`` when it is a JSON object with keys in ``allowed`` only."""
     if not isinstance(body, dict):
@@ -186,12 +255,19 @@ class Handlers:
         self.max_targets = int(max_targets)
         self.frames = FRAMES
         self.comp = warm_compensator(model)
+        from ..kinematics.robot import robot_reach_m
+
+        # a streamed target this far (L1, m) may be in mm: checked in full (a nearer one cannot be)
+        self._far_m = MM_AS_M_REACHES * float(robot_reach_m(model.nominal)) * 0.5
 
     def _targets_q(self, body, widths=(3, 7)):
         a = matrix(body, "targets", widths, self.max_targets)
         qc = matrix(body, "q_current", (self.dof,), self.max_targets, required=False)
         if qc is not None and len(qc) not in (1, len(a)):
             raise RequestError(f"'q_current': {len(qc)} rows, expected 1 or {len(a)}")
+        if qc is not None:
+            check_joints(qc, self.model.nominal, "q_current")
+        check_reach(a, self.model.nominal)
         return poses(a), qc
 
     def _frame(self, frame):
@@ -201,7 +277,7 @@ class Handlers:
 
     # --- POST /fk
     def parse_fk(self, body) -> tuple:
-        return (matrix(check_keys(body, {"q"}), "q", (self.dof,), self.max_targets),)
+        return (check_joints(matrix(check_keys(body, {"q"}), "q", (self.dof,), self.max_targets), self.model.nominal, "q"),)
 
     def fk(self, q) -> dict:
         with warnings.catch_warnings():
@@ -232,8 +308,14 @@ class Handlers:
         k = first_row_per_target(res)
         t = res.target[k]
         q[t], ok[t], pe[t], ae[t], reason[t] = res.q[k], res.success[k], res.pos_err_mm[k], res.ang_err_deg[k], res.reason[k]
+        if (~ok).any():  # the CLI's reasons (out of reach with the reach, joint limits, singular, ...)
+            from ..kinematics.ik_reasons import failure_reasons
+
+            bad = np.flatnonzero(~ok)
+            reason[bad] = failure_reasons(self.model.nominal, T[bad], position_only=T.ndim == 2)
         return {"q": [r if k else None for r, k in zip(q.tolist(), ok.tolist())], "success": ok.tolist(),
-                "pos_err_mm": _floats(pe), "ang_err_deg": _floats(ae), "reason": ["" if k else str(r) for r, k in zip(reason.tolist(), ok.tolist())]}
+                "pos_err_mm": _floats(pe), "ang_err_deg": _floats(ae), "reason": ["" if k else str(r) for r, k in zip(reason.tolist(), ok.tolist())],
+                **_support_fields(self.model, q, ok, "solved targets")}
 
     # --- POST /compensate
     def parse_compensate(self, body) -> tuple:
@@ -246,7 +328,7 @@ class Handlers:
         return {"commands": pose_rows(c.command, c.success), "q": [r if k else None for r, k in zip(c.q.tolist(), c.success.tolist())],
                 "success": c.success.tolist(), "pos_err_mm": _floats(c.pos_err_mm), "ang_err_deg": _floats(c.ang_err_deg),
                 "shift_mm": _floats(c.shift_mm), "status": ["ok" if k else r for r, k in zip(c.reason.tolist(), c.success.tolist())],
-                "frame": c.frame}
+                "frame": c.frame, **_support_fields(self.model, c.q, c.success, "compensated targets")}
 
     # --- WebSocket /stream: one target per message
     def parse_step(self, body, q_last) -> tuple:
@@ -262,13 +344,16 @@ class Handlers:
             T = se3.pose_to_transform(np.array(t[:3]), np.array(t[3:]) / n)
         else:  # the checks that name the fault
             T = poses(matrix(body, "target", (7,), 1), "target")[0]
+        if abs(T[0, 3]) + abs(T[1, 3]) + abs(T[2, 3]) > self._far_m:
+            check_reach(T[None], self.model.nominal, "target")
         qv = body.get("q")
         if qv is None:
             if q_last is None:
                 raise RequestError(f"'q' (the robot's {self.dof} current joints, rad) is required until a target was answered")
             return T, q_last
         qr = _one_row(qv, self.dof)
-        return T, (np.array(qr) if qr is not None else matrix(body, "q", (self.dof,), 1)[0])
+        q = np.array(qr) if qr is not None else matrix(body, "q", (self.dof,), 1)[0]
+        return T, check_joints(q[None], self.model.nominal, "q")[0]
 
     def step(self, T, q_prev, frame: str = "measurement") -> dict:
         return step(self.comp, T, q_prev, frame)

@@ -17,13 +17,15 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import se3
-from .udp_bridge import Outcome, RestartWatch
+from .rsi import MAX_MISMATCH_DEG, MAX_MISMATCH_MM
+from .udp_bridge import Outcome, RestartWatch, check_limits
 
 __all__ = ["EgmHandler", "format_robot", "format_sensor", "parse_robot", "parse_sensor"]
 
 
 _PB: tuple = ()
-RESTART_BEHIND = 250  # seqnos behind the last answered one (1 s at 4 ms) that may be a new session
+RESTART_BEHIND = 250  # seqnos behind (or ahead of) the last answered one (1 s at 4 ms) that may be a new session
+_CAUSES = ("feedBack mismatch:", "unreachable setpoint:", "correction over the limit:")
 
 
 def _pb():
@@ -69,6 +71,11 @@ def _parse(kind: str, data: bytes):
 
 def parse_robot(data: bytes, dof: int):
     """``(seqno, tm, planned (4, 4) m, joints_deg (dof,))`` of an ``EgmRobot``; ValueError otherwise."""
+    return _parse_robot(data, dof)[:4]
+
+
+def _parse_robot(data: bytes, dof: int):
+    """:func:`parse_robot` plus the actual pose ``feedBack.cartesian`` ``(4, 4)`` m (None without one)."""
     m = _parse("EgmRobot", data)
     if not m.HasField("header") or not m.header.HasField("seqno"):
         raise ValueError("no header.seqno")
@@ -78,7 +85,9 @@ def parse_robot(data: bytes, dof: int):
     j = np.array(m.feedBack.joints.joints if m.HasField("feedBack") else [], dtype=np.float64)
     if j.size < dof or not np.isfinite(j[:dof]).all():
         raise ValueError(f"feedBack.joints: {j.size} finite values, expected {dof}")
-    return m.header.seqno, m.header.tm, _pose(m.planned.cartesian), j[:dof]
+    fb = m.feedBack.cartesian if m.HasField("feedBack") and m.feedBack.HasField("cartesian") else None
+    actual = _pose(fb) if fb is not None and fb.HasField("pos") and fb.HasField("orient") else None
+    return m.header.seqno, m.header.tm, _pose(m.planned.cartesian), j[:dof], actual
 
 
 def format_sensor(seqno: int, tm: int, T: np.ndarray) -> bytes:
@@ -117,27 +126,46 @@ class EgmHandler:
     ``base``, ``axis_signs`` and the correction limits)."""
 
     def __init__(self, step, base: np.ndarray, dof: int, axis_signs, max_correction_mm: float = 50.0,
-                 max_correction_deg: float = 5.0):
+                 max_correction_deg: float = 5.0, nominal_fk=None, max_mismatch_mm: float = MAX_MISMATCH_MM,
+                 max_mismatch_deg: float = MAX_MISMATCH_DEG):
+        check_limits(max_correction_mm=max_correction_mm, max_correction_deg=max_correction_deg,
+                     max_mismatch_mm=max_mismatch_mm, max_mismatch_deg=max_mismatch_deg)
+        self.nominal_fk = nominal_fk
+        self.max_mismatch = (float(max_mismatch_mm), float(max_mismatch_deg))
+        self.mismatch_max = (0.0, 0.0)
         self.step, self.base, self.dof = step, np.asarray(base, dtype=np.float64), dof
         self.signs = np.asarray(axis_signs, dtype=np.float64)
         self.max_mm, self.max_deg = float(max_correction_mm), float(max_correction_deg)
         self.last_seq: int | None = None
+        self.retired: int | None = None  # the last seqno answered before the latest restart
         self.restart = RestartWatch(RESTART_BEHIND, 10)
         self.last_reason = ""
 
-    def command(self, planned: np.ndarray, joints_deg) -> np.ndarray:
-        """The compensated pose ``(4, 4)`` for one planned pose (ValueError with the reason on failure)."""
-        r = self.step(self.base @ planned, np.radians(np.asarray(joints_deg, dtype=np.float64)) * self.signs)
+    def command(self, planned: np.ndarray, joints_deg, actual=None) -> np.ndarray:
+        """The compensated pose ``(4, 4)`` for one planned pose (ValueError with the reason on failure).
+        ``actual``: ``feedBack.cartesian`` (4, 4), checked against the nominal FK of the joints (as RSI's RIst)."""
+        q = np.radians(np.asarray(joints_deg, dtype=np.float64)) * self.signs
+        if actual is not None and self.nominal_fk is not None:
+            dp, da = se3.pose_error(np.asarray(self.nominal_fk(q), dtype=np.float64)[None], actual[None])
+            self.mismatch_max = (max(self.mismatch_max[0], float(dp[0])), max(self.mismatch_max[1], float(da[0])))
+            mm, deg = self.max_mismatch
+            if not (dp[0] <= mm and da[0] <= deg):
+                raise ValueError(f"feedBack mismatch: the controller's actual pose feedBack.cartesian is {dp[0]:.1f} mm / "
+                                 f"{da[0]:.2f} deg from the nominal FK of feedBack.joints (bound {mm:g} mm / {deg:g} deg, "
+                                 f"--max-mismatch-mm/-deg): the axis signs (--axis-signs), the robot file, or the "
+                                 f"controller's tool or base frame differ from hykin's")
+        r = self.step(self.base @ planned, q)
         if not r.success:
-            raise ValueError(f"not compensated: {r.reason}")
+            raise ValueError(f"unreachable setpoint: not compensated ({r.reason})")
         dp, da = se3.pose_error(r.command[None], planned[None])
-        if dp[0] > self.max_mm or da[0] > self.max_deg:
-            raise ValueError(f"correction {dp[0]:.2f} mm / {da[0]:.3f} deg over the limit")
+        if not (dp[0] <= self.max_mm and da[0] <= self.max_deg):
+            raise ValueError(f"correction over the limit: {dp[0]:.2f} mm / {da[0]:.3f} deg (--max-correction-mm "
+                             f"{self.max_mm:g}, --max-correction-deg {self.max_deg:g})")
         return r.command
 
     def __call__(self, data: bytes) -> Outcome:
         try:
-            seq, tm, planned, joints = parse_robot(data, self.dof)
+            seq, tm, planned, joints, actual = _parse_robot(data, self.dof)
         except ValueError as e:
             self.last_reason = str(e)
             return Outcome(None, "ignored:malformed")
@@ -147,13 +175,21 @@ class EgmHandler:
             if gap == 0 or gap >= 2**31:
                 if not self.restart.restarted(seq, (self.last_seq - seq) % 2**32):
                     return Outcome(None, "ignored:stale seqno")
+                self.retired = self.last_seq
                 gap = 1  # a new session: its own count
+            elif gap > RESTART_BEHIND and self.retired is not None and \
+                    ((seq - self.retired) % 2**32 <= RESTART_BEHIND or (seq - self.retired) % 2**32 >= 2**31):
+                # far ahead, near or before the session of before a restart: maybe its stray datagram (as RSI)
+                if not self.restart.restarted(seq, gap):
+                    return Outcome(None, "ignored:seqno jump")
+                gap = 1
             skipped = gap - 1
         self.restart.clear()
         self.last_seq = seq
         try:
-            T, kind = self.command(planned, joints), "ok"
+            T, kind, why = self.command(planned, joints, actual), "ok", ""
         except Exception as e:  # noqa: BLE001 - any internal failure: the planned pose, uncorrected
-            self.last_reason = f"{type(e).__name__}: {e}"
+            why = str(e) if str(e).startswith(_CAUSES) else f"internal error: {type(e).__name__}: {e}"
+            self.last_reason = why
             T, kind = planned, "failure"
-        return Outcome(format_sensor(seq, tm, T), kind, skipped)
+        return Outcome(format_sensor(seq, tm, T), kind, skipped, why)

@@ -22,17 +22,25 @@ sends that correction; incremental mode sends its change since the last answer (
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from ..compensation.krl import abc_from_matrix, matrix_from_abc
 from ..geometry import se3
 from .rsi_xml import RsiConfig, RsiMessageError, format_sen, parse_rob
-from .udp_bridge import Outcome, RestartWatch
+from .udp_bridge import Outcome, RestartWatch, check_limits
 
-__all__ = ["DECIMALS", "RsiHandler", "korr_of", "pose_of"]
+__all__ = ["DECIMALS", "MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "RsiHandler", "korr_of", "pose_of"]
 
 DECIMALS = 5  # of RKorr as written (mm, deg)
-RESTART_BEHIND_MS = 1000  # an IPOC this far behind the last answered one may be a restarted controller
+RESTART_BEHIND_MS = 1000  # an IPOC this far behind (or ahead of) the last answered one may be a new RSI context
+#: the controller's actual pose RIst this far from the nominal FK of its axes AIPos (mm, deg) is a set-up error
+#: (axis signs, robot file, tool or base frame), not the nominal model's own error (a few mm at most)
+MAX_MISMATCH_MM, MAX_MISMATCH_DEG = 20.0, 2.0
+RESYNC_TOL = 2e-3  # mm / deg: RIst's sum and hykin's agree within this (both written with 5-6 decimals)
+_log = logging.getLogger("hykin.realtime")
+_CAUSES = ("RIst mismatch:", "unreachable setpoint:", "correction over the limit:")  # failure reasons' categories
 
 
 def pose_of(xyzabc) -> np.ndarray:
@@ -74,33 +82,110 @@ class RsiHandler:
     target frame (the nominal base for frame ``"measurement"``, identity for ``"base"``). dof,
     axis_signs (``A = sign · q``), cfg (:class:`RsiConfig`), period_ms: the controller's cycle.
     max_correction_mm / max_correction_deg: a larger correction is treated as a failure.
+    nominal_fk: ``q (n,) rad -> (4, 4)`` the nominal TCP pose in the controller's base frame (RIst's);
+    when given, every message's ``RIst`` is checked against it, and one farther than
+    ``max_mismatch_mm`` / ``max_mismatch_deg`` (20 mm / 2°: far above the nominal model's own error of a
+    few mm) is a failure naming the likely cause (axis signs, robot file, tool or base frame).
+    Incremental mode: a restarted RSI context (IPOC behind, confirmed by two messages) starts the sum
+    again; a new context after an IPOC jump ahead, and an answer the controller did not apply, are seen
+    in the next ``RIst`` and hykin's sum follows (:meth:`_resync`).
     """
 
     def __init__(self, step, base: np.ndarray, dof: int, axis_signs, cfg: RsiConfig, period_ms: float = 4.0,
-                 max_correction_mm: float = 50.0, max_correction_deg: float = 5.0):
+                 max_correction_mm: float = 50.0, max_correction_deg: float = 5.0, nominal_fk=None,
+                 max_mismatch_mm: float = MAX_MISMATCH_MM, max_mismatch_deg: float = MAX_MISMATCH_DEG):
+        check_limits(max_correction_mm=max_correction_mm, max_correction_deg=max_correction_deg,
+                     max_mismatch_mm=max_mismatch_mm, max_mismatch_deg=max_mismatch_deg, period_ms=period_ms)
         self.step, self.base, self.dof, self.cfg = step, np.asarray(base, dtype=np.float64), dof, cfg
         self.signs = np.asarray(axis_signs, dtype=np.float64)
         self.period_ms = float(period_ms)
         self.max_mm, self.max_deg = float(max_correction_mm), float(max_correction_deg)
+        self.nominal_fk = nominal_fk
+        self.max_mismatch = (float(max_mismatch_mm), float(max_mismatch_deg))
+        self.mismatch_max = (0.0, 0.0)  # the largest RIst - FK(AIPos) seen (mm, deg)
+        self.mismatch_checked = 0
         self.last_ipoc: int | None = None
         self.restart = RestartWatch(RESTART_BEHIND_MS, int(10 * max(self.period_ms, 1.0)))
         self.sent_sum = np.zeros(6)  # incremental mode: what the controller has added up
+        self._prev = None  # incremental mode: (IPOC, setpoint, increment sent) of the last answer
+        self.lost_answers = 0  # incremental mode: answers the controller did not apply (seen in RIst)
+        self.new_sessions = 0
+        self._retired: int | None = None  # the last IPOC answered before the latest restart
         self.last_reason = ""
 
-    def correction(self, setpoint, axes_deg) -> np.ndarray:
+    @property
+    def incremental(self) -> bool:
+        return self.cfg.mode == "incremental"
+
+    def check_actual(self, actual, q) -> None:
+        """ValueError when the controller's actual pose ``RIst`` (X..C) is farther than the bound from
+        the nominal FK of the axes ``q`` (rad, model joints): the controller's axes, robot or frames are
+        not the ones hykin compensates for."""
+        if actual is None or self.nominal_fk is None:
+            return
+        dp, da = se3.pose_error(np.asarray(self.nominal_fk(q), dtype=np.float64)[None], pose_of(actual)[None])
+        dp, da = float(dp[0]), float(da[0])
+        self.mismatch_checked += 1
+        self.mismatch_max = (max(self.mismatch_max[0], dp), max(self.mismatch_max[1], da))
+        mm, deg = self.max_mismatch
+        if not (dp <= mm and da <= deg):
+            raise ValueError(f"RIst mismatch: the controller's actual pose RIst is {dp:.1f} mm / {da:.2f} deg from the "
+                             f"nominal FK of AIPos (bound {mm:g} mm / {deg:g} deg, --max-mismatch-mm/-deg): the axis "
+                             f"signs (--axis-signs), the robot file, or the controller's tool or base frame differ "
+                             f"from hykin's")
+
+    def correction(self, setpoint, axes_deg, actual=None) -> np.ndarray:
         """The absolute correction ``(6,)`` for one setpoint (ValueError with the reason on failure)."""
         q = np.radians(np.asarray(axes_deg, dtype=np.float64)) * self.signs
+        self.check_actual(actual, q)
         r = self.step(self.base @ pose_of(setpoint), q)
         if not r.success:
-            raise ValueError(f"not compensated: {r.reason}")
+            raise ValueError(f"unreachable setpoint: not compensated ({r.reason})")
         k = korr_of(r.command, setpoint)
         # the limits are on the real shift and rotation (as ``hykin egm``): near B = ±90° a tiny rotation
         # has large componentwise dA, dC
         dp, da = se3.pose_error(np.asarray(r.command, dtype=np.float64)[None], pose_of(setpoint)[None])
         if not (np.isfinite(k).all() and dp[0] <= self.max_mm and da[0] <= self.max_deg):
-            raise ValueError(f"correction {dp[0]:.2f} mm / {da[0]:.3f} deg over the limit "
-                             f"({self.max_mm:g} mm, {self.max_deg:g} deg)")
+            raise ValueError(f"correction over the limit: {dp[0]:.2f} mm / {da[0]:.3f} deg (--max-correction-mm "
+                             f"{self.max_mm:g}, --max-correction-deg {self.max_deg:g})")
         return k
+
+    def _resync(self, msg, skipped: int) -> None:
+        """Incremental mode: the sum the controller applied in the last cycle, seen in this message's
+        ``RIst`` (the pose commanded last cycle: its setpoint plus the controller's sum), against hykin's.
+        A difference equal to the last increment sent (within ``RESYNC_TOL``) means the controller did not
+        apply that answer (lost or late); after an IPOC jump of over 1 s, a difference equal to hykin's sum
+        before the jump means a new RSI context (its sum started at zero): hykin's sum drops that amount.
+        Any other difference (a controller whose RIst lags its command) leaves the sum as it is."""
+        prev = self._prev
+        if prev is None or msg.actual is None or skipped:
+            return
+        cands = [("lost", prev[2])]
+        if prev[3] is not None:
+            cands += [("context", prev[3]), ("context", prev[3] + prev[2])]
+        if not any(np.any(np.abs(c) > RESYNC_TOL) for _, c in cands):
+            return
+        applied = korr_of(pose_of(msg.actual), prev[1])
+        d = applied - self.sent_sum
+        d[3:] = _wrap(d[3:])
+        if np.all(np.abs(d) <= RESYNC_TOL):
+            return
+        for kind, c in cands:
+            e = d + c
+            e[3:] = _wrap(e[3:])
+            if np.all(np.abs(e) <= RESYNC_TOL):
+                self.sent_sum = self.sent_sum - c
+                if kind == "context":
+                    self.new_sessions += 1
+                    _log.warning("hykin rsi: incremental mode: RIst shows a new RSI context (its sum restarted at "
+                                 "zero) after the IPOC jump to %d; hykin's sum re-synchronised", prev[0])
+                    return
+                self.lost_answers += 1
+                if self.lost_answers == 1 or self.lost_answers % 100 == 0:
+                    _log.warning("hykin rsi: incremental mode: the controller did not apply the answer to IPOC %d "
+                                 "(RIst shows its sum without it: lost or late); hykin's sum re-synchronised (%d so far)",
+                                 prev[0], self.lost_answers)
+                return
 
     def __call__(self, data: bytes) -> Outcome:
         try:
@@ -108,22 +193,39 @@ class RsiHandler:
         except RsiMessageError as e:
             self.last_reason = str(e)
             return Outcome(None, "ignored:malformed")
+        new_session, jump_sum = False, None
         if self.last_ipoc is not None and msg.ipoc <= self.last_ipoc:
             if not self.restart.restarted(msg.ipoc, self.last_ipoc - msg.ipoc):
                 return Outcome(None, "ignored:stale IPOC")
-            self.last_ipoc, self.sent_sum = None, np.zeros(6)  # a new RSI context: its own count and sum
+            new_session = True
+        elif self.last_ipoc is not None and msg.ipoc - self.last_ipoc > RESTART_BEHIND_MS:
+            # over 1 s ahead. Within 1 s of the stamps of a session before a restart it may be a stray
+            # datagram of that session: like a restart, two consecutive messages that follow each other
+            # confirm it, one alone stays dropped. Otherwise answered at once (the same session, or a new
+            # RSI context whose sum the next message's RIst shows: :meth:`_resync`)
+            if self._retired is not None and msg.ipoc <= self._retired + RESTART_BEHIND_MS and \
+                    not self.restart.restarted(msg.ipoc, msg.ipoc - self.last_ipoc):
+                return Outcome(None, "ignored:IPOC jump")
+            jump_sum = self.sent_sum.copy()
+        if new_session:  # a new RSI context: its own count and sum
+            self._retired = max(self.last_ipoc, self._retired or 0)
+            self.last_ipoc, self.sent_sum, self._prev = None, np.zeros(6), None
+            self.new_sessions += 1
         self.restart.clear()
         skipped = 0
         if self.last_ipoc is not None:
             skipped = max(int(round((msg.ipoc - self.last_ipoc) / self.period_ms)) - 1, 0)
         self.last_ipoc = msg.ipoc
+        if self.incremental:
+            self._resync(msg, skipped)
         try:
-            k = self.correction(msg.setpoint, msg.axes_deg)
-            kind = "ok"
+            k = self.correction(msg.setpoint, msg.axes_deg, msg.actual)
+            kind, why = "ok", ""
         except Exception as e:  # noqa: BLE001 - any internal failure: neutral answer, the robot goes on
-            self.last_reason = f"{type(e).__name__}: {e}"
+            why = str(e) if str(e).startswith(_CAUSES) else f"internal error: {type(e).__name__}: {e}"
+            self.last_reason = why
             k, kind = None, "failure"
-        if self.cfg.mode == "incremental":  # the sum as the controller adds it: of the values as written
+        if self.incremental:  # the sum as the controller adds it: of the values as written
             if k is None:
                 send = np.zeros(6)
             else:  # angle increments modulo 360° (the controller's sum describes the same pose)
@@ -131,6 +233,7 @@ class RsiHandler:
                 inc[3:] = np.where(np.abs(inc[3:]) > 180.0, _wrap(inc[3:]), inc[3:])
                 send = np.round(inc, DECIMALS)
             self.sent_sum = self.sent_sum + send
+            self._prev = (msg.ipoc, msg.setpoint, send, jump_sum)
         else:
             send = np.zeros(6) if k is None else k
-        return Outcome(format_sen(msg.ipoc, send, self.cfg), kind, skipped)
+        return Outcome(format_sen(msg.ipoc, send, self.cfg), kind, skipped, why)

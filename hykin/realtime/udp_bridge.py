@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import math
 import select
 import socket
 import struct
@@ -22,7 +23,8 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 
-__all__ = ["BridgeStats", "Outcome", "RestartWatch", "arrival_time", "bind_udp", "parse_listen", "raise_priority", "run_bridge"]
+__all__ = ["BridgeStats", "Outcome", "RestartWatch", "arrival_time", "bind_udp", "check_limits", "parse_listen",
+           "raise_priority", "run_bridge"]
 
 _log = logging.getLogger("hykin.realtime")
 _DRAIN = 256  # datagrams read at most per turn when behind
@@ -37,6 +39,7 @@ class Outcome:
     reply: bytes | None
     kind: str
     skipped: int = 0
+    reason: str = ""  # a failure's one-line cause, its category first ("correction over the limit: ...")
 
 
 class RestartWatch:
@@ -84,6 +87,22 @@ class BridgeStats:
         ign = ", ".join(f"{k} {v}" for k, v in sorted(self.ignored.items())) or "none"
         return (f"answered {self.answered} (failures answered neutrally {self.failures}), late {self.late}, "
                 f"cycles skipped by the controller {self.skipped_cycles}, dropped: {ign}")
+
+
+def check_limits(**limits) -> None:
+    """ValueError naming the option when a bridge limit is not a finite number above 0 (``idle_exit_s``:
+    at least 0). Keywords are option names with ``_`` for ``-`` (``max_correction_mm=50.0``)."""
+    for name, v in limits.items():
+        opt = "--" + name.replace("_", "-")
+        low_ok = (v >= 0) if name == "idle_exit_s" else (v > 0)
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and low_ok):
+            need = "a finite number >= 0" if name == "idle_exit_s" else "a finite number > 0"
+            raise ValueError(f"{opt} must be {need}, got {v!r}")
+
+
+def _causes(reasons: Counter, last: dict) -> str:
+    """``reasons`` (failure category -> count) and the last reason of each, as one clause."""
+    return "; ".join(f"{n} x {last[c]}" for c, n in reasons.most_common()) or "no reason recorded"
 
 
 def parse_listen(text: str) -> tuple[str, int]:
@@ -146,6 +165,9 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
     gc.freeze()  # the model and libraries loaded so far are never scanned again: no full-collection pause mid-run
     peer = controller
     consecutive = 0
+    causes: Counter = Counter()  # of the failures in the current run of consecutive ones: category -> count
+    last_cause: dict = {}
+    warned_late_incremental = False
     last_valid = None
     last_log = time.monotonic()
     sock.setblocking(False)
@@ -191,6 +213,11 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
             if keep_latency:
                 st.latency_s.append(delay)
             st.late += delay > period_s
+            if delay > period_s and getattr(handle, "incremental", False) and not warned_late_incremental:
+                warned_late_incremental = True  # RSI drops a late answer: its sum then lacks this increment
+                _log.warning("hykin bridge: incremental mode: an answer left %.1f ms after its datagram (over the "
+                             "period): a controller that dropped it has a different sum of corrections; hykin "
+                             "re-synchronises from RIst where the message shows it (docs/realtime.md)", delay * 1e3)
         if out.kind.startswith("ignored"):
             st.ignored[out.kind.partition(":")[2] or "invalid"] += 1
             continue
@@ -200,13 +227,20 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
         if out.kind == "failure":
             st.failures += 1
             consecutive += 1
+            why = out.reason or getattr(handle, "last_reason", "") or "unknown cause"
+            cat = why.partition(":")[0]
+            causes[cat] += 1
+            last_cause[cat] = why
+            if causes[cat] == 1 and consecutive == 1:
+                _log.warning("hykin bridge: failure answered neutrally: %s", why)
             st.max_consecutive_failures = max(st.max_consecutive_failures, consecutive)
             if consecutive >= max_failures:
-                st.stopped = f"{consecutive} consecutive failures: stopped answering"
+                st.stopped = f"{consecutive} consecutive failures: stopped answering; causes: {_causes(causes, last_cause)}"
                 _log.error("hykin bridge: %s (%s)", st.stopped, st.summary())
                 break
         else:
             consecutive = 0
+            causes.clear()
             if peer is None:
                 peer = addr
         if log_every_s and time.monotonic() - last_log > log_every_s:
