@@ -54,7 +54,14 @@ def test_onnx_export_matches_hykin(tmp_path, small_model):
 
     q = small_model.nominal.random_joints(64, 5)
     q = np.clip(q, small_model.support_lower_, small_model.support_upper_)
-    T = ort.InferenceSession(str(tmp_path / "m.onnx")).run(None, {"q": q})[0]
+    sess = ort.InferenceSession(str(tmp_path / "m.onnx"))
+    feed = {"q": q}
+    names = {i.name for i in sess.get_inputs()}
+    if "payload_kg" in names:  # a model with compliance: the graph takes the payload (the file's here)
+        feed["payload_kg"] = np.array([small_model.robot_.payload_kg])
+    if "payload_com_m" in names:
+        feed["payload_com_m"] = np.zeros((1, 3))
+    T = sess.run(None, feed)[0]
     p, a = pose_error(T, small_model.predict(q))
     assert p.max() < 1e-6 and a.max() < 1e-6
     # no Mul(x, Sigmoid(x)): ONNX Runtime 1.30 fuses it into a float32-only kernel and then refuses

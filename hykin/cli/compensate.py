@@ -340,6 +340,14 @@ def serve_cmd(
         token = read_token_file(token_file) if token_file is not None else None
     except ValueError as e:
         raise CLIError(str(e)) from None
+    import socket as _socket
+
+    try:  # the port first: one line naming it, before the banner and the model (uvicorn sets SO_REUSEADDR too)
+        with _socket.socket(_socket.AF_INET6 if ":" in host else _socket.AF_INET, _socket.SOCK_STREAM) as probe:
+            probe.setsockopt(_socket.SOL_SOCKET, _socket.SO_REUSEADDR, 1)
+            probe.bind((host.strip("[]"), port))
+    except OSError as e:
+        raise CLIError(f"--port {port}: cannot listen on {host}:{port} ({e.strerror or e})") from None
     limits = ServiceLimits(max_targets=max_targets, max_body_bytes=max_body_kb * 1024, max_message_bytes=max_message_bytes,
                            queue=queue, max_connections=max_connections, refusal_delay_s=refusal_delay_ms / 1e3, token=token)
     mdl = with_payload(load_model(model), payload_kg)
@@ -360,10 +368,15 @@ def export_urdf_cmd(
     out: Path = typer.Option(..., "-o", "--out", help="Output .urdf file."),
     force: bool = Force,
 ) -> None:
-    """Calibrated URDF: geometry, joint offsets, base and tool of the calibrated model in the joint origins."""
+    """Calibrated URDF: geometry, joint offsets, base and tool of the calibrated model in the joint origins.
+
+    A URDF is rigid: with joint compliance, the line says how far its FK is from the calibrated robot
+    (mean / max mm at the robot file's payload over the model's training range). The output must end in .urdf."""
     from ..io.urdf import calibrated_urdf
 
     check_output(out, [Path(model)], force)
+    if out.suffix.lower() != ".urdf":
+        raise CLIError(f"{out}: export-urdf writes URDF; name the output {out.with_suffix('.urdf').name}")
     mdl = load_model(model)
     text, info = calibrated_urdf(mdl)
     out.parent.mkdir(parents=True, exist_ok=True)

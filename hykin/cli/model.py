@@ -346,13 +346,26 @@ def export_cmd(
     out: Path = typer.Option(..., "-o", "--out", help="Output .onnx file."),
     force: bool = Force,
 ) -> None:
-    """Export a hybrid model to ONNX (joints in, 4x4 poses out) and check it against PyTorch."""
+    """Export a hybrid model to ONNX (joints in, 4x4 poses out) and check it against hykin with ONNX Runtime.
+
+    Inputs: q (N, dof) rad. A model whose poses depend on the payload (joint compliance, or trained on
+    several payloads) also takes payload_kg ((N,) or (1,) kg) and, with joint compliance, payload_com_m
+    ((N, 3) or (1, 3) m, tool frame; zeros: at the TCP); the check covers 0 kg, the trained payloads, the
+    robot file's and one beyond. Output: pose (N, 4, 4) m. The output must end in .onnx."""
     from ..hybrid.export import export_onnx
 
     check_output(out, (model,), force)
+    if out.suffix.lower() != ".onnx":
+        raise CLIError(f"{out}: hykin export writes an ONNX graph; name the output {out.with_suffix('.onnx').name}")
     mdl = load_model(model)
     info = export_onnx(mdl, out)
-    typer.echo(f"wrote {out}; ONNX Runtime vs hykin max difference {info['max_pos_diff_mm']:.2e} mm, {info['max_ang_diff_deg']:.2e} deg")
+    typer.echo(f"wrote {out}; ONNX Runtime vs hykin max difference {info['max_pos_diff_mm']:.2e} mm, {info['max_ang_diff_deg']:.2e} deg"
+               + (f" at payloads {', '.join(f'{v:g}' for v in info['payloads_checked_kg'])} kg"
+                  if info["payloads_checked_kg"] else ""))
+    if len(info["inputs"]) > 1:
+        com = " and payload_com_m ((N, 3) or (1, 3) m, tool frame; zeros: at the TCP)" if "payload_com_m" in info["inputs"] else ""
+        typer.echo(f"note: the graph's inputs are q ((N, {mdl.robot.dof}) rad), payload_kg ((N,) or (1,) kg){com}: "
+                   f"feed the payload the robot carries (the robot file's is {info['payload_default_kg']:g} kg)")
     if "thermal_coefficient_per_k" in info:
         typer.echo(f"note: poses at the reference {info['thermal_reference_c']:.2f} °C; thermal expansion on the controller: "
                    f"p = b + (1 + {info['thermal_coefficient_per_k']:.4g} (t - {info['thermal_reference_c']:.2f})) (p - b), "

@@ -6,10 +6,20 @@ from pathlib import Path
 
 import typer
 
-from .common import CLIError, app
+from .common import CLIError, app, check_output
 
 Address = typer.Option(None, "--address", help="Ray cluster to join (e.g. auto, or ray://HEAD:10001); default: a local Ray on this machine's CPUs.")
 NumCpus = typer.Option(None, "--num-cpus", help="CPUs of the local Ray (default: all of this machine's); ignored with --address.")
+
+
+def _check_outputs(out: Path, names, inputs) -> None:
+    """Refuse (one line, before Ray starts) an output file in ``out`` that is one of the run's input files
+    (:func:`hykin.cli.common.check_output`, the rule of every command; an existing output is left to the
+    earlier-run rule of --resume / --force)."""
+    if not out.is_dir():
+        return  # a folder to be made holds no input
+    for name in names:
+        check_output(out / name, inputs, force=True)
 
 
 @app.command("sweep")
@@ -19,6 +29,8 @@ def sweep_cmd(
     address: str | None = Address,
     resume: bool = typer.Option(False, "--resume", help="Keep the finished trials in OUT; run only the others."),
     num_cpus: int | None = NumCpus,
+    force: bool = typer.Option(False, "--force", help="Start over in an OUT that holds an earlier sweep (its "
+                               "records are dropped); without it, or --resume, such an OUT is refused."),
 ) -> None:
     """Run every trial of a sweep file (each: `hykin fit` with its options + evaluation on the test set)
     on Ray (local, or a cluster with --address). A failing trial is retried once, then recorded with its error; exit 1 if any failed."""
@@ -28,7 +40,9 @@ def sweep_cmd(
     if out.exists() and not out.is_dir():
         raise CLIError(f"{out}: -o must name a directory, got an existing file")
     spec = read_sweep(sweep_file)
-    res = run_sweep(spec, out, address=address, resume=resume, num_cpus=num_cpus, log=typer.echo)
+    _check_outputs(out, ("results.csv", "results.csv.tmp", "trials.jsonl", "error_vs_n_train.png"),
+                   (sweep_file, spec.robot, spec.train, spec.test))
+    res = run_sweep(spec, out, address=address, resume=resume, num_cpus=num_cpus, log=typer.echo, force=force)
     typer.echo(f"sweep: {len(res.rows) - len(res.failed)} of {len(res.rows)} trials ok ({res.ran} run now); "
                f"results in {res.results_csv}" + (f", plot {res.plot}" if res.plot else ""))
     _fail_lines([(f"trial {r['trial']}", r["error"] or r["status"]) for r in res.failed])
@@ -42,16 +56,20 @@ def fleet_cmd(
     num_cpus: int | None = NumCpus,
     resume: bool = typer.Option(False, "--resume", help="Keep the robots of OUT's summary.csv that are ok, have "
                                 "their model files and unchanged inputs (hashes); run only the others."),
+    force: bool = typer.Option(False, "--force", help="Fit every robot again in an OUT that holds an earlier fleet, "
+                               "overwriting its models and summary; without it, or --resume, such an OUT is refused."),
 ) -> None:
     """Fit, evaluate and register every robot of a fleet file in parallel on Ray. A failing robot does
     not stop the others; exit 1 with one line per failed robot."""
-    from ..distributed.fleet import run_fleet
+    from ..distributed.fleet import fleet_outputs, run_fleet
     from ..distributed.fleet_file import read_fleet
 
     if out.exists() and not out.is_dir():
         raise CLIError(f"{out}: -o must name a directory, got an existing file")
     spec = read_fleet(fleet_file)
-    rows = run_fleet(spec, out, address=address, num_cpus=num_cpus, log=typer.echo, resume=resume)
+    _check_outputs(out, fleet_outputs(spec), [fleet_file] + [p for r in spec.robots
+                                                            for p in (r.robot, r.train, r.test, r.register)])
+    rows = run_fleet(spec, out, address=address, num_cpus=num_cpus, log=typer.echo, resume=resume, force=force)
     ok = sum(r["status"] == "ok" for r in rows)
     typer.echo(f"fleet: {ok} of {len(rows)} robots ok; summary in {out / 'summary.csv'} and {out / 'summary.md'}")
     _fail_lines([(f"robot {r['name']}", r["error"]) for r in rows if r["status"] != "ok"])

@@ -11,7 +11,9 @@ Writes ``DIR/summary.csv`` (the one CSV writer) and ``DIR/summary.md`` (a markdo
 
 ``resume=True`` keeps a robot whose ``summary.csv`` row is ``ok``, whose model files are in ``DIR`` and
 whose ``inputs_sha256`` (:func:`inputs_hash`: robot file, data files, poses, fit options) is unchanged;
-the others run again.
+the others run again. An output folder that holds an earlier fleet (its summary or a model file the
+fleet writes, :func:`fleet_outputs`) is refused before Ray starts unless ``resume`` or ``force`` (fit
+every robot again, overwriting them), as `hykin sweep` refuses an earlier sweep.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from .ray_session import check_resources, ray_session
 from .trial_pool import first_line
 from .trials import ERROR_COLUMNS, error_columns, evaluate_noted, fit_model, gpu_fit_options
 
-__all__ = ["SUMMARY_COLUMNS", "inputs_hash", "kept_rows", "registered_note", "robot_job", "run_fleet", "summary_markdown"]
+__all__ = ["SUMMARY_COLUMNS", "fleet_outputs", "inputs_hash", "kept_rows", "registered_note", "robot_job", "run_fleet", "summary_markdown"]
 
 SUMMARY_COLUMNS = ("name", "status", "error", "n_train", "n_test", *ERROR_COLUMNS, "fit_s",
                    "registered_hybrid_pos_mean_mm", "registered_hybrid_ang_mean_deg", "n_registered_held_out", "model",
@@ -122,12 +124,28 @@ def _number(text: str):
     return text
 
 
+def fleet_outputs(spec: FleetSpec) -> list:
+    """The file names a fleet writes into its output folder: ``summary.csv``, ``summary.md`` and each
+    robot's ``NAME.hykin`` (and ``NAME-registered.hykin`` where it registers a series)."""
+    names = ["summary.csv", "summary.md"]
+    for r in spec.robots:
+        names += [f"{r.name}.hykin"] + ([f"{r.name}-registered.hykin"] if r.register is not None else [])
+    return names
+
+
 def run_fleet(spec: FleetSpec, out_dir: str | Path, address: str | None = None, num_cpus: int | None = None,
-              log=print, resume: bool = False) -> list:
+              log=print, resume: bool = False, force: bool = False) -> list:
     """Run every robot of ``spec`` as a Ray task (retried once if its worker dies); write the per-robot
     model files, ``summary.csv`` and ``summary.md`` into ``out_dir``. ``resume``: keep the robots of
-    :func:`kept_rows`. Returns the rows in file order."""
+    :func:`kept_rows`. ValueError (one line) when ``out_dir`` holds an earlier fleet's files and neither
+    ``resume`` nor ``force`` is given. Returns the rows in file order."""
     out = Path(out_dir)
+    if not (resume or force):
+        earlier = [n for n in fleet_outputs(spec) if (out / n).exists()]
+        if earlier:
+            more = f" and {len(earlier) - 3} more" if len(earlier) > 3 else ""
+            raise ValueError(f"{out}: holds an earlier fleet ({', '.join(earlier[:3])}{more}); use --resume to finish "
+                             "it, --force to fit every robot again over it, or another -o")
     rows: dict = kept_rows(spec, out) if resume else {}
     if resume:
         log(f"fleet: {len(rows)} of {len(spec.robots)} robots kept from {out / 'summary.csv'}, "

@@ -68,17 +68,20 @@ def kept_records(path: Path, inputs_sha256: str) -> tuple[dict, int]:
 
 
 def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, resume: bool = False,
-              num_cpus: int | None = None, log=print) -> SweepOutcome:
+              num_cpus: int | None = None, log=print, force: bool = False) -> SweepOutcome:
     """Run the trials of ``spec`` (when ``resume``: those without an ``ok`` record made with the same inputs) and write
-    ``out_dir/results.csv`` and ``out_dir/error_vs_n_train.png``. ``log``: one progress line per call."""
+    ``out_dir/results.csv`` and ``out_dir/error_vs_n_train.png``. ``log``: one progress line per call. An
+    ``out_dir`` that holds an earlier sweep is refused (ValueError) unless ``resume`` or ``force`` (start
+    over: its records are dropped once the trials start)."""
     from ..io.dataset_files import read_dataset
     from ..io.robot_file import load_robot
     from .files import SpecError
 
     out = Path(out_dir)
     records_path = out / "trials.jsonl"
-    if not resume and (records_path.exists() or (out / "results.csv").exists()):
-        raise ValueError(f"{out}: holds an earlier sweep (results.csv); use --resume to finish it or another -o")
+    if not (resume or force) and (records_path.exists() or (out / "results.csv").exists()):
+        raise ValueError(f"{out}: holds an earlier sweep (results.csv); use --resume to finish it, --force to start "
+                         "it over, or another -o")
     trials = spec.trials()
     keys = [trial_key(t) for t in trials]
     inputs = sweep_inputs_hash(spec)  # the robot / train / test files and subsample_seed as the trials start
@@ -125,6 +128,8 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
             check_resources(ray, str(spec.path), {"cpus_per_trial": spec.cpus_per_trial,
                                                   "gpus_per_trial": spec.gpus_per_trial}, address)
             out.mkdir(parents=True, exist_ok=True)  # after every check: a refused sweep writes nothing
+            if force and not resume:  # started over: the earlier sweep's records go (a later --resume keeps none)
+                records_path.unlink(missing_ok=True)
             clock["start"] = time.time()
             # the recorded options stay as written (so --resume keys do not change); the fit gets the device
             run_trials(ray, {i: gpu_fit_options(trials[i], spec.gpus_per_trial) for i in todo}, (rob, train, test),

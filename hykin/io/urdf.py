@@ -19,6 +19,10 @@
   forward kinematics: ``base`` and ``tool`` become fixed joints, each joint i becomes a movable joint
   (child link ``joint_i_frame``, z = joint axis) followed by a fixed joint to ``link_i`` (hykin link
   frame i, which carries the link's mass and centre of mass). Used to cross-check with Pinocchio.
+  Its joints have ``effort="0" velocity="0"``: a hykin robot has no effort or velocity limits (URDF
+  requires both attributes; set them from the maker's data sheet, or in MoveIt's joint_limits.yaml).
+* A URDF cannot carry joint compliance: :func:`compliance_gap_mm` measures how far the rigid FK it
+  holds is from the compliant robot, and the writers name it (mean / max mm).
 
 Units: URDF is SI (m, rad, kg). Errors are :class:`~hykin.kinematics.robot.RobotFileError` naming the file and
 the element.
@@ -36,7 +40,10 @@ import numpy as np
 from ..geometry import se3
 from ..kinematics.robot import Robot, RobotFileError
 
-__all__ = ["calibrated_robot_urdf", "calibrated_urdf", "load_urdf", "load_urdf_string", "robot_to_urdf"]
+__all__ = ["calibrated_robot_urdf", "calibrated_urdf", "compliance_gap_mm", "load_urdf", "load_urdf_string", "robot_to_urdf"]
+
+#: joint configurations (uniform, seed 0) the compliance a URDF leaves out is measured on (:func:`compliance_gap_mm`)
+GAP_POSES = 1000
 
 _MOVABLE = ("revolute", "continuous", "prismatic")
 
@@ -450,9 +457,12 @@ def calibrated_robot_urdf(robot: Robot) -> tuple[str, str]:
     link ``<tip>_tcp`` when the chain ends in a movable joint), and a calibrated base frame becomes a
     fixed joint from a new root link ``measurement_frame`` (when ``base_link`` is the URDF's root).
     Loading the result with the same tip gives the same FK to rounding. Any other robot:
-    :func:`robot_to_urdf`. Joint compliance (finite stiffness) cannot be carried; it is named.
+    :func:`robot_to_urdf`. Joint compliance (finite stiffness) cannot be carried; it is named, with how
+    far the URDF's rigid FK is from the compliant robot (:func:`compliance_gap_mm`, :data:`GAP_POSES`
+    joint configurations within the limits).
     """
-    left = "joint compliance" if robot.has_compliance else ""
+    left = _compliance_note(robot, robot.random_joints(GAP_POSES, rng=0), "within the joint limits") \
+        if robot.has_compliance else ""
     if robot.convention != "urdf" or not robot.urdf or robot.joint_names is None:
         return robot_to_urdf(robot.copy(stiffness_nm_per_rad=np.full(robot.n_chain, np.inf))), left
     return _patched_urdf(robot), left
@@ -523,17 +533,43 @@ def calibrated_urdf(model) -> tuple[str, str]:
     the maker's URDF for a robot read from one, else :func:`robot_to_urdf`), the calibrated base (with
     the model's registration frame ``frame_pre``) into a fixed joint above the base link and the tool
     (with ``frame_post``) into the last fixed joint. Joint compliance, thermal expansion and the
-    residual networks are not representable; the second item names those the model has.
+    residual networks are not representable; the second item names those the model has (joint
+    compliance with how far the URDF's rigid FK is from the compliant robot, :func:`compliance_gap_mm`,
+    over :data:`GAP_POSES` joint configurations in the model's training range).
     """
     rob = model.robot_
     rob = rob.copy(base=model.frame_pre_ @ rob.base, tool=rob.tool @ model.frame_post_, name=f"{rob.name}-calibrated",
                    stiffness_nm_per_rad=np.full(rob.n_chain, np.inf))
     left = []
     if model.robot_.has_compliance:
-        left.append("joint compliance")
+        lo, hi = np.asarray(model.support_lower_), np.asarray(model.support_upper_)
+        q = lo + np.random.default_rng(0).random((GAP_POSES, len(lo))) * (hi - lo)
+        left.append(_compliance_note(model.robot_, q, "in the model's training range", model.frame_pre_, model.frame_post_))
     th = getattr(model, "thermal_", None)
     if th is not None and th.coefficient_per_k != 0.0:
         left.append("thermal expansion")
     if getattr(model, "net_pos_", None) is not None:
         left.append("the residual networks")
     return calibrated_robot_urdf(rob)[0], ", ".join(left) or "nothing"
+
+
+def compliance_gap_mm(robot: Robot, q: np.ndarray, pre=None, post=None) -> tuple[float, float]:
+    """``(mean, max)`` mm between the TCP positions of ``robot`` with its joint compliance (at its
+    payload, :func:`hykin.kinematics.compliance.compliant_fk`) and of its rigid FK (what a URDF holds),
+    at joints ``q`` ``(N, dof)``; ``pre`` / ``post``: frames around both (a model's registration)."""
+    from ..kinematics.compliance import compliant_fk
+    from ..kinematics.fk import fk
+
+    T = np.stack([compliant_fk(robot, q), fk(robot, q)])
+    if pre is not None:
+        T = np.asarray(pre) @ T
+    if post is not None:
+        T = T @ np.asarray(post)
+    d = np.linalg.norm(T[0, :, :3, 3] - T[1, :, :3, 3], axis=1) * 1e3
+    return float(d.mean()), float(d.max())
+
+
+def _compliance_note(robot: Robot, q: np.ndarray, where: str, pre=None, post=None) -> str:
+    mean, mx = compliance_gap_mm(robot, q, pre, post)
+    return (f"joint compliance (the URDF's rigid FK is {mean:.3g} mm mean / {mx:.3g} mm max from the calibrated "
+            f"compliant robot at its {robot.payload_kg:g} kg payload, over {len(q)} poses {where})")
