@@ -62,6 +62,9 @@ __all__ = [
 ]
 
 TWO_PI = 2.0 * np.pi
+#: a joint within this angle of 0 (rad; 0.006°, the rounding of a taught literal's 3 decimals) meets its
+#: KUKA T bit either way (:func:`match_kuka_status`)
+T_ZERO_RAD = 1e-4
 
 
 def default_axis_signs(robot: Robot) -> np.ndarray:
@@ -196,7 +199,8 @@ def _flag_match(robot: Robot, q: np.ndarray, got: np.ndarray, want: np.ndarray, 
 
 def match_kuka_status(robot: Robot, T_world, S, T=None, axis_signs=None, slack_rad: float = 0.0) -> np.ndarray:
     """Nominal joints ``(N, n)`` of each target with status ``S`` (exact) and turn ``T`` (fewest
-    differing bits; ``-1`` or ``None`` = not given: the representation nearest zero). NaN rows where no
+    differing bits, a joint within :data:`T_ZERO_RAD` of 0 meeting its bit either way; ``-1`` or ``None`` =
+    not given: the representation nearest zero). NaN rows where no
     nominal solution has that ``S``. ``slack_rad``: where none has, accept the other overhead / elbow
     bit within that angle of its singular configuration (module docstring)."""
     q, ok = candidate_solutions(robot, np.asarray(T_world, dtype=np.float64))
@@ -206,7 +210,11 @@ def match_kuka_status(robot: Robot, T_world, S, T=None, axis_signs=None, slack_r
     Sc, Tc = Sc.reshape(N, K), Tc.reshape(N, K)
     S = np.asarray(S, dtype=int).reshape(N, 1)
     Tg = np.full((N, 1), -1) if T is None else np.asarray(T, dtype=int).reshape(N, 1)
-    diff = np.bitwise_xor(Tc, np.maximum(Tg, 0))
+    # a joint within T_ZERO_RAD of 0 (a point taught at A6 = 0 solves to ±1e-12) meets its T bit either
+    # way: its representation is then the one nearest zero (the taught one), not a full turn away
+    A = np.nan_to_num(q.reshape(-1, n)) * np.asarray(signs, dtype=np.float64)
+    either = ((np.abs(A) <= T_ZERO_RAD).astype(int) << np.arange(n)).sum(1).reshape(N, K)
+    diff = np.bitwise_xor(Tc, np.maximum(Tg, 0)) & ~either
     bits = np.zeros_like(diff, dtype=float)
     for b in range(n):
         bits += (diff >> b) & 1

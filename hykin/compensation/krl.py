@@ -209,8 +209,33 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
     for k, v in verb.items():  # a continuous-path motion keeps the arm's configuration (S): KSS ignores S there
         if v in _CP_VERBS and "S" not in targets[k].config:
             targets[k].config["keep_status"] = True
-    fr = frames_of_targets(src_clean, others, motions, spans, uses, targets, robot, types)
-    return targets, notes + fr.apply(targets)
+    fr = frames_of_targets(src_clean, others, motions, spans, uses, targets, robot, types,
+                           where="" if text_is_src else "--context, ")
+    notes = notes + fr.apply(targets)
+    return _unused(targets, first, motions, src_clean, notes)
+
+
+_SELECTS = re.compile(r"\$BASE\s*=(?!=)|\$TOOL\s*=(?!=)|\bBAS\s*\(\s*#(?:BASE|TOOL)\b|\bFDAT_ACT\s*=", re.IGNORECASE)
+
+
+def _unused(targets: list, first: dict, motions: list, src_clean: str, notes: list) -> tuple[list, list]:
+    """``(targets, notes)`` less the points no motion of the ``.src`` moves to (``first``: the used ones),
+    when the ``.src`` selects a base or tool anywhere: where such a point is used (another module, a
+    subroutine) its frame is not known, so its literal is kept, noted. A ``.src`` that selects none runs
+    every motion in base 0 with the robot file's tool: its unused points are compensated so, noted too.
+    Without motion statements (no ``.src`` read) every point is taken so (base 0, the robot file's tool)."""
+    unused = [k for k in range(len(targets)) if k not in first]
+    if not unused or not motions:
+        return targets, notes
+    shown = ", ".join(f"{targets[k].name or targets[k].kind} (line {targets[k].line})" for k in unused[:8])
+    shown += " ..." if len(unused) > 8 else ""
+    if _SELECTS.search(src_clean):
+        notes = [*notes, f"{targets[unused[0]].line}: {len(unused)} points no motion of the .src moves to: {shown}: "
+                         "kept (their base and tool are not known where they are used; move to them in the .src, or "
+                         "compensate them with the program that does)"]
+        return [t for k, t in enumerate(targets) if k not in set(unused)], notes
+    return targets, [*notes, f"{targets[unused[0]].line}: {len(unused)} points no motion of the .src moves to: "
+                             f"{shown}: compensated in base 0 with the robot file's tool (the .src selects no other)"]
 
 
 def _assigned(ks: list, targets: list, pos: int, text_is_src: bool) -> list:

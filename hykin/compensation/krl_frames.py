@@ -44,6 +44,12 @@ _SELECT = re.compile(
     r"|\bFDAT_ACT\s*=\s*(?P<fdat>[A-Za-z_]\w*)", re.IGNORECASE)
 _FRAME_ASSIGN = re.compile(r"(?<![\w$.])([A-Za-z_][\w]*)\s*(\.\s*[A-Za-z]\w*)?\s*=(?!=)\s*([^\n]*)")
 _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+# run-time changes of frame data: a component of $BASE/$TOOL (``$TOOL.X = 30.0``), a BASE_DATA/TOOL_DATA
+# entry or its component (``BASE_DATA[1].Z = BASE_DATA[1].Z + 20.0``), ``+=`` forms too
+_CHANGE = re.compile(r"(?P<sys>\$BASE|\$TOOL)\s*\.\s*\w+(?:\s*\.\s*\w+)*\s*[-+*/]?=(?!=)[^\n]*"
+                     r"|\b(?P<data>BASE_DATA|TOOL_DATA)\s*\[\s*(?P<n>[^\]]*?)\s*\](?:\s*\.\s*\w+)*\s*[-+*/]?=(?!=)[^\n]*",
+                     re.IGNORECASE)
+_DATA_BLOCK = re.compile(r"^[ \t]*DEFDAT\b.*?(?:^[ \t]*ENDDAT\b|\Z)", re.IGNORECASE | re.MULTILINE | re.DOTALL)
 _INDEX = r"(?:(?P<i>\d+)|(?P<f>[A-Za-z_]\w*)\s*\.\s*(?P<field>BASE_NO|TOOL_NO))"
 _KINDS = ("base", "tool", "ipo")
 
@@ -114,8 +120,17 @@ class _Selections:
     an int (data index, 0 = none), a (4, 4) frame, or a str (why it is unknown); the interpolation mode
     ``"BASE"``, ``"TCP"`` or a str."""
 
-    def __init__(self, fdat: dict, fvars: dict, types: dict):
+    def __init__(self, fdat: dict, fvars: dict, types: dict, changed: dict | None = None):
         self.fdat, self.fvars, self.types = fdat, fvars, types
+        self.changed = changed or {}  # {("base"|"tool", n or None = any): [(position, why)]}: run-time changes
+
+    def checked(self, kind: str, value, pos: int):
+        """``value`` (a data index) as selected at ``pos``: a str where the program changes that entry of
+        ``BASE_DATA``/``TOOL_DATA`` at run time before ``pos`` (its value there is not the declared one)."""
+        if kind not in ("base", "tool") or isinstance(value, (str, np.ndarray)) or value == 0:
+            return value
+        hit = [w for k in ((kind, value), (kind, None)) for p, w in self.changed.get(k, []) if p < pos]
+        return hit[-1] if hit else value
 
     def is_frame(self, name: str) -> bool:
         """Whether ``name`` is a variable declared ``FRAME`` (or assigned like one)."""
@@ -131,6 +146,10 @@ class _Selections:
         out += [("base", d["BASE_NO"])] if d["BASE_NO"] is not None else []
         return out + ([("tool", d["TOOL_NO"])] if d["TOOL_NO"] is not None else [])
 
+    def fdat_act_at(self, name: str, pos: int) -> list:
+        """:meth:`fdat_act` at ``pos`` (:meth:`checked`)."""
+        return [(k, self.checked(k, v, pos)) for k, v in self.fdat_act(name)]
+
     def assign(self, var: str, expr: str, pos: int) -> list:
         """``[(kind, value)]`` that ``var = expr`` (at ``pos`` in the ``.src``) selects; other variables: []."""
         var, e = var.upper(), expr.strip()
@@ -139,7 +158,7 @@ class _Selections:
         if var not in ("$BASE", "$TOOL"):
             return []
         kind = var[1:].lower()
-        return [(kind, self._frame(kind, e, pos))]
+        return [(kind, self.checked(kind, self._frame(kind, e, pos), pos))]
 
     def _ipo(self, e: str) -> str:
         m = re.fullmatch(r"#(BASE|TCP)", e, re.IGNORECASE) or re.fullmatch(
@@ -186,11 +205,38 @@ def _persistent_events(src_clean: str, with_spans: list, sel: _Selections) -> li
     out = []
     for m in _SELECT.finditer(text):
         if m.group("fdat"):
-            out += [(m.start(), k, v) for k, v in sel.fdat_act(m.group("fdat"))]
+            out += [(m.start(), k, v) for k, v in sel.fdat_act_at(m.group("fdat"), m.start())]
         elif m.group("bas"):
-            out.append((m.start(), m.group("bas").lower(), int(m.group("bn"))))
+            kind = m.group("bas").lower()
+            out.append((m.start(), kind, sel.checked(kind, int(m.group("bn")), m.start())))
         else:
             out += [(m.start(), k, v) for k, v in sel.assign(m.group("var"), m.group("expr"), m.start())]
+    out += [(p, kind, why) for (kind, n), changes in sel.changed.items() if n == "$" for p, why in changes]
+    return sorted(out, key=lambda e: e[0])
+
+
+def run_time_changes(src_clean: str, where: str = "") -> dict:
+    """``{(kind, n): [(position, why)]}`` of the statements of ``src_clean`` (outside its ``DEFDAT`` blocks:
+    not ``$config.dat``'s declarations) that change frame data at run time: ``BASE_DATA[n]``/``TOOL_DATA[n]``
+    or a component of them (``n`` None: an index hykin cannot read), and components of ``$BASE``/``$TOOL``
+    (``n`` ``"$"``: the selection in force becomes unknown from there). ``where``: the prefix of the line
+    numbers (the companion file's ``"--context, "``)."""
+    data = [(m.start(), m.end()) for m in _DATA_BLOCK.finditer(src_clean)]
+    out: dict = {}
+    for m in _CHANGE.finditer(src_clean):
+        if any(a <= m.start() < b for a, b in data) or is_declaration(src_clean, m.start()):
+            continue
+        stmt = " ".join(m.group(0).split())[:60]
+        at = f"{where}line {line_of(src_clean, m.start())}"
+        if m.group("sys"):
+            kind = m.group("sys")[1:].lower()
+            key = (kind, "$")
+        else:
+            kind = m.group("data")[:4].lower()
+            key = (kind, int(m.group("n")) if m.group("n").isdigit() else None)
+        why = (f"{stmt} ({at}) changes the {kind} at run time: hykin does not follow run-time changes of "
+               f"frame data (select a {kind} whose data are declared, or move the change into $config.dat)")
+        out.setdefault(key, []).append((m.start(), why))
     return out
 
 
@@ -254,14 +300,14 @@ def _product(ops: list, sel: _Selections, pos: int):
 
 
 def frames_of_targets(src_clean: str, others: list, motions: list, with_spans: list, uses: list, targets: list,
-                      robot, types: dict) -> TargetFrames:
+                      robot, types: dict, where: str = "") -> TargetFrames:
     """Frames of ``targets`` (of the file read) from the selections of ``src_clean`` (the ``.src`` text
     with comments blanked), its ``motions`` and ``with_spans`` (:func:`.krl_motions.parse_motions`), the
     data declared in it and ``others`` (the other texts read, comments blanked), the variables' ``types``
     and ``uses``: ``[(motion, target index, left operands, right operands, error)]`` (the operands of the
     geometric expression around the point; error: why the point is not known, or "")."""
     frames, fdat = _declared([src_clean, *others])
-    sel = _Selections(fdat, frame_variables(src_clean, others, types), types)
+    sel = _Selections(fdat, frame_variables(src_clean, others, types), types, run_time_changes(src_clean, where))
     states = motion_states(src_clean, motions, with_spans, sel)
     per: dict = {}
     for mo, k, left, right, err in uses:
@@ -274,6 +320,11 @@ def frames_of_targets(src_clean: str, others: list, motions: list, with_spans: l
     for k in range(len(targets)):
         out.add([_resolve(st, err, L, R, frames, robot, targets[k].line, out.notes, noted)
                  for st, err, L, R in per.get(k, [default])], "used with different bases or tools")
+        unread = sorted({st["tool"] for st, *_ in per.get(k, []) if isinstance(st["tool"], int) and st["tool"] != 0
+                         and ("tool", st["tool"]) not in frames})
+        if unread:  # a failure of this target may come from that tool
+            out.caveat[k] = (f"tool {unread[0]} (TOOL_DATA[{unread[0]}]) was not read, so its TCP was taken to be the "
+                             "robot file's tool (give $config.dat with --context)")
     return out
 
 

@@ -4,7 +4,7 @@ Motion statements (one per line, comments blanked): ``PTP``/``LIN``/``CIRC``, th
 spline motions ``SPTP``/``SLIN``/``SCIRC`` and ``SPL`` (inside ``SPLINE`` / ``PTP_SPLINE`` ...
 ``ENDSPLINE`` blocks)::
 
-    VERB point[, point2][, CA angle] [C_DIS|C_PTP|C_VEL|C_ORI|C_SPL] [WITH $VAR = expr, ...]
+    VERB point[, point2][[,] CA angle] [C_DIS|C_PTP|C_VEL|C_ORI|C_SPL] [WITH $VAR = expr, ...]
 
 ``CIRC``/``SCIRC`` move through their first point (auxiliary) to their second. A point is a variable,
 an aggregate ``{...}``, or a geometric expression ``F1 : P : F2`` (KRL's frame product, left to right)
@@ -33,6 +33,8 @@ _BLOCK_LINE = re.compile(r"^[ \t]*(?P<start>(?:PTP_)?SPLINE\b(?P<rest>[^\n]*))|^
                          re.IGNORECASE | re.MULTILINE)
 _WITH = re.compile(r"\bWITH\b", re.IGNORECASE)
 _APPROX = re.compile(r"\bC_(?:DIS|PTP|VEL|ORI|SPL)\b", re.IGNORECASE)
+# a circular motion's circular angle ``CA angle``: after the end point, with or without a comma
+_CA = re.compile(r"(?:,\s*)?\bCA\b(?=\s*[-+(\w.])", re.IGNORECASE)
 _IDENT = re.compile(r"[A-Za-z_$][\w$]*(?:\s*\[[^\[\]]*\])?$")
 _TYPE_DECL = re.compile(r"^[ \t]*(?:(?:DECL|GLOBAL|CONST)\s+)*(?P<type>E6POS|POS|FRAME|E6AXIS|AXIS)\s+(?P<rest>[^\n]*)",
                         re.IGNORECASE | re.MULTILINE)
@@ -152,6 +154,10 @@ def parse_motions(clean: str) -> tuple[list, list]:
         a = _top_search(_APPROX, args)
         args = args[: a.start()] if a else args
         n_points = 2 if m.group("verb").upper().endswith("CIRC") else 1
+        if n_points == 2:  # CIRC aux, end CA 90.0: the angle is no part of the end point
+            ca = _top_search(_CA, args)
+            if ca and len(split_top(args[: ca.start()], ",")) >= 2:  # after the end point
+                args = args[: ca.start()]
         points = []
         for piece, off in split_top(args, ",")[:n_points]:
             ops = [_operand(t, r0 + off + o) for t, o in split_top(piece, ":")]

@@ -61,6 +61,8 @@ class ProgramTarget:
     order: where the target is executed, as a sort key (a declared variable: the position of the first
     motion that uses it, e.g. in the ``.src`` of a ``.dat`` point), or None (the literal's ``start``);
     the walk of targets without configuration data goes in this order.
+    caveat: an assumption made for the target that may explain a failure (an undeclared tool taken to be
+    the robot file's), named in its failure reason; ``""`` for none.
     parts: format-specific parse (number spans and texts) used to write the literal back.
     """
 
@@ -77,6 +79,7 @@ class ProgramTarget:
     frame: np.ndarray | None = None
     error: str = ""
     order: int | None = None
+    caveat: str = ""
 
 
 @dataclass
@@ -89,6 +92,7 @@ class TargetFrames:
     tool_delta: list = field(default_factory=list)
     error: list = field(default_factory=list)
     notes: list = field(default_factory=list)
+    caveat: dict = field(default_factory=dict)  # {target index: assumption made for it} (ProgramTarget.caveat)
 
     #: a use's tool delta when the use does not tell the tool (it agrees with any other use's)
     ANY_TOOL = "any"
@@ -111,8 +115,9 @@ class TargetFrames:
 
     def apply(self, targets: list) -> list:
         """Set each target's frame, tool delta and error, its pose to ``frame · literal``; returns the notes."""
-        for t, W, D, err in zip(targets, self.frame, self.tool_delta, self.error):
+        for k, (t, W, D, err) in enumerate(zip(targets, self.frame, self.tool_delta, self.error)):
             t.frame, t.tool_delta, t.error = W, D, err
+            t.caveat = self.caveat.get(k, t.caveat)
             if W is not None:
                 t.pose = W @ t.pose
         return self.notes
@@ -297,10 +302,14 @@ def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs
                              "where the real robot reaches them only with the other elbow / overhead flag: their "
                              "configuration data are rewritten to it (--config-slack-deg 0 refuses them)"]
     comp = _scatter(comp, ok, targets, model.nominal.dof, frame)
+    if ok:
+        notes = [*notes, *_config_notes(model, targets, comp, np.isin(np.arange(len(targets)), [
+            k for k, o in zip(ok, other) if o]), axis_signs)]
     pieces, last, failed = [], 0, []
     for k, t in enumerate(targets):
         if not comp.success[k]:
-            failed.append((t.line, f"{t.name or t.kind}: {comp.reason[k]}"))
+            why = comp.reason[k] if not t.caveat or t.error else f"{t.caveat}; {comp.reason[k]}"
+            failed.append((t.line, f"{t.name or t.kind}: {why}"))
             continue
         command = comp.command[k] if t.frame is None else se3.invert(t.frame) @ comp.command[k]
         new = fmt.format_target(t, command, comp.q[k], model.nominal, axis_signs)
@@ -314,7 +323,10 @@ def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs
 def _solve(model, targets: list, frame: str, axis_signs, slack_rad: float,
            ik_kw: dict) -> tuple[Compensation, np.ndarray]:
     """:class:`Compensation` of ``targets`` (all with known frames), branches as the program means them,
-    and which targets took another configuration flag ``(N,)`` bool (:func:`_branch_joints`)."""
+    and which targets took another configuration flag ``(N,)`` bool (:func:`_branch_joints`). A target
+    with configuration data whose compensated joints left its flags (KUKA ``S``, ABB ``cfx``: the hybrid
+    solution slid off a hint at a joint limit) is solved again from the calibrated robot's solution with
+    those flags; kept where that reaches (:func:`_keep_flags`)."""
     from .frames import resolve_frame, to_model_frame
 
     T = np.stack([t.pose for t in targets])
@@ -325,7 +337,94 @@ def _solve(model, targets: list, frame: str, axis_signs, slack_rad: float,
     T_nom = (T if fr == "measurement" else model.nominal.base @ T) @ se3.invert(D)
     T_cal = se3.invert(model.frame_pre_) @ to_model_frame(model, T, fr) @ se3.invert(D) @ se3.invert(model.frame_post_)
     qb, other_flag, reason = _branch_joints(model, targets, T_nom, T_cal, axis_signs, slack_rad)
-    return compensate(model, T, q_branch=qb, frame=fr, tool_delta=D, branch_reason=reason, **ik_kw), other_flag
+    comp = compensate(model, T, q_branch=qb, frame=fr, tool_delta=D, branch_reason=reason, **ik_kw)
+    _keep_flags(model, targets, comp, other_flag, T, D, T_cal, fr, axis_signs, ik_kw)
+    return comp, other_flag
+
+
+def _flags(model, targets: list, q: np.ndarray, axis_signs) -> tuple[np.ndarray, np.ndarray]:
+    """``(got, want)`` ``(N,)`` int: the configuration flag of joints ``q`` ``(N, n)`` that each target's
+    configuration data fix exactly (KUKA ``S``, ABB ``cfx``; -1 for a target without) and the program's."""
+    from .branches import abb_confdata, kuka_status
+
+    nom = model.nominal
+    qz = np.nan_to_num(np.asarray(q, dtype=np.float64))
+    got, want = np.full(len(targets), -1), np.full(len(targets), -1)
+    s = np.array(["S" in t.config for t in targets], dtype=bool)
+    c = np.array(["conf" in t.config for t in targets], dtype=bool)
+    if s.any():
+        got[s] = kuka_status(nom, qz[s], axis_signs)[0]
+        want[s] = [t.config["S"] for t in targets if "S" in t.config]
+    if c.any():
+        got[c] = abb_confdata(nom, qz[c], axis_signs)[:, 3]
+        want[c] = [t.config["conf"][3] for t in targets if "conf" in t.config]
+    return got, want
+
+
+def _keep_flags(model, targets: list, comp: Compensation, other_flag: np.ndarray, T, D, T_cal, fr: str, axis_signs,
+                ik_kw: dict) -> None:
+    """Re-solve (in place) the successful targets whose compensated joints lost the configuration flag
+    their data fix (not those moved to the other flag on purpose, ``other_flag``) from the calibrated
+    robot's solution with the program's data; a row is replaced where that succeeds on the taught flag."""
+    from .branches import default_axis_signs, match_abb_confdata, match_kuka_status
+
+    got, want = _flags(model, targets, comp.q, axis_signs)
+    rows = np.flatnonzero(comp.success & (want >= 0) & (got != want) & ~other_flag)
+    if not rows.size:
+        return
+    rob, nom = model.robot_, model.nominal
+    signs = default_axis_signs(nom) if axis_signs is None else axis_signs
+    hint = np.full((rows.size, nom.dof), np.nan)
+    for j, k in enumerate(rows):
+        cfg = targets[k].config
+        if "S" in cfg:
+            hint[j] = match_kuka_status(rob, T_cal[k:k + 1], [cfg["S"]], [cfg.get("T", -1)], signs)[0]
+        else:
+            hint[j] = match_abb_confdata(rob, T_cal[k:k + 1], np.array([cfg["conf"]]), axis_signs, reference=nom)[0]
+    fin = np.isfinite(hint).all(1)
+    rows, hint = rows[fin], hint[fin]
+    if not rows.size:
+        return
+    again = compensate(model, T[rows], q_branch=hint, frame=fr, tool_delta=D[rows], **ik_kw)
+    g2, w2 = _flags(model, [targets[k] for k in rows], again.q, axis_signs)
+    take = again.success & (g2 == w2)
+    for name in ("command", "q", "success", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg", "in_support",
+                 "q_branch", "reason"):
+        getattr(comp, name)[rows[take]] = getattr(again, name)[take]
+
+
+def _config_notes(model, targets: list, comp: Compensation, other_flag: np.ndarray, axis_signs) -> list:
+    """Notes on the successful targets whose rewritten configuration data differ from the program's: a
+    flag (KUKA ``S``, ABB ``cfx``) no solution on the taught one reaches (those within the slack of a
+    singular pose, ``other_flag``, have their own note), and KUKA turn bits ``T`` of a joint the correction
+    moves across 0° (ABB quadrants follow the joints without a note: confdata name quadrants, not turns)."""
+    from .branches import kuka_status
+
+    ok = np.flatnonzero(comp.success)
+    if not ok.size:
+        return []
+    got, want = _flags(model, [targets[k] for k in ok], comp.q[ok], axis_signs)
+    flag, turn = [], []
+    qz = np.nan_to_num(comp.q[ok])
+    Tk = kuka_status(model.nominal, qz, axis_signs)[1]
+    for j, k in enumerate(ok):
+        t, cfg = targets[k], targets[k].config
+        if want[j] >= 0 and got[j] != want[j] and not other_flag[k]:
+            flag.append(f"{t.line} ({'S' if 'S' in cfg else 'cfx'} {want[j]} -> {got[j]})")
+        elif "T" in cfg and "S" in cfg and int(Tk[j]) != cfg["T"]:
+            turn.append(f"{t.line} (T {cfg['T']} -> {int(Tk[j])})")
+    out = []
+    if flag:
+        out.append(f"{flag[0].split(' ')[0]}: {len(flag)} targets (lines {', '.join(flag[:8])}"
+                   f"{' ...' if len(flag) > 8 else ''}) are reached by the real robot only in another configuration "
+                   "than taught (no solution with the program's configuration within the joint limits): their "
+                   "configuration data are rewritten")
+    if turn:
+        out.append(f"{turn[0].split(' ')[0]}: {len(turn)} targets (lines {', '.join(turn[:8])}"
+                   f"{' ...' if len(turn) > 8 else ''}) have a joint that the correction moves across 0°: their T is "
+                   "rewritten to the compensated joints' (the taught T would turn that axis by a full turn or find no "
+                   "solution)")
+    return out
 
 
 def _scatter(comp: Compensation | None, rows: list, targets: list, n: int, frame: str) -> Compensation:

@@ -271,6 +271,46 @@ def _robtarget_params(clean: str) -> tuple[dict, list]:
     return params, bodies
 
 
+_CHANGE = re.compile(r"\s*(?:\{[^{}]*\})?\s*(?:\.\s*\w+\s*(?:\{[^{}]*\})?\s*)*:=")
+
+
+def _run_time_changes(clean: str, text: str, line_of, where: str = "") -> tuple[dict, list]:
+    """``({name (lower): [(position, why)]}, [(start, end, why)])``: the assignments to a variable or a
+    component of it in the routines (``tGun.tframe.trans.z:=250;``, ``wMoved:=[..];``: the frames of the
+    tools and work objects named so change at run time), and the spans of program displacement
+    (``PDispOn``/``PDispSet`` up to the next ``PDispOff``: every robtarget is moved by a frame hykin does
+    not know)."""
+    changes: dict = {}
+    disp, open_ = [], None
+    for start, word, body_at, end in _statements(clean):
+        at = f"{where or 'line '}{line_of(text, start)}"
+        stmt = " ".join(clean[start:end].split())[:60]
+        if word in ("pdispon", "pdispset"):
+            if open_ is None:
+                open_ = (start, f"{stmt} ({at}) displaces the program frame at run time: hykin does not follow "
+                                "program displacement (compensate the displaced targets, or turn it off)")
+        elif word == "pdispoff":
+            if open_ is not None:
+                disp.append((open_[0], start, open_[1]))
+                open_ = None
+        elif _CHANGE.match(clean, body_at, end):
+            changes.setdefault(word, []).append((start, f"{stmt} ({at}) changes its frame at run time: hykin does not "
+                                                       "follow run-time changes of tool and work object data"))
+    if open_ is not None:
+        disp.append((open_[0], len(clean), open_[1]))
+    return changes, disp
+
+
+def _changed(start: int, tool, wobj: str, changes: dict, disp: list) -> str:
+    """Why the frames of a motion at ``start`` with ``tool`` (a name, None or ...) and work object ``wobj``
+    are not the declared ones (a run-time change before it, a program displacement around it), or ``""``."""
+    for name in ([tool.lower()] if isinstance(tool, str) else []) + [wobj.lower()]:
+        hit = [w for p, w in changes.get(name, []) if p < start]
+        if hit:
+            return hit[-1]
+    return next((w for a, b, w in disp if a < start < b), "")
+
+
 def _scan(clean: str, text: str, starts, names: dict, line_of, where: str = ""):
     """One module's motion statements: ``(uses, proc_uses, calls, params)`` -- per target index its
     ``[(tool name or None or ..., wobj name, line label)]``; per ``(routine, positional index)`` the same
@@ -278,6 +318,7 @@ def _scan(clean: str, text: str, starts, names: dict, line_of, where: str = ""):
     ``[(routine, body start, end, line)]``; the routines' robtarget parameters (:func:`_robtarget_params`).
     ``where``: prefix of the line labels (a context module's name)."""
     params, bodies = _robtarget_params(clean)
+    changes, disp = _run_time_changes(clean, text, line_of, where)
     proc_uses: dict = {}
     calls = []
     uses: dict = {}
@@ -301,10 +342,11 @@ def _scan(clean: str, text: str, starts, names: dict, line_of, where: str = ""):
             parts = [spans[i] for i in spec[0] if i < len(spans)]
             tool = clean[slice(*spans[spec[1]])].strip() if spec[1] < len(spans) else None
         proc = next((p for a, b, p in bodies if a <= start < b), None)
+        why = _changed(start, tool, wobj, changes, disp)
         for j in _named(parts, clean, starts, names, params.get(proc, {}), proc, proc_uses):
-            uses.setdefault(j, []).append((tool, wobj, line))
+            uses.setdefault(j, []).append((tool, wobj, line, why))
         for key in proc_uses.pop(None, ()):
-            proc_uses.setdefault(key, []).append((tool, wobj, line))
+            proc_uses.setdefault(key, []).append((tool, wobj, line, why))
     return uses, proc_uses, calls, params
 
 
@@ -350,9 +392,13 @@ def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, l
                                   "nor a --context module defines: the tool and work object the robot moves to it with "
                                   "are unknown (give the module that defines it with --context)", "")], "")
             continue
-        for tool, wobj, line in uses.get(j, [(None, "wobj0", 0)]):
+        for tool, wobj, line, why in uses.get(j, [(None, "wobj0", 0, "")]):
             W, err = _wobj(wobj, data)
+            err = why or err
             D, terr, note = (TargetFrames.ANY_TOOL, "", "") if tool is ... else _tool(tool, data, robot)
+            if note and "is not declared" in note:  # a failure of this target may come from that tool
+                out.caveat[j] = (f"tool {tool} is not declared in what was read, so its TCP was taken to be the robot "
+                                 "file's tool (give the module that declares it with --context)")
             if note and tool.lower() not in noted:  # once per tool
                 noted.add(tool.lower())
                 out.notes.append(f"{line}: {note}")

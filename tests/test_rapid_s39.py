@@ -1,0 +1,83 @@
+"""RAPID: run-time changes of tool/work object data and program displacement are refused naming the
+statement; an undeclared tool is named in a failure it may explain (probe report s39)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from comp_models import ExactModel, deviate
+from scipy.spatial.transform import Rotation
+from test_krl_s39 import _TOML, status, taught
+
+from hykin.compensation import rapid
+from hykin.compensation.programs import compensate_program
+from hykin.io.robot_file import load_robot
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    p = tmp_path_factory.mktemp("rob") / "robot.toml"
+    p.write_text(_TOML)
+    nom = load_robot(p)
+    return ExactModel(nom, deviate(nom, 11, sigma_m=6e-4, sigma_rad=np.radians(0.08)))
+
+
+def robtarget(T, conf) -> str:
+    x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
+    p = T[:3, 3] * 1e3
+    return (f"[[{p[0]:.3f},{p[1]:.3f},{p[2]:.3f}],[{w:.8f},{x:.8f},{y:.8f},{z:.8f}],[{','.join(map(str, conf))}],"
+            "[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]]")
+
+
+def _conf(q) -> list:
+    """ABB confdata of q (deg quadrants of axes 1, 4, 6; cfx from the KUKA status: overhead, elbow, A5)."""
+    S, _ = status(q)
+    quad = [int(np.floor(np.degrees(q[i]) / 90 + 1e-12)) for i in (0, 3, 5)]
+    # this arm's wrist centre is on the A3 < φ side at zero (elbow < 0): forward = elbow < 0
+    return quad + [4 * (S & 1) + 2 * ((S >> 1) & 1) + int(q[4] < 0)]
+
+
+def _module(statement: str, tool: str = "tGun", wobj: str = "wTable") -> str:
+    q1, T1 = taught([10, 20, 10, 5, 40, 5])
+    q2, T2 = taught([14, 24, 6, 8, 42, 4])
+    return ("MODULE M\n"
+            "  PERS tooldata tGun:=[TRUE,[[0,0,0],[1,0,0,0]],[0,[0,0,1],[1,0,0,0],0,0,0]];\n"
+            "  PERS wobjdata wTable:=[FALSE,TRUE,\"\",[[0,0,0],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];\n"
+            f"  CONST robtarget p1:={robtarget(T1, _conf(q1))};\n"
+            f"  CONST robtarget p2:={robtarget(T2, _conf(q2))};\n"
+            "  VAR num z;\n"
+            "  PROC main()\n"
+            f"    MoveJ p1, v1000, z50, {tool}\\WObj:={wobj};\n"
+            f"    {statement}\n"
+            f"    MoveL p2, v1000, fine, {tool}\\WObj:={wobj};\n"
+            "  ENDPROC\nENDMODULE\n")
+
+
+@pytest.mark.parametrize("statement, refused", [
+    ("tGun.tframe.trans.z:=250;", True),
+    ("wTable.uframe.trans.z:=200;", True),
+    ("wTable:=[FALSE,TRUE,\"\",[[0,0,50],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];", True),
+    ("PDispOn \\ExeP:=p1, p1, tGun\\WObj:=wTable;", True),
+    ("PDispOn \\ExeP:=p1, p1, tGun\\WObj:=wTable; PDispOff;", False),
+    ("z:=wTable.uframe.trans.z + tGun.tframe.trans.z;", False),
+])
+def test_run_time_frame_changes_are_refused_naming_the_line(model, statement, refused):
+    mod = _module(statement)
+    res = compensate_program(model, mod, rapid, frame="measurement")
+    if refused:
+        assert [line for line, _ in res.failed] == [5]  # p2, moved to after the change
+        assert "line 9" in res.failed[0][1] and "run time" in res.failed[0][1]
+        assert res.n_compensated == 1
+    else:
+        assert not res.failed and res.n_compensated == 2
+
+
+def test_undeclared_tool_is_named_in_the_failure(model):
+    """p2 lies 5 m away: it fails; the undeclared tool tGripper, taken to be the robot file's tool, is
+    named in the error as a possible cause (the reason alone would blame reach or confdata)."""
+    lines = _module("z:=1;", tool="tGripper").split("\n")
+    lines[4] = lines[4].replace(":=[[", ":=[[5000")
+    res = compensate_program(model, "\n".join(lines), rapid, frame="measurement")
+    assert [line for line, _ in res.failed] == [5]
+    assert "tool tGripper is not declared" in res.failed[0][1]
+    assert any("tool tGripper is not declared" in n for n in res.notes)
