@@ -205,15 +205,20 @@ def _summary(comp, out: Path, n: int) -> None:
     if ok.any():
         line += (f" (command shift mean {np.mean(comp.shift_mm[ok]):.3f} mm, max {np.max(comp.shift_mm[ok]):.3f} mm; "
                  f"model error max {np.max(comp.pos_err_mm[ok]):.2e} mm)")
-    if (~ok).any():
-        line += f"; {int((~ok).sum())} unreachable (status column)"
-        far = int(sum("out of reach" in r for r in comp.reason[~ok]))
+    # a target fails for its pose (unreachable, blocked by a limit) or for a frame, TCP or configuration
+    # the program does not define (its reason says which): counted apart
+    solvable = [r for r in comp.reason[~ok] if str(r).startswith(("unreachable", "blocked")) or "out of reach" in str(r)]
+    if solvable:
+        line += f"; {len(solvable)} unreachable (status column)"
+        far = int(sum("out of reach" in r for r in solvable))
         if far:
             line += f", {far} of them beyond the arm's reach"
+    if int((~ok).sum()) > len(solvable):
+        line += (f"; {int((~ok).sum()) - len(solvable)} failed for a frame, TCP or configuration the program does not "
+                 "define (status column)")
     typer.echo(line)
     # most targets out of reach: the usual cause is the targets' frame (not when they failed for a frame,
     # TCP or configuration the program does not define: their reasons say so)
-    solvable = [r for r in comp.reason[~ok] if str(r).startswith(("unreachable", "blocked"))]
     if 2 * len(solvable) > n:
         from ..compensation.frames import other_frame
 

@@ -276,8 +276,9 @@ def robot_to_toml_string(robot: Robot, length_unit: str = "m", angle_unit: str =
             "alpha": float(deg(robot.alpha_rad[i])),
             "d": float(robot.d_m[i] * L),
             "theta": float(deg(robot.theta_rad[i])),
-            "min": float(robot.lower[i] * L if prism else deg(robot.lower[i])),
-            "max": float(robot.upper[i] * L if prism else deg(robot.upper[i])),
+            # limits to 12 significant digits: -120 written as -120, not -119.99999999999999 (rad -> deg)
+            "min": float(f"{float(robot.lower[i] * L if prism else deg(robot.lower[i])):.12g}"),
+            "max": float(f"{float(robot.upper[i] * L if prism else deg(robot.upper[i])):.12g}"),
         }
         if robot.beta_rad[i] != 0:
             j["beta"] = float(deg(robot.beta_rad[i]))
