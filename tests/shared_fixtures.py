@@ -74,3 +74,26 @@ def sine_trajectory(seed: int = 1):
     f = np.array([0.11, 0.07, 0.13, 0.17, 0.19, 0.23])
     ph = rng.uniform(0, 6, 6)
     return lambda t: q0 + A * np.sin(2 * np.pi * f * np.asarray(t)[:, None] + ph)
+
+
+def fake_sweep_ray(monkeypatch):
+    """run_sweep without Ray: the session and trial runner are stand-ins (every trial "ok", errors 0.1 mm);
+    returns ``(hykin.distributed.sweep, calls)``: the trials each run got, sorted."""
+    import contextlib
+
+    import hykin.distributed.sweep as sweep_mod
+    from hykin.distributed.trials import ERROR_COLUMNS
+
+    calls = []
+
+    def fake_run_trials(ray, trials, data, cpus, gpus, subsample_seed, on_done):
+        calls.append(sorted(trials))
+        for i in trials:
+            on_done(i, {"status": "ok", "error": "", "attempts": 1, "n_train": 240, **dict.fromkeys(ERROR_COLUMNS, 0.1),
+                        "fit_s": 1.0, "eval_s": 0.1, "steps": 4, "epochs": 2})
+
+    monkeypatch.setattr(sweep_mod, "ray_session", lambda address, num_cpus: contextlib.nullcontext(None))
+    monkeypatch.setattr(sweep_mod, "check_resources", lambda *a, **k: None)
+    monkeypatch.setattr(sweep_mod, "run_trials", fake_run_trials)
+    monkeypatch.setattr(sweep_mod, "plot_results", lambda rows, path: None)  # matplotlib: not under test, slow
+    return sweep_mod, calls

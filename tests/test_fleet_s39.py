@@ -5,12 +5,11 @@ is tried once more, then one line naming the cause and what to do (no traceback)
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import shutil
 
 import pytest
-from shared_fixtures import sweep_files, write_text
+from shared_fixtures import fake_sweep_ray, sweep_files, write_text
 
 from cli_run import run
 from hykin.distributed.trials import ERROR_COLUMNS
@@ -113,21 +112,8 @@ def test_fleet_into_an_earlier_fleet_is_refused_without_resume_or_force(files, t
 
 
 def _fake_sweep(monkeypatch):
-    import hykin.distributed.sweep as sweep_mod
-
-    calls = []
-
-    def fake_run_trials(ray, trials, data, cpus, gpus, subsample_seed, on_done):
-        calls.append(sorted(trials))
-        for i in trials:
-            on_done(i, {"status": "ok", "error": "", "attempts": 1, "n_train": 240, **dict.fromkeys(ERROR_COLUMNS, 0.1),
-                        "fit_s": 1.0, "eval_s": 0.1, "steps": 4, "epochs": 2})
-
-    monkeypatch.setattr(sweep_mod, "ray_session", lambda address, num_cpus: contextlib.nullcontext(None))
-    monkeypatch.setattr(sweep_mod, "check_resources", lambda *a, **k: None)
-    monkeypatch.setattr(sweep_mod, "run_trials", fake_run_trials)
-    monkeypatch.setattr(sweep_mod, "plot_results", lambda rows, path: None)
-    return calls
+    """run_sweep without Ray: the trials each run got (:func:`shared_fixtures.fake_sweep_ray`)."""
+    return fake_sweep_ray(monkeypatch)[1]
 
 
 def test_sweep_force_starts_over_and_an_input_in_the_output_folder_is_refused(files, tmp_path, monkeypatch, capsys):

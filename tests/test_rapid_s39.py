@@ -5,21 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from comp_models import ExactModel, deviate
 from scipy.spatial.transform import Rotation
-from test_krl_s39 import _TOML, status, taught
+from test_krl_s39 import model, status, taught  # noqa: F401  (model: the KRL tests' fixture)
 
 from hykin.compensation import rapid
 from hykin.compensation.programs import compensate_program
-from hykin.io.robot_file import load_robot
 
 
-@pytest.fixture(scope="module")
-def model(tmp_path_factory):
-    p = tmp_path_factory.mktemp("rob") / "robot.toml"
-    p.write_text(_TOML)
-    nom = load_robot(p)
-    return ExactModel(nom, deviate(nom, 11, sigma_m=6e-4, sigma_rad=np.radians(0.08)))
 
 
 def robtarget(T, conf) -> str:

@@ -191,7 +191,7 @@ def test_full_report_contents(fitted, built):
     assert f"removes {removed:.1f} %" in html or f"removes {removed:.4g} %" in html
     assert "train.csv" in html and "test.csv" in html and "content_sha256" in html
     # ISO 9283 AP of pose P1 for the hybrid model: |mean attained - commanded| (closed form, 4 cycles)
-    sel = test.extra["pose_id"] == 1
+    sel = np.asarray(test.extra["pose_id"]).astype(str) == "1"  # labels are read as written
     ap = np.linalg.norm((test.xyz_m[sel] - ref.predicted["hybrid"][sel][:, :3, 3]).mean(0)) * 1e3
     assert re.search(r"<td class='text'>hybrid</td><td class='text'>1</td><td>4</td><td>" + re.escape(f"{ap:.4g}"), html)
     assert json.loads((path.parent / "evaluation.json").read_text())["n"] == len(test.q)

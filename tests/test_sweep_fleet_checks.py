@@ -4,14 +4,13 @@ must be the draw seed; a fleet robot whose series is all used to register has no
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import shutil
 
 import numpy as np
 import pytest
-from shared_fixtures import residual_data, sweep_files, write_text
+from shared_fixtures import fake_sweep_ray, residual_data, sweep_files, write_text
 
 from cli_run import run
 from hykin.distributed.files import SpecError
@@ -105,22 +104,8 @@ def test_sweep_inputs_hash_follows_robot_file_data_and_subsample_seed(files, tmp
 
 
 def _fake_ray(monkeypatch):
-    """run_sweep without Ray: the session and trial runner are stand-ins; returns the trials each run got."""
-    import hykin.distributed.sweep as sweep_mod
-
-    calls = []
-
-    def fake_run_trials(ray, trials, data, cpus, gpus, subsample_seed, on_done):
-        calls.append(sorted(trials))
-        for i in trials:
-            on_done(i, {"status": "ok", "error": "", "attempts": 1, "n_train": 240, **dict.fromkeys(ERROR_COLUMNS, 0.1),
-                        "fit_s": 1.0, "eval_s": 0.1, "steps": 4, "epochs": 2})
-
-    monkeypatch.setattr(sweep_mod, "ray_session", lambda address, num_cpus: contextlib.nullcontext(None))
-    monkeypatch.setattr(sweep_mod, "check_resources", lambda *a, **k: None)
-    monkeypatch.setattr(sweep_mod, "run_trials", fake_run_trials)
-    monkeypatch.setattr(sweep_mod, "plot_results", lambda rows, path: None)  # matplotlib: not under test, slow
-    return sweep_mod, calls
+    """run_sweep without Ray (:func:`shared_fixtures.fake_sweep_ray`)."""
+    return fake_sweep_ray(monkeypatch)
 
 
 def test_sweep_resume_reruns_trials_whose_inputs_changed_and_keeps_the_others(files, tmp_path, monkeypatch):

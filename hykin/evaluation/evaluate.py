@@ -19,7 +19,7 @@ from ..kinematics.classical import classical_fk
 from ..kinematics.robot import Robot
 from .metrics import ErrorStats, error_stats, format_table
 
-__all__ = ["NOMINAL_FITTED", "ROBOT_FILE", "EvalResult", "FrameMismatchError", "check_model_frame", "evaluate_model", "evaluate_per_payload", "joint_region_rows",
+__all__ = ["NOMINAL_FITTED", "ROBOT_FILE", "EvalResult", "FrameMismatchError", "check_model_frame", "distinct_poses", "evaluate_model", "evaluate_per_payload", "joint_region_rows",
            "nominal_row", "with_fitted_frames"]
 
 
@@ -164,6 +164,12 @@ def with_fitted_frames(T: np.ndarray, T_meas: np.ndarray, position_only: bool) -
     return B @ T @ E
 
 
+def distinct_poses(q: np.ndarray, tol: float = 1e-6) -> int:
+    """The number of distinct joint configurations among the rows of ``q`` (rounded to ``tol``)."""
+    q = np.asarray(q, float)
+    return int(len(np.unique(np.round(q / tol), axis=0))) if len(q) else 0
+
+
 def _mean_mm(T: np.ndarray, T_meas: np.ndarray) -> float:
     return float(np.linalg.norm(T[:, :3, 3] - T_meas[:, :3, 3], axis=1).mean() * 1e3)
 
@@ -180,8 +186,6 @@ def check_model_frame(data: Dataset, T_model: np.ndarray, T_meas: np.ndarray, po
     and tool fitted to the data. Both are needed: a good model in its own frame beats the nominal
     robot, and a frame error is what a rigid fit removes. Data of fewer than :data:`FRAME_CHECK_POSES`
     distinct poses are not tested (the fit's 12 parameters absorb too much there)."""
-    from .report_accuracy import distinct_poses
-
     if len(T_meas) < 4 or distinct_poses(data.q, tol=1e-3) < FRAME_CHECK_POSES:
         return
     e_model = _mean_mm(T_model, T_meas)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .evaluate import distinct_poses
 from .report import mm
 from .report_figures import joint_bins
 
@@ -84,12 +85,6 @@ def base_frame(model, data=None, labels: dict | None = None) -> BaseFrame:
         B, _ = fit_frames(classical_fk(model, data.q), data.poses(), position_only=not data.has_orientation)
         return BaseFrame(B @ np.asarray(base, float), "the robot base fitted to these poses")
     return BaseFrame(np.asarray(base, float), "the robot file's base")
-
-
-def distinct_poses(q: np.ndarray, tol: float = 1e-6) -> int:
-    """The number of distinct joint configurations among the rows of ``q`` (rounded to ``tol``)."""
-    q = np.asarray(q, float)
-    return int(len(np.unique(np.round(q / tol), axis=0))) if len(q) else 0
 
 
 def display_name(res, key: str) -> str:
