@@ -145,7 +145,7 @@ def hybrid_ik(
     pos_only = bool(position_only or pos_only_in)
     N = T.shape[0]
     seeds = q_seed
-    sr = seed_robot_of(model, seed_robot)
+    sr = seed_robot_of(model, seed_robot, robot)
     # nearest without a closed form (a redundant arm has no finite set of branches: numerical ones may all
     # lie elsewhere): the current joints seed a solution of their own
     own = nearest and sr is None
@@ -177,7 +177,7 @@ def wang_ik(model, T_target, *, all_branches: bool = True, q_seed=None, success_
         raise HybridIKError("wang_ik: needs full (N, 4, 4) target poses")
     N, n = T.shape[0], robot.dof
     q1, labels, ok1 = classical_seeds(robot, T, all_branches=all_branches, q_seed=q_seed,
-                                      seed_robot=seed_robot_of(model, None))
+                                      seed_robot=seed_robot_of(model, None, robot))
     B = q1.shape[1]
     flat = q1.reshape(-1, n)
     fin = np.all(np.isfinite(flat), axis=1) & ok1.reshape(-1)

@@ -125,8 +125,21 @@ def classical_robot(model) -> Robot:
     raise HybridIKError("hybrid IK: the model must have a classical robot (`model.robot_` or `model.robot`)")
 
 
-def check_model(model) -> Robot:
+def predicting_robot(model) -> Robot:
+    """:func:`classical_robot` in the frames the model's ``predict`` answers in: a registered model's
+    fitted frames (``frame_pre_`` · T · ``frame_post_``: a moved tracker, a new tool) folded into its base
+    and tool, so that its classical FK (and closed form) seeds and linearises targets given in that frame."""
     robot = classical_robot(model)
+    pre, post = getattr(model, "frame_pre_", None), getattr(model, "frame_post_", None)
+    if pre is None or post is None or (np.array_equal(pre, np.eye(4)) and np.array_equal(post, np.eye(4))):
+        return robot
+    return robot.copy(base=np.asarray(pre, dtype=np.float64) @ robot.base, tool=robot.tool @ np.asarray(post, dtype=np.float64))
+
+
+def check_model(model) -> Robot:
+    """The model's classical robot as its ``predict`` places it (:func:`predicting_robot`); HybridIKError
+    for a model without ``predict``."""
+    robot = predicting_robot(model)
     if not callable(getattr(model, "predict", None)):
         raise HybridIKError("hybrid IK: the model must have `predict(q)` -> (N, 4, 4) poses")
     return robot

@@ -124,10 +124,13 @@ def classical_seeds(robot: Robot, T: np.ndarray, *, all_branches: bool = True, q
 
 
 
-def seed_robot_of(model, seed_robot):
+def seed_robot_of(model, seed_robot, robot: Robot | None = None):
+    """The robot whose closed form seeds ``model``'s branches: ``seed_robot`` if given, else the classical
+    ``robot`` (default :func:`classical_robot`; hybrid IK passes it in the registered frames) if it has a
+    closed form, else the nominal robot in its base and tool, else :func:`closed_form_proxy`."""
     if seed_robot is not None:
         return seed_robot
-    cls = classical_robot(model)
+    cls = classical_robot(model) if robot is None else robot
     if has_closed_form(cls):
         return cls
     for name in ("nominal", "robot"):  # HybridModel: robot = nominal, robot_ = calibrated

@@ -396,8 +396,8 @@ def hybrid_ik_from_seeds(
             solved_t[:] = False
             solved_t[rows[o_]] = True
             alt_rows = np.flatnonzero(~o_ & ~solved_t[rows])
-            if alt_rows.size:
-                wide = np.flatnonzero(rev & (robot.upper - robot.lower > 2 * np.pi))
+            wide = np.flatnonzero(rev & (robot.upper - robot.lower > 2 * np.pi))
+            if alt_rows.size and wide.size:  # (no joint with a range over 2π: no other representation)
                 shifts = np.array(np.meshgrid(*([[-1.0, 0.0, 1.0]] * wide.size))).reshape(wide.size, -1).T * 2 * np.pi
                 shifts = shifts[np.any(shifts != 0, axis=1)]
                 if shifts.size:
