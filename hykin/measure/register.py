@@ -15,7 +15,7 @@ not fit the model; where the nominal robot with frames fitted on the same poses 
 (leave-one-pose-out), the registration falls back to it. A robot file without a model registers
 through :class:`hykin.measure.robot_model.RobotModel`. On a virtual robot measured on two days (tracker moved, tool re-mounted by 0.5 mm /
 0.05°, joint zeros drifted by 0.01°; benchmarks/bench_transfer.py, default recipe) the 30-pose
-registration recovers the drifts of joints 2-5 to within 0.0002-0.0007° (std 0.0015-0.0024°) and
+registration recovers the drifts of joints 2-5 to within 0.0002-0.0007° and
 predicts day 2 at 1.23× (position) / 1.04× (orientation) day 1's own held-out error (0.0216 mm /
 0.0068°) with the automatic orientation weight (other draws of the 30 poses: 1.12×, 1.13×), against
 1.32× / 1.04× at the former fixed 1 m/rad and 5.8× / 2.2× with base and tool alone (2026-11-23). On UR10 series B (model from series A) no joint zero or
@@ -79,6 +79,7 @@ from .register_checks import (
     expected_sigmas,
     nominal_comparison,
 )
+from .register_fit import MIN_T, RegistrationProblem, candidate_names, parameter_stds, robot_with, select_extra
 
 __all__ = ["RegisteredParameter", "RegistrationError", "RegistrationInfo", "register_model"]
 
@@ -184,13 +185,6 @@ def _avoid_fade_zone(model, q: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray,
     return np.sort(np.asarray(keep, dtype=np.int64)), int(bad.size)
 
 
-#: Scale of each kind of registration parameter for the identifiability QR (1 mm, 1 mrad, 1e-3 scale).
-_SCALE = {"frame_m": 1e-3, "frame_rad": 1e-3, "offset": 1e-3, "scale": 1e-3}
-_RANK_TOL = 0.05  # |R_kk| / ||column|| below this: redundant with the parameters before it
-_MIN_PRESS_GAIN = 0.03  # a parameter is kept only if it lowers the leave-one-pose-out error by >= 3 %
-_MIN_T = 3.0  # ... and its estimate is at least 3 standard deviations from zero
-
-
 @dataclass
 class RegisteredParameter:
     """One re-fitted quantity: ``value``/``std`` in report units (mm, deg or ppm)."""
@@ -199,155 +193,6 @@ class RegisteredParameter:
     value: float
     std: float
     unit: str
-
-
-def _candidate_names(model, series_has_temperature: bool) -> list[str]:
-    """Joint-zero and thermal-scale candidates beyond the 12 frame parameters, in priority order."""
-    rob = model.robot_
-    out = []
-    if rob.convention in ("dh", "mdh"):
-        out += [f"q{j + 1}.zero" for j in range(rob.dof) if rob.independent_joint_type[j] == "revolute"]
-    out.append("thermal.scale")
-    return out
-
-
-def _robot_with(rob, names: list[str], x: np.ndarray):
-    """``rob`` with joint zero offsets (rad) and a uniform length scale (thermal state) applied."""
-    if not names:
-        return rob
-    th = rob.theta_rad.copy()
-    s = 0.0
-    for nm, v in zip(names, x):
-        if nm == "thermal.scale":
-            s = v
-        else:
-            th[int(nm[1:].split(".")[0]) - 1] += v
-    ch = {"theta_rad": th}
-    if s != 0.0:
-        f = 1.0 + s
-        base, tool = rob.base.copy(), rob.tool.copy()
-        base[:3, 3] *= f
-        tool[:3, 3] *= f
-        ch.update(a_m=rob.a_m * f, d_m=rob.d_m * f, base=base, tool=tool, origin_xyz_m=rob.origin_xyz_m * f)
-    return rob.copy(**ch)
-
-
-class _Problem:
-    """Registration residual ``T_meas ≈ B · T_model(q; offsets, scale) · E`` on the used poses.
-
-    The model's own correction (networks, thermal) is kept from its prediction ``T_h0`` and the
-    extra parameters act through the classical chain: ``p = p_h0 + p_c(x) - p_c(0)``,
-    ``R = R_c(x) R_c(0)ᵀ R_h0``."""
-
-    def __init__(self, model, q, T_h0, T_meas, extra: list[str], position_only: bool, w: float = 1.0):
-        from ..kinematics.classical import classical_fk
-
-        self.model, self.q, self.T_h0, self.T_meas = model, q, T_h0, T_meas
-        self.extra, self.pos_only, self.w = list(extra), position_only, w
-        self.T_c0 = classical_fk(model.robot_, q)
-        self._fk = classical_fk
-
-    def poses(self, x: np.ndarray) -> np.ndarray:
-        T = self.T_h0
-        if self.extra and np.any(x[12:] != 0):
-            Tc = self._fk(_robot_with(self.model.robot_, self.extra, x[12:]), self.q)
-            T = np.array(self.T_h0, copy=True)
-            T[:, :3, 3] += Tc[:, :3, 3] - self.T_c0[:, :3, 3]
-            T[:, :3, :3] = Tc[:, :3, :3] @ np.swapaxes(self.T_c0[:, :3, :3], 1, 2) @ self.T_h0[:, :3, :3]
-        B = pose_from_vector6(x[:6])
-        E = pose_from_vector6(np.concatenate([np.zeros(3) if self.pos_only else x[6:9], x[9:12]]))
-        return B @ T @ E
-
-    def resid(self, x: np.ndarray) -> np.ndarray:
-        """``(N, 3 or 6)`` residual rows per pose (m, and w · rad)."""
-        T = self.poses(x)
-        r = T[:, :3, 3] - self.T_meas[:, :3, 3]
-        if self.pos_only:
-            return r
-        return np.concatenate([r, self.w * rotation_difference_rotvec(T[:, :3, :3], self.T_meas[:, :3, :3])], 1)
-
-    def jac(self, x: np.ndarray, h: float = 1e-7) -> np.ndarray:
-        """Central-difference Jacobian ``(N, rows, P)`` of :meth:`resid` (SI units)."""
-        cols = []
-        for k in range(len(x)):
-            e = np.zeros(len(x))
-            e[k] = h
-            cols.append((self.resid(x + e) - self.resid(x - e)) / (2 * h))
-        return np.stack(cols, -1)
-
-
-def _loo_press(r: np.ndarray, J: np.ndarray) -> float:
-    """Leave-one-pose-out prediction error sum of squares of the linearised fit ``J dx ≈ -r``: each
-    pose's rows are left out together (``e_i = (I - H_ii)⁻¹ r_i`` of the fitted residual)."""
-    N, m, P = J.shape
-    A = J.reshape(N * m, P)
-    sol, *_ = np.linalg.lstsq(A, -r.ravel(), rcond=None)
-    rf = (r.ravel() + A @ sol).reshape(N, m)
-    G = np.linalg.pinv(A.T @ A)
-    H = np.einsum("nip,pq,njq->nij", J, G, J)  # (N, m, m) diagonal blocks of the hat matrix
-    I = np.eye(m)
-    e = np.linalg.solve(I[None] - H + 1e-12 * I[None], rf[..., None])[..., 0]
-    return float((e**2).sum())
-
-
-def _select_extra(prob: _Problem, x0: np.ndarray, cands: list[str]) -> tuple[list[str], dict[str, str]]:
-    """Which of ``cands`` to re-fit: identifiable after the frames (QR of the scaled Jacobian, priority
-    order frames, joints base to tip, thermal scale) and significant (backward elimination by
-    leave-one-pose-out error of the linearised fit: each kept parameter lowers it by >= 3 % and is
-    >= 3 std from zero).
-    Returns the chosen names and, for each candidate left out, why."""
-    from ..calibration.identifiability import identifiable_columns
-
-    why: dict[str, str] = {}
-    if not cands:
-        return [], why
-    full = _Problem(prob.model, prob.q, prob.T_h0, prob.T_meas, cands, prob.pos_only, prob.w)
-    x = np.concatenate([x0, np.zeros(len(cands))])
-    r = full.resid(x)
-    J = full.jac(x)
-    N, m, P = J.shape
-    sc = np.array([_SCALE["frame_rad"]] * 3 + [_SCALE["frame_m"]] * 3 + [_SCALE["frame_rad"]] * 3 + [_SCALE["frame_m"]] * 3
-                  + [_SCALE["scale" if c == "thermal.scale" else "offset"] for c in cands])
-    frame_cols = [k for k in range(12) if not (prob.pos_only and 6 <= k < 9)]
-    keep_cols = frame_cols + list(range(12, P))
-    Js = (J * sc)[..., keep_cols].reshape(N * m, -1)
-    mask, ratio = identifiable_columns(Js, _RANK_TOL, 1e-6)
-    ident = [c for k, c in enumerate(cands) if mask[len(frame_cols) + k]]
-    for k, c in enumerate(cands):
-        if c not in ident:
-            why[c] = f"not identifiable from these poses (QR ratio {ratio[len(frame_cols) + k]:.3f})"
-    floor = N * m * (1e-7) ** 2  # below 0.1 µm per row there is nothing left to explain
-
-    def fit_stats(names):
-        cols = frame_cols + [12 + cands.index(k) for k in names]
-        A = J[..., cols].reshape(N * m, -1)
-        dx, *_ = np.linalg.lstsq(A, -r.ravel(), rcond=None)
-        s2 = float(((r.ravel() + A @ dx) ** 2).sum()) / max(N * m - len(cols), 1)
-        std = np.sqrt(np.maximum(np.diag(np.linalg.pinv(A.T @ A)) * s2, 1e-300))
-        return _loo_press(r, J[..., cols]), np.abs(dx[len(frame_cols):]) / std[len(frame_cols):]
-
-    # Backward elimination from every identifiable candidate (forward selection misses parameters
-    # that only act together, e.g. opposite zero drifts of two parallel joints).
-    chosen = list(ident)
-    while chosen and len(frame_cols) + len(chosen) > N * m // 3:  # few poses: at most a third as many unknowns as rows
-        why[chosen.pop()] = f"too few poses ({N}) to re-fit it beside the frames"
-    if not chosen:
-        return [], why
-    press, t = fit_stats(chosen)
-    while chosen:
-        trials = [(fit_stats([k for k in chosen if k != c])[0], c) for c in chosen]
-        pr, c = min(trials)
-        weak = int(np.argmin(t))
-        if pr <= press + max(_MIN_PRESS_GAIN * pr, floor):
-            why[c] = "not significant (leaving it out changes the leave-one-pose-out error by less than 3 %)"
-        elif t[weak] < _MIN_T:
-            c = chosen[weak]
-            why[c] = f"not significant (|estimate| {t[weak]:.1f} std < {_MIN_T:g})"
-        else:
-            break
-        chosen.remove(c)
-        press, t = fit_stats(chosen)
-    return [c for c in cands if c in chosen], why
 
 
 def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, select: str = "representative",
@@ -491,24 +336,24 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
     x0 = np.concatenate([rotation_difference_rotvec(B[None, :3, :3], np.eye(3)[None])[0], B[:3, 3],
                          rotation_difference_rotvec(E[None, :3, :3], np.eye(3)[None])[0], E[:3, 3]])
     has_rob = getattr(new, "robot_", None) is not None
-    cands = _candidate_names(new, temp is not None) if has_rob else []
+    cands = candidate_names(new, temp is not None) if has_rob else []
     not_fitted: dict[str, str] = {}
     if refit == "frames" or not cands:
         extra = []
         not_fitted = {c: "not requested (frames only)" for c in cands}
     elif refit == "auto":
-        prob0 = _Problem(new, series.q[idx], T_model[idx], T_meas[idx], [], pos_only, w)
-        extra, not_fitted = _select_extra(prob0, x0, cands)
+        prob0 = RegistrationProblem(new, series.q[idx], T_model[idx], T_meas[idx], [], pos_only, w)
+        extra, not_fitted = select_extra(prob0, x0, cands)
     else:
         extra = [str(c) for c in refit]
         bad = [c for c in extra if c not in cands]
         if bad:
             raise ValueError(f"register: refit names {bad} are not candidates; candidates: {', '.join(cands)}")
-    prob = _Problem(new, series.q[idx], T_model[idx], T_meas[idx], extra, pos_only, w) if has_rob else None
+    prob = RegistrationProblem(new, series.q[idx], T_model[idx], T_meas[idx], extra, pos_only, w) if has_rob else None
     x = x0
     params: list[RegisteredParameter] = []
     implausible = None  # a zero / scale no drift explains: frames only, the tests below decide
-    if extra:
+    while extra:
         sol_x = least_squares(lambda v: prob.resid(v).ravel(), np.concatenate([x0, np.zeros(len(extra))]),
                               jac=lambda v: prob.jac(v).reshape(-1, len(v)), method="lm", xtol=1e-15, ftol=1e-15,
                               gtol=1e-15)
@@ -518,21 +363,27 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
             implausible = str(e)
             not_fitted.update({c: "implausible value (" + implausible.split(": ", 1)[-1] + ")" for c in extra})
             extra = []
-            prob = _Problem(new, series.q[idx], T_model[idx], T_meas[idx], [], pos_only, w)
+            prob = RegistrationProblem(new, series.q[idx], T_model[idx], T_meas[idx], [], pos_only, w)
+            break
+        # significant at the solution too (the selection's test is linearised at the frames-only fit)
+        sd = parameter_stds(prob, sol_x.x, pos_only)
+        t = np.array([abs(sol_x.x[12 + k]) / max(sd[12 + k], 1e-300) for k in range(len(extra))])
+        weak = int(np.argmin(t))
+        if t[weak] >= MIN_T:
+            break
+        not_fitted[extra.pop(weak)] = f"not significant at the solution (|estimate| {t[weak]:.1f} std < {MIN_T:g})"
+        prob = RegistrationProblem(new, series.q[idx], T_model[idx], T_meas[idx], extra, pos_only, w)
     if extra:
         sol, x = sol_x, sol_x.x
-        new.robot_ = _robot_with(new.robot_, extra, x[12:])
+    # standard deviations of everything fitted at the solution (before the model takes the re-fitted values)
+    std = parameter_stds(prob, x, pos_only) if prob is not None else {}
+    if extra:
+        new.robot_ = robot_with(new.robot_, extra, x[12:])
         T_model = new.predict(series.q, temperature_c=temp, **pl_kw)
         B = pose_from_vector6(x[:6])
         E = pose_from_vector6(np.concatenate([np.zeros(3) if pos_only else x[6:9], x[9:12]]))
-    # standard deviations of everything fitted: sigma^2 (J^T J)^-1 at the solution
     if prob is not None:
-        J = prob.jac(x)
-        r = prob.resid(x)
-        cols = [k for k in range(len(x)) if not (pos_only and 6 <= k < 9)]
-        A = J[..., cols].reshape(-1, len(cols))
-        s2 = float((r**2).sum()) / max(A.shape[0] - len(cols), 1)
-        std = dict(zip(cols, np.sqrt(np.maximum(np.diag(np.linalg.pinv(A.T @ A)) * s2, 0.0))))
+        cols = list(std)
         labels = ["base.rx", "base.ry", "base.rz", "base.x", "base.y", "base.z",
                   "tool.rx", "tool.ry", "tool.rz", "tool.x", "tool.y", "tool.z"] + extra
         for k in cols:

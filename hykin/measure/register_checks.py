@@ -284,8 +284,8 @@ def networks_transfer(w: np.ndarray, T_h: np.ndarray, T_c: np.ndarray, T_meas: n
         t = float(d.mean() / max(d.std(ddof=1) / np.sqrt(n), 1e-300))
         harm |= t > NETWORK_HARM_T
         parts.append(f"{h.mean():.4f} against {c.mean():.4f} {unit} (t {t:+.1f})")
-    where = (f"on the {n} of {len(w)} registration poses where it applies, leave-one-pose-out hybrid vs calibrated "
-             + ", ".join(parts))
+    where = (f"on the {n} of {len(w)} registration poses where it applies, leave-one-pose-out with base and tool "
+             "alone re-fitted (before any joint zero or thermal re-fit below), hybrid vs calibrated " + ", ".join(parts))
     if not harm:
         return True, f"network correction: kept; {where}"
     return False, (f"network correction: OFF for this series (the calibrated model everywhere; it does not carry "
