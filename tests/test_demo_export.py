@@ -42,6 +42,7 @@ def test_demo_quick_writes_report_and_beats_nominal(tmp_path):
     assert json.loads((tmp_path / "demo" / "truth.json").read_text())
 
 
+@pytest.mark.slow  # the default suite exports a compliant model in tests/test_export_s39.py (ONNX Runtime at several payloads)
 @pytest.mark.filterwarnings("ignore::hykin.hybrid.errors.OutOfRangeWarning")  # random joints fall in holes of 1,500 samples
 def test_onnx_export_matches_hykin(tmp_path, small_model):
     pytest.importorskip("onnxruntime")

@@ -382,7 +382,7 @@ def test_coverage_measures_against_references():
     assert hole_fraction(grid, ref) == 0.0
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow)])
 def test_plan_is_more_uniform_than_random_and_stratified(seed):
     """The planned poses cover the working region more evenly than uniform random poses of the same
     number, by the coverage measures of hykin.planning.coverage (measured at 256 poses: discrepancy

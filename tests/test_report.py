@@ -265,6 +265,7 @@ def test_report_renders_in_headless_chromium(tmp_path):
     assert near(c1) > 500, "no histogram bars (C1) rendered"
 
 
+@pytest.mark.slow  # test_report_renders_in_headless_chromium renders the report in the default suite
 @pytest.mark.browser
 @pytest.mark.skipif(CHROMIUM is None, reason=NO_BROWSER)
 def test_model_report_in_chromium_fits_loads_and_prints_a4(built, tmp_path):

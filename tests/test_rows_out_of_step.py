@@ -17,8 +17,8 @@ from hykin.kinematics.fk import fk
 def test_one_row_shift_named(lead):
     rob = load_robot("ur5")
     rng = np.random.default_rng(4)
-    q = rob.random_joints(81, rng)
-    xyz = fk(rob, q)[:, :3, 3] + rng.normal(0, 20e-6, (81, 3))
+    q = rob.random_joints(61, rng)
+    xyz = fk(rob, q)[:, :3, 3] + rng.normal(0, 20e-6, (61, 3))
     if lead == 1:  # row i: joints i, measurement of pose i + 1
         ds = Dataset(q=q[:-1], xyz_m=xyz[1:], source="shift.csv")
     else:
