@@ -57,3 +57,17 @@ def test_reported_zero_stds_match_the_scatter_over_noise_draws(exact_rx160_model
         reported = float(np.mean(std[name]))
         assert 0.3 < reported / scatter < 3.0, (name, reported, scatter)
         assert abs(np.mean(est[name]) - DRIFT_DEG[int(name[1]) - 1]) < 4 * reported
+
+
+def test_a_series_that_moves_only_the_wrist_is_named(exact_rx160_model):
+    """Joints 1-3 held still over the registration poses: the report names them with their ranges."""
+    model = _exact(exact_rx160_model)
+    rng = np.random.default_rng(6)
+    q = np.tile(np.radians([20.0, -30.0, 95.0, 0.0, 0.0, 0.0]), (30, 1))
+    q[:, 3:] = rng.uniform(-1.5, 1.5, (30, 3))
+    q[:, 2] += np.radians(np.linspace(0.0, 4.0, 30))  # joint 3: 4 degrees only
+    ds = Dataset(q=q, xyz_m=(TRACKER @ fk(model.robot, q))[:, :3, 3], source="wrist.csv")
+    _, info = register_model(model, ds, n_poses=30, check_nominal=False)
+    assert "coverage: joints barely move over the registration poses (q1 0 deg, q2 0 deg, q3 4 deg)" in info.report()
+    _, info2 = register_model(model, _series(model.robot, 0), n_poses=30, check_nominal=False)
+    assert "coverage" not in info2.report()
