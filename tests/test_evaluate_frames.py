@@ -155,3 +155,26 @@ def test_payload_blank_cell_named():
     ds = Dataset(q=np.zeros((4, 6)), xyz_m=np.zeros((4, 3)), extra={"payload_kg": kg}, source="pl.csv")
     with pytest.raises(DatasetError, match=r"pl\.csv, row 3, column 'payload_kg': an empty cell"):
         payload_of(ds)
+
+
+def test_a_weak_model_on_a_small_region_is_not_called_another_frame(exact_rx160_model):
+    """Over a small joint region the nominal robot with fitted frames is nearly exact, so a model 0.4 mm
+    off (weakly trained, fitted without calibration) is worse than it without any frame being wrong
+    (probe report U): evaluated, not refused. A 58 mm tool change on the same poses still is."""
+    import copy
+
+    from hykin.evaluation.evaluate import FrameMismatchError, evaluate_model
+
+    rob = exact_rx160_model.robot
+    rng = np.random.default_rng(12)
+    q = np.radians([30.0, -40.0, 100.0, 10.0, 45.0, -20.0]) + rng.uniform(-np.radians(5), np.radians(5), (30, 6))
+    T = fk(rob, q)
+    ds = Dataset(q=q, xyz_m=T[:, :3, 3] + rng.normal(0, 10e-6, (30, 3)), quat_wxyz=se3.matrix_to_quat(T[:, :3, :3]),
+                 source="small.csv")
+    weak = copy.deepcopy(exact_rx160_model)
+    weak.frame_post_ = se3.trans(0.0004, 0.0, 0.0)  # 0.4 mm off everywhere
+    res = evaluate_model(weak, ds)
+    assert res.stats["hybrid"].pos_mean_mm == pytest.approx(0.4, abs=0.02)
+    xyz, quat = se3.transform_to_pose(ds.poses() @ se3.trans(0.0, 0.03, 0.05))
+    with pytest.raises(FrameMismatchError):
+        evaluate_model(weak, Dataset(q=q, xyz_m=xyz, quat_wxyz=quat, source="tool2.csv"))

@@ -132,6 +132,10 @@ FRAME_FIT_FACTOR = 2.0
 #: test data of at least this many distinct poses (joints rounded to 1e-3 rad) are checked to be in the
 #: model's frame (:func:`check_model_frame`)
 FRAME_CHECK_POSES = 20
+#: ... and only a model error above this (mm) and above this many times the model's own held-out mean
+#: error counts as another frame (a moved tracker: metres; another tool: centimetres)
+FRAME_CHECK_MIN_MM = 1.0
+FRAME_CHECK_OWN_FACTOR = 5.0
 _FIT_ROWS = 2000  # at most this many evenly spread rows fit the nominal row's frames
 
 
@@ -170,6 +174,17 @@ def distinct_poses(q: np.ndarray, tol: float = 1e-6) -> int:
     return int(len(np.unique(np.round(q / tol), axis=0))) if len(q) else 0
 
 
+def _own_mm(model) -> float | None:
+    """The model's own mean position error (mm) on the rows held out from its training, else on its
+    validation data, from its metadata; None when it has none."""
+    metrics = (getattr(model, "metadata", None) or {}).get("metrics") or {}
+    for key in ("held_out", "val"):
+        v = (metrics.get(key) or {}).get("hybrid_pos_mean_mm")
+        if v is not None and np.isfinite(v):
+            return float(v)
+    return None
+
+
 def _mean_mm(T: np.ndarray, T_meas: np.ndarray) -> float:
     return float(np.linalg.norm(T[:, :3, 3] - T_meas[:, :3, 3], axis=1).mean() * 1e3)
 
@@ -179,18 +194,25 @@ class FrameMismatchError(ValueError):
 
 
 def check_model_frame(data: Dataset, T_model: np.ndarray, T_meas: np.ndarray, position_only: bool,
-                      nominal_mm: float | None, what: str = "hybrid model") -> None:
+                      nominal_mm: float | None, what: str = "hybrid model", own_mm: float | None = None) -> None:
     """Refuse (:class:`FrameMismatchError`, one line) test data that are not in the model's frame (a moved tracker,
     another tool): the model's poses ``T_model`` are worse than the nominal robot's (mean ``nominal_mm``,
     its frames fitted where needed) and more than :data:`FRAME_FIT_FACTOR` times worse than with base
     and tool fitted to the data. Both are needed: a good model in its own frame beats the nominal
-    robot, and a frame error is what a rigid fit removes. Data of fewer than :data:`FRAME_CHECK_POSES`
-    distinct poses are not tested (the fit's 12 parameters absorb too much there)."""
+    robot, and a frame error is what a rigid fit removes. And the model's error must exceed
+    :data:`FRAME_CHECK_MIN_MM` and :data:`FRAME_CHECK_OWN_FACTOR` times its own held-out mean error
+    ``own_mm`` (mm, from its metadata): over a small joint region the nominal robot with fitted frames is
+    a few 0.1 mm off, so a model fitted without calibration, or weakly trained, is worse than it there
+    without any frame being wrong (measured: 0.465 mm against 0.168 mm on 30 poses within ±5°). Data of
+    fewer than :data:`FRAME_CHECK_POSES` distinct poses are not tested (the fit's 12 parameters absorb
+    too much there)."""
     if len(T_meas) < 4 or distinct_poses(data.q, tol=1e-3) < FRAME_CHECK_POSES:
         return
     e_model = _mean_mm(T_model, T_meas)
     if nominal_mm is not None and e_model <= nominal_mm:
         return
+    if e_model <= max(FRAME_CHECK_MIN_MM, FRAME_CHECK_OWN_FACTOR * (own_mm or 0.0)):
+        return  # within the model's own accuracy (or a millimetre): a weak model, or a small region, not a frame
     e_fit = _mean_mm(with_fitted_frames(T_model, T_meas, position_only), T_meas)
     if e_model <= FRAME_FIT_FACTOR * e_fit:
         return
@@ -251,7 +273,7 @@ def evaluate_model(model, data: Dataset, *, fit_frames: bool = False) -> EvalRes
                     labels[k] = f"{k} + fitted frames"
         else:
             check_model_frame(data, preds["hybrid"], T_meas, pos_only,
-                              _mean_mm(preds["nominal"], T_meas) if "nominal" in preds else None)
+                              _mean_mm(preds["nominal"], T_meas) if "nominal" in preds else None, own_mm=_own_mm(model))
         if hasattr(model, "support_distance"):
             dist = np.asarray(model.support_distance(data.q))
     stats, errors, vectors = {}, {}, {}

@@ -71,7 +71,7 @@ _MAX_LIMIT_TURNS = 2.0  # a revolute limit beyond two turns either way (±720°)
 # least _RAD_LIMITS_MIN_JOINTS revolute joints each spanning at least _RAD_LIMITS_MIN_SPAN (57° if
 # radians), the shape of a real arm's limits written in radians; sub-degree test robots are left alone.
 _RAD_LIMITS_AS_DEG = 2 * math.pi + 1e-3
-_RAD_LIMITS_MIN_JOINTS = 3
+_RAD_LIMITS_MIN_JOINTS = 4  # a tip/tilt/rotate stage or a gantry's head (3 rotary axes within a few degrees) is real
 _RAD_LIMITS_MIN_SPAN = 1.0
 _TOP_KEYS = ("name", "convention", "length_unit", "angle_unit", "joints", "tool", "base", "payload", "gravity", "source")
 # Geometry a user must write for every joint: a silently defaulted link length or twist is a wrong
@@ -223,7 +223,8 @@ def robot_from_dict(doc: dict, where: str = "<robot>") -> Robot:
 def _check_limits_not_radians(where: str, types, lower_rad, upper_rad) -> None:
     """Refuse revolute limits (rad, read from degrees) that all lie within ±2π degrees: radian values under
     angle_unit = 'deg' (±2.967 "deg" for ±170°), which would plan and calibrate a sliver of the workspace.
-    Tested when at least 3 revolute joints each span at least 1 "degree" (module constants)."""
+    Tested when at least 4 revolute joints each span at least 1 "degree" (module constants): an arm; a
+    stage or a gantry head with 3 rotary axes of a few degrees is a real machine."""
     rev = [i for i, t in enumerate(types) if t == "revolute"]
     if len(rev) < _RAD_LIMITS_MIN_JOINTS:
         return
