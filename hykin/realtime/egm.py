@@ -17,8 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import se3
-from .rsi import MAX_MISMATCH_DEG, MAX_MISMATCH_MM
-from .udp_bridge import Outcome, RestartWatch, check_limits
+from .udp_bridge import MAX_MISMATCH_DEG, MAX_MISMATCH_MM, Outcome, RestartWatch, check_actual_pose, check_limits
 
 __all__ = ["EgmHandler", "format_robot", "format_sensor", "parse_robot", "parse_sensor"]
 
@@ -146,14 +145,10 @@ class EgmHandler:
         ``actual``: ``feedBack.cartesian`` (4, 4), checked against the nominal FK of the joints (as RSI's RIst)."""
         q = np.radians(np.asarray(joints_deg, dtype=np.float64)) * self.signs
         if actual is not None and self.nominal_fk is not None:
-            dp, da = se3.pose_error(np.asarray(self.nominal_fk(q), dtype=np.float64)[None], actual[None])
-            self.mismatch_max = (max(self.mismatch_max[0], float(dp[0])), max(self.mismatch_max[1], float(da[0])))
-            mm, deg = self.max_mismatch
-            if not (dp[0] <= mm and da[0] <= deg):
-                raise ValueError(f"feedBack mismatch: the controller's actual pose feedBack.cartesian is {dp[0]:.1f} mm / "
-                                 f"{da[0]:.2f} deg from the nominal FK of feedBack.joints (bound {mm:g} mm / {deg:g} deg, "
-                                 f"--max-mismatch-mm/-deg): the axis signs (--axis-signs), the robot file, or the "
-                                 f"controller's tool or base frame differ from hykin's")
+            self.mismatch_max, why = check_actual_pose(self.nominal_fk, q, actual, self.max_mismatch, self.mismatch_max,
+                                                       ("feedBack", "feedBack.cartesian", "feedBack.joints"))
+            if why:
+                raise ValueError(why)
         r = self.step(self.base @ planned, q)
         if not r.success:
             raise ValueError(f"unreachable setpoint: not compensated ({r.reason})")

@@ -29,15 +29,12 @@ import numpy as np
 from ..compensation.krl import abc_from_matrix, matrix_from_abc
 from ..geometry import se3
 from .rsi_xml import RsiConfig, RsiMessageError, format_sen, parse_rob
-from .udp_bridge import Outcome, RestartWatch, check_limits
+from .udp_bridge import MAX_MISMATCH_DEG, MAX_MISMATCH_MM, Outcome, RestartWatch, check_actual_pose, check_limits
 
 __all__ = ["DECIMALS", "MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "RsiHandler", "korr_of", "pose_of"]
 
 DECIMALS = 5  # of RKorr as written (mm, deg)
 RESTART_BEHIND_MS = 1000  # an IPOC this far behind (or ahead of) the last answered one may be a new RSI context
-#: the controller's actual pose RIst this far from the nominal FK of its axes AIPos (mm, deg) is a set-up error
-#: (axis signs, robot file, tool or base frame), not the nominal model's own error (a few mm at most)
-MAX_MISMATCH_MM, MAX_MISMATCH_DEG = 20.0, 2.0
 RESYNC_TOL = 2e-3  # mm / deg: RIst's sum and hykin's agree within this (both written with 5-6 decimals)
 _log = logging.getLogger("hykin.realtime")
 _CAUSES = ("RIst mismatch:", "unreachable setpoint:", "correction over the limit:")  # failure reasons' categories
@@ -120,19 +117,14 @@ class RsiHandler:
     def check_actual(self, actual, q) -> None:
         """ValueError when the controller's actual pose ``RIst`` (X..C) is farther than the bound from
         the nominal FK of the axes ``q`` (rad, model joints): the controller's axes, robot or frames are
-        not the ones hykin compensates for."""
+        not the ones hykin compensates for (:func:`hykin.realtime.udp_bridge.check_actual_pose`)."""
         if actual is None or self.nominal_fk is None:
             return
-        dp, da = se3.pose_error(np.asarray(self.nominal_fk(q), dtype=np.float64)[None], pose_of(actual)[None])
-        dp, da = float(dp[0]), float(da[0])
         self.mismatch_checked += 1
-        self.mismatch_max = (max(self.mismatch_max[0], dp), max(self.mismatch_max[1], da))
-        mm, deg = self.max_mismatch
-        if not (dp <= mm and da <= deg):
-            raise ValueError(f"RIst mismatch: the controller's actual pose RIst is {dp:.1f} mm / {da:.2f} deg from the "
-                             f"nominal FK of AIPos (bound {mm:g} mm / {deg:g} deg, --max-mismatch-mm/-deg): the axis "
-                             f"signs (--axis-signs), the robot file, or the controller's tool or base frame differ "
-                             f"from hykin's")
+        self.mismatch_max, why = check_actual_pose(self.nominal_fk, q, pose_of(actual), self.max_mismatch,
+                                                   self.mismatch_max, ("RIst", "RIst", "AIPos"))
+        if why:
+            raise ValueError(why)
 
     def correction(self, setpoint, axes_deg, actual=None) -> np.ndarray:
         """The absolute correction ``(6,)`` for one setpoint (ValueError with the reason on failure)."""

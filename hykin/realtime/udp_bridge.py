@@ -23,7 +23,10 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 
-__all__ = ["BridgeStats", "Outcome", "RestartWatch", "arrival_time", "bind_udp", "check_limits", "parse_listen",
+import numpy as np
+
+__all__ = ["MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "BridgeStats", "Outcome", "RestartWatch", "arrival_time", "bind_udp",
+           "check_actual_pose", "check_limits", "parse_listen",
            "raise_priority", "run_bridge"]
 
 _log = logging.getLogger("hykin.realtime")
@@ -98,6 +101,30 @@ def check_limits(**limits) -> None:
         if not (isinstance(v, (int, float)) and math.isfinite(v) and low_ok):
             need = "a finite number >= 0" if name == "idle_exit_s" else "a finite number > 0"
             raise ValueError(f"{opt} must be {need}, got {v!r}")
+
+
+#: the controller's actual pose this far from the nominal FK of its joints (mm, deg) is a set-up error
+#: (axis signs, robot file, tool or base frame), not the nominal model's own error (a few mm at most)
+MAX_MISMATCH_MM, MAX_MISMATCH_DEG = 20.0, 2.0
+
+
+def check_actual_pose(nominal_fk, q: np.ndarray, actual: np.ndarray, bound: tuple[float, float],
+                      worst: tuple[float, float], names: tuple[str, str, str]) -> tuple[tuple[float, float], str]:
+    """The controller's actual pose ``actual`` ``(4, 4)`` against the nominal FK of its joints ``q`` (rad).
+    Returns ``worst`` (largest gap so far: mm, deg) updated with this one, and ``""`` within ``bound``
+    (mm, deg), else the reason, starting with ``"<names[0]> mismatch:"``. ``names``: the category, the
+    actual pose's field and the joints' field as the protocol names them (RSI: ``RIst``, ``RIst``, ``AIPos``)."""
+    from ..geometry import se3
+
+    dp, da = se3.pose_error(np.asarray(nominal_fk(q), dtype=np.float64)[None], np.asarray(actual)[None])
+    dp, da = float(dp[0]), float(da[0])
+    worst = (max(worst[0], dp), max(worst[1], da))
+    mm, deg = bound
+    if dp <= mm and da <= deg:
+        return worst, ""
+    return worst, (f"{names[0]} mismatch: the controller's actual pose {names[1]} is {dp:.1f} mm / {da:.2f} deg from "
+                   f"the nominal FK of {names[2]} (bound {mm:g} mm / {deg:g} deg, --max-mismatch-mm/-deg): the axis "
+                   f"signs (--axis-signs), the robot file, or the controller's tool or base frame differ from hykin's")
 
 
 def _causes(reasons: Counter, last: dict) -> str:
