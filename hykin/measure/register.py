@@ -398,11 +398,10 @@ def register_model(model, series: Dataset, n_poses: int = 30, seed: int = 0, sel
             break
         not_fitted[extra.pop(weak)] = f"not significant at the solution (|estimate| {t[weak]:.1f} std < {MIN_T:g})"
         prob = RegistrationProblem(new, series.q[idx], T_model[idx], T_meas[idx], extra, pos_only, w)
+    # standard deviations of everything fitted, at the solution (before the model takes the re-fitted values)
+    std = parameter_stds(prob, x, pos_only) if prob is not None and not extra else {}
     if extra:
-        sol, x = sol_x, sol_x.x
-    # standard deviations of everything fitted at the solution (before the model takes the re-fitted values)
-    std = parameter_stds(prob, x, pos_only) if prob is not None else {}
-    if extra:
+        sol, x, std = sol_x, sol_x.x, sd  # the last test's stds: this solution's
         new.robot_ = robot_with(new.robot_, extra, x[12:])
         T_model = new.predict(series.q, temperature_c=temp, **pl_kw)
         B = pose_from_vector6(x[:6])
