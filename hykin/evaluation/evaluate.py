@@ -19,8 +19,8 @@ from ..kinematics.classical import classical_fk
 from ..kinematics.robot import Robot
 from .metrics import ErrorStats, error_stats, format_table
 
-__all__ = ["NOMINAL_FITTED", "ROBOT_FILE", "EvalResult", "FrameMismatchError", "check_model_frame", "distinct_poses", "evaluate_model", "evaluate_per_payload", "joint_region_rows",
-           "nominal_row", "with_fitted_frames"]
+__all__ = ["NOMINAL_FITTED", "ROBOT_FILE", "EvalResult", "FrameMismatchError", "check_model_frame", "distinct_poses",
+           "evaluate_model", "evaluate_per_payload", "joint_region_rows", "nominal_row", "with_fitted_frames"]
 
 
 @dataclass
@@ -153,9 +153,7 @@ def nominal_row(nominal: Robot, q: np.ndarray, T_meas: np.ndarray, position_only
     T_fit = with_fitted_frames(T, T_meas, position_only)
     if always_fit:
         return T_fit, NOMINAL_FITTED
-    e_file = np.linalg.norm(T[:, :3, 3] - T_meas[:, :3, 3], axis=1).mean()
-    e_fit = np.linalg.norm(T_fit[:, :3, 3] - T_meas[:, :3, 3], axis=1).mean()
-    return (T_fit, NOMINAL_FITTED) if e_file > FRAME_FIT_FACTOR * e_fit else (T, "nominal")
+    return (T_fit, NOMINAL_FITTED) if _mean_mm(T, T_meas) > FRAME_FIT_FACTOR * _mean_mm(T_fit, T_meas) else (T, "nominal")
 
 
 def with_fitted_frames(T: np.ndarray, T_meas: np.ndarray, position_only: bool) -> np.ndarray:
@@ -194,7 +192,7 @@ class FrameMismatchError(ValueError):
 
 
 def check_model_frame(data: Dataset, T_model: np.ndarray, T_meas: np.ndarray, position_only: bool,
-                      nominal_mm: float | None, what: str = "hybrid model", own_mm: float | None = None) -> None:
+                      nominal_mm: float | None, own_mm: float | None = None) -> None:
     """Refuse (:class:`FrameMismatchError`, one line) test data that are not in the model's frame (a moved tracker,
     another tool): the model's poses ``T_model`` are worse than the nominal robot's (mean ``nominal_mm``,
     its frames fitted where needed) and more than :data:`FRAME_FIT_FACTOR` times worse than with base
@@ -219,7 +217,7 @@ def check_model_frame(data: Dataset, T_model: np.ndarray, T_meas: np.ndarray, po
     nom = "" if nominal_mm is None else f", the nominal robot {nominal_mm:.4g} mm"
     raise FrameMismatchError(
         f"{data.source or '<dataset>'}: the poses are not in the model's frame (a moved tracker, another tool, or the "
-        f"model's base or tool is wrong): the {what} is {e_model:.4g} mm off them, {e_fit:.4g} mm with base and tool "
+        f"model's base or tool is wrong): the hybrid model is {e_model:.4g} mm off them, {e_fit:.4g} mm with base and tool "
         f"fitted to them{nom}; register the model to a series measured in this frame first (hykin register MODEL "
         f"SERIES -o MODEL2; docs/registration.md) and evaluate MODEL2")
 
