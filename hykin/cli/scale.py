@@ -34,13 +34,13 @@ def sweep_cmd(
 ) -> None:
     """Run every trial of a sweep file (each: `hykin fit` with its options + evaluation on the test set)
     on Ray (local, or a cluster with --address). A failing trial is retried once, then recorded with its error; exit 1 if any failed."""
-    from ..distributed.sweep import run_sweep
+    from ..distributed.sweep import SWEEP_OUTPUTS, run_sweep
     from ..distributed.sweep_file import read_sweep
 
     if out.exists() and not out.is_dir():
         raise CLIError(f"{out}: -o must name a directory, got an existing file")
     spec = read_sweep(sweep_file)
-    _check_outputs(out, ("results.csv", "results.csv.tmp", "trials.jsonl", "error_vs_n_train.png"),
+    _check_outputs(out, SWEEP_OUTPUTS,
                    (sweep_file, spec.robot, spec.train, spec.test))
     res = run_sweep(spec, out, address=address, resume=resume, num_cpus=num_cpus, log=typer.echo, force=force)
     typer.echo(f"sweep: {len(res.rows) - len(res.failed)} of {len(res.rows)} trials ok ({res.ran} run now); "

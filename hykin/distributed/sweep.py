@@ -25,7 +25,12 @@ from .sweep_file import SweepSpec, sweep_inputs_hash, trial_key
 from .trial_pool import run_trials
 from .trials import ERROR_COLUMNS, gpu_fit_options
 
-__all__ = ["SweepOutcome", "kept_records", "run_sweep", "write_results", "plot_results"]
+__all__ = ["SWEEP_OUTPUTS", "SweepOutcome", "kept_records", "run_sweep", "write_results", "plot_results"]
+
+#: the files a sweep writes into its output folder: the results table (written through a .tmp file
+#: renamed into place by :func:`write_results`), the trial records and the plot
+RESULTS_CSV, RECORDS, PLOT = "results.csv", "trials.jsonl", "error_vs_n_train.png"
+SWEEP_OUTPUTS = (RESULTS_CSV, RESULTS_CSV + ".tmp", RECORDS, PLOT)
 
 RESULT_COLUMNS = ("status", "error", "attempts", *ERROR_COLUMNS, "fit_s", "eval_s", "steps", "epochs", "test_note")
 
@@ -78,8 +83,8 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
     from .files import SpecError
 
     out = Path(out_dir)
-    records_path = out / "trials.jsonl"
-    if not (resume or force) and (records_path.exists() or (out / "results.csv").exists()):
+    records_path = out / RECORDS
+    if not (resume or force) and (records_path.exists() or (out / RESULTS_CSV).exists()):
         raise ValueError(f"{out}: holds an earlier sweep (results.csv); use --resume to finish it, --force to start "
                          "it over, or another -o")
     trials = spec.trials()
@@ -108,7 +113,7 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
         records[keys[i]] = row
         with open(records_path, "a", encoding="utf-8") as fh:
             fh.write(json.dumps({"key": keys[i], "inputs_sha256": inputs, "row": row}) + "\n")
-        write_results(out / "results.csv", rows_now(), columns)
+        write_results(out / RESULTS_CSV, rows_now(), columns)
         n_done[0] += 1
         el = time.perf_counter() - t_start
         eta = el / n_done[0] * (len(todo) - n_done[0])
@@ -137,9 +142,9 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
             clock["end"] = time.time()
     rows = rows_now()
     out.mkdir(parents=True, exist_ok=True)
-    write_results(out / "results.csv", rows, columns)
-    plot = plot_results(rows, out / "error_vs_n_train.png")
-    return SweepOutcome(rows=rows, ran=len(todo), results_csv=out / "results.csv", plot=plot, clock=clock)
+    write_results(out / RESULTS_CSV, rows, columns)
+    plot = plot_results(rows, out / PLOT)
+    return SweepOutcome(rows=rows, ran=len(todo), results_csv=out / RESULTS_CSV, plot=plot, clock=clock)
 
 
 def write_results(path: Path, rows: list, option_columns: list) -> None:
