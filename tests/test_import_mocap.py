@@ -55,6 +55,16 @@ def _check(ds, q_deg, p_mm, rot):
     assert err.max() < 1e-9
 
 
+def _import_with(suggested: str, path, tmp_path, capsys):
+    """``hykin import table PATH --map`` with the suggested map text as it was written: the Dataset."""
+    mp = tmp_path / "m.toml"
+    mp.write_text(suggested)
+    out = tmp_path / "o.csv"
+    code, _, err = run(["import", "table", path, "-o", out, "--map", mp], capsys)
+    assert code == 0, err
+    return read_dataset(out)
+
+
 @pytest.mark.parametrize("shifted", [True, False])
 def test_motive_suggest_then_import(tmp_path, capsys, shifted):
     path = tmp_path / "take.csv"
@@ -67,12 +77,7 @@ def test_motive_suggest_then_import(tmp_path, capsys, shifted):
     assert sug["quaternion"] == ["Tool Rotation W", "Tool Rotation X", "Tool Rotation Y", "Tool Rotation Z"]
     assert sug["joints"] == [f"J{j}" for j in range(1, 7)] and sug["angle_unit"] == "deg" and sug["length_unit"] == "mm"
     assert "points" not in sug and "Tool:Marker1 Position X" in so  # markers offered, commented out
-    mp = tmp_path / "m.toml"
-    mp.write_text(so)
-    out = tmp_path / "o.csv"
-    code, _, err = run(["import", "table", path, "-o", out, "--map", mp], capsys)
-    assert code == 0, err
-    _check(read_dataset(out), q, p, rot)
+    _check(_import_with(so, path, tmp_path, capsys), q, p, rot)
     # the empty name (Mean Marker Error) and the markers are readable by their joined names
     ds = import_table(path, dict(sug, keep=["Tool Mean Marker Error"],
                                  points=[[f"Tool:Marker1 Position {a}" for a in "XYZ"]]))
@@ -148,12 +153,7 @@ def test_vicon_suggest_finds_header_units_line_and_rotvec(tmp_path, capsys):
     assert sug["position"] == ["TX", "TY", "TZ"] and sug["rotvec"] == ["RX", "RY", "RZ"] and "points" not in sug
     assert sug["rotvec_unit"] == "deg" and sug["angle_unit"] == "deg" and sug["length_unit"] == "mm"
     assert "from the units line" in so
-    mp = tmp_path / "m.toml"
-    mp.write_text(so)
-    out = tmp_path / "o.csv"
-    code, _, err = run(["import", "table", path, "-o", out, "--map", mp], capsys)
-    assert code == 0, err
-    _check(read_dataset(out), q, p, rot)
+    _check(_import_with(so, path, tmp_path, capsys), q, p, rot)
     # the swapped mapping is refused naming the swap
     with pytest.raises(TableMapError, match=r"'TX', 'TY', 'TZ'.*swapped.*position = RX, RY, RZ"):
         import_table(path, {"skip_rows": 3, "drop_rows": [5], "joints": "J1..J6", "angle_unit": "deg",
