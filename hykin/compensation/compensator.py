@@ -18,8 +18,10 @@ Solving (compiled models; :mod:`hykin.hybrid.fast_ik`): LM from the hint in ``hi
 (within the joint limits) with the classical Jacobian; rows that stop above 1e-9 m / 1e-9 rad are
 re-solved from where they stopped with the hybrid (finite-difference) Jacobian within the joint
 limits; rows still missing the tolerance from the calibrated robot's closed-form/numerical solutions
-nearest the hint (all branches, boundary seeds at the workspace edge). Models that cannot run compiled (e.g. any object with ``predict``) use
-:func:`hykin.hybrid.ik.hybrid_ik` seeded by the hint.
+nearest the hint (all branches, boundary seeds at the workspace edge). A redundant arm's solutions are
+then moved along the self-motion to the one nearest the hint (:mod:`hykin.compensation.self_motion`).
+Models that cannot run compiled (e.g. any object with ``predict``) use :func:`hykin.hybrid.ik.hybrid_ik`
+seeded by the hint.
 
 Success tolerance (``tolerance_mm``, ``tolerance_deg``): by default ``tolerance_fraction`` (0.5) of the
 model's own held-out mean hybrid error (training metadata: ``val``, else ``held_out``, else ``train``
@@ -54,6 +56,7 @@ from ..kinematics.ik_solutions import nearest_representation
 from ..kinematics.robot import robot_reach_m
 from .frames import fitted_base, other_frame, parse_targets, resolve_frame
 from .result import Compensation, first_row_per_target
+from .self_motion import is_redundant, toward_hint
 
 __all__ = ["Compensator", "StepResult", "compensate", "model_tolerance"]
 
@@ -132,7 +135,8 @@ class Compensator:
         self._ctrl_of_meas = (se3.invert(fitted_base(model)) if resolve_frame(model, "auto") == "base"
                               else self._nom_base_inv)
         self._pre_inv = se3.invert(np.asarray(model.frame_pre_, dtype=np.float64))
-        self._post_inv = se3.invert(np.asarray(model.frame_post_, dtype=np.float64))
+        self._post = np.asarray(model.frame_post_, dtype=np.float64)
+        self._post_inv = se3.invert(self._post)
         self._reach_m = robot_reach_m(self.robot)
         self.kernel = None
         if not ik_kw and hasattr(model, "net_pos_"):
@@ -306,8 +310,27 @@ class Compensator:
         pe_mm, ae_deg = pe_m * 1e3, float(np.degrees(ae_rad))
         if not (pe_mm <= self.tolerance_mm and ae_deg <= self.tolerance_deg):
             return None
+        if self._redundant(False):  # as the batch path does after its first solve
+            pe_a, ae_a = np.array([pe_m]), np.array([ae_rad])
+            self._toward_hint(Tm[None], q, pe_a, ae_a, hint, np.zeros(1, dtype=np.int64), False)
+            pe_mm, ae_deg = float(pe_a[0]) * 1e3, float(np.degrees(ae_a[0]))
         return StepResult(q=q[0], command=self._nom_base_inv @ fk(self.nominal, q[0]), success=True, reason="",
                           pos_err_mm=pe_mm, ang_err_deg=ae_deg)
+
+    def _redundant(self, pos_only: bool) -> bool:
+        return is_redundant(self.dof, pos_only)
+
+    def _toward_hint(self, Tm, q, pe, ae, hint, rows, pos_only) -> None:
+        """:func:`hykin.compensation.self_motion.toward_hint` with this compensator's solve and tolerance
+        (``pe``/``ae`` in m/rad, updated in place with ``q``)."""
+        from ..hybrid.fast_ik import solve
+
+        def solve_rows(T, q0, lo, hi):
+            q2, p2, a2, _ = solve(self.kernel, T, q0, lo, hi, position_only=pos_only)
+            return q2, p2, a2
+
+        toward_hint(solve_rows, self._ok, self.robot, self._post, Tm, q, pe, ae, hint, self.lower, self.upper,
+                    rows, pos_only)
 
     def _ok(self, pe_m, ae_rad):
         return (pe_m * 1e3 <= self.tolerance_mm) & (np.degrees(ae_rad) <= self.tolerance_deg)
@@ -334,6 +357,8 @@ class Compensator:
                                       fd=True)
                 self._keep_better(j, q, pe, ae, q3, p3, a3)
         ok = self._ok(pe, ae)
+        if self._redundant(pos_only):  # the solution nearest the hint along the self-motion
+            self._toward_hint(Tm, q, pe, ae, hint, np.flatnonzero(ok), pos_only)
         if not ok.all() and self._lsq is not None and not pos_only:
             ok = self._least_squares_ok(Tm, q, pe, ae, ok)
         reason = None  # every row within the tolerance
