@@ -94,3 +94,21 @@ def test_positions_only_on_six_joints_get_the_nearest_solution(exact_rx160_model
         _, d_ref = _nearest_reference(m, _predict(m, q_true[i])[0], hint[i], (res.q[i], hint[i], q_true[i]), True)
         excess.append(np.linalg.norm(res.q[i] - hint[i]) - d_ref)
     assert np.degrees(max(excess)) < 0.05, np.degrees(excess)
+
+
+def test_hybrid_ik_nearest_on_seven_joints(iiwa_model):
+    """``hykin ik --seed-joints`` (hybrid IK with ``nearest``): the solution nearest the given joints."""
+    from hykin.hybrid.ik import hybrid_ik
+
+    m, rng = iiwa_model, np.random.default_rng(2)
+    N = 8
+    q_true = m.robot.random_joints(N, np.random.default_rng(6), margin=0.2)
+    q_true[:, 1] = np.radians(rng.uniform(-3.0, 3.0, N))
+    hint = q_true + np.radians(rng.uniform(-10.0, 10.0, q_true.shape))
+    T = _predict(m, q_true)
+    res = hybrid_ik(m, T, all_branches=False, q_current=hint, nearest=True)
+    assert res.success.all() and len(res.q) == N, res.reason
+    excess = [np.linalg.norm(res.q[i] - hint[i])
+              - _nearest_reference(m, T[i], hint[i], (res.q[i], hint[i], q_true[i]), False)[1] for i in range(N)]
+    assert np.degrees(max(excess)) < 0.05, np.degrees(excess)
+    assert np.abs(_predict(m, res.q)[:, :3, 3] - T[:, :3, 3]).max() < 1e-6

@@ -2,7 +2,6 @@
 
 * :mod:`.compensator` — :class:`Compensator` (loads a model once; one target or a batch) and
   :func:`compensate`: hybrid IK on the meant branch → nominal FK = the command.
-* :mod:`.self_motion` — redundant arms: the solution nearest the given joints along the self-motion.
 * :mod:`.targets` — frames and commands of compensation (docs); :mod:`.frames`, :mod:`.result` hold them.
 * :mod:`.branches` — KUKA ``S``/``T`` status, ABB ``confdata``, and the nominal solution they mean.
 * :mod:`.programs` — shared rewriting machinery: targets found in a program text, replaced in place.

@@ -19,7 +19,7 @@ Solving (compiled models; :mod:`hykin.hybrid.fast_ik`): LM from the hint in ``hi
 re-solved from where they stopped with the hybrid (finite-difference) Jacobian within the joint
 limits; rows still missing the tolerance from the calibrated robot's closed-form/numerical solutions
 nearest the hint (all branches, boundary seeds at the workspace edge). A redundant arm's solutions are
-then moved along the self-motion to the one nearest the hint (:mod:`hykin.compensation.self_motion`).
+then moved along the self-motion to the one nearest the hint (:mod:`hykin.hybrid.self_motion`).
 Models that cannot run compiled (e.g. any object with ``predict``) use :func:`hykin.hybrid.ik.hybrid_ik`
 seeded by the hint.
 
@@ -53,10 +53,10 @@ import numpy as np
 from ..geometry import se3
 from ..kinematics.fk import fk
 from ..kinematics.ik_solutions import nearest_representation
+from ..hybrid.self_motion import is_redundant, toward_hint
 from ..kinematics.robot import robot_reach_m
 from .frames import fitted_base, other_frame, parse_targets, resolve_frame
 from .result import Compensation, first_row_per_target
-from .self_motion import is_redundant, toward_hint
 
 __all__ = ["Compensator", "StepResult", "compensate", "model_tolerance"]
 
@@ -321,16 +321,16 @@ class Compensator:
         return is_redundant(self.dof, pos_only)
 
     def _toward_hint(self, Tm, q, pe, ae, hint, rows, pos_only) -> None:
-        """:func:`hykin.compensation.self_motion.toward_hint` with this compensator's solve and tolerance
+        """:func:`hykin.hybrid.self_motion.toward_hint` with this compensator's solve and tolerance
         (``pe``/``ae`` in m/rad, updated in place with ``q``)."""
         from ..hybrid.fast_ik import solve
 
-        def solve_rows(T, q0, lo, hi):
-            q2, p2, a2, _ = solve(self.kernel, T, q0, lo, hi, position_only=pos_only)
+        def solve_rows(idx, q0):
+            q2, p2, a2, _ = solve(self.kernel, Tm[idx], q0, self.lower, self.upper, position_only=pos_only)
             return q2, p2, a2
 
-        toward_hint(solve_rows, self._ok, self.robot, self._post, Tm, q, pe, ae, hint, self.lower, self.upper,
-                    rows, pos_only)
+        toward_hint(solve_rows, self._ok, self.robot, self._post, q, pe, ae, hint, self.lower, self.upper, rows,
+                    pos_only)
 
     def _ok(self, pe_m, ae_rad):
         return (pe_m * 1e3 <= self.tolerance_mm) & (np.degrees(ae_rad) <= self.tolerance_deg)

@@ -6,6 +6,7 @@
 :mod:`.uncertainty` (conformal bands and their growth), :mod:`.thermal_fit`, :mod:`.rotations`,
 :mod:`.persistence` (the model file), :mod:`.stations` (station / tool frames of a model), :mod:`.nets` / :mod:`.train` (architectures, recipes),
 :mod:`.export` (ONNX), :mod:`.errors`, :mod:`.progress`; hybrid inverse kinematics in :mod:`.ik`
-(API) with :mod:`.ik_result`, :mod:`.ik_seeds`, :mod:`.ik_solve`, :mod:`.ik_roots`, :mod:`.ik_report`.
+(API) with :mod:`.ik_result`, :mod:`.ik_seeds`, :mod:`.ik_solve`, :mod:`.ik_roots`, :mod:`.ik_report`,
+:mod:`.self_motion` (a redundant arm's solution nearest given joints).
 Depends on :mod:`hykin.calibration`, :mod:`hykin.io`, :mod:`hykin.kinematics`, :mod:`hykin.geometry`.
 """

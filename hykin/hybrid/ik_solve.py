@@ -26,6 +26,7 @@ from .ik_result import (
 from .ik_result import torch_threads as torch_threads_ctx
 from .ik_roots import duplicates, pick_new
 from .ik_roots import more_roots as search_more_roots
+from .self_motion import is_redundant, toward_hint
 
 __all__ = ["IKProblem", "accept_least_squares", "box_lm", "controllable_error", "errors_of", "hybrid_ik_from_seeds", "run_polished", "run_rows"]
 
@@ -238,6 +239,22 @@ def run_polished(prob: IKProblem, q0: np.ndarray, rows: np.ndarray, delta: float
         q[sel], pe[sel], ae[sel], ok[sel], box[sel], lim[sel] = q2[src], p2[src], a2[src], o2[src], b2[src], l2[src]
         it[stalled] += i2
     return q, pe, ae, ok, box, lim, it
+
+
+def _nearest_on_self_motion(prob: IKProblem, q, pe, ae, hint, rows, tgt, kw: dict, success_mm, success_deg) -> None:
+    """:func:`hykin.hybrid.self_motion.toward_hint` on the solved ``rows`` (flat seed rows of target
+    ``tgt[rows]``; ``q``, ``pe``/``ae`` m/rad updated in place) with :func:`run_rows` within the joint limits."""
+    robot = prob.robot
+    span = float(np.max(robot.upper - robot.lower))  # a box as wide as the limits: the limits bound it
+    s_m, s_rad = success_mm * 1e-3, np.radians(success_deg)
+
+    def solve_rows(idx, q0):
+        q2, p2, a2, _, _, _, _ = run_rows(prob, q0, tgt[idx], span, 1.0, success_m=s_m, success_rad=s_rad, **kw)
+        return q2, p2, a2
+
+    # prob.robot holds the model's frames (predicting_robot): its TCP is the measured point
+    toward_hint(solve_rows, lambda p, a: (p <= s_m) & (a <= s_rad), robot, np.eye(4), q, pe, ae, hint, robot.lower,
+                robot.upper, rows, prob.pos_only)
 
 
 def errors_of(prob: IKProblem, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -467,6 +484,11 @@ def hybrid_ik_from_seeds(
         sel = np.zeros((N, B), dtype=bool)
         sel[np.arange(N), pick] = True
         keep = np.where(has[:, None], sel, keep)
+        if ui.size and is_redundant(n, pos_only):  # the kept solution: the one nearest q_current on its self-motion
+            _nearest_on_self_motion(prob, q, pe, ae, np.repeat(qc, B, axis=0), np.flatnonzero(sel.reshape(-1) & ok),
+                                    tgt, dict(tol_m=tol_m, tol_rad=tol_rad, max_iter=max_iter, jac_mode=jacobian_mode),
+                                    success_mm, success_deg)
+            dist, ins = support_of(model, q)
     keep_flat = keep.reshape(-1)
     res = HybridIKResult(
         target=tgt, branch=labels.reshape(-1).astype(str), q=q, success=ok, pos_err_mm=pe * 1e3,

@@ -1,7 +1,8 @@
 """Redundant arms: the solution nearest the caller's joints along the self-motion.
 
 A 7-joint arm reaching a full pose (or any arm of more than 3 joints reaching a position) has a
-manifold of solutions. The compensator's LM, started at the branch hint, stops at *a* solution; its
+manifold of solutions. An LM started at the caller's joints (the compensator's branch hint, hybrid IK's
+``q_current``) stops at *a* solution; its
 min-norm steps make that one near the hint, but not the nearest, and near a singular configuration
 (an iiwa's joint 2 near 0, where axes 1 and 3 align) it can lie 10–30° farther than the nearest. A
 program that gives joints means the nearest (its arm angle), so :func:`toward_hint` moves every solved
@@ -45,12 +46,12 @@ def _task_jacobian(robot, post: np.ndarray, q: np.ndarray, position_only: bool) 
     return Jv - np.cross(r[:, :, None], Jw, axis=1)  # v' = v + ω × r = v − r × ω
 
 
-def toward_hint(solve_rows, accept, robot, post, Tm, q, pe, ae, hint, lo, hi, rows, position_only: bool) -> None:
+def toward_hint(solve_rows, accept, robot, post, q, pe, ae, hint, lo, hi, rows, position_only: bool) -> None:
     """Move the solved ``rows`` of ``q`` ``(N, n)`` (in place, with their errors ``pe``/``ae``, m/rad)
-    along the self-motion toward ``hint`` ``(N, n)`` (module docstring). ``solve_rows(Tm, q0, lo, hi)``
-    -> ``(q, pe, ae)``: the hybrid solve of targets ``Tm`` ``(M, 4, 4)`` from ``q0`` within ``lo``/``hi``
-    ``(n,)``; ``accept(pe, ae)`` -> bool ``(M,)``: the caller's success tolerance. ``post`` ``(4, 4)``: the
-    model's frame after the chain (the measured point's offset)."""
+    along the self-motion toward ``hint`` ``(N, n)`` (module docstring). ``solve_rows(idx, q0)`` ->
+    ``(q, pe, ae)``: the caller's hybrid solve of its rows ``idx`` from ``q0`` ``(M, n)`` within the joint
+    limits; ``accept(pe, ae)`` -> bool ``(M,)``: the caller's success tolerance. ``lo``/``hi`` ``(n,)``:
+    the joint limits. ``post`` ``(4, 4)``: the model's frame after the chain (the measured point's offset)."""
     i = np.asarray(rows, dtype=np.int64)
     if not i.size:
         return
@@ -63,7 +64,7 @@ def toward_hint(solve_rows, accept, robot, post, Tm, q, pe, ae, hint, lo, hi, ro
         d_old = np.linalg.norm(q[i] - hint[i], axis=1)
         step = (Nsp @ (hint[i] - q[i])[:, :, None])[:, :, 0]
         q0 = np.clip(q[i] + alpha[:, None] * step, lo, hi)
-        q2, p2, a2 = solve_rows(Tm[i], q0, lo, hi)
+        q2, p2, a2 = solve_rows(i, q0)
         d_new = np.linalg.norm(q2 - hint[i], axis=1)
         # still a solution (no worse than before, within the tolerance) and nearer the hint
         good = (accept(p2, a2) & (p2 <= np.maximum(pe[i], 1e-9)) & (a2 <= np.maximum(ae[i], 1e-9))
