@@ -73,3 +73,21 @@ def test_undeclared_tool_is_named_in_the_failure(model):
     assert [line for line, _ in res.failed] == [5]
     assert "tool tGripper is not declared" in res.failed[0][1]
     assert any("tool tGripper is not declared" in n for n in res.notes)
+
+
+def test_unused_robtarget_keeps_its_literal_where_the_module_moves_with_other_frames(model):
+    """A robtarget no motion moves to, in a module moving with tGun\\WObj:=wTable: its frames are not
+    known, so it is kept and noted (before: compensated in wobj0 with tool0); in a module moving with
+    tool0/wobj0 only it is compensated as those motions are."""
+    q3, T3 = taught([12, 22, 8, 6, 41, 6])
+    extra = f"  CONST robtarget p99:={robtarget(T3, _conf(q3))};\n"
+    lines = _module("z:=1;").split("\n")
+    mod = "\n".join(lines[:5] + [extra.rstrip("\n")] + lines[5:])
+    res = compensate_program(model, mod, rapid, frame="measurement")
+    assert not res.failed and res.n_compensated == 2
+    assert extra.strip() in res.text  # p99's literal as written
+    assert any("p99 (line 6)" in n and "kept" in n for n in res.notes), res.notes
+    plain = "\n".join(lines[:5] + [extra.rstrip("\n")] + lines[5:]).replace("tGun\\WObj:=wTable", "tool0\\WObj:=wobj0")
+    res2 = compensate_program(model, plain, rapid, frame="measurement")
+    assert not res2.failed and res2.n_compensated == 3
+    assert extra.strip() not in res2.text

@@ -93,6 +93,9 @@ class TargetFrames:
     error: list = field(default_factory=list)
     notes: list = field(default_factory=list)
     caveat: dict = field(default_factory=dict)  # {target index: assumption made for it} (ProgramTarget.caveat)
+    #: targets no motion moves to, in a program that moves with other frames than the base and the robot
+    #: file's tool: their frames are not known (the caller keeps their literals)
+    unknown_frames: list = field(default_factory=list)
 
     #: a use's tool delta when the use does not tell the tool (it agrees with any other use's)
     ANY_TOOL = "any"

@@ -8,7 +8,9 @@ compensated joints); external axes kept. Any literal of that shape is a robtarge
 Each target is taken in the work object and with the tool its motion statements name
 (:mod:`.rapid_frames`: ``\WObj:=`` and ``tooldata``/``wobjdata`` declared in the module or in the
 ``context`` modules; ``wobj0`` = the robot base frame, ``tool0`` and undeclared tools = the robot
-file's tool) and written back in that work object. Numbers are written with 4 decimals (mm) and 9
+file's tool) and written back in that work object. A robtarget no motion moves to is taken in ``wobj0``
+with ``tool0`` in a module that moves with no other frames; in one that does, its frames are not known:
+its literal is kept, noted. Numbers are written with 4 decimals (mm) and 9
 (quaternion, normalised).
 """
 
@@ -62,7 +64,17 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
             name=decl.group(1) if decl else "", kind="robtarget", config={"conf": conf},
             parts={"spans": spans, "literal": text[m.start():m.end()], "quat": quat},
         ))
-    return targets, frames_of_targets(clean, text, targets, robot, data, line_of, ctx_clean, context).apply(targets)
+    fr = frames_of_targets(clean, text, targets, robot, data, line_of, ctx_clean, context)
+    notes = fr.apply(targets)
+    if fr.unknown_frames:  # as KRL's unused .dat points: kept, noted
+        k = fr.unknown_frames
+        shown = ", ".join(f"{targets[j].name or 'robtarget'} (line {targets[j].line})" for j in k[:8])
+        shown += " ..." if len(k) > 8 else ""
+        notes = [*notes, f"{targets[k[0]].line}: {len(k)} robtarget{'s' if len(k) > 1 else ''} no motion of the module moves to: {shown}: kept "
+                         "(their tool and work object are not known where they are used; move to them in the module, "
+                         "or compensate them with the program that does)"]
+        targets = [t for j, t in enumerate(targets) if j not in set(k)]
+    return targets, notes
 
 
 def _blank(text: str) -> str:

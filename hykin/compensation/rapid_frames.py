@@ -384,6 +384,9 @@ def frames_of_targets(clean: str, text: str, targets: list, robot, data: dict, l
                     unknown.setdefault(j, (shown, line))
     out = TargetFrames()
     noted = set()
+    if any(u[0] is ... or (u[0] or "tool0").lower() != "tool0" or str(u[1]).lower() != "wobj0"
+           for us in uses.values() for u in us):  # the module moves with other frames: an unused target's are unknown
+        out.unknown_frames = [j for j in range(len(targets)) if j not in uses and j not in unknown]
     for j in range(len(targets)):
         resolved = []
         if j not in uses and j in unknown:
