@@ -171,9 +171,10 @@ def test_non_numeric_cell_names_row_and_column(tmp_path):
 
 def test_nan_and_inf_named(tmp_path):
     p = _write_csv(tmp_path / "nan.csv", HEADER, [GOOD, GOOD[:2] + ["nan"] + GOOD[3:]])
-    _expect(p, ["row 2", "column 'q3'", "not finite"])
+    e = _expect(p, ["row 2", "column 'q3'", "value nan is not finite"])
+    assert "np.float64" not in str(e)  # the value as written, not numpy's repr
     p = _write_csv(tmp_path / "inf.csv", HEADER, [GOOD[:9] + ["inf"]])
-    _expect(p, ["row 1", "column 'qz'", "not finite"])
+    _expect(p, ["row 1", "column 'qz'", "value inf is not finite"])
 
 
 def test_quaternion_norm(tmp_path):
@@ -355,3 +356,13 @@ def test_further_reflectors_follow_the_length_unit(tmp_path):
     back = read_dataset(p, length_unit="mm")
     np.testing.assert_allclose(back.extra["y2"], ds.extra["y2"], rtol=1e-12)
     np.testing.assert_allclose(back.extra["temperature_c"], 21.5)
+
+
+def test_a_file_without_header_line_is_named_so(tmp_path):
+    """Probe report s40: the first row's numbers were listed as the "found" columns, nothing more."""
+    p = tmp_path / "noheader.csv"
+    p.write_text("\n".join(",".join(map(str, r)) for r in [[0.11, -0.2, 0.3, 0.5, 0.15, 0.4, 0.999, 0.01, 0.02, 0.03], GOOD]) + "\n")
+    e = _expect(p, ["no joint columns", "the file has no header line"])
+    assert "lower-case" not in str(e)
+    p.write_text("\n".join(",".join(map(str, r)) for r in [[0.1, 0.1] + GOOD[2:], GOOD]) + "\n")
+    _expect(p, ["appears twice in the header", "the file has no header line"])

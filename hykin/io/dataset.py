@@ -295,7 +295,7 @@ def check_finite(where: str, arr: np.ndarray, names: Sequence[str], line_offset:
     bad = ~np.isfinite(arr)
     if bad.any():
         r, c = np.argwhere(bad)[0]
-        raise row_error(where, f"value {arr[r, c]!r} is not finite (NaN or inf); every cell must be a finite number",
+        raise row_error(where, f"value {float(arr[r, c])} is not finite (NaN or inf); every cell must be a finite number",
                    r, names[c], line_offset)
 
 

@@ -104,7 +104,7 @@ def _dof_from_header(where: str, header: Sequence[str], robot, dof: int | None) 
         if k == 0:
             raise DatasetError(
                 f"{where}: no joint columns; expected q1..qN, x, y, z and optionally qw, qx, qy, qz "
-                f"(found: {', '.join(header)}){_case_hint(['q1'], header)}", file=where)
+                f"(found: {', '.join(header)}){_header_hint(['q1'], header)}", file=where)
         return k
     if robot is not None and dof is not None and dof != robot.dof:
         raise DatasetError(f"{where}: dof={dof} given but robot {robot.name!r} has {robot.dof} joints", file=where)
@@ -114,7 +114,7 @@ def _dof_from_header(where: str, header: Sequence[str], robot, dof: int | None) 
         alt = f" (or the URDF's joint names {', '.join(names)})" if names else ""
         raise DatasetError(
             f"{where}: missing column(s) {', '.join(missing)}; expected {', '.join(joint_columns(want))}{alt}, x, y, z "
-            f"and optionally qw, qx, qy, qz (found: {', '.join(header)}){_case_hint(missing, header)}", file=where,
+            f"and optionally qw, qx, qy, qz (found: {', '.join(header)}){_header_hint(missing, header)}", file=where,
             column=missing[0])
     if f"q{want + 1}" in present:
         raise DatasetError(
@@ -252,8 +252,12 @@ def _joints_of(t: _Table, robot, dof, angle_unit: str, length_unit: str) -> np.n
     return q
 
 
-def _case_hint(missing: list[str], header: list[str]) -> str:
-    """``"; column names are lower-case: ..."`` when the missing columns are there in another case."""
+def _header_hint(missing: list[str], header: list[str]) -> str:
+    """``"; column names are lower-case: ..."`` when the missing columns are there in another case;
+    ``"; the first line holds numbers: ..."`` when the file has no header line."""
+    if header and all(_is_number(h) for h in header):
+        return ("; the first line holds numbers, not column names: the file has no header line (add one naming "
+                "the columns, e.g. q1,...,x,y,z,qw,qx,qy,qz, or map them: hykin import table FILE --suggest)")
     found = {h.strip().lower(): h for h in header}
     pairs = [(found[m], m) for m in missing if m in found]
     if not pairs:
@@ -269,7 +273,7 @@ def _check_pose_header(t: _Table, expect: str) -> bool:
     if missing:
         raise DatasetError(
             f"{t.where}: missing column(s) {', '.join(missing)}; expected {expect} "
-            f"(found: {', '.join(t.header)}){_case_hint(missing, t.header)}", file=t.where, column=missing[0])
+            f"(found: {', '.join(t.header)}){_header_hint(missing, t.header)}", file=t.where, column=missing[0])
     qcols = [c for c in QUAT_COLUMNS if c in present]
     if qcols and len(qcols) != 4:
         miss = [c for c in QUAT_COLUMNS if c not in present]
@@ -444,3 +448,11 @@ def write_dataset(ds: Dataset, path: str | Path, *, length_unit: str = "m", angl
     if suffix not in (".csv", ".txt"):
         raise DatasetError(f"{where}: unknown dataset file type {suffix!r}; expected .csv or .parquet", file=where)
     write_csv(path, cols, DATASET_STYLE)
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell.replace(",", "."))
+    except ValueError:
+        return False
+    return True

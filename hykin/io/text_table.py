@@ -174,6 +174,9 @@ def read_delimited(
                 hint = (f"; no line above the header (line {numbered[0][0]}) tells the columns apart: name the lines that "
                         "label the groups with group_rows = [..] (--group-rows), or read without a header (header_row = 0 "
                         "with skip_rows = the lines above the data; columns named 1, 2, ...)")
+            elif all(re.fullmatch(r"\s*[-+]?(\d+[.,]?\d*|[.,]\d+)([eE][-+]?\d+)?\s*", c) for c in names):
+                hint = ("; the first line holds numbers, not column names: the file has no header line (add one naming "
+                        "the columns, or map them: hykin import table FILE --suggest)")
             raise DatasetError(f"{where}, column '{h}': appears twice in the header{hint}", file=where, column=h)
         seen.add(h)
     t = TextTable(where, names, cells, np.array([i for i, _ in body], dtype=np.int64), delim, used_groups)
@@ -336,7 +339,7 @@ def float_column(t: TextTable, name: str, decimal: str = ".", *, allow_missing: 
         bad = ~np.isfinite(arr)
         if bad.any():
             r = int(np.argmax(bad))
-            raise t.error(r, name, f"value {cells[r]!r} is not finite (NaN or inf); every mapped cell must be a number")
+            raise t.error(r, name, f"value {_shown(cells[r])} is not finite (NaN or inf); every mapped cell must be a number")
     return arr
 
 
@@ -355,3 +358,8 @@ def lenient_column(cells: list[str], decimal: str = ".") -> np.ndarray:
         return np.asarray(conv, dtype=np.float64)
     except ValueError:
         return np.asarray(cells, dtype=str)
+
+
+def _shown(v) -> str:
+    """A cell as the file has it (a float as ``nan`` / ``inf``, not numpy's repr)."""
+    return repr(v) if isinstance(v, str) else str(float(v))
