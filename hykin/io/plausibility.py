@@ -40,6 +40,7 @@ __all__ = [
     "check_orientation_order",
     "check_position_scale",
     "check_target_reach",
+    "frame_groups",
     "minimum_fit_rows",
 ]
 
@@ -256,7 +257,7 @@ def check_dataset(robot: Robot, ds, *, where: str | None = None, length_unit: st
     q = np.asarray(ds.q, dtype=np.float64)
     if q.ndim != 2 or q.shape[1] != robot.dof or len(q) < 4:
         return
-    groups = _frame_groups(ds)
+    groups = frame_groups(ds)
     if groups is not None:  # several stations / tools: each has its own frames, checked on its own rows
         for key in dict.fromkeys(groups.tolist()):
             check_dataset(robot, ds.subset(groups == key), where=f"{where} ({key})", length_unit=length_unit,
@@ -271,7 +272,7 @@ def check_dataset(robot: Robot, ds, *, where: str | None = None, length_unit: st
         check_orientation_order(robot, q, ds.quat_wxyz, where=where, T_nominal=T_hat)
 
 
-def _frame_groups(ds) -> np.ndarray | None:
+def frame_groups(ds) -> np.ndarray | None:
     """``(N,)`` "station 'A', tool 'T1'" of each row when ``ds`` names several stations or tools, else None."""
     from .dataset import STATION_COLUMN, TOOL_COLUMN, row_labels
 

@@ -513,4 +513,14 @@ def import_table(path: str | Path, m: TableMap | dict | str | Path, robot=None, 
         if jm and int(jm.group(1)) <= len(mt.joint_columns):
             msg = msg.replace(f"column '{e.column}'", f"column '{mt.joint_columns[int(jm.group(1)) - 1]}'", 1)
         raise DatasetError(msg, file=e.file, row=e.row, column=e.column) from None
+    if robot is not None and m.check_units and ds.quat_wxyz is not None:
+        # the orientation convention (Euler order, quaternion order) against the robot's rotations, as
+        # calibrate and evaluate check it: a wrong one is refused before the file is written
+        from .orientation_fit import check_imported_orientations
+
+        euler = seq = None
+        if m.orientation == "euler":
+            euler = np.degrees(_stack(t, m.euler, m.decimal) * ANGLE_UNITS_RAD[m.euler_unit])
+            seq = euler_sequence(m, t.where)
+        check_imported_orientations(robot, ds, where=t.where, euler_deg=euler, euler_seq=seq)
     return ds
