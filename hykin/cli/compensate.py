@@ -59,6 +59,7 @@ def compensate_cmd(
     config_slack_deg: float = typer.Option(1.0, "--config-slack-deg", help="Programs: a target the real robot reaches only with the other elbow / overhead flag than its configuration data (S, confdata) say, within this angle of that flag's singular pose (stretched elbow, wrist centre on axis 1), is written with the flag it reaches, with a note; 0 refuses it."),
     axis_signs: str | None = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the robot preset)."),
     payload_kg: float | None = typer.Option(None, "--payload-kg", help="Payload (kg, at the TCP) the robot carries while executing these targets: the model deflects under it (default: the robot file's payload)."),
+    flange: str | None = typer.Option(None, "--flange", help="URDF robots: the link that is the controller's flange, from which program tools (TOOL_DATA, tooldata, set_tcp) and --tool are given (default: 'flange' for KRL, 'tool0' otherwise, where the URDF has them; else the last moving link)."),
     force: bool = Force,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
@@ -80,7 +81,7 @@ def compensate_cmd(
     if kind == "csv":  # the file's payload and temperature columns, else --payload-kg / the reference temperature
         mdl = load_model(model)
         parse_axis_signs(axis_signs, mdl.nominal.dof)
-        D = _tool_delta(mdl, tool, length_unit, angle_unit)
+        D = _tool_delta(mdl, tool, length_unit, angle_unit, flange)
         _compensate_csv(mdl, inp, out, joints, "measurement" if frame == "auto" else frame, length_unit, angle_unit, D,
                         payload_kg)
         return
@@ -94,11 +95,16 @@ def compensate_cmd(
         raise CLIError(f"--tool applies to CSV targets; {inp} is a {kind} program, which names its own tool "
                        "(URScript set_tcp, RAPID tooldata, KRL TOOL_DATA via --context)")
     else:
-        _compensate_program(mdl, inp, out, kind, joints, frame, skip_unreachable, context, signs, config_slack_deg)
+        _compensate_program(mdl, inp, out, kind, joints, frame, skip_unreachable, context, signs, config_slack_deg,
+                            flange)
 
 
-def _tool_delta(mdl, text: str | None, length_unit: str, angle_unit: str):
-    """``--tool`` as the tool delta ``inv(nominal tool) · tcp`` ((4, 4)), or None when not given."""
+def _tool_delta(mdl, text: str | None, length_unit: str, angle_unit: str, flange: str | None = None):
+    """``--tool`` as the tool delta ``inv(nominal tool) · flange · tcp`` ((4, 4); the flange of a URDF:
+    :func:`hykin.io.urdf_flange.choose_flange`), or None when not given."""
+    from ..io.urdf_flange import choose_flange, flange_of
+
+    robot, note = choose_flange(mdl.nominal, "csv", flange)
     if text is None:
         return None
     from ..geometry import se3
@@ -118,7 +124,9 @@ def _tool_delta(mdl, text: str | None, length_unit: str, angle_unit: str):
                        "--length-unit mm")
     if np.abs(rpy).max() > 2 * np.pi + 1e-9:
         raise CLIError(f"--tool: angles up to {np.abs(rpy).max():.4g} rad; if they are degrees, add --angle-unit deg")
-    return se3.invert(mdl.nominal.tool) @ se3.xyzrpy_to_transform(xyz, rpy)
+    if note:
+        console().print(f"note: --tool: {note}", highlight=False)
+    return se3.invert(mdl.nominal.tool) @ flange_of(robot) @ se3.xyzrpy_to_transform(xyz, rpy)
 
 
 def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_unit: str, angle_unit: str,
@@ -231,7 +239,7 @@ def _summary(comp, out: Path, n: int) -> None:
 
 
 def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, frame: str, skip: bool,
-                        context: list, signs, slack_deg: float) -> None:
+                        context: list, signs, slack_deg: float, flange: str | None = None) -> None:
     from ..compensation import krl, rapid, urscript
     from ..compensation.programs import compensate_program
 
@@ -243,7 +251,8 @@ def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, fram
     texts = [Path(c).read_bytes().decode("latin-1") for c in context]
     ctx = "\n".join(texts)
     try:
-        res = compensate_program(mdl, text, fmt, frame=frame, axis_signs=signs, context=ctx, config_slack_deg=slack_deg)
+        res = compensate_program(mdl, text, fmt, frame=frame, axis_signs=signs, context=ctx, config_slack_deg=slack_deg,
+                                 flange=flange)
     except ValueError as e:
         raise CLIError(f"{inp}: {_context_lines(str(e).splitlines()[0], context, texts)}") from None
     res.notes = [_context_lines(n, context, texts) for n in res.notes]

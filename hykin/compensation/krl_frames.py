@@ -31,6 +31,7 @@ import re
 import numpy as np
 
 from ..geometry import se3
+from ..io.urdf_flange import flange_of
 from .krl_motions import is_declaration
 from .programs import TargetFrames, line_of
 
@@ -357,6 +358,8 @@ def _resolve(st: dict, err: str, L, R, frames: dict, robot, line: int, notes: li
                          "file's tool (give $config.dat with --context)")
     if isinstance(L, np.ndarray):
         W = L if W is None else W @ L
+    if T is not None:  # TOOL_DATA is given from the controller's flange (a URDF's flange link: urdf_flange)
+        T = flange_of(robot) @ T
     if isinstance(R, np.ndarray):  # moving TOOL to P · R = moving TOOL · inv(R) to P
         T = (robot.tool if T is None else T) @ se3.invert(R)
     D = None if T is None else se3.invert(robot.tool) @ T

@@ -277,7 +277,7 @@ def _unmatched_reasons(model, targets: list, T_cal: np.ndarray, rows: np.ndarray
 
 
 def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs=None, context: str = "",
-                       config_slack_deg: float = CONFIG_SLACK_DEG, **ik_kw) -> ProgramResult:
+                       config_slack_deg: float = CONFIG_SLACK_DEG, flange: str | None = None, **ik_kw) -> ProgramResult:
     """Compensate every Cartesian target of ``text`` (a program in format module ``fmt``: one of
     :mod:`.urscript`, :mod:`.krl`, :mod:`.rapid`). ``context``: text of a companion file (KRL: the
     ``.src`` beside a ``.dat``, whose motion statements tell which variables are targets; RAPID: modules
@@ -286,11 +286,18 @@ def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs
     ``config_slack_deg``: a target whose configuration data the real robot cannot meet only because
     its elbow is within this angle of stretched (the reach boundary) or its wrist centre of axis 1 takes
     the other elbow / overhead flag, with a note; 0 refuses it (:mod:`.branches`).
+    ``flange``: the URDF link the program's tools are given from (:func:`hykin.io.urdf_flange.choose_flange`:
+    default ``flange`` for KRL, ``tool0`` otherwise, where the URDF has them).
     Returns a :class:`ProgramResult`; unreachable targets keep their literal and are listed in ``failed``.
     """
+    from ..io.urdf_flange import choose_flange
+
     if not (config_slack_deg >= 0 and config_slack_deg <= 90):
         raise ValueError(f"config_slack_deg must be within 0-90 deg, got {config_slack_deg}")
-    targets, notes = fmt.find_targets(text, model.nominal, context=context, axis_signs=axis_signs)
+    robot, fl_note = choose_flange(model.nominal, fmt.__name__.rsplit(".", 1)[-1], flange)
+    targets, notes = fmt.find_targets(text, robot, context=context, axis_signs=axis_signs)
+    if fl_note and any(t.tool_delta is not None for t in targets):  # said only where a program tool was used
+        notes = [f" {fl_note}", *notes]
     if not targets:
         return ProgramResult(text=text, targets=[], comp=None, failed=[], notes=notes)
     ok = [k for k, t in enumerate(targets) if not t.error]

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import se3
+from ..io.urdf_flange import flange_of
 from .programs import TargetFrames
 
 __all__ = ["MOTION_ARGUMENTS", "frames_of_targets", "read_frame_data"]
@@ -169,7 +170,7 @@ def _tool(name: str | None, data: dict, robot) -> tuple[np.ndarray | None, str, 
         if abs(mass - robot.payload_kg) > max(0.1, 0.05 * robot.payload_kg):
             note = (f"{where} carries {mass:g} kg, the robot file's payload is {robot.payload_kg:g} kg: give "
                     f"--payload-kg {mass:g} if the robot carries that load while running these targets")
-        return se3.invert(robot.tool) @ _pose(tframe, where), "", note
+        return se3.invert(robot.tool) @ flange_of(robot) @ _pose(tframe, where), "", note
     except (TypeError, ValueError, IndexError) as e:
         return None, str(e) if str(e).startswith(where) else f"{where}: not [robhold, tframe, tload]", ""
 

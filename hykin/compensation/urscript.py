@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import se3
+from ..io.urdf_flange import flange_of
 from .programs import NUMBER, ProgramTarget, comment_mask, line_of, splice_numbers
 
 __all__ = ["SUFFIXES", "find_targets", "format_target"]
@@ -394,7 +395,7 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
     s = _Script(text, robot)
     uses, joint_moves = s.motions()
     uses = _moved(uses)
-    inv_tool = se3.invert(robot.tool)
+    inv_tool = se3.invert(robot.tool) @ flange_of(robot)  # set_tcp is given from the flange (urdf_flange)
     found = []  # (literal start, target or the note saying why it is kept)
     for u in uses:
         if u.lit >= 0:
