@@ -54,3 +54,15 @@ def tiny_model_file() -> Path:
     path = Path(tempfile.mkdtemp(prefix="hykin-comp-")) / "tiny.hykin"
     m.save(path)
     return path
+
+
+def real_tcp(m, T_model, D, given=None):
+    """Where the real robot's program TCP is when the model's TCP is at ``T_model`` ``(..., 4, 4)``: the
+    program's tool ``D`` is given relative to the robot file's TCP (``inv(nominal.tool) · tool``) and is
+    fixed to the real flange, whose TCP is the model's: ``T_model · inv(E) · D`` with
+    ``E = inv(nominal.tool) · robot_.tool · frame_post_`` (the model's TCP relative to the file's). ``D``
+    None or (unless ``given``) the identity: no program tool, the model's TCP."""
+    if given is False or D is None or (given is None and np.array_equal(D, np.eye(4))):
+        return T_model
+    E = np.linalg.inv(m.nominal.tool) @ m.robot_.tool @ np.asarray(getattr(m, "frame_post_", np.eye(4)))
+    return T_model @ np.linalg.inv(E) @ D

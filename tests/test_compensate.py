@@ -10,7 +10,7 @@ import csv
 
 import numpy as np
 import pytest
-from comp_models import ExactModel, deviate, exact, tiny_model_file
+from comp_models import ExactModel, deviate, exact, tiny_model_file, real_tcp
 
 from hykin import fk, load_robot
 from hykin.compensation import compensate, resolve_frame
@@ -81,10 +81,10 @@ def test_base_frame_for_tracker_data_and_tool_delta():
     # a TCP set in the program (URScript set_tcp): wanted poses are of that TCP
     D = se3.make_transform(se3.rotx(0.2)[:3, :3], np.array([0.0, 0.01, 0.05]))
     m2 = exact("ur10", 7)
-    Tw = fk(m2.robot_, q) @ D
+    Tw = real_tcp(m2, fk(m2.robot_, q), D)
     c2 = compensate(m2, Tw, q_branch=q, tool_delta=D)
     q_ctrl = _controller(nom, c2.command @ se3.invert(D), q)  # controller strips its TCP before IK
-    assert se3.pose_error(fk(m2.robot_, q_ctrl) @ D, Tw)[0].max() < 1e-6
+    assert se3.pose_error(real_tcp(m2, fk(m2.robot_, q_ctrl), D), Tw)[0].max() < 1e-6
 
 
 def test_unreachable_targets_get_no_command():
@@ -346,3 +346,21 @@ def test_a_calibrated_tcp_far_from_the_robot_files_tool_is_named(capsys):
     assert "the calibrated TCP is 120.8 mm / 30.00 deg from the robot file's tool" in err and "[tool]" in err
     _warn_tool_mismatch(ExactModel(nom, deviate(nom, 2)))  # a calibration's few mm: no warning
     assert "calibrated TCP" not in capsys.readouterr().err
+
+
+def test_program_tool_is_fixed_to_the_real_flange_when_the_file_tool_is_a_guess():
+    """Probe report s40: the robot file's [tool] guessed 30 mm short of the real one (the measured TCP);
+    a second TCP given from the flange (``--tool``, ``set_tcp``) landed 30 mm off. Reference: the truth's
+    flange (its chain with no tool) times that TCP."""
+    nom0 = load_robot("ur10")
+    tool_true = se3.trans(0.01, -0.005, 0.15)
+    truth = deviate(nom0, 8).copy(tool=tool_true)
+    nom = nom0.copy(tool=se3.trans(0.0, 0.0, 0.12))  # the file's guess: 30 mm short
+    m = ExactModel(nom, truth)
+    tcp2 = se3.trans(0.05, -0.02, 0.2) @ se3.rotx(0.1) @ se3.roty(0.2)
+    q = nom.random_joints(12, 4, margin=0.2)
+    want = fk(truth.copy(tool=np.eye(4)), q) @ tcp2  # the second TCP on the real flange
+    c = compensate(m, want, q_branch=q, tool_delta=se3.invert(nom.tool) @ tcp2)
+    assert c.success.all(), c.reason
+    got = fk(truth.copy(tool=np.eye(4)), c.q) @ tcp2
+    assert np.linalg.norm(got[:, :3, 3] - want[:, :3, 3], axis=1).max() < 1e-6  # was 30 mm

@@ -16,7 +16,7 @@ import re
 
 import numpy as np
 from cli_run import run
-from comp_models import exact
+from comp_models import exact, real_tcp
 
 from hykin import fk
 from hykin.compensation import krl
@@ -88,7 +88,7 @@ def _lit(text: str, line: int) -> tuple:
 
 def _landed_mm(m, qs, Ds, want) -> np.ndarray:
     """Position error (mm) of the truth robot's program TCP ``fk · D`` at ``qs`` from ``want``."""
-    got = np.stack([fk(m.robot_, q[None])[0] @ D for q, D in zip(qs, Ds)])
+    got = np.stack([real_tcp(m, fk(m.robot_, q[None])[0], D) for q, D in zip(qs, Ds)])
     return np.linalg.norm(got[:, :3, 3] - np.asarray(want)[:, :3, 3], axis=1) * 1e3
 
 
@@ -191,7 +191,7 @@ def _spline_program(m, q):
     nom = m.nominal
     D1, D2 = se3.invert(nom.tool) @ TL1, se3.invert(nom.tool) @ TL2
     frames = [(B1, D1), (B2, D2), (B2, D1), (B2, D2), (B2, D1), (B2, D1), (B2, D1)]
-    tcp = np.stack([fk(m.robot_, q[k:k + 1])[0] @ frames[k][1] for k in range(len(frames))])
+    tcp = np.stack([real_tcp(m, fk(m.robot_, q[k:k + 1])[0], frames[k][1]) for k in range(len(frames))])
     lit = [se3.invert(W) @ T for (W, _), T in zip(frames, tcp)]
     st = [_status(nom, q[k]) for k in range(len(frames))]
     dat = "DEFDAT spl\r\n" + "".join(
@@ -275,7 +275,7 @@ def test_frame_variables_are_tool_base_and_offset_not_targets():
     q[:, 4] = np.abs(q[:, 4]) + 0.3
     fTool, fOffs, fBase = _frame(10, 0, 150, 0, 0, 0), _frame(0, 0, -50, 0, 0, 10), _frame(600, -200, 50, 90, 0, 0)
     D = se3.invert(nom.tool) @ fTool
-    tcp = fk(m.robot_, q) @ D
+    tcp = real_tcp(m, fk(m.robot_, q), D)
     lit = [se3.invert(fBase) @ tcp[0], se3.invert(fBase) @ tcp[1] @ se3.invert(fOffs)]
     src = ("DEF t( )\n  DECL FRAME fTool, fOffs\n  DECL FRAME fBase\n  DECL E6POS pA\n  BAS(#INITMOV, 0)\n"
            f"  fTool = {{{_xyzabc(fTool)}}}\n  fOffs = {{{_xyzabc(fOffs)}}}\n  fBase = {{{_xyzabc(fBase)}}}\n"

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from cli_run import run
-from comp_models import exact
+from comp_models import exact, real_tcp
 
 from hykin import fk
 from hykin.compensation import krl, rapid
@@ -48,7 +48,7 @@ def setup():
     q[:, 4] = np.abs(q[:, 4]) + 0.3
     D = se3.invert(nom.tool) @ TF  # the program's TCP relative to the robot file's tool
     W = UF @ OF
-    tcp = fk(m.robot_, q) @ D  # where the real robot's program TCP is at q (base frame)
+    tcp = real_tcp(m, fk(m.robot_, q), D)  # where the real robot's program TCP is at q (base frame)
     return m, q, D, W, tcp, abb_confdata(nom, q)
 
 
@@ -85,7 +85,7 @@ def _controller_lands(m, res, setup_W) -> np.ndarray:
     flange_tcp = np.stack([W[k] @ local[k] @ se3.invert(Ds[k]) for k in range(4)])  # nominal-tool TCP wanted
     conf = np.array([t.config["conf"] for t in new])
     qc = match_abb_confdata(nom, flange_tcp, conf)
-    return np.stack([fk(m.robot_, qc[k:k + 1])[0] @ Ds[k] for k in range(4)])
+    return np.stack([real_tcp(m, fk(m.robot_, qc[k:k + 1])[0], Ds[k]) for k in range(4)])
 
 
 def test_work_object_and_tool_are_applied_and_written_back_in_the_work_object(setup):
@@ -182,7 +182,7 @@ def test_cli_refuses_unknown_work_object_and_takes_context(tmp_path, capsys):
     D = se3.invert(m.nominal.tool) @ TF
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        tcp = m.predict(q) @ D
+        tcp = real_tcp(m, m.predict(q), D)
     prog = tmp_path / "job.mod"
     prog.write_text(_module(tcp, UF @ OF, abb_confdata(m.nominal, q), wobj_decl=False))
     out = tmp_path / "job_comp.mod"
@@ -232,7 +232,7 @@ def test_krl_base_and_tool_from_inline_forms_and_config():
     TL = se3.make_transform(krl.matrix_from_abc(0.0, 15.0, 0.0), np.array([0.01, 0.0, 0.18]))
     D = se3.invert(nom.tool) @ TL
     Ws, Ds = [B1, B1, np.eye(4)], [D, D, np.eye(4)]
-    tcp = np.stack([fk(m.robot_, q[k:k + 1])[0] @ Ds[k] for k in range(3)])
+    tcp = np.stack([real_tcp(m, fk(m.robot_, q[k:k + 1])[0], Ds[k]) for k in range(3)])
     S, T = kuka_status(nom, q)
     dat = "DEFDAT cell\r\n" + "".join(
         f"DECL E6POS XP{k + 1}={{{_krl_frame(se3.invert(Ws[k]) @ tcp[k])},S {S[k]},T {T[k]},E1 0.0}}\r\n" for k in range(3))
@@ -250,7 +250,7 @@ def test_krl_base_and_tool_from_inline_forms_and_config():
     local = np.stack([se3.invert(Ws[k]) @ new[k].pose for k in range(3)])
     qc = match_kuka_status(nom, np.stack([Ws[k] @ local[k] @ se3.invert(Ds[k]) for k in range(3)]),
                            [t.config["S"] for t in new], [t.config["T"] for t in new])
-    got = np.stack([fk(m.robot_, qc[k:k + 1])[0] @ Ds[k] for k in range(3)])
+    got = np.stack([real_tcp(m, fk(m.robot_, qc[k:k + 1])[0], Ds[k]) for k in range(3)])
     assert np.linalg.norm(got[:, :3, 3] - tcp[:, :3, 3], axis=1).max() * 1e3 < 2e-3
     # without $config.dat: base 1 is unknown (those targets fail, saying so), tool 2 is noted
     r0 = compensate_program(m, dat, krl, frame="measurement", context=src)
@@ -322,7 +322,7 @@ def test_cli_csv_targets_of_another_tcp(tmp_path, capsys):
     D = se3.invert(nom.tool) @ tcp
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        T = m.predict(q) @ D
+        T = real_tcp(m, m.predict(q), D)
     xyz, quat = se3.transform_to_pose(T)
     # mm and degrees: --angle-unit reads the tool's angles and the file's joint columns (branch hints)
     src2 = tmp_path / "targets.csv"
@@ -472,5 +472,5 @@ def test_rapid_targets_in_one_line_ifs_routine_parameters_and_assignments(setup)
     rows = [0, 1, 2, 4]
     flange = np.stack([new[k].pose @ se3.invert(D) for k in rows])  # W · literal: the wanted flange pose
     qc = match_abb_confdata(nom, flange, np.array([new[k].config["conf"] for k in rows]))
-    got = fk(m.robot_, qc) @ D
+    got = real_tcp(m, fk(m.robot_, qc), D)
     assert np.linalg.norm(got[:, :3, 3] - tcp[:, :3, 3], axis=1).max() * 1e3 < 2e-3

@@ -15,7 +15,7 @@ import re
 
 import numpy as np
 import pytest
-from comp_models import exact
+from comp_models import exact, real_tcp
 
 from hykin import fk
 from hykin.compensation import urscript
@@ -48,9 +48,11 @@ def _poses(text: str) -> list:
     return out
 
 
-def _want(m, q, tcp) -> np.ndarray:
-    """The true robot's TCP poses ``(N, 4, 4)`` at joints ``q``: what the program should reach."""
-    return fk(m.robot_, np.atleast_2d(q)) @ (se3.invert(m.nominal.tool) @ tcp)
+def _want(m, q, tcp, given=None) -> np.ndarray:
+    """The true robot's TCP poses ``(N, 4, 4)`` at joints ``q``: what the program should reach (``given``:
+    ``tcp`` is set by the program, e.g. ``set_tcp(p[0, 0, 0, 0, 0, 0])``, the real flange; default: a
+    flange-identity ``tcp`` is no ``set_tcp``, the model's TCP)."""
+    return real_tcp(m, fk(m.robot_, np.atleast_2d(q)), se3.invert(m.nominal.tool) @ tcp, given)
 
 
 def _controller(m, text: str, steps: list, q_start) -> np.ndarray:
@@ -64,13 +66,13 @@ def _controller(m, text: str, steps: list, q_start) -> np.ndarray:
         if isinstance(st[0], str):
             cur = np.asarray(st[1], float)
             continue
-        k, tcp, qnear = st
+        k, tcp, qnear, given = (*st, None)[:4]
         D = se3.invert(nom.tool) @ tcp
         r = ik(nom, (P[k] @ se3.invert(D))[None], all_branches=True).nearest_to(
             cur if qnear is None else np.asarray(qnear, float), nom.lower, nom.upper)
         assert r.success[0]
         cur = r.q[0]
-        got.append(fk(m.robot_, cur[None])[0] @ D)
+        got.append(real_tcp(m, fk(m.robot_, cur[None])[0], D, given))
     return np.stack(got)
 
 
@@ -206,7 +208,7 @@ def test_set_tcp_between_declaration_and_move_counts():
     declaration counts, one before the declaration but replaced before the move does not."""
     m = exact("ur10", 23)
     q = HOME + np.random.default_rng(7).normal(0, 0.05, (3, 6))
-    want = np.concatenate([_want(m, q[0], TCP_A), _want(m, q[1], TCP_B), _want(m, q[2], FLANGE)])
+    want = np.concatenate([_want(m, q[0], TCP_A), _want(m, q[1], TCP_B), _want(m, q[2], FLANGE, True)])
     prog = (
         "def job():\n"
         f"  global w_a = {_p(want[0])}\n"
@@ -223,7 +225,7 @@ def test_set_tcp_between_declaration_and_move_counts():
     )
     res = compensate_program(m, prog, urscript, frame="measurement")
     assert not res.failed and _diff_lines(prog, res.text) == {2, 4, 5}
-    got = _controller(m, res.text, [(0, TCP_A, None), (2, TCP_B, None), (3, FLANGE, None)], HOME)
+    got = _controller(m, res.text, [(0, TCP_A, None), (2, TCP_B, None), (3, FLANGE, None, True)], HOME)
     assert _err_mm(got, want).max() < 2e-3
 
 
@@ -321,7 +323,7 @@ def test_get_inverse_kin_targets_land_on_the_branch_of_qnear():
     q2 = _other_branch(nom, q1 + rng.normal(0, 0.05, 6))
     q3 = _other_branch(nom, q2 + rng.normal(0, 0.05, 6))
     q4 = q3 + rng.normal(0, 0.05, 6)
-    want = np.concatenate([_want(m, q1, TCP_A), _want(m, q2, TCP_B), _want(m, q3, TCP_A), _want(m, q4, FLANGE)])
+    want = np.concatenate([_want(m, q1, TCP_A), _want(m, q2, TCP_B), _want(m, q3, TCP_A), _want(m, q4, FLANGE, True)])
     walk = ik(nom, want[1:2] @ se3.invert(TCP_B), all_branches=True).nearest_to(q1, nom.lower, nom.upper).q[0]
     assert np.abs(walk - q2).max() > 0.5  # the check can fail: from q1 the walk takes another branch
     qn = [q1 + 0.03, q2 - 0.03, q3 + 0.01, q4]
@@ -341,7 +343,7 @@ def test_get_inverse_kin_targets_land_on_the_branch_of_qnear():
     assert not res.failed and [t.line for t in res.targets] == [2, 6, 8, 9]
     assert _diff_lines(prog, res.text) == {2, 6, 8, 9}
     assert any("line 9: get_inverse_kin tcp pose kept" in n for n in res.notes)
-    steps = [(3, TCP_A, qn[0]), (0, TCP_B, qn[1]), (4, TCP_A, qn[2]), (5, FLANGE, qn[3])]
+    steps = [(3, TCP_A, qn[0]), (0, TCP_B, qn[1]), (4, TCP_A, qn[2]), (5, FLANGE, qn[3], True)]
     got = _controller(m, res.text, steps, HOME)
     assert _err_mm(got, want).max() < 2e-3
 

@@ -58,7 +58,7 @@ from ..kinematics.robot import robot_reach_m
 from .frames import fitted_base, other_frame, parse_targets, resolve_frame
 from .result import Compensation, first_row_per_target
 
-__all__ = ["Compensator", "StepResult", "compensate", "model_tolerance"]
+__all__ = ["Compensator", "StepResult", "compensate", "model_delta", "model_tolerance"]
 
 _FLOOR_MM, _FLOOR_DEG = 1e-4, 1e-4
 _POLISH_M = 1e-9  # rows the first solve leaves above this (m, rad) are re-solved with the hybrid Jacobian
@@ -137,6 +137,9 @@ class Compensator:
         self._pre_inv = se3.invert(np.asarray(model.frame_pre_, dtype=np.float64))
         self._post = np.asarray(model.frame_post_, dtype=np.float64)
         self._post_inv = se3.invert(self._post)
+        # the model's (calibrated, registered) TCP relative to the robot file's: where a program tool given
+        # relative to the file's TCP sits on the real robot (model_targets)
+        self._tcp_shift_inv = _tcp_shift_inv(model)
         self._reach_m = robot_reach_m(self.robot)
         self.kernel = None
         if not ik_kw and hasattr(model, "net_pos_"):
@@ -161,23 +164,26 @@ class Compensator:
                           pos_err_mm=float(pe[0]), ang_err_deg=float(ae[0]))
 
     def __call__(self, targets, q_branch=None, *, tool_delta=None, position_only: bool = False,
-                 branch_reason: str | np.ndarray = "no solution on the requested branch") -> Compensation:
+                 branch_reason: str | np.ndarray = "no solution on the requested branch", tool_given=None) -> Compensation:
         """Compensate targets ``(N, 4, 4)`` (or ``(N, 3)`` positions), m, in :attr:`frame`.
 
         ``q_branch`` ``(N, dof)`` / ``(dof,)``: joints choosing each target's branch (NaN rows: no branch,
         the target fails with ``branch_reason``: one text, or ``(N,)`` texts per row); default the walk of
-        the module docstring. ``tool_delta``: :mod:`hykin.compensation.targets`. Returns a :class:`Compensation`."""
+        the module docstring. ``tool_delta``: :mod:`hykin.compensation.targets`; ``tool_given`` ``(N,)`` bool: the
+        rows whose ``tool_delta`` is a program's tool (default all; :meth:`model_delta`). Returns a :class:`Compensation`."""
         from ..hybrid.ik_result import support_of
 
         T, pos_in = parse_targets(targets)
         pos_only = bool(position_only or pos_in)
         N, n = len(T), self.dof
         D = None if tool_delta is None else np.broadcast_to(np.asarray(tool_delta, dtype=np.float64), (N, 4, 4))
+        G = None if tool_given is None else np.broadcast_to(np.asarray(tool_given, dtype=bool), (N,))
+        Dm = self.model_delta(D, G)
         if q_branch is None:
-            qb = self._walk(T, D, pos_only)
+            qb = self._walk(T, D, pos_only, Dm)
         else:
             qb = np.array(np.broadcast_to(np.asarray(q_branch, dtype=np.float64), (N, n)))
-        q, cmd, ok, reason, pe, ae = self.solve(T, qb, D, pos_only, branch_reason)
+        q, cmd, ok, reason, pe, ae = self.solve(T, qb, D, pos_only, branch_reason, D_model=Dm)
         T_ctrl = T if self.frame == "base" else self._ctrl_of_meas @ T
         dpos = np.linalg.norm(cmd[:, :3, 3] - T_ctrl[:, :3, 3], axis=1) * 1e3
         dang = np.full(N, np.nan)
@@ -190,16 +196,23 @@ class Compensator:
     # ------------------------------------------------------------------ the one path
 
     def model_targets(self, T: np.ndarray, D: np.ndarray | None = None) -> np.ndarray:
-        """Targets ``(N, 4, 4)`` in :attr:`frame` (of the program TCP ``D``) -> the model's measurement frame."""
+        """Targets ``(N, 4, 4)`` in :attr:`frame` (of a TCP ``D`` relative to the model's TCP: :meth:`model_delta`)
+        -> the model's measurement frame."""
         Tm = T if self._base_fit is None else self._base_fit @ T
         return Tm if D is None else Tm @ se3.invert(D)
 
+    def model_delta(self, D: np.ndarray | None, given=None) -> np.ndarray | None:
+        """:func:`model_delta` of this compensator's model."""
+        return model_delta(self.model, D, given, self._tcp_shift_inv)
+
     def solve(self, T: np.ndarray, hint: np.ndarray, D: np.ndarray | None = None, pos_only: bool = False,
-              branch_reason: str | np.ndarray = "no solution on the requested branch"):
+              branch_reason: str | np.ndarray = "no solution on the requested branch", D_model=None):
         """Targets ``(N, 4, 4)`` (:attr:`frame`) and branch hints ``(N, dof)`` -> ``(q, command, success,
-        reason, pos_err_mm, ang_err_deg)``, NaN joints and command where unsuccessful."""
+        reason, pos_err_mm, ang_err_deg)``, NaN joints and command where unsuccessful. ``D``: the program
+        TCP relative to the robot file's (the command's); ``D_model``: relative to the model's
+        (:meth:`model_delta`; default ``model_delta(D)``)."""
         N, n = len(T), self.dof
-        Tm = self.model_targets(T, D)
+        Tm = self.model_targets(T, self.model_delta(D) if D_model is None else D_model)
         has = np.isfinite(hint).all(1)
         every = bool(has.all())  # the usual case: no index arrays, no copies
         idx = slice(None) if every else np.flatnonzero(has)
@@ -425,7 +438,7 @@ class Compensator:
                                                               "unreachable for the model"))
         return q, pe, ae, reason
 
-    def _walk(self, T: np.ndarray, D, pos_only: bool) -> np.ndarray:
+    def _walk(self, T: np.ndarray, D, pos_only: bool, Dm=None) -> np.ndarray:
         """Branch hints without ``q_branch`` (module docstring): nominal solutions nearest the previous
         target's; where the nominal robot has none, the calibrated robot's, else the previous joints."""
         from ..hybrid.ik_seeds import LSQ_SEED
@@ -447,7 +460,7 @@ class Compensator:
         qb = sequential_nearest(nom, T_nom, None, polish=False, least_squares=LSQ_SEED)  # hints: solved on the model next
         miss = np.flatnonzero(~np.isfinite(qb).all(1))
         if miss.size:
-            Tr = self._robot_world(self.model_targets(T[miss], None if D is None else D[miss]))
+            Tr = self._robot_world(self.model_targets(T[miss], None if Dm is None else Dm[miss]))
             br = ik(self.robot, Tr, all_branches=True, least_squares=LSQ_SEED)
             qc = np.asarray(br.q, dtype=np.float64).reshape(len(miss), -1, n)
             okc = best_fitting(np.asarray(br.success, dtype=bool).reshape(len(miss), -1), br.pos_err_m, br.ang_err_rad)
@@ -458,14 +471,40 @@ class Compensator:
         return qb
 
 
+def _tcp_shift_inv(model) -> np.ndarray:
+    """``inv(E)``, ``E`` = the model's TCP (calibrated tool, registered ``frame_post_``) relative to the
+    robot file's TCP ``(4, 4)``."""
+    from ..hybrid.ik_result import classical_robot
+
+    E = se3.invert(np.asarray(model.nominal.tool)) @ np.asarray(classical_robot(model).tool) @ np.asarray(
+        getattr(model, "frame_post_", np.eye(4)), dtype=np.float64)
+    return se3.invert(E)
+
+
+def model_delta(model, D: np.ndarray | None, given=None, shift_inv=None) -> np.ndarray | None:
+    """The program TCP relative to the *model's* TCP, from ``D`` ``(N, 4, 4)``, relative to the robot
+    file's TCP (the controller's view, used for the command). A program's tool is fixed to the real
+    flange, whose TCP is the model's (calibrated, registered): ``inv(E) · D`` with ``E`` the model's TCP
+    relative to the file's (:func:`_tcp_shift_inv`; before, ``D`` was taken relative to the model's TCP,
+    and a tool guessed 30 mm off in the robot file moved every target 30 mm). ``given`` ``(N,)`` bool:
+    rows with a program tool (default all); the others (identity ``D``: the robot file's TCP, which the
+    model's TCP stands for) stay as they are."""
+    if D is None:
+        return None
+    Dm = (_tcp_shift_inv(model) if shift_inv is None else shift_inv) @ D
+    return Dm if given is None else np.where(np.asarray(given, dtype=bool)[:, None, None], Dm, D)
+
+
 def compensate(model, T_target, *, q_branch=None, frame: str = "measurement", position_only: bool = False,
-               tool_delta=None, branch_reason: str | np.ndarray = "no solution on the requested branch", **kw) -> Compensation:
+               tool_delta=None, branch_reason: str | np.ndarray = "no solution on the requested branch", tool_given=None,
+               **kw) -> Compensation:
     """Compensated commands for targets ``T_target`` ``(N, 4, 4)`` (or ``(N, 3)`` positions), m:
     ``Compensator(model, frame=frame, **kw)(T_target, q_branch, ...)`` (:class:`Compensator`).
 
     ``q_branch`` ``(N, n)`` or ``(n,)``: joints choosing the branch (current joints, or the solution the
     program means); NaN rows = no branch (the target fails with ``branch_reason``). Default: the walk of
-    :class:`Compensator`. ``frame``, ``tool_delta``: :mod:`hykin.compensation.targets`. ``kw``: tolerances,
+    :class:`Compensator`. ``frame``, ``tool_delta``: :mod:`hykin.compensation.targets`; ``tool_given``:
+    :meth:`Compensator.__call__`. ``kw``: tolerances,
     ``max_move_rad`` (:class:`Compensator`); other keywords go to :func:`hykin.hybrid.ik.hybrid_ik`."""
     return Compensator(model, frame=frame, **kw)(T_target, q_branch, tool_delta=tool_delta, position_only=position_only,
-                                                 branch_reason=branch_reason)
+                                                 branch_reason=branch_reason, tool_given=tool_given)

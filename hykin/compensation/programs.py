@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry import se3
-from .compensator import compensate
+from .compensator import compensate, model_delta
 from .result import Compensation
 
 __all__ = ["NUMBER", "ProgramResult", "ProgramTarget", "TargetFrames", "comment_mask", "compensate_program", "line_of",
@@ -345,10 +345,12 @@ def _solve(model, targets: list, frame: str, axis_signs, slack_rad: float,
     # branch from the nominal solutions of the uncompensated target, in the nominal robot's world
     # (= the measurement frame; the controller base sits at nominal.base in it)
     T_nom = (T if fr == "measurement" else model.nominal.base @ T) @ se3.invert(D)
-    T_cal = se3.invert(model.frame_pre_) @ to_model_frame(model, T, fr) @ se3.invert(D) @ se3.invert(model.frame_post_)
+    given = np.array([t.tool_delta is not None for t in targets])  # a program tool (else the model's TCP)
+    Dm = model_delta(model, D, given)
+    T_cal = se3.invert(model.frame_pre_) @ to_model_frame(model, T, fr) @ se3.invert(Dm) @ se3.invert(model.frame_post_)
     qb, other_flag, reason = _branch_joints(model, targets, T_nom, T_cal, axis_signs, slack_rad)
-    comp = compensate(model, T, q_branch=qb, frame=fr, tool_delta=D, branch_reason=reason, **ik_kw)
-    _keep_flags(model, targets, comp, other_flag, T, D, T_cal, fr, axis_signs, ik_kw)
+    comp = compensate(model, T, q_branch=qb, frame=fr, tool_delta=D, branch_reason=reason, tool_given=given, **ik_kw)
+    _keep_flags(model, targets, comp, other_flag, T, D, T_cal, fr, axis_signs, ik_kw, given)
     return comp, other_flag
 
 
@@ -372,7 +374,7 @@ def _flags(model, targets: list, q: np.ndarray, axis_signs) -> tuple[np.ndarray,
 
 
 def _keep_flags(model, targets: list, comp: Compensation, other_flag: np.ndarray, T, D, T_cal, fr: str, axis_signs,
-                ik_kw: dict) -> None:
+                ik_kw: dict, given: np.ndarray) -> None:
     """Re-solve (in place) the successful targets whose compensated joints lost the configuration flag
     their data fix (not those moved to the other flag on purpose, ``other_flag``) from the calibrated
     robot's solution with the program's data; a row is replaced where that succeeds on the taught flag."""
@@ -395,7 +397,7 @@ def _keep_flags(model, targets: list, comp: Compensation, other_flag: np.ndarray
     rows, hint = rows[fin], hint[fin]
     if not rows.size:
         return
-    again = compensate(model, T[rows], q_branch=hint, frame=fr, tool_delta=D[rows], **ik_kw)
+    again = compensate(model, T[rows], q_branch=hint, frame=fr, tool_delta=D[rows], tool_given=given[rows], **ik_kw)
     g2, w2 = _flags(model, [targets[k] for k in rows], again.q, axis_signs)
     take = again.success & (g2 == w2)
     for name in ("command", "q", "success", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg", "in_support",
