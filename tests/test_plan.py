@@ -408,3 +408,16 @@ def test_plan_is_more_uniform_than_random_and_stratified(seed):
     u = unit_coordinates(p.q, lo, hi)
     counts = np.stack([np.bincount(np.minimum((u[:, j] * 8).astype(int), 7), minlength=8) for j in range(r.dof)])
     assert counts.min() >= 28 and counts.max() <= 36, counts
+
+
+def test_travel_from_is_a_row_of_the_travel_matrix():
+    """The detour search takes move times from two poses to the whole via pool without the (V, V) matrix
+    (probe report s40: 15 GB for a 40-pose plan with the body check). Reference: travel_matrix's row."""
+    from hykin.planning.order import travel_from, travel_matrix
+
+    rng = np.random.default_rng(3)
+    q = rng.uniform(-7.0, 7.0, (50, 6))
+    v = rng.uniform(0.5, 3.0, 6)
+    turns = np.array([True, False, False, True, False, True])
+    for tw in (None, turns):
+        np.testing.assert_allclose(travel_from(q[0], q[1:], v, tw), travel_matrix(q, v, tw)[0, 1:], rtol=0, atol=1e-12)

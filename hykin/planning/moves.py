@@ -76,7 +76,7 @@ def safe_path(q_ordered: np.ndarray, ok_fn, via_pool: np.ndarray, speeds, prisma
     robot starts from (its move to the first pose is checked too; None: not checked). rep:
     ``(prev (K, dof), q (K, dof)) -> q'``, the representation of a via pose reached from ``prev``
     (full-turn joints, :func:`hykin.planning.order.nearest_turn`); None: as given."""
-    from .order import travel_matrix
+    from .order import travel_from
 
     q = np.asarray(q_ordered, dtype=np.float64)
     v = np.broadcast_to(np.asarray(speeds, dtype=np.float64), (q.shape[1],))
@@ -115,8 +115,7 @@ def safe_path(q_ordered: np.ndarray, ok_fn, via_pool: np.ndarray, speeds, prisma
             cur, cur_i = nxt, i
             rest.pop(0)
             continue
-        t = travel_matrix(np.vstack([cur, nxt, via_pool]), v)
-        detour = t[0, 2:] + t[1, 2:]
+        detour = travel_from(cur, via_pool, v) + travel_from(nxt, via_pool, v)
         ranked = np.argsort(detour)
         good = np.zeros(0, np.int64)
         for lo_, hi_ in ((0, n_try), (n_try, 5 * n_try)):  # the quickest detours first, then further ones

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["full_turn_joints", "nearest_turn", "order_path", "path_travel", "travel_matrix", "unwrap_path"]
+__all__ = ["full_turn_joints", "nearest_turn", "order_path", "path_travel", "travel_from", "travel_matrix", "unwrap_path"]
 
 
 def travel_matrix(q: np.ndarray, speeds, turns=None) -> np.ndarray:
@@ -34,6 +34,17 @@ def travel_matrix(q: np.ndarray, speeds, turns=None) -> np.ndarray:
             d = np.minimum(d, 2 * np.pi - d)
         np.maximum(D, d / v[j], out=D)
     return D
+
+
+def travel_from(q0: np.ndarray, q: np.ndarray, speeds, turns=None) -> np.ndarray:
+    """``(N,)`` move times (s) from the pose ``q0`` ``(dof,)`` to each of ``q`` ``(N, dof)``: one row of
+    :func:`travel_matrix` without the ``(N, N)`` matrix (a via pool of 40,000 poses needs 12 GB there)."""
+    q = np.asarray(q, dtype=np.float64)
+    v = np.broadcast_to(np.asarray(speeds, dtype=np.float64), (q.shape[1],))
+    tw = np.zeros(q.shape[1], bool) if turns is None else np.asarray(turns, bool)
+    d = np.abs(q - np.asarray(q0, dtype=np.float64)[None])
+    d = np.where(tw, np.minimum(np.mod(d, 2 * np.pi), 2 * np.pi - np.mod(d, 2 * np.pi)), d)
+    return np.max(d / v, axis=1)
 
 
 def full_turn_joints(lower, upper, joint_type) -> np.ndarray:
@@ -82,7 +93,7 @@ def order_path(q: np.ndarray, speeds, start=None, max_passes: int = 50, clear=No
         return np.arange(N)
     D = travel_matrix(q, speeds, turns)
     s = np.mean(q, 0) if start is None else np.asarray(start, dtype=np.float64)
-    first = int(np.argmin(travel_matrix(np.vstack([s, q]), speeds, turns)[0, 1:]))
+    first = int(np.argmin(travel_from(s, q, speeds, turns)))
     cache: dict = {}
 
     def ok(I, J) -> np.ndarray:
