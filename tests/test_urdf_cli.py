@@ -124,3 +124,23 @@ def test_calibrate_urdf_far_from_instrument(tmp_path, capsys):
     code, so, se = run(["calibrate", URDF, tmp_path / "d.csv", "--tip", "tcp", "--no-compliance", "-o",
                         tmp_path / "c.urdf"], capsys)
     assert code == 0, se
+
+
+def test_register_a_multi_tip_urdf_with_tip(tmp_path, capsys):
+    """``hykin register`` of a URDF robot with several tips (probe report s40: refused asking for --tip,
+    which register did not have). The series is the truth seen from a moved tracker; the registered
+    robot file must put the TCP there (reference: the truth's FK in that frame)."""
+    nom, truth = _truth(3)
+    W = se3.trans(2.0, -1.0, 0.3) @ se3.rotz(0.4)
+    moved = truth.copy(base=W @ truth.base)
+    q = _write(tmp_path / "s.csv", nom, moved, 60, 4, noise_m=0.0)
+    code, _, se = run(["register", URDF, tmp_path / "s.csv", "-o", tmp_path / "r.urdf", "--poses", "30"], capsys)
+    assert code != 0 and "several tips" in se and "--tip" in se
+    out = tmp_path / "r.urdf"
+    code, so, se = run(["register", URDF, tmp_path / "s.csv", "-o", out, "--tip", "tcp", "--poses", "30"], capsys)
+    assert code == 0, se
+    reg = load_urdf(out, tip_link="tcp")
+    q2 = nom.random_joints(50, rng=11)
+    err = np.linalg.norm(fk(reg, q2)[:, :3, 3] - fk(moved, q2)[:, :3, 3], axis=1).max()
+    # the frames are registered; the arm keeps the file's geometry (0.5 mm deviations of the truth stay)
+    assert err < 5e-3 and np.linalg.norm(fk(nom, q2)[:, :3, 3] - fk(moved, q2)[:, :3, 3], axis=1).min() > 0.5

@@ -291,6 +291,8 @@ def register_cmd(
                                            "position (position only) or off."),
     outliers: str = Outliers,
     outlier_ratio: float = OutlierRatio,
+    base_link: str | None = BaseLink,
+    tip_link: str | None = TipLink,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     unit_check: bool = UnitCheck,
@@ -310,7 +312,7 @@ def register_cmd(
         raise CLIError(f"--alpha must be in [0, 1), --tolerance > 0, --noise-mm >= 0 (got {alpha}, {tolerance}, {noise_mm})")
     o = _calibration_options(orientation_weight, None, None, outliers, outlier_ratio)
     w = o.get("orientation_weight_m_per_rad", "auto")
-    mdl, rob = load_model_or_robot(model)
+    mdl, rob = load_model_or_robot(model, base_link, tip_link)
     if mdl is None:
         from ..measure.robot_model import RobotModel
 
