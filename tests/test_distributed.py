@@ -276,7 +276,13 @@ def test_shipped_paper_table1_sweep_parses(files, tmp_path):
     shutil.copy(src, tmp_path)
     for name in ("rx160-train.csv", "rx160-test.csv"):
         shutil.copy(files / "train.csv", tmp_path / name)
-    trials = read_sweep(tmp_path / "paper-table1.toml").trials()
+    from hykin.io.robot_toml import save_robot_toml
+    from hykin.sim.presets import virtual_preset
+
+    save_robot_toml(virtual_preset("rx160-virtual").nominal, tmp_path / "rx160-train.nominal.toml")  # as simulate writes
+    sw = read_sweep(tmp_path / "paper-table1.toml")
+    assert Path(sw.robot).name == "rx160-train.nominal.toml"  # the virtual robot's nominal file, not the preset
+    trials = sw.trials()
     paper = [t for t in trials if t["recipe"] == "paper"]
     assert sorted({t["arch"] for t in paper}) == sorted(["D1", "D4", "D4w", "D4W", "Rw", "Rd"])
     assert all(t["calibrate"] is False for t in paper) and len(paper) == 12
