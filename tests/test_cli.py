@@ -161,3 +161,17 @@ def test_fit_then_fk_evaluate_ik_end_to_end(tmp_path, capsys):
     assert "200 targets" in out
     code, _, err = run(["fit", "rx160", str(data), "-o", str(model), "--thermal", "maybe"], capsys)
     assert code != 0 and "--thermal" in err and "\n" not in err.strip()
+
+
+def test_messages_keep_bracketed_text():
+    """Rich drops unknown [tags]: "the robot file's [tool]" printed without "[tool]", and the demo table's
+    "[mm]" units vanished (probe report s40). hykin's own style tags still style."""
+    import io
+
+    from rich.console import Console
+
+    from hykin.cli.common import plain_markup
+
+    buf = io.StringIO()
+    Console(file=buf, soft_wrap=True).print(plain_markup("[yellow]note:[/] the robot file's [tool] in [mm], BASE_DATA[1]"))
+    assert buf.getvalue().strip() == "note: the robot file's [tool] in [mm], BASE_DATA[1]"

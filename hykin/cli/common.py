@@ -6,6 +6,8 @@ Commands live in the sibling modules, one module per family; each registers on :
 
 from __future__ import annotations
 
+import re
+
 from pathlib import Path
 
 import numpy as np
@@ -146,12 +148,28 @@ def check_output(out, inputs=(), force: bool = False, directory: bool = False) -
     return out
 
 
+#: the rich style tags hykin's messages use; any other ``[...]`` in a message is text (``[tool]``, ``[mm]``)
+_STYLE_TAG = re.compile(r"\\\[(/?(?:yellow|red|green|bold|dim|cyan)?)\]")
+
+
+def plain_markup(text: str) -> str:
+    """``text`` with every ``[...]`` escaped for rich except hykin's own style tags: rich drops unknown
+    tags, so "the robot file's [tool]" printed as "the robot file's " and "[mm]" vanished from headers."""
+    from rich.markup import escape
+
+    return _STYLE_TAG.sub(lambda m: f"[{m.group(1)}]", escape(text))
+
+
 def console():
     from rich.console import Console
 
+    class _Console(Console):
+        def print(self, *objects, **kw):  # noqa: A003 - rich's name
+            super().print(*(plain_markup(o) if isinstance(o, str) else o for o in objects), **kw)
+
     # soft wrap: a message stays one line in logs and pipes (rich otherwise breaks it at 80 columns
     # when the output is not a terminal); tables still fit the width
-    return Console(stderr=True, soft_wrap=True)
+    return _Console(stderr=True, soft_wrap=True)
 
 
 class _LogProgress:

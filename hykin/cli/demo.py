@@ -200,8 +200,10 @@ def _run_demo(out_dir, n_train: int, quick: bool, seed: int) -> Path:
     from rich.table import Table
 
     tbl = Table(title="hykin demo: virtual RX160 — mean errors on the test set")
+    from rich.markup import escape
+
     for col in ("model", "position [mm]", "orientation [deg]"):
-        tbl.add_column(col, justify="right" if col != "model" else "left")
+        tbl.add_column(escape(col), justify="right" if col != "model" else "left")  # [mm] is text, not a style
     for r in comp + [[f"IK: {r[0]}", r[1], r[2]] for r in ik_rows]:
         tbl.add_row(str(r[0]), _g(r[1]), _g(r[2]))
     Console().print(tbl)
