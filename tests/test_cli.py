@@ -175,3 +175,19 @@ def test_messages_keep_bracketed_text():
     buf = io.StringIO()
     Console(file=buf, soft_wrap=True).print(plain_markup("[yellow]note:[/] the robot file's [tool] in [mm], BASE_DATA[1]"))
     assert buf.getvalue().strip() == "note: the robot file's [tool] in [mm], BASE_DATA[1]"
+
+
+def test_report_directories_are_not_overwritten_without_force(tmp_path, capsys):
+    """``report -o DIR``, ``evaluate --report DIR`` and ``demo -o DIR`` overwrote DIR/report.html silently
+    (probe report s40); the README promises a refusal without --force."""
+    from cli_run import run
+
+    d = tmp_path / "rep"
+    d.mkdir()
+    (d / "report.html").write_text("earlier report")
+    for argv in (["report", "rx160", "-o", d], ["demo", "-o", d, "--quick"]):
+        code, _, err = run(argv, capsys)
+        assert code == 2 and "output exists; pass --force" in err and len(err.strip().splitlines()) == 1
+    assert (d / "report.html").read_text() == "earlier report"
+    code, _, err = run(["report", "rx160", "-o", d, "--force"], capsys)
+    assert code == 0, err and (d / "report.html").read_text() != "earlier report"

@@ -160,6 +160,18 @@ def plain_markup(text: str) -> str:
     return _STYLE_TAG.sub(lambda m: f"[{m.group(1)}]", escape(text))
 
 
+def check_report_dir(out, inputs=(), force: bool = False) -> Path:
+    """:func:`check_output` for a report directory ``out`` (DIR/report.html): an existing file there, or a
+    ``report.html`` already in it, is refused without ``force``."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise CLIError(f"{out}: must name a directory, got an existing file")
+    check_output(out, inputs, force=True, directory=True)
+    if (out / "report.html").exists() and not force:
+        raise CLIError(f"{out / 'report.html'}: output exists; pass --force to overwrite it")
+    return out
+
+
 def console():
     from rich.console import Console
 

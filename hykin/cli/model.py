@@ -18,6 +18,7 @@ from .common import (
     UnitCheck,
     app,
     check_output,
+    check_report_dir,
     console,
     load_model,
     load_model_or_robot,
@@ -163,16 +164,15 @@ def evaluate_cmd(
                                     "(data in another frame than the model's: a moved tracker, another tool; the 12 "
                                     "fitted frame parameters flatter the figures). Without it such data are refused "
                                     "(register the model first)."),
+    force: bool = Force,
 ) -> None:
     """Before/after error table (mean, std, p95, max; position mm, orientation deg)."""
     from ..evaluation.evaluate import FrameMismatchError, evaluate_model
     from ..evaluation.report_build import evaluation_report
     from ..io.dataset_files import read_dataset
 
-    if report is not None and report.exists() and not report.is_dir():
-        raise CLIError(f"{report}: --report must name a directory, got an existing file")
     if report is not None:
-        check_output(report, (model, test), force=True, directory=True)
+        check_report_dir(report, (model, test), force)
     mdl, rob = load_model_or_robot(model, base_link, tip_link)
     ds = read_dataset(test, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     try:
@@ -380,14 +380,12 @@ def demo_cmd(
     n_train: int = typer.Option(10_000, "--n-train", help="Training samples."),
     quick: bool = typer.Option(False, "--quick", help="A much smaller run (for smoke tests)."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the simulated data and of the fits."),
+    force: bool = Force,
 ) -> None:
     """The main job on the embedded default: virtual RX160, calibrate, train, evaluate, IK, report."""
     from .demo import run_demo
 
-    if out.exists() and not out.is_dir():
-        raise CLIError(f"{out}: the demo writes a directory, but this is an existing file")
-    if not out.resolve().parent.is_dir():
-        raise CLIError(f"{out}: output folder {out.resolve().parent} does not exist (create it first)")
+    check_report_dir(out, (), force)
 
     path = run_demo(out, n_train=n_train, quick=quick, seed=seed)
     typer.echo(f"report: {path}")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from .common import AngleUnit, CLIError, LengthUnit, app, check_output, load_model_or_robot
+from .common import AngleUnit, CLIError, Force, LengthUnit, app, check_report_dir, load_model_or_robot
 
 
 @app.command("report")
@@ -18,6 +18,7 @@ def report_cmd(
     ik_targets: int = typer.Option(20, "--ik-targets", help="Targets for the warm hybrid-IK timing (count; 0 = no timing)."),
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
+    force: bool = Force,
 ) -> None:
     """Write DIR/report.html: summary in words, model card, accuracy (per axis, per joint, in the workspace,
     ISO 9283), training support, calibration table and correlations, IK timings. One file, no external
@@ -27,11 +28,9 @@ def report_cmd(
     from ..evaluation.report_build import build_report, write_report
     from ..io.dataset_files import read_dataset
 
-    if out.exists() and not out.is_dir():
-        raise CLIError(f"{out}: -o must name a directory, got an existing file")
     if ik_targets < 0:
         raise CLIError(f"--ik-targets must be >= 0, got {ik_targets}")
-    check_output(out, (model, test), force=True, directory=True)
+    check_report_dir(out, (model, test), force)
     mdl, rob = load_model_or_robot(model)
     ds = None if test is None else read_dataset(test, length_unit=length_unit, angle_unit=angle_unit, robot=rob)
     with warnings.catch_warnings():
