@@ -109,7 +109,7 @@ def write_model_file(path: str | Path, tensors: dict, meta: dict) -> None:
 
 
 def stored_content_hash(path: str | Path) -> str | None:
-    """The ``content_sha256`` a model file carries in its header (None for files of hykin 0.1.0);
+    """The ``content_sha256`` a model file carries in its header (None for files written before model files carried one);
     reads the header only. :func:`read_model_file` checks it against the content."""
     from safetensors import SafetensorError, safe_open
 
@@ -117,7 +117,8 @@ def stored_content_hash(path: str | Path) -> str | None:
         with safe_open(str(path), framework="pt") as f:
             return (f.metadata() or {}).get("content_sha256")
     except (SafetensorError, OSError, ValueError, RuntimeError) as e:
-        raise ModelFileError(f"{path}: not a hykin model file (not readable as safetensors: {e})") from None
+        raise ModelFileError(f"{path}: not a hykin model file, or a truncated or corrupt copy of one (not readable as "
+                             f"safetensors: {e})") from None
 
 
 def read_model_file(path: str | Path) -> tuple[dict, dict]:
@@ -132,7 +133,8 @@ def read_model_file(path: str | Path) -> tuple[dict, dict]:
             md = f.metadata() or {}
             tensors = {k: f.get_tensor(k) for k in f.keys()}
     except (SafetensorError, OSError, ValueError, RuntimeError) as e:
-        raise ModelFileError(f"{path}: not a hykin model file (not readable as safetensors: {e})") from None
+        raise ModelFileError(f"{path}: not a hykin model file, or a truncated or corrupt copy of one (not readable as "
+                             f"safetensors: {e})") from None
     if md.get("format") != FORMAT:
         raise ModelFileError(f"{path}: not a hykin model file (metadata 'format' is {md.get('format')!r})")
     try:
