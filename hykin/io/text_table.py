@@ -318,7 +318,7 @@ def float_column(t: TextTable, name: str, decimal: str = ".", *, allow_missing: 
                 elif not raw.strip():
                     cause = ("cell '(empty)' is not a number: the cell is empty " + (empty_hint or (
                         f"(a marker or beam lost in that row? leave such rows out with where = [\"{name} != \"] "
-                        f"(--where '{name} != '))")))
+                        f"in a mapping, `hykin import table FILE --where '{name} != '`)")))
                 elif decimal == "," and re.fullmatch(r"[+-]?\d{1,3}(\.\d{3})+(,\d*)?", raw):
                     cause = (f"{raw!r} has a thousands separator '.' (European digit grouping, "
                              f"{raw.replace('.', '').replace(',', '.')} with a decimal point): export the file "
