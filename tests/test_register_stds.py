@@ -71,3 +71,25 @@ def test_a_series_that_moves_only_the_wrist_is_named(exact_rx160_model):
     assert "coverage: joints barely move over the registration poses (q1 0 deg, q2 0 deg, q3 4 deg)" in info.report()
     _, info2 = register_model(model, _series(model.robot, 0), n_poses=30, check_nominal=False)
     assert "coverage" not in info2.report()
+
+
+def test_few_registration_poses_get_a_precision_note_and_no_leave_one_out(exact_rx160_model):
+    """Probe report s40: 3 poses registered a 2 µm model to 0.068 mm over the workspace without a word, and
+    the leave-one-pose-out check printed metres. Now: a precision note from the frames' stds, the check
+    skipped; with 30 poses neither. Reference: the registered model against the truth over the workspace."""
+    rob = exact_rx160_model.robot
+    rng = np.random.default_rng(5)
+    q = rob.random_joints(30, rng)
+    T = TRACKER @ fk(rob, q)
+    xyz = T[:, :3, 3] + rng.normal(0, 2e-5, (30, 3))
+    quat = se3.matrix_to_quat(T[:, :3, :3])
+    few = Dataset(q=q[:3], xyz_m=xyz[:3], quat_wxyz=quat[:3], source="three.csv")
+    new, info = register_model(exact_rx160_model, few, n_poses=3)
+    assert info.precision.startswith("precision:") and "3 used" in info.precision
+    assert info.nominal_check.startswith("nominal check: skipped")
+    qw = rob.random_joints(200, np.random.default_rng(6))
+    err = np.linalg.norm(new.predict(qw)[:, :3, 3] - (TRACKER @ fk(rob, qw))[:, :3, 3], axis=1).mean() * 1e3
+    assert err > 0.01  # the note is warranted: the frames' error shows over the workspace
+    many = Dataset(q=q, xyz_m=xyz, quat_wxyz=quat, source="thirty.csv")
+    _, info30 = register_model(exact_rx160_model, many, n_poses=30)
+    assert info30.precision == "" and "skipped" not in info30.nominal_check

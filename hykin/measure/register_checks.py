@@ -178,6 +178,11 @@ def loo_errors_linear(T_model: np.ndarray, T_meas: np.ndarray, position_only: bo
     return p, a
 
 
+#: poses the leave-one-pose-out comparison needs (full poses, positions only): the frames fitted on the
+#: others must be determined (12 parameters from 6 values per pose; 9 from 3)
+LOO_MIN_POSES = {False: 4, True: 5}
+
+
 def nominal_comparison(T_reg: np.ndarray, T_nom: np.ndarray, T_meas: np.ndarray,
                        position_only: bool, orientation_weight_m_per_rad: float = 1.0,
                        components: str = "pose") -> tuple[bool, str, dict]:
@@ -185,7 +190,13 @@ def nominal_comparison(T_reg: np.ndarray, T_nom: np.ndarray, T_meas: np.ndarray,
     to the nominal model (``T_nom``)? Leave-one-pose-out on the registration poses ``T_meas``; the
     registered model is kept unless its mean LOO error is larger in position or (full pose data,
     ``components="pose"``) in orientation; ``components="position"`` judges position only.
-    Returns ``(keep, report line, figures)`` (figures: mean LOO mm / deg)."""
+    Returns ``(keep, report line, figures)`` (figures: mean LOO mm / deg). Fewer poses than
+    :data:`LOO_MIN_POSES` (the frames fitted on the others would be undetermined: metres of LOO error on
+    both sides) keep the registered model, saying the check was skipped."""
+    need = LOO_MIN_POSES[bool(position_only)]
+    if len(T_meas) < need:
+        return True, (f"nominal check: skipped ({len(T_meas)} registration poses; leaving one out needs at least "
+                      f"{need}); registered model kept"), {}
     pr, ar = loo_errors_linear(T_reg, T_meas, position_only, orientation_weight_m_per_rad)
     pn, an = loo_errors_linear(T_nom, T_meas, position_only, orientation_weight_m_per_rad)
     fig = {"registered_loo_mm": float(pr.mean() * 1e3), "nominal_loo_mm": float(pn.mean() * 1e3)}
