@@ -109,3 +109,17 @@ def test_rapid_tooldata_is_given_from_tool0(setup):
     assert res.n_compensated == len(q), res.failed
     got = fk(end, res.comp.q) @ FLANGE @ TOOL0 @ tool
     assert np.linalg.norm(got[:, :3, 3] - T[:, :3, 3], axis=1).max() < 1e-6
+
+
+def test_several_tips_message_names_the_arm_end_links():
+    """Probe report s40: a gripper's two fingers made "several tips (finger_left, finger_right)" without the
+    links a user means (flange, tool0, tcp)."""
+    fingers = ('<link name="fl"/><link name="fr"/>'
+               '<joint name="jl" type="prismatic"><parent link="tool0"/><child link="fl"/><axis xyz="0 1 0"/>'
+               '<limit lower="0" upper="0.04" effort="1" velocity="1"/></joint>'
+               '<joint name="jr" type="prismatic"><parent link="tool0"/><child link="fr"/><axis xyz="0 -1 0"/>'
+               '<limit lower="0" upper="0.04" effort="1" velocity="1"/></joint>')
+    text = _urdf().replace("</robot>", fingers + "</robot>")
+    with pytest.raises(RobotFileError, match=r"several tips \(fl, fr\).*arm's end: link_6, flange, tool0, tcp"):
+        load_urdf_string(text)
+    assert load_urdf_string(text, tip_link="tcp").dof == 6

@@ -341,8 +341,10 @@ def _default_tip(base_link: str, children: dict, joints: dict, path_to, where: s
     if len(tips) == 1:
         return tips[0]
     if len(tips) > 1:
+        ends = _arm_end_links(tips, children, joints, path_to)
+        also = f", or a link fixed to the arm's end: {', '.join(ends)}" if ends else ""
         raise RobotFileError(f"{where}: several tips ({', '.join(tips)}) below '{base_link}'; name tip_link "
-                             f"(--tip LINK on the command line)")
+                             f"(--tip LINK on the command line{also})")
     score = {lf: (sum(j["type"] in _MOVABLE for j in path_to(lf)), len(path_to(lf))) for lf in leaves}
     best = max(score.values())
     cands = sorted(lf for lf, s in score.items() if s == best)
@@ -350,6 +352,29 @@ def _default_tip(base_link: str, children: dict, joints: dict, path_to, where: s
         raise RobotFileError(f"{where}: several chain ends ({', '.join(cands)}) are equally long; name tip_link "
                              f"(--tip LINK on the command line)")
     return cands[0]
+
+
+def _arm_end_links(tips: list[str], children: dict, joints: dict, path_to) -> list[str]:
+    """The links fixed to the arm's end that several ``tips`` (grippers' fingers) share: the links after the
+    last movable joint common to all their chains, and the leaves fixed to those (a ``tcp``) — what a
+    user means by the tip far more often than a finger (``flange``, ``tool0``, ``tcp``)."""
+    paths = [path_to(t) for t in tips]
+    common = []
+    for js in zip(*paths):
+        if any(j["name"] != js[0]["name"] for j in js):
+            break
+        common.append(js[0])
+    last = max((i for i, j in enumerate(common) if j["type"] in _MOVABLE), default=None)
+    if last is None:
+        return []
+    out = [j["child"] for j in common[last:]]
+    stack = list(out)
+    while stack:  # leaves reached through fixed joints only
+        for c in children.get(stack.pop(), []):
+            if joints[c]["type"] == "fixed" and c not in out:
+                out.append(c)
+                stack.append(c)
+    return out
 
 
 def _mimic_table(movable: list[dict], by_name: dict, base_link: str, tip_link: str, where: str) -> np.ndarray:
