@@ -106,8 +106,9 @@ from .params import (
     scale_of,
     select_specs,
 )
-from .posterior import PriorContext, noise_variances, posterior, prior_system, prior_weight, reset_held
-from .priors import PRECISE_NOTE, excitation, precise_data_note, prior_tolerances, residual_floors, resolve_priors
+from .posterior import PriorContext, noise_variances, posterior, prior_system, prior_weight, reset_held, statuses
+from .priors import (PRECISE_NOTE, excitation, label_scales, precise_data_note, prior_tolerances, residual_floors,
+                     resolve_priors, uninformative_note)
 from .result import (
     CalibrationError,
     CalibrationResult,
@@ -117,7 +118,7 @@ from .result import (
 from .identifiability import identifiable_columns, parameter_scales
 from .inputs import calibration_inputs
 from .outliers import DEFAULT_RATIO, OUTLIER_MODES, OutlierWarning, find_outliers, row_errors, rows_out_of_step, subset_rows
-from .stations import check_groups, frame_starts, row_groups, station_rms
+from .stations import check_groups, frame_starts, reference_rows, row_groups, station_rms
 
 __all__ = [
     "CalibrationError",
@@ -139,14 +140,6 @@ _COARSE_SAMPLES = 20_000  # larger data sets first converge on this many evenly 
 _STALLED_REL = 1e-5
 #: smallest residual σ (m per coordinate) weighting the prior rows (noise-free data: the data decide)
 _SIGMA_FLOOR_M = 1e-9
-
-
-def _reference_rows(groups) -> np.ndarray:
-    """Rows of the reference station (with the reference tool where it has 12 or more of those): the
-    closed-form start of the robot's own base and tool."""
-    st = groups.rows_of("station", 0)
-    both = st & groups.rows_of("tool", 0)
-    return np.flatnonzero(both if both.sum() >= 12 else st)
 
 
 # --------------------------------------------------------------------------- LM step
@@ -290,7 +283,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
 
     def excited_at(lin):
         row_floor = np.where(lin["J_id_rot"], w * pri.floor_rad, pri.floor_m)
-        return excitation(lin["J_id"], id_rows.size, tol_si, scale, row_floor, pri.negligible_tol, pri.rank_tol).excited
+        return excitation(lin["J_id"], id_rows.size, tol_si, scale, row_floor, pri.negligible_tol, pri.rank_tol)
 
     # excitation at the start, on evenly spread samples
     id_rows = np.unique(np.linspace(0, N - 1, min(N, _ID_SAMPLES)).astype(np.int64))
@@ -300,11 +293,12 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
     q_id = effective_joints(state0, q[id_rows], sub_pl(id_rows))
     lin0 = linearize(state0, specs, scale, q_id, xyz[id_rows], sub(R_meas, id_rows), w,
                      keep_rows=np.arange(id_rows.size), payload=sub_pl(id_rows), groups=sub_g(id_rows))
-    mask = excited_at(lin0)
+    exc0 = excited_at(lin0)
+    mask = exc0.excited
     if N * rows_per < mask.sum():
         raise CalibrationError(f"data: {N} samples give {N * rows_per} equations for {int(mask.sum())} parameters")
     act = np.flatnonzero(mask)
-    held = np.flatnonzero(~mask & np.isfinite(tol_si))
+    held = np.flatnonzero(~mask & (np.isfinite(tol_si) | exc0.dependent))  # an undetermined start (tool metres off) too
     state = reset_held(pri.file_state, state0, specs, held, scale)  # what the data cannot tell: the robot file's
     it_sub = 0
     if N > 2 * _COARSE_SAMPLES:  # coarse-to-fine: converge on a spread subset, finish on all samples
@@ -316,7 +310,8 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
     )
     it += it_sub
     before = residual_stats(*residual(model_poses(state0, q, pl, groups), xyz, R_meas, w, state0.pts), w)
-    end = excited_at(lin)  # the excitation at the solution
+    exc = excited_at(lin)  # the excitation at the solution
+    end = exc.excited
     changed = bool(np.any(end != mask))
     if changed:
         lost, new = [names[k] for k in np.flatnonzero(mask & ~end)], [names[k] for k in np.flatnonzero(end & ~mask)]
@@ -329,14 +324,9 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
     sig2_p, sig2_o = noise_variances(rp, ro, est.size, pri.noise_m)
     sd, corr, strong, partners = posterior(lin, est, tol_si, scale, sig2_p, sig2_o, names,
                                            held=np.flatnonzero(~mask & np.isfinite(tol_si)), bound=np.flatnonzero(at_bound))
-    std = np.where(np.isfinite(tol_si), tol_si, np.nan)  # held at prior: the prior's std
-    std[at_bound] = np.nan
-    std[est] = sd
-    status = ["held at prior" if not m else "at bound 0" if b else "identified" for m, b in zip(mask, at_bound)]
-    corr_with = [[] for _ in specs]
-    for i, lst in partners.items():
-        status[est[i]] = "correlated"
-        corr_with[est[i]] = lst
+    std, status = statuses(mask, at_bound, est, sd, partners, tol_si, pri.label_scale(specs))
+    by_k = {int(est[i]): lst for i, lst in partners.items()}
+    corr_with = [by_k.get(k, []) for k in range(P)]
     values = deviations_between(state0, state, specs)
     m_p = rp.size
     m_o = 0 if ro is None else ro.size
@@ -352,6 +342,7 @@ def _calibrate_pass(robot: Robot, q, xyz, R_meas, specs: list[ParamSpec], w: flo
         sigma_rot_rad=math.sqrt(s_o) / w if R_meas is not None else float("nan"),
         seconds=time.perf_counter() - t0, point_offsets_m=state.pts.copy(), status=status,
         prior_std=tol_si, correlated_with=corr_with, station_frames=state.frames,
+        effect_floors=np.where(exc.independent, exc.effect_m, 0.0),
     ), last["rel"], changed
 
 
@@ -474,15 +465,15 @@ def calibrate(
     tol_si = prior_tolerances(specs, pri_kinds, tau_max)
     pri = PriorContext(file_state=state0, tol_by_name={s.name: t for s, t in zip(specs, tol_si)},
                   floor_m=pri_kinds["excitation_mm"] * 1e-3, floor_rad=math.radians(pri_kinds["excitation_deg"]),
-                  noise_m=noise_m, rank_tol=rank_tol,
-                  negligible_tol=negligible_tol)
+                  noise_m=noise_m, rank_tol=rank_tol, negligible_tol=negligible_tol,
+                  label_by_name={s.name: t for s, t in zip(specs, label_scales(specs, tol_si, pri_kinds))})
     run = lambda rob, sp, ww, it, pts=None, fr=None, pr=None: _calibrate_pass(
         rob, q, xyz, R_meas, sp, ww, it, tol, progress, pr or pri, pts0=pts, pl=pl, groups=groups, frames0=fr)
     starts = [(robot, pts_zero, fr_file)]
     reg = None
     full_frames = all(f"base.{f}" in names for f in TWIST) and all(f"tool.{f}" in names for f in ("x", "y", "z"))
     if initial and full_frames:
-        ref = np.arange(q.shape[0]) if groups is None else _reference_rows(groups)
+        ref = np.arange(q.shape[0]) if groups is None else reference_rows(groups)
         reg = initial_registration(robot, q[ref], xyz[ref], None if R_meas is None else R_meas[ref], tool_tolerance_m=pri_kinds["tool_mm"] * 1e-3,
                                    floor_m=pri.floor_m)
         if reg.rms_m < reg.rms_before_m:
@@ -537,6 +528,7 @@ def calibrate(
         raise CalibrationError(f"calibration of {robot.name!r} diverged ({str(diverged).splitlines()[0]}); the data do "
                                f"not fit this robot file: {ADVICE}")
     res, rel, iters, _ = best
+    res.notes += [n for n in [uninformative_note(res, specs)] if n]  # an inf tolerance the data could not honour
     if not res.converged and rel <= _STALLED_REL:  # the cap stopped a cost that no longer moves
         res.converged = True
         res.message += f"; iteration cap reached with the cost changing by {rel:.2g} (relative) per iteration"
@@ -580,7 +572,8 @@ def calibrate(
         try:
             try:
                 check_calibration(res, specs, lim, still_falling=(not res.converged and rel > _STALLED_REL), deflection_rad=defl,
-                                  refuse_tolerances=pri_kinds["refuse_tolerances"], explicit=set(max_deviation or {}))
+                                  refuse_tolerances=pri_kinds["refuse_tolerances"], explicit=set(max_deviation or {}),
+                                  given_priors={k: pri_kinds[k] for k in priors or {}}, free_frames_mm=None if reg is None else reg.rms_m * 1e3)
             except CalibrationError as e0:  # a quaternion re-read that explains the positions names the cause
                 check_orientation_consistency(res, data, recal, lim["orientation_conflict"], refused=e0)
         except CalibrationError as e:

@@ -38,7 +38,12 @@ orientation_conflict 3       a calibration with orientations leaves at most this
 ==================  =======  ==========================================================
 
 Base and tool are otherwise unbounded: they are what the calibration finds for data in a
-tracker's frame.
+tracker's frame (the default priors: base ``inf``, tool a 100 mm guess). A tolerance the user states
+for them (``--prior base_mm=2 --prior base_deg=0.05``: a surveyed base) bounds the robot file's own
+``[base]`` / ``[tool]`` like any other: more than ``refuse_tolerances`` of it away is refused, naming
+the option that widens it. A residual no robot file leaves under a stated base names that base (data
+in a tracker's own frame), and a tool offset beyond ``tool_m`` that the data do not determine
+(undetermined, or ``tool_mm=inf``) names ``--prior tool_mm``, not the robot file.
 """
 
 from __future__ import annotations
@@ -88,15 +93,21 @@ def resolve_max_deviation(overrides: Mapping[str, float] | None) -> dict[str, fl
 _FIELD_WORD = {"a": "length", "d": "offset", "alpha": "twist", "theta": "zero", "beta": "tilt"}
 
 
-def _limit_of(spec, lim: dict, tol: float, refuse_tolerances: float, explicit) -> tuple[float, float, str] | None:
-    """(bound in SI, display factor, display unit) for one parameter, None when unbounded."""
-    from .priors import kind_of
+def _limit_of(spec, lim: dict, tol: float, refuse_tolerances: float, explicit, given=()) -> tuple[float, float, str] | None:
+    """(bound in SI, display factor, display unit) for one parameter, None when unbounded. ``given``: the
+    prior kinds the user stated (``base_mm`` ...): only those bound the robot file's own base and tool."""
+    from .priors import PRIOR_KEY, kind_of
 
     kind = kind_of(spec)
-    if kind.startswith(("base", "tool")) or kind == "compliance":  # frames: the tool length check; compliance: deflection
+    f, un = (1e3, "mm") if spec.unit == "m" else (180 / math.pi, "deg")
+    if kind.startswith(("base", "tool")):
+        # the defaults (base inf, a tool-sized 100 mm guess) bound nothing: a tracker's frame is metres from the file,
+        # a file without [tool] decimetres from the tool. A stated survey (--prior base_mm=2) is a claim the data test.
+        stated = spec.group in ("base", "tool") and PRIOR_KEY[kind] in given and math.isfinite(tol)
+        return (refuse_tolerances * tol, f, un) if stated else None
+    if kind == "compliance":  # the deflection check
         return None
     key = {"length": "length_mm", "joint_zero": "joint_offset_deg"}.get(kind, "angle_deg")
-    f, un = (1e3, "mm") if spec.unit == "m" else (180 / math.pi, "deg")
     if key in explicit or not math.isfinite(tol):
         return lim[key] / (1e3 if key == "length_mm" else 180 / math.pi), f, un
     return refuse_tolerances * tol, f, un
@@ -109,7 +120,7 @@ def _label(spec) -> str:
 
 
 def check_calibration(res, specs, lim: dict, *, still_falling: bool, deflection_rad=None, refuse_tolerances: float = 4.0,
-                      explicit=()) -> None:
+                      explicit=(), given_priors: Mapping[str, float] | None = None, free_frames_mm: float | None = None) -> None:
     """Raise :class:`~hykin.calibration.result.CalibrationError` when ``res`` cannot be a correct calibration.
 
     res: the :class:`~hykin.calibration.result.CalibrationResult` (values relative to the robot file);
@@ -117,10 +128,15 @@ def check_calibration(res, specs, lim: dict, *, still_falling: bool, deflection_
     still_falling: the cost still fell materially in the last iteration (not converged);
     deflection_rad: ``(n,)`` largest gravity deflection of each joint over the data (or None);
     refuse_tolerances: tolerances beyond which an estimated parameter is refused; explicit: the kinds
-    of ``lim`` the user gave (they bound their kind instead).
+    of ``lim`` the user gave (they bound their kind instead); given_priors: the prior kinds the user gave
+    (``{"base_mm": 2}``): a finite ``base_*`` / ``tool_*`` among them bounds the robot file's base / tool
+    like any tolerance, and is named as the likely cause of a residual no robot file leaves;
+    free_frames_mm: the RMS the robot file leaves with base and tool fitted freely (the closed-form start),
+    or None: the evidence for that cause.
     """
     from .result import CalibrationError
 
+    given = {k: v for k, v in dict(given_priors or {}).items() if math.isfinite(v)}
     name = res.robot.name
     if not res.converged and still_falling:
         raise CalibrationError(
@@ -131,7 +147,7 @@ def check_calibration(res, specs, lim: dict, *, still_falling: bool, deflection_
     for s, v, m, t in zip(specs, res.values, res.identifiable, tols):
         if not m:  # held at its prior: the robot file's value, whatever the data
             continue
-        lb = _limit_of(s, lim, float(t), refuse_tolerances, set(explicit))
+        lb = _limit_of(s, lim, float(t), refuse_tolerances, set(explicit), given)
         if lb is None:
             continue
         bound, f, un = lb
@@ -142,6 +158,15 @@ def check_calibration(res, specs, lim: dict, *, still_falling: bool, deflection_
     if worst is not None:
         _, sp, v, b, un, n_tol, t = worst
         tol_txt = f", {n_tol:.1f} tolerances of {t:.3g} {un}" if math.isfinite(n_tol) else ""
+        if sp.group in ("base", "tool"):  # a stated frame (above): the data contradict it, not the robot file's joints
+            from .priors import PRIOR_KEY, kind_of
+
+            key = PRIOR_KEY[kind_of(sp)]
+            raise CalibrationError(
+                f"calibration of {name!r}: the data put {sp.name} {v:+.4g} {un} from the robot file's [{sp.group}], "
+                f"{n_tol:.1f} tolerances of --prior {key}={t:g} (plausible: ±{b:.4g} {un}): the data contradict the "
+                f"{sp.group} stated in the robot file with that tolerance: check the robot file's [{sp.group}] (the survey) "
+                f"and the frame of the data, or widen --prior {key} (inf: the {sp.group} comes from the data)")
         raise CalibrationError(
             f"calibration of {name!r}: {_label(sp)} deviates {v:+.4g} {un} from the robot file{tol_txt} (plausible: "
             f"±{b:.4g} {un}); the data do not fit this robot file: {ADVICE} (or widen --prior / --max-deviation)")
@@ -156,11 +181,30 @@ def check_calibration(res, specs, lim: dict, *, still_falling: bool, deflection_
         pts = res.robot.tool[:3, :3] @ np.asarray(res.point_offsets_m).T + res.robot.tool[:3, 3:4]
         tool_len = max(tool_len, float(np.linalg.norm(pts, axis=0).max()))
     if tool_len > lim["tool_m"]:
+        st = dict(zip(res.names, getattr(res, "status", None) or []))
+        loose = [n for n in ("tool.x", "tool.y", "tool.z") if st.get(n) == "undetermined"]
+        if loose or not math.isfinite(dict(given_priors or {}).get("tool_mm", 0.0)):  # the data, not the file
+            sd = dict(zip(res.names, res.std))
+            raise CalibrationError(
+                f"calibration of {name!r}: the tool offset came out {tool_len:.3g} m from the flange (plausible: <= "
+                f"{lim['tool_m']:g} m), " + (", ".join(f"{n} ± {sd[n] * 1e3:.4g} mm" for n in loose) or "with --prior tool_mm=inf")
+                + ": the data do not determine the tool (measured at too few orientations, its offset does what the base "
+                "does): give a finite --prior tool_mm (default 100) to hold it near the robot file's [tool], or measure "
+                "the tool at more orientations")
         raise CalibrationError(
             f"calibration of {name!r}: the tool offset came out {tool_len:.3g} m from the flange (plausible: "
             f"<= {lim['tool_m']:g} m); the data do not fit this robot file: {ADVICE}")
     rms = res.after["pos_rms_mm"]
     if rms > lim["residual_mm"]:
+        stated = [f"{k}={given[k]:g}" for k in ("base_mm", "base_deg") if k in given]
+        if stated:  # a base held near the file's [base]: data in another frame (a tracker's) leave metres
+            free = ("" if free_frames_mm is None or free_frames_mm >= rms else
+                    f" (with base and tool fitted freely this robot file leaves {free_frames_mm:.3g} mm)")
+            raise CalibrationError(
+                f"calibration of {name!r} leaves {rms:.3g} mm RMS (a correct robot file leaves < {lim['residual_mm']:g} mm)"
+                f"{free}: the data are likely not in the frame of the robot file's [base] that --prior {', '.join(stated)} "
+                f"hold{'s' if len(stated) == 1 else ''}: for data in a tracker's own frame leave --prior base_mm / base_deg "
+                f"at inf (the default); else {ADVICE}, and its [base]")
         raise CalibrationError(
             f"calibration of {name!r} leaves {rms:.3g} mm RMS (a correct robot file leaves < {lim['residual_mm']:g} mm): "
             f"the data do not fit this robot file: {ADVICE}")

@@ -18,7 +18,12 @@ slip-xyzw planar arm it is 64. When the 6-D fit's position RMS exceeds
 the subset calibrations of :mod:`hykin.hybrid.uncertainty` do on data the full calibration checked) times
 the positions-alone RMS,
 the orientations contradict the positions and the fit is refused with one line naming the file and its
-``qw,qx,qy,qz`` columns. The likely cause is then tested, not guessed: the calibration is repeated with
+``qw,qx,qy,qz`` columns. Both RMS values are compared per degree of freedom, ``RMS · sqrt(m / (m - p))``
+(``m`` equations, ``p`` estimated parameters): on few poses the positions-alone fit has about as many
+parameters as equations and fits the noise away (8 full poses of a 6-axis arm: 24 position equations,
+~25 parameters, 0.007 mm RMS under 0.02 mm noise, where the 6-D fit leaves the noise, 0.02 mm: a
+correct data set refused at 3x). With fewer than :data:`MIN_DOF` residual degrees of freedom in either
+fit the positions alone say nothing of the noise and the check is skipped. The likely cause is then tested, not guessed: the calibration is repeated with
 the quaternions read scalar-last, and inverted; the reading that brings the position residual back
 within the bound is named.
 """
@@ -47,10 +52,36 @@ def _where(data) -> str:
     return src if src and not src.startswith("hykin") else "<data>"
 
 
+#: fewest residual degrees of freedom (equations - estimated parameters) for the RMS to bound the noise: with
+#: 10, a fit's RMS is below 0.39x the noise with probability 1e-3 (chi-square), so a 3x bound is never
+#: crossed by a correct data set by chance; with fewer the positions alone tell nothing: no check
+MIN_DOF = 10
+
+
+def _per_dof_rms(res) -> float | None:
+    """The position RMS (mm) of ``res`` x ``sqrt(m / (m - p))`` (m equations: 3 per measured point and pose,
+    3 more per pose with orientations; p: the estimated parameters, a compliance at its bound 0 not
+    counted): what the residual of the true parameters would leave; None when ``m - p`` < :data:`MIN_DOF`;
+    the raw RMS for a result without those counts."""
+    rms = float(res.after["pos_rms_mm"])
+    mask, n = getattr(res, "identifiable", None), getattr(res, "n_samples", 0)
+    if mask is None or not n:
+        return rms
+    pts = getattr(res, "point_offsets_m", None)
+    m = n * (3 * (1 if pts is None else max(len(pts), 1)) + (0 if getattr(res, "position_only", True) else 3))
+    p = sum(bool(e) and st != "at bound 0" for e, st in zip(mask, getattr(res, "status", None) or [""] * len(mask)))
+    return rms * math.sqrt(m / (m - p)) if m - p >= MIN_DOF else None
+
+
+def _dof_text(raw: float, per: float) -> str:
+    return "" if abs(per - raw) <= 1e-3 * raw else f" ({per:.3g} mm per degree of freedom)"
+
+
 def check_orientation_consistency(res, data, recalibrate: Callable, ratio: float, refused=None) -> None:
     """Raise :class:`OrientationConflictError` (a CalibrationError) when ``res`` (a calibration that used
     orientations) leaves a position RMS above ``ratio`` x that of the same calibration on the positions
-    alone (module docstring). ``recalibrate(data, position_only) -> CalibrationResult`` repeats the
+    alone (module docstring; both per degree of freedom, no check where either fit has fewer than
+    :data:`MIN_DOF`). ``recalibrate(data, position_only) -> CalibrationResult`` repeats the
     calibration with the checks off. Sets ``res.position_only_rms_mm`` (the bound's base, mm).
     ``refused``: the CalibrationError another check raised on ``res`` (a tool metres away, a bent
     twist): it is replaced by this check's line only when a re-read of the quaternions brings the
@@ -60,9 +91,14 @@ def check_orientation_consistency(res, data, recalibrate: Callable, ratio: float
             raise refused
         return
     rms = float(res.after["pos_rms_mm"])
-    rms_po = float(recalibrate(data, True).after["pos_rms_mm"])
+    po = recalibrate(data, True)
+    rms_po = float(po.after["pos_rms_mm"])
     res.position_only_rms_mm = rms_po
-    if rms <= ratio * rms_po:
+    # per degree of freedom: on few poses the positions-alone fit has about as many parameters as equations
+    # and fits the noise away (8 poses: 24 equations, ~25 parameters, 0.2x the noise), where the 6-D fit
+    # cannot; its raw RMS says nothing of the noise then
+    per_dof, per_dof_po = _per_dof_rms(res), _per_dof_rms(po)
+    if per_dof is None or per_dof_po is None or per_dof <= ratio * per_dof_po:
         if refused is not None:
             raise refused
         return
@@ -80,7 +116,8 @@ def check_orientation_consistency(res, data, recalibrate: Callable, ratio: float
                 alt = recalibrate(dataclasses.replace(data, quat_wxyz=reading), False)
             except CalibrationError:
                 continue
-            if alt.after["pos_rms_mm"] <= ratio * rms_po:
+            alt_dof = _per_dof_rms(alt)
+            if alt_dof is not None and alt_dof <= ratio * per_dof_po:
                 cause = f"{text} (read so, they leave {alt.after['pos_rms_mm']:.3g} mm)"
                 break
         else:
@@ -90,5 +127,6 @@ def check_orientation_consistency(res, data, recalibrate: Callable, ratio: float
         raise refused
     raise OrientationConflictError(
         f"{where}: columns qw,qx,qy,qz contradict the positions: calibrating {res.robot.name!r} with them leaves "
-        f"{rms:.3g} mm RMS, with the positions alone {rms_po:.3g} mm (bound {ratio:g}x, --max-deviation "
+        f"{rms:.3g} mm RMS{_dof_text(rms, per_dof)}, with the positions alone {rms_po:.3g} mm{_dof_text(rms_po, per_dof_po)} "
+        f"(bound {ratio:g}x, --max-deviation "
         f"orientation_conflict=R): {cause}")

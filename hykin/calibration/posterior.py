@@ -21,8 +21,8 @@ import numpy as np
 
 from .params import ModelState, ParamSpec, apply_step, deviations_between
 
-__all__ = ["ADDITIVE_GROUPS", "CORRELATED", "GAUGE", "PriorContext", "noise_variances", "posterior", "posterior_parts", "prior_system",
-           "prior_weight", "reset_held"]
+__all__ = ["ADDITIVE_GROUPS", "CORRELATED", "GAUGE", "UNDETERMINED", "PriorContext", "noise_variances", "posterior",
+           "posterior_parts", "prior_system", "prior_weight", "reset_held", "statuses"]
 
 #: groups whose deviation from the file is the sum of the steps (derivative 1)
 ADDITIVE_GROUPS = ("geom", "comp", "point")
@@ -32,6 +32,10 @@ CORRELATED = 0.99
 #: fraction of its norm is a convention of those frames (``theta1`` against ``base.rz``, ``d6`` against
 #: ``tool.z``), left out of the consider covariance
 GAUGE = 1e-4
+#: an estimate whose posterior std reaches this fraction of its tolerance (or, uninformative, of its kind's
+#: reference scale) is "undetermined", never "identified": the data hardly narrow it (std >= tol / 2: the
+#: data bring at most 3x the prior's information)
+UNDETERMINED = 0.5
 #: frame parameters' names (base, tool, further stations and tools, further reflectors' offsets)
 _FRAME = re.compile(r"(base|tool|station\[|tool\[|p\d+\.)")
 _COMPLIANCE = re.compile(r"c\d+")  # compliance parameters' names (hykin.calibration.params.candidate_specs)
@@ -50,9 +54,16 @@ class PriorContext:
     noise_m: float | None
     rank_tol: float
     negligible_tol: float
+    #: per name, the scale (SI) against which a std makes an estimate "undetermined" (:func:`statuses`):
+    #: the tolerance where finite, else :func:`hykin.calibration.priors.label_scales`; None: the tolerances
+    label_by_name: dict | None = None
 
     def tol(self, specs) -> np.ndarray:
         return np.array([self.tol_by_name[s.name] for s in specs])
+
+    def label_scale(self, specs) -> np.ndarray:
+        by = self.label_by_name or self.tol_by_name
+        return np.array([by.get(s.name, self.tol_by_name[s.name]) for s in specs])
 
 
 def _dev_jacobian(file_state: ModelState, state: ModelState, specs: list[ParamSpec], cols: np.ndarray,
@@ -253,3 +264,25 @@ def prior_weight(tol_si: np.ndarray, sigma_m: float) -> np.ndarray:
     with np.errstate(divide="ignore"):
         return np.where(np.isfinite(tol_si), sigma_m / tol_si, 0.0)
 
+
+
+def statuses(mask: np.ndarray, at_bound: np.ndarray, est: np.ndarray, sd: np.ndarray, partners: dict,
+             tol_si: np.ndarray, label_scale: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """``(std (P,) SI, status [P])`` of a calibration: ``mask`` estimated, ``at_bound`` (a compliance held
+    at 0), ``est`` the estimated indices with posterior std ``sd`` and ``partners`` (:func:`posterior`).
+    Held: the prior's std (nan where uninformative or at a bound), "held at prior" / "at bound 0";
+    estimated: "correlated" (with partners), else "undetermined" where ``sd`` reaches
+    :data:`UNDETERMINED` of ``label_scale`` (the tolerance, or an uninformative kind's reference scale:
+    a tool offset ± 1.4 m is not "identified"), else "identified"."""
+    std = np.where(np.isfinite(tol_si), tol_si, np.nan)
+    std[at_bound] = np.nan
+    std[est] = sd
+    status = ["held at prior" if not m else "at bound 0" if b else "identified" for m, b in zip(mask, at_bound)]
+    for i in partners:
+        status[est[i]] = "correlated"
+    with np.errstate(invalid="ignore"):
+        weak = est[(sd >= UNDETERMINED * label_scale[est]) & (sd > 0)]
+    for k in weak:
+        if status[k] == "identified":
+            status[k] = "undetermined"
+    return std, status

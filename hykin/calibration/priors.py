@@ -28,8 +28,16 @@ refuse_tolerances   4           a parameter the data put further than this many 
 The defaults of length, angle and joint zero are a quarter of the refusal bounds hykin used before
 (20 mm, 2 deg, 5 deg), so the same robot files are refused. The base is uninformative (``inf``): a
 robot file without ``[base]`` says nothing about where the tracker stands, the base comes from the
-data (metres or kilometres away); give ``base_mm``/``base_deg`` to hold a surveyed base. The tool
+data (metres or kilometres away); give ``base_mm``/``base_deg`` to hold a surveyed base (a stated
+base or tool tolerance also bounds them, :mod:`hykin.calibration.checks`). The tool
 is a guess with a tool-sized tolerance (a reflector on a 100 mm tool); its rotation is free.
+
+**Uninformative parameters the data do not determine.** An infinite tolerance adds no prior row, so
+two uninformative parameters along one direction of the data would let the fit walk along it
+(``tool_mm=inf`` with the tool at one orientation: the tool translation does to the data what the
+base translation does; the tool walked to 2.67 m). :func:`excitation` keeps them in the parameters'
+order (base, tool, further frames, joints) and holds one that the earlier ones reproduce but for
+:data:`DEPENDENT_REL` of its column; :func:`uninformative_note` says so.
 
 **Excitation (which parameters the data can tell).** Model errors that the classical model does not
 represent (non-geometric effects, instrument drift) are not white noise: they do not average out
@@ -83,10 +91,12 @@ __all__ = [
     "Excitation",
     "excitation",
     "kind_of",
+    "label_scales",
     "parse_kind_values",
     "PRECISE_NOTE",
     "parse_priors",
     "precise_data_note",
+    "uninformative_note",
     "prior_tolerances",
     "residual_floors",
     "resolve_priors",
@@ -206,15 +216,62 @@ def prior_tolerances(specs, pri: Mapping[str, float], torque_max_nm=None) -> np.
     return out
 
 
+def label_scales(specs, tol_si: np.ndarray, pri: Mapping[str, float]) -> np.ndarray:
+    """``(P,)`` SI: the scale a posterior std is judged against ("undetermined" from half of it,
+    :func:`hykin.calibration.posterior.statuses`): the tolerance where finite; for an uninformative
+    frame or geometry parameter, its kind's geometry tolerance (``length_mm`` for translations,
+    ``angle_deg`` / ``joint_zero_deg`` for rotations; the defaults where those are inf too): a base or
+    tool known to worse than the robot file's lengths is not identified; compliances: inf (never)."""
+    rad = math.pi / 180
+    fin = lambda k: pri[k] if math.isfinite(pri[k]) else DEFAULT_PRIORS[k]
+    ref = {"length": fin("length_mm") * 1e-3, "angle": fin("angle_deg") * rad, "joint_zero": fin("joint_zero_deg") * rad}
+    out = np.asarray(tol_si, dtype=np.float64).copy()
+    for k, s in enumerate(specs):
+        kind = kind_of(s)
+        if not math.isfinite(out[k]) and kind != "compliance":
+            out[k] = ref["length" if kind.endswith("_len") else "angle" if kind.endswith("_ang") else kind]
+    return out
+
+
 @dataclass(frozen=True)
 class Excitation:
     """Outcome of :func:`excitation`: ``excited`` ``(P,)`` bool (estimated from the data),
     ``effect_m`` ``(P,)`` RMS change of the data per tolerance that no earlier column explains (in
-    floors; inf for uninformative parameters), ``floor_m`` the threshold used (1, or 0: rank test)."""
+    floors; inf for uninformative parameters), ``floor_m`` the threshold used (1, or 0: rank test),
+    ``dependent`` ``(P,)`` bool: uninformative parameters (infinite tolerance) held because earlier
+    uninformative ones reproduce their effect (the data do not determine them), ``independent``
+    ``(P,)`` bool: columns that pass the rank test (held ones among them are held by the floor alone)."""
 
     excited: np.ndarray
     effect_m: np.ndarray
     floor_m: float
+    dependent: np.ndarray | None = None
+    independent: np.ndarray | None = None
+
+
+#: an uninformative column that the earlier uninformative columns reproduce but for this fraction of its
+#: norm is not determined by the data (the tool translation against the base's with the tool at one
+#: orientation: its unexplained part is the spread of the flange orientation, ~1e-9 when one orientation
+#: is commanded; 1e-4 rad = 0.006 deg of spread still lets a 0.2 mm model error move it by 2 m)
+DEPENDENT_REL = 1e-4
+
+
+def _independent_in_order(J: np.ndarray, rel: float) -> np.ndarray:
+    """``(k,)`` bool: columns of ``J`` ``(rows, k)`` whose part unexplained by the earlier kept columns
+    exceeds ``rel`` of their norm (Gram–Schmidt in the given order, re-orthogonalised once; a zero
+    column is dependent). The order decides which of two dependent columns is kept: the first."""
+    keep = np.zeros(J.shape[1], bool)
+    Q = np.zeros((J.shape[0], 0))
+    for k in range(J.shape[1]):  # a dozen columns at most (base, tool, further frames): in order, not pivoted
+        c = J[:, k]
+        n = np.linalg.norm(c)
+        r = c - Q @ (Q.T @ c)
+        r = r - Q @ (Q.T @ r)  # twice is enough (Kahan): the kept basis stays orthonormal to rounding
+        nr = np.linalg.norm(r)
+        if n > 0 and nr > rel * n:
+            keep[k] = True
+            Q = np.column_stack([Q, r / nr])
+    return keep
 
 
 def excitation(J: np.ndarray, n_samples: int, tol_si: np.ndarray, scale: np.ndarray, row_floor: np.ndarray,
@@ -223,7 +280,8 @@ def excitation(J: np.ndarray, n_samples: int, tol_si: np.ndarray, scale: np.ndar
 
     J: ``(rows, P)`` identification Jacobian in scaled units (column ``k`` = d residual per
     ``scale[k]`` SI) over ``n_samples`` poses; tol_si: ``(P,)`` tolerances (inf: uninformative, always
-    first and excited unless its column is negligible); row_floor: ``(rows,)`` the floor of each row in
+    first and excited unless its column is negligible or the uninformative columns before it reproduce
+    it but for :data:`DEPENDENT_REL` of its norm: then held, ``dependent``); row_floor: ``(rows,)`` the floor of each row in
     its own unit (position rows: ``excitation_mm``; orientation rows, weighted by ``w``: ``w x
     excitation_deg``), so that the test does not depend on the orientation weight; a parameter is
     excited when its unexplained RMS effect per tolerance reaches 1 floor (``effect_m`` is in
@@ -244,20 +302,27 @@ def excitation(J: np.ndarray, n_samples: int, tol_si: np.ndarray, scale: np.ndar
     inf = ~np.isfinite(tol_si)
     effect = np.zeros(P)
     excited = np.zeros(P, bool)
+    dependent = np.zeros(P, bool)
     forced = np.flatnonzero(inf & live)
+    if forced.size and J.shape[0]:
+        # an infinite tolerance puts no prior row on the parameter: two of them along one direction of the
+        # data (base and tool translation, the tool at one orientation) would let the fit walk along it to
+        # metres. Kept in the parameters' order (base before tool before joints), the later one is held.
+        ok = _independent_in_order(J[:, forced], max(DEPENDENT_REL, rank_tol))
+        dependent[forced[~ok]] = True
+        forced = forced[ok]
     excited[forced] = True
     effect[forced] = np.inf
     rest = np.flatnonzero(~inf & live)
+    independent = excited.copy()
     if rest.size == 0 or J.shape[0] == 0:
-        return Excitation(excited, effect, floor_m)
+        return Excitation(excited, effect, floor_m, dependent, independent)
     import scipy.linalg
 
     Jr = J[:, rest] * (tol_si[rest] / scale[rest])  # per tolerance
     cn = np.linalg.norm(Jr, axis=0) / math.sqrt(max(n_samples, 1))
-    if forced.size:
+    if forced.size:  # the kept uninformative columns have full rank (above): their Q spans them
         Q = np.linalg.qr(J[:, forced])[0]
-        rank = np.linalg.matrix_rank(J[:, forced])
-        Q = Q[:, :rank] if rank < Q.shape[1] else Q
         Jr = Jr - Q @ (Q.T @ Jr)
     _, R, piv = scipy.linalg.qr(Jr, mode="economic", pivoting=True)
     m = min(R.shape)
@@ -265,8 +330,9 @@ def excitation(J: np.ndarray, n_samples: int, tol_si: np.ndarray, scale: np.ndar
     e = np.zeros(rest.size)
     e[piv[:m]] = rkk / math.sqrt(max(n_samples, 1))
     effect[rest] = e
-    excited[rest] = (e >= floor_m) & (e > rank_tol * cn)
-    return Excitation(excited, effect, floor_m)
+    independent[rest] = e > rank_tol * cn
+    excited[rest] = (e >= floor_m) & independent[rest]
+    return Excitation(excited, effect, floor_m, dependent, independent)
 
 
 def residual_floors(pri, after: dict, c: float):
@@ -293,7 +359,10 @@ PRECISE_NOTE = 2.0
 def precise_data_note(res, pri) -> str:
     """A note for a fit that leaves less than the excitation floors (module docstring) while it holds
     geometry at the robot file: data that precise (a CMM, a tracker on a well-modelled arm) may
-    identify those with ``excitation_residual = 1``; "" when no geometry parameter is held."""
+    identify those with ``excitation_residual = 1``. Named are only those that option would excite:
+    held geometry whose effect at the solution (``res.effect_floors``, in floors) reaches the floors'
+    factor :func:`residual_floors` takes with ``c = 1``; "" when there is none (a joint that never
+    moved, a planar campaign: their columns are rank-deficient, no floor excites them)."""
     # compliances, and what the frames reproduce whatever the data (d1 / theta1 against the base)
     last = str(res.robot.n_chain)  # the last joint's parameters against the tool
     par = {n[4:] for n in res.names if n.startswith("beta")}  # joints k (beta k) parallel to the next one
@@ -301,9 +370,43 @@ def precise_data_note(res, pri) -> str:
     parallel_d = lambda n: n.startswith("d") and joint(n).isdigit() and (joint(n) in par or str(int(joint(n)) - 1) in par)
     held = [n for n in res.held_names if not (n[:1] == "c" and n[1:].isdigit()) and n not in ("d1", "theta1")
             and not n.startswith(("tool.", "tool[")) and joint(n) != last and not parallel_d(n)]
+    effect = getattr(res, "effect_floors", None)
+    if effect is not None:  # only what the lowered floors would excite: rank-deficient ones (a joint never moved, a
+        # planar campaign) have no effect whatever the floor, and a rerun would identify none of them
+        after, fr = res.after, getattr(pri, "floor_rad", 0.0)
+        s = after["pos_rms_mm"] * 1e-3 / pri.floor_m  # the floors' factor of residual_floors(c = 1)
+        if "rot_rms_deg" in after and fr > 0:
+            s = max(s, math.radians(after["rot_rms_deg"]) / fr)
+        by = dict(zip(res.names, effect))
+        held = [n for n in held if by.get(n, math.inf) >= s]
     if not held:
         return ""
     r = res.after["pos_rms_mm"]
     return (f"the fit leaves {r:.3g} mm RMS, {pri.floor_m * 1e3 / max(r, 1e-12):.3g}x below the {pri.floor_m * 1e3:.3g} mm "
-            f"excitation floor, and holds {', '.join(held)} at the robot file; with data this precise, "
-            "--prior excitation_residual=1 identifies those the data excite above the fit's own residual")
+            f"excitation floor, and holds {', '.join(held)} at the robot file, whose effect on these data exceeds that "
+            "residual; with data this precise, --prior excitation_residual=1 identifies them")
+
+
+#: prior kind of a parameter kind (:func:`kind_of`), for the option named in a note
+PRIOR_KEY = {"length": "length_mm", "angle": "angle_deg", "joint_zero": "joint_zero_deg", "base_len": "base_mm",
+             "base_ang": "base_deg", "tool_len": "tool_mm", "tool_ang": "tool_deg"}
+
+
+def uninformative_note(res, specs) -> str:
+    """A note naming the parameters given an infinite tolerance (``--prior tool_mm=inf``) that the fit held
+    at the robot file all the same: the data do not determine them (their effect is none, or that of
+    uninformative parameters before them: the tool translation against the base's with the tool at one
+    orientation, :func:`excitation`); "" when there are none (compliances without gravity torque aside)."""
+    if res.prior_std is None:
+        return ""
+    by_key: dict[str, list[str]] = {}
+    for s, t, st in zip(specs, res.prior_std, res.status):
+        kind = kind_of(s)
+        if not math.isfinite(t) and st == "held at prior" and kind != "compliance":
+            by_key.setdefault(PRIOR_KEY[kind], []).append(s.name)
+    if not by_key:
+        return ""
+    return ("; ".join(f"{k}=inf (uninformative) cannot be honoured for {', '.join(v)}" for k, v in by_key.items())
+            + ": the data do not determine them (what they do to these data, the frames estimated before them do: "
+            "e.g. a tool measured at one orientation), so they are held at the robot file's value; give a finite "
+            + " / ".join(f"--prior {k}" for k in by_key) + " (or measure more orientations) to estimate them")

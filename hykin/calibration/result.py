@@ -68,8 +68,10 @@ class CalibrationResult:
     the parameters estimated from the data (the data excite them; ``status`` tells which of those are
     ``"correlated"``). status: per parameter ``"identified"``, ``"correlated"`` (|posterior
     correlation| >= 0.99 with the parameters in ``correlated_with``: the data tell their combination,
-    the priors the split), ``"held at prior"`` (not excited by the data: the robot file's value) or
-    ``"at bound 0"`` (a compliance held rigid). prior_std: ``(P,)`` prior tolerances (SI; inf =
+    the priors the split), ``"undetermined"`` (estimated, but the posterior std reaches half the
+    tolerance, or for an uninformative one half its kind's geometry tolerance: the data hardly tell it,
+    :func:`hykin.calibration.posterior.statuses`), ``"held at prior"`` (not excited by the data: the
+    robot file's value) or ``"at bound 0"`` (a compliance held rigid). prior_std: ``(P,)`` prior tolerances (SI; inf =
     uninformative). correlated_with: per parameter ``[(name, rho)]``.
     correlation: ``(k, k)`` among the estimated parameters, ``correlation_names`` order (identifiable
     ones that did not end at a bound: a compliance at 0 has no std).
@@ -111,6 +113,10 @@ class CalibrationResult:
     outliers: object | None = None
     #: notes for the user (e.g. :func:`hykin.calibration.priors.precise_data_note`)
     notes: list = field(default_factory=list)
+    #: ``(P,)`` each parameter's RMS effect on the data per tolerance that no other explains, in excitation
+    #: floors, at the solution (:func:`hykin.calibration.priors.excitation`; inf: uninformative; 0 where
+    #: the data cannot tell it whatever the floor: a rank-deficient column); None: not computed
+    effect_floors: np.ndarray | None = None
 
     @property
     def identified_names(self) -> list[str]:
@@ -140,8 +146,10 @@ class CalibrationResult:
         st = self.status or ["identified" if m else "held at prior" for m in self.identifiable]
         held = [n for n, s in zip(self.names, st) if s == "held at prior"]
         cor = [n for n, s in zip(self.names, st) if s == "correlated"]
+        und = [n for n, s in zip(self.names, st) if s == "undetermined"]
         return (f"calibration: {len(self.identified_names)} identified, {len(cor)} correlated"
-                + (f" ({', '.join(cor)})" if cor else "") + f", {len(held)} held at prior"
+                + (f" ({', '.join(cor)})" if cor else "")
+                + (f", {len(und)} undetermined ({', '.join(und)})" if und else "") + f", {len(held)} held at prior"
                 + (f" ({', '.join(held)})" if held else "") + f"; {self.after['pos_rms_mm']:.4g} mm RMS"
                 + ("" if self.outliers is None else f"; {len(self.outliers.rows)} outlier rows "
                    + ("left out" if self.outliers.dropped else "kept")))
@@ -162,6 +170,7 @@ class CalibrationResult:
             f"{'position only' if self.position_only else f'full pose (w = {self.orientation_weight_m_per_rad:g} m/rad)'}, "
             f"{n_id} identified, {sum(st == 'correlated' for st in self.status) if self.status else n_est - n_id} correlated, "
             + (f"{sum(st == 'at bound 0' for st in self.status)} at bound 0, " if "at bound 0" in self.status else "")
+            + (f"{sum(st == 'undetermined' for st in self.status)} undetermined, " if "undetermined" in self.status else "")
             + f"{len(self.names) - n_est} held at prior (of {len(self.names)}), "
             f"{self.iterations} iterations, {'converged' if self.converged else 'NOT converged'} ({self.message}), "
             f"{self.seconds:.2f} s",
@@ -187,6 +196,9 @@ class CalibrationResult:
         if any(n.startswith(_NO_FILE_VALUE) for n in self.names):
             lines.append("station[..] / tool[..] rows: no robot-file value (deviation -); std of the same twist "
                          "at the solution; the frames themselves: below")
+        if "undetermined" in status:
+            lines.append("undetermined: estimated, but its std is at least half its tolerance (uninformative: half its kind's "
+                         "length / angle tolerance): the data hardly tell it, it is not identified")
         if by_held:
             lines.append("correlated with a parameter held at prior: that parameter's tolerance, propagated through the "
                          "fit, makes at least 98 % of the std (the data tell the combination, the robot file the split)")

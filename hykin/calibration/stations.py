@@ -43,6 +43,7 @@ __all__ = [
     "StationFrames",
     "check_groups",
     "frame_starts",
+    "reference_rows",
     "add_frames",
     "apply_row_transforms",
     "row_groups",
@@ -349,3 +350,11 @@ def station_rms(rp: np.ndarray, groups: RowGroups) -> str:
     e2 = np.sum(rp.reshape(n, -1) ** 2, 1) / (rp.size // n // 3)
     rms = np.sqrt(np.bincount(groups.station, e2) / np.bincount(groups.station)) * 1e3
     return ", ".join(f"{lab} {v:.3g} mm" for lab, v in zip(groups.station_labels, rms))
+
+
+def reference_rows(groups: RowGroups) -> np.ndarray:
+    """Rows of the reference station (with the reference tool where it has 12 or more of those): the
+    closed-form start of the robot's own base and tool (:func:`hykin.calibration.calibrate.calibrate`)."""
+    st = groups.rows_of("station", 0)
+    both = st & groups.rows_of("tool", 0)
+    return np.flatnonzero(both if both.sum() >= 12 else st)
