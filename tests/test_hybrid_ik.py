@@ -180,19 +180,35 @@ def test_nearest_solution(model, sample, solved):
     res = hybrid_ik(model, T, nearest=True, q_current=q_cur)
     assert len(res) == len(T) and (res.target == np.arange(len(T))).all()
     assert np.abs(res.q - q_true).max() < 1e-7
-    # with a training support that excludes the true joints of target 0, another branch is preferred
+    # Nearest means nearest (probe X A2: a support rule ahead of distance flipped the wrist 183 deg from the
+    # seed): with a training support that excludes the true joints of target 0, the true solution is still
+    # the answer, and in_support says that it lies outside.
     lo, hi = model.robot.lower.copy(), model.robot.upper.copy()
-    j = 0
-    alt = solved.q[solved.success & (solved.target == 0)]
-    alt = alt[np.abs(alt - q_true[0]).max(1) > 1e-3]
+    sols = solved.q[solved.success & (solved.target == 0)]
+    alt = sols[np.abs(sols - q_true[0]).max(1) > 1e-3]
     assert len(alt) > 0
-    # support: joint 1 within a small window around an alternative solution only
+    j = int(np.argmax(np.abs(alt[0] - q_true[0])))
+    # support: joint j within a small window around an alternative solution only
     lo[j], hi[j] = alt[0, j] - 1e-3, alt[0, j] + 1e-3
     m2 = StandInHybrid(robot=model.robot, support=(lo, hi))
     m2.W, m2.ph, m2.A = model.W, model.ph, model.A
     res2 = hybrid_ik(m2, T[:1], nearest=True, q_current=q_cur[:1])
-    assert len(res2) == 1 and res2.in_support[0]
-    assert abs(res2.q[0, j] - alt[0, j]) < 1e-3
+    assert len(res2) == 1 and not res2.in_support[0]
+    assert np.abs(res2.q[0] - q_true[0]).max() < 1e-7
+    # The support breaks near-ties only (within 5 deg of joint distance): current joints on the segment
+    # between the two solutions, 2 deg nearer the true one, get the in-support alternative ...
+    D = np.linalg.norm(alt[0] - q_true[0])
+    u = (alt[0] - q_true[0]) / D
+    near = q_true[0] + u * (D - np.radians(2.0)) / 2
+    d_all = np.linalg.norm(sols - near, axis=1)  # reference: every solution of the target (all branches)
+    assert np.sort(d_all)[1] - d_all.min() < np.radians(5.0)  # the two nearest form a near-tie ...
+    assert np.sort(d_all)[2] > d_all.min() + np.radians(5.0)  # ... and no third solution joins it
+    res3 = hybrid_ik(m2, T[:1], nearest=True, q_current=near[None])
+    assert res3.in_support[0] and np.abs(res3.q[0] - alt[0]).max() < 1e-6
+    # ... and 8 deg nearer the true one, no longer a tie: the nearest, outside the support
+    far = q_true[0] + u * (D - np.radians(8.0)) / 2
+    res4 = hybrid_ik(m2, T[:1], nearest=True, q_current=far[None])
+    assert not res4.in_support[0] and np.abs(res4.q[0] - q_true[0]).max() < 1e-7
 
 
 def test_wang_is_worse(model, sample, solved):

@@ -238,7 +238,13 @@ def progress():
     )
 
 
+#: suffixes the commands read as robot or data files whatever the content: a model is never named so
+NOT_MODEL_SUFFIXES = (".toml", ".urdf", ".csv")
+
+
 def is_model_file(spec: str) -> bool:
+    """Whether ``spec`` is a hykin model file: a safetensors file (by content) not named as a robot or data
+    file (:data:`NOT_MODEL_SUFFIXES`)."""
     p = Path(spec)
     if not p.is_file():
         return False
@@ -248,7 +254,7 @@ def is_model_file(spec: str) -> bool:
     if len(head) < 8:
         return False
     n = int.from_bytes(head, "little")
-    return 0 < n < 100_000_000 and p.suffix.lower() not in (".toml", ".urdf", ".csv")
+    return 0 < n < 100_000_000 and p.suffix.lower() not in NOT_MODEL_SUFFIXES
 
 
 def load_model_or_robot(spec: str, base: str | None = None, tip: str | None = None):
@@ -263,6 +269,10 @@ def load_model_or_robot(spec: str, base: str | None = None, tip: str | None = No
         return model, model.robot
     p = Path(spec)
     if p.is_file() and p.suffix.lower() not in (".toml", ".urdf"):
+        from ..io.modelfile import looks_like_model_file
+
+        if looks_like_model_file(p):  # a model renamed .csv: is_model_file goes by the name for these suffixes
+            raise CLIError(f"{spec}: this is a hykin model file named {p.suffix}, which names a data file: rename it .hykin")
         raise CLIError(f"{spec}: not a hykin model file, robot file (.toml/.urdf) or preset name")
     return None, load_robot_spec(spec, base, tip)
 
@@ -309,7 +319,23 @@ def with_payload(mdl, payload_kg: float | None):
     if not (payload_kg >= 0 and payload_kg < float("inf")):
         raise CLIError(f"--payload-kg must be a finite mass >= 0 kg, got {payload_kg}")
     warn_payloads_outside(mdl, payload_kg, f"{payload_kg:g} kg lies")
+    warn_payload_no_effect(mdl, None, payload_kg)
     return model_with_payload(mdl, payload_kg)
+
+
+def warn_payload_no_effect(mdl, robot, payload_kg: float | None) -> None:
+    """One line when ``--payload-kg`` is given but cannot change a pose: the robot (a model's calibrated
+    robot) has no joint stiffness, and a model's networks were trained on one payload only."""
+    if payload_kg is None:
+        return
+    rob = getattr(mdl, "robot_", None) or robot
+    if rob is None or rob.has_compliance or bool(getattr(mdl, "payload_input_", False)):
+        return
+    what = "the model's robot" if mdl is not None else f"robot {rob.name!r}"
+    nets = " and its networks were trained on one payload" if mdl is not None else ""
+    console().print(f"[yellow]warning:[/] --payload-kg {payload_kg:g}: {what} has no joint stiffness{nets}, so the payload "
+                    "changes no pose (a robot file with stiffness, or a fit on data with a payload_kg column, models it)",
+                    highlight=False)
 
 
 def warn_payloads_outside(mdl, kg, what: str) -> None:

@@ -102,6 +102,7 @@ def fit_cmd(
     from ..hybrid.model import HybridModel
     from ..io.dataset_files import read_dataset
     from ..io.plausibility import check_fit_size
+    from .common import NOT_MODEL_SUFFIXES
 
     try:  # the one mapping of fit options to model settings (hykin.hybrid.fit_options, also used by sweeps)
         kw = model_kwargs(arch=arch, recipe=recipe, calibrate=calibrate, device=device, seed=seed,
@@ -111,6 +112,9 @@ def fit_cmd(
     except ValueError as e:
         raise CLIError(str(e)) from None
     check_output(out, (robot, train, val), force)  # before any long work
+    if out.suffix.lower() in NOT_MODEL_SUFFIXES:  # fk, ik, evaluate ... would read it as a robot or data file
+        raise CLIError(f"{out}: hykin fit writes a model file, which the other commands would read as a "
+                       f"{out.suffix} robot or data file; name it .hykin ({out.with_suffix('.hykin').name})")
     rob = load_robot_spec(robot, base_link, tip_link)
     tr = read_dataset(train, length_unit=length_unit, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
     check_fit_size(rob, tr)
@@ -131,6 +135,10 @@ def fit_cmd(
     if model.calibration_cv_ is not None:
         typer.echo(model.calibration_cv_.table())
     _print_metrics(model)
+    for name, m in model.metadata.get("metrics", {}).items():  # what the figures of unseen rows rest on
+        if "n_rows" in m:
+            typer.echo(f"{name}: {m['n_rows']} rows the networks were not trained on"
+                       + (" (the calibration used them)" if name == "held_out" else ""))
     typer.echo(f"model written to {out}")
 
 

@@ -21,6 +21,7 @@ from .common import (
     load_model_or_robot,
     temperature_of,
     warn_orientation_unmeasured,
+    warn_payload_no_effect,
     write_rows,
 )
 
@@ -61,6 +62,7 @@ def fk_cmd(
     extra = {k: v for k, v in extra.items() if not (k[:1] in "xyz" and k[1:].isdigit())}
     if unit_check:
         check_joint_unit(rob, q, where=str(joints), angle_unit=angle_unit)
+    warn_payload_no_effect(mdl, rob, payload_kg)
     if mdl is None:
         if station is not None or tool is not None:
             raise CLIError(f"--station/--tool: {model} is a robot, not a model fitted on data with stations or tools")
@@ -123,6 +125,7 @@ def ik_cmd(
         check_target_reach(mdl.robot_ if mdl is not None else rob, T, where=str(poses), length_unit=length_unit,
                            frame=None if mdl is None else mdl.frame_pre_)
     position_only = position_only or not has_rot
+    warn_payload_no_effect(mdl, rob, payload_kg)
     if not position_only:
         warn_orientation_unmeasured(mdl, "the targets' orientations are solved for that (--position-only ignores them)")
     q_cur = None

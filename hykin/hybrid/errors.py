@@ -3,7 +3,7 @@ can raise them without importing :mod:`hykin.hybrid.model`)."""
 
 from __future__ import annotations
 
-__all__ = ["HybridError", "OutOfRangeWarning"]
+__all__ = ["FitWarning", "HybridError", "OutOfRangeWarning"]
 
 
 class HybridError(ValueError):
@@ -12,3 +12,8 @@ class HybridError(ValueError):
 
 class OutOfRangeWarning(UserWarning):
     """Queries outside the joint range the networks were trained on."""
+
+
+class FitWarning(UserWarning):
+    """A note on the data or the result of ``fit``: repeated rows, too few held-out rows to judge the
+    networks, networks that do worse than the calibrated model on the held-out rows."""

@@ -263,10 +263,13 @@ def errors_of(prob: IKProblem, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return pe, ae
 
 
-# nearest=True prefers solutions whose network correction applies at least this much (fade weight) over
-# nearer ones beyond the training support: a support distance of a few mrad (a gap between training
-# samples, weight ~1) must not send the arm to another branch radians away
+# nearest=True keeps the solution nearest the current joints. Only among near-ties (joint distance within
+# _NEAR_TIE_RAD of the nearest) does it prefer one whose network correction applies at least _USABLE_FADE
+# (fade weight): 5 deg of joint motion is no branch change, and there the networks' solution is the better
+# answer. A support rule ahead of distance sent probe X's arm 183 deg (a wrist flip) from its seed when
+# the solution 2.9 deg away lay just outside a restricted training range; in_support says which it is.
 _USABLE_FADE = 0.5
+_NEAR_TIE_RAD = np.radians(5.0)
 
 
 def hybrid_ik_from_seeds(
@@ -303,8 +306,9 @@ def hybrid_ik_from_seeds(
     Rows per target: its distinct successful solutions; a target with none gets one failed row (its
     best attempt and the reason; NaN joints when no seed existed). ``keep_failed=True`` keeps every
     failed branch as well. ``nearest=True`` with ``q_current`` ``(N, dof)`` keeps one solution per
-    target: inside the training support (or where the network correction still applies at least half:
-    fade weight >= 0.5) if any, then nearest in joint space (Euclidean).
+    target: the nearest in joint space (Euclidean); among solutions within 5° (``_NEAR_TIE_RAD``) of that
+    distance, one inside the training support (or where the network correction still applies at least
+    half: fade weight >= 0.5) is preferred. ``in_support`` tells whether the kept one is inside.
 
     Under-actuated arms (fewer than 6 joints, full poses; :func:`hykin.hybrid.ik_result.underactuated`)
     cannot match all six components of an arbitrary (e.g. measured) pose: the answer is the
@@ -479,7 +483,9 @@ def hybrid_ik_from_seeds(
         fw = getattr(model, "fade_weight", None)
         if fw is not None:  # just outside the sampled joints the correction still applies: no branch change
             ins_m = ins_m | (np.asarray(fw(np.nan_to_num(q)), dtype=np.float64).reshape(N, B) >= _USABLE_FADE)
-        score = np.where(okm & ~dup, dj + np.where(ins_m, 0.0, 1e6), np.inf)
+        dj = np.where(okm & ~dup, dj, np.inf)
+        tie = dj <= dj.min(1, keepdims=True) + _NEAR_TIE_RAD  # nearest first; the support breaks near-ties only
+        score = np.where(tie, dj + np.where(ins_m, 0.0, 1e6), np.inf)
         pick = np.argmin(score, axis=1)
         sel = np.zeros((N, B), dtype=bool)
         sel[np.arange(N), pick] = True

@@ -225,8 +225,10 @@ class HybridModel:
 
         ``val``: validation Dataset for early stopping / best-epoch selection; by default
         ``val_fraction`` of ``train`` is held out (the calibration still uses all of ``train``).
+        A path (str / Path) is read as ``hykin fit`` reads it (m, rad; :func:`fitting.as_dataset`).
         Validates the settings first (:class:`HybridError`). Returns self.
         """
+        train, val = fitting.as_dataset(train, self.robot, "train"), fitting.as_dataset(val, self.robot, "val")
         self._prepare()
         t0 = time.perf_counter()
         q = np.asarray(train.q, dtype=np.float64)
@@ -335,12 +337,11 @@ class HybridModel:
                 self.meta_["fade_calibration"] = persistence.json_safe(fc.to_dict())
         if self._skipped:
             self.meta_["optional_steps_failed"] = dict(self._skipped)
-        self.meta_["metrics"]["train"] = fitting.train_metrics(self, train_in)  # and rows far off the hybrid model
-        if val_in is not None:
-            self.meta_["metrics"]["val"] = self._metrics(val_in)
-        elif len(iv):  # the rows held out from network training (the calibration saw them)
-            held = np.sort(np.concatenate([iv, iv_cal if iv_cal is not None else iv[:0]]))
-            self.meta_["metrics"]["held_out"] = self._metrics(train_in.subset(held))
+        held = None if val_in is not None else np.sort(np.concatenate([iv, iv_cal if iv_cal is not None else iv[:0]]))
+        self.meta_["metrics"]["train"] = fitting.train_metrics(self, train_in, held, val_in)  # and rows far off the model
+        if val_in is not None or len(held):  # rows the networks were not trained on (the calibration saw held-out ones)
+            name, ds = ("val", val_in) if val_in is not None else ("held_out", train_in.subset(held))
+            self.meta_["metrics"][name] = fitting.held_out_metrics(self, ds, name)
         return self
 
     def _calibrate_on(self, ds, progress: bool = False) -> tuple[Robot, object]:

@@ -10,7 +10,10 @@ wrapped angles, and ``q1`` left out with ``joint1="frame"`` (it is not an input 
 * :meth:`HybridModel.support_distance` ``(N,)``: ``max(max_j range_excess_j, pair_gap, gap)``, gap = distance
   to the nearest training sample in min-max normalised joint space (cKDTree on <= 4000 samples)
   beyond ``2 ×`` the 95th percentile of the training samples' own nearest-neighbour spacing
-  (holes inside the joint box).
+  (holes inside the joint box). Samples are one per configuration (:func:`distinct_groups`) and the
+  spacing skips neighbours within a configuration (:func:`spacing_of`): with every row measured twice
+  (repeated ISO 9283 cycles, a plan run twice) the raw rows' spacing is 0 and every query read as
+  outside (probe X: 500 of 500 test poses, and ``register``'s ``fade="full"`` faded the networks away).
 * :meth:`HybridModel.predict` warns once per call (:class:`hykin.hybrid.errors.OutOfRangeWarning`, counts per joint);
   :func:`support_report` gives the same counts as data (for CLI messages).
 * :meth:`HybridModel.pair_gap` ``(N,)``: holes inside the joint box, fast: for every pair of input
@@ -50,13 +53,16 @@ from ..kinematics.chunks import worker_count
 from ..kinematics.fk import HAVE_NUMBA
 from .errors import OutOfRangeWarning
 
-__all__ = ["GAP_FACTOR", "PAIR_GRID", "SUPPORT_POINTS", "Support", "fade_distance", "fade_distance_torch",
+__all__ = ["GAP_FACTOR", "PAIR_GRID", "SAME_JOINTS", "SUPPORT_POINTS", "Support", "distinct_groups", "fade_distance", "fade_distance_torch",
            "fade_weight", "fit_support", "nn_gap", "nn_gap_torch", "pair_gap", "pair_gap_torch", "range_excess",
-           "range_excess_torch", "support_distance", "support_report", "support_tree", "warn_outside"]
+           "range_excess_torch", "spacing_of", "support_distance", "support_report", "support_tree", "warn_outside"]
 
 SUPPORT_POINTS = 4000  # training samples kept for the nearest-neighbour gap
 GAP_FACTOR = 2.0  # tolerance of the gaps, in 95th-percentile nearest-neighbour spacings
 PAIR_GRID = 48  # nodes per axis of the pairwise hole grids
+# Rows whose joints agree to this fraction of every joint's data range are one configuration (0.036° of a
+# 360° joint; an encoder's jitter between repeated cycles is far below it, neighbouring poses of a plan far above).
+SAME_JOINTS = 1e-4
 
 
 @dataclass
@@ -103,29 +109,60 @@ def _pair_grids(x: np.ndarray, joints: np.ndarray) -> tuple[np.ndarray, np.ndarr
     nodes = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
     gaps = np.zeros((len(pairs), G, G))
     for k, (i, j) in enumerate(pairs):
-        pts = np.unique(np.round(x[:, [i, j]], 6), axis=0)
+        p2 = x[:, [i, j]]
+        pts = p2[np.unique(distinct_groups(p2), return_index=True)[1]]  # repeats would make the spacing ~0
         tree = cKDTree(pts)
-        sp = tree.query(pts, k=2)[0][:, 1] if len(pts) > 1 else np.ones(1)
-        tol = max(GAP_FACTOR * float(np.percentile(sp, 95)), 1.0 / (G - 1))
+        tol = max(GAP_FACTOR * spacing_of(pts), 1.0 / (G - 1))
         d = tree.query(nodes)[0]
         gaps[k] = np.maximum(0.0, d - tol).reshape(G, G)
     return pairs, gaps
 
 
+def distinct_groups(q: np.ndarray) -> np.ndarray:
+    """``(N,)`` configuration id of each row of joints ``q`` ``(N, n)``: rows in one cell of a grid of
+    :data:`SAME_JOINTS` x each joint's data range share an id (repeated measurements of one pose). A grid,
+    not chains of near pairs: a slow, densely sampled stream must not collapse into one "configuration";
+    the price is that an encoder's jitter splits a repeat across a cell face now and then (rare: jitter
+    is far below the cell). Ids count configurations in order of their first row (no repeats: ``0..N-1``)."""
+    q = np.asarray(q, dtype=np.float64)
+    if len(q) == 0:
+        return np.zeros(0, dtype=np.int64)
+    lo = q.min(0)
+    key = np.floor((q - lo) / np.maximum(q.max(0) - lo, 1e-12) / SAME_JOINTS).astype(np.int64)
+    _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    rank = np.empty(len(first), dtype=np.int64)
+    rank[np.argsort(first)] = np.arange(len(first))
+    return rank[np.asarray(inv).reshape(-1)]
+
+
+def spacing_of(x: np.ndarray) -> float:
+    """95th percentile of each point's distance to its nearest neighbour among normalised points ``x``
+    ``(M, n)``, neighbours closer than a :data:`SAME_JOINTS` cell diagonal (repeats of the point) skipped
+    (1.0 for fewer than two distinct points). Without near repeats: the plain nearest-neighbour spacing."""
+    from scipy.spatial import cKDTree
+
+    if len(x) < 2:
+        return 1.0
+    d = cKDTree(x).query(x, k=min(len(x), 17))[0][:, 1:]
+    d = np.where(d > SAME_JOINTS * math.sqrt(x.shape[1]), d, np.inf).min(1)
+    d = d[np.isfinite(d)]
+    return float(np.percentile(d, 95)) if len(d) else 1.0
+
+
 def fit_support(qn: np.ndarray, mask: np.ndarray, seed: int) -> Support:
     """Support of training joints ``qn`` ``(N, n)`` (network coordinates; always the data range,
     whatever the networks' input normalisation). ``mask`` ``(n,)``: joints that are network inputs
-    (the hole grids pair those); ``seed``: subsample of the support points."""
+    (the hole grids pair those); ``seed``: subsample of the support points. Points and spacing are
+    over distinct joint vectors (:func:`distinct_groups`): repeated rows would make the spacing 0."""
     lo, hi = qn.min(0), qn.max(0)
     span = np.maximum(hi - lo, 1e-6)
-    sub = np.random.default_rng(seed).permutation(len(qn))[:SUPPORT_POINTS]
+    sub = np.random.default_rng(seed).permutation(len(qn))
+    first = np.zeros(len(qn), dtype=bool)
+    first[np.unique(distinct_groups(qn), return_index=True)[1]] = True
+    sub = sub[first[sub]][:SUPPORT_POINTS]  # the first row of each configuration (all rows without repeats)
     points = (qn[sub] - lo) / span
     tree = support_tree(points)
-    if len(points) > 1:
-        dd, _ = tree.query(points, k=2)
-        spacing = float(np.percentile(dd[:, 1], 95))
-    else:
-        spacing = 1.0
+    spacing = spacing_of(points)
     pairs, gaps = _pair_grids((qn - lo) / span, np.flatnonzero(mask & (hi - lo > 1e-9)))
     return Support(lo, hi, points, spacing, tree, pairs, gaps)
 

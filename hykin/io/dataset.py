@@ -33,7 +33,9 @@ __all__ = [
     "QUAT_COLUMNS",
     "Dataset",
     "DatasetError",
+    "JointLimitWarning",
     "check_finite",
+    "check_limits",
     "check_units",
     "concat",
     "dataset_hash",
@@ -67,6 +69,11 @@ QUAT_NORM_TOL = 1e-3  # |‖q‖ - 1| above this is an error; below, the quatern
 MAX_SPREAD_M = 50.0
 SPREAD_PER_REACH = 10.0
 MAX_POSITION_M = MAX_SPREAD_M  # former name (an absolute distance limit, now a spread limit)
+# Joint values this far beyond a robot file's limits are accepted with a warning (counts per joint): a
+# controller's soft limits differ from a data sheet's, and a measured row 0.001° past 60° is a good row. Beyond
+# it the value is refused: degrees read as radians or a wrong robot file land far outside, not within 0.5°.
+LIMIT_SLACK_RAD = math.radians(0.5)
+LIMIT_SLACK_M = 0.5e-3  # prismatic joints: the same idea (an axis' stroke is known to well under a millimetre)
 DEG_AS_RAD_MARGIN = 0.4 * math.pi  # rad beyond 2π (2π·1.2 in all, docs/import-table.md) before revolute joints
 # are called "degrees" when no robot is given; with one, its own limits count too (±400° axes)
 
@@ -388,15 +395,43 @@ def validate_joints(
             raise row_error(where, f"all revolute joint values are whole numbers, up to {qr[r, c]:.6g}: likely degrees "
                        f"passed as radians; {hint}", r, names[c], line_offset)
     if robot is not None:
-        lo, hi = robot.lower - limit_tol, robot.upper + limit_tol
-        out = ((q < lo) | (q > hi)) & ~cont
-        if out.any():
-            r, c = np.argwhere(out)[0]
-            conv = np.degrees if rev[c] else (lambda v: v)
-            u = "deg" if rev[c] else "m"
-            raise row_error(where, f"joint value {conv(q[r, c]):.6g} {u} is outside the limits "
-                       f"[{conv(robot.lower[c]):.6g}, {conv(robot.upper[c]):.6g}] {u} of robot {robot.name!r}",
-                       r, qn[c], line_offset)
+        check_limits(q, robot, where, limit_tol, qn, rev, cont, line_offset)
+
+
+class JointLimitWarning(UserWarning):
+    """Joint values slightly beyond the robot file's limits (within :data:`LIMIT_SLACK_RAD` /
+    :data:`LIMIT_SLACK_M`): accepted, counted per joint."""
+
+
+def check_limits(q, robot, where: str, limit_tol: float, names, rev, cont, line_offset) -> None:
+    """Joint values ``q`` ``(N, dof)`` against ``robot``'s limits: within ``limit_tol`` silent, up to the slack
+    (:data:`LIMIT_SLACK_RAD`, :data:`LIMIT_SLACK_M`) one :class:`JointLimitWarning` with counts, beyond it a
+    :class:`DatasetError` naming the first such row, column, value and limit (``names``: column names,
+    ``rev`` / ``cont``: revolute / continuous joints, ``line_offset`` as in :func:`row_error`)."""
+    import warnings
+
+    with np.errstate(invalid="ignore"):  # a continuous joint's limits may be infinite: never beyond them
+        excess = np.where(cont, 0.0, np.maximum(robot.lower - q, q - robot.upper))  # (N, dof) > 0 beyond, rad or m
+    slack = np.where(rev, LIMIT_SLACK_RAD, LIMIT_SLACK_M) + limit_tol
+    far = excess > slack
+    if far.any():
+        r, c = np.argwhere(far)[0]
+        conv = np.degrees if rev[c] else (lambda v: v)
+        u = "deg" if rev[c] else "m"
+        raise row_error(where, f"joint value {conv(q[r, c]):.6g} {u} is outside the limits "
+                        f"[{conv(robot.lower[c]):.6g}, {conv(robot.upper[c]):.6g}] {u} of robot {robot.name!r} "
+                        f"by more than the {conv(slack[c] - limit_tol):.3g} {u} accepted (a unit slip or another "
+                        "robot's data? If the values are right, widen min/max of that joint in the robot file)",
+                        r, names[c], line_offset)
+    near = excess > limit_tol
+    if near.any():
+        per = ", ".join(f"{names[c]}: {int(k)}" for c, k in enumerate(near.sum(0)) if k)
+        worst = ", ".join(f"{names[c]} {np.degrees(e) if rev[c] else e * 1e3:.3g} {'deg' if rev[c] else 'mm'}"
+                          for c, e in enumerate(excess.max(0)) if near[:, c].any())
+        warnings.warn(JointLimitWarning(
+            f"{where}: {int(near.any(1).sum())} of {len(q)} rows have joints slightly beyond the limits of robot "
+            f"{robot.name!r} ({per}; at most {worst} past); accepted (within {np.degrees(LIMIT_SLACK_RAD):g} deg / "
+            f"{LIMIT_SLACK_M * 1e3:g} mm). Widen min/max in the robot file if the robot really goes there"), stacklevel=4)
 
 
 def validate_poses(

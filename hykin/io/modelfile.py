@@ -39,6 +39,7 @@ __all__ = [
     "ModelFileError",
     "UnverifiedModelWarning",
     "content_hash",
+    "looks_like_model_file",
     "read_model_file",
     "robot_from_json_dict",
     "robot_to_dict",
@@ -106,6 +107,17 @@ def write_model_file(path: str | Path, tensors: dict, meta: dict) -> None:
     mask = os.umask(0)
     os.umask(mask)
     os.chmod(path, 0o666 & ~mask)  # safetensors writes 0600; a model file is shared like any data file (0644)
+
+
+def looks_like_model_file(path: str | Path) -> bool:
+    """Whether ``path`` starts as a safetensors file does (an 8-byte little-endian header length, then the
+    header's ``{``): a model file, whatever its name. Reads 9 bytes; False for anything unreadable."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(9)
+    except OSError:
+        return False
+    return len(head) == 9 and 0 < int.from_bytes(head[:8], "little") < 100_000_000 and head[8:9] == b"{"
 
 
 def stored_content_hash(path: str | Path) -> str | None:

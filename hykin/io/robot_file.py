@@ -7,6 +7,7 @@ from importlib import resources
 from pathlib import Path
 
 from ..kinematics.robot import Robot, RobotFileError
+from .modelfile import looks_like_model_file
 from .robot_toml import load_robot_toml, robot_from_toml_text
 from .urdf import load_urdf
 
@@ -36,6 +37,11 @@ def load_robot(spec: str | Path | Robot, base_link: str | None = None, tip_link:
         text = resources.files("hykin.presets").joinpath(s.lower() + ".toml").read_text(encoding="utf-8")
         return robot_from_toml_text(text, f"preset:{s.lower()}")
     p = Path(s)
+    if p.is_file() and looks_like_model_file(p):  # else a binary read as text: "'utf-8' codec can't decode ..."
+        named = p.suffix.lower() in (".toml", ".urdf")
+        raise RobotFileError(f"{s}: this is a hykin model file (written by `hykin fit`), not a robot file" + (
+            f"; it is read as one because it is named {p.suffix}: rename it .hykin" if named else
+            "; a robot file (.toml/.urdf) or preset goes here, a model to fk, ik, evaluate, register, compensate"))
     if p.suffix.lower() == ".urdf":
         return load_urdf(p, base_link, tip_link)
     if p.suffix.lower() == ".toml" or p.exists():

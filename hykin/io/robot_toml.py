@@ -245,6 +245,8 @@ def load_robot_toml(path: str | Path) -> Robot:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise RobotFileError(f"{path}: file not found") from None
+    except UnicodeDecodeError as e:  # a binary file (a model, a spreadsheet) given as a robot file
+        raise RobotFileError(f"{path}: not a TOML robot file (not UTF-8 text: byte {e.start} cannot be decoded)") from None
     return robot_from_toml_text(text, str(path))
 
 
