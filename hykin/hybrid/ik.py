@@ -111,7 +111,8 @@ def hybrid_ik(
     closed form; otherwise numerical IK). ``q_seed`` ``(N, dof)`` / ``(N, S, dof)``: extra seeds for
     the classical IK (with ``all_branches=False``, the only seeds). ``q_current`` ``(N, dof)`` or
     ``(dof,)``: current joints; with ``nearest=True`` only the solution nearest to them is kept per
-    target (where the network correction applies preferred: :func:`hybrid_ik_from_seeds`), and, for a
+    target (the nearest; where the network correction applies only among solutions within 5° of joint
+    distance of the nearest: :func:`hybrid_ik_from_seeds`), and, for a
     robot without a closed form (7 DOF), they seed a solution of their own; without a seed they also
     seed position-only IK.
     ``delta_rad``: half-width of the box around each classical solution (default 3°).
