@@ -56,10 +56,12 @@ def compensate_cmd(
     fmt: str | None = typer.Option(None, "--format", help="Input format: csv, urscript, krl, rapid (default: by suffix)."),
     context: list[Path] | None = typer.Option(None, "--context", help="More files the program needs (repeatable). KRL: the companion .src/.dat (read from beside the input by default) and $config.dat (BASE_DATA/TOOL_DATA). RAPID: modules declaring the tooldata/wobjdata the program uses."),
     tool: str | None = typer.Option(None, "--tool", help="CSV: the targets are poses of another TCP than the model's: x,y,z[,roll,pitch,yaw] of that TCP in the flange frame, as the tool table of a robot file (xyz, rpy), in --length-unit / --angle-unit (programs name their tool: set_tcp, tooldata, TOOL_DATA)."),
-    config_slack_deg: float = typer.Option(1.0, "--config-slack-deg", help="Programs: a target the real robot reaches only with the other elbow / overhead flag than its configuration data (S, confdata) say, within this angle of that flag's singular pose (stretched elbow, wrist centre on axis 1), is written with the flag it reaches, with a note; 0 refuses it."),
+    config_slack_deg: float = typer.Option(1.0, "--config-slack-deg", help="Programs: a target the real robot reaches only with the other elbow / overhead / wrist flag than its configuration data (S, confdata) say, within this angle of that flag's singular pose (stretched elbow, wrist centre on axis 1, A5 = 0), is written with the flag it reaches, with a note; 0 refuses it."),
     axis_signs: str | None = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the robot preset)."),
     payload_kg: float | None = typer.Option(None, "--payload-kg", help="Payload (kg, at the TCP) the robot carries while executing these targets: the model deflects under it (default: the robot file's payload)."),
-    flange: str | None = typer.Option(None, "--flange", help="URDF robots: the link that is the controller's flange, from which program tools (TOOL_DATA, tooldata, set_tcp) and --tool are given (default: 'flange' for KRL, 'tool0' otherwise, where the URDF has them; else the last moving link)."),
+    flange: str | None = typer.Option(None, "--flange", help="URDF robots: the link that is the controller's flange, from which program tools (TOOL_DATA, tooldata, set_tcp) and --tool are given (default: 'flange' for KRL and --tool, 'tool0' for RAPID and URScript, where the URDF has them; else the last moving link)."),
+    tolerance_mm: float | None = typer.Option(None, "--tolerance-mm", help="Success tolerance, mm: a target the model's robot reaches within it (and --tolerance-deg) is compensated (default: half the model's held-out mean position error, at least 1e-4 mm)."),
+    tolerance_deg: float | None = typer.Option(None, "--tolerance-deg", help="Success tolerance, degrees (default: half the model's held-out mean orientation error, at least 1e-4 deg)."),
     force: bool = Force,
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
@@ -70,6 +72,7 @@ def compensate_cmd(
         raise CLIError(f"--frame must be auto, measurement or base, got {frame!r}")
     if not (0 <= config_slack_deg <= 90):
         raise CLIError(f"--config-slack-deg must be within 0-90 deg, got {config_slack_deg}")
+    tol = _tolerances(tolerance_mm, tolerance_deg)
     context = list(context or [])
     if kind == "krl" and inp.suffix.lower() in (".src", ".dat"):  # the companion file beside it is read too
         sib = inp.with_suffix(".src" if inp.suffix.lower() == ".dat" else ".dat")
@@ -83,7 +86,7 @@ def compensate_cmd(
         parse_axis_signs(axis_signs, mdl.nominal.dof)
         D = _tool_delta(mdl, tool, length_unit, angle_unit, flange)
         _compensate_csv(mdl, inp, out, joints, "measurement" if frame == "auto" else frame, length_unit, angle_unit, D,
-                        payload_kg)
+                        payload_kg, tol)
         return
     mdl = with_payload(load_model(model), payload_kg)
     signs = parse_axis_signs(axis_signs, mdl.nominal.dof)
@@ -96,7 +99,20 @@ def compensate_cmd(
                        "(URScript set_tcp, RAPID tooldata, KRL TOOL_DATA via --context)")
     else:
         _compensate_program(mdl, inp, out, kind, joints, frame, skip_unreachable, context, signs, config_slack_deg,
-                            flange)
+                            flange, tol)
+
+
+def _tolerances(mm: float | None, deg: float | None) -> dict:
+    """``--tolerance-mm`` / ``--tolerance-deg`` as :class:`hykin.compensation.Compensator` keywords (the
+    model's default for one not given); each must be a positive number."""
+    out = {}
+    for name, key, v in (("--tolerance-mm", "tolerance_mm", mm), ("--tolerance-deg", "tolerance_deg", deg)):
+        if v is None:
+            continue
+        if not (np.isfinite(v) and v > 0):
+            raise CLIError(f"{name} must be a positive number, got {v}")
+        out[key] = float(v)
+    return out
 
 
 def _tool_delta(mdl, text: str | None, length_unit: str, angle_unit: str, flange: str | None = None):
@@ -130,7 +146,7 @@ def _tool_delta(mdl, text: str | None, length_unit: str, angle_unit: str, flange
 
 
 def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_unit: str, angle_unit: str,
-                    tool_delta=None, payload_kg: float | None = None) -> None:
+                    tool_delta=None, payload_kg: float | None = None, tol: dict | None = None) -> None:
     """CSV targets; per-row ``payload_kg`` / ``payload_com_*`` columns: one compensation per distinct payload
     on the model carrying it; a ``temperature_c`` column: the targets mapped to the model's reference
     temperature (where its joints are solved; the controller's nominal model has no temperature)."""
@@ -160,14 +176,15 @@ def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_
     if has_rot:
         warn_orientation_unmeasured(mdl, "the targets' orientations are compensated with that")
     target = T if has_rot else T[:, :3, 3]
+    tol = tol or {}
     if pl is None:
-        comp = compensate(mdl, target, q_branch=qb, frame=frame, tool_delta=tool_delta)
+        comp = compensate(mdl, target, q_branch=qb, frame=frame, tool_delta=tool_delta, **tol)
     else:
         from ..io.payload import payload_groups
 
         warn_payloads_outside(mdl, pl[0], "{n} of " + f"{len(T)} targets carry payloads")
         parts = [(idx, compensate(model_with_payload(mdl, kg, com), target[idx], q_branch=None if qb is None else qb[idx],
-                                  frame=frame, tool_delta=tool_delta)) for idx, kg, com in payload_groups(pl)]
+                                  frame=frame, tool_delta=tool_delta, **tol)) for idx, kg, com in payload_groups(pl)]
         comp = merge_parts(parts, len(T))
     write_rows(command_rows(comp, joints_only=joints), out)
     _summary(comp, out, len(T))
@@ -188,7 +205,7 @@ def _warn_tool_mismatch(mdl) -> None:
     if mm > TOOL_MISMATCH_MM or deg > TOOL_MISMATCH_DEG:
         console().print(f"[yellow]warning:[/] the calibrated TCP is {mm:.1f} mm / {deg:.2f} deg from the robot file's tool: "
                         "the commands are poses of the robot file's TCP (and shift_mm includes that offset); the "
-                        "controller must use that tool, or put the controller's TCP into the robot file's \\[tool], or "
+                        "controller must use that tool, or put the controller's TCP into the robot file's [tool], or "
                         "give it with --tool", highlight=False)
 
 
@@ -207,23 +224,36 @@ def _columns(path: Path) -> list:
     return []
 
 
-def _summary(comp, out: Path, n: int) -> None:
+#: starts of the reasons of a program target refused for its configuration data or for the branch the
+#: controller would take (hykin.compensation.program_branches / program_checks)
+_CONFIG_REASONS = ("no solution with the program's configuration data", "a configuration change",
+                   "the controller would", "the controller has no")
+
+
+def _summary(comp, out: Path, n: int, program: bool = False, listed: bool = False) -> None:
     ok = comp.success
     line = f"wrote {out}: {int(ok.sum())} of {n} targets compensated"
     if ok.any():
         line += (f" (command shift mean {np.mean(comp.shift_mm[ok]):.3f} mm, max {np.max(comp.shift_mm[ok]):.3f} mm; "
                  f"model error max {np.max(comp.pos_err_mm[ok]):.2e} mm)")
-    # a target fails for its pose (unreachable, blocked by a limit) or for a frame, TCP or configuration
-    # the program does not define (its reason says which): counted apart
-    solvable = [r for r in comp.reason[~ok] if str(r).startswith(("unreachable", "blocked")) or "out of reach" in str(r)]
+    # a target fails for its pose (unreachable, blocked by a limit), for its configuration data or the
+    # controller's branch, or for a frame or TCP the program does not define (its reason says which):
+    # counted apart; a program's reasons are the lines above (``listed``), a CSV's are in its status column
+    where = "listed above" if listed else "status column"
+    reasons = [str(r) for r in comp.reason[~ok]]
+    solvable = [r for r in reasons if r.startswith(("unreachable", "blocked")) or "out of reach" in r]
+    config = [r for r in reasons if r not in solvable and any(c in r for c in _CONFIG_REASONS)]
     if solvable:
-        line += f"; {len(solvable)} unreachable (status column)"
+        line += f"; {len(solvable)} unreachable ({where})"
         far = int(sum("out of reach" in r for r in solvable))
         if far:
             line += f", {far} of them beyond the arm's reach"
-    if int((~ok).sum()) > len(solvable):
-        line += (f"; {int((~ok).sum()) - len(solvable)} failed for a frame, TCP or configuration the program does not "
-                 "define (status column)")
+    if config:
+        line += (f"; {len(config)} refused for their configuration data or the branch the controller would take "
+                 f"({where})")
+    if len(reasons) > len(solvable) + len(config):
+        line += (f"; {len(reasons) - len(solvable) - len(config)} failed for a frame or TCP the "
+                 f"{'program' if program else 'input'} does not define ({where})")
     typer.echo(line)
     # most targets out of reach: the usual cause is the targets' frame (not when they failed for a frame,
     # TCP or configuration the program does not define: their reasons say so)
@@ -239,7 +269,7 @@ def _summary(comp, out: Path, n: int) -> None:
 
 
 def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, frame: str, skip: bool,
-                        context: list, signs, slack_deg: float, flange: str | None = None) -> None:
+                        context: list, signs, slack_deg: float, flange: str | None = None, tol: dict | None = None) -> None:
     from ..compensation import krl, rapid, urscript
     from ..compensation.programs import compensate_program
 
@@ -252,7 +282,7 @@ def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, fram
     ctx = "\n".join(texts)
     try:
         res = compensate_program(mdl, text, fmt, frame=frame, axis_signs=signs, context=ctx, config_slack_deg=slack_deg,
-                                 flange=flange)
+                                 flange=flange, **(tol or {}))
     except ValueError as e:
         raise CLIError(f"{inp}: {_context_lines(str(e).splitlines()[0], context, texts)}") from None
     res.notes = [_context_lines(n, context, texts) for n in res.notes]
@@ -297,7 +327,7 @@ def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, fram
     if res.comp.frame == "base" and frame == "auto":
         con.print("note: the model's fitted base is far from the nominal one (tracker-frame data): program poses "
                   "taken in the controller's base frame (--frame base)", highlight=False)
-    _summary(res.comp, out, len(res.targets))
+    _summary(res.comp, out, len(res.targets), program=True, listed=not joints)
 
 
 def _context_lines(msg: str, paths: list, texts: list) -> str:

@@ -5,6 +5,9 @@
 * :mod:`.targets` — frames and commands of compensation (docs); :mod:`.frames`, :mod:`.result` hold them.
 * :mod:`.branches` — KUKA ``S``/``T`` status, ABB ``confdata``, and the nominal solution they mean.
 * :mod:`.programs` — shared rewriting machinery: targets found in a program text, replaced in place.
+* :mod:`.program_branches` — which solution each program target means (configuration data, the walk).
+* :mod:`.program_checks` — what the controller will do with the written targets: configuration changes
+  refused or noted, the walk's branch checked against the controller's choice.
 * :mod:`.urscript`, :mod:`.krl`, :mod:`.rapid` — the three program formats.
 * :mod:`.service` — the FastAPI app of ``hykin serve``: HTTP batches and a WebSocket stream (imports FastAPI only when used).
 * :mod:`.service_requests` — its requests: checks, the model calls, replies.

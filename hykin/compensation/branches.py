@@ -29,10 +29,21 @@ must name the same side forward (``reference``).
 
 Near a singular configuration a flag can lack a solution on one side. At the reach boundary the two
 elbow solutions merge at ``e = 0``; with the wrist centre on axis 1 the two shoulder solutions merge
-(lean 0). A calibrated robot, whose singular poses lie a fraction of a degree from the nominal's, may
-reach a target taught just on one side only just on the other. The matchers' ``slack_rad`` then
-accepts the other elbow / overhead flag where that flag's angle is within ``slack_rad`` of 0 (the wrist
-flag always has both sides: ``(A4 + π, -A5, A6 + π)``).
+(lean 0); at ``A5 = 0`` the two wrist solutions ``(A4, A5, A6)`` and ``(A4 + π, -A5, A6 + π)`` meet (a
+spherical wrist has both on either side; a calibrated wrist whose axes do not quite meet may not). A
+calibrated robot, whose singular poses lie a fraction of a degree from the nominal's, may reach a target
+taught just on one side only just on the other. The matchers' ``slack_rad`` then accepts the other
+elbow / overhead / wrist flag where that flag's angle (lean, ``e``, ``A5``) is within ``slack_rad`` of 0.
+
+Hints for the hybrid solve (``margin_rad``, ``seed_robot``): the solutions of the *uncompensated*
+target on the nominal or calibrated robot lie a fraction of a degree from the joints the real robot
+needs (springs, the networks). A solution just beyond a joint limit may so be reached within it, and
+a calibrated chain without a closed form has its branches found from a closed-form ``seed_robot``
+(the nominal geometry in its base and tool; the stretched-elbow double root where the target is just
+beyond the seed's reach). The matchers then take solutions up to ``margin_rad`` beyond the limits
+(after every one within them), clipped onto them: the hybrid solve decides (probe report s40: targets
+0.04° inside a limit, or 0.05° from the stretched elbow, were refused as "no solution with the
+program's configuration data" although the real robot reaches them with exactly that ``S``/``T``).
 
 Both assume the robot file's joints ARE the controller's axes up to a sign per joint
 (``axis_signs``: the preset ``kuka-kr6-r900`` has ``q = (-A1, A2, A3, -A4, A5, -A6)``,
@@ -52,6 +63,7 @@ __all__ = [
     "arm_geometry",
     "best_fitting",
     "candidate_solutions",
+    "candidates",
     "default_axis_signs",
     "kuka_status",
     "match_abb_confdata",
@@ -65,6 +77,13 @@ TWO_PI = 2.0 * np.pi
 #: a joint within this angle of 0 (rad; 0.006°, the rounding of a taught literal's 3 decimals) meets its
 #: KUKA T bit either way (:func:`match_kuka_status`)
 T_ZERO_RAD = 1e-4
+#: a controller axis within this angle of 0 (rad, 1°: corrections move joints by a fraction of a degree)
+#: whose KUKA T bit the compensated joints flip has been moved across 0 by the correction: its T is
+#: rewritten (noted); a T bit of an axis farther from 0 is a configuration change (programs refuse it)
+T_CROSS_RAD = np.radians(1.0)
+#: how far beyond a joint limit (rad) a solution of the uncompensated target still hints a branch
+#: (module docstring, ``margin_rad``)
+LIMIT_MARGIN_RAD = np.radians(1.0)
 
 
 def default_axis_signs(robot: Robot) -> np.ndarray:
@@ -172,6 +191,65 @@ def candidate_solutions(robot: Robot, T_world: np.ndarray) -> tuple[np.ndarray, 
     return q, ok & inside & np.isfinite(q).all(-1)
 
 
+def candidates(robot: Robot, T_world, margin_rad: float = 0.0,
+               seed_robot: Robot | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Branch hints of each target (module docstring): ``(q (N, K, n), ok (N, K), penalty (N, K))``,
+    every solution of ``robot`` and (with ``seed_robot``) every closed-form solution of ``seed_robot``
+    (unpolished), with every 2π representation within the limits widened by ``margin_rad``; ``penalty``:
+    the matchers' extra cost, 100 + how far (rad, summed over the joints) a solution lies beyond the limits,
+    plus 50 for a seed robot's unpolished one (at the reach boundary its clamped double root sits exactly
+    on the stretched elbow, either flag: ``robot``'s own solutions come first); 0 for ``robot``'s own
+    within the limits. Without margin and seed robot: :func:`candidate_solutions`."""
+    import warnings
+
+    from ..kinematics.ik import ik, ik_closed_form
+    from ..kinematics.ik_closed_form import has_closed_form
+    from ..kinematics.ik_reasons import open_revolute_limits
+
+    T = np.asarray(T_world, dtype=np.float64)
+    if margin_rad <= 0 and seed_robot is None:
+        q, ok = candidate_solutions(robot, T)
+        return q, ok, np.zeros(ok.shape)
+    sr = None if seed_robot is None else open_revolute_limits(seed_robot)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        # limits opened: a solution a hair beyond a limit is a hint, not nothing (ik keeps only those within)
+        opened = open_revolute_limits(robot)
+        br = ik(opened, T, all_branches=True, seed_robot=sr)
+        q, ok = np.asarray(br.q, dtype=np.float64), np.asarray(br.success, dtype=bool)
+        if sr is not None and not has_closed_form(robot):  # its own search too: near the reach boundary the
+            # seeds' two elbow roots are one clamped point, whose polish finds one of the robot's two solutions
+            own = ik(opened, T, all_branches=True)
+            q = np.concatenate([q, np.asarray(own.q, dtype=np.float64)], axis=1)
+            ok = np.concatenate([ok, np.asarray(own.success, dtype=bool)], axis=1)
+        seed = np.zeros(ok.shape)
+        if sr is not None and has_closed_form(sr):  # its branches as found: the polish may lose one at a singularity
+            cf = ik_closed_form(sr, T, tol_m=np.inf, tol_rad=np.inf)
+            q = np.concatenate([q, cf.q], axis=1)
+            ok = np.concatenate([ok, cf.valid & np.isfinite(cf.q).all(-1)], axis=1)
+            seed = np.concatenate([seed, np.full(cf.valid.shape, 50.0)], axis=1)
+    n = robot.dof
+    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    lo, hi = robot.lower - margin_rad, robot.upper + margin_rad
+    wide = np.flatnonzero(rev & (hi - lo >= TWO_PI - 1e-9))
+    narrow = rev & (hi - lo < TWO_PI - 1e-9)
+    qz = np.nan_to_num(q)
+    start = lo - 1e-9  # a joint whose widened range is under 2π has one representation from there
+    qz = np.where(narrow, start + np.mod(qz - start, TWO_PI), qz)
+    if wide.size:  # -2π, 0, +2π on each wider joint (the opened IK returns them within ±2π)
+        grid = np.stack(np.meshgrid(*([np.array([-1.0, 0.0, 1.0])] * wide.size), indexing="ij"), -1).reshape(-1, wide.size)
+        shift = np.zeros((len(grid), n))
+        shift[:, wide] = grid * TWO_PI
+        qz = (qz[:, :, None, :] + shift[None, None]).reshape(len(qz), -1, n)
+        ok = np.repeat(ok, len(grid), axis=1)
+        seed = np.repeat(seed, len(grid), axis=1)
+    inside = np.all((qz >= lo - 1e-9) & (qz <= hi + 1e-9), axis=-1)
+    excess = (np.maximum(robot.lower - qz, 0.0) + np.maximum(qz - robot.upper, 0.0)).sum(-1)
+    ok = ok & inside & np.isfinite(qz).all(-1)
+    penalty = np.where(excess > 0, 100.0 + excess, 0.0) + seed
+    return np.where(ok[..., None], qz, np.nan), ok, np.where(ok, penalty, 0.0)
+
+
 def _pick(q: np.ndarray, ok: np.ndarray, cost: np.ndarray, allowed: np.ndarray) -> np.ndarray:
     """Per target the candidate of least ``cost`` among ``ok & allowed``; NaN rows where none."""
     c = np.where(ok & allowed, cost, np.inf)
@@ -181,29 +259,34 @@ def _pick(q: np.ndarray, ok: np.ndarray, cost: np.ndarray, allowed: np.ndarray) 
     return out
 
 
-def _flag_match(robot: Robot, q: np.ndarray, got: np.ndarray, want: np.ndarray, bits: tuple[int, int], axis_signs,
+def _flag_match(robot: Robot, q: np.ndarray, got: np.ndarray, want: np.ndarray, bits: tuple[int, int, int], axis_signs,
                 slack_rad: float) -> tuple[np.ndarray, np.ndarray]:
     """``(allowed (N, K) bool, extra cost (N, K))``: candidates ``q`` ``(N, K, n)`` whose flags ``got``
     equal ``want``, and, with ``slack_rad > 0``, those whose differing flags are only the overhead /
-    elbow bits ``bits`` with that flag's angle within ``slack_rad`` of 0 (module docstring), at a cost
-    that puts every exact match first."""
+    elbow / wrist bits ``bits`` with that flag's angle (lean, elbow, ``A5``) within ``slack_rad`` of 0
+    (module docstring), at a cost that puts every exact match first."""
     exact = got == want
     if slack_rad <= 0:
         return exact, np.zeros(got.shape)
     s = np.ones(robot.dof) if axis_signs is None else np.asarray(axis_signs, dtype=np.float64)
-    lean, e = arm_angles(robot, np.nan_to_num(q.reshape(-1, robot.dof)), s)
-    near = (np.where(np.abs(lean) <= slack_rad, bits[0], 0) | np.where(np.abs(e) <= slack_rad, bits[1], 0)).reshape(got.shape)
+    qf = np.nan_to_num(q.reshape(-1, robot.dof))
+    lean, e = arm_angles(robot, qf, s)
+    near = (np.where(np.abs(lean) <= slack_rad, bits[0], 0) | np.where(np.abs(e) <= slack_rad, bits[1], 0)
+            | np.where(np.abs(qf[:, 4]) <= slack_rad, bits[2], 0)).reshape(got.shape)
     allowed = (np.bitwise_xor(got, want) & ~near) == 0
     return allowed, np.where(exact, 0.0, 1e6)
 
 
-def match_kuka_status(robot: Robot, T_world, S, T=None, axis_signs=None, slack_rad: float = 0.0) -> np.ndarray:
+def match_kuka_status(robot: Robot, T_world, S, T=None, axis_signs=None, slack_rad: float = 0.0,
+                      margin_rad: float = 0.0, seed_robot: Robot | None = None) -> np.ndarray:
     """Nominal joints ``(N, n)`` of each target with status ``S`` (exact) and turn ``T`` (fewest
     differing bits, a joint within :data:`T_ZERO_RAD` of 0 meeting its bit either way; ``-1`` or ``None`` =
     not given: the representation nearest zero). NaN rows where no
-    nominal solution has that ``S``. ``slack_rad``: where none has, accept the other overhead / elbow
-    bit within that angle of its singular configuration (module docstring)."""
-    q, ok = candidate_solutions(robot, np.asarray(T_world, dtype=np.float64))
+    nominal solution has that ``S``. ``slack_rad``: where none has, accept the other overhead / elbow /
+    wrist bit within that angle of its singular configuration (module docstring). ``margin_rad``,
+    ``seed_robot``: branch hints (:func:`candidates`): solutions up to ``margin_rad`` beyond a limit count
+    after those within the limits and come back clipped onto it."""
+    q, ok, penalty = candidates(robot, np.asarray(T_world, dtype=np.float64), margin_rad, seed_robot)
     N, K, n = q.shape
     signs = default_axis_signs(robot) if axis_signs is None else axis_signs
     Sc, Tc = kuka_status(robot, np.nan_to_num(q.reshape(-1, n)), signs)
@@ -218,26 +301,35 @@ def match_kuka_status(robot: Robot, T_world, S, T=None, axis_signs=None, slack_r
     bits = np.zeros_like(diff, dtype=float)
     for b in range(n):
         bits += (diff >> b) & 1
-    allowed, extra = _flag_match(robot, q, Sc, S, (1, 2), signs, slack_rad)
-    cost = np.where(Tg >= 0, bits * 1e3, 0.0) + np.abs(np.nan_to_num(q)).sum(-1) + extra
-    return _pick(q, ok, cost, allowed)
+    allowed, extra = _flag_match(robot, q, Sc, S, (1, 2, 4), signs, slack_rad)
+    # T bits first (a differing bit is a full turn or another configuration), then beyond a limit, then an
+    # unpolished seed, then |q|
+    cost = np.where(Tg >= 0, bits * 1e3, 0.0) + np.abs(np.nan_to_num(q)).sum(-1) + extra + penalty
+    return _clip(robot, _pick(q, ok, cost, allowed))
 
 
 def match_abb_confdata(robot: Robot, T_world, conf, axis_signs=None, reference: Robot | None = None,
-                       slack_rad: float = 0.0) -> np.ndarray:
+                       slack_rad: float = 0.0, margin_rad: float = 0.0, seed_robot: Robot | None = None) -> np.ndarray:
     """Nominal joints ``(N, n)`` with ``cfx`` equal and the quadrants ``cf1, cf4, cf6`` nearest the
     given ``conf`` ``(N, 4)`` (ties: the joints nearest zero); NaN rows where no nominal solution has
     that ``cfx``. ``reference``: as
-    :func:`abb_confdata`; ``slack_rad``: as :func:`match_kuka_status` (``cfx`` bits 2 and 1)."""
-    q, ok = candidate_solutions(robot, np.asarray(T_world, dtype=np.float64))
+    :func:`abb_confdata`; ``slack_rad``, ``margin_rad``, ``seed_robot``: as :func:`match_kuka_status`
+    (``cfx`` bits 2, 1 and 0)."""
+    q, ok, penalty = candidates(robot, np.asarray(T_world, dtype=np.float64), margin_rad, seed_robot)
     N, K, n = q.shape
     cc = abb_confdata(robot, np.nan_to_num(q.reshape(-1, n)), axis_signs, reference).reshape(N, K, 4)
     conf = np.asarray(conf, dtype=int).reshape(N, 1, 4)
-    allowed, extra = _flag_match(robot, q, cc[..., 3], conf[..., 3], (4, 2), axis_signs, slack_rad)
+    allowed, extra = _flag_match(robot, q, cc[..., 3], conf[..., 3], (4, 2, 1), axis_signs, slack_rad)
     # quadrants first; then (axes 2, 3, 5 carry none) the representation nearest zero, as a controller
-    # whose axes 2, 3 stay within ±180° has them (a joint range over 360° has several)
-    cost = np.abs(cc[..., :3] - conf[..., :3]).sum(-1) + 1e-3 * np.abs(np.nan_to_num(q)).sum(-1) + extra
-    return _pick(q, ok, cost, allowed)
+    # whose axes 2, 3 stay within ±180° has them (a joint range over 360° has several); beyond a limit and
+    # unpolished seeds last
+    cost = np.abs(cc[..., :3] - conf[..., :3]).sum(-1) + 1e-3 * np.abs(np.nan_to_num(q)).sum(-1) + extra + penalty
+    return _clip(robot, _pick(q, ok, cost, allowed))
+
+
+def _clip(robot: Robot, q: np.ndarray) -> np.ndarray:
+    """``q`` clipped onto the joint limits (a hint just beyond one); NaN rows stay NaN."""
+    return np.where(np.isfinite(q), np.clip(q, robot.lower, robot.upper), np.nan)
 
 
 class Candidates:

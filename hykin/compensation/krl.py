@@ -34,7 +34,7 @@ from .krl_frames import frames_of_targets
 from .krl_motions import axis_values, declared_types, joint_moves, parse_motions, point_of, set_execution_order
 from .programs import NUMBER, ProgramTarget, comment_mask, line_of, splice_numbers
 
-__all__ = ["SUFFIXES", "abc_from_matrix", "find_targets", "format_target", "matrix_from_abc"]
+__all__ = ["SUFFIXES", "abc_from_matrix", "find_targets", "format_target", "matrix_from_abc", "written_pose"]
 
 SUFFIXES = (".src", ".dat")
 _AGG = re.compile(r"\{([^{}]*)\}")
@@ -293,3 +293,10 @@ def format_target(t: ProgramTarget, command: np.ndarray, q, robot, axis_signs=No
             tok = t.parts["tokens"][k]
             vals[k] = f"'B{val:0{max(len(tok) - 3, 1)}b}'" if tok.startswith("'") else str(val)
     return splice_numbers(t.parts["literal"], t.parts["spans"], [vals[k] for k in t.parts["keys"]])
+
+
+def written_pose(t: ProgramTarget, literal: np.ndarray) -> np.ndarray:
+    """The pose ``(4, 4)`` the controller reads from the aggregate :func:`format_target` writes for the pose
+    ``literal`` (its frame): X..C rounded as written (:mod:`.program_checks`)."""
+    a, b, c = np.round(abc_from_matrix(literal[:3, :3], t.parts["A"]), 5)
+    return se3.make_transform(matrix_from_abc(a, b, c), np.round(literal[:3, 3] * 1e3, 4) * 1e-3)

@@ -7,15 +7,21 @@ the new literals into the text. Every character outside the replaced literals is
 without a target is byte for byte the same (files are read and written as latin-1, which maps every
 byte to one character and back).
 
-Branches: a target with configuration data (KUKA ``S``/``T``, ABB ``confdata``) gets the nominal
-solution matching it; a target without gets the nominal solution nearest the previous target's
-(a controller moving through the program in text order), restarting from the joints of the last
-joint-space move before it when the format has those. Where the nominal robot has no such solution,
-the calibrated robot's is taken (the nominal model only hints; the hybrid model is solved); where
-that has none either only because the target lies within ``config_slack_deg`` of a singular pose
-(stretched elbow, wrist centre on axis 1), the calibrated robot's with that flag flipped, with a note.
-A target without configuration data that neither reaches starts from the previous joints. Control flow
-(loops, branches, calls) is not followed: text order stands for execution order.
+Branches (:mod:`.program_branches`): a target with configuration data (KUKA ``S``/``T``, ABB
+``confdata``) gets the nominal solution matching it; a target without gets the nominal solution nearest
+the previous target's (a controller moving through the program in text order); one right after a
+joint-space move (where the format has those) is solved from that move's joints, as CSV targets are
+from their given joints. Where the nominal robot has no such solution, the calibrated robot's is taken
+(the nominal model only hints; the hybrid model is solved); where that has none either only because the
+target lies within ``config_slack_deg`` of a singular pose (stretched elbow, wrist centre on axis 1,
+``A5 = 0``), the calibrated robot's with that flag flipped, with a note. A target without configuration
+data that neither reaches starts from the previous joints. Control flow (loops, branches, calls) is not
+followed: text order stands for execution order.
+
+Checks before writing (:mod:`.program_checks`): a KUKA target whose written ``S``/``T`` are a
+configuration the program does not ask for fails, naming those the real robot reaches it with; a target
+without configuration data fails where the controller would execute its command on another branch than
+the compensated joints (after solving it again from the joints the robot is at).
 
 Unreachable targets: :class:`ProgramResult` lists them (line, reason); the caller refuses to write
 the program (default) or keeps their original literal and warns (``skip_unreachable``).
@@ -30,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry import se3
-from .compensator import compensate, model_delta
+from .compensator import model_delta
 from .result import Compensation
 
 __all__ = ["NUMBER", "ProgramResult", "ProgramTarget", "TargetFrames", "comment_mask", "compensate_program", "line_of",
@@ -177,105 +183,6 @@ def comment_mask(text: str, comment: str, quote: str = '"') -> np.ndarray:
     return mask
 
 
-def _branch_joints(model, targets: list, Tm: np.ndarray, T_cal: np.ndarray, axis_signs,
-                   slack_rad: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Joints ``(N, n)`` choosing each target's branch (module docstring): the nominal solution that the
-    configuration data (or the walk) mean; where the nominal robot has none, the calibrated robot's
-    (targets ``T_cal`` in its world), and where that has none either, the calibrated robot's with the
-    other elbow / overhead flag within ``slack_rad`` of that flag's singular pose (:mod:`.branches`); a
-    target without configuration data and no solution on either takes the previous joints (the hybrid
-    model decides). NaN only where configuration data match nothing. Also returns the rows that took
-    another flag ``(N,)`` bool and, for the NaN rows, why ``(N,)`` (:func:`_unmatched_reasons`)."""
-    from ..kinematics.ik import ik
-    from .branches import default_axis_signs, match_abb_confdata, match_kuka_status, nearest_candidate
-
-    nom = model.nominal
-    N, n = len(targets), nom.dof
-    qb = np.full((N, n), np.nan)
-    has_s = np.array(["S" in t.config for t in targets], dtype=bool)
-    has_c = np.array(["conf" in t.config for t in targets], dtype=bool)
-    signs_cal = default_axis_signs(nom) if axis_signs is None else axis_signs
-    passes = ((nom, Tm, axis_signs, 0.0), (model.robot_, T_cal, signs_cal, 0.0))
-    if slack_rad > 0:
-        passes += ((model.robot_, T_cal, signs_cal, slack_rad),)
-    for rob, TT, signs, slack in passes:
-        open_before = ~np.isfinite(qb).all(1)
-        i = np.flatnonzero(has_s & open_before)
-        if i.size:
-            qb[i] = match_kuka_status(rob, TT[i], [targets[k].config["S"] for k in i],
-                                      [targets[k].config.get("T", -1) for k in i], signs, slack)
-        i = np.flatnonzero(has_c & open_before)
-        if i.size:  # the calibrated robot names forward as the nominal does (branches.abb_confdata)
-            qb[i] = match_abb_confdata(rob, TT[i], np.array([targets[k].config["conf"] for k in i]),
-                                       axis_signs, reference=nom, slack_rad=slack)
-    other_flag = (has_s | has_c) & open_before & np.isfinite(qb).all(1) if slack_rad > 0 else np.zeros(N, bool)
-    free = np.flatnonzero(~has_s & ~has_c)
-    if free.size:
-        sols = []
-        for rob, TT in ((nom, Tm), (model.robot_, T_cal)):
-            br = ik(rob, TT[free], all_branches=True)
-            sols.append((rob, np.asarray(br.q, dtype=np.float64).reshape(free.size, -1, n),
-                         np.asarray(br.success, dtype=bool).reshape(free.size, -1)))
-        cur = np.clip(np.zeros(n), nom.lower, nom.upper)
-        slot = {int(k): j for j, k in enumerate(free)}
-        prev = None
-        # a walk in execution order: each choice depends on the joints the previous target left
-        for k in sorted(range(N), key=lambda k: (targets[k].start if targets[k].order is None else targets[k].order, k)):
-            j = slot.get(k)
-            if j is not None:
-                if targets[k].reset is not None:
-                    cur = np.asarray(targets[k].reset, dtype=np.float64)
-                elif prev is not None and np.isfinite(qb[prev]).all():
-                    cur = qb[prev]
-                pick = None
-                for (rob, q, ok), signs in zip(sols, (axis_signs, signs_cal)):
-                    allowed = ok[j]
-                    if targets[k].config.get("keep_status") and allowed.any():
-                        allowed = _same_status(rob, q[j], allowed, cur, signs)
-                    pick = nearest_candidate(rob, q[j], allowed, cur) if allowed.any() else None
-                    if pick is not None:
-                        break
-                qb[k] = cur if pick is None else pick
-            prev = k
-    return qb, other_flag, _unmatched_reasons(model, targets, T_cal, ~np.isfinite(qb).all(1), axis_signs, signs_cal)
-
-
-def _same_status(rob, q: np.ndarray, ok: np.ndarray, cur: np.ndarray, signs) -> np.ndarray:
-    """``ok`` ``(K,)`` narrowed to the solutions ``q`` ``(K, n)`` with the KUKA status ``S`` of the
-    joints ``cur`` (a continuous-path motion keeps it); ``ok`` itself where none has it (the motion would
-    cross a singularity: the nearest solution stands)."""
-    from .branches import kuka_status
-
-    S = kuka_status(rob, np.vstack([cur[None], np.nan_to_num(q)]), signs)[0]
-    same = ok & (S[1:] == S[0])
-    return same if same.any() else ok
-
-
-def _unmatched_reasons(model, targets: list, T_cal: np.ndarray, rows: np.ndarray, axis_signs, signs_cal) -> np.ndarray:
-    """``(N,)`` why each of ``rows`` has no branch: its configuration data and those the real robot (the
-    calibrated chain; targets ``T_cal``) has solutions with within its limits, or that it has none."""
-    from .branches import abb_confdata, candidate_solutions, kuka_status
-
-    why = np.full(len(targets), "", dtype=object)
-    i = np.flatnonzero(rows)
-    if not i.size:
-        return why
-    rob, nom = model.robot_, model.nominal
-    q, ok = candidate_solutions(rob, T_cal[i])
-    M, K, n = q.shape
-    qz = np.nan_to_num(q.reshape(-1, n))
-    S = kuka_status(rob, qz, signs_cal)[0].reshape(M, K)
-    cfx = abb_confdata(rob, qz, axis_signs, reference=nom)[:, 3].reshape(M, K)
-    for r, k in enumerate(i):
-        cfg = targets[k].config
-        name, want, have = ("S", cfg["S"], S[r]) if "S" in cfg else ("cfx", cfg["conf"][3], cfx[r])
-        found = sorted({int(v) for v in have[ok[r]]})
-        why[k] = (f"no solution with the program's configuration data ({name} {want}); " + (
-            f"the real robot reaches it with {name} {', '.join(str(v) for v in found)}" if found else
-            "the real robot reaches it in no configuration within its joint limits"))
-    return why
-
-
 def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs=None, context: str = "",
                        config_slack_deg: float = CONFIG_SLACK_DEG, flange: str | None = None, **ik_kw) -> ProgramResult:
     """Compensate every Cartesian target of ``text`` (a program in format module ``fmt``: one of
@@ -284,8 +191,9 @@ def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs
     declaring the ``tooldata``/``wobjdata`` the program uses).
     ``frame``: how program poses map into the model's measurement frame (:mod:`.targets`).
     ``config_slack_deg``: a target whose configuration data the real robot cannot meet only because
-    its elbow is within this angle of stretched (the reach boundary) or its wrist centre of axis 1 takes
-    the other elbow / overhead flag, with a note; 0 refuses it (:mod:`.branches`).
+    its elbow is within this angle of stretched (the reach boundary), its wrist centre of axis 1 or its A5
+    of 0 takes the other elbow / overhead / wrist flag, with a note; 0 refuses it (:mod:`.branches`).
+    ``ik_kw``: :class:`.compensator.Compensator` keywords (``tolerance_mm``, ``tolerance_deg``, ...).
     ``flange``: the URDF link the program's tools are given from (:func:`hykin.io.urdf_flange.choose_flange`:
     default ``flange`` for KRL, ``tool0`` otherwise, where the URDF has them).
     Returns a :class:`ProgramResult`; unreachable targets keep their literal and are listed in ``failed``.
@@ -303,18 +211,10 @@ def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs
     ok = [k for k, t in enumerate(targets) if not t.error]
     comp = None
     if ok:
-        comp, other = _solve(model, [targets[k] for k in ok], frame, axis_signs, np.radians(config_slack_deg), ik_kw)
-        moved = [targets[k] for k, o in zip(ok, other) if o and comp.success[ok.index(k)]]
-        if moved:
-            lines = ", ".join(str(t.line) for t in moved[:8]) + (" ..." if len(moved) > 8 else "")
-            notes = [*notes, f"{moved[0].line}: {len(moved)} targets (lines {lines}) lie within "
-                             f"{config_slack_deg:g}° of a singular pose (stretched elbow, wrist centre on axis 1), "
-                             "where the real robot reaches them only with the other elbow / overhead flag: their "
-                             "configuration data are rewritten to it (--config-slack-deg 0 refuses them)"]
+        comp, more = _solve(model, [targets[k] for k in ok], frame, axis_signs, config_slack_deg, ik_kw,
+                            getattr(fmt, "written_pose", None))
+        notes = [*notes, *more]
     comp = _scatter(comp, ok, targets, model.nominal.dof, frame)
-    if ok:
-        notes = [*notes, *_config_notes(model, targets, comp, np.isin(np.arange(len(targets)), [
-            k for k, o in zip(ok, other) if o]), axis_signs)]
     pieces, last, failed = [], 0, []
     for k, t in enumerate(targets):
         if not comp.success[k]:
@@ -330,113 +230,50 @@ def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs
     return ProgramResult(text="".join(pieces), targets=targets, comp=comp, failed=failed, notes=notes)
 
 
-def _solve(model, targets: list, frame: str, axis_signs, slack_rad: float,
-           ik_kw: dict) -> tuple[Compensation, np.ndarray]:
-    """:class:`Compensation` of ``targets`` (all with known frames), branches as the program means them,
-    and which targets took another configuration flag ``(N,)`` bool (:func:`_branch_joints`). A target
-    with configuration data whose compensated joints left its flags (KUKA ``S``, ABB ``cfx``: the hybrid
-    solution slid off a hint at a joint limit) is solved again from the calibrated robot's solution with
-    those flags; kept where that reaches (:func:`_keep_flags`)."""
+def _solve(model, targets: list, frame: str, axis_signs, slack_deg: float, ik_kw: dict,
+           written=None) -> tuple[Compensation, list]:
+    """:class:`Compensation` of ``targets`` (all with known frames), branches as the program means them
+    (:func:`.program_branches.branch_hints`), and the notes on rewritten configuration data. A configuration
+    target that failed or left its configuration is solved again from the calibrated robot's solutions with
+    its data (:func:`.program_checks.keep_configuration`); one whose written configuration the program does
+    not ask for fails (:func:`.program_checks.configuration_changes`); a target without configuration data
+    must be the controller's choice from the joints the robot is at (:func:`.program_checks.check_walk`;
+    ``written``: the format's ``written_pose``, the literal as the controller reads it)."""
+    from .compensator import Compensator
     from .frames import resolve_frame, to_model_frame
+    from .program_branches import branch_hints
+    from .program_checks import check_walk, configuration_changes, keep_configuration
 
     T = np.stack([t.pose for t in targets])
     D = np.stack([np.eye(4) if t.tool_delta is None else t.tool_delta for t in targets])
     fr = resolve_frame(model, frame)
+    slack_rad = float(np.radians(slack_deg))
     # branch from the nominal solutions of the uncompensated target, in the nominal robot's world
     # (= the measurement frame; the controller base sits at nominal.base in it)
     T_nom = (T if fr == "measurement" else model.nominal.base @ T) @ se3.invert(D)
     given = np.array([t.tool_delta is not None for t in targets])  # a program tool (else the model's TCP)
     Dm = model_delta(model, D, given)
     T_cal = se3.invert(model.frame_pre_) @ to_model_frame(model, T, fr) @ se3.invert(Dm) @ se3.invert(model.frame_post_)
-    qb, other_flag, reason = _branch_joints(model, targets, T_nom, T_cal, axis_signs, slack_rad)
-    comp = compensate(model, T, q_branch=qb, frame=fr, tool_delta=D, branch_reason=reason, tool_given=given, **ik_kw)
-    _keep_flags(model, targets, comp, other_flag, T, D, T_cal, fr, axis_signs, ik_kw, given)
-    return comp, other_flag
+    qb, other_flag, reason = branch_hints(model, targets, T_nom, T_cal, axis_signs, slack_rad)
+    # a target moved to from a joint move (movej([...]), PTP to an axis aggregate, get_inverse_kin's qnear) is
+    # solved from those joints, as the CSV path solves from given joints (the nominal solution of the
+    # uncompensated target nearest them can lie on another branch at a joint limit or singularity)
+    first = qb.copy()
+    for k, t in enumerate(targets):  # (a continuous-path motion keeps the status: its hint has it already)
+        if t.reset is not None and not ("S" in t.config or "conf" in t.config or t.config.get("keep_status")):
+            first[k] = np.clip(np.asarray(t.reset, dtype=np.float64), model.nominal.lower, model.nominal.upper)
+    comp_of = Compensator(model, frame=fr, **ik_kw)
 
+    def solve(rows, hints):
+        return comp_of(T[rows], q_branch=hints, tool_delta=D[rows], tool_given=given[rows])
 
-def _flags(model, targets: list, q: np.ndarray, axis_signs) -> tuple[np.ndarray, np.ndarray]:
-    """``(got, want)`` ``(N,)`` int: the configuration flag of joints ``q`` ``(N, n)`` that each target's
-    configuration data fix exactly (KUKA ``S``, ABB ``cfx``; -1 for a target without) and the program's."""
-    from .branches import abb_confdata, kuka_status
-
-    nom = model.nominal
-    qz = np.nan_to_num(np.asarray(q, dtype=np.float64))
-    got, want = np.full(len(targets), -1), np.full(len(targets), -1)
-    s = np.array(["S" in t.config for t in targets], dtype=bool)
-    c = np.array(["conf" in t.config for t in targets], dtype=bool)
-    if s.any():
-        got[s] = kuka_status(nom, qz[s], axis_signs)[0]
-        want[s] = [t.config["S"] for t in targets if "S" in t.config]
-    if c.any():
-        got[c] = abb_confdata(nom, qz[c], axis_signs)[:, 3]
-        want[c] = [t.config["conf"][3] for t in targets if "conf" in t.config]
-    return got, want
-
-
-def _keep_flags(model, targets: list, comp: Compensation, other_flag: np.ndarray, T, D, T_cal, fr: str, axis_signs,
-                ik_kw: dict, given: np.ndarray) -> None:
-    """Re-solve (in place) the successful targets whose compensated joints lost the configuration flag
-    their data fix (not those moved to the other flag on purpose, ``other_flag``) from the calibrated
-    robot's solution with the program's data; a row is replaced where that succeeds on the taught flag."""
-    from .branches import default_axis_signs, match_abb_confdata, match_kuka_status
-
-    got, want = _flags(model, targets, comp.q, axis_signs)
-    rows = np.flatnonzero(comp.success & (want >= 0) & (got != want) & ~other_flag)
-    if not rows.size:
-        return
-    rob, nom = model.robot_, model.nominal
-    signs = default_axis_signs(nom) if axis_signs is None else axis_signs
-    hint = np.full((rows.size, nom.dof), np.nan)
-    for j, k in enumerate(rows):
-        cfg = targets[k].config
-        if "S" in cfg:
-            hint[j] = match_kuka_status(rob, T_cal[k:k + 1], [cfg["S"]], [cfg.get("T", -1)], signs)[0]
-        else:
-            hint[j] = match_abb_confdata(rob, T_cal[k:k + 1], np.array([cfg["conf"]]), axis_signs, reference=nom)[0]
-    fin = np.isfinite(hint).all(1)
-    rows, hint = rows[fin], hint[fin]
-    if not rows.size:
-        return
-    again = compensate(model, T[rows], q_branch=hint, frame=fr, tool_delta=D[rows], tool_given=given[rows], **ik_kw)
-    g2, w2 = _flags(model, [targets[k] for k in rows], again.q, axis_signs)
-    take = again.success & (g2 == w2)
-    for name in ("command", "q", "success", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg", "in_support",
-                 "q_branch", "reason"):
-        getattr(comp, name)[rows[take]] = getattr(again, name)[take]
-
-
-def _config_notes(model, targets: list, comp: Compensation, other_flag: np.ndarray, axis_signs) -> list:
-    """Notes on the successful targets whose rewritten configuration data differ from the program's: a
-    flag (KUKA ``S``, ABB ``cfx``) no solution on the taught one reaches (those within the slack of a
-    singular pose, ``other_flag``, have their own note), and KUKA turn bits ``T`` of a joint the correction
-    moves across 0° (ABB quadrants follow the joints without a note: confdata name quadrants, not turns)."""
-    from .branches import kuka_status
-
-    ok = np.flatnonzero(comp.success)
-    if not ok.size:
-        return []
-    got, want = _flags(model, [targets[k] for k in ok], comp.q[ok], axis_signs)
-    flag, turn = [], []
-    qz = np.nan_to_num(comp.q[ok])
-    Tk = kuka_status(model.nominal, qz, axis_signs)[1]
-    for j, k in enumerate(ok):
-        t, cfg = targets[k], targets[k].config
-        if want[j] >= 0 and got[j] != want[j] and not other_flag[k]:
-            flag.append(f"{t.line} ({'S' if 'S' in cfg else 'cfx'} {want[j]} -> {got[j]})")
-        elif "T" in cfg and "S" in cfg and int(Tk[j]) != cfg["T"]:
-            turn.append(f"{t.line} (T {cfg['T']} -> {int(Tk[j])})")
-    out = []
-    if flag:
-        out.append(f"{flag[0].split(' ')[0]}: {len(flag)} targets (lines {', '.join(flag[:8])}"
-                   f"{' ...' if len(flag) > 8 else ''}) are reached by the real robot only in another configuration "
-                   "than taught (no solution with the program's configuration within the joint limits): their "
-                   "configuration data are rewritten")
-    if turn:
-        out.append(f"{turn[0].split(' ')[0]}: {len(turn)} targets (lines {', '.join(turn[:8])}"
-                   f"{' ...' if len(turn) > 8 else ''}) have a joint that the correction moves across 0°: their T is "
-                   "rewritten to the compensated joints' (the taught T would turn that axis by a full turn or find no "
-                   "solution)")
-    return out
+    comp = comp_of(T, q_branch=first, tool_delta=D, branch_reason=reason, tool_given=given)
+    comp.reason = comp.reason.astype(object)  # reasons get longer below
+    keep_configuration(model, solve, targets, comp, other_flag, T_cal, axis_signs, slack_rad)
+    notes = configuration_changes(model, targets, comp, other_flag, T_cal, axis_signs, slack_rad, slack_deg)
+    notes += check_walk(model, comp_of, solve, targets, comp, qb, T, D, Dm, axis_signs, written)
+    comp.reason = comp.reason.astype(str)
+    return comp, notes
 
 
 def _scatter(comp: Compensation | None, rows: list, targets: list, n: int, frame: str) -> Compensation:

@@ -40,7 +40,7 @@ from ..geometry import se3
 from ..io.urdf_flange import flange_of
 from .programs import NUMBER, ProgramTarget, comment_mask, line_of, splice_numbers
 
-__all__ = ["SUFFIXES", "find_targets", "format_target"]
+__all__ = ["SUFFIXES", "find_targets", "format_target", "written_pose"]
 
 SUFFIXES = (".script", ".urscript", ".urs")
 _POSE = re.compile(r"(?<![\w.])p\s*\[\s*" + r"\s*,\s*".join([f"({NUMBER})"] * 6) + r"\s*\]")
@@ -435,3 +435,11 @@ def format_target(t: ProgramTarget, command: np.ndarray, q, robot, axis_signs=No
             rv = alt
     vals = [f"{x:.7f}" for x in command[:3, 3]] + [f"{x:.8f}" for x in rv]
     return splice_numbers(t.parts["literal"], t.parts["spans"], vals)
+
+
+def written_pose(t: ProgramTarget, literal: np.ndarray) -> np.ndarray:
+    """The pose ``(4, 4)`` the controller reads from the literal :func:`format_target` writes for the pose
+    ``literal`` (its frame): the numbers rounded as written (near a singular pose the rounding can move a
+    command out of the nominal robot's reach: :mod:`.program_checks`)."""
+    rv = np.round(se3.matrix_to_rotvec(literal[:3, :3]), 8)
+    return se3.make_transform(se3.rotvec_to_matrix(rv), np.round(literal[:3, 3], 7))
