@@ -129,16 +129,10 @@ def _agg(T) -> str:
 
 
 def _read_agg(line: str) -> tuple:
-    """(pose (4, 4) m, {"S", "T"} or {}) of the Cartesian aggregate on ``line``, read here."""
-    body = [b for b in re.findall(r"\{([^{}]*)\}", line) if re.search(r"\bX\s", b)][0]
-    v = {n: float(t) for n, t in re.findall(r"\b([XYZABCST])\s+([-+\d.eE]+)", body)}
-    a, b, c = np.radians([v["A"], v["B"], v["C"]])
-    Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
-    Ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
-    Rx = np.array([[1, 0, 0], [0, np.cos(c), -np.sin(c)], [0, np.sin(c), np.cos(c)]])
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = Rz @ Ry @ Rx, np.array([v["X"], v["Y"], v["Z"]]) * 1e-3
-    return T, ({"S": int(v["S"]), "T": int(v["T"])} if "S" in v else {})
+    """(pose (4, 4) m, {"S", "T"} or {}) of the Cartesian aggregate on ``line`` (the KRL tests' reader)."""
+    from test_krl_s39 import read
+
+    return read(line, 1)
 
 
 # ---- A1: a move after a joint move --------------------------------------------------------------
