@@ -364,3 +364,24 @@ def test_program_tool_is_fixed_to_the_real_flange_when_the_file_tool_is_a_guess(
     assert c.success.all(), c.reason
     got = fk(truth.copy(tool=np.eye(4)), c.q) @ tcp2
     assert np.linalg.norm(got[:, :3, 3] - want[:, :3, 3], axis=1).max() < 1e-6  # was 30 mm
+
+
+def test_cli_joint_hints_in_radians_under_angle_unit_deg_are_refused(tmp_path):
+    """Probe report s40: ``--angle-unit deg`` (also the unit of ``--tool``'s angles) read radian joint hints as
+    degrees without a word; every target was then hinted near zero."""
+    from typer.testing import CliRunner
+
+    from hykin.cli import app
+    from hykin.hybrid.model import HybridModel
+
+    mp = tiny_model_file()
+    m = HybridModel.load(mp)
+    q = m.nominal.random_joints(8, 3, margin=0.2)
+    xyz, quat = se3.transform_to_pose(m.predict(q))
+    cols = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "qw": quat[:, 0], "qx": quat[:, 1], "qy": quat[:, 2], "qz": quat[:, 3]}
+    cols.update({f"q{j + 1}": q[:, j] for j in range(6)})
+    _write_csv(tmp_path / "t.csv", cols)
+    r = CliRunner().invoke(app, ["compensate", str(mp), str(tmp_path / "t.csv"), "-o", str(tmp_path / "c.csv"),
+                                 "--angle-unit", "deg"])
+    assert r.exit_code != 0 and "look like radians declared --angle-unit deg" in str(r.exception or r.output)
+    assert not (tmp_path / "c.csv").exists()

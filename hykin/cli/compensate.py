@@ -172,7 +172,11 @@ def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_
     n = mdl.nominal.dof
     qb = None
     if all(f"q{j + 1}" in _columns(inp) for j in range(n)):
+        from ..io.plausibility import check_joint_unit
+
         qb, _ = read_joints(inp, dof=n, angle_unit=angle_unit, robot=mdl.nominal)
+        # --angle-unit also reads --tool's angles: joints in radians under deg would hint every target wrong
+        check_joint_unit(mdl.nominal, qb, where=str(inp), angle_unit=angle_unit)
     if has_rot:
         warn_orientation_unmeasured(mdl, "the targets' orientations are compensated with that")
     target = T if has_rot else T[:, :3, 3]
@@ -194,9 +198,10 @@ def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_
 TOOL_MISMATCH_MM, TOOL_MISMATCH_DEG = 20.0, 5.0
 
 
-def _warn_tool_mismatch(mdl) -> None:
+def _warn_tool_mismatch(mdl, what: str = "--tool") -> None:
     """Warn when the model's calibrated tool (with its registration) is far from the robot file's: the
-    commands are poses of the file's TCP, which the controller must then have as its tool."""
+    commands are poses of the file's TCP, which the controller must then have as its tool (``what``: how
+    the targets can name another TCP)."""
     from ..geometry import se3
 
     E = se3.invert(mdl.nominal.tool) @ mdl.robot_.tool @ np.asarray(getattr(mdl, "frame_post_", np.eye(4)))
@@ -205,8 +210,8 @@ def _warn_tool_mismatch(mdl) -> None:
     if mm > TOOL_MISMATCH_MM or deg > TOOL_MISMATCH_DEG:
         console().print(f"[yellow]warning:[/] the calibrated TCP is {mm:.1f} mm / {deg:.2f} deg from the robot file's tool: "
                         "the commands are poses of the robot file's TCP (and shift_mm includes that offset); the "
-                        "controller must use that tool, or put the controller's TCP into the robot file's [tool], or "
-                        "give it with --tool", highlight=False)
+                        f"controller must use that tool, or put the controller's TCP into the robot file's [tool], or "
+                        f"give it with {what}", highlight=False)
 
 
 def _columns(path: Path) -> list:
@@ -287,6 +292,8 @@ def _compensate_program(mdl, inp: Path, out: Path, kind: str, joints: bool, fram
         raise CLIError(f"{inp}: {_context_lines(str(e).splitlines()[0], context, texts)}") from None
     res.notes = [_context_lines(n, context, texts) for n in res.notes]
     res.failed = [(line, _context_lines(r, context, texts)) for line, r in res.failed]
+    if any(t.tool_delta is None for t in res.targets):  # targets of the robot file's TCP, as CSV targets without --tool
+        _warn_tool_mismatch(mdl, "the program's tool (TOOL_DATA, tooldata, set_tcp)")
     con = console()
     for note in res.notes:
         con.print(f"note: {inp}:{note}", highlight=False)
