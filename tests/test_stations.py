@@ -231,6 +231,23 @@ def test_cli_fit_stations_vs_true_frames_by_hand_and_model_file(tmp_path, capsys
     fkB = read_dataset(tmp_path / "fkB.csv")
     rows_b = st[te] == "B"
     assert np.mean(np.linalg.norm(fkB.xyz_m[rows_b] - data.xyz_m[te][rows_b], axis=1)) * 1e3 < 2 * h_b + 0.02
+    # ik of station B's measured positions, by option and by the targets' station column (probe report s40:
+    # ik had neither; every target in B's frame was "out of reach"): the model's pose in B's frame at the
+    # returned joints is the target
+    from hykin.hybrid.stations import station_transform
+
+    kb = te[rows_b][:8]
+    write_dataset(Dataset(q=data.q[kb], xyz_m=data.xyz_m[kb]), tmp_path / "tB.csv")
+    write_dataset(Dataset(q=data.q[kb], xyz_m=data.xyz_m[kb], extra={"station": st[kb]}), tmp_path / "tBcol.csv")
+    L, _ = station_transform(m, "B")
+    for argv in (["--station", "B"], []):
+        src = tmp_path / ("tB.csv" if argv else "tBcol.csv")
+        code, out, errout = run(["ik", tmp_path / "bundle.hykin", src, "-o", tmp_path / "ikB.csv", "--force",
+                                 "--seed-joints", src, *argv], capsys)  # seeds: the measured joints
+        assert code == 0 and "(8 solved, 0 failed)" in out, (out, errout)
+        q_ik = np.loadtxt(tmp_path / "ikB.csv", delimiter=",", skiprows=1, usecols=range(2, 8))  # q1..q6
+        got = (L @ m.predict(q_ik))[:, :3, 3]
+        assert np.abs(got - data.xyz_m[kb]).max() < 1e-6
     code, _, errout = run(["fk", tmp_path / "bundle.hykin", tmp_path / "joints.csv", "-o", tmp_path / "fkC.csv", "--station", "C"], capsys)
     assert code != 0 and "station 'C' is not in the model (its stations: A, B)" in errout
     assert not (tmp_path / "fkC.csv").exists()
@@ -332,3 +349,33 @@ def test_registration_adds_station_and_tool_frames():
     two = Dataset(q=q, xyz_m=np.zeros((n, 3)), extra={"station": np.array(["C", "D"] * (n // 2))}, source="s.csv")
     with pytest.raises(DatasetError, match="s.csv: the series has 2 stations \\(C, D\\); a registration fits one station frame"):
         series_labels(two)
+
+
+def test_ik_targets_of_another_station_and_tool_are_mapped_into_the_model_frame():
+    """``hykin ik --station/--tool`` and the targets' ``station``/``tool`` columns (probe report s40: ik had
+    neither; targets in station S2's frame were "out of reach"). Reference: ``fk --station --tool``'s map
+    ``L · T · Rt`` inverted; a robot file refuses them."""
+    from types import SimpleNamespace
+
+    from hykin.calibration.stations import StationFrames
+    from hykin.cli.common import CLIError
+    from hykin.cli.query import _targets_in_model_frame
+    from hykin.hybrid.stations import station_transform
+
+    B0, B1 = se3.trans(0.1, 0.2, 0.0), se3.trans(3.0, -1.0, 0.5) @ se3.rotz(0.7)
+    E0, E1 = se3.trans(0.0, 0.0, 0.1), se3.trans(0.02, 0.0, 0.12) @ se3.rotx(0.3)
+    m = SimpleNamespace(station_frames_=StationFrames(("S1", "S2"), np.stack([B0, B1]), ("A", "B"), np.stack([E0, E1])))
+    rng = np.random.default_rng(0)
+    T_model = se3.xyzrpy_to_transform(rng.uniform(-1, 1, (6, 3)), rng.uniform(-1, 1, (6, 3)))
+    L, Rt = station_transform(m, "S2", "B")
+    T_file = L @ T_model @ Rt  # what fk --station S2 --tool B writes for those model poses
+    got = _targets_in_model_frame(m, T_file, True, {}, "S2", "B", "m.hykin", "t.csv")
+    np.testing.assert_allclose(got, T_model, atol=1e-12)
+    cols = {"station": np.array(["S2"] * 3 + ["S1"] * 3), "tool": np.array(["B"] * 6)}
+    L1, Rt1 = station_transform(m, "S1", "B")
+    mixed = np.concatenate([T_file[:3], (L1 @ T_model @ Rt1)[3:]])
+    np.testing.assert_allclose(_targets_in_model_frame(m, mixed, True, cols, None, None, "m", "t"), T_model, atol=1e-12)
+    with pytest.raises(CLIError, match="need their orientations"):
+        _targets_in_model_frame(m, T_file, False, {}, None, "B", "m", "t.csv")
+    with pytest.raises(CLIError, match="is a robot"):
+        _targets_in_model_frame(None, T_file, True, cols, None, None, "arm.toml", "t.csv")

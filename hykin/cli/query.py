@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import typer
 
+from ..geometry import se3
 from .common import (
     AngleUnit,
     BaseLink,
@@ -108,6 +109,12 @@ def ik_cmd(
     length_unit: str = LengthUnit,
     angle_unit: str = AngleUnit,
     payload_kg: float | None = typer.Option(None, "--payload-kg", help=PAYLOAD_HELP),
+    station: str | None = typer.Option(
+        None, "--station", help="Targets in this station's frame (a model fitted on data with a station column; "
+                                "a station column in the targets file names each row's). Default: the model's own frame."),
+    tool: str | None = typer.Option(
+        None, "--tool", help="Targets of this tool's TCP (a model fitted on data with a tool column; a tool column "
+                             "in the targets file names each row's). Default: the model's own tool."),
     unit_check: bool = UnitCheck,
     force: bool = Force,
 ) -> None:
@@ -121,6 +128,7 @@ def ik_cmd(
     check_output(out, (model, poses, seed_joints), force)
     mdl, rob = load_model_or_robot(model, base_link, tip_link)
     T, has_rot, pose_extra = read_poses(poses, length_unit=length_unit, extras=True, unit_check=unit_check)
+    T = _targets_in_model_frame(mdl, T, has_rot, pose_extra, station, tool, model, poses)
     if unit_check:
         check_target_reach(mdl.robot_ if mdl is not None else rob, T, where=str(poses), length_unit=length_unit,
                            frame=None if mdl is None else mdl.frame_pre_)
@@ -185,6 +193,35 @@ def ik_cmd(
     n_targets = len(T)
     solved = len(set(np.asarray(rows["target"])[ok].tolist()))
     typer.echo(f"wrote {len(ok)} solution rows for {n_targets} targets to {out} ({solved} solved, {n_targets - solved} failed)")
+
+
+def _targets_in_model_frame(mdl, T, has_rot: bool, extra: dict, station, tool, model, poses):
+    """IK targets ``(N, 4, 4)`` given in a station's frame / of a tool's TCP (``--station``/``--tool``, or the
+    targets file's ``station``/``tool`` columns per row) -> the model's own frame and tool, where it solves:
+    ``inv(L) · T · inv(Rt)`` (:func:`hykin.hybrid.stations.station_transform`, what ``fk --station/--tool``
+    applies). Targets in another station's frame were otherwise "out of reach" metres away."""
+    from ..hybrid.stations import station_transform
+
+    cols = {c: np.asarray(extra[c]).astype(str) for c in ("station", "tool") if c in extra}
+    if mdl is None:
+        if station is not None or tool is not None or cols:
+            what = "--station/--tool" if station is not None or tool is not None else f"{poses}: the {'/'.join(cols)} column"
+            raise CLIError(f"{what}: {model} is a robot, not a model fitted on data with stations or tools")
+        return T
+    st = cols.get("station", np.full(len(T), station, dtype=object) if station is not None else None)
+    tl = cols.get("tool", np.full(len(T), tool, dtype=object) if tool is not None else None)
+    if st is None and tl is None:
+        return T
+    if tl is not None and not has_rot:
+        raise CLIError(f"{poses}: targets of another tool need their orientations (qw,qx,qy,qz): where that tool's "
+                       "TCP lies depends on them")
+    out = np.array(T, dtype=np.float64, copy=True)
+    keys = list(zip(st if st is not None else [None] * len(T), tl if tl is not None else [None] * len(T)))
+    for key in dict.fromkeys(keys):
+        rows = np.array([k == key for k in keys])
+        L, Rt = station_transform(mdl, *key)  # ValueError naming the model's stations / tools
+        out[rows] = se3.invert(L) @ T[rows] @ se3.invert(Rt)
+    return out
 
 
 def _ik_rows_per_payload(carrying, target, pl, q_cur, nearest: bool, position_only: bool, temp) -> dict:
