@@ -244,3 +244,20 @@ def test_payload_and_temperature_in_the_wrong_unit_are_refused_naming_row_and_co
         temperature_from({"temperature_c": np.array([22.0, 299.15])}, "t.csv")
     with pytest.raises(ValueError, match=r"row 1: 91\.4 °C .* look like °F"):
         temperature_from({"temperature_c": np.array([91.4, 75.2])}, "t.csv")
+
+
+def test_fk_on_a_payload_model_says_which_payload_it_assumed(capsys):
+    """Probe report s40: fk on a model trained at 0 and 12 kg, joints without a payload column and no
+    --payload-kg, gave 0 kg poses without a word (0.63 mm off at 12 kg)."""
+    from types import SimpleNamespace
+
+    from hykin.cli.common import note_default_payload
+    from hykin.io.payload import PayloadRange
+
+    m = SimpleNamespace(payload_range_=PayloadRange(0.0, 12.0, [0.0, 12.0]), robot_=SimpleNamespace(payload_kg=0.0))
+    note_default_payload(m, None, {}, "joints.csv")
+    err = capsys.readouterr().err
+    assert "joints.csv has no payload_kg column" in err and "0 kg, is assumed" in err and "0-12 kg" in err
+    for kg, extra in ((12.0, {}), (None, {"payload_kg": np.zeros(3)})):
+        note_default_payload(m, kg, extra, "joints.csv")
+        assert capsys.readouterr().err == ""

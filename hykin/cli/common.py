@@ -323,6 +323,20 @@ def with_payload(mdl, payload_kg: float | None):
     return model_with_payload(mdl, payload_kg)
 
 
+def note_default_payload(mdl, payload_kg: float | None, extra: dict, path) -> None:
+    """One line when ``mdl`` was trained on several payloads but neither ``--payload-kg`` nor a
+    ``payload_kg`` column of ``path`` says which one the robot carries: the poses are then at the robot
+    file's payload (probe report s40: 0 kg assumed silently, 0.63 mm off at 12 kg)."""
+    rng = getattr(mdl, "payload_range_", None)
+    if mdl is None or rng is None or payload_kg is not None or "payload_kg" in (extra or {}):
+        return
+    if not rng.upper_kg > rng.lower_kg:
+        return
+    console().print(f"note: {path} has no payload_kg column and no --payload-kg was given: the robot file's payload, "
+                    f"{mdl.robot_.payload_kg:g} kg, is assumed (the model was trained on {rng.lower_kg:g}-"
+                    f"{rng.upper_kg:g} kg)", highlight=False)
+
+
 def warn_payload_no_effect(mdl, robot, payload_kg: float | None) -> None:
     """One line when ``--payload-kg`` is given but cannot change a pose: the robot (a model's calibrated
     robot) has no joint stiffness, and a model's networks were trained on one payload only."""

@@ -22,6 +22,7 @@ from .common import (
     load_model_or_robot,
     temperature_of,
     warn_orientation_unmeasured,
+    note_default_payload,
     warn_payload_no_effect,
     write_rows,
 )
@@ -64,6 +65,7 @@ def fk_cmd(
     if unit_check:
         check_joint_unit(rob, q, where=str(joints), angle_unit=angle_unit)
     warn_payload_no_effect(mdl, rob, payload_kg)
+    note_default_payload(mdl, payload_kg, extra, joints)
     if mdl is None:
         if station is not None or tool is not None:
             raise CLIError(f"--station/--tool: {model} is a robot, not a model fitted on data with stations or tools")
@@ -134,6 +136,7 @@ def ik_cmd(
                            frame=None if mdl is None else mdl.frame_pre_)
     position_only = position_only or not has_rot
     warn_payload_no_effect(mdl, rob, payload_kg)
+    note_default_payload(mdl, payload_kg, pose_extra, poses)
     if not position_only:
         warn_orientation_unmeasured(mdl, "the targets' orientations are solved for that (--position-only ignores them)")
     q_cur = None
