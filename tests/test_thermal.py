@@ -249,3 +249,27 @@ def test_cli_compensate_reads_the_targets_temperature(model, session, tmp_path, 
     code, _, err = run_cli(["fk", mp, jp, "-o", tmp_path / "fk.csv"], capsys)
     lo, hi = model.thermal_.range_c
     assert code == 0 and f"2 of 3 rows of {jp} lie outside the temperatures the model was trained on ({lo:.2f}-{hi:.2f}" in err
+
+
+def test_stations_at_different_temperatures_warn_that_the_coefficient_is_biased():
+    """Probe report s40: stations measured at 20-24 and 24-28 °C gave 5.98e-6 /K for a true 12e-6 /K
+    without a word. A kept coefficient from such data warns; stations over the same temperatures do not."""
+    import warnings
+    from types import SimpleNamespace
+
+    from hykin.hybrid.errors import FitWarning
+    from hykin.hybrid.thermal_fit import warn_station_temperatures
+    from hykin.io.dataset import Dataset
+
+    rng = np.random.default_rng(0)
+    n = 200
+    st = np.where(np.arange(n) < n // 2, "S1", "S2")
+    ds = Dataset(q=np.zeros((n, 6)), xyz_m=np.zeros((n, 3)), extra={"station": st})
+    th = SimpleNamespace(coefficient_per_k=6e-6)
+    apart = np.where(st == "S1", rng.uniform(20, 24, n), rng.uniform(24, 28, n))
+    with pytest.warns(FitWarning, match=r"S1 20\.0-24\.0 °C, S2 24\.0-28\.0 °C.*biased low"):
+        warn_station_temperatures(th, ds, apart)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warn_station_temperatures(th, ds, rng.uniform(20, 28, n))  # the same temperatures: no warning
+        warn_station_temperatures(SimpleNamespace(coefficient_per_k=0.0), ds, apart)  # no coefficient kept

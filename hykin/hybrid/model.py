@@ -76,7 +76,7 @@ from .progress import Progress
 from .rotations import rotate_poses
 from .settings import check_settings, empty_fitted_state
 from .support import Support, support_report
-from .thermal_fit import apply_thermal, fit_thermal, targets_at_reference
+from .thermal_fit import apply_thermal, fit_thermal, targets_at_reference, warn_station_temperatures
 from .train import Recipe, get_recipe
 from .uncertainty import fit_bands
 
@@ -251,7 +251,7 @@ class HybridModel:
         self._skipped = {}  # optional steps that failed (hykin.hybrid.optional): name -> cause
         self._calibrate_on(train, progress=progress)
         train, q, kg_all = fitting.without_outliers(self.calibration_, train, q, kg_all)
-        train_in = train
+        train_in = raw = train
         self.station_frames_ = stations.fit_station_frames(self, train)  # several stations: data in one frame
         train_in, val_in = train, val = tuple(stations.in_model_frame(self, d) for d in (train, val))
         temp = None if self.thermal is False else temperature_of(train)
@@ -267,6 +267,7 @@ class HybridModel:
                 self.robot_, self.calibration_ = first
             else:
                 self.robot_, self.calibration_, self.thermal_, train, val = got
+                warn_station_temperatures(self.thermal_, raw, temp)
         calib = None
         if self.calibration_ is not None:
             try:

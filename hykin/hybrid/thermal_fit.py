@@ -20,7 +20,7 @@ from ..io.payload import payload_kwargs, payload_of
 from ..kinematics.classical import classical_fk
 from .errors import HybridError
 
-__all__ = ["apply_thermal", "fit_thermal", "targets_at_reference", "thermal_factor"]
+__all__ = ["apply_thermal", "fit_thermal", "targets_at_reference", "thermal_factor", "warn_station_temperatures"]
 
 
 def fit_thermal(train, val, temp: np.ndarray, robot, calibration, recalibrate=None, rounds: int = 3,
@@ -117,3 +117,33 @@ def targets_at_reference(T_target, temperature_c, thermal: ThermalFit | None, ba
     Tm = scale_about(Tm, base_xyz_m, 1.0 / f)
     out = frame_pre @ Tm @ (np.eye(4) if pos else frame_post)
     return out[:, :3, 3].reshape(T_target.shape) if pos else out.reshape(T_target.shape)
+
+
+def warn_station_temperatures(thermal, train, temp: np.ndarray) -> None:
+    """Warn (:class:`hykin.hybrid.errors.FitWarning`) when a kept thermal coefficient comes from data whose
+    stations were measured at different temperatures (their mean temperatures apart by more than the
+    spread within a station): the station frames are fitted before the coefficient, at the measured
+    temperatures, and take up part of the expansion between stations, so the coefficient is biased low
+    (probe report s40: 5.98e-6 /K identified for a true 12e-6 /K, stations at 20-24 and 24-28 °C; 11.9e-6
+    with one station). ``train``: the data with their ``station`` column, ``temp`` ``(N,)`` °C."""
+    import warnings
+
+    from ..io.dataset import STATION_COLUMN, row_labels
+    from .errors import FitWarning
+
+    if thermal is None or not thermal.coefficient_per_k or STATION_COLUMN not in (getattr(train, "extra", None) or {}):
+        return
+    lab = row_labels(train, STATION_COLUMN)
+    names = list(dict.fromkeys(lab.tolist()))
+    if len(names) < 2:
+        return
+    t = np.asarray(temp, dtype=np.float64)
+    means = np.array([t[lab == n].mean() for n in names])
+    within = float(np.sqrt(np.mean([np.var(t[lab == n]) for n in names])))
+    if np.ptp(means) <= within:
+        return
+    ranges = ", ".join(f"{n} {t[lab == n].min():.1f}-{t[lab == n].max():.1f} °C" for n in names)
+    warnings.warn(f"the stations were measured at different temperatures ({ranges}): their frames, fitted at the "
+                  f"measured temperatures, take up part of the expansion between them, so the thermal coefficient "
+                  f"({thermal.coefficient_per_k * 1e6:.3g}e-6 /K) is likely biased low; measure every station over the "
+                  "same temperatures, or compare a fit with --thermal off", FitWarning, stacklevel=3)
