@@ -288,3 +288,21 @@ def test_a_robot_file_names_an_orientation_the_arm_cannot_take():
     pos = classical_ik_rows(rob, T, None, True)
     ok = np.asarray(pos["success"], dtype=bool)
     assert set(np.asarray(pos["target"], dtype=int)[ok]) == {0, 1}  # every target's position is solved
+
+
+def test_a_urscript_program_for_a_scara_is_compensated(scara):
+    """Probe report s40: a URScript program of exactly reachable SCARA poses had 8 of 10 targets refused:
+    the check that the controller's nominal IK of the written (rounded) literal gives the solved joints
+    needs an exact solution, which an arm of fewer than 6 joints has only in the least-squares sense."""
+    from hykin.compensation import urscript
+    from hykin.compensation.programs import compensate_program
+    from hykin.geometry import se3
+
+    m, q = scara
+    T = m.reference(q)
+    lines = ["def prog():"]
+    for P in T:
+        v = se3.matrix_to_rotvec(P[:3, :3])
+        lines.append("  movel(p[" + ", ".join(f"{x:.9f}" for x in (*P[:3, 3], *v)) + "], a=0.5, v=0.1)")
+    res = compensate_program(m, "\n".join(lines + ["end"]) + "\n", urscript, frame="measurement")
+    assert not res.failed and res.n_compensated == len(q), res.failed

@@ -377,3 +377,22 @@ def test_robot_file_limits_in_radians_under_degrees_and_a_payload_in_grams_are_r
     with pytest.raises(RobotFileError, match=r"payload = 5000 kg, more than any serial robot carries"):
         _own(top="payload = 5000")
     assert _own(lo=-180, hi=180, top="payload = 2300").payload_kg == 2300
+
+
+def test_cli_prismatic_joint_columns_follow_length_unit(tmp_path, capsys):
+    """Probe report s40: ``fk`` had no --length-unit and ``ik --seed-joints`` / ``compensate`` hints read a
+    prismatic column in metres whatever --length-unit said (a rail hint of 1.0 mm taken as 1.0 m).
+    Reference: the robot's FK of the joints in SI."""
+    from cli_run import run
+
+    (tmp_path / "r.toml").write_text(M_RAD)
+    rob = load_robot(tmp_path / "r.toml")
+    Q = rob.random_joints(6, rng=2)
+    rows = ["q1,q2"] + [f"{float(q[0])!r},{float(q[1]) * 1e3!r}" for q in Q]  # the prismatic joint in mm
+    (tmp_path / "j.csv").write_text("\n".join(rows) + "\n")
+    code, _, err = run(["fk", tmp_path / "r.toml", tmp_path / "j.csv", "-o", tmp_path / "p.csv", "--length-unit", "mm"], capsys)
+    assert code == 0, err
+    got = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1, usecols=(2, 3, 4))
+    np.testing.assert_allclose(got, fk(rob, Q)[:, :3, 3], atol=1e-12)
+    code, _, err = run(["fk", tmp_path / "r.toml", tmp_path / "j.csv", "-o", tmp_path / "p2.csv"], capsys)
+    assert code != 0 and "outside the limits" in err  # mm read as m: 100 m of a 0.25 m axis

@@ -174,7 +174,7 @@ def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_
     if all(f"q{j + 1}" in _columns(inp) for j in range(n)):
         from ..io.plausibility import check_joint_unit
 
-        qb, _ = read_joints(inp, dof=n, angle_unit=angle_unit, robot=mdl.nominal)
+        qb, _ = read_joints(inp, dof=n, angle_unit=angle_unit, length_unit=length_unit, robot=mdl.nominal)
         # --angle-unit also reads --tool's angles: joints in radians under deg would hint every target wrong
         check_joint_unit(mdl.nominal, qb, where=str(inp), angle_unit=angle_unit)
     if has_rot:

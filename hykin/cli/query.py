@@ -38,6 +38,8 @@ def fk_cmd(
     tip_link: str | None = TipLink,
     out: Path = typer.Option(..., "-o", "--out", help="Output poses (dataset columns q…, x,y,z,qw,qx,qy,qz)."),
     angle_unit: str = AngleUnit,
+    length_unit: str = typer.Option("m", "--length-unit", help="Unit of prismatic joint columns (m or mm); the "
+                                    "written poses are in m."),
     no_fade: bool = typer.Option(False, "--no-fade", help="Apply the network correction even outside the training region."),
     payload_kg: float | None = typer.Option(None, "--payload-kg", help=PAYLOAD_HELP),
     unit_check: bool = UnitCheck,
@@ -59,7 +61,8 @@ def fk_cmd(
 
     check_output(out, (model, joints), force)
     mdl, rob = load_model_or_robot(model, base_link, tip_link)
-    q, extra = read_joints(joints, dof=rob.dof, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
+    q, extra = read_joints(joints, dof=rob.dof, angle_unit=angle_unit, length_unit=length_unit, robot=rob,
+                           unit_check=unit_check)
     # measured further reflectors (x2, y2, z2, ...) would read as predicted ones beside the predicted x, y, z
     extra = {k: v for k, v in extra.items() if not (k[:1] in "xyz" and k[1:].isdigit())}
     if unit_check:
@@ -141,7 +144,8 @@ def ik_cmd(
         warn_orientation_unmeasured(mdl, "the targets' orientations are solved for that (--position-only ignores them)")
     q_cur = None
     if seed_joints is not None:
-        q_cur, _ = read_joints(seed_joints, dof=rob.dof, angle_unit=angle_unit, robot=rob, unit_check=unit_check)
+        q_cur, _ = read_joints(seed_joints, dof=rob.dof, angle_unit=angle_unit, length_unit=length_unit, robot=rob,
+                               unit_check=unit_check)
         if len(q_cur) == 1:
             q_cur = np.repeat(q_cur, len(T), axis=0)
         elif len(q_cur) != len(T):

@@ -422,7 +422,8 @@ def _same_but_turned(nom, q: np.ndarray, pick: np.ndarray) -> np.ndarray:
     """``(M,)`` bool: ``pick`` is ``q`` with some revolute joint a multiple of 2π away (and not ``q`` itself)."""
     rev = np.array([t == "revolute" for t in nom.independent_joint_type])
     d = np.nan_to_num(pick - q, nan=np.inf)
-    wrapped = np.where(rev, (d + np.pi) % (2 * np.pi) - np.pi, d)
+    with np.errstate(invalid="ignore"):  # inf (no pick) % 2π is NaN: such rows are not finite below
+        wrapped = np.where(rev, (d + np.pi) % (2 * np.pi) - np.pi, d)
     return np.isfinite(d).all(1) & (np.abs(wrapped).max(1) < 1e-6) & (np.abs(d).max(1) > 1e-6)
 
 
