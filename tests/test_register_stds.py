@@ -93,3 +93,21 @@ def test_few_registration_poses_get_a_precision_note_and_no_leave_one_out(exact_
     many = Dataset(q=q, xyz_m=xyz, quat_wxyz=quat, source="thirty.csv")
     _, info30 = register_model(exact_rx160_model, many, n_poses=30)
     assert info30.precision == "" and "skipped" not in info30.nominal_check
+
+
+def test_no_thermal_scale_candidate_where_temperatures_say_the_thermal_state():
+    """Probe report s40: a series with temperatures, on a model that expands with them, re-fitted a thermal
+    scale (-13.9 ppm) that then moved every other station's predictions. The scale is a candidate only where
+    the temperatures do not already carry the thermal state."""
+    from types import SimpleNamespace
+
+    from hykin.io.robot_file import load_robot
+    from hykin.measure.register_fit import candidate_names
+
+    rob = load_robot("rx160")
+    expands = SimpleNamespace(robot_=rob, thermal_=SimpleNamespace(coefficient_per_k=12e-6))
+    rigid = SimpleNamespace(robot_=rob, thermal_=None)
+    assert "thermal.scale" not in candidate_names(expands, True)
+    assert "thermal.scale" in candidate_names(expands, False)  # no temperatures: the state is unknown
+    assert "thermal.scale" in candidate_names(rigid, True)
+    assert [c for c in candidate_names(expands, True)] == [f"q{j}.zero" for j in range(1, 7)]

@@ -22,12 +22,18 @@ MIN_T = 3.0  # ... and its estimate is at least 3 standard deviations from zero
 
 
 def candidate_names(model, series_has_temperature: bool) -> list[str]:
-    """Joint-zero and thermal-scale candidates beyond the 12 frame parameters, in priority order."""
+    """Joint-zero and thermal-scale candidates beyond the 12 frame parameters, in priority order. No thermal
+    scale where the series carries temperatures and the model expands with them (a kept thermal coefficient):
+    the temperatures say the thermal state, and a scale fitted on top of it is applied to the whole model
+    (probe report s40: a third station's series re-fitted -13.9 ppm and made the other stations 0.016 ->
+    0.049 mm worse)."""
     rob = model.robot_
     out = []
     if rob.convention in ("dh", "mdh"):
         out += [f"q{j + 1}.zero" for j in range(rob.dof) if rob.independent_joint_type[j] == "revolute"]
-    out.append("thermal.scale")
+    th = getattr(model, "thermal_", None)
+    if not (series_has_temperature and th is not None and getattr(th, "coefficient_per_k", 0.0)):
+        out.append("thermal.scale")
     return out
 
 
