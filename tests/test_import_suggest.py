@@ -96,3 +96,22 @@ def test_import_far_instrument_by_spread_not_coordinates(tmp_path, offset_m):
     with pytest.raises(Exception, match="looks like millimetres"):
         import_table(tmp_path / "mm.csv", m)
     np.testing.assert_allclose(import_table(tmp_path / "mm.csv", dict(m, length_unit="mm")).xyz_m, p, rtol=1e-12)
+
+
+def test_suggest_keeps_station_tool_pose_and_load_and_import_names_what_it_left_out(tmp_path, capsys):
+    """Probe report s40: --suggest left out a tracker export's Station, Tool and Load columns, and the import
+    dropped them without a word (every row then in one frame). Now --suggest keeps the labels and maps the
+    load; an import that leaves columns out names them."""
+    from cli_run import run
+
+    header = ["Pt", "Station", "Tool", "Load [kg]", "J1", "J2", "J3", "J4", "J5", "J6", "X", "Y", "Z"]
+    text = suggest_map(header, [["P1", "S1", "A", "12", "1", "2", "3", "4", "5", "6", "1000", "200", "300"]])
+    m = tomllib.loads("\n".join(line for line in text.splitlines() if not line.startswith("#")))
+    assert m["keep"] == {"Pt": "pose_id", "Station": "station", "Tool": "tool"}
+    assert m["payload"] == "Load [kg]"
+    rows = [",".join(header)] + [f"P{i},S{1 + i % 2},A,0,{0.1 * i},0.2,0.3,0.4,0.5,0.6,1,0.2,0.3" for i in range(6)]
+    (tmp_path / "t.csv").write_text("\n".join(rows) + "\n")
+    code, out, err = run(["import", "table", tmp_path / "t.csv", "-o", tmp_path / "o.csv", "--joints", "J1..J6",
+                          "--position", "X,Y,Z", "--no-unit-check"], capsys)
+    assert code == 0, err
+    assert "columns not mapped, left out: Pt, Station, Tool, Load [kg]" in err

@@ -22,6 +22,13 @@ def _write(ds, out: Path, inputs, what: str = "") -> None:
     from ..io.dataset_files import write_dataset
 
     write_dataset(ds, out)
+    left = ds.meta.get("unmapped_columns") or []
+    if left:  # said, not silent: a station, tool or payload column left out changes what the rows mean
+        from .common import console
+
+        console().print(f"note: columns not mapped, left out: {', '.join(left)} (keep = [..] in the mapping, or "
+                        "--keep C,.., carries them; a station / tool column gives each row its frame, a load "
+                        "column maps with payload)", highlight=False)
     frame = ds.meta.get("frame", "robot base")
     typer.echo(f"wrote {len(ds)} samples ({ds.dof} joints{', with orientation' if ds.has_orientation else ', position only'}"
                f"{what}) to {out} (poses in the {frame} frame)")

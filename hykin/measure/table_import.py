@@ -502,7 +502,7 @@ def import_table(path: str | Path, m: TableMap | dict | str | Path, robot=None, 
         raise TableMapError(f"{t.where}, column '{c}': a kept column has the name of a dataset column; rename it "
                             f"(keep = {{ {c} = \"{c}_raw\" }})", file=t.where, column=c)
     ds.meta = {"frame": "file's", "imported_from": t.where, "joint_columns": mt.joint_columns,
-               "unit_check": bool(m.check_units)}
+               "unit_check": bool(m.check_units), "unmapped_columns": _unmapped(t, m, mt)}
     try:
         validate(ds, robot, where=t.where, angle_unit=m.angle_unit, line_offset=None, unit_check=m.check_units)
     except DatasetError as e:
@@ -524,3 +524,14 @@ def import_table(path: str | Path, m: TableMap | dict | str | Path, robot=None, 
             seq = euler_sequence(m, t.where)
         check_imported_orientations(robot, ds, where=t.where, euler_deg=euler, euler_seq=seq)
     return ds
+
+
+def _unmapped(t: TextTable, m: TableMap, mt: MappedTable) -> list[str]:
+    """The file's columns the mapping neither maps, keeps nor ignores: left out of the dataset (the
+    import says so: a station or tool column left out puts every row in one frame)."""
+    if "*" in m.keep_names():
+        return []
+    ori = {"quaternion": m.quaternion, "euler": m.euler, "rotvec": m.rotvec}.get(m.orientation or "", None) or []
+    named = (set(mt.joint_columns) | set(m.position or []) | set(ori) | {c for p in m.points for c in p}
+             | {m.time, m.temperature, m.payload} | set(m.keep_names()) | set(m.ignore or []))
+    return [c for c in t.header if c not in named and c.strip()]

@@ -547,6 +547,20 @@ def suggest_map(header: list[str], sample_rows: list[list[str]] | None = None, *
         if re.search(r"(?i)temp", h):
             lines.append(f'temperature = "{h}"  # -> temperature_c; temperature_unit = "C"')
             break
+    keep = {}  # label columns (names as written): a station / tool per row, a pose id for ISO cycles
+    for h in header:
+        n = h.strip()
+        if re.fullmatch(r"(?i)(station|stn|setup|tracker[ _]?(station|position|pos))([ _]?(id|no|name))?", n):
+            keep.setdefault("station", h)
+        elif re.fullmatch(r"(?i)(tool|tcp|smr|nest|reflector)([ _]?(id|no|name))?", n):
+            keep.setdefault("tool", h)
+        elif re.fullmatch(r"(?i)(pt|point|pose|pose[ _]?id|point[ _]?(id|name))", n):
+            keep.setdefault("pose_id", h)
+        elif re.fullmatch(r"(?i)(load|payload|mass)\s*([\[(]\s*kg\s*[\])])?", n):
+            lines.append(f'payload = "{h}"  # -> payload_kg (kg) CHECK')
+    if keep:
+        items = ", ".join(f'"{h}" = "{k}"' for k, h in keep.items())
+        lines.append(f"keep = {{ {items} }}  # CHECK: labels kept as text ({', '.join(keep)})")
     for h in header:
         if re.fullmatch(r"(?i)(time|timestamp|t)([ _]?(s|\(s\)|\[s\]|\(seconds\)|sec))?", h):
             lines.append(f'# time = "{h}"  # -> time_s, for `hykin import stream`; time_unit = "s"')
