@@ -379,3 +379,13 @@ def test_ik_targets_of_another_station_and_tool_are_mapped_into_the_model_frame(
         _targets_in_model_frame(m, T_file, False, {}, None, "B", "m", "t.csv")
     with pytest.raises(CLIError, match="is a robot"):
         _targets_in_model_frame(None, T_file, True, cols, None, None, "arm.toml", "t.csv")
+
+
+def test_two_stations_in_one_frame_name_stations_as_a_cause():
+    """Probe report s40: two tracker stations' rows without a station column were refused naming the
+    quaternion convention, the joint order and the robot file, never the stations."""
+    from hykin.io.plausibility import PlausibilityError, check_orientation_order
+
+    nom, data, base, st = campaign(n=120, seed=5)
+    with pytest.raises(PlausibilityError, match="several tracker stations or tools"):
+        check_orientation_order(nom, data.q, data.quat_wxyz, where="mixed.csv")

@@ -206,7 +206,8 @@ def check_orientation_order(robot: Robot, q, quat_wxyz, *, where: str = "<data>"
         f"(median misfit {mis['wxyz']:.2g}° after the best frame rotation): check the quaternion convention "
         "(unit, scalar first, base->tool rotation), the joint order, the robot file (twists, joint zero offsets, "
         "DH vs MDH convention, angle_unit: a calibration of the positions alone, without the orientation columns, "
-        "names the parameter that is off), whether joints and measurements are out of step (a row missing or doubled "
+        "names the parameter that is off), whether the rows come from several tracker stations or tools (a station / "
+        "tool column gives each row its own frame), whether joints and measurements are out of step (a row missing or doubled "
         f"in one of the files), or drop the orientation columns{_EULER_HINT}")
 
 
