@@ -382,3 +382,20 @@ def test_hint_keeps_held_parameters_above_the_residual_floor():
     assert "holds a3 at the robot file" in note
     res.effect_floors = np.array([0.0, 0.0, 0.24])
     assert precise_data_note(res, SimpleNamespace(floor_m=2e-4, floor_rad=math.radians(0.01))) == ""
+
+
+def test_a_joint_counting_the_other_way_is_named_among_the_causes():
+    """Probe report s40 (W D2): joint 4 negated in the data (a controller axis counting the other way) was
+    refused naming the robot file, units, tool and joint order, never a joint's direction."""
+    from hykin.calibration.calibrate import calibrate
+    from hykin.io.dataset import Dataset
+    from hykin.io.robot_file import load_robot
+    from hykin.kinematics.fk import fk as hfk
+
+    rob = load_robot("rx160")
+    q = rob.random_joints(80, np.random.default_rng(3), margin=0.1)
+    qs = q.copy()
+    qs[:, 1] = -qs[:, 1]  # what the controller logged: joint 2 counted the other way
+    ds = Dataset(q=np.clip(qs, rob.lower, rob.upper), xyz_m=hfk(rob, q)[:, :3, 3], source="neg.csv")
+    with pytest.raises(ValueError, match="joint directions"):
+        calibrate(rob, ds)

@@ -67,7 +67,8 @@ DEFAULT_MAX_DEVIATION: dict[str, float] = {
 }
 
 #: the one line of advice appended to every refusal
-ADVICE = "check the robot file (right robot, DH table), units (--length-unit/--angle-unit), tool and joint order"
+ADVICE = ("check the robot file (right robot, DH table), units (--length-unit/--angle-unit), tool, joint order and "
+          "joint directions (a controller axis counting the other way: negate that joint's column)")
 
 
 def parse_max_deviation(text: str | None) -> dict[str, float]:
