@@ -106,6 +106,10 @@ def _free_udp_port() -> int:
         return s.getsockname()[1]
 
 
+#: below this (mm) a path error is the link's resolution, not the model's (see ``must hold``)
+RESOLUTION_MM = {"rsi": 2e-5, "egm": 1e-6}
+
+
 def run_protocol(proto: str, a, tmp: Path) -> None:
     preset, q0, signs = ROBOTS[proto]
     vr = virtual_robot(preset, 26 if proto == "rsi" else 27)
@@ -181,7 +185,11 @@ def run_protocol(proto: str, a, tmp: Path) -> None:
     lines = out.strip().splitlines()
     print(f"  bridge (extra options: {a.bridge_args or 'none'}): {next((x for x in lines if 'priority' in x), '?')}")
     print(f"  bridge's own count: {lines[-1] if lines else err[-300:]}")
-    parts = {"mean <= 0.05 mm": e_pos.mean() <= 0.05, "max <= model max": e_pos.max() <= own_max,
+    # the model's max error, or what the protocol can carry when that is below it: RSI's RKorr text has 6
+    # decimals (1e-6 mm, 1e-6 deg: 2e-5 mm at a 1 m lever); EGM's doubles go through quaternions (1 nm floor).
+    # An exact (noise-free) model's 4e-12 mm is not a bound any link meets
+    floor = RESOLUTION_MM.get(proto, 0.0)
+    parts = {"mean <= 0.05 mm": e_pos.mean() <= 0.05, "max <= model max": e_pos.max() <= max(own_max, floor),
              ">= 99.9 % within 4 ms": run.in_time.mean() >= 0.999, "none missing": answered.all()}
     print("  must hold: " + ", ".join(f"{k} {'MET' if v else 'NOT MET'}" for k, v in parts.items())
           + f" -> {'MET' if all(parts.values()) else 'NOT MET'}")
