@@ -80,3 +80,19 @@ def test_ik_batch_with_an_unreachable_target_on_an_arm_within_one_turn(tmp_path)
         assert res.success[res.target == 0].any() and not res.success[res.target == 1].any()
         ok = res.success & (res.target == 0)
         assert np.abs(fk(rob, res.q[ok])[:, :3, 3] - T[0, :3, 3]).max() < 1e-3  # the deflecting arm: within 1 mm
+
+
+def test_a_failed_ik_row_has_no_support_distance(registered):
+    """Probe report s40: an unsolved row kept the best attempt's support distance and in_support, while its
+    joints are blank (docs/serve.md: null where not solved)."""
+    from hykin.hybrid.ik import hybrid_ik, ik_result_to_rows
+
+    q, T = _targets(registered, n=3, seed=5)
+    T[1, :3, 3] += 8.0  # 8 m away: unreachable
+    res = hybrid_ik(registered, T, all_branches=False, q_current=q, nearest=True)
+    rows = ik_result_to_rows(res, robot=registered.robot_, targets=T)
+    ok = np.asarray(rows["success"], dtype=bool)
+    assert ok.sum() == 2 and not ok[np.asarray(rows["target"]) == 1].any()
+    bad = ~ok
+    assert np.isnan(rows["support_distance"][bad]).all() and (rows["in_support"][bad] == 0).all()
+    assert np.isnan(rows["q1"][bad]).all() and np.isfinite(rows["support_distance"][ok]).all()

@@ -60,10 +60,10 @@ def ik_rows(target, branch, q, success, pos_err_mm, ang_err_deg, reason, *, robo
     cols["pos_err_mm"] = np.asarray(pos_err_mm, dtype=np.float64)
     cols["ang_err_deg"] = np.asarray(ang_err_deg, dtype=np.float64)
     cols["reason"] = reason.astype(str)
-    if in_support is not None:
-        cols["in_support"] = np.asarray(in_support).astype(int)
+    if in_support is not None:  # a failed row has no joints: not in the support, no distance to it
+        cols["in_support"] = np.where(ok, np.asarray(in_support).astype(int), 0)
     if support_distance is not None:
-        cols["support_distance"] = np.asarray(support_distance, dtype=np.float64)
+        cols["support_distance"] = np.where(ok, np.asarray(support_distance, dtype=np.float64), np.nan)
     return cols
 
 
