@@ -203,8 +203,9 @@ def _warn_tool_mismatch(mdl, what: str = "--tool") -> None:
     commands are poses of the file's TCP, which the controller must then have as its tool (``what``: how
     the targets can name another TCP)."""
     from ..geometry import se3
+    from ..hybrid.ik_result import model_tcp_shift
 
-    E = se3.invert(mdl.nominal.tool) @ mdl.robot_.tool @ np.asarray(getattr(mdl, "frame_post_", np.eye(4)))
+    E = model_tcp_shift(mdl)
     mm = float(np.linalg.norm(E[:3, 3]) * 1e3)
     deg = float(np.degrees(np.linalg.norm(se3.matrix_to_rotvec(E[:3, :3]))))
     if mm > TOOL_MISMATCH_MM or deg > TOOL_MISMATCH_DEG:

@@ -472,13 +472,11 @@ class Compensator:
 
 
 def _tcp_shift_inv(model) -> np.ndarray:
-    """``inv(E)``, ``E`` = the model's TCP (calibrated tool, registered ``frame_post_``) relative to the
-    robot file's TCP ``(4, 4)``."""
-    from ..hybrid.ik_result import classical_robot
+    """``inv(E)``, ``E`` = the model's TCP relative to the robot file's
+    (:func:`hykin.hybrid.ik_result.model_tcp_shift`)."""
+    from ..hybrid.ik_result import model_tcp_shift
 
-    E = se3.invert(np.asarray(model.nominal.tool)) @ np.asarray(classical_robot(model).tool) @ np.asarray(
-        getattr(model, "frame_post_", np.eye(4)), dtype=np.float64)
-    return se3.invert(E)
+    return se3.invert(model_tcp_shift(model))
 
 
 def model_delta(model, D: np.ndarray | None, given=None, shift_inv=None) -> np.ndarray | None:

@@ -167,18 +167,14 @@ def file_frames_fit_model(model) -> bool:
     within :data:`FILE_FRAMES_MM` / :data:`FILE_FRAMES_DEG` of its robot file's base and tool: its data were
     taken in the robot's base frame with the file's tool, so data in the model's frame are in the file's."""
     from ..geometry.se3 import invert
+    from ..hybrid.ik_result import model_tcp_shift
 
     nom, rob = getattr(model, "nominal", None), getattr(model, "robot_", None)
     if not isinstance(nom, Robot) or not isinstance(rob, Robot):
         return False
-    B = np.asarray(getattr(model, "frame_pre_", np.eye(4))) @ rob.base
-    E = rob.tool @ np.asarray(getattr(model, "frame_post_", np.eye(4)))
-    for A, F in ((nom.base, B), (nom.tool, E)):
-        D = invert(np.asarray(A)) @ F
-        ang = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
-        if np.linalg.norm(D[:3, 3]) * 1e3 > FILE_FRAMES_MM or ang > FILE_FRAMES_DEG:
-            return False
-    return True
+    base = invert(nom.base) @ np.asarray(getattr(model, "frame_pre_", np.eye(4))) @ rob.base  # fitted base vs file's
+    mm, deg = pose_error(np.stack([base, model_tcp_shift(model)]), np.eye(4)[None].repeat(2, axis=0))
+    return bool((mm <= FILE_FRAMES_MM).all() and (deg <= FILE_FRAMES_DEG).all())
 
 
 def with_fitted_frames(T: np.ndarray, T_meas: np.ndarray, position_only: bool) -> np.ndarray:

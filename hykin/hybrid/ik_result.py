@@ -13,11 +13,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry import se3
+from ..io.modelfile import model_metrics
 from ..kinematics.robot import Robot
 
 __all__ = [
     "DEFAULT_DELTA_RAD", "ROW_FIELDS", "HybridIKError", "HybridIKResult", "check_model", "classical_robot",
-    "model_accuracy", "model_metrics", "parse_targets", "predict_quiet", "support_of", "torch_threads",
+    "model_accuracy", "model_metrics", "model_tcp_shift", "parse_targets", "predict_quiet", "support_of", "torch_threads",
     "underactuated",
 ]
 
@@ -85,13 +86,6 @@ ROW_FIELDS = (
 # --------------------------------------------------------------------------- inputs
 
 
-def model_metrics(model) -> dict:
-    """The model's own held-out accuracy (training metadata ``metrics``: ``val``, else ``held_out``, else
-    ``train``; ``{}`` for a model without them)."""
-    met = (getattr(model, "metadata", None) or {}).get("metrics", {}) or {}
-    return met.get("val") or met.get("held_out") or met.get("train") or {}
-
-
 def model_accuracy(model) -> tuple[float | None, float | None]:
     """``(mm, deg)``: how far the model's own poses are from measured ones: its held-out maximum hybrid
     position / orientation error, else 3 × the mean (:func:`model_metrics`); None where unknown.
@@ -123,6 +117,14 @@ def classical_robot(model) -> Robot:
         if isinstance(r, Robot):
             return r
     raise HybridIKError("hybrid IK: the model must have a classical robot (`model.robot_` or `model.robot`)")
+
+
+def model_tcp_shift(model) -> np.ndarray:
+    """``(4, 4)``: the model's TCP (its calibrated tool, with a registration's ``frame_post_``) relative to
+    its robot file's TCP. Where a program's tool fixed to the real flange sits (compensation), how far the
+    file's tool is from what was measured (the CLI's warning, the evaluation's frame test)."""
+    post = np.asarray(getattr(model, "frame_post_", np.eye(4)), dtype=np.float64)
+    return se3.invert(np.asarray(model.nominal.tool)) @ np.asarray(classical_robot(model).tool) @ post
 
 
 def predicting_robot(model) -> Robot:

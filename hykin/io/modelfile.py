@@ -40,6 +40,7 @@ __all__ = [
     "UnverifiedModelWarning",
     "content_hash",
     "looks_like_model_file",
+    "model_metrics",
     "read_model_file",
     "robot_from_json_dict",
     "robot_to_dict",
@@ -171,3 +172,11 @@ def read_model_file(path: str | Path) -> tuple[dict, dict]:
     except (KeyError, json.JSONDecodeError) as e:
         raise ModelFileError(f"{path}: corrupt hykin metadata ({e})") from None
     return tensors, meta
+
+
+def model_metrics(model) -> dict:
+    """The model's own held-out accuracy from its training metadata (``metrics``: ``val``, else
+    ``held_out``, else ``train``; ``{}`` for a model without them). Here, below every package that reads it
+    (hybrid IK, compensation, registration)."""
+    met = (getattr(model, "metadata", None) or {}).get("metrics", {}) or {}
+    return met.get("val") or met.get("held_out") or met.get("train") or {}

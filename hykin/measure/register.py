@@ -174,6 +174,7 @@ def precision_note(params: list, robot, model, n_used: int) -> str:
     more TCP error at the arm's reach than :data:`PRECISION_FACTOR` times the model's own held-out mean
     error: ``sqrt(Σ σ_t² + Σ (σ_r · reach)²)``, a rough size of what the frames' uncertainty moves a pose
     (measured: 3 poses of 20 µm noise registered a 2 µm model to 0.068 mm over the workspace); else ``""``."""
+    from ..io.modelfile import model_metrics
     from ..kinematics.robot import robot_reach_m
 
     t = [p.std for p in params if p.name.startswith(("base.", "tool.")) and p.unit == "mm" and np.isfinite(p.std)]
@@ -183,9 +184,7 @@ def precision_note(params: list, robot, model, n_used: int) -> str:
         return ""
     reach_mm = float(robot_reach_m(robot)) * 1e3
     x = float(np.sqrt(np.sum(np.square(t)) + np.sum(np.square(np.asarray(r) * reach_mm))))
-    metrics = (getattr(model, "metadata", None) or {}).get("metrics") or {}  # the model's own held-out accuracy
-    own = next((m["hybrid_pos_mean_mm"] for m in (metrics.get(k) or {} for k in ("val", "held_out", "train"))
-                if m.get("hybrid_pos_mean_mm") is not None), None)
+    own = model_metrics(model).get("hybrid_pos_mean_mm")  # the model's own held-out accuracy
     if own is None or not np.isfinite(own) or x <= max(0.01, PRECISION_FACTOR * float(own)):
         return ""
     return (f"precision: the registered frames' standard deviations move the TCP by about {x:.3g} mm at the arm's "
