@@ -28,6 +28,15 @@ def residual_data(robot, n: int, seed: int) -> Dataset:
     return Dataset.from_poses(q, T, orientation=True)
 
 
+def dh_robot_toml(name: str, rows, tail: str = "") -> str:
+    """A DH robot file (lengths m, angles deg) of ``rows`` ``[(a, alpha, d, theta, min, max)]`` and ``tail``
+    (e.g. ``[tool]`` / ``[base]`` tables)."""
+    head = f'name = "{name}"\nconvention = "dh"\nlength_unit = "m"\nangle_unit = "deg"\n'
+    joints = "".join(f"\n[[joints]]\na = {a}\nalpha = {al}\nd = {d}\ntheta = {th}\nmin = {lo}\nmax = {hi}\n"
+                     for a, al, d, th, lo, hi in rows)
+    return head + joints + tail
+
+
 def write_text(path, text: str):
     """Write ``text`` (UTF-8) to ``path``; returns ``path``."""
     path.write_text(text, encoding="utf-8")

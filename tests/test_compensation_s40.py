@@ -27,6 +27,7 @@ import re
 import numpy as np
 import pytest
 from comp_models import ExactModel, deviate, exact
+from shared_fixtures import dh_robot_toml
 
 from hykin import fk, load_robot
 from hykin.compensation import krl, urscript
@@ -275,19 +276,7 @@ def test_urscript_walk_is_checked_against_the_controllers_choice():
 
 # ---- C1: configuration data near limits and singular poses --------------------------------------
 
-_KR = """name = "kr-like-s40"
-convention = "dh"
-length_unit = "m"
-angle_unit = "deg"
-""" + "".join(f"""
-[[joints]]
-a = {a}
-alpha = {al}
-d = {d}
-theta = {th}
-min = {lo}
-max = {hi}
-""" for a, al, d, th, lo, hi in _KR_DH)
+_KR = dh_robot_toml("kr-like-s40", _KR_DH)
 
 
 def _kuka_like(seed: int):

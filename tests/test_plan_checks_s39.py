@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 from cli_run import run as _run
+from shared_fixtures import dh_robot_toml
 
 from hykin.io.robot_toml import load_robot_toml, robot_from_toml_text
 from hykin.planning import Constraints, PlanningError, feasible, parse_region
@@ -16,19 +17,8 @@ from hykin.planning.bodies import body_segments
 from hykin.planning.select import candidate_pool
 
 # the tester's 6R (DH, degrees), base at (1.0, 0.5, 0.2) m turned 30° about z
-ROBOT = """name = "probe-6r"
-convention = "dh"
-length_unit = "m"
-angle_unit = "deg"
-""" + "".join(f"""[[joints]]
-a = {a}
-alpha = {al}
-d = {d}
-theta = {th}
-min = {lo}
-max = {hi}
-""" for a, al, d, th, lo, hi in [(0.18, -90, 0.45, 0, -170, 170), (0.62, 0, 0, -90, -40, 100), (0.10, -90, 0, 0, -150, 70),
-                                 (0, 90, 0.66, 0, -360, 360), (0, -90, 0, 0, -120, 120), (0, 0, 0.11, 0, -360, 360)]) + """
+ROBOT = dh_robot_toml("probe-6r", [(0.18, -90, 0.45, 0, -170, 170), (0.62, 0, 0, -90, -40, 100), (0.10, -90, 0, 0, -150, 70),
+                                    (0, 90, 0.66, 0, -360, 360), (0, -90, 0, 0, -120, 120), (0, 0, 0.11, 0, -360, 360)], """
 [tool]
 xyz = [0.03, 0.0, 0.14]
 rpy = [0, 0, 0]
@@ -36,7 +26,7 @@ rpy = [0, 0, 0]
 [base]
 xyz = [1.0, 0.5, 0.2]
 rpy = [0, 0, 30]
-"""
+""")
 
 
 def load_robot_toml_text(text):
