@@ -191,6 +191,8 @@ def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_
                                   frame=frame, tool_delta=tool_delta, **tol)) for idx, kg, com in payload_groups(pl)]
         comp = merge_parts(parts, len(T))
     write_rows(command_rows(comp, joints_only=joints), out)
+    for note in comp.notes:
+        console().print(f"note: {inp}: {note}", highlight=False, markup=False)
     _summary(comp, out, len(T))
 
 

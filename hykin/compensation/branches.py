@@ -359,6 +359,21 @@ class Candidates:
         d = np.where(inside, np.sqrt((dq * dq).sum(1)), np.inf)
         return np.clip(qq[int(np.argmin(d))], self.lower, self.upper)  # a rounding beyond a limit: onto it
 
+    def nearest_each(self, cur: np.ndarray) -> np.ndarray:
+        """``(N, n)``: row ``i`` is :meth:`nearest` ``(i, cur[i])`` for ``cur`` ``(N, n)``, all rows at once;
+        NaN rows where none is valid within the limits or ``cur[i]`` is not finite."""
+        cur = np.asarray(cur, dtype=np.float64)
+        good = np.isfinite(cur).all(1)
+        c = np.where(good[:, None], cur, 0.0)[:, None, :]
+        k = np.clip(np.round((c - self.qz) / TWO_PI), self.k_lo, self.k_hi)
+        qq = self.qz + k * self.shift
+        inside = self.valid & ((qq >= self.lo) & (qq <= self.hi)).all(-1)
+        dq = qq - c
+        d = np.where(inside, np.sqrt((dq * dq).sum(-1)), np.inf)
+        out = np.clip(qq[np.arange(len(qq)), np.argmin(d, axis=1)], self.lower, self.upper)
+        out[~(good & inside.any(1))] = np.nan
+        return out
+
 
 def nearest_candidate(robot: Robot, q: np.ndarray, ok: np.ndarray, cur: np.ndarray) -> np.ndarray | None:
     """Of the solutions ``q`` ``(K, n)`` (valid where ``ok``), each in its 2π representation nearest

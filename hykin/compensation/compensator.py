@@ -12,7 +12,8 @@ comes from a hint: joints given by the caller (current joints, a program's confi
 to a solution, the previous target's joints); without one, the nominal robot's solution nearest the
 previous target's, or — where the nominal robot cannot reach the target — the calibrated robot's, or
 the previous joints themselves. The nominal model only hints: a target it cannot reach is still
-solved on the hybrid model.
+solved on the hybrid model. Without a hint the batch is then checked as a nearest-joints controller
+executes it, target after target (:meth:`Compensator._check_walk`).
 
 Solving (compiled models; :mod:`hykin.hybrid.fast_ik`): LM from the hint in ``hint ± max_move_rad``
 (within the joint limits) with the classical Jacobian; rows that stop above 1e-9 m / 1e-9 rad are
@@ -190,8 +191,36 @@ class Compensator:
         if ok.any() and not pos_only:
             dang[ok] = se3.pose_error(cmd[ok], T_ctrl[ok])[1]
         _, sup = support_of(self.model, q)
-        return Compensation(command=cmd, q=q, success=ok, reason=reason, pos_err_mm=pe, ang_err_deg=ae,
+        comp = Compensation(command=cmd, q=q, success=ok, reason=reason, pos_err_mm=pe, ang_err_deg=ae,
                             shift_mm=dpos, shift_deg=dang, in_support=sup & ok, q_branch=qb, frame=self.frame)
+        if q_branch is None and not pos_only and N > 1 and n >= 6:
+            self._check_walk(comp, T, D, G, Dm, branch_reason)
+        return comp
+
+    def _check_walk(self, comp: Compensation, T: np.ndarray, D, G, Dm, branch_reason) -> None:
+        """The walk's targets as the controller executes them (in place; a program's check,
+        :func:`.program_checks.check_walk`): each from the compensated joints of the one before, on the
+        nominal solution of its command nearest them. Where that is not the compensated solution (two
+        solutions near a tie from there: a ±360° wrist half a turn away, probe s40 V: 22 of 297 random
+        targets landed 0.4-11 mm off) the target is solved again on the controller's choice; one that
+        the controller still executes elsewhere fails with the reason, or is noted (``comp.notes``) where
+        that lands within the model's accuracy. Arms of fewer than 6 joints reach a pose only in the
+        least-squares sense: not checked (as programs). The shifts are recomputed for rows solved again."""
+        from .program_checks import WalkRow, check_walk
+
+        N = len(T)
+        Dc = np.broadcast_to(np.eye(4), (N, 4, 4)) if D is None else D
+        rows_t = [WalkRow(k) for k in range(N)]
+        rows_t[0].reset = np.clip(np.zeros(self.dof), self.nominal.lower, self.nominal.upper)  # the walk's start
+
+        def solve(rows, hints):
+            return self(T[rows], q_branch=hints, tool_delta=None if D is None else D[rows],
+                        tool_given=None if G is None else G[rows], branch_reason=branch_reason)
+
+        comp.reason = comp.reason.astype(object)
+        comp.notes = check_walk(self.model, self, solve, rows_t, comp, comp.q_branch.copy(), T, Dc, Dm, None,
+                                T_nominal=self.nominal_world(T, D))
+        comp.reason = comp.reason.astype(str)
 
     # ------------------------------------------------------------------ the one path
 
@@ -438,6 +467,12 @@ class Compensator:
                                                               "unreachable for the model"))
         return q, pe, ae, reason
 
+    def nominal_world(self, T: np.ndarray, D=None) -> np.ndarray:
+        """Targets ``(N, 4, 4)`` (:attr:`frame`; of a TCP ``D`` relative to the robot file's) -> the robot
+        file's TCP in the nominal robot's world, where the walk takes the nominal solutions as hints."""
+        T_nom = self.nominal.base @ T if self.frame == "base" else T
+        return T_nom if D is None else T_nom @ se3.invert(D)
+
     def _walk(self, T: np.ndarray, D, pos_only: bool, Dm=None) -> np.ndarray:
         """Branch hints without ``q_branch`` (module docstring): nominal solutions nearest the previous
         target's; where the nominal robot has none, the calibrated robot's, else the previous joints."""
@@ -454,9 +489,7 @@ class Compensator:
             sols = [ik(self.robot, Tr, q_seed=s, position_only=True) for s in seeds]
             qb = walk_nearest(self.robot, np.stack([r.q for r in sols], 1), np.stack([r.success for r in sols], 1))
             return np.where(np.isfinite(qb).all(1, keepdims=True), qb, start)
-        T_nom = nom.base @ T if self.frame == "base" else T  # the target in the nominal robot's world
-        if D is not None:
-            T_nom = T_nom @ se3.invert(D)
+        T_nom = self.nominal_world(T, D)
         qb = sequential_nearest(nom, T_nom, None, polish=False, least_squares=LSQ_SEED)  # hints: solved on the model next
         miss = np.flatnonzero(~np.isfinite(qb).all(1))
         if miss.size:

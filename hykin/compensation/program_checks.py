@@ -24,20 +24,47 @@ it is at. The compensated joints ``q`` are right only where that is ``q`` itself
   hint (right after a joint move from those joints only, or a continuous-path motion's hint with the
   status: the target means that move's branch); where none gives the controller's choice it fails, saying
   so (noted instead where the miss is within the model's own accuracy, e.g. the other elbow a hair from
-  the stretched elbow).
+  the stretched elbow). The check goes target after target as the robot moves, so that a target solved
+  again or a wrist taken a turn further changes where the next one is chosen from. A plain list of
+  targets (CSV, :class:`.compensator.Compensator` without hints) is checked the same way
+  (:class:`WalkRow`); its failed targets are not sent, so the robot stays at the one before.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..geometry import se3
 
-__all__ = ["FIELDS", "check_walk", "configuration_changes", "keep_configuration", "take"]
+__all__ = ["FIELDS", "WalkRow", "check_walk", "configuration_changes", "keep_configuration", "take"]
 
 #: the per-row fields of a :class:`.result.Compensation`
 FIELDS = ("command", "q", "success", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg", "in_support", "q_branch",
           "reason")
+
+
+@dataclass
+class WalkRow:
+    """Target ``start`` of a plain list (CSV rows, :class:`.compensator.Compensator` batches) as
+    :func:`check_walk` sees a program's target: no configuration data, no joint move before it, the base
+    frame, executed in list order (named by its 0-based index, as the CSV's ``target`` column)."""
+
+    start: int
+    config: dict = field(default_factory=dict)
+    reset: np.ndarray | None = None  # the first: the joints the walk starts from
+    frame: None = None
+    order: None = None
+
+    @property
+    def line(self) -> int:
+        return self.start
+
+
+def _named(t) -> str:
+    """How a reason names target ``t``: its program line, or a list's target index."""
+    return f"target {t.start}" if isinstance(t, WalkRow) else f"line {t.line}"
 
 
 def take(comp, rows: np.ndarray, again, mask: np.ndarray) -> None:
@@ -294,32 +321,59 @@ def _sign_hint(nom, targets: list, rows: np.ndarray, q: np.ndarray, axis_signs, 
 
 # ----------------------------------------------------------------------------- the walk
 
+class _Picks:
+    """The controller's choices for written commands ``T_world`` ``(M, 4, 4)`` (their TCP in the nominal
+    robot's world): every nominal solution solved once, then :meth:`from_joints` for any joints the robot
+    stands at (``keep`` ``(M,)``: a continuous-path motion, among the solutions with that status ``S``)."""
+
+    def __init__(self, nom, T_world: np.ndarray, keep: np.ndarray, axis_signs):
+        from ..kinematics.ik import ik
+        from .branches import Candidates
+
+        br = ik(nom, T_world, all_branches=True)
+        self.Q = np.asarray(br.q, dtype=np.float64).reshape(len(T_world), -1, nom.dof)
+        self.OK = np.asarray(br.success, dtype=bool).reshape(len(T_world), -1)
+        self.cand = Candidates(nom, self.Q, self.OK)
+        self.nom, self.keep, self.axis_signs = nom, np.asarray(keep, dtype=bool), axis_signs
+
+    def one(self, i: int, cur: np.ndarray) -> np.ndarray:
+        """Command ``i``'s nominal solution nearest ``cur`` ``(n,)``; NaN where none lies within the limits."""
+        from .branches import nearest_candidate
+        from .program_branches import same_status
+
+        if not self.keep[i]:
+            pick = self.cand.nearest(i, cur) if np.isfinite(cur).all() else None
+        else:
+            allowed = self.OK[i]
+            if allowed.any():
+                allowed = same_status(self.nom, self.Q[i], allowed, cur, self.axis_signs)
+            pick = nearest_candidate(self.nom, self.Q[i], allowed, cur) if allowed.any() else None
+        return np.full(self.nom.dof, np.nan) if pick is None else pick
+
+    def from_joints(self, cur: np.ndarray) -> np.ndarray:
+        """``(M, n)``: each command's solution nearest ``cur`` ``(M, n)`` (all rows at once: a CSV walk checks
+        thousands)."""
+        out = self.cand.nearest_each(cur)
+        for i in np.flatnonzero(self.keep):
+            out[i] = self.one(i, cur[i])
+        return out
+
+
 def _controller_picks(nom, T_world: np.ndarray, cur: np.ndarray, keep: np.ndarray, axis_signs) -> np.ndarray:
     """The nominal solution of ``T_world`` ``(M, 4, 4)`` (the written command's TCP in the nominal robot's
     world) nearest ``cur`` ``(M, n)``, as the controller picks it for a command without configuration data
     (``keep``: among those with ``cur``'s status ``S``); NaN rows where none lies within the limits."""
-    from ..kinematics.ik import ik
-    from .branches import nearest_candidate
-    from .program_branches import same_status
-
-    br = ik(nom, T_world, all_branches=True)
-    Q = np.asarray(br.q, dtype=np.float64).reshape(len(T_world), -1, nom.dof)
-    OK = np.asarray(br.success, dtype=bool).reshape(len(T_world), -1)
-    out = np.full(cur.shape, np.nan)
-    for i in range(len(T_world)):
-        allowed = OK[i]
-        if keep[i] and allowed.any():
-            allowed = same_status(nom, Q[i], allowed, cur[i], axis_signs)
-        pick = nearest_candidate(nom, Q[i], allowed, cur[i]) if allowed.any() else None
-        if pick is not None:
-            out[i] = pick
-    return out
+    return _Picks(nom, T_world, keep, axis_signs).from_joints(cur)
 
 
 def _read_back(nom, targets: list, rows: np.ndarray, command: np.ndarray, D: np.ndarray, written) -> np.ndarray:
     """``(M, 4, 4)``: what the controller solves for the commands ``command`` of ``rows`` (controller base
     frame, the program's TCP ``D``): the literal as written (``written(t, literal)``, the format's rounding;
     None: exact), back in the controller's base, as the robot file's TCP in the nominal robot's world."""
+    command = np.asarray(command, dtype=np.float64)
+    if written is None and all(targets[k].frame is None for k in rows):  # a list: all rows at once
+        C = np.where(np.isfinite(command).all((1, 2))[:, None, None], np.nan_to_num(command), np.eye(4))
+        return nom.base @ C @ se3.invert(np.asarray(D)[rows])
     out = np.empty((len(rows), 4, 4))
     for j, k in enumerate(rows):
         W = targets[k].frame
@@ -333,11 +387,18 @@ def _read_back(nom, targets: list, rows: np.ndarray, command: np.ndarray, D: np.
 
 
 def check_walk(model, compensator, solve, targets: list, comp, alt_hint: np.ndarray, T: np.ndarray, D, Dm, axis_signs,
-               written=None, waves: int = 4) -> list:
+               written=None, T_nominal: np.ndarray | None = None) -> list:
     """Check (in place) that the controller executes each compensated target without configuration data
-    at its compensated joints (module docstring); solve the others again from the joints the robot is at
-    and from ``alt_hint`` ``(N, n)``. Those the controller still executes elsewhere fail where the model's
-    robot lands there farther from the target than the model's own accuracy
+    at its compensated joints (module docstring), target after target in execution order as the robot
+    moves: each from the joints it stands at (a joint move before it; else the previous target's
+    compensated joints, which the check may just have changed; for a list of :class:`WalkRow` targets the
+    last one sent: a failed target's NaN command is not). Where the controller's choice is the compensated
+    joints a full turn away on some axis, those are taken (the same pose; the next target is chosen from
+    them). Where it is another solution that misses, the target is solved again from the controller's
+    choice, from the nominal solution of ``T_nominal`` ``(N, 4, 4)`` (the uncompensated targets' TCP in the
+    nominal robot's world) nearest the joints the robot is at, from those joints and from ``alt_hint``
+    ``(N, n)`` (the walk's hint). Those the controller still executes elsewhere fail where the model's robot
+    lands there farther from the target than the model's own accuracy
     (:func:`hykin.hybrid.ik_result.model_accuracy`, at least the tolerance), and are noted where it lands
     within it (returns the notes). ``compensator``: the :class:`.compensator.Compensator` whose tolerance
     judges a landing; ``D``, ``Dm``: the targets' tools relative to the robot file's and the model's TCP;
@@ -347,75 +408,91 @@ def check_walk(model, compensator, solve, targets: list, comp, alt_hint: np.ndar
     from ..hybrid.ik_result import model_accuracy
     from .program_branches import execution_order
 
+    N = len(targets)
     free = np.array([not ("S" in t.config or "conf" in t.config) for t in targets], dtype=bool)
     if not free.any():
         return []
     order = execution_order(targets)
     keep = np.array([bool(t.config.get("keep_status")) for t in targets], dtype=bool)
+    listed = isinstance(targets[0], WalkRow)
+    nom = model.nominal
     Tm = compensator.model_targets(T, Dm)
-    miss = np.zeros(len(targets))
-    for wave in range(waves + 1):
-        cur, where = _standing(targets, comp, order)
-        rows = np.flatnonzero(free & comp.success & np.isfinite(cur).all(1))
-        if not rows.size:
-            return []
-        nom = model.nominal
-        pick = _controller_picks(nom, _read_back(nom, targets, rows, comp.command[rows], D, written), cur[rows],
-                                 keep[rows], axis_signs)
-        # the controller's joints are the compensated ones a full turn away on some axis: the same pose, but
-        # the walk goes on from where the controller is (the next target's nearest solution depends on it)
-        turned = _same_but_turned(nom, comp.q[rows], pick)
-        comp.q[rows[turned]] = pick[turned]
-        miss[:] = 0.0
-        miss[rows] = _misses(model, compensator, comp.q[rows], pick, Tm[rows])
-        if (not (miss > 0).any() and not turned.any()) or wave == waves:
-            break
-        changed = bool(turned.any())
-        # the branch the controller takes (a near tie of two solutions from the previous target's joints),
-        # the joints the robot is at, then the walk's hint. Not the controller's branch right after a joint
-        # move: the target means the branch of those joints (where the written literal's rounding lost it,
-        # the controller's is another one, landing only after a reconfiguration the move cannot make)
-        picked = np.full(comp.q.shape, np.nan)
-        picked[rows] = pick
-        after_move = np.array([t.reset is not None for t in targets], dtype=bool)
-        picked[after_move] = np.nan
-        # nor the walk's hint there (the nominal solution of the uncompensated target nearest the move's
-        # joints: at a limit or a singular pose another branch), but for a continuous-path motion, whose hint
-        # is the one with the status the robot is in
-        alt = np.where((after_move & ~keep)[:, None], np.nan, alt_hint)
-        for hints in (picked, cur, alt):
-            i = np.flatnonzero((miss > 0) & np.isfinite(hints).all(1)
-                               & ~np.all(np.abs(hints - comp.q_branch) < 1e-9, axis=1))
-            if not i.size:
-                continue
-            again = solve(i, hints[i])
-            p2 = _controller_picks(nom, _read_back(nom, targets, i, again.command, D, written), cur[i], keep[i],
-                                   axis_signs)
-            good = again.success & (_misses(model, compensator, np.nan_to_num(again.q), p2, Tm[i]) == 0)
-            take(comp, i, again, good)
-            miss[i[good]] = 0.0
-            changed |= bool(good.any())
-        if not changed:
-            break
     acc = max(compensator.tolerance_mm, model_accuracy(model)[0] or 0.0)
-    noted = []
-    for k in np.flatnonzero(miss > 0):
-        if miss[k] <= acc:  # within what the model can tell: the command stands, said
-            noted.append(f"{targets[k].line} ({miss[k]:.3g} mm)")
-            continue
-        comp.reason[k] = _walk_reason(model, compensator, targets, comp, k, cur[k], where[k], keep[k], Tm[k], D,
-                                      written, axis_signs)
-        comp.success[k] = False
-        for name in ("q", "command", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg"):
-            getattr(comp, name)[k] = np.nan
-        comp.in_support[k] = False
+    # every command's controller choice from the joints the robot stands at as compensated so far, at once;
+    # the walk below revisits only rows whose standing joints it changes or whose choice differs
+    cur0, _, _ = _standing(targets, comp, order, listed)
+    rows = np.flatnonzero(free & comp.success)
+    picks = _Picks(nom, _read_back(nom, targets, rows, comp.command[rows], D, written), keep[rows], axis_signs)
+    pos = np.full(N, -1)
+    pos[rows] = np.arange(len(rows))
+    pick0 = np.full(comp.q.shape, np.nan)
+    pick0[rows] = picks.from_joints(cur0[rows])
+    same = np.zeros(N, dtype=bool)
+    same[rows] = np.abs(np.nan_to_num(pick0[rows], nan=np.inf) - comp.q[rows]).max(1) <= 1e-6
+    # not the controller's choice right after a joint move: the target means the branch of those joints (where
+    # the written literal's rounding lost it, the controller's is another one, landing only after a
+    # reconfiguration the move cannot make); nor the walk's hint there (the nominal solution of the
+    # uncompensated target nearest the move's joints: at a limit or a singular pose another branch), but for a
+    # continuous-path motion, whose hint is the one with the status the robot is in
+    after_move = np.array([t.reset is not None and not isinstance(t, WalkRow) for t in targets], dtype=bool)
+    noted, prev = [], -1
+    for k in order:
+        t = targets[k]
+        if t.reset is not None:
+            cur, where = np.asarray(t.reset, dtype=np.float64), "the joint move before it"
+        elif prev >= 0 and comp.success[prev]:
+            cur, where = comp.q[prev].copy(), f"the previous target's ({_named(targets[prev])})"
+        else:
+            cur, where = None, ""
+        if free[k] and comp.success[k] and cur is not None and (not same[k] or not np.array_equal(cur, cur0[k])):
+            pick = picks.one(pos[k], cur) if pos[k] >= 0 else np.full(nom.dof, np.nan)
+            miss = _walk_miss(model, compensator, comp, k, pick, Tm)
+            if miss > 0:
+                hints = [] if after_move[k] else [pick]
+                if T_nominal is not None and not after_move[k]:
+                    hints.append(_Picks(nom, T_nominal[k][None], keep[k:k + 1], axis_signs).one(0, cur))
+                hints += [cur] + ([] if after_move[k] and not keep[k] else [alt_hint[k]])
+                for h in hints:
+                    if not np.isfinite(h).all() or np.all(np.abs(h - comp.q_branch[k]) < 1e-9):
+                        continue
+                    again = solve(np.array([k]), h[None])
+                    if not again.success[0]:
+                        continue
+                    p2 = _controller_picks(nom, _read_back(nom, targets, np.array([k]), again.command, D, written),
+                                           cur[None], keep[k:k + 1], axis_signs)[0]
+                    if _misses(model, compensator, again.q, p2[None], Tm[k][None])[0] == 0:
+                        take(comp, np.array([k]), again, np.ones(1, dtype=bool))
+                        _walk_miss(model, compensator, comp, k, p2, Tm)  # a turned choice: taken
+                        miss = 0.0
+                        break
+            if miss > acc:
+                comp.reason[k] = _walk_reason(model, compensator, targets, comp, k, cur, where, keep[k], Tm[k], D,
+                                              written, axis_signs)
+                comp.success[k] = False
+                for name in ("q", "command", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg"):
+                    getattr(comp, name)[k] = np.nan
+                comp.in_support[k] = False
+            elif miss > 0:  # within what the model can tell: the command stands, said
+                noted.append(f"{targets[k].line} ({miss:.3g} mm)")
+        if not (listed and not comp.success[k]):
+            prev = k
     if not noted:
         return []
     lines = ", ".join(noted[:8]) + (" ..." if len(noted) > 8 else "")
-    return [f"{noted[0].split(' ')[0]}: {len(noted)} targets (lines {lines}) "
+    head = "" if listed else f"{noted[0].split(' ')[0]}: "
+    return [f"{head}{len(noted)} targets ({'targets' if listed else 'lines'} {lines}) "
             "are executed by the controller on another solution of their command than the compensated joints (the "
             "nominal solution nearest the joints the robot is at, e.g. the other elbow at the stretched elbow): the "
             f"model's robot lands there within its accuracy ({acc:.3g} mm) of the target, by the amounts given"]
+
+
+def _walk_miss(model, compensator, comp, k: int, pick: np.ndarray, Tm: np.ndarray) -> float:
+    """How far the controller's choice ``pick`` ``(n,)`` for target ``k`` misses (:func:`_misses`); where it is
+    the compensated joints a full turn away on some axis, those are taken (in place) and it does not miss."""
+    if _same_but_turned(model.nominal, comp.q[k][None], pick[None])[0]:
+        comp.q[k] = pick
+        return 0.0
+    return float(_misses(model, compensator, comp.q[k][None], pick[None], Tm[k][None])[0])
 
 
 def _same_but_turned(nom, q: np.ndarray, pick: np.ndarray) -> np.ndarray:
@@ -427,20 +504,23 @@ def _same_but_turned(nom, q: np.ndarray, pick: np.ndarray) -> np.ndarray:
     return np.isfinite(d).all(1) & (np.abs(wrapped).max(1) < 1e-6) & (np.abs(d).max(1) > 1e-6)
 
 
-def _standing(targets: list, comp, order: list) -> tuple[np.ndarray, list]:
-    """``(joints (N, n), where (N,))``: the joints the robot is at before each target (NaN where not known:
-    after a target that failed) and a text saying whose they are."""
+def _standing(targets: list, comp, order: list, listed: bool = False) -> tuple[np.ndarray, list, np.ndarray]:
+    """``(joints (N, n), where (N,), prev (N,))``: the joints the robot is at before each target (NaN where
+    not known: after a target that failed), a text saying whose they are, and the target they are of (-1:
+    a joint move, or not known)."""
     N, n = comp.q.shape
-    cur, where = np.full((N, n), np.nan), [""] * N
+    cur, where, before = np.full((N, n), np.nan), [""] * N, np.full(N, -1)
     prev = None
     for k in order:
         t = targets[k]
         if t.reset is not None:
             cur[k], where[k] = np.asarray(t.reset, dtype=np.float64), "the joint move before it"
         elif prev is not None and comp.success[prev]:
-            cur[k], where[k] = comp.q[prev], f"the previous target's (line {targets[prev].line})"
-        prev = k
-    return cur, where
+            cur[k], where[k], before[k] = comp.q[prev], f"the previous target's ({_named(targets[prev])})", prev
+        # a list's failed target is not sent (its command is NaN): the robot stays at the one before
+        if not (listed and not comp.success[k]):
+            prev = k
+    return cur, where, before
 
 
 #: a landing of the controller's joints this close (mm, deg) to the target is the target: 10 times what the

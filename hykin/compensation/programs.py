@@ -273,7 +273,7 @@ def _solve(model, targets: list, frame: str, axis_signs, slack_deg: float, ik_kw
     notes = configuration_changes(model, targets, comp, other_flag, T_cal, axis_signs, slack_rad, slack_deg)
     if model.nominal.dof >= 6:  # an arm of fewer joints reaches a rounded literal's orientation only in the
         # least-squares sense: the controller's exact nominal solution the check looks for does not exist
-        notes += check_walk(model, comp_of, solve, targets, comp, qb, T, D, Dm, axis_signs, written)
+        notes += check_walk(model, comp_of, solve, targets, comp, qb, T, D, Dm, axis_signs, written, T_nominal=T_nom)
     comp.reason = comp.reason.astype(str)
     return comp, notes
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -22,6 +22,8 @@ class Compensation:
     shift_mm, shift_deg: ``(N,)`` how far the command is from the target (controller frame).
     in_support: ``(N,)`` bool, ``q`` inside the model's training support.
     q_branch: ``(N, n)`` joints that chose the branch. frame: the resolved frame.
+    notes: what the caller should be told about targets that are compensated (texts; e.g. targets the
+    controller executes on another solution within the model's accuracy).
     """
 
     command: np.ndarray
@@ -35,6 +37,7 @@ class Compensation:
     in_support: np.ndarray
     q_branch: np.ndarray
     frame: str
+    notes: list = field(default_factory=list)
 
     def __len__(self) -> int:
         return int(self.success.shape[0])
@@ -52,7 +55,7 @@ def merge_parts(parts: list[tuple[np.ndarray, Compensation]], n_rows: int) -> Co
         for idx, c in parts:
             full[idx] = getattr(c, name)
         out[name] = full
-    return Compensation(frame=first.frame, **out)
+    return Compensation(frame=first.frame, notes=[t for _, c in parts for t in c.notes], **out)
 
 
 def first_row_per_target(res) -> np.ndarray:

@@ -208,6 +208,17 @@ if HAVE_NUMBA:
         for k in numba.prange(qn.shape[0]):
             out[k] = pair_gap_row(qn[k], lower, span, field, I, J)
 
+    @numba.njit(cache=True, nogil=True)
+    def _pair_gap_serial(qn, lower, span, field, I, J, out):  # pragma: no cover
+        """:func:`_pair_gap_kernel` in this thread: for a few rows, waking the thread pool costs more than
+        the rows (21 ms a call on a loaded machine, measured)."""
+        for k in range(qn.shape[0]):
+            out[k] = pair_gap_row(qn[k], lower, span, field, I, J)
+
+
+#: batches at least this large spread the pair gap over numba's threads
+_PAIR_GAP_PARALLEL_MIN = 2048
+
 
 def pair_gap(sup: Support, qn: np.ndarray) -> np.ndarray:
     """``(N,)`` hole gap of ``qn`` ``(N, n)``: max over joint pairs of the bilinearly interpolated
@@ -220,7 +231,7 @@ def pair_gap(sup: Support, qn: np.ndarray) -> np.ndarray:
     span = sup.span
     if HAVE_NUMBA:
         out = np.empty(n_rows)
-        _pair_gap_kernel(np.ascontiguousarray(qn, dtype=np.float64), np.ascontiguousarray(sup.lower),
+        (_pair_gap_serial if n_rows < _PAIR_GAP_PARALLEL_MIN else _pair_gap_kernel)(np.ascontiguousarray(qn, dtype=np.float64), np.ascontiguousarray(sup.lower),
                          np.ascontiguousarray(span), np.ascontiguousarray(sup.pair_gap, dtype=np.float64),
                          np.ascontiguousarray(I), np.ascontiguousarray(J), out)
         return out
