@@ -208,6 +208,33 @@ def fk_speed(m) -> None:
         b_c = timeit(lambda: m.predict_classical(q), 3)
     print(f"  hybrid FK one pose {one_h * 1e6:.1f} µs (calibrated classical {one_c * 1e6:.1f} µs); batch 100,000: hybrid "
           f"{len(q) / b_h:,.0f} poses/s, calibrated classical {len(q) / b_c:,.0f} poses/s, ratio {b_c / b_h:.2f}")
+    floor = matmul_floor(m, len(q))
+    print(f"    the networks' matrix products and features alone (every activation removed; the model's own path) take "
+          f"{floor * 1e3:.1f} ms for 100,000 poses against {b_c * 1e3:.1f} ms for the calibrated classical model: with "
+          f"this float64 arithmetic the ratio cannot exceed {b_c / (b_c + floor):.2f} here (the activations cost "
+          f"{(b_h - b_c - floor) * 1e3:.1f} ms more)")
+
+
+def matmul_floor(m, n: int) -> float:
+    """Seconds for both residual networks on ``n`` rows with every activation removed (the same float64
+    inference path, chunks and threads as the model's: :mod:`hykin.hybrid.fast_nets`): the dense layers'
+    matrix products and the features alone, what the networks add to the classical model's time at least
+    with this arithmetic."""
+    import copy
+
+    from hykin.hybrid import fast_nets
+
+    nets = []
+    for net in (m.net_pos_, m.net_rot_):
+        if net is None:
+            continue
+        f = copy.deepcopy(fast_nets.cached(m, net).fast)
+        for L in f.layers:
+            L.main = [(W, b, None) for W, b, _ in L.main]
+            L.act = None
+        nets.append(f)
+    x = m.robot.random_joints(n, 5)
+    return timeit(lambda: [f(x) for f in nets], 3)
 
 
 def main() -> None:
