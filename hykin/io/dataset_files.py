@@ -13,6 +13,8 @@ file, the data row (with its line in the file) and the column.
 
 from __future__ import annotations
 
+import re
+
 from collections.abc import Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -139,6 +141,7 @@ class _Table:
     metadata: dict
     lines: np.ndarray | None = None
     text: object = None  # (name) -> str (N,) cells as written (text files; label columns)
+    deg_joints: tuple = ()  # joint columns read from ``q<i>_deg`` (:func:`_deg_joint_columns`)
 
     def extras(self, skip) -> dict[str, np.ndarray]:
         """Extra columns: label columns (station, tool, pose_id, pose) as text as written ("01" stays "01"),
@@ -179,6 +182,31 @@ def _open_table(path: str | Path) -> _Table:
     _check_header(where, path, t.header)
     return _Table(where, t.header, lambda c: float_column(t, c, finite=False), lambda c: lenient_column(t.col(c)),
                   t.line_offset(), {}, t.lines, lambda c: label_cells(t.col(c)))
+
+
+_DEG_JOINT = re.compile(r"q(\d+)_deg")
+
+
+def _deg_joint_columns(t: _Table, angle_unit: str) -> str:
+    """Joint columns named with their unit, ``q<i>_deg`` (as ``hykin plan`` writes them for a robot file in
+    degrees), read as ``q<i>`` in degrees (in place; returns the angle unit to read with: ``"deg"``).
+    The name says the unit, so it holds whatever ``--angle-unit`` says (the default is rad); both a
+    ``q<i>`` and a ``q<i>_deg`` column, or ``q<i>_deg`` beside plain revolute angles, is refused."""
+    deg = {m.group(0): f"q{m.group(1)}" for h in t.header if (m := _DEG_JOINT.fullmatch(h))}
+    if not deg:
+        return angle_unit
+    both = [c for c, q in deg.items() if q in t.header]
+    if both:
+        raise DatasetError(f"{t.where}: both '{deg[both[0]]}' and '{both[0]}' columns: one joint, two columns (drop one)",
+                           file=t.where, column=both[0])
+    alias = {q: c for c, q in deg.items()}
+    t.header = [deg.get(h, h) for h in t.header]
+    numeric, lenient, text = t.numeric, t.lenient, t.text
+    t.numeric = lambda c: numeric(alias.get(c, c))
+    t.lenient = lambda c: lenient(alias.get(c, c))
+    t.text = None if text is None else (lambda c: text(alias.get(c, c)))
+    t.deg_joints = tuple(alias)
+    return "deg"
 
 
 def _check_header(where: str, path, header: list) -> None:
@@ -243,6 +271,11 @@ def _joints_of(t: _Table, robot, dof, angle_unit: str, length_unit: str) -> np.n
     q = np.stack([t.numeric(c) for c in qn], axis=1)
     check_finite(t.where, q, qn, t.line_offset)
     rev = revolute_mask(len(qn), robot)
+    plain = [c for c, r in zip(qn, rev) if r and c not in t.deg_joints]
+    if t.deg_joints and plain:  # q<i>_deg columns make every revolute angle degrees: a plain one would be read so
+        raise DatasetError(f"{t.where}: joint column '{plain[0]}' has no unit in its name beside "
+                           f"'{t.deg_joints[0]}_deg': name every revolute joint q<i>_deg (or none, with --angle-unit)",
+                           file=t.where, column=plain[0])
     factor = np.where(rev, ANGLE_UNITS[angle_unit], LENGTH_UNITS[length_unit])
     q = q * factor
     if robot is not None and robot.continuous.any():  # continuous joints: into [-pi, pi) (same poses)
@@ -326,6 +359,7 @@ def read_dataset(
     where = str(path)
     check_units(where, length_unit, angle_unit)
     t = _open_table(path)
+    angle_unit = _deg_joint_columns(t, angle_unit)
     with _file_lines(t):
         _check_declared_units(t, length_unit, angle_unit)
         expect = f"{', '.join(_joint_header(where, t.header, robot, dof))}, x, y, z and optionally qw, qx, qy, qz"
@@ -365,6 +399,7 @@ def read_joints(
     where = str(path)
     check_units(where, length_unit, angle_unit)
     t = _open_table(path)
+    angle_unit = _deg_joint_columns(t, angle_unit)
     with _file_lines(t):
         _check_declared_units(t, length_unit, angle_unit)
         q = _joints_of(t, robot, dof, angle_unit, length_unit)
