@@ -507,14 +507,16 @@ class HybridModel:
         if kern is not None:
             T, ex, gap, outside = fast_fk.predict_fast(kern, q2, framed)
             if warn and outside:
-                sup_.warn_outside(ex, gap, bool(self.fade), self.payload_range_, payload_kg, stacklevel=3)
+                sup_.warn_outside(ex, gap, bool(self.fade), self.payload_range_, payload_kg, stacklevel=3,
+                                  circular=sup_.circular_joints(self.robot_, self.wrap_centre_), sup=self.support)
             return T
         T = classical_fk(self.robot_, q2, payload_kg, payload_com_m)
         s, qn = self.support, self._netq(q2)
         ex = sup_.range_excess(s, qn)
         gap = sup_.pair_gap(s, qn)
         if warn:
-            sup_.warn_outside(ex, gap, bool(self.fade), self.payload_range_, payload_kg, stacklevel=3)
+            sup_.warn_outside(ex, gap, bool(self.fade), self.payload_range_, payload_kg, stacklevel=3,
+                              circular=sup_.circular_joints(self.robot_, self.wrap_centre_), sup=self.support)
         w = None
         if self.fade is not False:
             w = sup_.fade_weight(sup_.fade_distance(s, qn, self.fade, ex, gap), self.fade_offset_, self.fade_width_)

@@ -364,20 +364,38 @@ def support_report(model, q) -> dict:
     return out
 
 
+def circular_joints(robot, wrap_centre) -> np.ndarray:
+    """``(n,)`` bool: the network inputs taken modulo a turn (``wrap_centre`` not NaN) of joints whose
+    limits span more than a turn (within less the wrap changes nothing)."""
+    w = ~np.isnan(np.asarray(wrap_centre, dtype=np.float64)) if wrap_centre is not None else np.zeros(robot.dof, bool)
+    return w & (np.asarray(robot.upper) - np.asarray(robot.lower) > 2 * np.pi)
+
+
 def warn_outside(ex: np.ndarray, gap: np.ndarray, fading: bool, payload_range=None, payload_kg=None,
-                 stacklevel: int = 2) -> None:
+                 stacklevel: int = 2, circular=None, sup: Support | None = None) -> None:
     """One :class:`OutOfRangeWarning` with counts for queries outside the trained joint range (range
     excess ``ex`` ``(N, n)``) or in holes (pair gap ``gap`` ``(N,)``), and one for payloads
     ``payload_kg`` outside the trained ``payload_range``. ``fading``: the model fades its correction
-    (the message says so). ``stacklevel``: as in :func:`warnings.warn`, counted from the caller."""
+    (the message says so). ``stacklevel``: as in :func:`warnings.warn`, counted from the caller.
+    ``circular`` ``(n,)`` bool (:func:`circular_joints`) and ``sup``: a joint of more than a turn is taken
+    modulo a turn, so a query "outside" its trained range lies in a gap of the data on its circle: said so,
+    with how much of the circle the data cover (probe s41 AF: "outside the joint range" for a 2.5° gap of
+    ±248°)."""
     out_rows = ex.max(1) > 0
     holes = (gap > 0) & ~out_rows
     if out_rows.any() or holes.any():
         tail = "the correction fades to the calibrated model there" if fading else \
             "network corrections there are extrapolations"
         if out_rows.any():
-            per = ", ".join(f"q{j + 1}: {int(c)}" for j, c in enumerate((ex > 0).sum(0)) if c)
-            msg = f"{int(out_rows.sum())} of {len(ex)} queries are outside the joint range the networks were trained on ({per})"
+            counts = (ex > 0).sum(0)
+            wr = np.zeros(len(counts), dtype=bool) if circular is None else np.asarray(circular, dtype=bool)
+            per = ", ".join(f"q{j + 1}: {int(c)}" for j, c in enumerate(counts) if c and not wr[j])
+            circ = ", ".join(f"q{j + 1}: {int(c)}" + ("" if sup is None else
+                             f", data on {np.degrees(sup.upper[j] - sup.lower[j]):.1f}° of its 360°")
+                             for j, c in enumerate(counts) if c and wr[j])
+            parts = ([f"outside the joint range the networks were trained on ({per})"] if per else []) + \
+                ([f"in a gap of the training data on a joint of more than a turn ({circ})"] if circ else [])
+            msg = f"{int(out_rows.sum())} of {len(ex)} queries are " + "; or ".join(parts)
             if holes.any():
                 msg += f"; {int(holes.sum())} more lie in holes of the training data"
         else:
