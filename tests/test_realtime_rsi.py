@@ -344,3 +344,60 @@ def test_a_restarted_controller_is_answered_again(kuka):
     o = h(msg(6_004))  # its second, 4 ms later: a new count
     assert o.kind == "ok" and o.skipped == 0 and parse_sen(o.reply, RsiConfig())[0] == 6_004
     assert h(msg(6_008)).kind == "ok" and h(msg(6_004)).kind == "ignored:stale IPOC"
+
+
+def test_incremental_sum_survives_a_stray_datagram_far_ahead(kuka):
+    """Probe s41 AH: one datagram from the controller's address with an IPOC far ahead (a corrupted stamp)
+    was answered as a new RSI context; the session's next messages then counted as a restart, hykin's sum
+    started again at zero and the full correction was sent a second time (4.3 mm on every later cycle).
+    The session going on from before the jump now marks it a stray and undoes its answer: the sum the
+    controller adds up stays the correction (checked against the absolute mode's on the same message)."""
+    nom = kuka.nominal
+    q0 = np.radians([10.0, -80, 100, 20, 50, -30])
+    sp = _path(nom, 12, q0)
+    cfg = RsiConfig(mode="incremental")
+    h = RsiHandler(exact_step(kuka), np.eye(4), 6, SIGNS, cfg)
+    ref = RsiHandler(exact_step(kuka), np.eye(4), 6, SIGNS, RsiConfig())
+    axes = np.degrees(q0 * SIGNS)
+    total, prev_cmd, ipoc = np.zeros(6), sp[0], 1_000
+    for k in range(12):
+        msg = format_rob(ipoc, sp[k], prev_cmd, axes, cfg)
+        o = h(msg)
+        assert o.kind == "ok", (k, o)
+        got_ipoc, inc = parse_sen(o.reply, cfg)
+        assert got_ipoc == ipoc
+        total = total + inc  # the controller adds up the answers to its own cycles
+        prev_cmd = sp[k] + total
+        if k == 5:  # a stray: answered (or not), never applied by the controller (not its cycle's IPOC)
+            h(format_rob(999_999_999, sp[k], prev_cmd, axes, cfg))
+        ipoc += 4
+    want = parse_sen(ref(format_rob(ipoc - 4, sp[11], prev_cmd, axes, RsiConfig())).reply, RsiConfig())[1]
+    np.testing.assert_allclose(total, want, atol=1e-3)
+    assert h.stray_jumps == 1 and h.new_sessions == 0
+
+
+def test_incremental_sum_resyncs_after_a_late_first_answer_and_a_gap(kuka):
+    """Probe s41 AH: the first answer (the whole correction) reached the controller too late to be applied
+    and the next cycle never reached the bridge (a gap in the stamps): hykin counted the correction as
+    applied and the path stayed 4.3 mm off on every later cycle. The answers not yet seen applied in RIst
+    are now all considered at the first message after the gap."""
+    nom = kuka.nominal
+    q0 = np.radians([10.0, -80, 100, 20, 50, -30])
+    sp = _path(nom, 12, q0)
+    cfg = RsiConfig(mode="incremental")
+    h = RsiHandler(exact_step(kuka), np.eye(4), 6, SIGNS, cfg)
+    ref = RsiHandler(exact_step(kuka), np.eye(4), 6, SIGNS, RsiConfig())
+    axes = np.degrees(q0 * SIGNS)
+    total, prev_cmd = np.zeros(6), sp[0]
+    for k in range(12):
+        ipoc = 1_000 + 4 * k
+        if k != 1:  # cycle 1 never reaches the bridge
+            o = h(format_rob(ipoc, sp[k], prev_cmd, axes, cfg))
+            assert o.kind == "ok", (k, o)
+            if k != 0:  # the first answer arrives too late to be applied
+                total = total + parse_sen(o.reply, cfg)[1]
+        prev_cmd = sp[k] + total
+    want = parse_sen(ref(format_rob(1_044, sp[11], prev_cmd, axes, RsiConfig())).reply, RsiConfig())[1]
+    assert np.abs(want).max() > 1.0  # several mm of correction at stake
+    np.testing.assert_allclose(total, want, atol=1e-3)
+    assert h.lost_answers == 1

@@ -22,6 +22,7 @@ sends that correction; incremental mode sends its change since the last answer (
 
 from __future__ import annotations
 
+import itertools
 import logging
 
 import numpy as np
@@ -36,6 +37,7 @@ __all__ = ["DECIMALS", "MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "RsiHandler", "kor
 DECIMALS = 5  # of RKorr as written (mm, deg)
 RESTART_BEHIND_MS = 1000  # an IPOC this far behind (or ahead of) the last answered one may be a new RSI context
 RESYNC_TOL = 2e-3  # mm / deg: RIst's sum and hykin's agree within this (both written with 5-6 decimals)
+_MAX_PENDING = 4  # answers not yet seen applied that a re-synchronisation considers (2^4 subsets)
 _log = logging.getLogger("hykin.realtime")
 _CAUSES = ("RIst mismatch:", "unreachable setpoint:", "correction over the limit:")  # failure reasons' categories
 
@@ -108,6 +110,9 @@ class RsiHandler:
         self.lost_answers = 0  # incremental mode: answers the controller did not apply (seen in RIst)
         self.new_sessions = 0
         self._retired: int | None = None  # the last IPOC answered before the latest restart
+        self._before_jump = None  # (IPOC, sum, last answer) before the latest jump ahead, until it is confirmed
+        self._pending: list = []  # incremental mode: increments sent since RIst last showed the sum
+        self.stray_jumps = 0  # jumps ahead that were one stray datagram (undone)
         self.last_reason = ""
 
     @property
@@ -151,8 +156,12 @@ class RsiHandler:
         Any other difference (a controller whose RIst lags its command) leaves the sum as it is."""
         prev = self._prev
         if prev is None or msg.actual is None or skipped:
-            return
-        cands = [("lost", prev[2])]
+            return  # (after a gap RIst is of a setpoint not seen: the answers so far stay pending)
+        pending, self._pending = self._pending[-_MAX_PENDING:], []
+        # the answers not yet seen applied: any of them may have been lost or late (probe s41 AH: a first
+        # answer 1 s late, then a gap, left the whole 4.3 mm correction counted but never applied)
+        cands = [("lost", sum(c)) for r in range(1, len(pending) + 1) for c in itertools.combinations(pending, r)]
+        cands = cands or [("lost", prev[2])]
         if prev[3] is not None:
             cands += [("context", prev[3]), ("context", prev[3] + prev[2])]
         if not any(np.any(np.abs(c) > RESYNC_TOL) for _, c in cands):
@@ -185,8 +194,19 @@ class RsiHandler:
         except RsiMessageError as e:
             self.last_reason = str(e)
             return Outcome(None, "ignored:malformed")
-        new_session, jump_sum = False, None
-        if self.last_ipoc is not None and msg.ipoc <= self.last_ipoc:
+        new_session, jump_sum, jumped = False, None, False
+        before = self._before_jump
+        if before is not None and self.last_ipoc is not None and msg.ipoc <= self.last_ipoc \
+                and 0 < msg.ipoc - before[0] <= RESTART_BEHIND_MS:
+            # the session before a jump ahead goes on: the jump was one stray datagram (a corrupted stamp),
+            # whose answer the controller never took (its IPOC was not the cycle's): undo it, or an
+            # incremental sum would be started again and the controller's counted twice (probe s41 AH: 4.3 mm)
+            self.last_ipoc, self.sent_sum, self._prev, self._pending = before
+            self._before_jump = None
+            self.stray_jumps += 1
+            _log.warning("hykin rsi: a datagram with IPOC far ahead of the session was a stray (the session goes on "
+                         "from IPOC %d): its answer is undone", before[0])
+        elif self.last_ipoc is not None and msg.ipoc <= self.last_ipoc:
             if not self.restart.restarted(msg.ipoc, self.last_ipoc - msg.ipoc):
                 return Outcome(None, "ignored:stale IPOC")
             new_session = True
@@ -198,10 +218,13 @@ class RsiHandler:
             if self._retired is not None and msg.ipoc <= self._retired + RESTART_BEHIND_MS and \
                     not self.restart.restarted(msg.ipoc, msg.ipoc - self.last_ipoc):
                 return Outcome(None, "ignored:IPOC jump")
-            jump_sum = self.sent_sum.copy()
+            jump_sum, jumped = self.sent_sum.copy(), True
+            self._before_jump = (self.last_ipoc, self.sent_sum.copy(), self._prev, list(self._pending))
+        elif before is not None and self.last_ipoc is not None and msg.ipoc > self.last_ipoc:
+            self._before_jump = None  # the stamps after the jump follow on: a real jump (a new RSI context)
         if new_session:  # a new RSI context: its own count and sum
             self._retired = max(self.last_ipoc, self._retired or 0)
-            self.last_ipoc, self.sent_sum, self._prev = None, np.zeros(6), None
+            self.last_ipoc, self.sent_sum, self._prev, self._pending = None, np.zeros(6), None, []
             self.new_sessions += 1
         self.restart.clear()
         skipped = 0
@@ -210,6 +233,8 @@ class RsiHandler:
         self.last_ipoc = msg.ipoc
         if self.incremental:
             self._resync(msg, skipped)
+        if jumped:  # a jump of the stamps (a new context or a stray), not cycles the controller skipped
+            skipped = 0
         try:
             k = self.correction(msg.setpoint, msg.axes_deg, msg.actual)
             kind, why = "ok", ""
@@ -226,6 +251,7 @@ class RsiHandler:
                 send = np.round(inc, DECIMALS)
             self.sent_sum = self.sent_sum + send
             self._prev = (msg.ipoc, msg.setpoint, send, jump_sum)
+            self._pending.append(send)
         else:
             send = np.zeros(6) if k is None else k
         return Outcome(format_sen(msg.ipoc, send, self.cfg), kind, skipped, why)
