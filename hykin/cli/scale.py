@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import typer
 
-from .common import CLIError, app, check_output
+from .common import CLIError, app, check_output, plain_markup
 
 Address = typer.Option(None, "--address", help="Ray cluster to join (e.g. auto, or ray://HEAD:10001); default: a local Ray on this machine's CPUs.")
 NumCpus = typer.Option(None, "--num-cpus", help="CPUs of the local Ray (default: all of this machine's); ignored with --address.")
@@ -24,7 +25,7 @@ def _check_outputs(out: Path, names, inputs) -> None:
 
 @app.command("sweep")
 def sweep_cmd(
-    sweep_file: Path = typer.Argument(..., help="Sweep file (.toml): robot, train, test, [grid], [random], [resources]."),
+    sweep_file: Path = typer.Argument(..., help=plain_markup("Sweep file (.toml): robot, train, test, length_unit, angle_unit, [grid], [random], [resources].")),
     out: Path = typer.Option(..., "-o", "--out", help="Output directory: results.csv, error_vs_n_train.png."),
     address: str | None = Address,
     resume: bool = typer.Option(False, "--resume", help="Keep the finished trials in OUT; run only the others."),
@@ -42,7 +43,8 @@ def sweep_cmd(
     spec = read_sweep(sweep_file)
     _check_outputs(out, SWEEP_OUTPUTS,
                    (sweep_file, spec.robot, spec.train, spec.test))
-    res = run_sweep(spec, out, address=address, resume=resume, num_cpus=num_cpus, log=typer.echo, force=force)
+    with _interrupted("sweep", sweep_file, out):
+        res = run_sweep(spec, out, address=address, resume=resume, num_cpus=num_cpus, log=typer.echo, force=force)
     typer.echo(f"sweep: {len(res.rows) - len(res.failed)} of {len(res.rows)} trials ok ({res.ran} run now); "
                f"results in {res.results_csv}" + (f", plot {res.plot}" if res.plot else ""))
     _fail_lines([(f"trial {r['trial']}", r["error"] or r["status"]) for r in res.failed])
@@ -50,7 +52,8 @@ def sweep_cmd(
 
 @app.command("fleet")
 def fleet_cmd(
-    fleet_file: Path = typer.Argument(..., help="Fleet file (.toml): one [[robot]] entry per robot."),
+    fleet_file: Path = typer.Argument(..., help=plain_markup("Fleet file (.toml): one [[robot]] entry per robot (name, robot, train, test, register, "
+                                                          "length_unit, angle_unit, [robot.fit]).")),
     out: Path = typer.Option(..., "-o", "--out", help="Output directory: NAME.hykin models, summary.csv, summary.md."),
     address: str | None = Address,
     num_cpus: int | None = NumCpus,
@@ -69,10 +72,23 @@ def fleet_cmd(
     spec = read_fleet(fleet_file)
     _check_outputs(out, fleet_outputs(spec), [fleet_file] + [p for r in spec.robots
                                                             for p in (r.robot, r.train, r.test, r.register)])
-    rows = run_fleet(spec, out, address=address, num_cpus=num_cpus, log=typer.echo, resume=resume, force=force)
+    with _interrupted("fleet", fleet_file, out):
+        rows = run_fleet(spec, out, address=address, num_cpus=num_cpus, log=typer.echo, resume=resume, force=force)
     ok = sum(r["status"] == "ok" for r in rows)
     typer.echo(f"fleet: {ok} of {len(rows)} robots ok; summary in {out / 'summary.csv'} and {out / 'summary.md'}")
     _fail_lines([(f"robot {r['name']}", r["error"]) for r in rows if r["status"] != "ok"])
+
+
+@contextlib.contextmanager
+def _interrupted(command: str, spec_file: Path, out: Path):
+    """Ctrl-C in the block: one line on stderr (interrupted; what finished is kept in ``out``; ``--resume``
+    continues) and exit status 130 (Typer otherwise ends a KeyboardInterrupt with 130 and no word)."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        typer.echo(f"hykin: {command} interrupted; what finished is kept in {out}: `hykin {command} {spec_file} "
+                   f"-o {out} --resume` continues", err=True)
+        raise typer.Exit(130) from None
 
 
 def _fail_lines(failed: list) -> None:

@@ -3,6 +3,7 @@
 Modules:
 
 * ``files`` — TOML reading, relative paths, one-line :class:`~hykin.distributed.files.SpecError`.
+* ``options`` — the one up-front check of fit options (sweep [grid] / [random], fleet [robot.fit]) and data units.
 * ``sweep_file`` — SWEEP.toml -> :class:`~hykin.distributed.sweep_file.SweepSpec` and its trials.
 * ``fleet_file`` — FLEET.toml -> :class:`~hykin.distributed.fleet_file.FleetSpec`.
 * ``trials`` — the one trial: `hykin fit` options -> fitted model -> test errors.

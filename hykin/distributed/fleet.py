@@ -26,6 +26,7 @@ import numpy as np
 
 from .files import inputs_sha256
 from .fleet_file import FleetRobot, FleetSpec
+from .options import units_options
 from .ray_session import check_resources, ray_session
 from .trial_pool import first_line
 from .trials import ERROR_COLUMNS, error_columns, evaluate_noted, fit_model, gpu_fit_options
@@ -57,18 +58,19 @@ def robot_job(entry: FleetRobot) -> dict:
     row = {"name": entry.name, "status": "ok", "error": "", "files": {}}
     try:
         rob = load_robot(entry.robot)
-        train = read_dataset(entry.train, robot=rob)
+        units = {"length_unit": entry.length_unit, "angle_unit": entry.angle_unit}  # as `hykin fit --length-unit ...`
+        train = read_dataset(entry.train, robot=rob, **units)
         t0 = time.perf_counter()
         model = fit_model(rob, train, entry.fit)
         row.update(n_train=len(train), fit_s=time.perf_counter() - t0)
         row["model"] = f"{entry.name}.hykin"
         row["files"][row["model"]] = _model_bytes(model)
         if entry.test is not None:
-            test = read_dataset(entry.test, robot=rob)
+            test = read_dataset(entry.test, robot=rob, **units)
             res, note = evaluate_noted(model, test)
             row.update(n_test=len(test), **error_columns(res), test_note=note)
         if entry.register is not None:
-            series = read_dataset(entry.register, robot=rob)
+            series = read_dataset(entry.register, robot=rob, **units)
             new, info = register_model(model, series, n_poses=entry.poses)
             row["registered_model"] = f"{entry.name}-registered.hykin"
             row["files"][row["registered_model"]] = _model_bytes(new)
@@ -87,8 +89,10 @@ def robot_job(entry: FleetRobot) -> dict:
 
 def inputs_hash(entry: FleetRobot) -> str:
     """SHA-256 over what a robot's results depend on (:func:`hykin.distributed.files.inputs_sha256`): the
-    robot file's bytes (a preset: its name), the train / test / register files' bytes, ``poses`` and the fit options."""
-    return inputs_sha256((entry.robot, entry.train, entry.test, entry.register), {"poses": entry.poses, "fit": entry.fit})
+    robot file's bytes (a preset: its name), the train / test / register files' bytes, ``poses``, the fit options
+    and the data units (when not m / rad: a fleet recorded before the unit keys keeps its hashes)."""
+    return inputs_sha256((entry.robot, entry.train, entry.test, entry.register),
+                         {"poses": entry.poses, "fit": entry.fit, **units_options(entry.length_unit, entry.angle_unit)})
 
 
 def kept_rows(spec: FleetSpec, out: Path) -> dict:
@@ -163,7 +167,7 @@ def run_fleet(spec: FleetSpec, out_dir: str | Path, address: str | None = None, 
 def _run_robots(spec: FleetSpec, todo: list, out: Path, rows: dict, address, num_cpus, log) -> None:
     """The robots ``todo`` as Ray tasks; each finished robot's files written and its row put in ``rows``."""
     hashes = {r.name: inputs_hash(r) for r in todo}  # the inputs as they are when the robots start
-    t0 = time.perf_counter()
+    t0, n_done = time.perf_counter(), 0
     with ray_session(address, num_cpus) as ray:
         check_resources(ray, str(spec.path), {"cpus_per_robot": spec.cpus_per_robot,
                                               "gpus_per_robot": spec.gpus_per_robot}, address)
@@ -185,6 +189,7 @@ def _run_robots(spec: FleetSpec, todo: list, out: Path, rows: dict, address, num
             for fname, data in row.pop("files", {}).items():
                 (out / fname).write_bytes(data)
             rows[name] = row
+            n_done += 1
             _write_summary(out / "summary.csv", [rows[r.name] for r in spec.robots if r.name in rows])  # resumable
             if row["status"] != "ok":
                 what = f"FAILED: {row['error']}"
@@ -193,7 +198,7 @@ def _run_robots(spec: FleetSpec, todo: list, out: Path, rows: dict, address, num
             else:
                 what = f"hybrid {row['hybrid_pos_mean_mm']:.4f} mm on its test set"
             what += registered_note(row)
-            log(f"fleet: robot {len(rows)}/{len(spec.robots)} {name}: {what}; elapsed {time.perf_counter() - t0:.0f} s")
+            log(f"fleet: robot {n_done}/{len(todo)} {name}: {what}; elapsed {time.perf_counter() - t0:.0f} s")
 
 
 def registered_note(row: dict) -> str:

@@ -12,11 +12,15 @@ train = "cell3_train.csv"
 test = "cell3_test.csv"     # optional
 register = "cell3_day2.csv" # optional: a new series, registered from `poses` of its rows
 poses = 30                  # optional (30)
+length_unit = "m"           # optional: units of this robot's data files: x, y, z in m or mm, joints in rad or deg
+angle_unit = "rad"          #   (as `hykin fit --length-unit / --angle-unit`; the robot file declares its own)
 [robot.fit]                 # optional `hykin fit` options (names with underscores)
 min_steps = 5000
 ```
 
 :func:`read_fleet` -> :class:`FleetSpec` (SpecError, one line naming the file, the entry and the key).
+``[robot.fit]`` values are checked by the sweep's checker (:func:`hykin.distributed.options.check_option`:
+types, architecture / recipe / device names), so a fleet refuses what a sweep refuses, before Ray starts.
 """
 
 from __future__ import annotations
@@ -25,18 +29,20 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..hybrid.fit_options import FIT_OPTIONS, model_kwargs
+from ..hybrid.fit_options import FIT_OPTIONS
 from .files import SpecError, check_keys, read_toml, rel_path, robot_spec
+from .options import check_option, data_units
 
 __all__ = ["FleetRobot", "FleetSpec", "read_fleet"]
 
-ROBOT_KEYS = ("name", "robot", "train", "test", "register", "poses", "fit")
+ROBOT_KEYS = ("name", "robot", "train", "test", "register", "poses", "length_unit", "angle_unit", "fit")
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 
 
 @dataclass
 class FleetRobot:
-    """One robot of a fleet: absolute paths (``test``/``register`` None when not given), fit options."""
+    """One robot of a fleet: absolute paths (``test``/``register`` None when not given), fit options, the
+    units of its data files (``length_unit`` m/mm, ``angle_unit`` rad/deg, as `hykin fit`)."""
 
     name: str
     robot: str
@@ -45,6 +51,8 @@ class FleetRobot:
     register: Path | None = None
     poses: int = 30
     fit: dict = field(default_factory=dict)
+    length_unit: str = "m"
+    angle_unit: str = "rad"
 
 
 @dataclass
@@ -72,6 +80,21 @@ def _check_outputs(p: Path, i: int, name: str, outputs: dict) -> None:
         outputs[fname.lower()] = (i, name)
 
 
+def _fit_options(p: Path, where: str, fit) -> dict:
+    """The ``[robot.fit]`` table of the entry ``where``, checked as a sweep's ``[grid]`` values are
+    (:func:`hykin.distributed.options.check_option`: names, types, architectures, recipes, devices)."""
+    if not isinstance(fit, dict):
+        raise SpecError(f"{p}: {where}fit must be a table [robot.fit]")
+    for k in ("length_unit", "angle_unit"):
+        if k in fit:
+            raise SpecError(f"{p}: {where}[robot.fit] {k}: the data units are keys of the [[robot]] entry, not of "
+                            f"[robot.fit] (move {k} = {fit[k]!r} above [robot.fit])")
+    check_keys(p, where + "[robot.fit] ", fit, FIT_OPTIONS)
+    for k, v in fit.items():
+        check_option(p, where + "[robot.fit] ", k, v)
+    return dict(fit)
+
+
 def read_fleet(path: str | Path) -> FleetSpec:
     """Parse and check the fleet file ``path`` (SpecError naming the file, entry and key on a mistake)."""
     p, t = read_toml(path)
@@ -90,14 +113,8 @@ def read_fleet(path: str | Path) -> FleetSpec:
             raise SpecError(f"{p}: {where}name = {name!r}: expected letters, digits, '.', '_' or '-' (it names the output files)")
         _check_outputs(p, i, name, outputs)
         where = f"[[robot]] {name!r} "
-        fit = e.get("fit", {})
-        if not isinstance(fit, dict):
-            raise SpecError(f"{p}: {where}fit must be a table [robot.fit]")
-        check_keys(p, where + "[robot.fit] ", fit, FIT_OPTIONS)
-        try:
-            model_kwargs(**{k: v for k, v in fit.items() if k != "device"})
-        except ValueError as err:
-            raise SpecError(f"{p}: {where}[robot.fit] {err}") from None
+        fit = _fit_options(p, where, e.get("fit", {}))
+        length_unit, angle_unit = data_units(p, where, e)
         poses = e.get("poses", 30)
         if isinstance(poses, bool) or not isinstance(poses, int) or poses < 3:
             raise SpecError(f"{p}: {where}poses = {poses!r}: expected an integer >= 3")
@@ -105,7 +122,8 @@ def read_fleet(path: str | Path) -> FleetSpec:
             name=name, robot=robot_spec(p, where + "robot", e.get("robot")),
             train=rel_path(p, where + "train", e.get("train")),
             test=rel_path(p, where + "test", e.get("test"), optional=True),
-            register=rel_path(p, where + "register", e.get("register"), optional=True), poses=poses, fit=dict(fit)))
+            register=rel_path(p, where + "register", e.get("register"), optional=True), poses=poses, fit=fit,
+            length_unit=length_unit, angle_unit=angle_unit))
     res = t.get("resources", {})
     check_keys(p, "[resources] ", res, ("cpus_per_robot", "gpus_per_robot"))
     vals = {k: res.get(k, d) for k, d in (("cpus_per_robot", 1), ("gpus_per_robot", 0))}

@@ -25,7 +25,8 @@ from .sweep_file import SweepSpec, sweep_inputs_hash, trial_key
 from .trial_pool import run_trials
 from .trials import ERROR_COLUMNS, gpu_fit_options
 
-__all__ = ["SWEEP_OUTPUTS", "SweepOutcome", "kept_records", "run_sweep", "write_results", "plot_results"]
+__all__ = ["SWEEP_OUTPUTS", "SweepOutcome", "kept_records", "plot_lines", "plot_results", "run_sweep",
+           "write_results"]
 
 #: the files a sweep writes into its output folder: the results table (written through a .tmp file
 #: renamed into place by :func:`write_results`), the trial records and the plot
@@ -93,8 +94,9 @@ def run_sweep(spec: SweepSpec, out_dir: str | Path, address: str | None = None, 
     records, n_changed = kept_records(records_path, inputs) if resume else ({}, 0)
     todo = [i for i, k in enumerate(keys) if records.get(k, {}).get("status") != "ok"]
     rob = load_robot(spec.robot)
-    train = read_dataset(spec.train, robot=rob)
-    test = read_dataset(spec.test, robot=rob)
+    units = {"length_unit": spec.length_unit, "angle_unit": spec.angle_unit}  # as `hykin fit --length-unit ...`
+    train = read_dataset(spec.train, robot=rob, **units)
+    test = read_dataset(spec.test, robot=rob, **units)
     n_max = max((t.get("n_train", 0) for t in trials), default=0)
     if n_max > len(train):
         raise SpecError(f"{spec.path}: n_train = {n_max} exceeds the {len(train)} rows of {spec.train}")
@@ -167,11 +169,63 @@ def write_results(path: Path, rows: list, option_columns: list) -> None:
     tmp.replace(path)
 
 
-def plot_results(rows: list, path: Path) -> Path | None:
-    """Test error (hybrid, mean over the other options) against training-set size, one line per
-    architecture (log-log); the calibrated model's mean dashed. None when no trial finished."""
+#: options that change only the networks, not the calibration (a calibrated-only line is one per the other options)
+NET_OPTIONS = ("arch", "recipe", "seed", "device", "max_minutes", "min_steps", "max_epochs")
+
+
+def _option(row: dict, key: str):
+    """``row``'s value of option ``key`` (its `hykin fit` default where the row's grid does not give it)."""
+    from ..hybrid.fit_options import FIT_OPTIONS
+
+    return row.get(key, FIT_OPTIONS.get(key))
+
+
+def _grouped(rows: list, keys: list, column: str) -> list:
+    """``[(label, ns, ys)]``: ``rows`` grouped by their values of ``keys`` (label ``k=v, ...``, first-seen
+    order), each group's finite ``column`` values averaged per ``n_train`` (sorted)."""
     import numpy as np
 
+    groups: dict = {}
+    for r in rows:
+        v = r[column]
+        if v is not None and math.isfinite(v):
+            groups.setdefault(tuple(_option(r, k) for k in keys), {}).setdefault(int(r["n_train"]), []).append(v)
+    out = []
+    for vals, by_n in groups.items():
+        ns = sorted(by_n)
+        label = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in zip(keys, vals))
+        out.append((label, ns, [float(np.mean(by_n[n])) for n in ns]))
+    return out
+
+
+def plot_lines(rows: list) -> tuple[list, str]:
+    """What :func:`plot_results` draws: ``([(label, ns, ys, calibrated)], title)``. One hybrid line
+    (``calibrated`` False) per combination of the options that differ between the finished trials other
+    than ``n_train`` and ``seed``; each point the mean over the seeds (the title says which), never over
+    other differing options (calibrate true and false are separate lines). One calibrated-only line per
+    combination of those options that act on the calibration (not :data:`NET_OPTIONS`), from the trials
+    that calibrated. ``ys``: test position error, mean over the test poses (mm)."""
+    from .options import OPTION_TYPES
+
+    ok = [r for r in rows if r["status"] == "ok"]
+    varying = [k for k in OPTION_TYPES if k != "n_train" and len({repr(_option(r, k)) for r in ok}) > 1]
+    keys = [k for k in varying if k != "seed"]
+    lines = [(label or "hybrid", ns, ys, False) for label, ns, ys in _grouped(ok, keys, "hybrid_pos_mean_mm")]
+    cal_keys = [k for k in keys if k not in NET_OPTIONS]
+    lines += [("calibrated only" + (f" ({label})" if label else ""), ns, ys, True)
+              for label, ns, ys in _grouped(ok, cal_keys, "calibrated_pos_mean_mm")]
+    if "seed" in varying:
+        title = "each point: mean over seed " + ", ".join(str(s) for s in sorted({_option(r, "seed") for r in ok}))
+    else:
+        cells = {(repr([_option(r, k) for k in keys]), r["n_train"]) for r in ok}
+        title = "each point: one trial" if len(cells) == len(ok) else "each point: mean of its repeated trials"
+    return lines, title
+
+
+def plot_results(rows: list, path: Path) -> Path | None:
+    """Test error against training-set size (log-log), the lines of :func:`plot_lines`: hybrid solid, one
+    per combination of the differing options (labelled), calibrated-only dashed; the title says what each
+    point averages. None when no trial finished."""
     ok = [r for r in rows if r["status"] == "ok"]
     if not ok:
         return None
@@ -180,24 +234,21 @@ def plot_results(rows: list, path: Path) -> Path | None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    for arch in dict.fromkeys(str(r.get("arch", "default")) for r in ok):
-        sel = [r for r in ok if str(r.get("arch", "default")) == arch]
-        ns = sorted({int(r["n_train"]) for r in sel})
-        ys = [np.mean([r["hybrid_pos_mean_mm"] for r in sel if int(r["n_train"]) == n]) for n in ns]
-        ax.plot(ns, ys, "o-", label=arch)
-    ns = sorted({int(r["n_train"]) for r in ok})
-    cal = [[r["calibrated_pos_mean_mm"] for r in ok if int(r["n_train"]) == n and math.isfinite(r["calibrated_pos_mean_mm"])]
-           for n in ns]
-    if all(cal):  # every size has calibrated trials
-        cal = [np.mean(c) for c in cal]
-        ax.plot(ns, cal, "k--", label="calibrated only")
+    lines, title = plot_lines(rows)
+    fig, ax = plt.subplots(figsize=(7.2, 4.8))
+    markers = iter("sv^D<>ph*" * 4)
+    for label, ns, ys, calibrated in lines:
+        if calibrated:
+            ax.plot(ns, ys, "--", color="k", marker=next(markers), label=label)
+        else:
+            ax.plot(ns, ys, "o-", label=label)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("training samples")
-    ax.set_ylabel("test position error, mean (mm)")
+    ax.set_ylabel("test position error, mean over test poses (mm)")
+    ax.set_title(title, fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

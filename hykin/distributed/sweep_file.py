@@ -4,6 +4,8 @@
 robot = "robot.toml"        # a file relative to this one, or a preset name
 train = "train.csv"         # relative to this file
 test = "test.csv"
+length_unit = "m"           # optional: units of the train/test files' x, y, z (m, mm) and joints (rad, deg),
+angle_unit = "rad"          #   as `hykin fit --length-unit / --angle-unit`
 subsample_seed = 0          # optional: the permutation the nested n_train subsets are prefixes of
 [grid]                      # `hykin fit` option names with underscores, plus n_train; every combination is a trial
 arch = ["default", "D1"]
@@ -34,23 +36,22 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..hybrid.fit_options import FIT_OPTIONS, model_kwargs
+from ..hybrid.fit_options import FIT_OPTIONS
 from .files import SpecError, check_keys, inputs_sha256, read_toml, rel_path, robot_spec
+from .options import OPTION_TYPES, check_option, data_units, units_options
 
 __all__ = ["SWEEP_KEYS", "SweepSpec", "read_sweep", "sweep_inputs_hash", "trial_key"]
 
-SWEEP_KEYS = ("robot", "train", "test", "subsample_seed", "grid", "random", "resources")
+SWEEP_KEYS = ("robot", "train", "test", "length_unit", "angle_unit", "subsample_seed", "grid", "random", "resources")
 GRID_KEYS = (*FIT_OPTIONS, "n_train")
-_TYPES = {"arch": str, "recipe": str, "calibrate": bool, "device": str, "seed": int, "max_minutes": (int, float),
-          "thermal": str, "min_steps": int, "max_epochs": int, "orientation_weight": (str, int, float),
-          "max_deviation": str, "prior": list, "region_cv": bool, "fade_cv": int, "n_train": int}
 
 
 @dataclass
 class SweepSpec:
     """A parsed sweep file: ``robot`` (file path or preset), ``train``/``test`` absolute paths, ``grids``
     (a list of option -> list of values), ``random`` option -> list or {uniform|loguniform: [lo, hi]},
-    ``samples``/``random_seed`` for the random part, resources per trial (CPUs, GPUs)."""
+    ``samples``/``random_seed`` for the random part, resources per trial (CPUs, GPUs), ``length_unit`` /
+    ``angle_unit`` of the train and test files (read as `hykin fit --length-unit / --angle-unit`)."""
 
     path: Path
     robot: str
@@ -63,6 +64,8 @@ class SweepSpec:
     subsample_seed: int = 0
     cpus_per_trial: float = 1.0
     gpus_per_trial: float = 0.0
+    length_unit: str = "m"
+    angle_unit: str = "rad"
 
     def trials(self) -> list[dict]:
         """Every combination of each grid (last key fastest), times ``samples`` random draws when [random] is given."""
@@ -84,7 +87,7 @@ class SweepSpec:
                     else:
                         lo, hi = v["loguniform"]
                         d[k] = float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
-                    if _TYPES[k] is int:
+                    if OPTION_TYPES[k] is int:
                         d[k] = int(round(d[k]))
                 out.append(d)
         return out
@@ -99,17 +102,9 @@ def trial_key(options: dict) -> str:
 def sweep_inputs_hash(spec: SweepSpec) -> str:
     """SHA-256 over what every trial's result depends on besides its options
     (:func:`hykin.distributed.files.inputs_sha256`, the one used by the fleet): the robot file's bytes (a
-    preset: its name), the train and test files' bytes and ``subsample_seed``."""
-    return inputs_sha256((spec.robot, spec.train, spec.test), {"subsample_seed": spec.subsample_seed})
-
-
-def _check_value(path: Path, where: str, key: str, v) -> None:
-    t = _TYPES[key]
-    ok = isinstance(v, t) and not (t is int and isinstance(v, bool)) and not (t is not bool and isinstance(v, bool))
-    if not ok:
-        raise SpecError(f"{path}: {where}{key} = {v!r}: expected {getattr(t, '__name__', 'a number')}")
-    if key == "n_train" and v < 1:
-        raise SpecError(f"{path}: {where}n_train = {v!r}: must be >= 1")
+    preset: its name), the train and test files' bytes, ``subsample_seed`` and the data units (when not m / rad)."""
+    return inputs_sha256((spec.robot, spec.train, spec.test),
+                         {"subsample_seed": spec.subsample_seed, **units_options(spec.length_unit, spec.angle_unit)})
 
 
 def read_sweep(path: str | Path) -> SweepSpec:
@@ -127,7 +122,7 @@ def read_sweep(path: str | Path) -> SweepSpec:
             if not vals:
                 raise SpecError(f"{p}: [grid] {k} is an empty list (give at least one value)")
             for v in vals:
-                _check_value(p, "[grid] ", k, v)
+                check_option(p, "[grid] ", k, v)
     grid = {k: v for g in grids for k, v in g.items()}
     rnd = dict(t.get("random", {}))
     samples, rseed = rnd.pop("samples", 1 if rnd else 0), rnd.pop("seed", 0)
@@ -140,17 +135,7 @@ def read_sweep(path: str | Path) -> SweepSpec:
     for k, v in rnd.items():
         if k in grid:
             raise SpecError(f"{p}: [random] {k} is also a [grid] key (give it in one of them)")
-        if isinstance(v, list):
-            if not v:
-                raise SpecError(f"{p}: [random] {k} is an empty list")
-            for x in v:
-                _check_value(p, "[random] ", k, x)
-        elif not (isinstance(v, dict) and len(v) == 1 and next(iter(v)) in ("uniform", "loguniform")
-                  and _TYPES[k] in (int, (int, float)) and len(next(iter(v.values()))) == 2):
-            raise SpecError(f"{p}: [random] {k} = {v!r}: expected a list or {{uniform = [lo, hi]}} / "
-                            "{loguniform = [lo, hi]} for a numeric option")
-        elif "loguniform" in v and min(v["loguniform"]) <= 0:
-            raise SpecError(f"{p}: [random] {k}: loguniform bounds must be > 0, got {v['loguniform']}")
+        _check_random(p, k, v)
     if rnd and samples < 1:
         raise SpecError(f"{p}: [random] samples = {samples}: must be >= 1")
     res = t.get("resources", {})
@@ -162,28 +147,31 @@ def read_sweep(path: str | Path) -> SweepSpec:
     sseed = t.get("subsample_seed", 0)
     if isinstance(sseed, bool) or not isinstance(sseed, int):
         raise SpecError(f"{p}: subsample_seed = {sseed!r}: expected an integer")
-    spec = SweepSpec(path=p, robot=robot_spec(p, "robot", t.get("robot")), train=rel_path(p, "train", t.get("train")),
+    length_unit, angle_unit = data_units(p, "", t)
+    return SweepSpec(path=p, robot=robot_spec(p, "robot", t.get("robot")), train=rel_path(p, "train", t.get("train")),
                      test=rel_path(p, "test", t.get("test")), grids=grids, random=rnd, samples=samples if rnd else 0,
-                     random_seed=int(rseed), subsample_seed=sseed, cpus_per_trial=float(cpus), gpus_per_trial=float(gpus))
-    _check_options(spec)
-    return spec
+                     random_seed=int(rseed), subsample_seed=sseed, cpus_per_trial=float(cpus), gpus_per_trial=float(gpus),
+                     length_unit=length_unit, angle_unit=angle_unit)
 
 
-def _check_options(spec: SweepSpec) -> None:
-    """Every value maps to model settings (the same mapping as `hykin fit`); architectures and recipes exist."""
-    from ..hybrid.nets import list_architectures
-    from ..hybrid.train import RECIPES
+def _check_random(p: Path, k: str, v) -> None:
+    """A ``[random]`` key: a non-empty list of valid values, or ``{uniform|loguniform = [lo, hi]}`` of a numeric
+    option whose bounds are valid values (an int option's bounds rounded, as its draws are); SpecError otherwise."""
+    if isinstance(v, list):
+        if not v:
+            raise SpecError(f"{p}: [random] {k} is an empty list")
+        for x in v:
+            check_option(p, "[random] ", k, x)
+        return
+    t = OPTION_TYPES[k]
+    kind, bounds = next(iter(v.items())) if isinstance(v, dict) and len(v) == 1 else (None, None)
+    numbers = isinstance(bounds, list) and len(bounds) == 2 and all(
+        isinstance(b, (int, float)) and not isinstance(b, bool) for b in bounds)
+    if kind not in ("uniform", "loguniform") or t not in (int, (int, float)) or not numbers:
+        raise SpecError(f"{p}: [random] {k} = {v!r}: expected a list or {{uniform = [lo, hi]}} / "
+                        "{loguniform = [lo, hi]} (two numbers) for a numeric option")
+    if kind == "loguniform" and min(bounds) <= 0:
+        raise SpecError(f"{p}: [random] {k}: loguniform bounds must be > 0, got {bounds}")
+    for b in bounds:
+        check_option(p, "[random] ", k, int(round(b)) if t is int else b)
 
-    p = spec.path
-    for k, vals in ((k, v) for g in spec.grids for k, v in g.items()):
-        for v in vals:
-            if k == "arch" and v not in list_architectures():
-                raise SpecError(f"{p}: [grid] arch = {v!r}: unknown architecture (known: {', '.join(list_architectures())})")
-            if k == "recipe" and v not in RECIPES:
-                raise SpecError(f"{p}: [grid] recipe = {v!r}: unknown recipe (known: {', '.join(RECIPES)})")
-            if k in ("n_train", "device"):
-                continue
-            try:
-                model_kwargs(**{k: v})
-            except ValueError as e:
-                raise SpecError(f"{p}: [grid] {k} = {v!r}: {e}") from None
