@@ -23,7 +23,9 @@ def main(argv: list[str] | None = None) -> None:
     warnings.formatwarning = lambda message, category, *a, **k: f"hykin: warning: {message}\n"
     try:
         app(args=argv, prog_name="hykin")
-    except SystemExit:
+    except SystemExit as e:
+        if e.code == 130:  # Ctrl-C: Typer turns KeyboardInterrupt into a silent exit 130
+            print("hykin: interrupted", file=sys.stderr)
         raise
     except KeyboardInterrupt:
         print("hykin: interrupted", file=sys.stderr)
