@@ -401,3 +401,24 @@ def test_incremental_sum_resyncs_after_a_late_first_answer_and_a_gap(kuka):
     assert np.abs(want).max() > 1.0  # several mm of correction at stake
     np.testing.assert_allclose(total, want, atol=1e-3)
     assert h.lost_answers == 1
+
+
+def test_bridge_warms_its_compensator_before_it_listens(monkeypatch):
+    """Probe s41 AH: the first answer left 0.2-5 s after the start-up banner (the compiled kernels loaded on
+    the first cycle). The compensator now steps once before the socket is bound."""
+    import hykin.cli.realtime as cli_rt
+    import hykin.realtime.udp_bridge as ub
+    from hykin.compensation.compensator import Compensator
+
+    events = []
+    step = Compensator.step
+    monkeypatch.setattr(Compensator, "step", lambda self, *a, **k: (events.append("step"), step(self, *a, **k))[1])
+
+    def bind(host, port):
+        events.append("bind")
+        raise OSError("not in this test")
+
+    monkeypatch.setattr(ub, "bind_udp", bind)
+    with pytest.raises(Exception, match="cannot bind"):
+        cli_rt._bridge_setup(str(tiny_model_file()), "127.0.0.1:49999", None, "measurement", 3, 4.0, None, None)
+    assert events[:2] == ["step", "bind"], events

@@ -60,6 +60,7 @@ def _bridge_setup(model: str, listen: str, controller: str | None, frame: str, m
         raise CLIError(str(e).replace("--listen", "--controller")) from None
     mdl = with_payload(load_model(model), payload_kg)
     comp = Compensator(mdl, frame=frame)
+    _warm(mdl, comp)
     signs = parse_axis_signs(axis_signs, mdl.nominal.dof)
     signs = default_axis_signs(mdl.nominal) if signs is None else signs
     try:
@@ -67,6 +68,27 @@ def _bridge_setup(model: str, listen: str, controller: str | None, frame: str, m
     except OSError as e:
         raise CLIError(f"--listen {listen}: cannot bind ({e.strerror or e})") from None
     return mdl, comp, sock, ctrl, signs, (mdl.nominal.base if comp.frame == "measurement" else np.eye(4))
+
+
+def _warm(mdl, comp) -> None:
+    """One step before the socket is bound and the banner printed, so that the controller's first cycle is
+    answered in time (probe s41 AH: the first answer left 0.2-5 s after the banner, while the compiled
+    kernels loaded; an incremental first answer that late is never applied). A failure here only means
+    the first real step warms instead."""
+    import warnings
+
+    import numpy as np
+
+    from ..geometry import se3
+
+    q = np.clip(np.zeros(mdl.nominal.dof), mdl.nominal.lower, mdl.nominal.upper)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            T = np.asarray(mdl.predict(q), dtype=np.float64)
+            comp.step(T if comp.frame == "measurement" else se3.invert(mdl.nominal.base) @ T, q)
+    except Exception:  # noqa: BLE001 - warming is optional
+        pass
 
 
 def _nominal_fk(nominal):
