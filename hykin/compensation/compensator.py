@@ -180,8 +180,13 @@ class Compensator:
         D = None if tool_delta is None else np.broadcast_to(np.asarray(tool_delta, dtype=np.float64), (N, 4, 4))
         G = None if tool_given is None else np.broadcast_to(np.asarray(tool_given, dtype=bool), (N,))
         Dm = self.model_delta(D, G)
+        local = q_branch is None and N > 1 and self._redundant(pos_only) and not pos_only
         if q_branch is None:
             qb = self._walk(T, D, pos_only, Dm)
+            if local:  # a redundant arm walks from the joints before (.redundant_walk)
+                from .redundant_walk import local_hints
+
+                qb = local_hints(self, T, qb, D, Dm, pos_only, branch_reason)
         else:
             qb = np.array(np.broadcast_to(np.asarray(q_branch, dtype=np.float64), (N, n)))
         q, cmd, ok, reason, pe, ae = self.solve(T, qb, D, pos_only, branch_reason, D_model=Dm)
@@ -193,7 +198,13 @@ class Compensator:
         _, sup = support_of(self.model, q)
         comp = Compensation(command=cmd, q=q, success=ok, reason=reason, pos_err_mm=pe, ang_err_deg=ae,
                             shift_mm=dpos, shift_deg=dang, in_support=sup & ok, q_branch=qb, frame=self.frame)
-        if q_branch is None and not pos_only and N > 1 and n >= 6:
+        if local:
+            from .redundant_walk import check_local
+
+            comp.reason = comp.reason.astype(object)
+            comp.notes = [REDUNDANT_NOTE] + check_local(self.model, self, comp, T, D, Dm)
+            comp.reason = comp.reason.astype(str)
+        elif q_branch is None and not pos_only and N > 1 and n >= 6:
             self._check_walk(comp, T, D, G, Dm, branch_reason)
         return comp
 
@@ -211,7 +222,7 @@ class Compensator:
         N = len(T)
         Dc = np.broadcast_to(np.eye(4), (N, 4, 4)) if D is None else D
         rows_t = [WalkRow(k) for k in range(N)]
-        rows_t[0].reset = np.clip(np.zeros(self.dof), self.nominal.lower, self.nominal.upper)  # the walk's start
+        rows_t[0].reset = self._walk_start()
 
         def solve(rows, hints):
             return self(T[rows], q_branch=hints, tool_delta=None if D is None else D[rows],
@@ -467,6 +478,10 @@ class Compensator:
                                                               "unreachable for the model"))
         return q, pe, ae, reason
 
+    def _walk_start(self) -> np.ndarray:
+        """The joints the walk starts from (the controller's before the first target): zero within the limits."""
+        return np.clip(np.zeros(self.dof), self.nominal.lower, self.nominal.upper)
+
     def nominal_world(self, T: np.ndarray, D=None) -> np.ndarray:
         """Targets ``(N, 4, 4)`` (:attr:`frame`; of a TCP ``D`` relative to the robot file's) -> the robot
         file's TCP in the nominal robot's world, where the walk takes the nominal solutions as hints."""
@@ -502,6 +517,15 @@ class Compensator:
                 pick = nearest_candidate(self.robot, qc[j], okc[j], prev)
                 qb[i] = prev if pick is None else pick
         return qb
+
+
+#: said with every walk of a redundant arm (:mod:`.redundant_walk`): its controller resolves the redundancy
+REDUNDANT_NOTE = ("a redundant arm without joints per target: the commands hold where the controller takes the "
+                  "compensated joints, solving each command locally from the joints of the one before (as checked "
+                  "here with a least-norm IK) after reaching the first target's joints; a controller resolving the "
+                  "redundancy otherwise (another solver, an arm angle or status of its own) reaches the same poses "
+                  "on other joints, where the model's corrections differ (probe s41: 0.5-1.5 mm). Give the joints "
+                  "(q1..qN columns) or send them (--joints)")
 
 
 def _tcp_shift_inv(model) -> np.ndarray:

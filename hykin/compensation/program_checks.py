@@ -38,7 +38,7 @@ import numpy as np
 
 from ..geometry import se3
 
-__all__ = ["FIELDS", "WalkRow", "check_walk", "configuration_changes", "keep_configuration", "take"]
+__all__ = ["FIELDS", "WalkRow", "check_walk", "landing", "configuration_changes", "keep_configuration", "take"]
 
 #: the per-row fields of a :class:`.result.Compensation`
 FIELDS = ("command", "q", "success", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg", "in_support", "q_branch",
@@ -538,7 +538,7 @@ def _misses(model, compensator, q: np.ndarray, pick: np.ndarray, Tm: np.ndarray)
     out[none] = np.inf
     other = np.flatnonzero(~none & (np.abs(np.nan_to_num(pick) - q).max(1) > 1e-6))
     if other.size:
-        pe, ae = _landing(model, pick[other], Tm[other])
+        pe, ae = landing(model, pick[other], Tm[other])
         # at least what the written literal's rounding moves a pose by (0.1 µm, 1e-8 rad: near a singular
         # pose the controller's joints follow it by more than 1e-6 rad)
         tm, td = max(compensator.tolerance_mm, _WRITTEN_MM), max(compensator.tolerance_deg, _WRITTEN_DEG)
@@ -547,7 +547,7 @@ def _misses(model, compensator, q: np.ndarray, pick: np.ndarray, Tm: np.ndarray)
     return out
 
 
-def _landing(model, q: np.ndarray, Tm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def landing(model, q: np.ndarray, Tm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(mm, deg)``: the model's pose at ``q`` to the targets ``Tm`` (measurement frame)."""
     import warnings
 
@@ -576,7 +576,7 @@ def _walk_reason(model, compensator, targets, comp, k, cur, where, keep, Tm, D, 
         return (f"the controller has no nominal solution of the written command within the joint limits (the "
                 f"compensated joints are {np.degrees(np.abs(q - cur).max()):.1f}° from the joints the robot is at, "
                 f"{where}){rounding}; {fix}")
-    pe, _ = _landing(model, pick[None], Tm[None])
+    pe, _ = landing(model, pick[None], Tm[None])
     return (f"the controller would execute it on another branch: its nominal solution of the written command "
             f"nearest the joints the robot is at ({where}) is {np.degrees(np.abs(pick - q).max()):.1f}° from the "
             f"compensated joints and lands {pe[0]:.3g} mm from the target{rounding}; no solution of the model's robot "

@@ -1,0 +1,121 @@
+"""The walk of a redundant arm (more than 6 joints, full poses) through a list of targets without joints.
+
+A 7-joint arm reaches a pose on a one-parameter family of joints (its self-motion), and its controller
+resolves the redundancy itself, typically by a local inverse kinematics from the joints it stands at.
+The discrete branches of the nominal IK (:func:`.branches.sequential_nearest`) do not describe that: a
+hint picked among sampled branches can lie on another arm angle than the controller reaches from the
+previous joints (probe s41 AI: an iiwa-like cobot and a 6R on a rail, 75 and 46 of 100 smooth-path
+targets refused, the others executed 1.7-2.9 mm off).
+
+So a redundant arm walks locally: each target is solved from the compensated joints of the one before
+(the first from the discrete walk's hint), the solution moved along the self-motion to the nearest of
+them (:mod:`hykin.hybrid.self_motion`, in the compensator), as a controller moving through the list
+would. :func:`check_local` then executes each command as such a controller: a local nominal IK (LM, no
+restarts) from the previous compensated joints. Where that lands on other joints whose pose misses the
+target by more than the model's accuracy, the target fails with the reason; within it, it is noted.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry import se3
+
+__all__ = ["check_local", "local_hints"]
+
+
+
+def local_hints(comp, T: np.ndarray, first: np.ndarray, D, Dm, pos_only: bool, branch_reason) -> np.ndarray:
+    """``(N, n)`` hints: row 0 ``first[0]`` (the discrete walk's: how the robot gets to the first target,
+    a joint move, is not in the list), each next row the compensated joints of the last target solved
+    (targets ``T`` ``(N, 4, 4)`` in ``comp``'s frame; ``D``/``Dm``: :meth:`.compensator.Compensator.solve`'s)."""
+    N = len(T)
+    qb = np.array(first, dtype=np.float64, copy=True)
+    prev = qb[0]
+    for k in range(N):
+        if not np.isfinite(prev).all():
+            prev = qb[k]
+        qb[k] = prev
+        sl = slice(k, k + 1)
+        q, _, ok, _, _, _ = comp.solve(T[sl], prev[None], None if D is None else D[sl], pos_only, branch_reason,
+                                       D_model=None if Dm is None else Dm[sl])
+        if ok[0]:
+            prev = q[0]
+    return qb
+
+
+def _local_pick(nom, command: np.ndarray, D: np.ndarray, prev: np.ndarray) -> np.ndarray:
+    """The controller's joints for ``command`` ``(4, 4)`` (controller base frame, TCP ``D`` relative to the
+    robot file's): LM of the nominal robot from ``prev`` ``(n,)``, no restarts; NaN where it finds none."""
+    from ..kinematics.ik import ik
+
+    Tw = nom.base @ command @ se3.invert(D)
+    r = ik(nom, Tw[None], q_seed=prev[None], method="numeric", restarts=0, max_iter=200)
+    return np.asarray(r.q[0], dtype=np.float64) if r.success[0] else np.full(nom.dof, np.nan)
+
+
+def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> list:
+    """Execute ``result``'s commands (a :class:`.result.Compensation`, in place) as a local-IK controller
+    from the previous sent target's joints (the first target is reached some other way, a joint move: not
+    checked; module docstring); returns the notes.
+    Where the controller's joints are not the compensated ones and miss, the target is solved again from
+    them, up to ``rounds`` times (the controller's endpoint moves little with the command: a fixed point).
+    ``D``/``Dm``: the targets' tools relative to the robot file's and the model's TCP (or None)."""
+    from ..hybrid.ik_result import model_accuracy
+    from .program_checks import landing
+
+    nom = model.nominal
+    Dc = np.broadcast_to(np.eye(4), (len(T), 4, 4)) if D is None else D
+    Tm = comp.model_targets(T, Dm)
+    acc = max(comp.tolerance_mm, model_accuracy(model)[0] or 0.0)
+    tol = max(comp.tolerance_mm, 1e-3)
+
+    def miss_of(k, pick):
+        if not np.isfinite(pick).all():
+            return np.inf
+        if np.abs(pick - result.q[k]).max() <= 1e-6:
+            return 0.0
+        return float(landing(model, pick[None], Tm[k][None])[0][0])
+
+    prev, noted = None, []
+    for k in range(len(T)):
+        if not result.success[k]:
+            continue  # not sent: the robot stays where it was
+        if prev is None:
+            prev = result.q[k]
+            continue
+        pick = _local_pick(nom, result.command[k], Dc[k], prev)
+        miss = miss_of(k, pick)
+        for _ in range(rounds if miss > tol else 0):
+            if not np.isfinite(pick).all():
+                break
+            sl = slice(k, k + 1)
+            q, cmd, ok, _, pe, ae = comp.solve(T[sl], pick[None], None if D is None else D[sl], False,
+                                               D_model=None if Dm is None else Dm[sl])
+            if not ok[0]:
+                break
+            result.q[k], result.command[k], result.pos_err_mm[k], result.ang_err_deg[k] = q[0], cmd[0], pe[0], ae[0]
+            pick = _local_pick(nom, cmd[0], Dc[k], prev)
+            miss = miss_of(k, pick)
+            if miss <= tol:
+                break
+        if miss > acc:
+            where = ("finds no nominal solution of the command" if not np.isfinite(miss) else
+                     f"reaches it on joints {np.degrees(np.abs(pick - result.q[k]).max()):.1f}° (largest joint "
+                     f"difference) from the compensated ones, landing {miss:.3g} mm from the target")
+            result.reason[k] = (f"the controller would execute it elsewhere on this redundant arm: solving the "
+                                f"command locally from the joints before it {where}; give the joints (q1..qN) or "
+                                "send them (--joints)")
+            result.success[k] = False
+            for name in ("q", "command", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg"):
+                getattr(result, name)[k] = np.nan
+            result.in_support[k] = False
+            continue
+        if miss > tol:
+            noted.append(f"{k} ({miss:.3g} mm)")
+        prev = result.q[k]
+    if not noted:
+        return []
+    return [f"{len(noted)} targets (targets {', '.join(noted[:8])}{' ...' if len(noted) > 8 else ''}) are reached by "
+            f"a local-IK controller on other joints of the redundant arm than the compensated ones: the model's "
+            f"robot lands there within its accuracy ({acc:.3g} mm) of the target, by the amounts given"]
