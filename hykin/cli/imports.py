@@ -24,8 +24,14 @@ def _write(ds, out: Path, inputs, what: str = "") -> None:
     write_dataset(ds, out)
     left = ds.meta.get("unmapped_columns") or []
     if left:  # said, not silent: a station, tool or payload column left out changes what the rows mean
+        from ..measure.suggest_orientation import orientation_like_columns
         from .common import console
 
+        ori = [] if ds.has_orientation else orientation_like_columns(left)
+        if ori:  # an orientation left out makes the data position only: said in so many words
+            console().print(f"note: columns {', '.join(ori)} look like an orientation but are not mapped: the dataset is "
+                            "position only (map them with rotvec = [..] / euler = [..] / quaternion = [..] in the mapping, "
+                            "or --rotvec / --euler / --quaternion)", highlight=False)
         console().print(f"note: columns not mapped, left out: {', '.join(left)} (keep = [..] in the mapping, or "
                         "--keep C,.., carries them; a station / tool column gives each row its frame, a load "
                         "column maps with payload)", highlight=False)
@@ -158,7 +164,7 @@ def import_table_cmd(
     temperature: str | None = typer.Option(None, "--temperature", help="Temperature column -> temperature_c."),
     temperature_unit: str | None = typer.Option(None, "--temperature-unit", help="C, K or F."),
     payload: str | None = typer.Option(None, "--payload", help="Payload mass column (kg) -> payload_kg."),
-    keep: list[str] | None = typer.Option(None, "--keep", help="Further columns to carry as they are ('*' = all unmapped; repeatable)."),
+    keep: list[str] | None = typer.Option(None, "--keep", help="Further columns to carry as written (zero-padded ids and text as text; '*' = all unmapped; repeatable)."),
     ignore: str | None = typer.Option(None, "--ignore", help="Columns that look like joints but are not (comma-separated)."),
     delimiter: str | None = DelimOpt,
     decimal: str | None = DecimalOpt,

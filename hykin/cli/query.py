@@ -109,6 +109,7 @@ def ik_cmd(
     tip_link: str | None = TipLink,
     out: Path = typer.Option(..., "-o", "--out", help="Output joints CSV: target, branch, q…, errors."),
     all_branches: bool = typer.Option(False, "--all-branches", help="Every solution branch, not only the nearest one."),
+    turn_copies: int = typer.Option(8, "--turn-copies", min=1, max=4096, help="With --all-branches: list a solution's 2π copies within the joint limits (joints of more than a turn) when it has at most this many; a note counts those left out."),
     seed_joints: Path | None = typer.Option(None, "--seed-joints", help="CSV of current joints (one row per target, or one row)."),
     position_only: bool = typer.Option(False, "--position-only", help="Solve for position only."),
     length_unit: str = LengthUnit,
@@ -156,7 +157,7 @@ def ik_cmd(
     if mdl is None and not rob.has_compliance:
         from ..kinematics.ik_rows import classical_ik_rows
 
-        rows = classical_ik_rows(rob, T, q_cur if nearest else None, position_only)
+        rows = classical_ik_rows(rob, T, q_cur if nearest else None, position_only, max_copies=turn_copies)
     elif mdl is None:  # joint stiffness: solved on the deflecting robot (the rigid closed form seeds it)
         from ..hybrid.ik import hybrid_ik, ik_result_to_rows
         from ..io.payload import payload_from_columns
@@ -195,11 +196,29 @@ def ik_cmd(
         msg = support_report(mdl, qs[has_q])["message"] if has_q.any() else ""
         if msg:
             console().print(f"[yellow]warning:[/] {msg} (see the in_support column)")
+    if all_branches:
+        rows = _with_turn_copies(mdl, rob, rows, turn_copies)
     write_rows(rows, out)
     ok = np.asarray(rows["success"], dtype=bool)
     n_targets = len(T)
     solved = len(set(np.asarray(rows["target"])[ok].tolist()))
     typer.echo(f"wrote {len(ok)} solution rows for {n_targets} targets to {out} ({solved} solved, {n_targets - solved} failed)")
+
+
+def _with_turn_copies(mdl, rob, rows: dict, max_copies: int) -> dict:
+    """``--all-branches`` rows with each solution's 2π copies within the limits (up to ``max_copies`` per
+    solution; a robot's and a ``periodic="wrap"`` model's poses repeat every turn), and a note counting
+    those left out (probe s41 AK: 326 of 429 copies on a ±400° wrist were dropped without a word)."""
+    from ..kinematics.ik_rows import expand_turn_copies, representations_per_solution, turn_copies_note
+
+    robot = rob if mdl is None else mdl.robot_
+    if mdl is not None and getattr(mdl, "periodic", "wrap") != "wrap":
+        return rows
+    rows = expand_turn_copies(robot, rows, max_copies)
+    note = turn_copies_note(robot, rows, max_copies, how=f"--turn-copies {representations_per_solution(robot)} lists them")
+    if note:
+        typer.echo(note, err=True)
+    return rows
 
 
 def _targets_in_model_frame(mdl, T, has_rot: bool, extra: dict, station, tool, model, poses):

@@ -105,8 +105,8 @@ def _dof_from_header(where: str, header: Sequence[str], robot, dof: int | None) 
     if want is None:
         if k == 0:
             raise DatasetError(
-                f"{where}: no joint columns; expected q1..qN, x, y, z and optionally qw, qx, qy, qz "
-                f"(found: {', '.join(header)}){_header_hint(['q1'], header)}", file=where)
+                f"{where}: no joint columns; expected q1..qN (found: {', '.join(header)})"
+                f"{_header_hint(['q1'], header)}", file=where)
         return k
     if robot is not None and dof is not None and dof != robot.dof:
         raise DatasetError(f"{where}: dof={dof} given but robot {robot.name!r} has {robot.dof} joints", file=where)
@@ -115,8 +115,8 @@ def _dof_from_header(where: str, header: Sequence[str], robot, dof: int | None) 
         names = None if robot is None else robot.independent_joint_names
         alt = f" (or the URDF's joint names {', '.join(names)})" if names else ""
         raise DatasetError(
-            f"{where}: missing column(s) {', '.join(missing)}; expected {', '.join(joint_columns(want))}{alt}, x, y, z "
-            f"and optionally qw, qx, qy, qz (found: {', '.join(header)}){_header_hint(missing, header)}", file=where,
+            f"{where}: missing column(s) {', '.join(missing)}; expected the joint columns {', '.join(joint_columns(want))}"
+            f"{alt} (found: {', '.join(header)}){_header_hint(missing, header)}", file=where,
             column=missing[0])
     if f"q{want + 1}" in present:
         raise DatasetError(

@@ -17,10 +17,16 @@ from .ik import ik
 from .ik_reasons import categorise, failure_reasons
 from .robot import Robot
 
-__all__ = ["MAX_TURN_COPIES", "classical_ik_rows", "ik_rows", "turn_copies"]
+__all__ = ["MAX_TURN_COPIES", "TURN_COPIES_CAP", "classical_ik_rows", "expand_turn_copies", "ik_rows",
+           "representations_per_solution", "turn_copies", "turn_copies_left_out", "turn_copies_note",
+           "turn_copy_counts"]
 
-#: most 2π representations per solution that ``hykin ik --all-branches`` lists (:func:`turn_copies`)
+#: most 2π representations per solution that ``hykin ik --all-branches`` lists by default (:func:`turn_copies`);
+#: a robot whose solutions may have more lists each once and says how many it left out (:func:`turn_copies_note`)
 MAX_TURN_COPIES = 8
+#: the largest ``max_copies`` one may ask for: a UR arm (six ±360° joints) has 64 per solution, 512 rows per
+#: target over its 8 branches; 4096 bounds the output at 32768 rows per target
+TURN_COPIES_CAP = 4096
 
 
 def ik_rows(target, branch, q, success, pos_err_mm, ang_err_deg, reason, *, robot: Robot | None = None,
@@ -67,6 +73,38 @@ def ik_rows(target, branch, q, success, pos_err_mm, ang_err_deg, reason, *, robo
     return cols
 
 
+def _check_max_copies(max_copies: int) -> None:
+    if not 1 <= int(max_copies) <= TURN_COPIES_CAP:
+        raise ValueError(f"max_copies must be 1..{TURN_COPIES_CAP} (2π representations listed per solution), "
+                         f"got {max_copies}")
+
+
+def _wide_joints(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
+    """``(wide, reps)``: the independent revolute joints whose range exceeds 2π, and for each the most
+    representations ``q + 2πk`` one angle can have within its limits (``floor(span / 2π) + 1``)."""
+    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    span = np.asarray(robot.upper, dtype=np.float64) - np.asarray(robot.lower, dtype=np.float64)
+    wide = np.flatnonzero(rev & np.isfinite(span) & (span > 2 * np.pi + 1e-9))
+    return wide, (np.floor(span[wide] / (2 * np.pi)) + 1).astype(int)
+
+
+def _shifts(wide: np.ndarray, reps: np.ndarray, n: int) -> np.ndarray:
+    """``(G, n)`` joint shifts (rad) ``2πk`` on the ``wide`` joints, ``|k| < reps``, the zero shift first."""
+    axes = [np.concatenate([[0.0], np.arange(1, c), -np.arange(1, c)]) for c in reps]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, wide.size)
+    shift = np.zeros((len(grid), n))
+    shift[:, wide] = 2 * np.pi * grid
+    return shift
+
+
+def representations_per_solution(robot: Robot) -> int:
+    """The most 2π representations one IK solution of ``robot`` can have within the joint limits: the product
+    over the revolute joints with a range over 2π of ``floor(range / 2π) + 1`` (1 when there are none; two
+    ±400° joints: 3 · 3 = 9; a UR arm's six ±360° joints: 3^6 = 729 at the zero pose, 2^6 = 64 elsewhere)."""
+    wide, reps = _wide_joints(robot)
+    return int(np.prod(reps)) if wide.size else 1
+
+
 def turn_copies(robot: Robot, q: np.ndarray, ok: np.ndarray, max_copies: int = MAX_TURN_COPIES):
     """Every 2π representation within the limits of each solution ``q`` ``(N, K, n)`` (valid where ``ok``
     ``(N, K)``): a revolute joint whose range exceeds 2π reaches the same pose at ``q + 2πk`` (the
@@ -77,36 +115,123 @@ def turn_copies(robot: Robot, q: np.ndarray, ok: np.ndarray, max_copies: int = M
     unchanged: each solution once, in its representation nearest zero."""
     q = np.asarray(q, dtype=np.float64)
     N, K, n = q.shape
-    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
-    span = np.asarray(robot.upper, dtype=np.float64) - np.asarray(robot.lower, dtype=np.float64)
-    wide = np.flatnonzero(rev & np.isfinite(span) & (span > 2 * np.pi + 1e-9))
-    reps = np.floor(span[wide] / (2 * np.pi)) + 1  # most representations of one angle within the limits
+    _check_max_copies(max_copies)
+    wide, reps = _wide_joints(robot)
     if wide.size == 0 or np.prod(reps) > max_copies:
         return q, np.asarray(ok, dtype=bool), np.arange(K)
-    axes = [np.concatenate([[0.0], np.arange(1, c), -np.arange(1, c)]) for c in reps.astype(int)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, wide.size)  # (G, w), zero shift first
-    shift = np.zeros((len(grid), n))
-    shift[:, wide] = 2 * np.pi * grid
+    shift = _shifts(wide, reps, n)  # (G, n), zero shift first
     qq = (q[:, :, None, :] + shift[None, None]).reshape(N, -1, n)
     inside = np.all((qq >= robot.lower) & (qq <= robot.upper), axis=-1)
-    okq = np.repeat(np.asarray(ok, dtype=bool), len(grid), axis=1) & inside
-    okq[:, :: len(grid)] = np.asarray(ok, dtype=bool)  # the solution itself as found
-    return qq, okq, np.repeat(np.arange(K), len(grid))
+    okq = np.repeat(np.asarray(ok, dtype=bool), len(shift), axis=1) & inside
+    okq[:, :: len(shift)] = np.asarray(ok, dtype=bool)  # the solution itself as found
+    return qq, okq, np.repeat(np.arange(K), len(shift))
 
 
-def classical_ik_rows(robot: Robot, T: np.ndarray, q_current=None, position_only: bool = False) -> dict[str, np.ndarray]:
+def turn_copy_counts(robot: Robot, q: np.ndarray) -> np.ndarray:
+    """``(M,)`` int: the 2π representations within the joint limits of each row of ``q`` ``(M, n)`` (rad/m),
+    itself included: the product over the joints with a range over 2π of the integers ``k`` with
+    ``lower <= q + 2πk <= upper``; 0 for a row with a NaN (no solution)."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1, robot.dof)
+    wide, _ = _wide_joints(robot)
+    out = np.where(np.isfinite(q).all(axis=1), 1, 0)
+    for j in wide:
+        lo, hi = float(robot.lower[j]), float(robot.upper[j])
+        with np.errstate(invalid="ignore"):
+            k = np.floor((hi - q[:, j]) / (2 * np.pi) + 1e-12) - np.ceil((lo - q[:, j]) / (2 * np.pi) - 1e-12) + 1
+        out = out * np.where(np.isfinite(k), np.maximum(k, 1), 0).astype(int)
+    return out
+
+
+def _solution_keys(robot: Robot, target: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``(M, n + 1)`` rows equal for two IK rows that are 2π representations of one solution of one target:
+    the target, then the joints rounded to 1e-7, those with a range over 2π taken modulo 2π."""
+    wide, _ = _wide_joints(robot)
+    k = np.array(q, dtype=np.float64, copy=True)
+    k[:, wide] = np.mod(k[:, wide], 2 * np.pi)
+    k = np.round(k, 7)
+    k[:, wide] = np.where(np.isclose(k[:, wide], 2 * np.pi, atol=1e-7), 0.0, k[:, wide]) + 0.0
+    return np.column_stack([np.asarray(target, dtype=np.float64), k])
+
+
+def turn_copies_left_out(robot: Robot, target, q) -> int:
+    """How many 2π representations within the joint limits of the solutions listed in IK rows (``target``
+    ``(M,)``, ``q`` ``(M, n)``; NaN rows are failures) the rows do not list: per solution (rows that are
+    2π copies of each other count as one) its :func:`turn_copy_counts` minus the rows listing it."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1, robot.dof)
+    good = np.isfinite(q).all(axis=1)
+    if not good.any():
+        return 0
+    keys = _solution_keys(robot, np.asarray(target)[good], q[good])
+    _, first, listed = np.unique(keys, axis=0, return_index=True, return_counts=True)
+    total = turn_copy_counts(robot, q[good][first])
+    return int(np.maximum(total - listed, 0).sum())
+
+
+def expand_turn_copies(robot: Robot, rows: dict, max_copies: int = MAX_TURN_COPIES) -> dict:
+    """IK rows (:func:`ik_rows`' columns, e.g. hybrid IK's) with every further 2π representation within the
+    limits of each solved row added after it (every other column copied: the same pose when the model is
+    2π-periodic in those joints, as a hybrid model with ``periodic="wrap"`` and any robot are), unless the
+    robot's :func:`representations_per_solution` exceed ``max_copies`` (then ``rows`` unchanged, as
+    :func:`turn_copies`). Representations already listed for the target are not repeated."""
+    _check_max_copies(max_copies)
+    wide, reps = _wide_joints(robot)
+    if wide.size == 0 or np.prod(reps) > max_copies:
+        return rows
+    n = robot.dof
+    Q = np.stack([np.asarray(rows[f"q{j + 1}"], dtype=np.float64) for j in range(n)], axis=1)
+    tg = np.asarray(rows["target"]).astype(int)
+    shift = _shifts(wide, reps, n)[1:]  # (G - 1, n): the copies, not the row itself
+    good = np.isfinite(Q).all(axis=1)
+    cand = Q[:, None, :] + shift[None]  # (M, G - 1, n)
+    inside = good[:, None] & np.all((cand >= robot.lower) & (cand <= robot.upper), axis=-1)
+    have = {(t, *np.round(qr, 9)) for t, qr in zip(tg[good], Q[good])}
+    src, rep = np.nonzero(inside)
+    new = np.array([(tg[i], *np.round(cand[i, g], 9)) not in have for i, g in zip(src, rep)], dtype=bool)
+    src, rep = src[new], rep[new]
+    order = np.argsort(np.concatenate([np.arange(len(tg)), src]), kind="stable")  # each copy after its row
+    out = {}
+    for c, v in rows.items():
+        v = np.asarray(v)
+        out[c] = np.concatenate([v, v[src]])[order]
+    for j in range(n):
+        out[f"q{j + 1}"] = np.concatenate([Q[:, j], cand[src, rep, j]])[order]
+    return out
+
+
+def turn_copies_note(robot: Robot, rows: dict, max_copies: int = MAX_TURN_COPIES, how: str | None = None) -> str:
+    """One line saying how many 2π representations within the limits of the listed solutions the IK rows
+    ``rows`` leave out (:func:`turn_copies_left_out`) and how to list them (``how``; default: the call with
+    ``max_copies`` = :func:`representations_per_solution`), or ``""`` when none is left out."""
+    n = robot.dof
+    Q = np.stack([np.asarray(rows[f"q{j + 1}"], dtype=np.float64) for j in range(n)], axis=1)
+    left = turn_copies_left_out(robot, rows["target"], Q)
+    if left == 0:
+        return ""
+    wide, _ = _wide_joints(robot)
+    names = ", ".join(f"q{j + 1}" for j in wide)
+    per = representations_per_solution(robot)
+    how = how or (f"expand_turn_copies(robot, rows, max_copies={per}) / classical_ik_rows(..., max_copies={per}) "
+                  "list them")
+    why = f"; a solution may have {per}, more than the {max_copies} listed per solution" if per > max_copies else ""
+    return (f"note: {left} further 2π representations of the listed solutions lie within the joint limits and are not "
+            f"listed ({names} turn over 360°: q ± 360° reaches the same pose{why}); {how}")
+
+
+def classical_ik_rows(robot: Robot, T: np.ndarray, q_current=None, position_only: bool = False,
+                      max_copies: int = MAX_TURN_COPIES) -> dict[str, np.ndarray]:
     """:func:`ik_rows` of classical IK on ``robot`` for targets ``T`` ``(N, 4, 4)`` (world, m): every
-    solution branch, each in every 2π representation within the joint limits (:func:`turn_copies`: at
-    most :data:`MAX_TURN_COPIES` per solution, else the one nearest zero), or with ``q_current``
-    ``(N, dof)`` the one nearest it. A target without a solution gets one row (branch ``""``, its
-    smallest residual over the branches, a categorised reason)."""
+    solution branch, each in every 2π representation within the joint limits (:func:`turn_copies`: when a
+    solution may have at most ``max_copies`` (default :data:`MAX_TURN_COPIES`, at most
+    :data:`TURN_COPIES_CAP`), else the one nearest zero: :func:`turn_copies_note` counts those left
+    out), or with ``q_current`` ``(N, dof)`` the one nearest it. A target without a solution gets one row
+    (branch ``""``, its smallest residual over the branches, a categorised reason)."""
     br = ik(robot, T, all_branches=True, position_only=position_only)
     if q_current is not None:
         r = br.nearest_to(q_current, robot.lower, robot.upper)
         q, ok, pe, ae = r.q[:, None], r.success[:, None], r.pos_err_m[:, None], r.ang_err_rad[:, None]
         lab = np.asarray(r.label)[:, None]
     else:
-        q, ok, src = turn_copies(robot, br.q, br.success)
+        q, ok, src = turn_copies(robot, br.q, br.success, max_copies)
         pe, ae, lab = br.pos_err_m[:, src], br.ang_err_rad[:, src], np.asarray(br.label, dtype=object)[:, src]
     failed = ~ok.any(axis=1)
     keep = ok.copy()

@@ -34,6 +34,7 @@ from ..io.text_table import (
     with_file_line,
 )
 from .orientation_names import check_orientation_names
+from .suggest_orientation import RAD_LOOKS_LIKE_DEG  # |angle| above this, declared rad: degrees
 from .table_map import (
     ANGLE_UNITS_RAD,
     LENGTH_UNITS_M,
@@ -47,9 +48,8 @@ from .table_map import (
     table_map_from_dict,
 )
 
-__all__ = ["MappedTable", "check_lever_arms", "guess_layout", "import_table", "read_mapped", "read_text_table"]
+__all__ = ["MappedTable", "check_lever_arms", "guess_layout", "import_table", "kept_cells", "read_mapped", "read_text_table"]
 
-RAD_LOOKS_LIKE_DEG = 2 * math.pi * 1.2  # |angle| above this, declared rad: degrees
 # Length units are judged by the RMS spread of the positions about their centroid, never by absolute
 # coordinates (a tracker or total station may stand far from the robot): declared m, a spread above
 # hykin.io.dataset.spread_limit_m (10 x the robot's reach, 50 m without a robot) is millimetres;
@@ -389,8 +389,20 @@ def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool 
     if keep_all:
         keep.update({c: c for c in t.header if c not in used})
     for c, new in keep.items():  # labels (station, tool, pose_id, pose) as written: "01" and "1" are two stations
-        extra[new] = label_cells(t.col(c)) if new in LABEL_COLUMNS else lenient_column(t.col(c), d)
+        extra[new] = kept_cells(t.col(c), d, label=new in LABEL_COLUMNS)
     return MappedTable(t, q, jn, xyz, quat, P, time_s, extra)
+
+
+_ZERO_PADDED = re.compile(r"^\s*[+-]?0\d")
+
+
+def kept_cells(cells: list[str], decimal: str = ".", *, label: bool = False) -> np.ndarray:
+    """A kept column ``(N,)``: numbers (float64, a decimal comma read) when every cell is a number and none
+    is zero-padded; otherwise, and for a label column (``label``), the cells as written (str, stripped of
+    surrounding blanks): ids ``0000, 0001`` stay ``"0000", "0001"``, never ``0, 1``."""
+    if label or any(_ZERO_PADDED.match(c) for c in cells):
+        return label_cells(cells)
+    return lenient_column(cells, decimal)
 
 
 def _time_column(t: TextTable, m: TableMap) -> np.ndarray:

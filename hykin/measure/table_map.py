@@ -20,6 +20,10 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from ..io.dataset import DatasetError
+from .column_groups import quads as _quads
+from .column_groups import rotation_triple as _rotation_triple
+from .column_groups import triples as _triples
+from .suggest_orientation import RAD_LOOKS_LIKE_DEG, orientation_lines
 
 __all__ = [
     "ANGLE_UNITS_RAD",
@@ -82,7 +86,8 @@ class TableMap:
         two points (three SMRs); max_fit_rms_mm bounds each row's fit residual.
     time (-> ``time_s``: numbers in time_unit, ISO 8601 date-times, or text in time_format, a
         ``strptime`` format such as ``"%Y%m%d%H%M%S"``; date-times as UTC seconds), temperature (-> ``temperature_c``, temperature_unit C/K/F),
-        payload (-> ``payload_kg``); keep: further columns carried as they are (list, ``["*"]`` =
+        payload (-> ``payload_kg``); keep: further columns carried as written (numbers as numbers unless
+        zero-padded, else text: :func:`hykin.measure.table_import.kept_cells`; list, ``["*"]`` =
         every unmapped column, or a table ``{column = "new_name"}``); ignore: columns the
         further-joint check should not complain about.
     Layout: delimiter (None = detect ``\\t ; , |`` else whitespace), decimal (``.``/``,``),
@@ -330,67 +335,6 @@ def expand_joint_spec(spec, header: list[str], where: str = "<table>") -> list[s
 # --------------------------------------------------------------------------- suggestion
 
 _JOINT_RX = re.compile(r"(?i)^(q|joint|jnt|j|a|axis|achse|axe|gelenk|theta|ax)[ _\-]?(\d+)(?:[ _\-]?[\[(]?(deg|rad)[\])]?)?$")
-_AXES = "xyz"
-
-
-def _triples(header: list[str]) -> list[tuple[str, str, str]]:
-    """Column triples whose names differ only in one x/y/z letter (any case), in header order."""
-    out, seen = [], set()
-    for h in header:
-        for m in re.finditer(r"(?<![A-Za-z])[xX](?![A-Za-z])|[xX]$|^[xX]", h):
-            i = m.start()
-            trip = [h[:i] + (a.upper() if h[i].isupper() else a) + h[i + 1:] for a in _AXES]
-            if all(t in header for t in trip) and h not in seen:
-                out.append(tuple(trip))
-                seen.update(trip)
-                break
-    return out
-
-
-def _quads(header: list[str], values=None) -> list[tuple[str, str, str, str]]:
-    """Quaternion columns, scalar first: ``qw..qz``-like names (w, x, y, z, with q/quat/rot/ori in the
-    name: Motive's ``"Tool Rotation W"``), Leica's ``Q0, QX, QY, QZ`` and ``q0..q3``; the last only
-    when the sample rows (``values(column)``) have unit norm (else they are joints)."""
-    out = []
-
-    def unit(cand):
-        if values is None:
-            return False
-        v = [values(c, signed=True) for c in cand]
-        n = min(len(x) for x in v)
-        return n > 0 and all(abs(math.sqrt(sum(x[i] ** 2 for x in v)) - 1.0) < 1e-3 for i in range(n))
-
-    for h in header:
-        for m in re.finditer(r"[wW]", h):
-            i = m.start()
-            cand = [h[:i] + (a.upper() if h[i].isupper() else a) + h[i + 1:] for a in "wxyz"]
-            if all(c in header for c in cand) and re.search(r"(?i)q|quat|rot|ori", h):
-                out.append(tuple(cand))
-                break
-        for m in re.finditer(r"0", h):
-            i = m.start()
-            for axes in ("XYZ", "xyz", "123"):
-                cand = [h] + [h[:i] + a + h[i + 1:] for a in axes]
-                if all(c in header for c in cand) and re.search(r"(?i)q|quat|rot|ori", h) and (axes != "123" or unit(cand)):
-                    out.append(tuple(cand))
-                    break
-    return out
-
-
-_ROT_WORDS = {"r", "rot", "rotation", "rotations", "angle", "angles", "ang", "euler", "ori", "orient", "orientation", "rv",
-              "rotvec", "helical", "q", "quat", "quaternion"}
-
-
-def _rotation_triple(t) -> bool:
-    """A triple named as angles (Vicon ``RX``, ``Rot X``, ``Tool Rotation X``, Leica ``QX``), never a position."""
-    h, k = t[0], 0
-    for k in range(len(h)):
-        if h[k] in "xX" and t[1] == h[:k] + ("Y" if h[k] == "X" else "y") + h[k + 1:]:
-            break
-    stem = re.sub(r"([a-z])([A-Z])", r"\1 \2", h[:k] + " " + h[k + 1:])
-    return any(w.lower() in _ROT_WORDS for w in re.findall(r"[A-Za-z]+", stem))
-
-
 _NOT_MEASURED = re.compile(r"(?i)goal|target|cmd|command|nominal|std|sigma|dif|err|_t$|(^|_)t_|set|desired|flange|vel|speed")
 # Never a measured position, reflector or joint, whatever else the name says: uncertainties (U95,
 # unc, std, sigma, err, rms, mpe, tol), sensors (accelerometer, gyro, IMU, temperature, humidity,
@@ -490,7 +434,7 @@ def suggest_map(header: list[str], sample_rows: list[list[str]] | None = None, *
         big = max((v for j in joints for v in values(j)), default=0.0)
         named = unit_of(joints[0], ANGLE_UNITS_RAD)
         unit_hint = unit_hint or _unit_in_name(joints[0], ANGLE_UNITS_RAD)
-        unit = named or unit_hint or ("deg" if big > 2 * math.pi * 1.2 else "rad")
+        unit = named or unit_hint or ("deg" if big > RAD_LOOKS_LIKE_DEG else "rad")
         why = ("from the units line" if named else "from the column names" if unit_hint else
                f"largest value {big:.4g}" if rows else "no data seen")
         lines.append(f'angle_unit = "{unit}"  # CHECK ({why})')
@@ -501,8 +445,8 @@ def suggest_map(header: list[str], sample_rows: list[list[str]] | None = None, *
     trips = [t for t in all_trips if not any(never_position(c) for c in t) and not _rotation_triple(t)]
     meas = [t for t in trips if not _NOT_MEASURED.search(t[0])] or trips
     vicon = "Sub Frame" in header and bool(rot)  # Vicon Nexus: RX, RY, RZ are helical angles (a rotation vector)
-    has_ori = bool(quads) or vicon or all(k in {h.lower() for h in header} for k in "abc") or \
-        all(k in {h.lower() for h in header} for k in ("roll", "pitch", "yaw"))
+    ori_lines = orientation_lines(header, quads, rot, vicon, values, unit_of, ANGLE_UNITS_RAD)
+    has_ori = any(not ln.startswith("#") for ln in ori_lines)  # an orientation mapped: the pose is complete
     if meas:
         pos, rest = meas[0], [t for t in meas[1:]]
         lines.append(f"position = {_toml_list(pos)}  # CHECK")
@@ -521,28 +465,7 @@ def suggest_map(header: list[str], sample_rows: list[list[str]] | None = None, *
             lines.append("points = [" + ", ".join(_toml_list(t) for t in pts) + "]  # CHECK further reflectors")
     else:
         lines.append('# position = ["X", "Y", "Z"]  # no position columns recognised')
-    low = {h.lower(): h for h in header}
-    if quads:
-        lines.append(f"quaternion = {_toml_list(quads[0])}  # CHECK (scalar first)")
-        lines.append('quaternion_order = "wxyz"  # order of the names above')
-    elif vicon:
-        lines.append(f"rotvec = {_toml_list(rot[0])}  # CHECK: Vicon's helical angles (axis·angle); Euler angles if "
-                     "your export says so")
-        lines.append(f'rotvec_unit = "{unit_of(rot[0][0], ANGLE_UNITS_RAD) or "deg"}"  # CHECK')
-    elif all(k in low for k in "abc"):
-        lines.append(f'euler = ["{low["a"]}", "{low["b"]}", "{low["c"]}"]  # CHECK: KUKA A, B, C')
-        lines.append('euler_convention = "kuka"  # intrinsic Z, Y\', X\'\'')
-        lines.append('euler_unit = "deg"  # CHECK')
-    elif all(k in low for k in ("roll", "pitch", "yaw")):
-        lines.append(f'euler = ["{low["roll"]}", "{low["pitch"]}", "{low["yaw"]}"]  # CHECK')
-        lines.append('euler_convention = "rpy"  # extrinsic x, y, z')
-        lines.append('euler_unit = "rad"  # CHECK')
-    elif rot:
-        lines.append(f"# orientation columns {', '.join(rot[0])}: the convention cannot be read from the names. Either")
-        lines.append(f"# euler = {_toml_list(rot[0])}")
-        lines.append('# euler_convention = "XYZ"   # uppercase intrinsic, lowercase extrinsic; CHECK your tracker manual')
-        lines.append(f'# euler_unit = "{unit_of(rot[0][0], ANGLE_UNITS_RAD) or "deg"}"')
-        lines.append(f"# or rotvec = {_toml_list(rot[0])}  # axis·angle (e.g. URScript)")
+    lines += ori_lines
     for h in header:
         if re.search(r"(?i)temp", h):
             lines.append(f'temperature = "{h}"  # -> temperature_c; temperature_unit = "C"')
