@@ -102,7 +102,8 @@ def test_test_outliers_named_with_figures_without_them(exact_rx160_model, data):
     e = np.linalg.norm(exact_rx160_model.predict(data.q)[keep, :3, 3] - xyz[keep], axis=1) * 1e3
     line = res.outlier_line()
     assert "data rows 11, 21, 31" in line and f"{e.mean():.4g} mm mean" in line and f"{e.max():.4g} mm max" in line
-    assert json.loads(res.json())["outliers"]["rows"] == [10, 20, 30]
+    out = json.loads(res.json())["outliers"]
+    assert out["index_0based"] == [10, 20, 30] and out["data_rows"] == [11, 21, 31]
     assert line in res.table()
 
 

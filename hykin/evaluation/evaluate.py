@@ -52,6 +52,11 @@ class EvalResult:
     outliers_of: str = ""
     #: ISO 9283 per pose (set by the report: ``{"columns": [...], "rows": [[...]], "note": str}``), or None
     iso9283: dict | None = None
+    #: errors per station / per tool (:func:`hykin.evaluation.per_group.group_stats`) when the test data name more
+    #: than one; None otherwise
+    per_group: dict | None = None
+    #: the ``pose_id`` cell of each outlier row (test data with that column), else None
+    outlier_pose_ids: list | None = None
 
     def outlier_line(self) -> str:
         """One line naming the test rows far off the model, with the figures without them ("" if none)."""
@@ -94,14 +99,29 @@ class EvalResult:
             d["regions"] = self.regions
         if self.labels:
             d["labels"] = dict(self.labels)
+        if self.per_group is not None:
+            d.update({f"per_{col}": g for col, g in self.per_group.items()})
         if self.outliers is not None:
-            d["outliers"] = {"model": self.outliers_of, **self.outliers.to_dict()}
+            d["outliers"] = self.outliers_dict()
         if self.iso9283 is not None:
             d["iso9283"] = self.iso9283
         return d
 
+    def outliers_dict(self) -> dict:
+        """The outliers for JSON, numbered as the text names them: ``data_rows`` are 1-based data rows (the
+        header not counted: a CSV's line is the data row + 1), ``index_0based`` the same rows as indices
+        into the data, ``pose_id`` their pose ids (data with that column); errors in mm / deg."""
+        o = self.outliers.to_dict()
+        idx = [int(r) for r in o.pop("rows")]
+        d = {"model": self.outliers_of, "data_rows": [r + 1 for r in idx], "index_0based": idx}
+        if self.outlier_pose_ids is not None:
+            d["pose_id"] = list(self.outlier_pose_ids)
+        return {**d, **o, "numbering": "data_rows: 1-based data rows as in the text (CSV line = data row + 1); "
+                                       "index_0based: the same rows counted from 0"}
+
     def table(self) -> str:
         t = format_table({self.labels.get(k, k): v for k, v in self.stats.items()})
+        t += "\nstd: population standard deviation (ddof = 0); p95: 95th percentile (linear interpolation)."
         if self.labels.get("nominal") == NOMINAL_FITTED:
             t += f"\n{NOMINAL_FITTED}: the nominal robot with base and tool frames fitted to these poses (rigid fit)."
         if "file" in self.stats:
@@ -113,6 +133,12 @@ class EvalResult:
             t += f"\n{n_out} of {self.n} samples lie outside the training region (network correction faded there)."
         if self.outliers is not None:
             t += "\n" + self.outlier_line()
+        if self.per_group is not None:
+            from .per_group import group_table, reference_words
+
+            ref = reference_words(self.per_group)
+            t += (f"\nError per {' and per '.join(self.per_group)} (each row in its own station's and tool's frame"
+                  f"{'; ' + ref if ref else ''}):\n" + group_table(self.per_group, self.labels))
         if self.per_payload is not None:
             t += "\nError per payload:\n" + format_payload_table(self.per_payload)
         if self.regions:
@@ -257,7 +283,10 @@ def evaluate_model(model, data: Dataset, *, fit_frames: bool = False) -> EvalRes
     to the data (labels ``"... + fitted frames"``; 12 parameters fitted to the test poses flatter them).
     """
     from ..hybrid.stations import in_model_frame
+    from .per_group import group_labels
 
+    groups = group_labels(model, data)  # station / tool labels per row (the mapped data have none)
+    raw = data  # its pose_id column names the outliers
     data = in_model_frame(model, data)  # several stations / tools: each row in its own frame
     T_meas = data.poses()
     pos_only = not data.has_orientation
@@ -320,11 +349,30 @@ def evaluate_model(model, data: Dataset, *, fit_frames: bool = False) -> EvalRes
     last = list(errors)[-1]  # the hybrid model (a robot file: its last row)
     p_mm, a_deg = errors[last]
     found = find_outliers(p_mm * 1e-3, None if a_deg is None else np.radians(a_deg))
+    from .per_group import group_stats
+
     return EvalResult(
         dataset=data.source, n=len(data), position_only=pos_only, stats=stats, errors=errors, support_distance=dist,
         per_payload=evaluate_per_payload(errors, data), regions=regions, labels=labels, vectors=vectors, predicted=preds,
         outliers=found, outliers_of=last if found is not None else "",
+        per_group=group_stats(errors, groups) if groups else None,
+        outlier_pose_ids=None if found is None else _pose_ids(raw, found.rows),
     )
+
+
+def _pose_ids(data, rows) -> list | None:
+    """The ``pose_id`` cell of each of ``rows`` (0-based) as text ("" for a blank cell), or None without
+    that column."""
+    ids = (getattr(data, "extra", None) or {}).get("pose_id")
+    if ids is None:
+        return None
+    out = []
+    for v in np.asarray(ids)[np.asarray(rows, dtype=np.int64)]:  # the few outlier rows only
+        if isinstance(v, (float, np.floating)):
+            v = "" if not np.isfinite(v) else int(v) if float(v).is_integer() else float(v)
+        v = str(v).strip()
+        out.append("" if v.lower() == "nan" else v)
+    return out
 
 
 def evaluate_per_payload(errors: dict, data: Dataset) -> dict | None:

@@ -61,12 +61,14 @@ def fmt(v, digits: int = 4) -> str:
     return str(v)
 
 
-def mm(v: float) -> str:
+def mm(v: float, zeros: bool = False) -> str:
     """A length in mm for a sentence: as µm below 0.01 mm, "< 1 nm" below a nanometre (rounding level;
-    tables keep the exact figure); 3 significant digits."""
+    tables keep the exact figure); 3 significant digits. ``zeros``: keep trailing zeros (4.9952 ->
+    "5.00 mm", not "5 mm": a figure that reads as exact where it is rounded)."""
+    g = lambda x: f"{x:#.3g}".rstrip(".") if zeros else f"{x:.3g}"
     if abs(v) >= 0.01 or v == 0:
-        return f"{v:.3g} mm"
-    return f"{v * 1e3:.3g} µm" if abs(v) >= 1e-6 else "< 1 nm"
+        return f"{g(v)} mm"
+    return f"{g(v * 1e3)} µm" if abs(v) >= 1e-6 else "< 1 nm"
 
 
 def deg(v: float) -> str:

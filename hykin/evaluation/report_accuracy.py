@@ -16,7 +16,7 @@ from .report import mm
 from .report_figures import joint_bins
 
 __all__ = ["FEW_FIT_POSES", "BaseFrame", "Hotspot", "axis_rows", "base_frame", "distinct_poses", "display_name",
-           "iso_rows", "joint_hotspot", "nominal_words", "per_payload_rows", "support_note",
+           "fold_gaps", "gap_words", "iso_rows", "outside_split", "joint_hotspot", "nominal_words", "per_payload_rows", "support_note",
            "per_temperature_rows", "reach_hotspot", "support_rows"]
 
 #: the rows of one ISO 9283 pose id are visits of one pose when the model places them within this of
@@ -261,11 +261,58 @@ def support_note(model) -> str:
     if not folded:
         return ""
     parts = ", ".join(f"joint {j + 1} into {np.degrees(c[j]) - 180:.4g} … {np.degrees(c[j]) + 180:.4g}°" for j in folded)
+    gaps = gap_words(model)
     return ("Folded joints are shown as the networks see them: q and q ± 360° are one input, so their angles are "
-            f"moved by whole turns ({parts}); a trained range there may lie outside the joint limits.")
+            f"moved by whole turns ({parts}); a trained range there may lie outside the joint limits"
+            + (f". {gaps[0].upper() + gaps[1:]}: its trained range is that turn cut at the gap, and a test pose beyond "
+               "it lies in the gap, not outside the joint range the robot was measured over." if gaps else "."))
 
 
 SUPPORT_HEADER = ["joint", "unit", "trained from", "trained to", "test range", "test rows outside"]
+
+#: a folded joint whose training data leave at most this much of its turn uncovered (deg) has a gap in its
+#: training data, not a trained range: a test pose there is "in a gap", not outside the range
+FOLD_GAP_DEG = 30.0
+
+
+def fold_gaps(model) -> dict[int, tuple[float, float]]:
+    """Folded joints (whole turns folded into one, ``wrap_centre_``) whose training data cover the turn
+    except a gap of at most :data:`FOLD_GAP_DEG`: 0-based joint -> ``(gap from, gap to)`` in deg, as the
+    networks see the joint (the trained range ``lo … hi`` leaves ``hi − 360 … lo`` uncovered)."""
+    c = getattr(model, "wrap_centre_", None)
+    lo, hi = getattr(model, "support_lower_", None), getattr(model, "support_upper_", None)
+    if c is None or lo is None:
+        return {}
+    mask = np.asarray(getattr(model, "input_mask_", np.ones(len(c), bool)), bool)
+    out = {}
+    for j in np.flatnonzero(np.isfinite(np.asarray(c, float)) & mask):
+        a, b = np.degrees(float(lo[j])), np.degrees(float(hi[j]))
+        if 0 < 360.0 - (b - a) <= FOLD_GAP_DEG:
+            out[int(j)] = (b - 360.0, a)
+    return out
+
+
+def outside_split(model, q: np.ndarray, outside: np.ndarray) -> dict[str, np.ndarray]:
+    """The test rows outside the training support (``outside`` ``(N,)`` bool) by why: ``"gap"``: beyond the
+    trained range only on joints of :func:`fold_gaps` (in a gap of a folded joint's training data);
+    ``"range"``: beyond the trained range of another joint; ``"holes"``: inside every range, between
+    training poses. Each ``(N,)`` bool."""
+    outside = np.asarray(outside, bool)
+    if not hasattr(model, "range_excess"):
+        return {"gap": np.zeros_like(outside), "range": outside, "holes": np.zeros_like(outside)}
+    ex = np.asarray(model.range_excess(q)) > 0
+    gap_cols = np.zeros(ex.shape[1], bool)
+    gap_cols[list(fold_gaps(model))] = True
+    gap = outside & ex[:, gap_cols].any(1) & ~ex[:, ~gap_cols].any(1)
+    rng = outside & ex[:, ~gap_cols].any(1)
+    return {"gap": gap, "range": rng, "holes": outside & ~gap & ~rng}
+
+
+def gap_words(model) -> str:
+    """"joint 6: its training data cover the whole turn except a 2.46° gap from −30.02 to −27.56°" per joint of
+    :func:`fold_gaps` ("" if none)."""
+    return "; ".join(f"joint {j + 1}: its training data cover the whole turn except a {b - a:.3g}° gap "
+                     f"from {a:.4g} to {b:.4g}°" for j, (a, b) in fold_gaps(model).items())
 
 
 def per_payload_rows(per_payload: dict | None, labels: dict | None = None) -> list[list]:

@@ -17,7 +17,7 @@ import numpy as np
 from ..hybrid.stations import in_model_frame
 from . import report_accuracy as acc
 from .evaluate import evaluate_model
-from .report import Report
+from .report import Report, mm
 from .report_calibration import HEADER as CAL_HEADER
 from .report_calibration import TEXT_COLS as CAL_TEXT
 from .report_calibration import calibration_rows, calibration_summary
@@ -66,8 +66,9 @@ def build_report(model, test=None, *, model_path=None, test_path=None, title: st
 
     frame = acc.base_frame(model, in_model_frame(model, test), res.labels) if res is not None else None
     summary = accuracy_sentences(res, test, rev, model, frame) if res is not None else metadata_sentences(model)
+    nom_fit = _nominal_fitted(res)
     if cal:
-        summary += calibration_summary(cal, cal_rows)[:2]
+        summary += calibration_summary(cal, cal_rows, nom_fit)[:2]
     meta = getattr(model, "metadata", None) or {}
     if meta:
         summary.append(f"Trained on {meta.get('n_total', '?')} measured poses (seed {meta.get('seed', '?')}); "
@@ -85,7 +86,7 @@ def build_report(model, test=None, *, model_path=None, test_path=None, title: st
     if res is not None:
         _accuracy_sections(rep, model, test, res, rev, frame)
     if cal:
-        _calibration_section(rep, cal, cal_rows)
+        _calibration_section(rep, cal, cal_rows, nom_fit)
     if ik_targets and hasattr(model, "predict_classical"):
         _ik_section(rep, model, test, ik_targets, seed)
     return rep, res
@@ -104,22 +105,26 @@ def _accuracy_sections(rep: Report, model, test, res, rev, frame: acc.BaseFrame 
     rep.note(f"{nom}: the robot's {acc.nominal_words(res)}; calibrated: the calibrated classical model; hybrid: calibrated "
              "model plus the learned residual networks. Errors are predicted minus measured. For |e| the mean is of the "
              f"error's length; for a component ({axes}; rx, ry, rz rotations about them) the "
-             "mean is signed (a bias) and the std its spread.")
+             "mean is signed (a bias) and the std its spread. std: the population standard deviation (ddof = 0); p95: "
+             "the 95th percentile (linear interpolation).")
     few = nominal_meaningless(res, test)
     if few is not None:
         rep.note(f"The {nom} row is not meaningful here: its base and tool were fitted to only {few} distinct test poses, "
                  "a fit that absorbs much of the nominal model's error.")
     rep.table(acc.AXIS_HEADER, acc.axis_rows(res.vectors, frame, labels), text_cols=2)
+    _per_group_table(rep, res, labels)
     last = final_model(res)
     rep.figure(distributions_figure({labels[k]: res.errors[k] for k in names}),
                f"Error distributions on the test data, {', '.join(labels[k] for k in names)} (log scale).")
 
     rep.heading("Where the error is")
-    rep.figure(joint_error_figure(test.q, {labels[k]: res.errors[k][0] for k in names}, rev),
-               f"Position error against each joint: lines are mean errors per joint bin, dots the {last} model's test poses.")
-    rep.figure(spatial_error_figure(frame.points(tm.xyz_m), res.errors[last][0], last),
+    keep, left_out = _without_outliers(res)  # a lost beam is named, not drawn as a joint range's error
+    rep.figure(joint_error_figure(np.asarray(test.q)[keep], {labels[k]: res.errors[k][0][keep] for k in names}, rev),
+               f"Position error against each joint: lines are mean errors per joint bin, dots the {last} model's test "
+               f"poses.{left_out}")
+    rep.figure(spatial_error_figure(frame.points(tm.xyz_m)[keep], res.errors[last][0][keep], last),
                f"Test positions ({frame.name}{', ' + frame.words if frame.is_base else ''}) seen from above (x–y) "
-               f"and from the sides, coloured by the {last} model's position error.")
+               f"and from the sides, coloured by the {last} model's position error.{left_out}")
     if res.regions:
         rep.note("Per joint quartile (registered model; mean mm): nominal + rigid fit is the nominal robot with base and "
                  "tool fitted to all of these poses.")
@@ -154,11 +159,50 @@ def _accuracy_sections(rep: Report, model, test, res, rev, frame: acc.BaseFrame 
         rep.note("The test data carry no payload_kg or temperature_c column: no per-payload or per-temperature tables.")
 
 
-def _calibration_section(rep: Report, cal: dict, rows) -> None:
+def _without_outliers(res) -> tuple[np.ndarray, str]:
+    """``(keep (N,) bool, caption sentence)``: the rows the where-is-the-error figures show, all but the
+    test rows named as outliers (the summary's hotspots leave them out too); the sentence names them."""
+    keep = np.ones(res.n, bool)
+    o = getattr(res, "outliers", None)
+    if o is None:
+        return keep, ""
+    keep[o.rows] = False
+    k = len(o.rows)
+    shown = ", ".join(str(int(r) + 1) for r in o.rows[:12]) + (f" and {k - 12} more" if k > 12 else "")
+    return keep, (f" The {k} test row{'s' if k > 1 else ''} named as outlier{'s' if k > 1 else ''} (data row"
+                  f"{'s' if k > 1 else ''} {shown}, {mm(float(o.pos_mm.max()), zeros=True)} max) {'are' if k > 1 else 'is'} left out "
+                  "here; the tables above count them.")
+
+
+def _per_group_table(rep: Report, res, labels: dict) -> None:
+    """The accuracy per station and per tool (test data naming more than one), the reference named."""
+    if not getattr(res, "per_group", None):
+        return
+    from .per_group import GROUP_HEADER, group_rows, reference_words
+
+    ref = reference_words(res.per_group)
+    rep.table(GROUP_HEADER, group_rows(res.per_group, labels), text_cols=3,
+              caption=f"Accuracy per {' and per '.join(res.per_group)}: each row in its own station's and tool's "
+                      f"frame{' (' + ref + ': the robot base and TCP of the model)' if ref else ''}.")
+
+
+def _nominal_fitted(res) -> tuple[float, str] | None:
+    """``(mean mm, where)`` of the evaluation's nominal row when its base and tool were fitted to the test poses
+    (the robot's own error, as the accuracy table shows it), else None."""
+    from .evaluate import NOMINAL_FITTED
+
+    if res is None or "nominal" not in res.stats or acc.display_name(res, "nominal") != NOMINAL_FITTED:
+        return None
+    return res.stats["nominal"].pos_mean_mm, "on the test data, as in the accuracy table"
+
+
+def _calibration_section(rep: Report, cal: dict, rows, nom_fit: tuple[float, str] | None = None) -> None:
     rep.heading("Calibration")
-    rep.bullets(calibration_summary(cal, rows))
+    rep.bullets(calibration_summary(cal, rows, nom_fit))
     rep.note("Deviation = identified − nominal; for base and tool, the correction along the nominal frame's own axes (the "
-             "notes give identified − nominal where the two differ). Posterior std: "
+             "notes give identified − nominal where the two differ). Further stations' and tools' frames "
+             "(station[..], tool[..]) have no robot-file value: their identified value is the frame itself (station → "
+             "robot base, flange → TCP) and they have no deviation. Posterior std: "
              "the standard deviation of the identified value (residual noise and prior); prior std: the tolerance the "
              "calibration assumed for the robot file's value (blank: uninformative). Status (docs/calibration-priors.md): "
              "identified; correlated with the named parameters (|ρ| ≥ 0.99: the data tell their combination, the priors "

@@ -16,6 +16,7 @@ calibration adds, so new fields show up without code here.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,7 +26,7 @@ from ..geometry import se3
 from ..kinematics.compliance import compliance_of
 from ..kinematics.robot import Robot
 
-__all__ = ["CalibrationRow", "calibration_rows", "calibration_summary", "UNIT_SCALE"]
+__all__ = ["CalibrationRow", "calibration_rows", "calibration_summary", "further_frames", "is_frame_parameter", "UNIT_SCALE"]
 
 #: SI unit code -> (factor to the shown unit, shown unit)
 UNIT_SCALE = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg"), "c": (1e6, "µrad/(N·m)")}
@@ -45,7 +46,7 @@ class CalibrationRow:
     name: str
     nominal: float | None
     identified: float | None
-    deviation: float
+    deviation: float | None  # None: no robot-file value to deviate from (a further station's or tool's frame)
     std: float | None
     prior: float | None
     unit: str
@@ -97,6 +98,45 @@ def parameter_values(robot: Robot) -> dict[str, float]:
     return out
 
 
+#: a further station's or tool's frame parameter: ``station[T2].x``, ``tool[smrB].rz``
+_FRAME_ROW = re.compile(r"^(station|tool)\[(.+)\]\.(x|y|z|rx|ry|rz)$")
+
+
+def is_frame_parameter(name: str) -> bool:
+    """Whether ``name`` is a frame of the set-up (base, tool, further stations / tools, reflector offsets
+    ``p2.x``) rather than one of the robot's own parameters (geometry, joint offsets, compliance)."""
+    return name.startswith(("base.", "tool.", "station[", "tool[")) or re.match(r"^p\d+\.[xyz]$", name) is not None
+
+
+def further_frames(calib: dict) -> dict[str, dict[str, np.ndarray]]:
+    """The identified frames of the further stations and tools (no robot-file value): ``{"station": {label:
+    (4, 4)}, "tool": {label: (4, 4)}}`` from the calibration's ``station_frames`` (station -> robot base;
+    flange -> TCP), the reference (index 0) left out; empty without them."""
+    sf = calib.get("station_frames") or {}
+    out: dict[str, dict[str, np.ndarray]] = {"station": {}, "tool": {}}
+    for kind, labs, frames in (("station", "station_labels", "station_bases"), ("tool", "tool_labels", "tool_frames")):
+        for lab, T in list(zip(sf.get(labs) or [], sf.get(frames) or []))[1:]:
+            out[kind][str(lab)] = np.asarray(T, dtype=np.float64).reshape(4, 4)
+    return out
+
+
+def _frame_row_values(name: str, frames: dict) -> tuple[float | None, str]:
+    """``(identified SI value or None, note)`` of a further station's / tool's frame parameter: its value in
+    the identified frame (x, y, z m; rotation vector rad, as for base and tool), and for the ``.x`` row
+    the whole frame as ``hykin calibrate`` prints it (xyz mm, rpy deg)."""
+    m = _FRAME_ROW.match(name)
+    T = frames.get(m.group(1), {}).get(m.group(2)) if m else None
+    if T is None:
+        return None, "no robot-file value (a further station's or tool's frame)"
+    what = "station -> robot base" if m.group(1) == "station" else "flange -> TCP"
+    note = f"no robot-file value: the identified frame ({what}), not a deviation"
+    if m.group(3) == "x":
+        rpy = np.degrees(se3.matrix_to_rpy(T[:3, :3]))
+        note += (f"; the frame: xyz {', '.join(f'{v:.4f}' for v in T[:3, 3] * 1e3)} mm, rpy "
+                 f"{', '.join(f'{v:.4f}' for v in rpy)} deg")
+    return _frame_values(T)[m.group(3)], note
+
+
 def _correlated(calib: dict) -> dict[str, list[tuple[str, float]]]:
     out: dict[str, list[tuple[str, float]]] = {}
     for a, b, r in calib.get("strong_correlations") or []:
@@ -119,6 +159,7 @@ def calibration_rows(calib: dict, nominal: Robot, calibrated: Robot | None = Non
     nom = parameter_values(nominal)
     ide = parameter_values(calibrated) if calibrated is not None else {}
     strong = _correlated(calib)
+    further = further_frames(calib)
     rows = []
     for p in calib.get("parameters", []):
         name, unit = p["name"], p.get("unit", "m")
@@ -128,6 +169,9 @@ def calibration_rows(calib: dict, nominal: Robot, calibrated: Robot | None = Non
         ident = bool(p.get("identifiable", True))
         n0 = nom.get(name)
         n1 = ide.get(name, None if n0 is None or name.startswith(("base.", "tool.")) else n0 + dev)
+        if _FRAME_ROW.match(name):  # no nominal: the identified frame, no deviation (as hykin calibrate prints it)
+            rows.append(_further_row(p, name, unit, std, further, strong))
+            continue
         state = str(p["status"]) if "status" in p else "identified" if ident else "held at nominal"
         partners = [(str(b), float(r)) for b, r in p.get("correlated_with") or []]
         if state == "correlated":
@@ -163,22 +207,66 @@ def calibration_rows(calib: dict, nominal: Robot, calibrated: Robot | None = Non
     return rows
 
 
+def _further_row(p: dict, name: str, unit: str, std, frames: dict, strong: dict) -> CalibrationRow:
+    """The row of a further station's / tool's frame parameter: no nominal, no deviation, the identified
+    value (mm / deg) and std; its notes name what the value is instead of a comparison with a nominal."""
+    f, shown = UNIT_SCALE.get(unit, (1.0, unit))
+    val, note = _frame_row_values(name, frames)
+    state = str(p["status"]) if "status" in p else "identified" if p.get("identifiable", True) else "held at nominal"
+    partners = [(str(b), float(r)) for b, r in p.get("correlated_with") or []]
+    status = "correlated with " + _partners(partners) if state == "correlated" and partners else state
+    notes = [note]
+    more = [(b, r) for b, r in strong.get(name, []) if b not in {b for b, _ in partners}]
+    if more:
+        notes.append("strongly correlated with " + _partners(more))
+    notes += [f"{k} {_note(v)}" for k, v in p.items() if k not in _KNOWN]
+    prior = _finite(p.get("prior_std"))
+    return CalibrationRow(name=name, nominal=None, identified=None if val is None else val * f, deviation=None,
+                          std=None if std is None else std * f, prior=None if prior is None else prior * f, unit=shown,
+                          state=state, status=status, notes="; ".join(notes))
+
+
 def _note(v) -> str:
     if isinstance(v, float):
         return f"{v:.4g}"
     return str(v)
 
 
-def calibration_summary(calib: dict, rows: list[CalibrationRow]) -> list[str]:
-    """Sentences on the calibration: what was identified, what was held, how well, what correlates."""
+def _per_unit(rows: list[CalibrationRow], fmt) -> str:
+    """The rows grouped by unit (lengths, angles, compliances: sizes in one unit compare), each group
+    largest deviation first, joined with "; "."""
+    units = sorted(dict.fromkeys(r.unit for r in rows), key=lambda u: {"mm": 0, "deg": 1}.get(u, 2))
+    return "; ".join(fmt(sorted((r for r in rows if r.unit == u), key=lambda r: -abs(r.deviation))) for u in units)
+
+
+def _before_words(calib: dict, before_mm: float, nominal_fitted: tuple[float, str] | None) -> str:
+    """What the calibration's "before" residual is: the robot file as written, frame guesses included;
+    beside it the nominal robot with fitted frames (``nominal_fitted``: ``(mean mm, where)``) when known."""
+    further = any(further_frames(calib).values())
+    s = ("the robot file as written, with its own base and tool" + (" (the further stations' and tools' frames from "
+         "a first fit)" if further else ""))
+    if nominal_fitted is None:
+        return s + ": any error of those frames (the measuring instrument's place, a guessed tool) is in it, not only the robot's own"
+    lead = (": most of it is the error of those frames (the measuring instrument's place, a guessed tool), not the "
+            "robot's own error" if before_mm > 2.0 * nominal_fitted[0] else "")
+    return s + f"{lead} (the nominal robot with base and tool fitted: {nominal_fitted[0]:.3g} mm {nominal_fitted[1]})"
+
+
+def calibration_summary(calib: dict, rows: list[CalibrationRow], nominal_fitted: tuple[float, str] | None = None) -> list[str]:
+    """Sentences on the calibration: what was identified, what was held, how well (the "before" residual named:
+    the robot file as written; ``nominal_fitted``: ``(mean mm, where)`` of the nominal robot with fitted frames,
+    the robot's own error, quoted beside it), the robot's own significant deviations (geometry, joint offsets,
+    compliance) apart from the set-up's frames, what correlates."""
     n = len(rows)
     held = [r.name for r in rows if r.held]
     cor = [r.name for r in rows if r.state == "correlated"]
     bound = [r.name for r in rows if r.state == "at bound 0"]
     n_id = sum(r.state == "identified" for r in rows)
-    sig = [r for r in rows if r.state == "identified" and r.std is not None and r.std > 0
+    sig = [r for r in rows if r.state == "identified" and r.std is not None and r.std > 0 and r.deviation is not None
            and abs(r.deviation) > SIGNIFICANT_SIGMA * r.std and "equals nominal" not in r.notes]
     sig.sort(key=lambda r: -abs(r.deviation) / r.std)
+    own = [r for r in sig if not is_frame_parameter(r.name)]
+    frames = [r for r in sig if is_frame_parameter(r.name)]
     b, a = calib.get("before") or {}, calib.get("after") or {}
     lst = lambda names: f" ({', '.join(names[:8])}{', …' if len(names) > 8 else ''})" if names else ""
     out = [f"Calibration: {n_id} of {n} parameters identified from {calib.get('n_samples', '?')} poses"
@@ -190,12 +278,18 @@ def calibration_summary(calib: dict, rows: list[CalibrationRow]) -> list[str]:
         s = f"On its own data the calibration takes the mean position residual from {b['pos_mean_mm']:.4g} mm to {a['pos_mean_mm']:.3g} mm"
         if "rot_mean_deg" in b and "rot_mean_deg" in a:
             s += f" and the orientation residual from {b['rot_mean_deg']:.4g}° to {a['rot_mean_deg']:.3g}°"
+        s += f"; “before” is {_before_words(calib, float(b['pos_mean_mm']), nominal_fitted)}"
         out.append(s + ".")
-    if sig:
-        out.append("Largest significant deviations from nominal: " + ", ".join(
-            f"{r.name} {r.deviation:+.4g} {r.unit} (± {r.std:.2g})" for r in sig[:4]) + ".")
+    fmt = lambda rs: ", ".join(f"{r.name} {r.deviation:+.4g} {r.unit} (± {r.std:.2g})" for r in rs[:4])
+    if own:
+        out.append("Largest significant deviations of the robot's own parameters (geometry, joint offsets, compliance) "
+                   f"from nominal, per unit: {_per_unit(own, fmt)}.")
     elif rows:
-        out.append("No identified parameter differs significantly (> 3 σ) from its nominal value.")
+        out.append("No identified parameter of the robot's own (geometry, joint offsets, compliance) differs "
+                   "significantly (> 3 σ) from its nominal value.")
+    if frames:
+        out.append(f"Frames of the set-up (the measuring instrument's place, the tool; not the robot's error) moved from "
+                   f"the robot file's most: {fmt(frames)}.")
     sc = calib.get("strong_correlations") or []
     if sc:
         out.append(f"{len(sc)} pair(s) of parameters are strongly correlated (|ρ| > 0.9): their individual values are "

@@ -14,12 +14,14 @@ from .report_accuracy import (
     base_frame,
     display_name,
     distinct_poses,
+    gap_words,
     joint_hotspot,
     nominal_words,
+    outside_split,
     reach_hotspot,
 )
 
-__all__ = ["accuracy_sentences", "final_model", "metadata_sentences", "nominal_meaningless"]
+__all__ = ["accuracy_sentences", "final_model", "group_sentence", "metadata_sentences", "nominal_meaningless", "support_sentence"]
 
 
 def final_model(res) -> str:
@@ -55,7 +57,7 @@ def accuracy_sentences(res, data, revolute, model=None, frame=None) -> list[str]
     s = res.stats[name]
     out = []
     line = (f"On {res.n} test poses the {name} model is accurate to {mm(s.pos_mean_mm)} on average "
-            f"(95 % of poses within {mm(s.pos_p95_mm)}, worst {mm(s.pos_max_mm)})")
+            f"(95 % of poses within {mm(s.pos_p95_mm)}, worst {mm(s.pos_max_mm, zeros=True)})")
     if s.ang_mean_deg is not None:
         line += f" and {deg(s.ang_mean_deg)} in orientation (95 % within {deg(s.ang_p95_deg)})"
     out.append(line + ".")
@@ -94,15 +96,48 @@ def accuracy_sentences(res, data, revolute, model=None, frame=None) -> list[str]
         out.append("The largest remaining errors are at " + "; and at ".join(where) + ".")
     elif hot is not None:
         out.append("The remaining error is spread evenly: no joint range or reach has a mean error above 1.2 × the overall mean.")
+    groups = group_sentence(res, name)
+    if groups:
+        out.append(groups)
     if res.support_distance is not None:
-        n_out = int(np.sum(res.support_distance > 0))
-        if n_out:
-            mean_out = float(e[res.support_distance > 0].mean())
-            out.append(f"{n_out} of {res.n} test poses lie outside the training data (mean error there {mm(mean_out)}); "
-                       "there the network correction fades out towards the calibrated model.")
-        else:
-            out.append("All test poses lie inside the training data.")
+        out.append(support_sentence(res, data, model, e))
     return out
+
+
+def group_sentence(res, name: str) -> str:
+    """The ``name`` model's mean position error per station and per tool, the reference labels named
+    ("" when the test data name one station and one tool)."""
+    per = getattr(res, "per_group", None)
+    if not per:
+        return ""
+    parts = []
+    for col, g in per.items():
+        cells = ", ".join(f"{lab}{' (reference)' if lab == g['reference'] else ''} {mm(m[name]['pos_mean_mm'])} "
+                          f"({m[name]['n']} poses)" for lab, m in g["labels"].items())
+        parts.append(f"per {col}: {cells}")
+    return f"Mean position error of the {name} model " + "; ".join(parts) + " (table below)."
+
+
+def support_sentence(res, data, model, e: np.ndarray) -> str:
+    """How many test poses lie outside the training support, and why: in a gap of a folded joint's
+    training data (:func:`~.report_accuracy.fold_gaps`), beyond a joint's trained range, or between
+    training poses; ``e``: the judged model's position errors (mm)."""
+    out_rows = res.support_distance > 0
+    n_out = int(out_rows.sum())
+    if not n_out:
+        return "All test poses lie inside the training data."
+    split = outside_split(model, np.asarray(data.q), out_rows) if model is not None else None
+    why = []
+    if split is not None:
+        gw = gap_words(model)
+        for key, words in (("gap", f"in a gap of the training data ({gw})"), ("range", "beyond a joint's trained range"),
+                           ("holes", "between training poses")):
+            k = int(split[key].sum())
+            if k:
+                why.append(f"{k} {words}")
+    return (f"{n_out} of {res.n} test poses lie outside the training support, mean error there "
+            f"{mm(float(e[out_rows].mean()))}" + (f": {'; '.join(why)}" if why else "")
+            + ". There the network correction fades out towards the calibrated model.")
 
 
 def metadata_sentences(model) -> list[str]:
