@@ -116,6 +116,7 @@ from .result import (
     residual_stats,
 )
 from .identifiability import identifiable_columns, parameter_scales
+from .coverage import coverage_warnings, data_mistake_note
 from .inputs import calibration_inputs
 from .outliers import DEFAULT_RATIO, OUTLIER_MODES, OutlierWarning, find_outliers, row_errors, rows_out_of_step, subset_rows
 from .stations import check_groups, frame_starts, reference_rows, row_groups, station_rms
@@ -529,6 +530,7 @@ def calibrate(
                                f"not fit this robot file: {ADVICE}")
     res, rel, iters, _ = best
     res.notes += [n for n in [uninformative_note(res, specs)] if n]  # an inf tolerance the data could not honour
+    res.coverage = coverage_warnings(res, q, tool_prior_given="tool_mm" in (priors or {}))  # a joint never moved ...
     if not res.converged and rel <= _STALLED_REL:  # the cap stopped a cost that no longer moves
         res.converged = True
         res.message += f"; iteration cap reached with the cost changing by {rel:.2g} (relative) per iteration"
@@ -577,6 +579,10 @@ def calibrate(
             except CalibrationError as e0:  # a quaternion re-read that explains the positions names the cause
                 check_orientation_consistency(res, data, recal, lim["orientation_conflict"], refused=e0)
         except CalibrationError as e:
+            mirror = data_mistake_note(robot, q, xyz, R_meas, None if groups is None else reference_rows(groups))
+            if mirror:
+                raise CalibrationError(f"calibration of {robot.name!r}: {mirror}; fitted as given: "
+                                       f"{str(e).removeprefix(f'calibration of {robot.name!r}: ')}") from None
             if groups is None or isinstance(e, OrientationConflictError):  # else: joints a row out of step?
                 shift = "" if isinstance(e, OrientationConflictError) else rows_out_of_step(data, res.after["pos_rms_mm"], recal)
                 raise (CalibrationError(f"{e}{shift}") if shift else e) from None

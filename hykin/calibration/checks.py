@@ -168,6 +168,13 @@ def check_calibration(res, specs, lim: dict, *, still_falling: bool, deflection_
                 f"{n_tol:.1f} tolerances of --prior {key}={t:g} (plausible: ±{b:.4g} {un}): the data contradict the "
                 f"{sp.group} stated in the robot file with that tolerance: check the robot file's [{sp.group}] (the survey) "
                 f"and the frame of the data, or widen --prior {key} (inf: the {sp.group} comes from the data)")
+        rms = res.after["pos_rms_mm"]
+        if rms > lim["residual_mm"]:  # the fit stopped far from the data: its amount is not what they want
+            raise CalibrationError(
+                f"calibration of {name!r}: {_label(sp)} went to {v:+.4g} {un} from the robot file{tol_txt} (plausible: "
+                f"±{b:.4g} {un}) and the fit stopped there still leaving {rms:.3g} mm RMS (a correct robot file leaves < "
+                f"{lim['residual_mm']:g} mm): the data want a different value, possibly far more; the data do not fit "
+                f"this robot file: {ADVICE} (or widen --prior / --max-deviation)")
         raise CalibrationError(
             f"calibration of {name!r}: {_label(sp)} deviates {v:+.4g} {un} from the robot file{tol_txt} (plausible: "
             f"±{b:.4g} {un}); the data do not fit this robot file: {ADVICE} (or widen --prior / --max-deviation)")

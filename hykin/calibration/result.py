@@ -113,6 +113,9 @@ class CalibrationResult:
     outliers: object | None = None
     #: notes for the user (e.g. :func:`hykin.calibration.priors.precise_data_note`)
     notes: list = field(default_factory=list)
+    #: warnings on what the data did not cover (a joint never moved, the tool at one orientation:
+    #: :func:`hykin.calibration.coverage.coverage_warnings`); the calibrated robot holds only where the data were taken
+    coverage: list = field(default_factory=list)
     #: ``(P,)`` each parameter's RMS effect on the data per tolerance that no other explains, in excitation
     #: floors, at the solution (:func:`hykin.calibration.priors.excitation`; inf: uninformative; 0 where
     #: the data cannot tell it whatever the floor: a rank-deficient column); None: not computed

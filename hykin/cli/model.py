@@ -22,6 +22,7 @@ from .common import (
     console,
     load_model,
     load_model_or_robot,
+    plain_markup,
     load_robot_spec,
 )
 
@@ -128,6 +129,8 @@ def fit_cmd(
         typer.echo(model.calibration_.summary())
         for note in getattr(model.calibration_, "notes", []):
             console().print(f"note: {note}", highlight=False)
+        for warn in getattr(model.calibration_, "coverage", []):  # a joint never moved, the tool at one orientation
+            console().print(f"[yellow]warning:[/] {plain_markup(warn)}", highlight=False)
     if model.thermal_ is not None:
         typer.echo(f"thermal expansion: {model.thermal_.note} (reference {model.thermal_.reference_c:.2f} °C)")
     if model.fade_calibration_ is not None:
@@ -246,7 +249,9 @@ def calibrate_cmd(
     typer.echo(res.report())
     for note in res.notes:
         console().print(f"note: {note}", highlight=False)
-    _write_calibrated(res.robot, out)
+    for warn in res.coverage:  # what the data did not cover: the file holds only where they were taken
+        console().print(f"[yellow]warning:[/] {plain_markup(warn)}", highlight=False)
+    _write_calibrated(res.robot, out, res.coverage)
     if res.station_frames is not None:  # several stations / tools: the file holds the reference's frames
         fr = res.station_frames
         parts = ([f"its [base] is station {fr.reference_station!r}'s frame"] if len(fr.station_labels) > 1 else []) + (
@@ -260,19 +265,32 @@ def _check_robot_out(rob, out: Path) -> None:
         raise CLIError(f"{out}: a URDF robot is written as URDF; name the output {out.with_suffix('.urdf').name}")
 
 
-def _write_calibrated(robot, out: Path) -> None:
+def _with_comments(text: str, warnings: list[str], urdf: bool) -> str:
+    """``text`` (a TOML or URDF robot file) with one comment line per calibration warning on top (after
+    an XML declaration); readers ignore them, a person opening the file sees where it holds."""
+    if not warnings:
+        return text
+    if not urdf:
+        return "".join(f"# hykin calibrate warning: {w}\n" for w in warnings) + text
+    lines = "".join(f"<!-- hykin calibrate warning: {w.replace('--', '- -')} -->\n" for w in warnings)
+    head, sep, rest = text.partition("?>\n") if text.startswith("<?xml") else ("", "", text)
+    return head + sep + lines + rest
+
+
+def _write_calibrated(robot, out: Path, warnings: list[str] | None = None) -> None:
     """The calibrated robot as URDF (``.urdf``: the maker's URDF with calibrated joint origins, or any
-    robot as a URDF chain) or else as a TOML robot file."""
+    robot as a URDF chain) or else as a TOML robot file; ``warnings`` (what the data did not cover)
+    go on top as comments."""
     if out.suffix.lower() == ".urdf":
         from ..io.urdf import calibrated_robot_urdf
 
         text, left = calibrated_robot_urdf(robot)
-        out.write_text(text, encoding="utf-8")
+        out.write_text(_with_comments(text, warnings or [], urdf=True), encoding="utf-8")
         typer.echo(f"calibrated robot written to {out}" + (f" (a URDF cannot carry {left}: not written)" if left else ""))
         return
-    from ..io.robot_toml import save_robot_toml
+    from ..io.robot_toml import robot_to_toml_string
 
-    save_robot_toml(robot, out)
+    out.write_text(_with_comments(robot_to_toml_string(robot), warnings or [], urdf=False), encoding="utf-8")
     typer.echo(f"calibrated robot written to {out}")
 
 
