@@ -331,10 +331,9 @@ def _tip_candidates(base_link: str, children: dict, joints: dict) -> tuple[list[
 
 
 def _default_tip(base_link: str, children: dict, joints: dict, path_to, where: str) -> str:
-    """The chain end below ``base_link`` when no tip is named: the one tip, where a *tip* is a leaf
-    link whose own branch (from the last link with several children) holds a movable joint; a
-    dead-end branch of fixed joints only (a camera or sensor frame bolted to a link) is no tip.
-    Several tips: refused in one line naming them. Only dead ends: the one with most movable joints."""
+    """The chain end below ``base_link`` when no tip is named: the one tip (a leaf whose own branch holds a
+    movable joint; a branch of fixed joints only, a camera bolted to a link, is a dead end), else the one dead
+    end after the most movable joints. Several of either: refused naming them."""
     leaves, tips = _tip_candidates(base_link, children, joints)
     if len(leaves) == 1:
         return leaves[0]
@@ -345,11 +344,12 @@ def _default_tip(base_link: str, children: dict, joints: dict, path_to, where: s
         also = f", or a link fixed to the arm's end: {', '.join(ends)}" if ends else ""
         raise RobotFileError(f"{where}: several tips ({', '.join(tips)}) below '{base_link}'; name tip_link "
                              f"(--tip LINK on the command line{also})")
-    score = {lf: (sum(j["type"] in _MOVABLE for j in path_to(lf)), len(path_to(lf))) for lf in leaves}
+    # not the longest path: frames bolted to one link differ by their offsets (s41 AI: 122 mm silently)
+    score = {lf: sum(j["type"] in _MOVABLE for j in path_to(lf)) for lf in leaves}
     best = max(score.values())
     cands = sorted(lf for lf, s in score.items() if s == best)
     if len(cands) > 1:
-        raise RobotFileError(f"{where}: several chain ends ({', '.join(cands)}) are equally long; name tip_link "
+        raise RobotFileError(f"{where}: several chain ends ({', '.join(cands)}) after the same joints; name tip_link "
                              f"(--tip LINK on the command line)")
     return cands[0]
 
