@@ -38,7 +38,7 @@ import numpy as np
 
 from ..geometry import se3
 
-__all__ = ["FIELDS", "WalkRow", "check_walk", "landing", "configuration_changes", "keep_configuration", "take"]
+__all__ = ["FIELDS", "WalkRow", "check_walk", "joint_gap", "landing", "configuration_changes", "keep_configuration", "take"]
 
 #: the per-row fields of a :class:`.result.Compensation`
 FIELDS = ("command", "q", "success", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg", "in_support", "q_branch",
@@ -547,6 +547,16 @@ def _misses(model, compensator, q: np.ndarray, pick: np.ndarray, Tm: np.ndarray)
     return out
 
 
+def joint_gap(nom, a: np.ndarray, b: np.ndarray) -> str:
+    """How far joints ``a`` are from ``b`` ``(n,)``: the largest revolute difference in degrees, and the
+    largest prismatic one in mm where the arm has such joints (a rail)."""
+    d = np.abs(np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64))
+    rev = np.array([t == "revolute" for t in nom.independent_joint_type])
+    parts = ([f"{np.degrees(d[rev].max()):.1f}°"] if rev.any() else []) + \
+        ([f"{d[~rev].max() * 1e3:.1f} mm"] if (~rev).any() else [])
+    return " / ".join(parts)
+
+
 def landing(model, q: np.ndarray, Tm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(mm, deg)``: the model's pose at ``q`` to the targets ``Tm`` (measurement frame)."""
     import warnings
@@ -574,10 +584,10 @@ def _walk_reason(model, compensator, targets, comp, k, cur, where, keep, Tm, D, 
     fix = "send the compensated joints instead (--joints) or move to joints on the wanted branch before it"
     if not np.isfinite(pick).all():
         return (f"the controller has no nominal solution of the written command within the joint limits (the "
-                f"compensated joints are {np.degrees(np.abs(q - cur).max()):.1f}° from the joints the robot is at, "
+                f"compensated joints are {joint_gap(nom, q, cur)} from the joints the robot is at, "
                 f"{where}){rounding}; {fix}")
     pe, _ = landing(model, pick[None], Tm[None])
     return (f"the controller would execute it on another branch: its nominal solution of the written command "
-            f"nearest the joints the robot is at ({where}) is {np.degrees(np.abs(pick - q).max()):.1f}° from the "
+            f"nearest the joints the robot is at ({where}) is {joint_gap(nom, pick, q)} from the "
             f"compensated joints and lands {pe[0]:.3g} mm from the target{rounding}; no solution of the model's robot "
             f"that the controller executes reaches it within the tolerance {compensator.tolerance_mm:.3g} mm: {fix}")

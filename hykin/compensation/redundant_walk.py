@@ -62,7 +62,7 @@ def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> l
     them, up to ``rounds`` times (the controller's endpoint moves little with the command: a fixed point).
     ``D``/``Dm``: the targets' tools relative to the robot file's and the model's TCP (or None)."""
     from ..hybrid.ik_result import model_accuracy
-    from .program_checks import landing
+    from .program_checks import joint_gap, landing
 
     nom = model.nominal
     Dc = np.broadcast_to(np.eye(4), (len(T), 4, 4)) if D is None else D
@@ -101,8 +101,8 @@ def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> l
                 break
         if miss > acc:
             where = ("finds no nominal solution of the command" if not np.isfinite(miss) else
-                     f"reaches it on joints {np.degrees(np.abs(pick - result.q[k]).max()):.1f}° (largest joint "
-                     f"difference) from the compensated ones, landing {miss:.3g} mm from the target")
+                     f"reaches it on joints {joint_gap(nom, pick, result.q[k])} (largest joint difference) from "
+                     f"the compensated ones, landing {miss:.3g} mm from the target")
             result.reason[k] = (f"the controller would execute it elsewhere on this redundant arm: solving the "
                                 f"command locally from the joints before it {where}; give the joints (q1..qN) or "
                                 "send them (--joints)")
