@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 
 from . import compensate, data, imports, model, plan, query, realtime, report, scale  # noqa: F401  (register the commands)
-from .common import CLIError, app
+from .common import CLIError, app, interrupt_said
 
 __all__ = ["CLIError", "app", "main"]
 
@@ -24,7 +24,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         app(args=argv, prog_name="hykin")
     except SystemExit as e:
-        if e.code == 130:  # Ctrl-C: Typer turns KeyboardInterrupt into a silent exit 130
+        if e.code == 130 and not interrupt_said():  # Ctrl-C: Typer turns KeyboardInterrupt into a silent 130
             print("hykin: interrupted", file=sys.stderr)
         raise
     except KeyboardInterrupt:

@@ -430,3 +430,16 @@ def write_rows(rows: dict, out: Path) -> None:
 
     out.parent.mkdir(parents=True, exist_ok=True)
     write_csv(out, rows, ROWS_STYLE)
+
+
+_INTERRUPT = {"said": False}
+
+
+def mark_interrupt_said() -> None:
+    """A command said why it stopped on Ctrl-C (and how to go on): the entry point adds nothing."""
+    _INTERRUPT["said"] = True
+
+
+def interrupt_said() -> bool:
+    """Whether a command already said why it stopped on Ctrl-C (:func:`mark_interrupt_said`)."""
+    return _INTERRUPT["said"]

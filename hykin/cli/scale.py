@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from .common import CLIError, app, check_output, plain_markup
+from .common import CLIError, app, check_output, mark_interrupt_said, plain_markup
 
 Address = typer.Option(None, "--address", help="Ray cluster to join (e.g. auto, or ray://HEAD:10001); default: a local Ray on this machine's CPUs.")
 NumCpus = typer.Option(None, "--num-cpus", help="CPUs of the local Ray (default: all of this machine's); ignored with --address.")
@@ -88,6 +88,7 @@ def _interrupted(command: str, spec_file: Path, out: Path):
     except KeyboardInterrupt:
         typer.echo(f"hykin: {command} interrupted; what finished is kept in {out}: `hykin {command} {spec_file} "
                    f"-o {out} --resume` continues", err=True)
+        mark_interrupt_said()
         raise typer.Exit(130) from None
 
 
