@@ -85,9 +85,10 @@ def sine_trajectory(seed: int = 1):
     return lambda t: q0 + A * np.sin(2 * np.pi * f * np.asarray(t)[:, None] + ph)
 
 
-def fake_sweep_ray(monkeypatch):
+def fake_sweep_ray(monkeypatch, data: list | None = None):
     """run_sweep without Ray: the session and trial runner are stand-ins (every trial "ok", errors 0.1 mm);
-    returns ``(hykin.distributed.sweep, calls)``: the trials each run got, sorted."""
+    returns ``(hykin.distributed.sweep, calls)``: the trials each run got, sorted. ``data``: a list the
+    datasets each run got are appended to."""
     import contextlib
 
     import hykin.distributed.sweep as sweep_mod
@@ -95,8 +96,10 @@ def fake_sweep_ray(monkeypatch):
 
     calls = []
 
-    def fake_run_trials(ray, trials, data, cpus, gpus, subsample_seed, on_done):
+    def fake_run_trials(ray, trials, data_, cpus, gpus, subsample_seed, on_done):
         calls.append(sorted(trials))
+        if data is not None:
+            data.append(data_)
         for i in trials:
             on_done(i, {"status": "ok", "error": "", "attempts": 1, "n_train": 240, **dict.fromkeys(ERROR_COLUMNS, 0.1),
                         "fit_s": 1.0, "eval_s": 0.1, "steps": 4, "epochs": 2})

@@ -9,7 +9,7 @@ import contextlib
 
 import numpy as np
 import pytest
-from shared_fixtures import sweep_files, write_text
+from shared_fixtures import fake_sweep_ray, sweep_files, write_text
 
 from cli_run import run
 from hykin.distributed.files import SpecError, inputs_sha256
@@ -242,17 +242,7 @@ def test_sweep_declares_the_units_of_its_data_files(files, tmp_path, monkeypatch
     spec = read_sweep(p)
     assert (spec.length_unit, spec.angle_unit) == ("mm", "deg")
     got = []
-
-    def fake_run_trials(ray, trials, data, cpus, gpus, subsample_seed, on_done):
-        got.append(data)
-        for i in trials:
-            on_done(i, {"status": "ok", "error": "", "attempts": 1, "n_train": 240, **dict.fromkeys(ERROR_COLUMNS, 0.1),
-                        "fit_s": 1.0, "eval_s": 0.1, "steps": 4, "epochs": 2})
-
-    monkeypatch.setattr(sweep_mod, "ray_session", lambda address, num_cpus: contextlib.nullcontext(None))
-    monkeypatch.setattr(sweep_mod, "check_resources", lambda *a, **k: None)
-    monkeypatch.setattr(sweep_mod, "run_trials", fake_run_trials)
-    monkeypatch.setattr(sweep_mod, "plot_results", lambda rows, path: None)
+    sweep_mod, _ = fake_sweep_ray(monkeypatch, got)
     sweep_mod.run_sweep(spec, tmp_path / "o", log=lambda m: None)
     _, train, test = got[0]
     assert _same(train, read_dataset(files / "train.csv")) and _same(test, read_dataset(files / "test.csv"))
