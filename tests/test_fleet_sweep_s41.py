@@ -325,3 +325,15 @@ def test_ctrl_c_prints_one_line_naming_resume(files, tmp_path, monkeypatch, caps
     code, _, err = run([cmd, p, "-o", tmp_path / "o"], capsys)
     lines = err.strip().splitlines()
     assert code == 130 and len(lines) == 1 and "interrupted" in lines[0] and "--resume" in lines[0], err
+
+
+@pytest.mark.parametrize("opts, why", [({"seed": 1.9}, "seed must be an integer"), ({"max_epochs": "3"}, "max_epochs must"),
+                                       ({"calibrate": "false"}, "calibrate must be true or false"),
+                                       ({"device": "cdua"}, "device must be"), ({"seed": True}, "seed must")])
+def test_python_fit_options_refuse_what_they_would_have_converted(opts, why):
+    """The Python path under `hykin fit`, the fleet and the sweep: 1.9 became seed 1 and "false" calibrated."""
+    from hykin.hybrid.fit_options import model_kwargs
+
+    with pytest.raises(ValueError, match=why):
+        model_kwargs(**opts)
+    assert model_kwargs(seed=3, calibrate=False, device="cpu")["seed"] == 3

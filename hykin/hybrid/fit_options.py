@@ -10,6 +10,10 @@ Bad values raise ValueError with a one-line message naming the option.
 
 from __future__ import annotations
 
+import re
+
+import numpy as np
+
 __all__ = ["FIT_OPTIONS", "calibration_options", "model_kwargs"]
 
 #: `hykin fit` option -> default (None: the recipe's / unset).
@@ -71,6 +75,15 @@ def model_kwargs(**options) -> dict:
     if unknown:
         raise ValueError(f"unknown fit option {unknown[0]!r} (known: {', '.join(FIT_OPTIONS)})")
     o = {**FIT_OPTIONS, **options}
+    for name in ("seed", "min_steps", "max_epochs", "fade_cv"):  # 1.9 or "3" silently became 1 / 3 (probe s41 AG)
+        v = o[name]
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer))):
+            raise ValueError(f"{name} must be an integer, got {v!r}")
+    for name in ("calibrate", "region_cv"):  # "false" was true
+        if not isinstance(o[name], (bool, np.bool_)):
+            raise ValueError(f"{name} must be true or false, got {o[name]!r}")
+    if not (o["device"] in ("auto", "cpu", "cuda") or re.fullmatch(r"cuda:\d+", str(o["device"]))):
+        raise ValueError(f"device must be auto, cpu, cuda or cuda:N, got {o['device']!r}")
     kw: dict = {}
     if o["max_minutes"] is not None:
         kw["max_seconds"] = float(o["max_minutes"]) * 60
