@@ -187,3 +187,26 @@ def test_gap_of_a_folded_joint_named_as_a_gap():
     s = support_sentence(res, SimpleNamespace(q=q), model, np.array([1.0, 2.0, 3.0]))
     assert "1 in a gap of the training data (joint 2" in s and "2.44° gap from -30 to -27.56°" in s
     assert "1 beyond a joint's trained range" in s and "1 between training poses" in s
+
+
+def test_a_joint_of_less_than_a_turn_has_no_fold_gap_and_only_gaps_with_test_poses_are_named():
+    """Probe s41 AN: a ±175° joint (folded input, but less than a turn) was said to "cover the whole turn
+    except a 12.5° gap from -186.4 to -173.9°", and the summary named gaps no test pose lies in."""
+    from hykin.evaluation.report_accuracy import fold_gaps
+    from hykin.evaluation.report_summary import support_sentence
+
+    lo, hi = np.radians([-173.9, -27.56, -20.0]), np.radians([173.6, 330.0, 335.0])
+    robot = SimpleNamespace(dof=3, lower=np.radians([-175.0, -400.0, -400.0]), upper=np.radians([175.0, 400.0, 400.0]))
+    q = np.radians([[0.0, -29.0, 0.0]])  # in joint 2's gap only
+
+    def range_excess(qq):
+        qn = qq.copy()
+        qn[:, 1:] = np.where(qq[:, 1:] < lo[1:], qq[:, 1:] + 2 * np.pi, qq[:, 1:])
+        return np.maximum(0, np.maximum(lo - qn, qn - hi)) / (hi - lo)
+
+    model = SimpleNamespace(wrap_centre_=np.radians([0.0, 151.22, 157.5]), support_lower_=lo, support_upper_=hi,
+                            input_mask_=np.array([True, True, True]), range_excess=range_excess, robot_=robot)
+    assert sorted(fold_gaps(model)) == [1, 2]  # joint 1 (±175°) is not folded over a turn
+    res = SimpleNamespace(support_distance=np.array([0.1]), n=1)
+    s = support_sentence(res, SimpleNamespace(q=q), model, np.array([1.0]))
+    assert "joint 2: its training data" in s and "joint 3" not in s and "joint 1" not in s, s

@@ -284,6 +284,11 @@ def fold_gaps(model) -> dict[int, tuple[float, float]]:
     if c is None or lo is None:
         return {}
     mask = np.asarray(getattr(model, "input_mask_", np.ones(len(c), bool)), bool)
+    robot = getattr(model, "robot_", None)
+    if robot is not None:  # a joint of less than a turn is not folded (probe s41 AN: a ±175° joint's "gap")
+        from ..hybrid.support import circular_joints
+
+        mask = mask & circular_joints(robot, c)
     out = {}
     for j in np.flatnonzero(np.isfinite(np.asarray(c, float)) & mask):
         a, b = np.degrees(float(lo[j])), np.degrees(float(hi[j]))
@@ -308,11 +313,12 @@ def outside_split(model, q: np.ndarray, outside: np.ndarray) -> dict[str, np.nda
     return {"gap": gap, "range": rng, "holes": outside & ~gap & ~rng}
 
 
-def gap_words(model) -> str:
+def gap_words(model, joints=None) -> str:
     """"joint 6: its training data cover the whole turn except a 2.46° gap from −30.02 to −27.56°" per joint of
-    :func:`fold_gaps` ("" if none)."""
+    :func:`fold_gaps` (only those in ``joints``, 0-based, when given; "" if none)."""
     return "; ".join(f"joint {j + 1}: its training data cover the whole turn except a {b - a:.3g}° gap "
-                     f"from {a:.4g} to {b:.4g}°" for j, (a, b) in fold_gaps(model).items())
+                     f"from {a:.4g} to {b:.4g}°" for j, (a, b) in fold_gaps(model).items()
+                     if joints is None or j in joints)
 
 
 def per_payload_rows(per_payload: dict | None, labels: dict | None = None) -> list[list]:

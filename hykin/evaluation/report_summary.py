@@ -129,7 +129,8 @@ def support_sentence(res, data, model, e: np.ndarray) -> str:
     split = outside_split(model, np.asarray(data.q), out_rows) if model is not None else None
     why = []
     if split is not None:
-        gw = gap_words(model)
+        ex = np.asarray(model.range_excess(np.asarray(data.q)))[split["gap"]] if split["gap"].any() else None
+        gw = gap_words(model, set(np.flatnonzero((ex > 0).any(0)).tolist()) if ex is not None else set())
         for key, words in (("gap", f"in a gap of the training data ({gw})"), ("range", "beyond a joint's trained range"),
                            ("holes", "between training poses")):
             k = int(split[key].sum())
