@@ -91,3 +91,19 @@ def test_unused_robtarget_keeps_its_literal_where_the_module_moves_with_other_fr
     res2 = compensate_program(model, plain, rapid, frame="measurement")
     assert not res2.failed and res2.n_compensated == 3
     assert extra.strip() not in res2.text
+
+
+def test_quadrant_changes_of_the_compensated_joints_are_noted():
+    """Probe s41 AN: 4 rewritten cf1/cf4/cf6 quadrants without a word, one a cf1 1 -> -2 (axis 1 179.6° ->
+    -179.9°: a joint move from a neighbour turns it by 359.5°). The note names each axis and its angle."""
+    from types import SimpleNamespace
+
+    from hykin import load_robot
+    from hykin.compensation.program_checks import _abb_quadrants
+
+    model = SimpleNamespace(nominal=load_robot("abb-irb2400"))
+    q = np.radians([-179.9, 10.0, 20.0, 98.17, 30.0, 5.0])
+    t = SimpleNamespace(line=36, config={"conf": [1, 0, 0, 0]})
+    (got,) = _abb_quadrants(model, t, q, None)
+    assert got.startswith("36 (cf1 1 -> -2: axis 1 -179.90°; cf4 0 -> 1: axis 4 +98.17°") and "cf6" not in got, got
+    assert _abb_quadrants(model, SimpleNamespace(line=1, config={"conf": [-2, 1, 0, 0]}), q, None) == []

@@ -6,8 +6,10 @@
 * :mod:`.branches` — KUKA ``S``/``T`` status, ABB ``confdata``, and the nominal solution they mean.
 * :mod:`.programs` — shared rewriting machinery: targets found in a program text, replaced in place.
 * :mod:`.program_branches` — which solution each program target means (configuration data, the walk).
-* :mod:`.program_checks` — what the controller will do with the written targets: configuration changes
-  refused or noted, the walk's branch checked against the controller's choice.
+* :mod:`.program_checks` — what the controller will do with the written targets' configuration data:
+  changes refused or noted.
+* :mod:`.walk_checks` — targets without configuration data (a program's walk, a list of targets) as the
+  controller executes them from the joints it stands at; :mod:`.redundant_walk` for arms of 7+ joints.
 * :mod:`.urscript`, :mod:`.krl`, :mod:`.rapid` — the three program formats.
 * :mod:`.service` — the FastAPI app of ``hykin serve``: HTTP batches and a WebSocket stream (imports FastAPI only when used).
 * :mod:`.service_requests` — its requests: checks, the model calls, replies.

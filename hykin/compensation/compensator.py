@@ -210,14 +210,14 @@ class Compensator:
 
     def _check_walk(self, comp: Compensation, T: np.ndarray, D, G, Dm, branch_reason) -> None:
         """The walk's targets as the controller executes them (in place; a program's check,
-        :func:`.program_checks.check_walk`): each from the compensated joints of the one before, on the
+        :func:`.walk_checks.check_walk`): each from the compensated joints of the one before, on the
         nominal solution of its command nearest them. Where that is not the compensated solution (two
         solutions near a tie from there: a ±360° wrist half a turn away, probe s40 V: 22 of 297 random
         targets landed 0.4-11 mm off) the target is solved again on the controller's choice; one that
         the controller still executes elsewhere fails with the reason, or is noted (``comp.notes``) where
         that lands within the model's accuracy. Arms of fewer than 6 joints reach a pose only in the
         least-squares sense: not checked (as programs). The shifts are recomputed for rows solved again."""
-        from .program_checks import WalkRow, check_walk
+        from .walk_checks import WalkRow, check_walk
 
         N = len(T)
         Dc = np.broadcast_to(np.eye(4), (N, 4, 4)) if D is None else D

@@ -237,12 +237,13 @@ def _solve(model, targets: list, frame: str, axis_signs, slack_deg: float, ik_kw
     target that failed or left its configuration is solved again from the calibrated robot's solutions with
     its data (:func:`.program_checks.keep_configuration`); one whose written configuration the program does
     not ask for fails (:func:`.program_checks.configuration_changes`); a target without configuration data
-    must be the controller's choice from the joints the robot is at (:func:`.program_checks.check_walk`;
+    must be the controller's choice from the joints the robot is at (:func:`.walk_checks.check_walk`;
     ``written``: the format's ``written_pose``, the literal as the controller reads it)."""
     from .compensator import Compensator
     from .frames import resolve_frame, to_model_frame
     from .program_branches import branch_hints
-    from .program_checks import check_walk, configuration_changes, keep_configuration
+    from .program_checks import configuration_changes, keep_configuration
+    from .walk_checks import check_walk
 
     T = np.stack([t.pose for t in targets])
     D = np.stack([np.eye(4) if t.tool_delta is None else t.tool_delta for t in targets])

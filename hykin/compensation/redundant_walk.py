@@ -62,7 +62,7 @@ def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> l
     them, up to ``rounds`` times (the controller's endpoint moves little with the command: a fixed point).
     ``D``/``Dm``: the targets' tools relative to the robot file's and the model's TCP (or None)."""
     from ..hybrid.ik_result import model_accuracy
-    from .program_checks import joint_gap, landing
+    from .walk_checks import joint_gap, landing
 
     nom = model.nominal
     Dc = np.broadcast_to(np.eye(4), (len(T), 4, 4)) if D is None else D
