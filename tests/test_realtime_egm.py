@@ -91,3 +91,21 @@ def test_a_restarted_session_is_answered_again(abb):
     o = h(msg(2))
     assert o.kind == "ok" and o.skipped == 0 and parse_sensor(o.reply)[0] == 2
     assert h(msg(3)).kind == "ok" and h(msg(2)).kind == "ignored:stale seqno"
+
+
+def test_a_stray_seqno_ahead_does_not_silence_the_session(abb):
+    """Probe s41 AM: one datagram with a seqno 100 ahead left the next 100 cycles unanswered (the held pose
+    put the path 47 mm off). Two messages continuing the session from before it mark it a stray."""
+    nom = abb.nominal
+    q0 = np.radians([10.0, 20, -10, 30, 40, -20])
+    P = _path(nom, 2, q0)
+    h = EgmHandler(exact_step(abb), np.eye(4), 6, np.ones(6))
+    msg = lambda seq: format_robot(seq, 4 * seq, P[0], np.degrees(q0), P[0])
+    assert h(msg(5000)).kind == "ok" and h(msg(5001)).kind == "ok"
+    assert h(msg(5100)).kind == "ok"  # the stray (answered: nothing tells it from a gap yet)
+    assert h(msg(5002)).kind == "ignored:stale seqno"  # one message behind alone: a late datagram?
+    o = h(msg(5003))
+    assert o.kind == "ok" and parse_sensor(o.reply)[0] == 5003 and h.stray_jumps == 1
+    assert h(msg(5004)).kind == "ok" and h(msg(5002)).kind == "ignored:stale seqno"
+    # a real gap (cycles lost) followed by the session going on is not undone
+    assert h(msg(5010)).kind == "ok" and h(msg(5011)).kind == "ok" and h.stray_jumps == 1

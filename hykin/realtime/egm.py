@@ -14,16 +14,20 @@ new count (:class:`hykin.realtime.udp_bridge.RestartWatch`).
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from ..geometry import se3
-from .udp_bridge import MAX_MISMATCH_DEG, MAX_MISMATCH_MM, Outcome, RestartWatch, check_actual_pose, check_limits
+from .udp_bridge import (MAX_MISMATCH_DEG, MAX_MISMATCH_MM, JumpWatch, Outcome, RestartWatch, check_actual_pose,
+                         check_limits)
 
 __all__ = ["EgmHandler", "format_robot", "format_sensor", "parse_robot", "parse_sensor"]
 
 
 _PB: tuple = ()
 RESTART_BEHIND = 250  # seqnos behind (or ahead of) the last answered one (1 s at 4 ms) that may be a new session
+_log = logging.getLogger("hykin.realtime")
 _CAUSES = ("feedBack mismatch:", "unreachable setpoint:", "correction over the limit:")
 
 
@@ -138,6 +142,8 @@ class EgmHandler:
         self.last_seq: int | None = None
         self.retired: int | None = None  # the last seqno answered before the latest restart
         self.restart = RestartWatch(RESTART_BEHIND, 10)
+        self.strays = JumpWatch(RESTART_BEHIND, 10, modulo=2**32)  # a stray seqno ahead of the session
+        self.stray_jumps = 0
         self.last_reason = ""
 
     def command(self, planned: np.ndarray, joints_deg, actual=None) -> np.ndarray:
@@ -167,7 +173,13 @@ class EgmHandler:
         skipped = 0
         if self.last_seq is not None:
             gap = (seq - self.last_seq) % 2**32
-            if gap == 0 or gap >= 2**31:
+            before = self.strays.returned(seq) if gap == 0 or gap >= 2**31 else None
+            if before is not None:  # the session before a stray seqno ahead goes on (udp_bridge.JumpWatch)
+                self.stray_jumps += 1
+                _log.warning("hykin egm: a datagram with a seqno ahead of the session was a stray (the session goes "
+                             "on from seqno %d)", before)
+                self.last_seq, gap = before, (seq - before) % 2**32
+            elif gap == 0 or gap >= 2**31:
                 if not self.restart.restarted(seq, (self.last_seq - seq) % 2**32):
                     return Outcome(None, "ignored:stale seqno")
                 self.retired = self.last_seq
@@ -178,6 +190,10 @@ class EgmHandler:
                 if not self.restart.restarted(seq, gap):
                     return Outcome(None, "ignored:seqno jump")
                 gap = 1
+            if gap > 2:
+                self.strays.jumped(self.last_seq, self.last_seq)
+            elif before is None:
+                self.strays.clear()
             skipped = gap - 1
         self.restart.clear()
         self.last_seq = seq

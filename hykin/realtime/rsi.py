@@ -30,13 +30,17 @@ import numpy as np
 from ..compensation.krl import abc_from_matrix, matrix_from_abc
 from ..geometry import se3
 from .rsi_xml import RsiConfig, RsiMessageError, format_sen, parse_rob
-from .udp_bridge import MAX_MISMATCH_DEG, MAX_MISMATCH_MM, Outcome, RestartWatch, check_actual_pose, check_limits
+from .udp_bridge import (MAX_MISMATCH_DEG, MAX_MISMATCH_MM, JumpWatch, Outcome, RestartWatch, check_actual_pose,
+                         check_limits)
 
 __all__ = ["DECIMALS", "MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "RsiHandler", "korr_of", "pose_of"]
 
 DECIMALS = 5  # of RKorr as written (mm, deg)
 RESTART_BEHIND_MS = 1000  # an IPOC this far behind (or ahead of) the last answered one may be a new RSI context
 RESYNC_TOL = 2e-3  # mm / deg: RIst's sum and hykin's agree within this (both written with 5-6 decimals)
+#: a RIst difference must last this many cycles to be taken as answers not applied: a RIst that shows the
+#: command with a dead time of up to 2 cycles (the robot standing still) is not a lost answer
+RESYNC_CONFIRM_CYCLES = 3
 _MAX_PENDING = 4  # answers not yet seen applied that a re-synchronisation considers (2^4 subsets)
 _log = logging.getLogger("hykin.realtime")
 _CAUSES = ("RIst mismatch:", "unreachable setpoint:", "correction over the limit:")  # failure reasons' categories
@@ -110,8 +114,10 @@ class RsiHandler:
         self.lost_answers = 0  # incremental mode: answers the controller did not apply (seen in RIst)
         self.new_sessions = 0
         self._retired: int | None = None  # the last IPOC answered before the latest restart
-        self._before_jump = None  # (IPOC, sum, last answer) before the latest jump ahead, until it is confirmed
+        self.strays = JumpWatch(RESTART_BEHIND_MS, int(10 * max(self.period_ms, 1.0)))  # a stray stamp ahead
         self._pending: list = []  # incremental mode: increments sent since RIst last showed the sum
+        self._suspect = None  # incremental mode: (kind, difference, cycles seen) not yet taken (_resync)
+        self._confirm = RESYNC_CONFIRM_CYCLES
         self.stray_jumps = 0  # jumps ahead that were one stray datagram (undone)
         self.last_reason = ""
 
@@ -150,43 +156,51 @@ class RsiHandler:
     def _resync(self, msg, skipped: int) -> None:
         """Incremental mode: the sum the controller applied in the last cycle, seen in this message's
         ``RIst`` (the pose commanded last cycle: its setpoint plus the controller's sum), against hykin's.
-        A difference equal to the last increment sent (within ``RESYNC_TOL``) means the controller did not
-        apply that answer (lost or late); after an IPOC jump of over 1 s, a difference equal to hykin's sum
-        before the jump means a new RSI context (its sum started at zero): hykin's sum drops that amount.
-        Any other difference (a controller whose RIst lags its command) leaves the sum as it is."""
+        A difference equal to answers not yet seen applied (any of the last :data:`_MAX_PENDING`, within
+        ``RESYNC_TOL``) means the controller did not apply them (lost or late); after an IPOC jump of over
+        1 s, a difference equal to hykin's sum before the jump means a new RSI context (its sum started at
+        zero): hykin's sum drops that amount. Only once the same difference has lasted
+        :data:`RESYNC_CONFIRM_CYCLES` cycles: a controller whose RIst lags its command shows the same
+        difference for a cycle or two while the robot stands still (probe s41 AM: taken at once, the whole correction was sent
+        again, 1.2-2.3 mm off for the rest of the path). Any other difference (a lagging RIst while moving)
+        leaves the sum as it is."""
         prev = self._prev
         if prev is None or msg.actual is None or skipped:
             return  # (after a gap RIst is of a setpoint not seen: the answers so far stay pending)
-        pending, self._pending = self._pending[-_MAX_PENDING:], []
-        # the answers not yet seen applied: any of them may have been lost or late (probe s41 AH: a first
-        # answer 1 s late, then a gap, left the whole 4.3 mm correction counted but never applied)
-        cands = [("lost", sum(c)) for r in range(1, len(pending) + 1) for c in itertools.combinations(pending, r)]
-        cands = cands or [("lost", prev[2])]
-        if prev[3] is not None:
-            cands += [("context", prev[3]), ("context", prev[3] + prev[2])]
-        if not any(np.any(np.abs(c) > RESYNC_TOL) for _, c in cands):
-            return
         applied = korr_of(pose_of(msg.actual), prev[1])
         d = applied - self.sent_sum
         d[3:] = _wrap(d[3:])
-        if np.all(np.abs(d) <= RESYNC_TOL):
+        close = lambda c: bool(np.all(np.abs(np.concatenate([(d + c)[:3], _wrap((d + c)[3:])])) <= RESYNC_TOL))
+        if np.all(np.abs(d) <= RESYNC_TOL):  # RIst shows hykin's sum: every answer so far applied
+            self._pending, self._suspect = [], None
             return
-        for kind, c in cands:
-            e = d + c
-            e[3:] = _wrap(e[3:])
-            if np.all(np.abs(e) <= RESYNC_TOL):
-                self.sent_sum = self.sent_sum - c
-                if kind == "context":
-                    self.new_sessions += 1
-                    _log.warning("hykin rsi: incremental mode: RIst shows a new RSI context (its sum restarted at "
-                                 "zero) after the IPOC jump to %d; hykin's sum re-synchronised", prev[0])
-                    return
-                self.lost_answers += 1
-                if self.lost_answers == 1 or self.lost_answers % 100 == 0:
-                    _log.warning("hykin rsi: incremental mode: the controller did not apply the answer to IPOC %d "
-                                 "(RIst shows its sum without it: lost or late); hykin's sum re-synchronised (%d so far)",
-                                 prev[0], self.lost_answers)
-                return
+        if self._suspect is not None and close(self._suspect[1]):
+            kind, c, n = self._suspect
+            self._suspect = (kind, c, n + 1)
+        else:
+            pending = self._pending[-_MAX_PENDING:]
+            # the answers not yet seen applied: any of them may have been lost or late (probe s41 AH: a first
+            # answer 1 s late, then a gap, left the whole 4.3 mm correction counted but never applied)
+            cands = [("lost", sum(c)) for r in range(1, len(pending) + 1) for c in itertools.combinations(pending, r)]
+            if prev[3] is not None:
+                cands += [("context", prev[3]), ("context", prev[3] + prev[2])]
+            hit = next(((kind, c) for kind, c in cands if np.any(np.abs(c) > RESYNC_TOL) and close(c)), None)
+            self._suspect = None if hit is None else (*hit, 1)
+        if self._suspect is None or self._suspect[2] < self._confirm:
+            return
+        kind, c, _ = self._suspect
+        self.sent_sum = self.sent_sum - c
+        self._pending, self._suspect = [], None
+        if kind == "context":
+            self.new_sessions += 1
+            _log.warning("hykin rsi: incremental mode: RIst shows a new RSI context (its sum restarted at zero) after an "
+                         "IPOC jump; hykin's sum re-synchronised")
+            return
+        self.lost_answers += 1
+        if self.lost_answers == 1 or self.lost_answers % 100 == 0:
+            _log.warning("hykin rsi: incremental mode: RIst has shown the controller's sum without answers hykin sent for "
+                         "%d cycles (lost or late); hykin's sum re-synchronised (%d so far)", self._confirm,
+                         self.lost_answers)
 
     def __call__(self, data: bytes) -> Outcome:
         try:
@@ -195,21 +209,21 @@ class RsiHandler:
             self.last_reason = str(e)
             return Outcome(None, "ignored:malformed")
         new_session, jump_sum, jumped = False, None, False
-        before = self._before_jump
-        if before is not None and self.last_ipoc is not None and msg.ipoc <= self.last_ipoc \
-                and 0 < msg.ipoc - before[0] <= RESTART_BEHIND_MS:
-            # the session before a jump ahead goes on: the jump was one stray datagram (a corrupted stamp),
-            # whose answer the controller never took (its IPOC was not the cycle's): undo it, or an
-            # incremental sum would be started again and the controller's counted twice (probe s41 AH: 4.3 mm)
-            self.last_ipoc, self.sent_sum, self._prev, self._pending = before
-            self._before_jump = None
-            self.stray_jumps += 1
-            _log.warning("hykin rsi: a datagram with IPOC far ahead of the session was a stray (the session goes on "
-                         "from IPOC %d): its answer is undone", before[0])
-        elif self.last_ipoc is not None and msg.ipoc <= self.last_ipoc:
-            if not self.restart.restarted(msg.ipoc, self.last_ipoc - msg.ipoc):
+        if self.last_ipoc is not None and msg.ipoc <= self.last_ipoc:
+            state = self.strays.returned(msg.ipoc)
+            if state is not None:
+                # the session before a jump ahead goes on: the jump was one stray datagram (a corrupted stamp),
+                # whose answer the controller never took (its IPOC was not the cycle's): undo it, or an
+                # incremental sum would be started again and counted twice (probe s41 AH: 4.3 mm), and the
+                # session's cycles stay unanswered until their stamps pass the stray's (s41 AM: 100 cycles)
+                self.last_ipoc, self.sent_sum, self._prev, self._pending = state
+                self.stray_jumps += 1
+                _log.warning("hykin rsi: a datagram with IPOC ahead of the session was a stray (the session goes on "
+                             "from IPOC %d): its answer is undone", state[0])
+            elif not self.restart.restarted(msg.ipoc, self.last_ipoc - msg.ipoc):
                 return Outcome(None, "ignored:stale IPOC")
-            new_session = True
+            else:
+                new_session = True
         elif self.last_ipoc is not None and msg.ipoc - self.last_ipoc > RESTART_BEHIND_MS:
             # over 1 s ahead. Within 1 s of the stamps of a session before a restart it may be a stray
             # datagram of that session: like a restart, two consecutive messages that follow each other
@@ -219,9 +233,11 @@ class RsiHandler:
                     not self.restart.restarted(msg.ipoc, msg.ipoc - self.last_ipoc):
                 return Outcome(None, "ignored:IPOC jump")
             jump_sum, jumped = self.sent_sum.copy(), True
-            self._before_jump = (self.last_ipoc, self.sent_sum.copy(), self._prev, list(self._pending))
-        elif before is not None and self.last_ipoc is not None and msg.ipoc > self.last_ipoc:
-            self._before_jump = None  # the stamps after the jump follow on: a real jump (a new RSI context)
+        elif self.last_ipoc is not None and msg.ipoc - self.last_ipoc <= 2 * self.period_ms:
+            self.strays.clear()  # in order after a jump: the jump was real (skipped cycles, a new context)
+        if self.last_ipoc is not None and msg.ipoc - self.last_ipoc > 2 * self.period_ms:
+            self.strays.jumped(self.last_ipoc, (self.last_ipoc, self.sent_sum.copy(), self._prev, list(self._pending)))
+            jumped = jumped or msg.ipoc - self.last_ipoc > RESTART_BEHIND_MS
         if new_session:  # a new RSI context: its own count and sum
             self._retired = max(self.last_ipoc, self._retired or 0)
             self.last_ipoc, self.sent_sum, self._prev, self._pending = None, np.zeros(6), None, []
@@ -251,7 +267,7 @@ class RsiHandler:
                 send = np.round(inc, DECIMALS)
             self.sent_sum = self.sent_sum + send
             self._prev = (msg.ipoc, msg.setpoint, send, jump_sum)
-            self._pending.append(send)
+            self._pending = (self._pending + [send])[-4 * _MAX_PENDING:]
         else:
             send = np.zeros(6) if k is None else k
         return Outcome(format_sen(msg.ipoc, send, self.cfg), kind, skipped, why)

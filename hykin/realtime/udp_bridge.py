@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "BridgeStats", "Outcome", "RestartWatch", "arrival_time", "bind_udp",
+__all__ = ["JumpWatch", "MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "BridgeStats", "Outcome", "RestartWatch", "arrival_time", "bind_udp",
            "check_actual_pose", "check_limits", "parse_listen",
            "raise_priority", "run_bridge"]
 
@@ -71,6 +71,50 @@ class RestartWatch:
     def clear(self) -> None:
         """An in-order message was answered: no restart under way."""
         self._run = []
+
+
+class JumpWatch:
+    """A stray datagram with a stamp ahead of the session (a corrupted ``IPOC`` or ``seqno``) is answered like
+    any message ahead; the session's next messages then lie behind it. Where ``confirm`` consecutive ones,
+    following each other by 1 to ``step`` counts, continue the session from before the jump (at most
+    ``window`` counts after its last stamp), the jump was the stray: :meth:`returned` gives the state saved
+    before it (probe s41 AM: one stamp 400 ms ahead left the next 100 cycles unanswered, an EGM path 47 mm
+    off). One message behind alone stays dropped (a late, reordered datagram must not undo an answer the
+    controller took). ``modulo``: stamps that wrap (EGM's 32-bit seqno)."""
+
+    def __init__(self, window: int, step: int, confirm: int = 2, modulo: int | None = None):
+        self.window, self.step, self.confirm, self.modulo = int(window), int(step), int(confirm), modulo
+        self._before = None
+        self._run: list[int] = []
+
+    def _ahead(self, a: int, b: int) -> int:
+        """``a - b`` (wrapped into ``[-modulo/2, modulo/2)`` for wrapping stamps)."""
+        d = int(a) - int(b)
+        return d if self.modulo is None else (d + self.modulo // 2) % self.modulo - self.modulo // 2
+
+    def jumped(self, before: int, state) -> None:
+        """The message just answered jumped ahead of ``before`` (the last stamp of the session so far,
+        whose ``state`` a return restores)."""
+        self._before, self._run = (int(before), state), []
+
+    def clear(self) -> None:
+        """A message in order after the jump: it was real."""
+        self._before, self._run = None, []
+
+    def returned(self, stamp: int):
+        """For a message behind the last answered one: the state saved before the jump once ``confirm``
+        consecutive such messages continue the session from before it, else None."""
+        if self._before is None or not 0 < self._ahead(stamp, self._before[0]) <= self.window:
+            self._run = []
+            return None
+        if self._run and not 0 < self._ahead(stamp, self._run[-1]) <= self.step:
+            self._run = []
+        self._run.append(int(stamp))
+        if len(self._run) < self.confirm:
+            return None
+        state = self._before[1]
+        self.clear()
+        return state
 
 
 @dataclass
