@@ -426,3 +426,24 @@ def test_bridge_warms_its_compensator_before_it_listens(monkeypatch):
     with pytest.raises(Exception, match="cannot bind"):
         cli_rt._bridge_setup(str(tiny_model_file()), "127.0.0.1:49999", None, "measurement", 3, 4.0, None, None)
     assert events[:2] == ["step", "bind"], events
+
+
+def test_ctrl_c_ends_the_bridge_with_its_counts():
+    """Probe s41 AM: Ctrl-C printed only "hykin: interrupted", not the counts the docs promise on exit."""
+    from hykin.realtime.udp_bridge import Outcome
+
+    calls = []
+
+    def handler(data):
+        calls.append(data)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return Outcome(b"ok", "ok")
+
+    sock = bind_udp("127.0.0.1", 0)
+    with sock, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+        for _ in range(2):
+            tx.sendto(b"x", sock.getsockname())
+        time.sleep(0.05)
+        st = run_bridge(sock, handler, period_s=0.004, max_failures=3, idle_exit_s=2.0)
+    assert st.stopped == "interrupted (Ctrl-C)" and len(calls) == 2

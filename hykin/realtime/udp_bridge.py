@@ -243,81 +243,84 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
     last_log = time.monotonic()
     sock.setblocking(False)
     cmsg = socket.CMSG_SPACE(16)
-    while stop is None or not stop.is_set():
-        if idle_exit_s and last_valid is not None and time.monotonic() - last_valid > idle_exit_s:
-            st.stopped = f"no valid datagram for {idle_exit_s:g} s"
-            break
-        try:
-            if not spin:
-                select.select([sock], [], [], 0.1)
-            data, anc, flags, addr = sock.recvmsg(max_packet + 1, cmsg)
-        except (BlockingIOError, InterruptedError, ConnectionRefusedError):  # nothing (or an ICMP error) to read
-            continue
-        # when behind, answer only the newest datagram of the controller: older cycles are over
-        best = None
-        for _ in range(_DRAIN):
-            t_in = arrival_time(anc) or time.time()
-            if len(data) > max_packet or flags & socket.MSG_TRUNC:
-                st.ignored["oversized"] += 1
-            elif peer is not None and addr[:2] != tuple(peer)[:2]:
-                st.ignored["other sender"] += 1
-            else:
-                if best is not None:
-                    st.ignored["superseded"] += 1
-                best = (data, addr, t_in)
-                if peer is None:
-                    break  # no controller yet: one datagram at a time
+    try:  # Ctrl-C ends the run with its counts (the exit line), as any other stop
+        while stop is None or not stop.is_set():
+            if idle_exit_s and last_valid is not None and time.monotonic() - last_valid > idle_exit_s:
+                st.stopped = f"no valid datagram for {idle_exit_s:g} s"
+                break
             try:
+                if not spin:
+                    select.select([sock], [], [], 0.1)
                 data, anc, flags, addr = sock.recvmsg(max_packet + 1, cmsg)
-            except (BlockingIOError, InterruptedError, ConnectionRefusedError):
-                break
-        if best is None:
-            continue
-        data, addr, t_in = best
-        out = handle(data)
-        if out.reply is not None:
-            try:
-                sock.sendto(out.reply, addr)
-            except (BlockingIOError, ConnectionRefusedError):  # buffer full / nobody listening: the cycle is lost
-                st.ignored["send failed"] += 1
-            delay = time.time() - t_in
-            if keep_latency:
-                st.latency_s.append(delay)
-            st.late += delay > period_s
-            if delay > period_s and getattr(handle, "incremental", False) and not warned_late_incremental:
-                warned_late_incremental = True  # RSI drops a late answer: its sum then lacks this increment
-                _log.warning("hykin bridge: incremental mode: an answer left %.1f ms after its datagram (over the "
-                             "period): a controller that dropped it has a different sum of corrections; hykin "
-                             "re-synchronises from RIst where the message shows it (docs/realtime.md)", delay * 1e3)
-        if out.kind.startswith("ignored"):
-            st.ignored[out.kind.partition(":")[2] or "invalid"] += 1
-            continue
-        last_valid = time.monotonic()
-        st.skipped_cycles += out.skipped
-        st.answered += out.reply is not None
-        if out.kind == "failure":
-            st.failures += 1
-            consecutive += 1
-            why = out.reason or getattr(handle, "last_reason", "") or "unknown cause"
-            cat = why.partition(":")[0]
-            causes[cat] += 1
-            last_cause[cat] = why
-            if causes[cat] == 1 and consecutive == 1:
-                _log.warning("hykin bridge: failure answered neutrally: %s", why)
-            st.max_consecutive_failures = max(st.max_consecutive_failures, consecutive)
-            if consecutive >= max_failures:
-                st.stopped = f"{consecutive} consecutive failures: stopped answering; causes: {_causes(causes, last_cause)}"
-                _log.error("hykin bridge: %s (%s)", st.stopped, st.summary())
-                break
-        else:
-            consecutive = 0
-            causes.clear()
-            if peer is None:
-                peer = addr
-        if log_every_s and time.monotonic() - last_log > log_every_s:
-            last_log = time.monotonic()
-            if st.late or st.skipped_cycles or st.failures:
-                _log.warning("hykin bridge: %s", st.summary())
+            except (BlockingIOError, InterruptedError, ConnectionRefusedError):  # nothing (or an ICMP error) to read
+                continue
+            # when behind, answer only the newest datagram of the controller: older cycles are over
+            best = None
+            for _ in range(_DRAIN):
+                t_in = arrival_time(anc) or time.time()
+                if len(data) > max_packet or flags & socket.MSG_TRUNC:
+                    st.ignored["oversized"] += 1
+                elif peer is not None and addr[:2] != tuple(peer)[:2]:
+                    st.ignored["other sender"] += 1
+                else:
+                    if best is not None:
+                        st.ignored["superseded"] += 1
+                    best = (data, addr, t_in)
+                    if peer is None:
+                        break  # no controller yet: one datagram at a time
+                try:
+                    data, anc, flags, addr = sock.recvmsg(max_packet + 1, cmsg)
+                except (BlockingIOError, InterruptedError, ConnectionRefusedError):
+                    break
+            if best is None:
+                continue
+            data, addr, t_in = best
+            out = handle(data)
+            if out.reply is not None:
+                try:
+                    sock.sendto(out.reply, addr)
+                except (BlockingIOError, ConnectionRefusedError):  # buffer full / nobody listening: the cycle is lost
+                    st.ignored["send failed"] += 1
+                delay = time.time() - t_in
+                if keep_latency:
+                    st.latency_s.append(delay)
+                st.late += delay > period_s
+                if delay > period_s and getattr(handle, "incremental", False) and not warned_late_incremental:
+                    warned_late_incremental = True  # RSI drops a late answer: its sum then lacks this increment
+                    _log.warning("hykin bridge: incremental mode: an answer left %.1f ms after its datagram (over the "
+                                 "period): a controller that dropped it has a different sum of corrections; hykin "
+                                 "re-synchronises from RIst where the message shows it (docs/realtime.md)", delay * 1e3)
+            if out.kind.startswith("ignored"):
+                st.ignored[out.kind.partition(":")[2] or "invalid"] += 1
+                continue
+            last_valid = time.monotonic()
+            st.skipped_cycles += out.skipped
+            st.answered += out.reply is not None
+            if out.kind == "failure":
+                st.failures += 1
+                consecutive += 1
+                why = out.reason or getattr(handle, "last_reason", "") or "unknown cause"
+                cat = why.partition(":")[0]
+                causes[cat] += 1
+                last_cause[cat] = why
+                if causes[cat] == 1 and consecutive == 1:
+                    _log.warning("hykin bridge: failure answered neutrally: %s", why)
+                st.max_consecutive_failures = max(st.max_consecutive_failures, consecutive)
+                if consecutive >= max_failures:
+                    st.stopped = f"{consecutive} consecutive failures: stopped answering; causes: {_causes(causes, last_cause)}"
+                    _log.error("hykin bridge: %s (%s)", st.stopped, st.summary())
+                    break
+            else:
+                consecutive = 0
+                causes.clear()
+                if peer is None:
+                    peer = addr
+            if log_every_s and time.monotonic() - last_log > log_every_s:
+                last_log = time.monotonic()
+                if st.late or st.skipped_cycles or st.failures:
+                    _log.warning("hykin bridge: %s", st.summary())
+    except KeyboardInterrupt:
+        st.stopped = "interrupted (Ctrl-C)"
     if not st.stopped:
         st.stopped = "stopped"
     return st
