@@ -482,3 +482,39 @@ def _compile_walk():
 
 
 _walk = _compile_walk()
+
+
+#: a hint this near the wrist singularity (``|q5|``, rad) has an arbitrary A4/A6 split (:func:`wrist_split_seeds`)
+WRIST_NEAR_RAD = np.radians(10.0)
+WRIST_STEP_DEG = 30.0
+
+
+def wrist_split_seeds(nom: Robot, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(rows, seeds)``: for each hint of ``h`` ``(M, n)`` near the wrist singularity (a 6-joint-or-more arm,
+    ``|q5|`` under :data:`WRIST_NEAR_RAD`) the hints with the A4/A6 split turned in 30° steps (q4 + δ,
+    q6 ∓ δ: the same flange orientation at q5 = 0; δ = 30, -30, 60, ..., 180°, in that order), each into
+    its representation nearest zero within the limits; ``rows`` ``(K,)`` the index into ``h`` of each seed.
+    Near it the hint's split is the closed form's arbitrary choice, and the real robot's solutions can lie
+    90° along that valley, farther than a solve slides (probe reports s40, s41 AL: wrist-singular targets
+    refused with 0.03-0.5 mm residuals)."""
+    from ..kinematics.fk import fk_frames
+
+    h = np.asarray(h, dtype=np.float64)
+    none = np.zeros(0, dtype=np.int64), np.zeros((0, nom.dof))
+    if nom.dof < 6 or not len(h):
+        return none
+    q5 = (np.nan_to_num(h[:, 4], nan=np.inf) + np.pi) % (2 * np.pi) - np.pi  # a turn away is as near
+    rows = np.flatnonzero(np.isfinite(h).all(1) & (np.abs(q5) < WRIST_NEAR_RAD))
+    if not rows.size:
+        return none
+    z = fk_frames(nom, h[rows]).joint[:, :, :3, 2]
+    same = np.sign(np.sum(z[:, 3] * z[:, 5], -1))  # axes 4 and 6 aligned (+1) or opposed (-1) at q5 = 0
+    steps = np.arange(1, int(180 / WRIST_STEP_DEG) + 1) * WRIST_STEP_DEG
+    deltas = np.radians([d for a in steps for d in ((a, -a) if a < 180 else (a,))])
+    H = np.repeat(h[rows], len(deltas), axis=0)
+    d = np.tile(deltas, len(rows))
+    H[:, 3] += d
+    H[:, 5] -= np.repeat(same, len(deltas)) * d
+    rev = np.array([t == "revolute" for t in nom.independent_joint_type])
+    H = np.where(rev, (H + np.pi) % (2 * np.pi) - np.pi, H)
+    return np.repeat(rows, len(deltas)), np.clip(H, nom.lower, nom.upper)

@@ -270,6 +270,9 @@ class Compensator:
                 qi, pi, ai, ri = self._solve_compiled(Ti, np.minimum(np.maximum(h, self.lower), self.upper), pos_only)
             else:
                 qi, pi, ai, ri = self._solve_generic(Ti, h, pos_only)
+            if ri is not None and not pos_only:
+                self._wrist_retry(Ti, h, qi, pi, ai, ri)
+                ri = None if (ri == "").all() else ri
             q[idx], pe[idx], ae[idx] = qi, pi, ai
             if ri is not None:  # some rows failed (None: every row succeeded)
                 if reason is None:
@@ -295,6 +298,23 @@ class Compensator:
                 self._confirm_limits(Tm, has & ~ok, reason)
         reason = np.zeros(N, dtype="<U1") if reason is None else reason.astype(str)  # "" where successful
         return q, cmd, ok, reason, pe, ae
+
+    def _wrist_retry(self, Tm, h, q, pe, ae, reason) -> None:
+        """In place: failed rows whose hint lies near the wrist singularity solved again from the hint with
+        the A4/A6 split turned (:func:`.branches.wrist_split_seeds`); the smallest turn that succeeds is kept."""
+        from .branches import wrist_split_seeds
+
+        fail = np.flatnonzero(reason != "")
+        j, H = wrist_split_seeds(self.nominal, h[fail])
+        if not j.size:
+            return
+        r = fail[j]
+        solve = self._solve_compiled if self.kernel is not None else self._solve_generic
+        q2, p2, a2, r2 = solve(Tm[r], H, False)
+        ok2 = np.ones(len(r), dtype=bool) if r2 is None else r2 == ""
+        for k in np.unique(r[ok2]):
+            i = np.flatnonzero(ok2 & (r == k))[0]  # seeds come in order of the turn: the smallest first
+            q[k], pe[k], ae[k], reason[k] = q2[i], p2[i], a2[i], ""
 
     def _robot_world(self, Tm: np.ndarray) -> np.ndarray:
         """Targets ``(N, 4, 4)`` in the model's measurement frame -> the calibrated robot's TCP in its world."""

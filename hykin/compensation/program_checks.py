@@ -151,46 +151,25 @@ def keep_configuration(model, solve, targets: list, comp, other_flag: np.ndarray
 
 
 #: a hint this near the wrist singularity (|q5|, rad) has its A4/A6 split swept when its solve fails
-_SWEEP_NEAR_RAD = np.radians(10.0)
-_SWEEP_STEP_DEG = 30.0
-
-
 def _wrist_sweep(model, solve, targets: list, comp, rows: np.ndarray, axis_signs, slack_rad: float) -> None:
-    """In place: the configuration ``rows`` whose hint lies near the wrist singularity (``|q5|`` under 10°)
-    solved again from hints with the A4/A6 split turned in 30° steps (q4 + δ, q6 ∓ δ: the same flange
-    orientation at q5 = 0). Near it the hint's split is the closed form's arbitrary choice, and the real
-    robot's solutions (a non-spherical wrist: discrete ones) can lie 90° along that valley, farther than a
-    solve slides (probe report s40: a target taught at A5 = 0 failed with 0.47 mm residual)."""
-    from ..kinematics.fk import fk_frames
+    """In place: the configuration ``rows`` whose hint lies near the wrist singularity solved again from the
+    hints with the A4/A6 split turned (:func:`.branches.wrist_split_seeds`), each in the representation its
+    ``T`` names; the smallest turn that reaches it with the program's configuration is taken."""
+    from .branches import wrist_split_seeds
 
-    nom = model.nominal
-    if nom.dof < 6:
+    j, H = wrist_split_seeds(model.nominal, comp.q_branch[rows])
+    if not j.size:
         return
-    h = comp.q_branch[rows]
-    rows = rows[np.isfinite(h).all(1) & (np.abs(np.nan_to_num(h[:, 4])) < _SWEEP_NEAR_RAD)]
-    if not rows.size:
-        return
-    h = comp.q_branch[rows]
-    z = fk_frames(nom, h).joint[:, :, :3, 2]
-    same = np.sign(np.sum(z[:, 3] * z[:, 5], -1))  # axes 4 and 6 aligned (+1) or opposed (-1) at q5 = 0
-    steps = np.arange(1, int(180 / _SWEEP_STEP_DEG) + 1) * _SWEEP_STEP_DEG
-    deltas = np.radians([d for a in steps for d in ((a, -a) if a < 180 else (a,))])  # 30, -30, 60, ..., 180
-    H = np.repeat(h, len(deltas), axis=0)
-    r = np.repeat(rows, len(deltas))
-    d = np.tile(deltas, len(rows))
-    H[:, 3] += d
-    H[:, 5] -= np.repeat(same, len(deltas)) * d
-    rev = np.array([t == "revolute" for t in nom.independent_joint_type])
-    H = np.where(rev, (H + np.pi) % (2 * np.pi) - np.pi, H)  # the representation nearest zero, then the one T names
-    H = np.clip(_turns(model, targets, r, H, axis_signs), nom.lower, nom.upper)
+    r = rows[j]
+    H = np.clip(_turns(model, targets, r, H, axis_signs), model.nominal.lower, model.nominal.upper)
     again = solve(r, H)
     again.q = _turns(model, targets, r, again.q, axis_signs)
     good = again.success & _acceptable(model, targets, r, again.q, axis_signs, slack_rad)
-    for j, k in enumerate(rows):
-        i = np.flatnonzero(good[j * len(deltas):(j + 1) * len(deltas)])
-        if i.size:  # the smallest turn of the split that reaches it with the program's configuration
+    for k in np.unique(r):
+        i = np.flatnonzero(good & (r == k))
+        if i.size:  # seeds come in order of the turn: the first is the smallest
             for name in FIELDS:
-                getattr(comp, name)[k] = getattr(again, name)[j * len(deltas) + i[0]]
+                getattr(comp, name)[k] = getattr(again, name)[i[0]]
 
 
 def configuration_changes(model, targets: list, comp, other_flag: np.ndarray, T_cal: np.ndarray, axis_signs,
