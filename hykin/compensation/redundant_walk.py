@@ -54,6 +54,20 @@ def _local_pick(nom, command: np.ndarray, D: np.ndarray, prev: np.ndarray) -> np
     return np.asarray(r.q[0], dtype=np.float64) if r.success[0] else np.full(nom.dof, np.nan)
 
 
+#: a redundant arm's target farther than this from the joints before (a revolute joint, rad) is not sent
+#: without joints: a local solve's end on the self-motion after such a move depends on the solver
+FAR_STEP_RAD = np.radians(20.0)
+
+
+def _fail(result, k: int, reason: str) -> None:
+    """Row ``k`` of ``result`` fails (in place) with ``reason``."""
+    result.reason[k] = reason
+    result.success[k] = False
+    for name in ("q", "command", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg"):
+        getattr(result, name)[k] = np.nan
+    result.in_support[k] = False
+
+
 def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> list:
     """Execute ``result``'s commands (a :class:`.result.Compensation`, in place) as a local-IK controller
     from the previous sent target's joints (the first target is reached some other way, a joint move: not
@@ -77,12 +91,23 @@ def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> l
             return 0.0
         return float(landing(model, pick[None], Tm[k][None])[0][0])
 
+    rev = np.array([t == "revolute" for t in nom.independent_joint_type])
+    q_first = result.q.copy()  # the walk's joints before this check
     prev, noted = None, []
     for k in range(len(T)):
         if not result.success[k]:
             continue  # not sent: the robot stays where it was
         if prev is None:
             prev = result.q[k]
+            continue
+        before = q_first[:k][np.isfinite(q_first[:k]).all(1)]  # the list's previous target, sent or not
+        step = np.abs(np.where(rev, q_first[k] - before[-1], 0.0)).max() if len(before) else 0.0
+        if step > FAR_STEP_RAD:  # where a local solve ends after such a move depends on the solver
+            _fail(result, k, f"the controller would execute it elsewhere on this redundant arm: it lies "
+                             f"{np.degrees(step):.0f}° (a joint) from the target before, and where a controller's "
+                             f"local solve ends on the self-motion after such a move depends on its solver (one "
+                             f"least-norm solver landed 2-5 mm off, probe s41); give the joints (q1..qN) or send "
+                             f"them (--joints)")
             continue
         pick = _local_pick(nom, result.command[k], Dc[k], prev)
         miss = miss_of(k, pick)
@@ -103,13 +128,9 @@ def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> l
             where = ("finds no nominal solution of the command" if not np.isfinite(miss) else
                      f"reaches it on joints {joint_gap(nom, pick, result.q[k])} (largest joint difference) from "
                      f"the compensated ones, landing {miss:.3g} mm from the target")
-            result.reason[k] = (f"the controller would execute it elsewhere on this redundant arm: solving the "
-                                f"command locally from the joints before it {where}; give the joints (q1..qN) or "
-                                "send them (--joints)")
-            result.success[k] = False
-            for name in ("q", "command", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg"):
-                getattr(result, name)[k] = np.nan
-            result.in_support[k] = False
+            _fail(result, k, f"the controller would execute it elsewhere on this redundant arm: solving the command "
+                             f"locally from the joints before it {where}; give the joints (q1..qN) or send them "
+                             "(--joints)")
             continue
         if miss > tol:
             noted.append(f"{k} ({miss:.3g} mm)")
