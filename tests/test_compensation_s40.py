@@ -569,3 +569,18 @@ def test_list_targets_at_the_wrist_singularity_are_compensated():
     # (2 left: their walk hint is another arm configuration, where this crude model does not reach them)
     refused = [r for r in comp.reason if "unreachable" in r]
     assert len(refused) <= 2 and comp.success.sum() >= 66, (comp.success.sum(), refused)
+
+
+def test_redundant_arm_far_apart_targets_are_refused_without_joints():
+    """Probe s41 AL: an iiwa-like arm's random targets (far apart) were compensated and a least-norm local
+    controller landed them 2-5 mm off (where its solve ends on the self-motion depends on the solver). A
+    target more than 20° from the list's target before is now refused, saying why and what to send."""
+    from hykin.compensation.compensator import Compensator
+
+    m = exact("kuka-iiwa14", 22)
+    q = m.nominal.random_joints(12, 5, margin=0.2)
+    comp = Compensator(m)(fk(m.robot_, q))
+    far = [r for r in comp.reason[1:] if "from the target before" in r]
+    assert len(far) >= 8 and all("--joints" in r for r in far), list(comp.reason)
+    with_joints = Compensator(m)(fk(m.robot_, q), q_branch=q)
+    assert with_joints.success.all()
