@@ -121,7 +121,8 @@ def test_hybrid_fit_trains_without_the_dropped_rows():
         m = HybridModel(nom, recipe_kw={"max_epochs": 2, "min_steps": 0}, uncertainty=False,
                         calibrate_kw={"compliance": False}).fit(ds, progress=False)
     assert m.meta_["n_total"] == 198 and m.meta_["n_train"] + m.meta_["n_val"] == 198
-    assert m.meta_["calibration"]["outliers"]["rows"] == [7, 150]
+    out = m.meta_["calibration"]["outliers"]
+    assert out["index_0based"] == [7, 150] and out["data_rows"] == [8, 151]  # as evaluation.json says them
 
 
 def test_register_leaves_a_lost_beam_out_of_the_registration_and_the_figures():

@@ -101,8 +101,10 @@ class Outliers:
                 f"coordinate) off {against}: data rows {shown} ({size}); {tail}")
 
     def to_dict(self) -> dict:
-        """JSON-able (0-based rows, mm, deg)."""
-        return {"rows": [int(r) for r in self.rows], "pos_mm": self.pos_mm.tolist(),
+        """JSON-able (mm, deg): ``data_rows`` 1-based as the text names them, ``index_0based`` the same rows
+        counted from 0 (``evaluation.json`` says its outliers the same way: a bare "rows" was read both ways)."""
+        return {"data_rows": [int(r) + 1 for r in self.rows], "index_0based": [int(r) for r in self.rows],
+                "pos_mm": self.pos_mm.tolist(),
                 "rot_deg": None if self.rot_deg is None else self.rot_deg.tolist(),
                 "typical_pos_mm": self.typical_pos_mm, "typical_rot_deg": self.typical_rot_deg,
                 "ratio": self.ratio, "n_rows": self.n_rows, "dropped": self.dropped}

@@ -111,9 +111,8 @@ class EvalResult:
         """The outliers for JSON, numbered as the text names them: ``data_rows`` are 1-based data rows (the
         header not counted: a CSV's line is the data row + 1), ``index_0based`` the same rows as indices
         into the data, ``pose_id`` their pose ids (data with that column); errors in mm / deg."""
-        o = self.outliers.to_dict()
-        idx = [int(r) for r in o.pop("rows")]
-        d = {"model": self.outliers_of, "data_rows": [r + 1 for r in idx], "index_0based": idx}
+        o = self.outliers.to_dict()  # data_rows / index_0based numbered as below
+        d = {"model": self.outliers_of, "data_rows": o.pop("data_rows"), "index_0based": o.pop("index_0based")}
         if self.outlier_pose_ids is not None:
             d["pose_id"] = list(self.outlier_pose_ids)
         return {**d, **o, "numbering": "data_rows: 1-based data rows as in the text (CSV line = data row + 1); "
