@@ -201,3 +201,10 @@ def test_joint_zero_quarter_turn_off_names_the_turn(campaign):
     assert turn == -90
     if "fitted as given: joint" in msg and " went to " in msg:
         assert "the fit stopped there still leaving" in msg and "possibly far more" in msg
+
+
+def test_the_coverage_warning_is_kept_in_the_calibration_metadata(j6_fixed):
+    """A model keeps what its calibration warned about (`fit` prints it; the metadata hold it)."""
+    _, _, res = j6_fixed
+    d = res.to_dict()
+    assert d["coverage"] == res.coverage and d["coverage"][0].startswith("joint 6 never moved")

@@ -264,6 +264,7 @@ class CalibrationResult:
             "point_offsets_m": None if self.point_offsets_m is None else np.asarray(self.point_offsets_m).tolist(),
             "station_frames": None if self.station_frames is None else self.station_frames.to_dict(),
             "outliers": None if self.outliers is None else self.outliers.to_dict(),
+            "coverage": list(getattr(self, "coverage", None) or []),  # a joint never moved, one tool orientation
         }
 
 
