@@ -569,6 +569,8 @@ def test_list_targets_at_the_wrist_singularity_are_compensated():
     # (2 left: their walk hint is another arm configuration, where this crude model does not reach them)
     refused = [r for r in comp.reason if "unreachable" in r]
     assert len(refused) <= 2 and comp.success.sum() >= 66, (comp.success.sum(), refused)
+    # and those say that the model's robot reaches them on another branch, with its joints (giving them works)
+    assert all("The model's robot reaches it on another branch (joints " in r for r in refused), refused
 
 
 def test_redundant_arm_far_apart_targets_are_refused_without_joints():

@@ -217,7 +217,7 @@ class Compensator:
         the controller still executes elsewhere fails with the reason, or is noted (``comp.notes``) where
         that lands within the model's accuracy. Arms of fewer than 6 joints reach a pose only in the
         least-squares sense: not checked (as programs). The shifts are recomputed for rows solved again."""
-        from .walk_checks import WalkRow, check_walk
+        from .walk_checks import WalkRow, check_walk, other_branch_words
 
         N = len(T)
         Dc = np.broadcast_to(np.eye(4), (N, 4, 4)) if D is None else D
@@ -231,6 +231,7 @@ class Compensator:
         comp.reason = comp.reason.astype(object)
         comp.notes = check_walk(self.model, self, solve, rows_t, comp, comp.q_branch.copy(), T, Dc, Dm, None,
                                 T_nominal=self.nominal_world(T, D))
+        other_branch_words(self, comp, T, D, Dm)
         comp.reason = comp.reason.astype(str)
 
     # ------------------------------------------------------------------ the one path
@@ -316,7 +317,7 @@ class Compensator:
             i = np.flatnonzero(ok2 & (r == k))[0]  # seeds come in order of the turn: the smallest first
             q[k], pe[k], ae[k], reason[k] = q2[i], p2[i], a2[i], ""
 
-    def _robot_world(self, Tm: np.ndarray) -> np.ndarray:
+    def robot_world(self, Tm: np.ndarray) -> np.ndarray:
         """Targets ``(N, 4, 4)`` in the model's measurement frame -> the calibrated robot's TCP in its world."""
         return self._pre_inv @ Tm @ self._post_inv
 
@@ -332,7 +333,7 @@ class Compensator:
         i = np.flatnonzero(failed)
         if not i.size:
             return
-        p = self._robot_world(Tm[i])[:, :3, 3]
+        p = self.robot_world(Tm[i])[:, :3, 3]
         d = np.linalg.norm(p - self.robot.base[:3, 3], axis=1)
         far = d > 1.01 * self._reach_m + 0.005
         other, where = other_frame(self.frame)
@@ -355,7 +356,7 @@ class Compensator:
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            br = ik(open_revolute_limits(self.robot), self._robot_world(Tm[i]), all_branches=True,
+            br = ik(open_revolute_limits(self.robot), self.robot_world(Tm[i]), all_branches=True,
                     seed_robot=seed_robot_of(self.model, None))
         none = ~np.asarray(br.success, dtype=bool).reshape(len(i), -1).any(1)
         for k in i[none]:
@@ -467,7 +468,7 @@ class Compensator:
         from ..hybrid.ik_seeds import classical_seeds, seed_robot_of
         from ..kinematics.ik import nearest_representation
 
-        Tr = self._robot_world(Tm)
+        Tr = self.robot_world(Tm)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             q0, _, _ = classical_seeds(self.robot, Tr, all_branches=True, seed_robot=seed_robot_of(self.model, None))
@@ -519,7 +520,7 @@ class Compensator:
         start = np.clip(np.zeros(n), nom.lower, nom.upper)
         if pos_only:  # no closed form for positions: the calibrated robot's numerical solutions from a few
             # fixed seeds (in its own world: a tracker-frame model's base is metres from the nominal one), walked
-            Tr = self._robot_world(self.model_targets(T, None))
+            Tr = self.robot_world(self.model_targets(T, None))
             seeds = np.vstack([start, nom.random_joints(_POS_ONLY_SEEDS - 1, 0, margin=0.1)])
             sols = [ik(self.robot, Tr, q_seed=s, position_only=True) for s in seeds]
             qb = walk_nearest(self.robot, np.stack([r.q for r in sols], 1), np.stack([r.success for r in sols], 1))
@@ -528,7 +529,7 @@ class Compensator:
         qb = sequential_nearest(nom, T_nom, None, polish=False, least_squares=LSQ_SEED)  # hints: solved on the model next
         miss = np.flatnonzero(~np.isfinite(qb).all(1))
         if miss.size:
-            Tr = self._robot_world(self.model_targets(T[miss], None if Dm is None else Dm[miss]))
+            Tr = self.robot_world(self.model_targets(T[miss], None if Dm is None else Dm[miss]))
             br = ik(self.robot, Tr, all_branches=True, least_squares=LSQ_SEED)
             qc = np.asarray(br.q, dtype=np.float64).reshape(len(miss), -1, n)
             okc = best_fitting(np.asarray(br.success, dtype=bool).reshape(len(miss), -1), br.pos_err_m, br.ang_err_rad)

@@ -320,3 +320,35 @@ def _walk_reason(model, compensator, targets, comp, k, cur, where, keep, Tm, D, 
             f"nearest the joints the robot is at ({where}) is {joint_gap(nom, pick, q)} from the "
             f"compensated joints and lands {pe[0]:.3g} mm from the target{rounding}; no solution of the model's robot "
             f"that the controller executes reaches it within the tolerance {compensator.tolerance_mm:.3g} mm: {fix}")
+
+
+def other_branch_words(compensator, comp, T: np.ndarray, D, Dm) -> None:
+    """In place: the reason of each walk target refused as unreachable for the model (not out of reach) gets
+    whether the model's robot reaches it on another branch (the calibrated robot's solutions as seeds): the
+    walk's branch is then the controller's choice from the target before, not a limit of the robot, and
+    giving the joints of that branch compensates it (probe s41 AL: such refusals read as if the robot could
+    not reach the target at all)."""
+    from ..kinematics.ik import ik
+
+    rows = np.array([k for k, r in enumerate(comp.reason) if str(r).startswith("unreachable for the model: residual")],
+                    dtype=np.int64)
+    if not rows.size:
+        return
+    nom_dof = compensator.dof
+    Tm = compensator.model_targets(T[rows], None if Dm is None else Dm[rows])
+    br = ik(compensator.robot, compensator.robot_world(Tm), all_branches=True)
+    Q = np.asarray(br.q, dtype=np.float64).reshape(len(rows), -1, nom_dof)
+    OK = np.asarray(br.success, dtype=bool).reshape(len(rows), -1)
+    for j, k in enumerate(rows):
+        for qs in Q[j][OK[j]]:
+            if np.abs(qs - comp.q_branch[k]).max() < 1e-3:
+                continue
+            sl = slice(k, k + 1)
+            q, _, ok, _, _, _ = compensator.solve(T[sl], qs[None], None if D is None else D[sl], False,
+                                                  D_model=None if Dm is None else Dm[sl])
+            if ok[0]:
+                comp.reason[k] = (f"{comp.reason[k]}; on the branch the controller takes from the target before. The "
+                                  f"model's robot reaches it on another branch (joints "
+                                  f"{', '.join(f'{v:.1f}' for v in np.degrees(q[0]))}°): give the joints (q1..qN) "
+                                  "to compensate it there")
+                break
