@@ -208,3 +208,23 @@ def test_the_coverage_warning_is_kept_in_the_calibration_metadata(j6_fixed):
     _, _, res = j6_fixed
     d = res.to_dict()
     assert d["coverage"] == res.coverage and d["coverage"][0].startswith("joint 6 never moved")
+
+
+def test_an_arm_whose_axes_are_all_parallel_is_not_told_to_tilt_its_tool(tmp_path):
+    """Probe s41 AP: a SCARA (every axis parallel) was warned that its tool offset was not observable and
+    told to measure at several tool orientations, which it cannot take (its file was right everywhere)."""
+    from hykin.calibration.coverage import _axes_parallel
+
+    p = tmp_path / "scara.toml"
+    p.write_text('''name = "scara-s41"\nconvention = "dh"\nlength_unit = "m"\nangle_unit = "deg"
+[[joints]]\na = 0.35\nalpha = 0\nd = 0.4\ntheta = 0\nmin = -150\nmax = 150
+[[joints]]\na = 0.3\nalpha = 180\nd = 0\ntheta = 0\nmin = -140\nmax = 140
+[[joints]]\na = 0\nalpha = 0\nd = 0\ntheta = 0\nmin = 0\nmax = 0.3\ntype = "prismatic"
+[[joints]]\na = 0\nalpha = 0\nd = 0.05\ntheta = 0\nmin = -360\nmax = 360
+''')
+    scara = load_robot_toml(p)
+    q = np.array([[0.3, -0.4, 0.1, 1.0]])
+    assert _axes_parallel(scara, q)
+    assert not _axes_parallel(robot_of(NOMINAL), spread_joints(2, 1))
+    tilted = scara.copy(alpha_rad=np.radians([0.2, 180.1, 0.0, 0.0]))  # a calibration's tilt stays "parallel"
+    assert _axes_parallel(tilted, q)

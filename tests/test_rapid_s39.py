@@ -107,3 +107,27 @@ def test_quadrant_changes_of_the_compensated_joints_are_noted():
     (got,) = _abb_quadrants(model, t, q, None)
     assert got.startswith("36 (cf1 1 -> -2: axis 1 -179.90°; cf4 0 -> 1: axis 4 +98.17°") and "cf6" not in got, got
     assert _abb_quadrants(model, SimpleNamespace(line=1, config={"conf": [-2, 1, 0, 0]}), q, None) == []
+
+
+def test_taught_turns_of_axes_4_and_6_are_kept():
+    """Probe s41 AO: axis 4 taught at +199.994° (±200°, cf4 2) was written at -160.006° (cf4 -2), axis 6 at
+    399.994° (±400°, cf6 4) at 39.994° (cf6 0): the same pose, a full turn to unwind on the next move, and a
+    note blaming a quadrant boundary. Whole turns from the taught quadrant go back to the taught turn."""
+    from types import SimpleNamespace
+
+    from comp_models import exact
+
+    from hykin.compensation.branches import abb_confdata
+    from hykin.compensation.program_checks import _taught_turns
+
+    m = exact("abb-irb2400", 3)
+    taught = np.radians([[10.0, 20.0, 10.0, 199.994, 30.0, 20.0], [-30.0, 10.0, 5.0, 40.0, 50.0, 399.994]])
+    conf = abb_confdata(m.nominal, taught)
+    q_written = taught.copy()
+    q_written[0, 3] -= 2 * np.pi  # what the old code wrote: another turn of the same pose
+    q_written[1, 5] -= 2 * np.pi
+    comp = SimpleNamespace(q=q_written.copy())
+    targets = [SimpleNamespace(config={"conf": list(c)}) for c in conf]
+    _taught_turns(m, targets, comp, np.arange(2), None)
+    np.testing.assert_allclose(comp.q, taught, atol=1e-12)
+    assert (abb_confdata(m.nominal, comp.q) == conf).all()

@@ -90,7 +90,7 @@ def joint_range_warnings(robot: Robot, q: np.ndarray, min_deg: float = MIN_RANGE
         out.append(f"joint {j + 1} {moved} in the data (range {0 if still else rng * f:.3g}{un}, q{j + 1} = {at}): its parameters and "
                    f"{_neighbours(j, n)} are fitted at that value only, so the calibrated robot holds only near q{j + 1} "
                    f"= {at} (elsewhere it may be off by up to the priors' tolerances): measure with joint {j + 1} "
-                   f"moved over its range")
+                   f"moved over its range (a robot whose axis {j + 1} is locked there: the file holds where it is used)")
     return out
 
 
@@ -102,6 +102,19 @@ def rotation_spread_deg(R: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))).max())
 
 
+def _axes_parallel(robot: Robot, q: np.ndarray) -> bool:
+    """Whether every revolute joint axis of ``robot`` is parallel to the others at the first row of ``q``
+    (a SCARA, a planar arm): its tool turns about one direction only (probe s41 AP: a SCARA was told to
+    measure with the tool at several orientations, which it cannot take)."""
+    from ..kinematics.fk import fk_frames
+
+    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    if rev.sum() < 2:
+        return True
+    z = fk_frames(robot, np.asarray(q[:1], dtype=np.float64)).joint[0, :, :3, 2][: len(rev)][rev]
+    return bool(np.all(np.linalg.norm(np.cross(z[0], z), axis=1) < 0.01))  # within ~0.6°: a calibration tilts them
+
+
 def tool_orientation_warning(res, q: np.ndarray, tool_prior_given: bool = False) -> str | None:
     """The warning for a tool offset the data did not determine (``tool.x/y/z`` of ``res`` held at the
     robot file or undetermined), with the spread of the calibrated tool's orientations over ``q``
@@ -109,8 +122,8 @@ def tool_orientation_warning(res, q: np.ndarray, tool_prior_given: bool = False)
     purpose (``tool_prior_given``: the user stated the tool's tolerance)."""
     st = dict(zip(res.names, res.status or []))
     loose = [n for n in _TOOL_XYZ if st.get(n) in ("held at prior", "undetermined")]
-    if not loose or tool_prior_given:
-        return None
+    if not loose or tool_prior_given or _axes_parallel(res.robot, q):
+        return None  # (all axes parallel, a SCARA: the tool cannot tilt, its offset along them is never observable)
     spread = rotation_spread_deg(fk(res.robot, np.ascontiguousarray(q))[:, :3, :3])
     how = (f"the tool was held at one orientation (rotation spread {spread:.3g}°), so its offset does what the base does"
            if spread < ONE_ORIENTATION_DEG else f"the tool's orientations (rotation spread {spread:.3g}°) do not tell it")

@@ -22,7 +22,6 @@ from .common import (
     console,
     load_model,
     load_model_or_robot,
-    plain_markup,
     load_robot_spec,
 )
 
@@ -130,7 +129,7 @@ def fit_cmd(
         for note in getattr(model.calibration_, "notes", []):
             console().print(f"note: {note}", highlight=False)
         for warn in getattr(model.calibration_, "coverage", []):  # a joint never moved, the tool at one orientation
-            console().print(f"[yellow]warning:[/] {plain_markup(warn)}", highlight=False)
+            console().print(f"[yellow]warning:[/] {warn}", highlight=False)  # (print escapes [tool])
     if model.thermal_ is not None:
         typer.echo(f"thermal expansion: {model.thermal_.note} (reference {model.thermal_.reference_c:.2f} °C)")
     if model.fade_calibration_ is not None:
@@ -250,7 +249,7 @@ def calibrate_cmd(
     for note in res.notes:
         console().print(f"note: {note}", highlight=False)
     for warn in res.coverage:  # what the data did not cover: the file holds only where they were taken
-        console().print(f"[yellow]warning:[/] {plain_markup(warn)}", highlight=False)
+        console().print(f"[yellow]warning:[/] {warn}", highlight=False)  # (print escapes [tool])
     _write_calibrated(res.robot, out, res.coverage)
     if res.station_frames is not None:  # several stations / tools: the file holds the reference's frames
         fr = res.station_frames

@@ -207,6 +207,7 @@ def configuration_changes(model, targets: list, comp, other_flag: np.ndarray, T_
             flag.append(f"{line}")
         if d[3]:
             turn.append(f"{line} (T {cfg['T']} -> {d[1]}: {d[3]})")
+    _taught_turns(model, targets, comp, ok, axis_signs)
     quad = []
     for k in ok:
         cfg = targets[k].config
@@ -236,6 +237,44 @@ def configuration_changes(model, targets: list, comp, other_flag: np.ndarray, T_
                      "the correction moves across 0° (its compensated angle given): their T is rewritten to the "
                      "compensated joints' (the taught T would turn that axis by a full turn or find no solution)")
     return notes
+
+
+def _taught_turns(model, targets: list, comp, rows: np.ndarray, axis_signs) -> None:
+    """In place: an ABB target whose compensated axis 1, 4 or 6 lies whole turns from its taught quadrant
+    (cf differs by a multiple of 4) takes the taught turn where it is within the limits and the model's pose
+    there is the same (a 2π-periodic model): the compensated joints are the taught ones a turn away, not
+    another configuration (probe s41 AO: axis 4 taught at +199.994° of ±200° was written at -160.006°,
+    axis 6 at 399.994° of ±400° at 39.994°: a full turn to unwind on the next move)."""
+    from .branches import abb_confdata
+
+    nom = model.nominal
+    if nom.dof < 6:
+        return
+    s = np.ones(nom.dof) if axis_signs is None else np.asarray(axis_signs, dtype=np.float64)
+    for k in rows:
+        cfg = targets[k].config
+        if "conf" not in cfg:
+            continue
+        got = abb_confdata(nom, comp.q[k][None], axis_signs)[0]
+        q = comp.q[k].copy()
+        for i, a in enumerate((1, 4, 6)):
+            d = int(cfg["conf"][i]) - int(got[i])
+            if d and d % 4 == 0:  # whole turns of the controller's axis a: the joint moves by s · turns · 2π
+                q[a - 1] += s[a - 1] * (d // 4) * 2 * np.pi
+        if np.array_equal(q, comp.q[k]) or np.any(q < nom.lower) or np.any(q > nom.upper):
+            continue
+        P = np.asarray(landing_pose(model, np.stack([comp.q[k], q])))
+        if np.abs(P[0] - P[1]).max() < 1e-9:
+            comp.q[k] = q
+
+
+def landing_pose(model, q: np.ndarray) -> np.ndarray:
+    """The model's poses ``(M, 4, 4)`` at joints ``q`` ``(M, n)`` (warnings about the support silenced)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return np.asarray(model.predict(q), dtype=np.float64).reshape(-1, 4, 4)
 
 
 def _abb_quadrants(model, target, q, axis_signs) -> list:

@@ -219,7 +219,7 @@ def compensate_program(model, text: str, fmt, *, frame: str = "auto", axis_signs
     for k, t in enumerate(targets):
         if not comp.success[k]:
             why = comp.reason[k] if not t.caveat or t.error else f"{t.caveat}; {comp.reason[k]}"
-            failed.append((t.line, f"{t.name or t.kind}: {why}"))
+            failed.append((t.line, f"{t.name or 'inline ' + t.kind.replace('[]', '[...]')}: {why}"))
             continue
         command = comp.command[k] if t.frame is None else se3.invert(t.frame) @ comp.command[k]
         new = fmt.format_target(t, command, comp.q[k], model.nominal, axis_signs)
