@@ -210,3 +210,15 @@ def test_a_joint_of_less_than_a_turn_has_no_fold_gap_and_only_gaps_with_test_pos
     res = SimpleNamespace(support_distance=np.array([0.1]), n=1)
     s = support_sentence(res, SimpleNamespace(q=q), model, np.array([1.0]))
     assert "joint 2: its training data" in s and "joint 3" not in s and "joint 1" not in s, s
+
+
+def test_a_fold_gap_is_said_on_the_turn_nearest_zero():
+    """Probe s41 AP: a gap said as "-285.4 to -277.1°" for test poses at +75 … +80° (the folded numbers)."""
+    from hykin.evaluation.report_accuracy import fold_gaps
+
+    lo, hi = np.radians([-277.1]), np.radians([74.6])
+    robot = SimpleNamespace(dof=1, lower=np.radians([-400.0]), upper=np.radians([400.0]))
+    model = SimpleNamespace(wrap_centre_=np.radians([-101.25]), support_lower_=lo, support_upper_=hi,
+                            input_mask_=np.array([True]), robot_=robot)
+    (a, b), = fold_gaps(model).values()
+    assert (a, b) == pytest.approx((74.6, 82.9))

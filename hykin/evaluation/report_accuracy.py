@@ -293,7 +293,9 @@ def fold_gaps(model) -> dict[int, tuple[float, float]]:
     for j in np.flatnonzero(np.isfinite(np.asarray(c, float)) & mask):
         a, b = np.degrees(float(lo[j])), np.degrees(float(hi[j]))
         if 0 < 360.0 - (b - a) <= FOLD_GAP_DEG:
-            out[int(j)] = (b - 360.0, a)
+            # said as the turn nearest zero (probe s41 AP: "-285.4 to -277.1°" for test poses at +75 … +80°)
+            k = 360.0 * np.round(((b - 360.0 + a) / 2) / 360.0)
+            out[int(j)] = (b - 360.0 - k, a - k)
     return out
 
 
