@@ -106,7 +106,7 @@ def test_accuracy_per_station_and_tool_against_numpy(fitted, evaluated):
             assert s["pos_mean_mm"] == pytest.approx(pos[sel].mean(), rel=1e-6)
             assert s["pos_p95_mm"] == pytest.approx(np.percentile(pos[sel], 95), rel=1e-6)
             assert s["pos_max_mm"] == pytest.approx(pos[sel].max(), rel=1e-6)
-            assert s["rot_mean_deg"] == pytest.approx(ang[sel].mean(), rel=1e-5)
+            assert s["ang_mean_deg"] == pytest.approx(ang[sel].mean(), rel=1e-5)
     table = evaluated.table()
     assert "reference station A, reference tool K1" in table and "| station | B | hybrid | 40 |" in table
     assert "population standard deviation (ddof = 0)" in table

@@ -47,7 +47,7 @@ def _ordered(labels: np.ndarray, reference: str | None) -> list[str]:
 
 def group_stats(errors: dict, groups: dict) -> dict:
     """Error statistics per label: ``{column: {"reference": str | None, "labels": {label: {model: {"n",
-    "pos_mean_mm", "pos_p95_mm", "pos_max_mm", "rot_mean_deg" (None for positions only)}}}}}``.
+    "pos_mean_mm", "pos_p95_mm", "pos_max_mm", "ang_mean_deg" (None for positions only)}}}}}``.
     ``errors``: model -> ``(pos_mm (N,), ang_deg (N,) or None)``; ``groups``: :func:`group_labels`.
     p95: numpy's linear-interpolation percentile, as in the overall table."""
     out = {}
@@ -57,7 +57,7 @@ def group_stats(errors: dict, groups: dict) -> dict:
             sel = g["labels"] == lab
             per[lab] = {name: {"n": int(sel.sum()), "pos_mean_mm": float(p[sel].mean()),
                                "pos_p95_mm": float(np.percentile(p[sel], 95)), "pos_max_mm": float(p[sel].max()),
-                               "rot_mean_deg": None if a is None else float(a[sel].mean())}
+                               "ang_mean_deg": None if a is None else float(a[sel].mean())}
                         for name, (p, a) in errors.items()}
         out[col] = {"reference": g["reference"], "labels": per}
     return out
@@ -72,7 +72,7 @@ def group_rows(stats: dict, labels: dict | None = None) -> list[list]:
             shown = f"{lab} (reference)" if lab == g["reference"] else lab
             for name, s in models.items():
                 rows.append([col, shown, (labels or {}).get(name, name), s["n"], s["pos_mean_mm"], s["pos_p95_mm"],
-                             s["pos_max_mm"], s["rot_mean_deg"]])
+                             s["pos_max_mm"], s["ang_mean_deg"]])
     return rows
 
 
