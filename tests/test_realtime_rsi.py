@@ -346,6 +346,15 @@ def test_a_restarted_controller_is_answered_again(kuka):
     assert h(msg(6_008)).kind == "ok" and h(msg(6_004)).kind == "ignored:stale IPOC"
 
 
+def _incremental_and_reference(kuka):
+    """A 12-setpoint path, an incremental-mode handler and an absolute-mode one (the reference correction)
+    on the KUKA-like truth, and the controller's axes (deg)."""
+    q0 = np.radians([10.0, -80, 100, 20, 50, -30])
+    cfg = RsiConfig(mode="incremental")
+    return (_path(kuka.nominal, 12, q0), cfg, RsiHandler(exact_step(kuka), np.eye(4), 6, SIGNS, cfg),
+            RsiHandler(exact_step(kuka), np.eye(4), 6, SIGNS, RsiConfig()), np.degrees(q0 * SIGNS))
+
+
 @pytest.mark.parametrize("stray", [999_999_999, 1_000 + 400])  # far ahead; 400 ms ahead (probe s41 AM)
 def test_incremental_sum_survives_a_stray_datagram_far_ahead(kuka, stray):
     """Probe s41 AH: one datagram from the controller's address with an IPOC far ahead (a corrupted stamp)
@@ -353,13 +362,7 @@ def test_incremental_sum_survives_a_stray_datagram_far_ahead(kuka, stray):
     started again at zero and the full correction was sent a second time (4.3 mm on every later cycle).
     The session going on from before the jump now marks it a stray and undoes its answer: the sum the
     controller adds up stays the correction (checked against the absolute mode's on the same message)."""
-    nom = kuka.nominal
-    q0 = np.radians([10.0, -80, 100, 20, 50, -30])
-    sp = _path(nom, 12, q0)
-    cfg = RsiConfig(mode="incremental")
-    h = RsiHandler(exact_step(kuka), np.eye(4), 6, SIGNS, cfg)
-    ref = RsiHandler(exact_step(kuka), np.eye(4), 6, SIGNS, RsiConfig())
-    axes = np.degrees(q0 * SIGNS)
+    sp, cfg, h, ref, axes = _incremental_and_reference(kuka)
     total, prev_cmd, ipoc = np.zeros(6), sp[0], 1_000
     for k in range(12):
         msg = format_rob(ipoc, sp[k], prev_cmd, axes, cfg)
@@ -385,13 +388,7 @@ def test_incremental_sum_resyncs_after_a_late_first_answer_and_a_gap(kuka):
     and the next cycle never reached the bridge (a gap in the stamps): hykin counted the correction as
     applied and the path stayed 4.3 mm off on every later cycle. The answers not yet seen applied in RIst
     are now all considered at the first message after the gap."""
-    nom = kuka.nominal
-    q0 = np.radians([10.0, -80, 100, 20, 50, -30])
-    sp = _path(nom, 12, q0)
-    cfg = RsiConfig(mode="incremental")
-    h = RsiHandler(exact_step(kuka), np.eye(4), 6, SIGNS, cfg)
-    ref = RsiHandler(exact_step(kuka), np.eye(4), 6, SIGNS, RsiConfig())
-    axes = np.degrees(q0 * SIGNS)
+    sp, cfg, h, ref, axes = _incremental_and_reference(kuka)
     total, prev_cmd = np.zeros(6), sp[0]
     for k in range(12):
         ipoc = 1_000 + 4 * k
