@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import se3
+from .result import fail_row
 
 __all__ = ["FIELDS", "configuration_changes", "keep_configuration", "take"]
 
@@ -191,12 +191,8 @@ def configuration_changes(model, targets: list, comp, other_flag: np.ndarray, T_
             S0 = int(targets[k].config["S"])
             has_s = rs.startswith("the real robot reaches it with S ") and str(S0) in rs.split("S ", 1)[1].split(", ")
             # no solution with the taught S at all: said as for a target whose data match nothing
-            comp.reason[k] = (f"{d[4]}; {r}{hint}" if has_s else
-                              f"no solution with the program's configuration data (S {S0}); {rs}{hint}")
-            comp.success[k] = False
-            for name in ("q", "command", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg"):
-                getattr(comp, name)[k] = np.nan
-            comp.in_support[k] = False
+            fail_row(comp, k, f"{d[4]}; {r}{hint}" if has_s else
+                     f"no solution with the program's configuration data (S {S0}); {rs}{hint}")
     for k, d in zip(kuka, diffs):
         if d[4]:
             continue

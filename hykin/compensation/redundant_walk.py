@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import se3
+from .result import fail_row
 
 __all__ = ["check_local", "local_hints"]
 
@@ -59,15 +60,6 @@ def _local_pick(nom, command: np.ndarray, D: np.ndarray, prev: np.ndarray) -> np
 FAR_STEP_RAD = np.radians(20.0)
 
 
-def _fail(result, k: int, reason: str) -> None:
-    """Row ``k`` of ``result`` fails (in place) with ``reason``."""
-    result.reason[k] = reason
-    result.success[k] = False
-    for name in ("q", "command", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg"):
-        getattr(result, name)[k] = np.nan
-    result.in_support[k] = False
-
-
 def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> list:
     """Execute ``result``'s commands (a :class:`.result.Compensation`, in place) as a local-IK controller
     from the previous sent target's joints (the first target is reached some other way, a joint move: not
@@ -103,7 +95,7 @@ def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> l
         before = q_first[:k][np.isfinite(q_first[:k]).all(1)]  # the list's previous target, sent or not
         step = np.abs(np.where(rev, q_first[k] - before[-1], 0.0)).max() if len(before) else 0.0
         if step > FAR_STEP_RAD:  # where a local solve ends after such a move depends on the solver
-            _fail(result, k, f"the controller would execute it elsewhere on this redundant arm: it lies "
+            fail_row(result, k, f"the controller would execute it elsewhere on this redundant arm: it lies "
                              f"{np.degrees(step):.0f}° (a joint) from the target before, and where a controller's "
                              f"local solve ends on the self-motion after such a move depends on its solver (one "
                              f"least-norm solver landed 2-5 mm off, probe s41); give the joints (q1..qN) or send "
@@ -128,7 +120,7 @@ def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> l
             where = ("finds no nominal solution of the command" if not np.isfinite(miss) else
                      f"reaches it on joints {joint_gap(nom, pick, result.q[k])} (largest joint difference) from "
                      f"the compensated ones, landing {miss:.3g} mm from the target")
-            _fail(result, k, f"the controller would execute it elsewhere on this redundant arm: solving the command "
+            fail_row(result, k, f"the controller would execute it elsewhere on this redundant arm: solving the command "
                              f"locally from the joints before it {where}; give the joints (q1..qN) or send them "
                              "(--joints)")
             continue

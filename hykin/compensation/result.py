@@ -8,7 +8,7 @@ import numpy as np
 
 from ..geometry import se3
 
-__all__ = ["Compensation", "command_rows", "first_row_per_target", "merge_parts"]
+__all__ = ["Compensation", "command_rows", "fail_row", "first_row_per_target", "merge_parts"]
 
 
 @dataclass
@@ -41,6 +41,16 @@ class Compensation:
 
     def __len__(self) -> int:
         return int(self.success.shape[0])
+
+
+def fail_row(comp: Compensation, k: int, reason: str) -> None:
+    """Row ``k`` of ``comp`` fails (in place) with ``reason``: no joints, command or errors (NaN), not in the
+    support; what a check after solving does to a target it refuses."""
+    comp.reason[k] = reason
+    comp.success[k] = False
+    for name in ("q", "command", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg"):
+        getattr(comp, name)[k] = np.nan
+    comp.in_support[k] = False
 
 
 def merge_parts(parts: list[tuple[np.ndarray, Compensation]], n_rows: int) -> Compensation:

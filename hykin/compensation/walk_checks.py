@@ -24,6 +24,7 @@ import numpy as np
 
 from ..geometry import se3
 from .program_checks import take
+from .result import fail_row
 
 __all__ = ["WalkRow", "check_walk", "joint_gap", "landing"]
 
@@ -149,7 +150,7 @@ def check_walk(model, compensator, solve, targets: list, comp, alt_hint: np.ndar
     acc = max(compensator.tolerance_mm, model_accuracy(model)[0] or 0.0)
     # every command's controller choice from the joints the robot stands at as compensated so far, at once;
     # the walk below revisits only rows whose standing joints it changes or whose choice differs
-    cur0, _, _ = _standing(targets, comp, order, listed)
+    cur0 = _standing(targets, comp, order, listed)
     rows = np.flatnonzero(free & comp.success)
     picks = _Picks(nom, _read_back(nom, targets, rows, comp.command[rows], D, written), keep[rows], axis_signs)
     pos = np.full(N, -1)
@@ -195,12 +196,8 @@ def check_walk(model, compensator, solve, targets: list, comp, alt_hint: np.ndar
                         miss = 0.0
                         break
             if miss > acc:
-                comp.reason[k] = _walk_reason(model, compensator, targets, comp, k, cur, where, keep[k], Tm[k], D,
-                                              written, axis_signs)
-                comp.success[k] = False
-                for name in ("q", "command", "pos_err_mm", "ang_err_deg", "shift_mm", "shift_deg"):
-                    getattr(comp, name)[k] = np.nan
-                comp.in_support[k] = False
+                fail_row(comp, k, _walk_reason(model, compensator, targets, comp, k, cur, where, keep[k], Tm[k], D,
+                                               written, axis_signs))
             elif miss > 0:  # within what the model can tell: the command stands, said
                 noted.append(f"{targets[k].line} ({miss:.3g} mm)")
         if not (listed and not comp.success[k]):
@@ -233,23 +230,19 @@ def _same_but_turned(nom, q: np.ndarray, pick: np.ndarray) -> np.ndarray:
     return np.isfinite(d).all(1) & (np.abs(wrapped).max(1) < 1e-6) & (np.abs(d).max(1) > 1e-6)
 
 
-def _standing(targets: list, comp, order: list, listed: bool = False) -> tuple[np.ndarray, list, np.ndarray]:
-    """``(joints (N, n), where (N,), prev (N,))``: the joints the robot is at before each target (NaN where
-    not known: after a target that failed), a text saying whose they are, and the target they are of (-1:
-    a joint move, or not known)."""
-    N, n = comp.q.shape
-    cur, where, before = np.full((N, n), np.nan), [""] * N, np.full(N, -1)
-    prev = None
+def _standing(targets: list, comp, order: list, listed: bool = False) -> np.ndarray:
+    """``(N, n)``: the joints the robot is at before each target as compensated so far (NaN where not known:
+    after a target that failed; a list's failed target is not sent, so the robot stays at the one before)."""
+    cur, prev = np.full(comp.q.shape, np.nan), None
     for k in order:
         t = targets[k]
         if t.reset is not None:
-            cur[k], where[k] = np.asarray(t.reset, dtype=np.float64), "the joint move before it"
+            cur[k] = np.asarray(t.reset, dtype=np.float64)
         elif prev is not None and comp.success[prev]:
-            cur[k], where[k], before[k] = comp.q[prev], f"the previous target's ({_named(targets[prev])})", prev
-        # a list's failed target is not sent (its command is NaN): the robot stays at the one before
+            cur[k] = comp.q[prev]
         if not (listed and not comp.success[k]):
             prev = k
-    return cur, where, before
+    return cur
 
 
 #: a landing of the controller's joints this close (mm, deg) to the target is the target: 10 times what the
