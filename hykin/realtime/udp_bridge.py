@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["JumpWatch", "MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "BridgeStats", "Outcome", "RestartWatch", "arrival_time", "bind_udp",
+__all__ = ["JumpWatch", "StampRun", "MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "BridgeStats", "Outcome", "RestartWatch", "arrival_time", "bind_udp",
            "check_actual_pose", "check_limits", "parse_listen",
            "raise_priority", "run_bridge"]
 
@@ -45,6 +45,34 @@ class Outcome:
     reason: str = ""  # a failure's one-line cause, its category first ("correction over the limit: ...")
 
 
+class StampRun:
+    """Consecutive stamps (``IPOC``, ``seqno``) each following the previous by 1 to ``step`` counts: what
+    confirms a restart (:class:`RestartWatch`) or a stray jump (:class:`JumpWatch`) where one message alone
+    may be a stray or a late datagram. ``modulo``: stamps that wrap (EGM's 32-bit seqno)."""
+
+    def __init__(self, step: int, confirm: int = 2, modulo: int | None = None):
+        self.step, self.confirm, self.modulo = int(step), int(confirm), modulo
+        self._run: list[int] = []
+
+    def ahead(self, a: int, b: int) -> int:
+        """``a - b`` (wrapped into ``[-modulo/2, modulo/2)`` for wrapping stamps)."""
+        d = int(a) - int(b)
+        return d if self.modulo is None else (d + self.modulo // 2) % self.modulo - self.modulo // 2
+
+    def add(self, stamp: int) -> bool:
+        """Whether ``stamp`` completes a run of ``confirm`` (then the run starts again)."""
+        if self._run and not 0 < self.ahead(stamp, self._run[-1]) <= self.step:
+            self._run = []
+        self._run.append(int(stamp))
+        if len(self._run) < self.confirm:
+            return False
+        self._run = []
+        return True
+
+    def clear(self) -> None:
+        self._run = []
+
+
 class RestartWatch:
     """A controller that restarts (a new RSI context, an EGM session started again) counts its stamp
     (``IPOC``, ``seqno``) from a value far behind the last answered one. One such message is not enough
@@ -52,25 +80,19 @@ class RestartWatch:
     more than ``behind`` counts behind and each follows the previous by 1 to ``step`` counts."""
 
     def __init__(self, behind: int, step: int, confirm: int = 2):
-        self.behind, self.step, self.confirm = int(behind), int(step), int(confirm)
-        self._run: list[int] = []
+        self.behind = int(behind)
+        self._run = StampRun(step, confirm)
 
     def restarted(self, stamp: int, behind_by: int) -> bool:
         """Whether ``stamp``, ``behind_by`` counts behind the last answered one, confirms a restart."""
         if behind_by <= self.behind:
-            self._run = []
+            self._run.clear()
             return False
-        if self._run and not (0 < stamp - self._run[-1] <= self.step):
-            self._run = []
-        self._run.append(int(stamp))
-        if len(self._run) >= self.confirm:
-            self._run = []
-            return True
-        return False
+        return self._run.add(stamp)
 
     def clear(self) -> None:
         """An in-order message was answered: no restart under way."""
-        self._run = []
+        self._run.clear()
 
 
 class JumpWatch:
@@ -83,34 +105,28 @@ class JumpWatch:
     controller took). ``modulo``: stamps that wrap (EGM's 32-bit seqno)."""
 
     def __init__(self, window: int, step: int, confirm: int = 2, modulo: int | None = None):
-        self.window, self.step, self.confirm, self.modulo = int(window), int(step), int(confirm), modulo
+        self.window = int(window)
         self._before = None
-        self._run: list[int] = []
-
-    def _ahead(self, a: int, b: int) -> int:
-        """``a - b`` (wrapped into ``[-modulo/2, modulo/2)`` for wrapping stamps)."""
-        d = int(a) - int(b)
-        return d if self.modulo is None else (d + self.modulo // 2) % self.modulo - self.modulo // 2
+        self._run = StampRun(step, confirm, modulo)
 
     def jumped(self, before: int, state) -> None:
         """The message just answered jumped ahead of ``before`` (the last stamp of the session so far,
         whose ``state`` a return restores)."""
-        self._before, self._run = (int(before), state), []
+        self._before = (int(before), state)
+        self._run.clear()
 
     def clear(self) -> None:
         """A message in order after the jump: it was real."""
-        self._before, self._run = None, []
+        self._before = None
+        self._run.clear()
 
     def returned(self, stamp: int):
         """For a message behind the last answered one: the state saved before the jump once ``confirm``
         consecutive such messages continue the session from before it, else None."""
-        if self._before is None or not 0 < self._ahead(stamp, self._before[0]) <= self.window:
-            self._run = []
+        if self._before is None or not 0 < self._run.ahead(stamp, self._before[0]) <= self.window:
+            self._run.clear()
             return None
-        if self._run and not 0 < self._ahead(stamp, self._run[-1]) <= self.step:
-            self._run = []
-        self._run.append(int(stamp))
-        if len(self._run) < self.confirm:
+        if not self._run.add(stamp):
             return None
         state = self._before[1]
         self.clear()
