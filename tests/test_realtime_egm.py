@@ -79,12 +79,16 @@ def test_simulated_egm_follows_the_path_under_a_flood(abb):
     assert base_err.mean() > 0.5 and err.max() < 1e-3 and ang.max() < 1e-5
 
 
-def test_a_restarted_session_is_answered_again(abb):
-    nom = abb.nominal
+def _handler_and_message(abb):
+    """An EGM handler on the ABB-like truth and ``seq -> message`` of one planned pose (a standing robot)."""
     q0 = np.radians([10.0, 20, -10, 30, 40, -20])
-    P = _path(nom, 2, q0)
-    h = EgmHandler(exact_step(abb), np.eye(4), 6, np.ones(6))
-    msg = lambda seq: format_robot(seq, 4 * seq, P[0], np.degrees(q0), P[0])
+    P = _path(abb.nominal, 2, q0)
+    return (EgmHandler(exact_step(abb), np.eye(4), 6, np.ones(6)),
+            lambda seq: format_robot(seq, 4 * seq, P[0], np.degrees(q0), P[0]))
+
+
+def test_a_restarted_session_is_answered_again(abb):
+    h, msg = _handler_and_message(abb)
     assert h(msg(5000)).kind == "ok" and h(msg(5001)).kind == "ok"
     assert h(msg(3)).kind == "ignored:stale seqno" and h(msg(5002)).kind == "ok"  # one stray: ignored
     assert h(msg(1)).kind == "ignored:stale seqno"  # a new session's first message
@@ -96,11 +100,7 @@ def test_a_restarted_session_is_answered_again(abb):
 def test_a_stray_seqno_ahead_does_not_silence_the_session(abb):
     """Probe s41 AM: one datagram with a seqno 100 ahead left the next 100 cycles unanswered (the held pose
     put the path 47 mm off). Two messages continuing the session from before it mark it a stray."""
-    nom = abb.nominal
-    q0 = np.radians([10.0, 20, -10, 30, 40, -20])
-    P = _path(nom, 2, q0)
-    h = EgmHandler(exact_step(abb), np.eye(4), 6, np.ones(6))
-    msg = lambda seq: format_robot(seq, 4 * seq, P[0], np.degrees(q0), P[0])
+    h, msg = _handler_and_message(abb)
     assert h(msg(5000)).kind == "ok" and h(msg(5001)).kind == "ok"
     assert h(msg(5100)).kind == "ok"  # the stray (answered: nothing tells it from a gap yet)
     assert h(msg(5002)).kind == "ignored:stale seqno"  # one message behind alone: a late datagram?
