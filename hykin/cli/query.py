@@ -196,8 +196,8 @@ def ik_cmd(
         msg = support_report(mdl, qs[has_q])["message"] if has_q.any() else ""
         if msg:
             console().print(f"[yellow]warning:[/] {msg} (see the in_support column)")
-    if all_branches:
-        rows = _with_turn_copies(mdl, rob, rows, turn_copies)
+    if all_branches:  # (classical_ik_rows listed the copies already)
+        rows = _with_turn_copies(mdl, rob, rows, turn_copies, expand=not (mdl is None and not rob.has_compliance))
     write_rows(rows, out)
     ok = np.asarray(rows["success"], dtype=bool)
     n_targets = len(T)
@@ -205,16 +205,18 @@ def ik_cmd(
     typer.echo(f"wrote {len(ok)} solution rows for {n_targets} targets to {out} ({solved} solved, {n_targets - solved} failed)")
 
 
-def _with_turn_copies(mdl, rob, rows: dict, max_copies: int) -> dict:
+def _with_turn_copies(mdl, rob, rows: dict, max_copies: int, expand: bool = True) -> dict:
     """``--all-branches`` rows with each solution's 2π copies within the limits (up to ``max_copies`` per
     solution; a robot's and a ``periodic="wrap"`` model's poses repeat every turn), and a note counting
-    those left out (probe s41 AK: 326 of 429 copies on a ±400° wrist were dropped without a word)."""
+    those left out (probe s41 AK: 326 of 429 copies on a ±400° wrist were dropped without a word).
+    ``expand=False``: rows that list their copies already (:func:`hykin.kinematics.ik_rows.classical_ik_rows`)."""
     from ..kinematics.ik_rows import expand_turn_copies, representations_per_solution, turn_copies_note
 
     robot = rob if mdl is None else mdl.robot_
     if mdl is not None and getattr(mdl, "periodic", "wrap") != "wrap":
         return rows
-    rows = expand_turn_copies(robot, rows, max_copies)
+    if expand:
+        rows = expand_turn_copies(robot, rows, max_copies)
     note = turn_copies_note(robot, rows, max_copies, how=f"--turn-copies {representations_per_solution(robot)} lists them")
     if note:
         typer.echo(note, err=True)

@@ -509,7 +509,7 @@ def ik(robot: Robot, T_world, q_seed=None, all_branches: bool = False, position_
     q_seed: ``(N, dof)`` or ``(dof,)``: numerical seed, and the joints the returned branch is nearest
     to (default: zero clipped into limits). all_branches: return an :class:`IKBranches` with every
     distinct solution (modulo 2π, each nearest zero within the limits; ``hykin ik --all-branches`` adds
-    the 2π copies: :func:`hykin.kinematics.ik_rows.turn_copies`); otherwise an :class:`IKResult`. position_only: 3-D residual (orientation free;
+    the 2π copies: :func:`hykin.kinematics.ik_rows.expand_turn_copies`); otherwise an :class:`IKResult`. position_only: 3-D residual (orientation free;
     the closed form does not apply). Unreachable targets come back with ``success = False``.
     polish: with ``all_branches`` and a robot that has its own closed form, ``False`` returns its
     solutions as found (to 1e-9 m / rad) instead of polished by LM to ``tol_m`` / ``tol_rad``: for

@@ -21,7 +21,7 @@ __all__ = ["MAX_TURN_COPIES", "TURN_COPIES_CAP", "classical_ik_rows", "expand_tu
            "representations_per_solution", "turn_copies", "turn_copies_left_out", "turn_copies_note",
            "turn_copy_counts"]
 
-#: most 2π representations per solution that ``hykin ik --all-branches`` lists by default (:func:`turn_copies`);
+#: most 2π representations per solution that ``hykin ik --all-branches`` lists by default (:func:`expand_turn_copies`);
 #: a robot whose solutions may have more lists each once and says how many it left out (:func:`turn_copies_note`)
 MAX_TURN_COPIES = 8
 #: the largest ``max_copies`` one may ask for: a UR arm (six ±360° joints) has 64 per solution, 512 rows per
@@ -105,28 +105,6 @@ def representations_per_solution(robot: Robot) -> int:
     return int(np.prod(reps)) if wide.size else 1
 
 
-def turn_copies(robot: Robot, q: np.ndarray, ok: np.ndarray, max_copies: int = MAX_TURN_COPIES):
-    """Every 2π representation within the limits of each solution ``q`` ``(N, K, n)`` (valid where ``ok``
-    ``(N, K)``): a revolute joint whose range exceeds 2π reaches the same pose at ``q + 2πk`` (the
-    robot's FK is 2π-periodic; a controller turns the axis differently). Returns ``(q (N, K·G, n), ok
-    (N, K·G), src (K·G,))``: slot ``src`` of ``q`` each copy comes from, the solution itself first and
-    then its copies; copies outside the limits are not ``ok``. A robot whose solutions may have more
-    than ``max_copies`` representations (a UR arm: six ±360° joints, 64 per solution) is returned
-    unchanged: each solution once, in its representation nearest zero."""
-    q = np.asarray(q, dtype=np.float64)
-    N, K, n = q.shape
-    _check_max_copies(max_copies)
-    wide, reps = _wide_joints(robot)
-    if wide.size == 0 or np.prod(reps) > max_copies:
-        return q, np.asarray(ok, dtype=bool), np.arange(K)
-    shift = _shifts(wide, reps, n)  # (G, n), zero shift first
-    qq = (q[:, :, None, :] + shift[None, None]).reshape(N, -1, n)
-    inside = np.all((qq >= robot.lower) & (qq <= robot.upper), axis=-1)
-    okq = np.repeat(np.asarray(ok, dtype=bool), len(shift), axis=1) & inside
-    okq[:, :: len(shift)] = np.asarray(ok, dtype=bool)  # the solution itself as found
-    return qq, okq, np.repeat(np.arange(K), len(shift))
-
-
 def turn_copy_counts(robot: Robot, q: np.ndarray) -> np.ndarray:
     """``(M,)`` int: the 2π representations within the joint limits of each row of ``q`` ``(M, n)`` (rad/m),
     itself included: the product over the joints with a range over 2π of the integers ``k`` with
@@ -171,8 +149,8 @@ def expand_turn_copies(robot: Robot, rows: dict, max_copies: int = MAX_TURN_COPI
     """IK rows (:func:`ik_rows`' columns, e.g. hybrid IK's) with every further 2π representation within the
     limits of each solved row added after it (every other column copied: the same pose when the model is
     2π-periodic in those joints, as a hybrid model with ``periodic="wrap"`` and any robot are), unless the
-    robot's :func:`representations_per_solution` exceed ``max_copies`` (then ``rows`` unchanged, as
-    :func:`turn_copies`). Representations already listed for the target are not repeated."""
+    robot's :func:`representations_per_solution` exceed ``max_copies`` (then ``rows`` unchanged: each solution
+    once, in its representation nearest zero). Representations already listed for the target are not repeated."""
     _check_max_copies(max_copies)
     wide, reps = _wide_joints(robot)
     if wide.size == 0 or np.prod(reps) > max_copies:
@@ -220,7 +198,7 @@ def turn_copies_note(robot: Robot, rows: dict, max_copies: int = MAX_TURN_COPIES
 def classical_ik_rows(robot: Robot, T: np.ndarray, q_current=None, position_only: bool = False,
                       max_copies: int = MAX_TURN_COPIES) -> dict[str, np.ndarray]:
     """:func:`ik_rows` of classical IK on ``robot`` for targets ``T`` ``(N, 4, 4)`` (world, m): every
-    solution branch, each in every 2π representation within the joint limits (:func:`turn_copies`: when a
+    solution branch, each in every 2π representation within the joint limits (:func:`expand_turn_copies`: when a
     solution may have at most ``max_copies`` (default :data:`MAX_TURN_COPIES`, at most
     :data:`TURN_COPIES_CAP`), else the one nearest zero: :func:`turn_copies_note` counts those left
     out), or with ``q_current`` ``(N, dof)`` the one nearest it. A target without a solution gets one row
@@ -231,8 +209,8 @@ def classical_ik_rows(robot: Robot, T: np.ndarray, q_current=None, position_only
         q, ok, pe, ae = r.q[:, None], r.success[:, None], r.pos_err_m[:, None], r.ang_err_rad[:, None]
         lab = np.asarray(r.label)[:, None]
     else:
-        q, ok, src = turn_copies(robot, br.q, br.success, max_copies)
-        pe, ae, lab = br.pos_err_m[:, src], br.ang_err_rad[:, src], np.asarray(br.label, dtype=object)[:, src]
+        q, ok = np.asarray(br.q, dtype=np.float64), np.asarray(br.success, dtype=bool)
+        pe, ae, lab = br.pos_err_m, br.ang_err_rad, np.asarray(br.label, dtype=object)
     failed = ~ok.any(axis=1)
     keep = ok.copy()
     keep[failed, 0] = True  # a failed target: one row saying why
@@ -242,9 +220,10 @@ def classical_ik_rows(robot: Robot, T: np.ndarray, q_current=None, position_only
     pe_best = np.where(np.isfinite(pe).any(axis=1), pe_best, np.nan)
     ae_best = np.where(np.isfinite(ae).any(axis=1), ae_best, np.nan)
     good = ok[t, k]
-    return ik_rows(
+    rows = ik_rows(
         t, np.where(good, np.asarray(lab, dtype=object)[t, k], ""), np.where(good[:, None], q[t, k], np.nan), good,
         np.where(good, pe[t, k], pe_best[t]) * 1e3, np.degrees(np.where(good, ae[t, k], ae_best[t])),
         np.full(t.size, "", dtype=object), robot=robot, targets=T, position_only=position_only, q_best=False,
         success_as_int=False,
     )
+    return rows if q_current is not None else expand_turn_copies(robot, rows, max_copies)
