@@ -14,9 +14,9 @@ true; ``seed = 1.9`` is ``int(1.9)``, 1) after Ray started.
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
+from ..hybrid.fit_options import DEVICES, is_device, model_kwargs
 from .files import SpecError
 
 __all__ = ["DEVICES", "OPTION_TYPES", "check_option", "data_units", "units_options"]
@@ -28,11 +28,6 @@ OPTION_TYPES: dict = {
     "max_deviation": str, "prior": list, "region_cv": bool, "fade_cv": int, "outliers": str,
     "outlier_ratio": (int, float), "n_train": int,
 }
-
-#: the devices a fit runs on (as `hykin fit --device`), plus ``cuda:N`` for one GPU of several
-DEVICES = ("cpu", "cuda", "auto")
-_CUDA_N = re.compile(r"^cuda:\d+$")
-
 
 def _type_name(t) -> str:
     """``int`` / ``bool`` / ``str`` / ``list``, or ``a number`` / ``a string or a number`` for a tuple."""
@@ -55,8 +50,6 @@ def check_option(path: Path, where: str, key: str, value) -> None:
     and value) unless ``value`` is a valid ``key`` option: its type (:data:`OPTION_TYPES`), a known
     architecture / recipe, a device of :data:`DEVICES` (or ``cuda:N``), ``n_train >= 1``, and what
     :func:`hykin.hybrid.fit_options.model_kwargs` accepts (the `hykin fit` mapping)."""
-    from ..hybrid.fit_options import model_kwargs
-
     head = f"{path}: {where}{key} = {value!r}"
     t = OPTION_TYPES[key]
     if not _type_ok(t, value):
@@ -68,7 +61,7 @@ def check_option(path: Path, where: str, key: str, value) -> None:
             raise SpecError(f"{head}: must be >= 1")
         return
     if key == "device":
-        if value not in DEVICES and not _CUDA_N.match(value):
+        if not is_device(value):
             raise SpecError(f"{head}: unknown device (known: {', '.join(DEVICES)}, or cuda:N)")
         return
     _check_name(head, key, value)

@@ -14,7 +14,7 @@ import re
 
 import numpy as np
 
-__all__ = ["FIT_OPTIONS", "calibration_options", "model_kwargs"]
+__all__ = ["DEVICES", "FIT_OPTIONS", "calibration_options", "is_device", "model_kwargs"]
 
 #: `hykin fit` option -> default (None: the recipe's / unset).
 FIT_OPTIONS: dict = {
@@ -68,6 +68,15 @@ def calibration_options(orientation_weight="auto", max_deviation: str | None = N
     return kw
 
 
+#: the devices a fit runs on (as `hykin fit --device`), plus ``cuda:N`` for one GPU of several
+DEVICES = ("cpu", "cuda", "auto")
+
+
+def is_device(value) -> bool:
+    """Whether ``value`` names a device a fit runs on (:data:`DEVICES` or ``cuda:N``)."""
+    return isinstance(value, str) and (value in DEVICES or re.fullmatch(r"cuda:\d+", value) is not None)
+
+
 def model_kwargs(**options) -> dict:
     """``HybridModel`` keyword arguments for the `hykin fit` ``options`` (names of :data:`FIT_OPTIONS`;
     missing ones take their defaults). ``device="auto"`` resolves to cuda when available."""
@@ -82,7 +91,7 @@ def model_kwargs(**options) -> dict:
     for name in ("calibrate", "region_cv"):  # "false" was true
         if not isinstance(o[name], (bool, np.bool_)):
             raise ValueError(f"{name} must be true or false, got {o[name]!r}")
-    if not (o["device"] in ("auto", "cpu", "cuda") or re.fullmatch(r"cuda:\d+", str(o["device"]))):
+    if not is_device(o["device"]):
         raise ValueError(f"device must be auto, cpu, cuda or cuda:N, got {o['device']!r}")
     kw: dict = {}
     if o["max_minutes"] is not None:
