@@ -55,12 +55,19 @@ def group_stats(errors: dict, groups: dict) -> dict:
         per = {}
         for lab in _ordered(g["labels"], g["reference"]):
             sel = g["labels"] == lab
-            per[lab] = {name: {"n": int(sel.sum()), "pos_mean_mm": float(p[sel].mean()),
-                               "pos_p95_mm": float(np.percentile(p[sel], 95)), "pos_max_mm": float(p[sel].max()),
-                               "ang_mean_deg": None if a is None else float(a[sel].mean())}
-                        for name, (p, a) in errors.items()}
+            per[lab] = {name: _subset_stats(p[sel], None if a is None else a[sel]) for name, (p, a) in errors.items()}
         out[col] = {"reference": g["reference"], "labels": per}
     return out
+
+
+def _subset_stats(pos_mm: np.ndarray, ang_deg: np.ndarray | None) -> dict:
+    """The table's figures of one label's rows, from the evaluation's own statistics
+    (:func:`.metrics.stats_from_errors`)."""
+    from .metrics import stats_from_errors
+
+    st = stats_from_errors(pos_mm, ang_deg)
+    return {"n": st.n, "pos_mean_mm": st.pos_mean_mm, "pos_p95_mm": st.pos_p95_mm, "pos_max_mm": st.pos_max_mm,
+            "ang_mean_deg": st.ang_mean_deg}
 
 
 def group_rows(stats: dict, labels: dict | None = None) -> list[list]:
