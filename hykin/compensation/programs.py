@@ -249,9 +249,10 @@ def _solve(model, targets: list, frame: str, axis_signs, slack_deg: float, ik_kw
     D = np.stack([np.eye(4) if t.tool_delta is None else t.tool_delta for t in targets])
     fr = resolve_frame(model, frame)
     slack_rad = float(np.radians(slack_deg))
+    comp_of = Compensator(model, frame=fr, **ik_kw)
     # branch from the nominal solutions of the uncompensated target, in the nominal robot's world
     # (= the measurement frame; the controller base sits at nominal.base in it)
-    T_nom = (T if fr == "measurement" else model.nominal.base @ T) @ se3.invert(D)
+    T_nom = comp_of.nominal_world(T, D)
     given = np.array([t.tool_delta is not None for t in targets])  # a program tool (else the model's TCP)
     Dm = model_delta(model, D, given)
     T_cal = se3.invert(model.frame_pre_) @ to_model_frame(model, T, fr) @ se3.invert(Dm) @ se3.invert(model.frame_post_)
@@ -263,7 +264,6 @@ def _solve(model, targets: list, frame: str, axis_signs, slack_deg: float, ik_kw
     for k, t in enumerate(targets):  # (a continuous-path motion keeps the status: its hint has it already)
         if t.reset is not None and not ("S" in t.config or "conf" in t.config or t.config.get("keep_status")):
             first[k] = np.clip(np.asarray(t.reset, dtype=np.float64), model.nominal.lower, model.nominal.upper)
-    comp_of = Compensator(model, frame=fr, **ik_kw)
 
     def solve(rows, hints):
         return comp_of(T[rows], q_branch=hints, tool_delta=D[rows], tool_given=given[rows])
