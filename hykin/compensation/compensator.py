@@ -517,7 +517,7 @@ class Compensator:
         from .branches import best_fitting, nearest_candidate, sequential_nearest, walk_nearest
 
         nom, N, n = self.nominal, len(T), self.dof
-        start = np.clip(np.zeros(n), nom.lower, nom.upper)
+        start = self._walk_start()
         if pos_only:  # no closed form for positions: the calibrated robot's numerical solutions from a few
             # fixed seeds (in its own world: a tracker-frame model's base is metres from the nominal one), walked
             Tr = self.robot_world(self.model_targets(T, None))
