@@ -60,6 +60,8 @@ def compensate_cmd(
     axis_signs: str | None = typer.Option(None, "--axis-signs", help="Controller axis = sign × joint, e.g. -1,1,1,-1,1,-1 (default: from the robot preset)."),
     payload_kg: float | None = typer.Option(None, "--payload-kg", help="Payload (kg, at the TCP) the robot carries while executing these targets: the model deflects under it (default: the robot file's payload)."),
     flange: str | None = typer.Option(None, "--flange", help="URDF robots: the link that is the controller's flange, from which program tools (TOOL_DATA, tooldata, set_tcp) and --tool are given (default: 'flange' for KRL and --tool, 'tool0' for RAPID and URScript, where the URDF has them; else the last moving link)."),
+    tool_shift: str = typer.Option("mount", "--tool-shift", metavar="mount|flange", help="Where a program's own tool (--tool, set_tcp, tooldata, TOOL_DATA) sits: the calibrated TCP's shift from the robot file's [tool] is the measurement tool's mount ('mount': program tools on the calibrated chain's flange) or the flange's own error ('flange': they move with it; right where the file's [tool] is the measurement tool as measured). The data cannot tell them apart; a note says where it matters."),
+    tool_angle_unit: str | None = typer.Option(None, "--tool-angle-unit", metavar="rad|deg", help="Unit of --tool's roll, pitch, yaw (default: --angle-unit)."),
     tolerance_mm: float | None = typer.Option(None, "--tolerance-mm", help="Success tolerance, mm: a target the model's robot reaches within it (and --tolerance-deg) is compensated (default: half the model's held-out mean position error, at least 1e-4 mm)."),
     tolerance_deg: float | None = typer.Option(None, "--tolerance-deg", help="Success tolerance, degrees (default: half the model's held-out mean orientation error, at least 1e-4 deg)."),
     force: bool = Force,
@@ -73,6 +75,11 @@ def compensate_cmd(
     if not (0 <= config_slack_deg <= 90):
         raise CLIError(f"--config-slack-deg must be within 0-90 deg, got {config_slack_deg}")
     tol = _tolerances(tolerance_mm, tolerance_deg)
+    if tool_shift not in ("mount", "flange"):
+        raise CLIError(f"--tool-shift must be mount or flange, got {tool_shift!r}")
+    tol["tool_shift"] = tool_shift
+    if tool_angle_unit not in (None, "rad", "deg"):
+        raise CLIError(f"--tool-angle-unit must be rad or deg, got {tool_angle_unit!r}")
     context = list(context or [])
     if kind == "krl" and inp.suffix.lower() in (".src", ".dat"):  # the companion file beside it is read too
         sib = inp.with_suffix(".src" if inp.suffix.lower() == ".dat" else ".dat")
@@ -84,7 +91,7 @@ def compensate_cmd(
     if kind == "csv":  # the file's payload and temperature columns, else --payload-kg / the reference temperature
         mdl = load_model(model)
         parse_axis_signs(axis_signs, mdl.nominal.dof)
-        D = _tool_delta(mdl, tool, length_unit, angle_unit, flange)
+        D = _tool_delta(mdl, tool, length_unit, tool_angle_unit or angle_unit, flange)
         _compensate_csv(mdl, inp, out, joints, "measurement" if frame == "auto" else frame, length_unit, angle_unit, D,
                         payload_kg, tol)
         return
@@ -139,7 +146,7 @@ def _tool_delta(mdl, text: str | None, length_unit: str, angle_unit: str, flange
         raise CLIError(f"--tool: a TCP {np.linalg.norm(xyz):.4g} m from the flange; if its numbers are mm, add "
                        "--length-unit mm")
     if np.abs(rpy).max() > 2 * np.pi + 1e-9:
-        raise CLIError(f"--tool: angles up to {np.abs(rpy).max():.4g} rad; if they are degrees, add --angle-unit deg")
+        raise CLIError(f"--tool: angles up to {np.abs(rpy).max():.4g} rad; if they are degrees, add --tool-angle-unit deg")
     if note:
         console().print(f"note: --tool: {note}", highlight=False)
     return se3.invert(mdl.nominal.tool) @ flange_of(robot) @ se3.xyzrpy_to_transform(xyz, rpy)
@@ -175,7 +182,7 @@ def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_
         from ..io.plausibility import check_joint_unit
 
         qb, _ = read_joints(inp, dof=n, angle_unit=angle_unit, length_unit=length_unit, robot=mdl.nominal)
-        # --angle-unit also reads --tool's angles: joints in radians under deg would hint every target wrong
+        # joints in radians under --angle-unit deg would hint every target wrong
         check_joint_unit(mdl.nominal, qb, where=str(inp), angle_unit=angle_unit)
     if has_rot:
         warn_orientation_unmeasured(mdl, "the targets' orientations are compensated with that")

@@ -13,7 +13,8 @@ to a solution, the previous target's joints); without one, the nominal robot's s
 previous target's, or — where the nominal robot cannot reach the target — the calibrated robot's, or
 the previous joints themselves. The nominal model only hints: a target it cannot reach is still
 solved on the hybrid model. Without a hint the batch is then checked as a nearest-joints controller
-executes it, target after target (:meth:`Compensator._check_walk`).
+executes it, target after target (:meth:`Compensator._check_walk`); with given joints (and in
+:meth:`Compensator.step`) as a local-IK controller standing at them does (:mod:`.local_controller`).
 
 Solving (compiled models; :mod:`hykin.hybrid.fast_ik`): LM from the hint in ``hint ± max_move_rad``
 (within the joint limits) with the classical Jacobian; rows that stop above 1e-9 m / 1e-9 rad are
@@ -57,6 +58,8 @@ from ..kinematics.ik_solutions import nearest_representation
 from ..hybrid.self_motion import is_redundant, toward_hint
 from ..kinematics.robot import robot_reach_m
 from .frames import fitted_base, other_frame, parse_targets, resolve_frame
+from .local_controller import local_picks
+from .tool_shift import check_tool_shift, model_delta, tcp_shift_inv, tool_shift_note
 from .result import Compensation, first_row_per_target
 
 __all__ = ["Compensator", "StepResult", "compensate", "model_delta", "model_tolerance"]
@@ -102,12 +105,13 @@ class Compensator:
     frame: ``"measurement"``, ``"base"`` or ``"auto"`` (:mod:`hykin.compensation.targets`).
     tolerance_mm / tolerance_deg: success tolerance (default from the model's accuracy,
     :func:`model_tolerance` with ``tolerance_fraction``). max_move_rad: half-width of the first box
-    around the hint (30°). Other keywords go to :func:`hykin.hybrid.ik.hybrid_ik` (models that cannot run
+    around the hint (30°). tool_shift: ``"mount"`` or ``"flange"``, the reading of the calibrated TCP's
+    shift where targets carry a program tool (:mod:`.tool_shift`). Other keywords go to :func:`hykin.hybrid.ik.hybrid_ik` (models that cannot run
     compiled)."""
 
     def __init__(self, model, *, frame: str = "measurement", tolerance_mm: float | None = None,
                  tolerance_deg: float | None = None, tolerance_fraction: float = 0.5,
-                 max_move_rad: float = np.radians(30.0), **ik_kw):
+                 max_move_rad: float = np.radians(30.0), tool_shift: str = "mount", **ik_kw):
         from ..hybrid.ik_result import classical_robot, model_accuracy, underactuated
 
         self.model = model
@@ -121,9 +125,11 @@ class Compensator:
         if not (self.tolerance_mm > 0 and self.tolerance_deg > 0):
             raise ValueError(f"tolerances must be > 0, got {self.tolerance_mm} mm, {self.tolerance_deg} deg")
         self.max_move_rad = float(max_move_rad)
+        self.tool_shift = check_tool_shift(tool_shift)  # where program tools sit (.tool_shift)
         self._lsq = None  # (m, rad): an under-actuated arm's least-squares acceptance (module docstring)
+        am, ad = model_accuracy(model)
+        self.accuracy_mm = max(self.tolerance_mm, am or 0.0)  # the model's own (held-out max) error, mm
         if underactuated(self.robot, False):
-            am, ad = model_accuracy(model)
             self._lsq = (max(self.tolerance_mm, am or 0.0) * 1e-3, np.radians(max(self.tolerance_deg, ad or 0.0)))
         self.ik_kw = ik_kw
         self.lower = np.asarray(self.robot.lower, dtype=np.float64)
@@ -140,7 +146,7 @@ class Compensator:
         self._post_inv = se3.invert(self._post)
         # the model's (calibrated, registered) TCP relative to the robot file's: where a program tool given
         # relative to the file's TCP sits on the real robot (model_targets)
-        self._tcp_shift_inv = _tcp_shift_inv(model)
+        self._tcp_shift_inv = tcp_shift_inv(model)
         self._reach_m = robot_reach_m(self.robot)
         self.kernel = None
         if not ik_kw and hasattr(model, "net_pos_"):
@@ -158,20 +164,25 @@ class Compensator:
             raise ValueError(f"step: target must be a finite (4, 4) pose, got shape {T.shape}")
         qp = np.asarray(q_prev, dtype=np.float64).reshape(1, self.dof)
         fast = self._step_compiled(T, qp)
-        if fast is not None:
-            return fast
-        q, cmd, ok, reason, pe, ae = self.solve(T[None], qp)
-        return StepResult(q=q[0], command=cmd[0], success=bool(ok[0]), reason=str(reason[0]),
-                          pos_err_mm=float(pe[0]), ang_err_deg=float(ae[0]))
+        if fast is not None and (self.dof < 6 or np.abs(local_picks(self.nominal, fast.command[None], None, qp)[0]
+                                                        - fast.q).max() <= 1e-6):
+            return fast  # the controller at q_prev executes the command at these joints (else the batch's check)
+        c = self(T[None], q_branch=qp)
+        return StepResult(q=c.q[0], command=c.command[0], success=bool(c.success[0]), reason=str(c.reason[0]),
+                          pos_err_mm=float(c.pos_err_mm[0]), ang_err_deg=float(c.ang_err_deg[0]))
 
     def __call__(self, targets, q_branch=None, *, tool_delta=None, position_only: bool = False,
-                 branch_reason: str | np.ndarray = "no solution on the requested branch", tool_given=None) -> Compensation:
+                 branch_reason: str | np.ndarray = "no solution on the requested branch", tool_given=None,
+                 controller_check: bool = True) -> Compensation:
         """Compensate targets ``(N, 4, 4)`` (or ``(N, 3)`` positions), m, in :attr:`frame`.
 
-        ``q_branch`` ``(N, dof)`` / ``(dof,)``: joints choosing each target's branch (NaN rows: no branch,
-        the target fails with ``branch_reason``: one text, or ``(N,)`` texts per row); default the walk of
-        the module docstring. ``tool_delta``: :mod:`hykin.compensation.targets`; ``tool_given`` ``(N,)`` bool: the
-        rows whose ``tool_delta`` is a program's tool (default all; :meth:`model_delta`). Returns a :class:`Compensation`."""
+        ``q_branch`` ``(N, dof)`` / ``(dof,)``: joints choosing each target's branch, the joints the robot
+        stands at (NaN rows: no branch, the target fails with ``branch_reason``: one text, or ``(N,)`` texts
+        per row); each command is then executed as a local-IK controller from them would
+        (:mod:`.local_controller`; ``controller_check=False``: not, for callers with checks of their own);
+        default the walk of the module docstring. ``tool_delta``: :mod:`hykin.compensation.targets`;
+        ``tool_given`` ``(N,)`` bool: the rows whose ``tool_delta`` is a program's tool (default all;
+        :meth:`model_delta`). Returns a :class:`Compensation`."""
         from ..hybrid.ik_result import support_of
 
         T, pos_in = parse_targets(targets)
@@ -190,14 +201,16 @@ class Compensator:
         else:
             qb = np.array(np.broadcast_to(np.asarray(q_branch, dtype=np.float64), (N, n)))
         q, cmd, ok, reason, pe, ae = self.solve(T, qb, D, pos_only, branch_reason, D_model=Dm)
-        T_ctrl = T if self.frame == "base" else self._ctrl_of_meas @ T
-        dpos = np.linalg.norm(cmd[:, :3, 3] - T_ctrl[:, :3, 3], axis=1) * 1e3
-        dang = np.full(N, np.nan)
-        if ok.any() and not pos_only:
-            dang[ok] = se3.pose_error(cmd[ok], T_ctrl[ok])[1]
-        _, sup = support_of(self.model, q)
         comp = Compensation(command=cmd, q=q, success=ok, reason=reason, pos_err_mm=pe, ang_err_deg=ae,
-                            shift_mm=dpos, shift_deg=dang, in_support=sup & ok, q_branch=qb, frame=self.frame)
+                            shift_mm=np.full(N, np.nan), shift_deg=np.full(N, np.nan), in_support=ok.copy(),
+                            q_branch=qb, frame=self.frame)
+        if q_branch is not None and controller_check and not pos_only and n >= 6:
+            from .local_controller import check_from_joints
+
+            comp.reason = comp.reason.astype(object)
+            comp.notes = check_from_joints(self.model, self, comp, T, D, Dm, qb)
+            comp.reason = comp.reason.astype(str)
+        self._shifts(comp, T, pos_only)
         if local:
             from .redundant_walk import check_local
 
@@ -206,7 +219,18 @@ class Compensator:
             comp.reason = comp.reason.astype(str)
         elif q_branch is None and not pos_only and N > 1 and n >= 6:
             self._check_walk(comp, T, D, G, Dm, branch_reason)
+        comp.in_support = support_of(self.model, comp.q)[1] & comp.success
+        if D is not None and controller_check:  # (not the internal calls of the walk or the programs)
+            comp.notes = comp.notes + tool_shift_note(self.model, D, G, self.tool_shift, self.accuracy_mm)
         return comp
+
+    def _shifts(self, comp: Compensation, T: np.ndarray, pos_only: bool) -> None:
+        """``comp.shift_mm`` / ``shift_deg`` (in place): each command from its target, seen from the base."""
+        T_ctrl, ok = (T if self.frame == "base" else self._ctrl_of_meas @ T), comp.success
+        comp.shift_mm = np.linalg.norm(comp.command[:, :3, 3] - T_ctrl[:, :3, 3], axis=1) * 1e3
+        comp.shift_deg = np.full(len(T), np.nan)
+        if ok.any() and not pos_only:
+            comp.shift_deg[ok] = se3.pose_error(comp.command[ok], T_ctrl[ok])[1]
 
     def _check_walk(self, comp: Compensation, T: np.ndarray, D, G, Dm, branch_reason) -> None:
         """The walk's targets as the controller executes them (in place; a program's check,
@@ -226,7 +250,7 @@ class Compensator:
 
         def solve(rows, hints):
             return self(T[rows], q_branch=hints, tool_delta=None if D is None else D[rows],
-                        tool_given=None if G is None else G[rows], branch_reason=branch_reason)
+                        tool_given=None if G is None else G[rows], branch_reason=branch_reason, controller_check=False)
 
         comp.reason = comp.reason.astype(object)
         comp.notes = check_walk(self.model, self, solve, rows_t, comp, comp.q_branch.copy(), T, Dc, Dm, None,
@@ -244,7 +268,7 @@ class Compensator:
 
     def model_delta(self, D: np.ndarray | None, given=None) -> np.ndarray | None:
         """:func:`model_delta` of this compensator's model."""
-        return model_delta(self.model, D, given, self._tcp_shift_inv)
+        return model_delta(self.model, D, given, self._tcp_shift_inv, self.tool_shift)
 
     def solve(self, T: np.ndarray, hint: np.ndarray, D: np.ndarray | None = None, pos_only: bool = False,
               branch_reason: str | np.ndarray = "no solution on the requested branch", D_model=None):
@@ -547,28 +571,6 @@ REDUNDANT_NOTE = ("a redundant arm without joints per target: the commands hold 
                   "redundancy otherwise (another solver, an arm angle or status of its own) reaches the same poses "
                   "on other joints, where the model's corrections differ (probe s41: 0.5-1.5 mm). Give the joints "
                   "(q1..qN columns) or send them (--joints)")
-
-
-def _tcp_shift_inv(model) -> np.ndarray:
-    """``inv(E)``, ``E`` = the model's TCP relative to the robot file's
-    (:func:`hykin.hybrid.ik_result.model_tcp_shift`)."""
-    from ..hybrid.ik_result import model_tcp_shift
-
-    return se3.invert(model_tcp_shift(model))
-
-
-def model_delta(model, D: np.ndarray | None, given=None, shift_inv=None) -> np.ndarray | None:
-    """The program TCP relative to the *model's* TCP, from ``D`` ``(N, 4, 4)``, relative to the robot
-    file's TCP (the controller's view, used for the command). A program's tool is fixed to the real
-    flange, whose TCP is the model's (calibrated, registered): ``inv(E) · D`` with ``E`` the model's TCP
-    relative to the file's (:func:`_tcp_shift_inv`; before, ``D`` was taken relative to the model's TCP,
-    and a tool guessed 30 mm off in the robot file moved every target 30 mm). ``given`` ``(N,)`` bool:
-    rows with a program tool (default all); the others (identity ``D``: the robot file's TCP, which the
-    model's TCP stands for) stay as they are."""
-    if D is None:
-        return None
-    Dm = (_tcp_shift_inv(model) if shift_inv is None else shift_inv) @ D
-    return Dm if given is None else np.where(np.asarray(given, dtype=bool)[:, None, None], Dm, D)
 
 
 def compensate(model, T_target, *, q_branch=None, frame: str = "measurement", position_only: bool = False,

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry import se3
-from .compensator import model_delta
+from .tool_shift import tool_shift_note
 from .result import Compensation
 
 __all__ = ["NUMBER", "ProgramResult", "ProgramTarget", "TargetFrames", "comment_mask", "compensate_program", "line_of",
@@ -254,7 +254,7 @@ def _solve(model, targets: list, frame: str, axis_signs, slack_deg: float, ik_kw
     # (= the measurement frame; the controller base sits at nominal.base in it)
     T_nom = comp_of.nominal_world(T, D)
     given = np.array([t.tool_delta is not None for t in targets])  # a program tool (else the model's TCP)
-    Dm = model_delta(model, D, given)
+    Dm = comp_of.model_delta(D, given)
     T_cal = se3.invert(model.frame_pre_) @ to_model_frame(model, T, fr) @ se3.invert(Dm) @ se3.invert(model.frame_post_)
     qb, other_flag, reason = branch_hints(model, targets, T_nom, T_cal, axis_signs, slack_rad)
     # a target moved to from a joint move (movej([...]), PTP to an axis aggregate, get_inverse_kin's qnear) is
@@ -266,9 +266,10 @@ def _solve(model, targets: list, frame: str, axis_signs, slack_deg: float, ik_kw
             first[k] = np.clip(np.asarray(t.reset, dtype=np.float64), model.nominal.lower, model.nominal.upper)
 
     def solve(rows, hints):
-        return comp_of(T[rows], q_branch=hints, tool_delta=D[rows], tool_given=given[rows])
+        return comp_of(T[rows], q_branch=hints, tool_delta=D[rows], tool_given=given[rows], controller_check=False)
 
-    comp = comp_of(T, q_branch=first, tool_delta=D, branch_reason=reason, tool_given=given)
+    # (the hints are configuration data's branches, not joints the robot stands at: the checks are below)
+    comp = comp_of(T, q_branch=first, tool_delta=D, branch_reason=reason, tool_given=given, controller_check=False)
     comp.reason = comp.reason.astype(object)  # reasons get longer below
     keep_configuration(model, solve, targets, comp, other_flag, T_cal, axis_signs, slack_rad)
     notes = configuration_changes(model, targets, comp, other_flag, T_cal, axis_signs, slack_rad, slack_deg)
@@ -276,7 +277,7 @@ def _solve(model, targets: list, frame: str, axis_signs, slack_deg: float, ik_kw
         # least-squares sense: the controller's exact nominal solution the check looks for does not exist
         notes += check_walk(model, comp_of, solve, targets, comp, qb, T, D, Dm, axis_signs, written, T_nominal=T_nom)
     comp.reason = comp.reason.astype(str)
-    return comp, notes
+    return comp, notes + tool_shift_note(model, D, given, comp_of.tool_shift, comp_of.accuracy_mm)
 
 
 def _scatter(comp: Compensation | None, rows: list, targets: list, n: int, frame: str) -> Compensation:

@@ -22,7 +22,7 @@ Commands are always ``inv(nominal.base) · FK_nominal(q) · tool_delta`` (contro
 (URScript ``set_tcp``): the wanted pose is then of that TCP. That TCP is fixed to the real flange, whose
 TCP is the model's (the calibrated tool, with a registration's ``frame_post``), so the model's TCP target
 is ``T · inv(tool_delta) · E`` with ``E`` the model's TCP relative to the nominal one
-(:func:`hykin.compensation.compensator.model_delta`; a robot file whose ``[tool]`` is a guess no longer
+(:func:`hykin.compensation.tool_shift.model_delta`; a robot file whose ``[tool]`` is a guess no longer
 carries the guess's error into the program's TCP). The split between the last link and the tool is the
 calibration's: a tool offset along the last joint's axis that the data cannot tell from that joint's
 ``d`` / ``theta`` stays in the tool.
