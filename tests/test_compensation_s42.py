@@ -168,3 +168,56 @@ def test_cli_tool_shift_and_tool_angle_unit(tmp_path, model):
     bad = run("-o", str(tmp_path / "c.csv"), "--tool", tool, "--tool-shift", "tcp")
     assert bad.returncode == 2 and "--tool-shift must be mount or flange" in bad.stderr
     assert not (tmp_path / "c.csv").exists()
+
+
+def _rows_csv(path, T, q=None):
+    head = "x,y,z,qw,qx,qy,qz" + ("".join(f",q{j + 1}" for j in range(q.shape[1])) if q is not None else "")
+    lines = [head]
+    for k, P in enumerate(T):
+        v = [*P[:3, 3], *se3.matrix_to_quat(P[:3, :3])] + ([] if q is None else list(q[k]))
+        lines.append(",".join(f"{x:.12g}" for x in v))
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _scalar_last(T):
+    """The same poses with each quaternion written x,y,z,w but read as w,x,y,z (the slip)."""
+    out = T.copy()
+    quat = se3.matrix_to_quat(T[:, :3, :3])
+    out[:, :3, :3] = se3.quat_to_matrix(quat[:, [1, 2, 3, 0]])
+    return out
+
+
+def test_scalar_last_quaternions_with_joints_are_refused(tmp_path, model):
+    """Probe s42 AQ: quaternions written x,y,z,w under a qw,qx,qy,qz header were compensated at other
+    orientations (27 of 40, up to 180° off), exit 0. With joints per target the relative rotations tell."""
+    m = model
+    qs = m.nominal.random_joints(30, 8, margin=0.2)
+    T = _quiet_predict(m, qs)
+    good, bad = tmp_path / "good.csv", tmp_path / "bad.csv"
+    _rows_csv(good, T, qs)
+    _rows_csv(bad, _scalar_last(T), qs)
+    run = lambda f, o: subprocess.run([sys.executable, "-m", "hykin", "compensate", str(tiny_model_file()), str(f),
+                                       "-o", str(tmp_path / o)], capture_output=True, text=True)
+    r = run(bad, "b.csv")
+    assert r.returncode == 2 and "scalar-last" in r.stderr and "bad.csv" in r.stderr, r.stderr
+    assert not (tmp_path / "b.csv").exists()
+    r = run(good, "g.csv")
+    assert r.returncode == 0, r.stderr
+
+
+def test_scalar_last_quaternions_without_joints_are_refused_by_reach():
+    """Without joints: a KUKA-like arm (limited wrist) reaches clearly more of the targets read scalar-last
+    than as written; targets written right, some of them out of reach, are not refused."""
+    from comp_models import exact
+
+    from hykin.compensation.target_checks import check_quaternion_order
+
+    m = exact("kuka-kr6-r900", 2)
+    q = m.nominal.random_joints(60, 9, margin=0.1)
+    T = m.predict(q)
+    check_quaternion_order(m, T, "measurement")  # as written: every one reachable
+    far = T.copy()
+    far[:20, :3, 3] *= 3.0  # out of reach whatever the order: not a reason to blame it
+    check_quaternion_order(m, far, "measurement")
+    with pytest.raises(ValueError, match=r"look scalar-last \(x,y,z,w\) under a qw,qx,qy,qz header"):
+        check_quaternion_order(m, _scalar_last(T), "measurement", where="t.csv")

@@ -185,7 +185,13 @@ def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_
         # joints in radians under --angle-unit deg would hint every target wrong
         check_joint_unit(mdl.nominal, qb, where=str(inp), angle_unit=angle_unit)
     if has_rot:
+        from ..compensation.target_checks import check_quaternion_order
+
         warn_orientation_unmeasured(mdl, "the targets' orientations are compensated with that")
+        try:  # scalar-last quaternions under a scalar-first header (probe s42 AQ: exit 0, 27 targets 180° off)
+            check_quaternion_order(mdl, T, frame, qb, tool_delta, where=str(inp))
+        except ValueError as e:
+            raise CLIError(str(e)) from None
     target = T if has_rot else T[:, :3, 3]
     tol = tol or {}
     if pl is None:

@@ -143,11 +143,13 @@ _EULER_HINT = ("; if these orientations were converted from Euler angles (hykin 
                "and the order of the angle columns (KUKA A,B,C: --euler-convention kuka)")
 
 
-def check_orientation_order(robot: Robot, q, quat_wxyz, *, where: str = "<data>", T_nominal=None) -> float | None:
+def check_orientation_order(robot: Robot, q, quat_wxyz, *, where: str = "<data>", T_nominal=None,
+                            order_only: bool = False) -> float | None:
     """Compare measured orientations (unit quaternions as read, scalar first) with the robot's
     rotations at joints ``q``; raises :class:`PlausibilityError` when the scalar-last reading fits
-    clearly better, or when neither reading matches. Returns the median misfit (deg) of the declared
-    reading (None when too few rows or too little rotation to tell).
+    clearly better, or when neither reading matches (``order_only``: not then, for joints that only
+    hint at the rotations, e.g. a compensation's branch joints). Returns the median misfit (deg) of the
+    declared reading (None when too few rows or too little rotation to tell).
 
     Measured ``R_i = B R̂_i U`` (unknown measurement frame ``B`` and tool rotation ``U``), so the
     relative rotations ``R_i R_jᵀ = B R̂_i R̂_jᵀ Bᵀ``: their rotation vectors are those of the nominal
@@ -201,6 +203,8 @@ def check_orientation_order(robot: Robot, q, quat_wxyz, *, where: str = "<data>"
         raise PlausibilityError(
             f"{where}: {cause} (rotations fit robot {robot.name!r} to {best:.2g}° so read vs "
             f"{mis['wxyz']:.2g}° as given){_EULER_HINT}")
+    if order_only:
+        return mis["wxyz"]
     raise PlausibilityError(
         f"{where}: measured orientations do not match the rotations of robot {robot.name!r} at these joints "
         f"(median misfit {mis['wxyz']:.2g}° after the best frame rotation): check the quaternion convention "

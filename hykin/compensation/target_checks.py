@@ -1,0 +1,74 @@
+"""Checks of targets read from a file before they are compensated: quaternions in the wrong order.
+
+A CSV whose quaternions are written scalar-last (x, y, z, w) under a ``qw,qx,qy,qz`` header reads as other
+orientations; many are still reachable, and those were compensated at the wrong orientation, exit 0 (probe
+s42 AQ: 27 of 40 "compensated" up to 179.8° off; the other 13 refused, blaming joint limits). Evidence for
+the other order, each a refusal only where it is clear:
+
+* with joints per target (``q1..qN``): the relative rotations of the targets against the nominal robot's
+  at those joints (:func:`hykin.io.plausibility.check_orientation_order`, the measured-data check), fitting
+  clearly better read scalar-last;
+* always: the calibrated robot reaching clearly more of the targets read scalar-last than as written (at
+  least :data:`MIN_UNREACHED` and a tenth of the rows out of reach as written, at most a quarter of those
+  read the other way).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from ..geometry import se3
+
+__all__ = ["MIN_UNREACHED", "check_quaternion_order"]
+
+MIN_UNREACHED = 3
+_SAMPLE = 300  # rows the reach test solves (spread over the file)
+
+
+def _reached(robot, T: np.ndarray) -> np.ndarray:
+    """``(N,)`` bool: the (calibrated) robot reaches the TCP poses ``T`` (its world) within its limits."""
+    from ..kinematics.ik import ik
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return np.asarray(ik(robot, T, all_branches=True).success, dtype=bool).reshape(len(T), -1).any(1)
+
+
+def check_quaternion_order(model, T: np.ndarray, frame: str, q=None, D=None, where: str = "<targets>") -> None:
+    """ValueError naming ``where`` and the likely cause when the targets ``T`` ``(N, 4, 4)`` (m, in ``frame``,
+    rotations from quaternions read scalar-first; ``D``: their TCP relative to the robot file's, or None)
+    look like scalar-last quaternions (module docstring); ``q`` ``(N, n)``: joints given per target."""
+    from ..hybrid.ik_result import classical_robot
+    from ..io.plausibility import PlausibilityError, check_orientation_order
+    from .frames import to_model_frame
+    from .tool_shift import model_delta
+
+    T = np.asarray(T, dtype=np.float64)
+    quat = se3.matrix_to_quat(T[:, :3, :3])
+    swapped = T.copy()
+    swapped[:, :3, :3] = se3.quat_to_matrix(quat[:, [3, 0, 1, 2]])
+    if q is not None:
+        try:
+            check_orientation_order(model.nominal, q, quat, where=where, order_only=True)
+        except PlausibilityError as e:
+            raise ValueError(str(e)) from None
+    idx = np.unique(np.linspace(0, len(T) - 1, min(len(T), _SAMPLE)).round().astype(int))
+    Dm = None if D is None else model_delta(model, np.asarray(D, dtype=np.float64)[idx])
+    post_inv = se3.invert(np.asarray(model.frame_post_, dtype=np.float64))
+    pre_inv = se3.invert(np.asarray(model.frame_pre_, dtype=np.float64))
+
+    def robot_world(Tx):
+        Tm = to_model_frame(model, Tx[idx], frame)
+        return pre_inv @ (Tm if Dm is None else Tm @ se3.invert(Dm)) @ post_inv
+
+    robot = classical_robot(model)
+    given = int((~_reached(robot, robot_world(T))).sum())
+    if given < max(MIN_UNREACHED, 0.1 * len(idx)):
+        return
+    other = int((~_reached(robot, robot_world(swapped))).sum())
+    if other <= 0.25 * given:
+        raise ValueError(f"{where}: {given} of {len(idx)} targets are out of the robot's reach with the quaternions "
+                         f"as written (qw,qx,qy,qz), {other} read as x,y,z,w: the quaternions look scalar-last (x,y,z,w) "
+                         "under a qw,qx,qy,qz header; reorder the columns")
