@@ -8,7 +8,7 @@ import numpy as np
 
 from ..geometry import se3
 
-__all__ = ["Compensation", "command_rows", "fail_row", "first_row_per_target", "merge_parts"]
+__all__ = ["Compensation", "command_rows", "edge_note", "fail_row", "first_row_per_target", "merge_parts"]
 
 
 @dataclass
@@ -100,3 +100,12 @@ def command_rows(comp: Compensation, q_names: list[str] | None = None, joints_on
         rows["in_support"] = comp.in_support.astype(int)
     rows["status"] = np.where(comp.success, "ok", comp.reason)
     return rows
+
+
+def edge_note(edge: np.ndarray, pos_err_mm: np.ndarray, tolerance_mm: float, accuracy_mm: float) -> str:
+    """What is said of the targets ``edge`` ``(N,)`` accepted at the model's reach boundary."""
+    rows = np.flatnonzero(edge)
+    return (f"{rows.size} targets (targets {', '.join(map(str, rows[:8]))}{' ...' if rows.size > 8 else ''}) lie at "
+            f"the model's reach boundary (a stretched elbow, the workspace edge): compensated to the nearest pose its "
+            f"robot reaches, {np.nanmax(pos_err_mm[rows]):.3g} mm at most from the target (pos_err_mm), beyond the "
+            f"tolerance {tolerance_mm:.3g} mm but within the model's own accuracy ({accuracy_mm:.3g} mm)")

@@ -55,7 +55,7 @@ def check_quaternion_order(model, T: np.ndarray, frame: str, q=None, D=None, whe
         except PlausibilityError as e:
             raise ValueError(str(e)) from None
     idx = np.unique(np.linspace(0, len(T) - 1, min(len(T), _SAMPLE)).round().astype(int))
-    Dm = None if D is None else model_delta(model, np.asarray(D, dtype=np.float64)[idx])
+    Dm = None if D is None else model_delta(model, np.broadcast_to(np.asarray(D, dtype=np.float64), T.shape)[idx])
     post_inv = se3.invert(np.asarray(model.frame_post_, dtype=np.float64))
     pre_inv = se3.invert(np.asarray(model.frame_pre_, dtype=np.float64))
 

@@ -144,22 +144,29 @@ def box_lm(prob: IKProblem, q0: np.ndarray, rows: np.ndarray, lo: np.ndarray, hi
     return res.q, res.r, res.aux[0], res.iterations
 
 
-def controllable_error(prob: IKProblem, q: np.ndarray, rows: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def controllable_error(prob: IKProblem, q: np.ndarray, rows: np.ndarray, r: np.ndarray,
+                       max_step_rad: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     """``(m, rad)`` ``(k,)``: the part of the residual ``r`` ``(k, m)`` at ``q`` that the joints can still
-    reduce: its projection onto the columns of the hybrid Jacobian (central differences). Zero at a
-    least-squares solution; what is left (``r`` minus it) the arm cannot control."""
-    Q, _ = np.linalg.qr(prob.fd_jac(q, rows))
-    rc = np.einsum("kij,kj->ki", Q, np.einsum("kji,kj->ki", Q, r))
-    return errors_of(prob, rc)
+    reduce: its projection onto the hybrid Jacobian's (central differences) left singular vectors, of those
+    whose component a joint step of at most ``max_step_rad`` removes (a full arm at its reach boundary,
+    the stretched elbow, has one the joints cannot: it would take tens of radians). Zero at a least-squares
+    solution; what is left (``r`` minus it) the arm cannot control."""
+    U, S, _ = np.linalg.svd(prob.fd_jac(q, rows), full_matrices=False)
+    c = np.einsum("kji,kj->ki", U, r)
+    with np.errstate(invalid="ignore"):  # inf · 0: a direction the joints do not move at all
+        keep = np.abs(c) <= max_step_rad * S
+    return errors_of(prob, np.einsum("kij,kj->ki", U, np.where(keep, c, 0.0)))
 
 
-def stationary(prob: IKProblem, q: np.ndarray, rows: np.ndarray, success_m: float, success_rad: float) -> np.ndarray:
+def stationary(prob: IKProblem, q: np.ndarray, rows: np.ndarray, success_m: float, success_rad: float,
+               max_step_rad: float = np.inf) -> np.ndarray:
     """``(k,)`` bool: ``q`` is a least-squares solution of its row (:func:`controllable_error` within
-    ``success_m`` / ``success_rad``): the joints cannot reduce the error any further."""
+    ``success_m`` / ``success_rad``): the joints cannot reduce the error any further (by a step of at most
+    ``max_step_rad``)."""
     if not len(q):
         return np.zeros(0, dtype=bool)
     r, _ = prob.residual(q, rows)
-    cp, ca = controllable_error(prob, q, rows, r)
+    cp, ca = controllable_error(prob, q, rows, r, max_step_rad)
     return (cp <= success_m) & (ca <= success_rad)
 
 
