@@ -265,3 +265,21 @@ def test_targets_just_beyond_the_models_reach_boundary_are_compensated_within_it
     assert any("reach boundary" in t for t in near.notes), near.notes
     far = C(pushed(sign * 3e-4)[None], q_branch=q[None])  # 0.3 mm beyond: not
     assert not far.success[0] and "unreachable for the model" in far.reason[0]
+
+
+def test_fk_says_joints_read_in_degrees_are_written_in_radians(tmp_path):
+    """Probe s42 AU: ``hykin fk --angle-unit deg`` wrote the joints back in radians under the same names,
+    without a word; the output (a data file, SI) keeps radians and the line says so."""
+    q = np.degrees(np.array([[0.1, -1.0, 1.2, 0.3, 0.8, -0.2], [0.2, -0.9, 1.0, 0.1, 0.6, 0.4]]))
+    src = tmp_path / "q.csv"
+    src.write_text("q1,q2,q3,q4,q5,q6\n" + "\n".join(",".join(f"{v:.6f}" for v in r) for r in q) + "\n")
+    r = subprocess.run([sys.executable, "-m", "hykin", "fk", "ur10", str(src), "-o", str(tmp_path / "p.csv"),
+                        "--angle-unit", "deg"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "joints q1..qN in rad" in r.stdout
+    import csv as csv_mod
+
+    with open(tmp_path / "p.csv", newline="") as f:
+        got = np.array([[float(row[f"q{j + 1}"]) for j in range(6)] for row in csv_mod.DictReader(
+            line for line in f if not line.startswith("#"))])
+    assert np.allclose(got, np.radians(q), atol=1e-9)

@@ -98,7 +98,9 @@ def fk_cmd(
     fr = None if mdl is None else getattr(mdl, "station_frames_", None)
     where = (f"station {station!r}" if station is not None else f"the reference station {fr.reference_station!r}") if fr else ""
     where += f", tool {tool!r}" if tool is not None else f", reference tool {fr.tool_labels[0]!r}" if fr and len(fr.tool_labels) > 1 else ""
-    typer.echo(f"wrote {len(q)} poses to {out}" + (f" (frame of {where})" if where else ""))
+    # (a data file is SI: joints read in degrees are written back in radians, which the line says)
+    rad = "; joints q1..qN in rad, as every hykin data file" if angle_unit == "deg" else ""
+    typer.echo(f"wrote {len(q)} poses to {out}" + (f" (frame of {where})" if where else "") + rad)
 
 
 @app.command("ik")
