@@ -167,7 +167,7 @@ class Compensator:
             raise ValueError(f"step: target must be a finite (4, 4) pose, got shape {T.shape}")
         qp = np.asarray(q_prev, dtype=np.float64).reshape(1, self.dof)
         fast = self._step_compiled(T, qp)
-        if fast is not None and (self.dof < 6 or np.abs(local_picks(self.nominal, fast.command[None], None, qp)[0]
+        if fast is not None and (self.dof != 6 or np.abs(local_picks(self.nominal, fast.command[None], None, qp)[0]
                                                         - fast.q).max() <= 1e-6):
             return fast  # the controller at q_prev executes the command at these joints (else the batch's check)
         c = self(T[None], q_branch=qp)
@@ -207,7 +207,8 @@ class Compensator:
         comp = Compensation(command=cmd, q=q, success=ok, reason=reason, pos_err_mm=pe, ang_err_deg=ae,
                             shift_mm=np.full(N, np.nan), shift_deg=np.full(N, np.nan), in_support=ok.copy(),
                             q_branch=qb, frame=self.frame)
-        if q_branch is not None and controller_check and not pos_only and n >= 6:
+        # (a redundant arm's controller resolves the redundancy its own way: its lists have their own check)
+        if q_branch is not None and controller_check and not pos_only and n == 6:
             from .local_controller import check_from_joints
 
             comp.reason = comp.reason.astype(object)
