@@ -273,12 +273,12 @@ def test_model_worker_bounded_queue_and_stream_priority():
     gate, order = threading.Event(), []
 
     async def main():
-        w = ModelWorker(3)
+        w = ModelWorker(2)
         first = w.submit(BATCH, gate.wait, 30)  # holds the thread
         a = w.submit(BATCH, order.append, "batch")
-        b = w.submit(STREAM, order.append, "stream")
-        with pytest.raises(QueueFull, match="limit 3"):
-            w.submit(STREAM, order.append, "refused")
+        with pytest.raises(QueueFull, match="limit 2"):
+            w.submit(BATCH, order.append, "refused")
+        b = w.submit(STREAM, order.append, "stream")  # batches fill the queue; a streamed step still goes in
         assert w.pending == 3
         gate.set()
         await asyncio.wait_for(asyncio.gather(first, a, b), 30)

@@ -380,9 +380,16 @@ def serve_cmd(
     max_body_kb: int = typer.Option(4096, "--max-body-kb", help="Size of one HTTP request body, KiB (413 above)."),
     max_message_bytes: int = typer.Option(4096, "--max-message-bytes", help="Size of one WebSocket message, bytes "
                                           "(the stream is closed with 1009 above)."),
-    queue: int = typer.Option(64, "--queue", help="Model calls waiting or running, all clients together (503 / a "
-                              "busy reply above)."),
-    max_connections: int = typer.Option(64, "--max-connections", help="Open connections (503 above)."),
+    queue: int = typer.Option(64, "--queue", help="HTTP requests waiting for the model or running, all clients "
+                              "together (503 above). Streamed targets are not counted and never refused for it."),
+    max_connections: int = typer.Option(64, "--max-connections", help="Requests and streams in progress (503 above; "
+                                        "GET /health not counted)."),
+    header_timeout_s: float = typer.Option(5.0, "--header-timeout-s", help="A connection that has not sent a complete "
+                                           "request header within this many seconds is closed."),
+    body_timeout_s: float = typer.Option(10.0, "--body-timeout-s", help="A request body not received in full within "
+                                         "this many seconds of its header gets 408 and the connection is closed."),
+    max_step_deg: float | None = typer.Option(None, "--max-step-deg", help="Refuse a streamed answer whose joints move "
+                                              "more than this many degrees from the message's 'q' (default: no limit)."),
     refusal_delay_ms: float = typer.Option(100.0, "--refusal-delay-ms", help="Every refused request is answered after "
                                            "this delay, which slows a client flooding bad requests (0: at once)."),
     payload_kg: float | None = PayloadKg,
@@ -392,7 +399,7 @@ def serve_cmd(
 ) -> None:
     """Serve fk / ik / compensate over HTTP (JSON batches), a WebSocket stream of single targets (/stream) and GET /health."""
     from ..compensation.service import serve
-    from ..compensation.service_guard import ServiceLimits, model_identity, read_token_file
+    from ..compensation.service_guard import ServiceLimits, load_served_model, read_token_file
 
     if not 0 < port < 65536:
         raise CLIError(f"--port must be 1..65535, got {port}")
@@ -403,6 +410,11 @@ def serve_cmd(
     check_rt_priority(rt_priority)
     if not 0 <= refusal_delay_ms <= 60_000:
         raise CLIError(f"--refusal-delay-ms must be in 0..60000, got {refusal_delay_ms}")
+    for name, v in (("--header-timeout-s", header_timeout_s), ("--body-timeout-s", body_timeout_s)):
+        if not 0 < v <= 3600:
+            raise CLIError(f"{name} must be in (0, 3600] s, got {v}")
+    if max_step_deg is not None and not 0 < max_step_deg <= 360:
+        raise CLIError(f"--max-step-deg must be in (0, 360] deg, got {max_step_deg}")
     try:
         token = read_token_file(token_file) if token_file is not None else None
     except ValueError as e:
@@ -416,9 +428,10 @@ def serve_cmd(
     except OSError as e:
         raise CLIError(f"--port {port}: cannot listen on {host}:{port} ({e.strerror or e})") from None
     limits = ServiceLimits(max_targets=max_targets, max_body_bytes=max_body_kb * 1024, max_message_bytes=max_message_bytes,
-                           queue=queue, max_connections=max_connections, refusal_delay_s=refusal_delay_ms / 1e3, token=token)
-    mdl = with_payload(load_model(model), payload_kg)
-    identity = model_identity(model)
+                           queue=queue, max_connections=max_connections, refusal_delay_s=refusal_delay_ms / 1e3, token=token,
+                           header_timeout_s=header_timeout_s, body_timeout_s=body_timeout_s, max_step_deg=max_step_deg)
+    mdl, identity = load_served_model(model)  # one read: /health's hashes are of the bytes loaded
+    mdl = with_payload(mdl, payload_kg)
     typer.echo(f"hykin serve: {mdl.nominal.name} (sha256 {identity['model_sha256'] or identity['file_sha256']}) on "
                f"http://{host}:{port} (GET /health, POST /fk /ik /compensate, WebSocket /stream"
                f"{'; bearer token required' if token else ''})")

@@ -22,20 +22,27 @@ Endpoints (SI units: m, rad; poses as ``[x, y, z, qw, qx, qy, qz]``):
   joints, which choose the branch; optional after the first answered target, then the last answer's
   joints are used). One reply per message, in order: ``seq`` (1, 2, ... per connection), ``id``
   (echoed), then ``success``, ``command``, ``q``, ``pos_err_mm``, ``ang_err_deg``, ``reason`` — or
-  ``error`` (a one-line reason) when the message was not a valid target or the queue was full. A bad
-  message never closes the stream.
+  ``error`` (a one-line reason) when the message was not a valid target. A bad message never closes
+  the stream, and a streamed target is never refused for a queue full of batches. With
+  ``max_step_deg`` an answer whose joints move further than that from the message's ``q`` is refused
+  (``success`` false, ``reason`` naming the joint).
+* No ``/docs``, ``/redoc`` or ``/openapi.json``: they would answer without the token, load Swagger UI
+  from a CDN and show an empty schema; this docstring and docs/serve.md describe the endpoints.
 
 Refusals (:mod:`.service_guard`; limits in :class:`~hykin.compensation.service_guard.ServiceLimits`):
-400 malformed JSON or header, 401 missing/wrong bearer token (``WWW-Authenticate: Bearer``), 413 body
-over the size limit (refused from its ``Content-Length`` before it is read; the connection is closed),
-422 wrong fields/shapes/values, 503 the model queue is full (``Retry-After: 1``) or more than
+400 malformed JSON or header, 401 missing/wrong bearer token (``WWW-Authenticate: Bearer``), 408 body
+not received within ``body_timeout_s`` (the connection is closed), 413 body over the size limit
+(refused from its ``Content-Length`` before it is read; the connection is closed), 422 wrong
+fields/shapes/values, 503 the batch queue is full (``Retry-After: 1``) or more than
 ``max_connections`` requests and streams in progress (:class:`ConnectionLimit`, ``Retry-After: 1``,
 counted as ``refused_connections``). Every HTTP refusal is a JSON ``{"detail": reason}`` answered
 after ``refusal_delay_s`` (0.1 s): a client flooding bad requests is slowed to ``max_connections /
 refusal_delay_s`` requests/s. WebSocket: the handshake is refused with 403 and a JSON reason on a
-wrong token or ``frame`` parameter; a message over the size limit closes the stream with 1009. Checks run on the
-event loop and never wait for the model. Model calls run on one thread, streaming steps before
-queued batches; a streaming step runs at once on the event loop when the model is idle.
+wrong token or ``frame`` parameter; a message over the size limit closes the stream with 1009. Before
+a request: a connection that sends no complete header within ``header_timeout_s`` is closed, and
+connections without a request are capped (:mod:`.service_protocol`). Checks run on the event loop and
+never wait for the model. Model calls run on one thread, streaming steps before queued batches; a
+streaming step runs at once on the event loop when the model is idle.
 
 (No ``from __future__ import annotations``: FastAPI reads the endpoints' ``Request`` annotations at
 run time, and ``Request`` is imported inside :func:`create_app`.)
@@ -51,7 +58,8 @@ import logging
 import numpy as np
 import orjson
 
-from .service_guard import BATCH, STREAM, BodyTooLarge, ModelWorker, QueueFull, ServiceLimits, model_identity, read_body, token_ok
+from .service_guard import (BATCH, STREAM, BodyTimeout, BodyTooLarge, ModelWorker, QueueFull, ServiceLimits, model_identity,
+                            read_body, token_ok)
 from .service_requests import Handlers, RequestError
 
 __all__ = ["MAX_TARGETS", "ConnectionLimit", "RequestError", "create_app", "serve", "uvicorn_config"]
@@ -146,7 +154,7 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
 
     limits = limits or ServiceLimits()
     identity = identity or model_identity(None)
-    h = Handlers(model, limits.max_targets)
+    h = Handlers(model, limits.max_targets, limits.max_step_deg)
     counts: collections.Counter = collections.Counter()
     worker = ModelWorker(limits.queue)
 
@@ -157,8 +165,12 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
         yield
         worker.close()
 
-    app = FastAPI(title="hykin compensation service", version=__version__, lifespan=lifespan)
+    # no /docs, /redoc, /openapi.json: they answered without the token, /docs loads Swagger UI from a
+    # CDN a cell network cannot reach, and the schema is empty (every endpoint reads a raw Request)
+    app = FastAPI(title="hykin compensation service", version=__version__, lifespan=lifespan,
+                  docs_url=None, redoc_url=None, openapi_url=None)
     app.add_middleware(ConnectionLimit, limit=limits.max_connections, counts=counts)
+    app.state.hykin_counts = counts  # the connection layer counts its drops here too (uvicorn_config)
 
     async def _refuse(status: int, detail: str, kind: str, headers: dict | None = None):
         counts[f"refused_{kind}"] += 1
@@ -177,9 +189,11 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
             return await _refuse(401, "missing or wrong bearer token (Authorization: Bearer <token>)", "auth",
                            {"WWW-Authenticate": "Bearer"})
         try:
-            raw = await read_body(request, limits.max_body_bytes)
+            raw = await read_body(request, limits.max_body_bytes, limits.body_timeout_s)
         except BodyTooLarge as e:
             return await _refuse(413, str(e), "size", {"Connection": "close"})
+        except BodyTimeout as e:
+            return await _refuse(408, str(e), "timeout", {"Connection": "close"})
         except ValueError as e:
             return await _refuse(400, str(e), "malformed", {"Connection": "close"})
         try:
@@ -257,8 +271,6 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
                     counts["answered_stream"] += 1
                 except RequestError as e:
                     reply["error"] = _text(str(e))
-                except QueueFull as e:
-                    reply["error"] = str(e)
                 except (ValueError, TypeError, UnicodeDecodeError, RecursionError) as e:
                     reply["error"] = f"malformed message: {_first_line(e)}"
                 if "error" in reply:
@@ -322,18 +334,23 @@ class ConnectionLimit:
 
 
 def uvicorn_config(model, host: str, port: int, limits: ServiceLimits | None = None, identity: dict | None = None):
-    """The ``uvicorn.Config`` of the service: the app, and uvicorn's own limits set from ``limits``
-    (open connections, WebSocket message size)."""
+    """The ``uvicorn.Config`` of the service: the app, its HTTP protocol (a request-header deadline and a
+    cap on connections without a request, :mod:`.service_protocol`) and the WebSocket message size."""
     import uvicorn
 
+    from .service_protocol import WaitingConnections, http_protocol
+
     limits = limits or ServiceLimits()
+    app = create_app(model, limits, identity)
+    waiting = WaitingConnections(limits.max_waiting, app.state.hykin_counts)
     # websockets-sansio: uvicorn's WebSocket protocol on websockets' sans-I/O core (uvicorn >= 0.35). Measured
     # on loopback at 250 Hz, one target per message: p50 0.90 / p99 1.86 ms and 0.70 ms of server CPU per
-    # message, against 1.19-1.37 / 2.36-6.36 ms and 0.95-1.13 ms with uvicorn's default websockets protocol
-    # the limit on requests and streams is the app's (ConnectionLimit: a JSON reason, counted); uvicorn's own
-    # (a bare 503, counting idle keep-alive connections and the refused one itself) is only a backstop
-    return uvicorn.Config(create_app(model, limits, identity), host=host, port=port, log_level="warning",
-                          limit_concurrency=2 * limits.max_connections + 16, ws_max_size=limits.max_message_bytes,
+    # message, against 1.19-1.37 / 2.36-6.36 ms and 0.95-1.13 ms with uvicorn's default websockets protocol.
+    # limit_concurrency stays off: it counted connections that had sent nothing, so silent sockets made it
+    # answer every request with a bare 503 (probe AR, C1). Requests and streams are the app's to bound
+    # (ConnectionLimit), connections without a request the protocol's (WaitingConnections).
+    return uvicorn.Config(app, host=host, port=port, log_level="warning", limit_concurrency=None,
+                          http=http_protocol(limits.header_timeout_s, waiting), ws_max_size=limits.max_message_bytes,
                           ws="websockets-sansio")
 
 

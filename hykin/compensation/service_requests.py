@@ -56,18 +56,39 @@ def warm_compensator(model) -> _Compensators:
     return _Compensators(model)
 
 
-def step(comps: _Compensators, T: np.ndarray, q_prev: np.ndarray, frame: str) -> dict:
-    """One streamed target ``T`` ``(4, 4)`` from the joints ``q_prev`` ``(n,)`` -> the reply fields."""
+def step(comps: _Compensators, T: np.ndarray, q_prev: np.ndarray, frame: str, max_step_rad: float | None = None) -> dict:
+    """One streamed target ``T`` ``(4, 4)`` from the joints ``q_prev`` ``(n,)`` -> the reply fields.
+
+    ``max_step_rad``: an answer whose revolute joints move further than this (rad) from ``q_prev`` is
+    refused (``success`` false, the reason naming the joint and the move); None: no limit."""
     c = comps(frame)
     r = c.step(T, q_prev)
-    out = _step_reply(r.success, r.command, r.q, r.pos_err_mm, r.ang_err_deg, r.reason)
-    if r.success:  # the CLI's in_support column: where the network correction fades
-        out.update({k: v[0] if isinstance(v, list) else v
-                    for k, v in _support_fields(c.model, np.asarray(r.q, dtype=np.float64)[None], np.array([True]),
-                                                "compensated targets").items() if k in ("in_support", "support_distance")})
-    else:
+    ok, reason = bool(r.success), r.reason
+    if ok and max_step_rad is not None:
+        ok, reason = _within_step(c.model.nominal, np.asarray(r.q, dtype=np.float64), q_prev, max_step_rad)
+    out = _step_reply(ok, r.command, r.q, r.pos_err_mm, r.ang_err_deg, reason)
+    if not ok:
         out.update(in_support=False, support_distance=None)
+        return out
+    # the CLI's in_support column: where the network correction fades
+    out.update({k: v[0] if isinstance(v, list) else v
+                for k, v in _support_fields(c.model, np.asarray(r.q, dtype=np.float64)[None], np.array([True]),
+                                            "compensated targets").items() if k in ("in_support", "support_distance")})
     return out
+
+
+def _within_step(robot, q: np.ndarray, q_prev: np.ndarray, max_step_rad: float) -> tuple[bool, str]:
+    """``(True, "")`` when no revolute joint of ``q`` lies further than ``max_step_rad`` from ``q_prev``
+    (both ``(n,)`` rad; no wrapping: the robot turns a joint by the difference as given); else
+    ``(False, reason)`` naming the joint that moves most. Prismatic joints are not limited (m, not deg)."""
+    rev = np.array([t == "revolute" for t in robot.independent_joint_type], dtype=bool)
+    d = np.where(rev, np.abs(q - q_prev), 0.0)
+    j = int(np.argmax(d))
+    if d[j] <= max_step_rad:
+        return True, ""
+    return False, (f"the answer moves q{j + 1} by {np.degrees(d[j]):.1f} deg from the given 'q', over the limit of "
+                   f"{np.degrees(max_step_rad):g} deg (hykin serve --max-step-deg): not sent; check the quaternion order "
+                   "(x, y, z, qw, qx, qy, qz) and that 'q' is the robot's current joints")
 
 
 def _step_reply(ok: bool, command, q, pos_err_mm: float, ang_err_deg: float, reason: str) -> dict:
@@ -246,13 +267,15 @@ def check_keys(body, allowed: set) -> dict:
 class Handlers:
     """The computations behind the endpoints (plain functions of parsed JSON; testable without HTTP).
 
-    ``model``: a fitted hybrid model; ``max_targets``: rows per request.
+    ``model``: a fitted hybrid model; ``max_targets``: rows per request; ``max_step_deg``: the largest
+    move (deg, revolute joints) of a streamed answer from the message's joints (None: no limit).
     """
 
-    def __init__(self, model, max_targets: int = 10_000):
+    def __init__(self, model, max_targets: int = 10_000, max_step_deg: float | None = None):
         self.model = model
         self.dof = model.nominal.dof
         self.max_targets = int(max_targets)
+        self.max_step_rad = None if max_step_deg is None else math.radians(max_step_deg)
         self.frames = FRAMES
         self.comp = warm_compensator(model)
         from ..kinematics.robot import robot_reach_m
@@ -356,4 +379,4 @@ class Handlers:
         return T, check_joints(q[None], self.model.nominal, "q")[0]
 
     def step(self, T, q_prev, frame: str = "measurement") -> dict:
-        return step(self.comp, T, q_prev, frame)
+        return step(self.comp, T, q_prev, frame, self.max_step_rad)
