@@ -283,3 +283,24 @@ def test_fk_says_joints_read_in_degrees_are_written_in_radians(tmp_path):
         got = np.array([[float(row[f"q{j + 1}"]) for j in range(6)] for row in csv_mod.DictReader(
             line for line in f if not line.startswith("#"))])
     assert np.allclose(got, np.radians(q), atol=1e-9)
+
+
+def test_out_of_reach_names_the_other_frame_only_where_it_would_reach():
+    """Probe s42 AR: an out-of-reach reason asked "targets in the controller's base frame?" even where the
+    two frames were 5 mm apart. The other frame is named only where the target, read in it, is in reach:
+    a model in a tracker frame 2 m from the robot, a target given in the controller's base frame."""
+    from comp_models import ExactModel, deviate
+
+    from hykin import load_robot
+
+    nom = load_robot("ur10")
+    pre = se3.make_transform(np.eye(3), np.array([2.0, 0.5, 0.0]))
+    m = ExactModel(nom, deviate(nom, 6), frame_pre=pre)
+    q = np.array([[0.3, -1.4, 1.5, -1.7, -1.5, 0.4]])
+    T_base = nom.base @ fk(nom, q)  # the pose in the robot's own frame, as a controller gives it
+    c = hykin.Compensator(m, frame="measurement")(T_base, q_branch=q)
+    assert not c.success[0] and "frame 'base'" in c.reason[0], c.reason
+    far = T_base.copy()
+    far[0, :3, 3] = [9.0, 0.0, 0.5]  # out of reach read either way
+    c = hykin.Compensator(m, frame="measurement")(far, q_branch=q)
+    assert not c.success[0] and "out of reach" in c.reason[0] and "frame '" not in c.reason[0], c.reason

@@ -364,13 +364,15 @@ class Compensator:
         i = np.flatnonzero(failed)
         if not i.size:
             return
-        p = self.robot_world(Tm[i])[:, :3, 3]
-        d = np.linalg.norm(p - self.robot.base[:3, 3], axis=1)
-        far = d > 1.01 * self._reach_m + 0.005
+        F = fitted_base(self.model)  # the same targets read in the other frame (probe s42 AR: a frame 5 mm off named)
+        dist = lambda P: np.linalg.norm(self.robot_world(P)[:, :3, 3] - self.robot.base[:3, 3], axis=1)
+        d, d_other = dist(Tm[i]), dist((se3.invert(F) if self.frame == "base" else F) @ Tm[i])
+        far, reach = d > 1.01 * self._reach_m + 0.005, 1.01 * self._reach_m + 0.005
         other, where = other_frame(self.frame)
-        for k, dk in zip(i[far], d[far]):
+        for k, dk, do in zip(i[far], d[far], d_other[far]):
+            hint = f" (targets in {where}? frame '{other}')" if do <= reach else ""
             reason[k] = (f"unreachable for the model: out of reach, {dk * 1e3:.0f} mm from the robot's base where it "
-                         f"reaches {self._reach_m * 1e3:.0f} mm at most (targets in {where}? frame '{other}')")
+                         f"reaches {self._reach_m * 1e3:.0f} mm at most{hint}")
 
     def _confirm_limits(self, Tm: np.ndarray, failed: np.ndarray, reason: np.ndarray) -> None:
         """Check (in place) the ``failed`` rows said to be blocked by a joint limit: the solver stopped at
