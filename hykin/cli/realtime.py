@@ -35,8 +35,12 @@ _SIGNS = typer.Option(None, "--axis-signs", metavar="S1,..,SN", help="Controller
 
 
 def _bridge_setup(model: str, listen: str, controller: str | None, frame: str, max_failures: int, period_ms: float,
-                  axis_signs: str | None, payload_kg: float | None):
-    """(model, compensator, bound socket, controller address, axis signs, controller-to-target frame)."""
+                  axis_signs: str | None, payload_kg: float | None, handler=None, message=None):
+    """(model, compensator, bound socket, controller address, axis signs, controller-to-target frame).
+    ``handler(mdl, comp, signs, base)``: builds the bridge's handler; with ``message`` (see :func:`_warm`)
+    a throwaway one answers synthetic messages before the socket is bound."""
+    import gc
+
     import numpy as np
 
     from ..compensation.branches import default_axis_signs
@@ -60,35 +64,60 @@ def _bridge_setup(model: str, listen: str, controller: str | None, frame: str, m
         raise CLIError(str(e).replace("--listen", "--controller")) from None
     mdl = with_payload(load_model(model), payload_kg)
     comp = Compensator(mdl, frame=frame)
-    _warm(mdl, comp)
     signs = parse_axis_signs(axis_signs, mdl.nominal.dof)
     signs = default_axis_signs(mdl.nominal) if signs is None else signs
+    base = mdl.nominal.base if comp.frame == "measurement" else np.eye(4)
+    _warm(mdl, comp, None if handler is None else lambda: handler(mdl, comp, signs, base), message, signs)
+    # the loaded model and libraries are never scanned again (run_bridge freezes again: only what came since)
+    gc.collect()
+    gc.freeze()
     try:
         sock = bind_udp(host, port)
     except OSError as e:
         raise CLIError(f"--listen {listen}: cannot bind ({e.strerror or e})") from None
-    return mdl, comp, sock, ctrl, signs, (mdl.nominal.base if comp.frame == "measurement" else np.eye(4))
+    return mdl, comp, sock, ctrl, signs, base
 
 
-def _warm(mdl, comp) -> None:
-    """One step before the socket is bound and the banner printed, so that the controller's first cycle is
-    answered in time (probe s41 AH: the first answer left 0.2-5 s after the banner, while the compiled
-    kernels loaded; an incremental first answer that late is never applied). A failure here only means
-    the first real step warms instead."""
+def _warm(mdl, comp, handler=None, message=None, signs=None) -> None:
+    """Before the socket is bound and the banner printed, so that the controller's first cycle is answered
+    in time: one step (probe s41 AH: the first answer left 0.2-5 s after the banner, while the compiled
+    kernels loaded; an incremental first answer that late is never applied), then the whole per-message
+    path: ``handler()`` (a throwaway handler like the bridge's) answers ``message(k, T, axes_deg)``, the
+    controller's message of cycle ``k`` (0, 1) at the pose ``T`` ``(4, 4)`` (m, controller base frame)
+    of the nominal robot at axes ``axes_deg`` (probe s42 AT: the first answer still left 130-245 ms after
+    the banner: protobuf's import, the first FK, conversions). A failure here only means the first real
+    cycle warms instead."""
     import warnings
 
     import numpy as np
 
     from ..geometry import se3
 
-    q = np.clip(np.zeros(mdl.nominal.dof), mdl.nominal.lower, mdl.nominal.upper)
+    nom = mdl.nominal
+    q = np.clip(np.zeros(nom.dof), nom.lower, nom.upper)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             T = np.asarray(mdl.predict(q), dtype=np.float64)
-            comp.step(T if comp.frame == "measurement" else se3.invert(mdl.nominal.base) @ T, q)
+            comp.step(T if comp.frame == "measurement" else se3.invert(nom.base) @ T, q)
+            if handler is not None and message is not None:
+                # away from the zero pose (a wrist singularity on most robots): a step that converges
+                lo, hi = np.asarray(nom.lower, dtype=np.float64), np.asarray(nom.upper, dtype=np.float64)
+                q = np.where(np.isfinite(lo) & np.isfinite(hi), lo + 0.4 * (hi - lo), 0.3)
+                h, T = handler(), _nominal_fk(nom)(q)
+                for k in range(2):
+                    h(message(k, T, np.degrees(q * np.asarray(signs, dtype=np.float64))))
     except Exception:  # noqa: BLE001 - warming is optional
         pass
+
+
+def _checked(h, actual: str, joints: str) -> str:
+    """The exit line's clause on the check of the controller's actual pose (field ``actual``) against the
+    nominal FK of its axes (field ``joints``) by handler ``h``."""
+    if not h.mismatch_checked:
+        return f"; {actual} not sent: not checked"
+    return (f"; {actual} checked in {h.mismatch_checked} cycles (largest gap to FK({joints}) "
+            f"{h.mismatch_max[0]:.3g} mm / {h.mismatch_max[1]:.3g} deg)")
 
 
 def _nominal_fk(nominal):
@@ -157,26 +186,37 @@ def _bridge_command(name: str, period_help: str, extra: tuple = ()):
     ("config", Path | None, typer.Option(None, "--config", metavar="FILE", help="RSI_EthernetConfig.xml: tag names "
                                          "(SENTYPE, the correction element) and <CORRMODE>.")),
     ("mode", str | None, typer.Option(None, "--mode", metavar="absolute|incremental", help="absolute or incremental "
-                                      "correction (default: the config's, else absolute); must match RSI's POSCORR object."))))
+                                      "correction ('relative', KUKA's #RELATIVE, is incremental; default: the config's, else "
+                                      "absolute); must match RSI's POSCORR object."))))
 def rsi_cmd(model, listen, config, mode, controller, frame, axis_signs, period_ms, max_failures, max_correction_mm,
             max_correction_deg, max_mismatch_mm, max_mismatch_deg, idle_exit_s, rt_priority, spin, payload_kg) -> None:
     """KUKA RSI Ethernet peer: answers each <Rob> message with the RKorr that puts the real robot on the setpoint."""
     from ..realtime.rsi import RsiHandler
-    from ..realtime.rsi_xml import RsiConfig, read_config
+    import numpy as np
 
-    if mode is not None and mode not in ("absolute", "incremental"):
-        raise CLIError(f"--mode must be absolute or incremental, got {mode!r}")
+    from ..compensation.krl import abc_from_matrix
+    from ..realtime.rsi_xml import RsiConfig, format_rob, read_config
+
+    if mode is not None and mode.strip().lower() not in ("absolute", "incremental", "relative"):
+        raise CLIError(f"--mode must be absolute or incremental (KUKA's #RELATIVE), got {mode!r}")
     try:
         cfg = read_config(config, mode) if config is not None else RsiConfig(mode=mode or "absolute")
     except ValueError as e:
         raise CLIError(str(e)) from None
-    mdl, comp, sock, ctrl, signs, base = _bridge_setup(model, listen, controller, frame, max_failures, period_ms, axis_signs, payload_kg)
-    h = RsiHandler(comp.step, base, mdl.nominal.dof, signs, cfg, period_ms, max_correction_mm, max_correction_deg,
-                   _nominal_fk(mdl.nominal), max_mismatch_mm, max_mismatch_deg)
+    def handler(mdl, comp, signs, base):
+        return RsiHandler(comp.step, base, mdl.nominal.dof, signs, cfg, period_ms, max_correction_mm,
+                          max_correction_deg, _nominal_fk(mdl.nominal), max_mismatch_mm, max_mismatch_deg)
+
+    def message(k, T, axes_deg):
+        pose = np.concatenate([T[:3, 3] * 1e3, abc_from_matrix(T[:3, :3], 0.0)])  # X Y Z mm, A B C deg
+        return format_rob(1000 + k * max(int(round(period_ms)), 1), pose, pose, axes_deg, cfg)
+
+    mdl, comp, sock, ctrl, signs, base = _bridge_setup(model, listen, controller, frame, max_failures, period_ms,
+                                                       axis_signs, payload_kg, handler, message)
+    h = handler(mdl, comp, signs, base)
 
     def extra() -> str:
-        out = f"; RIst checked in {h.mismatch_checked} cycles (largest gap to FK(AIPos) {h.mismatch_max[0]:.3g} mm / " \
-              f"{h.mismatch_max[1]:.3g} deg)" if h.mismatch_checked else "; RIst not sent: not checked"
+        out = _checked(h, "RIst", "AIPos")
         if h.incremental:
             out += f"; new RSI contexts {h.new_sessions}, answers the controller did not apply {h.lost_answers} (re-synchronised)"
         return out
@@ -190,10 +230,18 @@ def rsi_cmd(model, listen, config, mode, controller, frame, axis_signs, period_m
 def egm_cmd(model, listen, controller, frame, axis_signs, period_ms, max_failures, max_correction_mm, max_correction_deg,
             max_mismatch_mm, max_mismatch_deg, idle_exit_s, rt_priority, spin, payload_kg) -> None:
     """ABB EGM peer (pose guidance): answers each EgmRobot with the pose that puts the real robot on the planned one."""
-    from ..realtime.egm import EgmHandler
+    from ..realtime.egm import EgmHandler, format_robot
 
-    mdl, comp, sock, ctrl, signs, base = _bridge_setup(model, listen, controller, frame, max_failures, period_ms, axis_signs, payload_kg)
-    h = EgmHandler(comp.step, base, mdl.nominal.dof, signs, max_correction_mm, max_correction_deg,
-                   _nominal_fk(mdl.nominal), max_mismatch_mm, max_mismatch_deg)
+    def handler(mdl, comp, signs, base):
+        return EgmHandler(comp.step, base, mdl.nominal.dof, signs, max_correction_mm, max_correction_deg,
+                          _nominal_fk(mdl.nominal), max_mismatch_mm, max_mismatch_deg)
+
+    def message(k, T, joints_deg):
+        return format_robot(k + 1, k * max(int(round(period_ms)), 1), T, joints_deg, T)
+
+    mdl, comp, sock, ctrl, signs, base = _bridge_setup(model, listen, controller, frame, max_failures, period_ms,
+                                                       axis_signs, payload_kg, handler, message)
+    h = handler(mdl, comp, signs, base)
     typer.echo(f"hykin egm: {mdl.nominal.name} on udp://{listen} (pose guidance, frame {comp.frame})")
-    _serve("egm", sock, h, period_ms, max_failures, ctrl, idle_exit_s, rt_priority, spin)
+    _serve("egm", sock, h, period_ms, max_failures, ctrl, idle_exit_s, rt_priority, spin,
+           lambda: _checked(h, "feedBack.cartesian", "feedBack.joints"))

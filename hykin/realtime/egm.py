@@ -6,7 +6,8 @@ Per ``EgmRobot``: the planned pose (``planned.cartesian``: ``pos`` mm, ``orient`
 on the branch of the feedback joints (``feedBack.joints``, deg), and the answer ``EgmSensor`` carries
 the compensated pose in ``planned.cartesian`` with the robot's ``seqno`` and ``tm`` echoed and
 ``mtype = MSGTYPE_CORRECTION``. A pose that cannot be compensated is answered with the planned pose
-itself (no correction); a message that cannot be parsed, lacks the planned pose or joints, or whose
+itself (no correction); a message that cannot be parsed, lacks a field egm.proto marks ``required``
+(as ABB's own parser refuses it), lacks the planned pose or joints, or whose
 ``seqno`` is not after the last answered one (modulo 2^32) is not answered; except a session started
 again: two consecutive messages more than ``RESTART_BEHIND`` behind that follow each other start a
 new count (:class:`hykin.realtime.udp_bridge.RestartWatch`).
@@ -62,13 +63,19 @@ def _set_pose(p, T: np.ndarray) -> None:
     p.orient.u0, p.orient.u1, p.orient.u2, p.orient.u3 = (float(v) for v in q)
 
 
-def _parse(kind: str, data: bytes):
+def _parse(kind: str, data: bytes, complete: bool = True):
+    """The message ``kind`` of ``data``; ValueError when it cannot be parsed or (``complete``) lacks a field
+    egm.proto marks ``required``."""
     pb, DecodeError = _pb()
     m = getattr(pb, kind)()
     try:
         m.ParseFromString(data)
     except (DecodeError, RuntimeError) as e:
         raise ValueError(f"not an {kind} message ({e})") from None
+    # proto2 parsing here does not enforce `required`: a missing field reads as 0 (probe s42 AT: a planned
+    # pose without z was compensated to z = 0.5 mm and answered, 1.46 m below the path)
+    if complete and not m.IsInitialized():
+        raise ValueError(f"{kind} lacks required fields: {', '.join(m.FindInitializationErrors()[:6])}")
     return m
 
 
@@ -144,6 +151,7 @@ class EgmHandler:
         self.restart = RestartWatch(RESTART_BEHIND, 10)
         self.strays = JumpWatch(RESTART_BEHIND, 10, modulo=2**32)  # a stray seqno ahead of the session
         self.stray_jumps = 0
+        self.mismatch_checked = 0  # cycles whose feedBack.cartesian was checked against the FK of the joints
         self.last_reason = ""
 
     def command(self, planned: np.ndarray, joints_deg, actual=None) -> np.ndarray:
@@ -151,6 +159,7 @@ class EgmHandler:
         ``actual``: ``feedBack.cartesian`` (4, 4), checked against the nominal FK of the joints (as RSI's RIst)."""
         q = np.radians(np.asarray(joints_deg, dtype=np.float64)) * self.signs
         if actual is not None and self.nominal_fk is not None:
+            self.mismatch_checked += 1
             self.mismatch_max, why = check_actual_pose(self.nominal_fk, q, actual, self.max_mismatch, self.mismatch_max,
                                                        ("feedBack", "feedBack.cartesian", "feedBack.joints"))
             if why:
@@ -164,17 +173,33 @@ class EgmHandler:
                              f"{self.max_mm:g}, --max-correction-deg {self.max_deg:g})")
         return r.command
 
+    def cycle_key(self, data: bytes) -> float | None:
+        """How many seqnos ``data`` lies after the last answered one, for
+        :func:`hykin.realtime.udp_bridge.run_bridge` to try the newest of several waiting datagrams first:
+        None where no seqno can be read; ``-inf`` over ``RESTART_BEHIND`` ahead (maybe a stray: tried last)."""
+        try:
+            m = _parse("EgmRobot", data, complete=False)
+        except ValueError:
+            return None
+        if not m.header.HasField("seqno"):
+            return None
+        if self.last_seq is None:
+            return float(m.header.seqno)
+        d = (m.header.seqno - self.last_seq + 2**31) % 2**32 - 2**31
+        return float("-inf") if d > RESTART_BEHIND else float(d)
+
     def __call__(self, data: bytes) -> Outcome:
         try:
             seq, tm, planned, joints, actual = _parse_robot(data, self.dof)
         except ValueError as e:
             self.last_reason = str(e)
             return Outcome(None, "ignored:malformed")
-        skipped = 0
+        skipped = undo = 0
         if self.last_seq is not None:
             gap = (seq - self.last_seq) % 2**32
-            before = self.strays.returned(seq) if gap == 0 or gap >= 2**31 else None
-            if before is not None:  # the session before a stray seqno ahead goes on (udp_bridge.JumpWatch)
+            back = self.strays.returned(seq) if gap == 0 or gap >= 2**31 else None
+            if back is not None:  # the session before a stray seqno ahead goes on (udp_bridge.JumpWatch)
+                before, undo = back
                 self.stray_jumps += 1
                 _log.warning("hykin egm: a datagram with a seqno ahead of the session was a stray (the session goes "
                              "on from seqno %d)", before)
@@ -190,11 +215,11 @@ class EgmHandler:
                 if not self.restart.restarted(seq, gap):
                     return Outcome(None, "ignored:seqno jump")
                 gap = 1
-            if gap > 2:
-                self.strays.jumped(self.last_seq, self.last_seq)
-            elif before is None:
+            if back is None and gap > 2:  # (a return is no jump: its own gap is counted, less the undo)
+                self.strays.jumped(self.last_seq, self.last_seq, gap - 1)
+            elif back is None:
                 self.strays.clear()
-            skipped = gap - 1
+            skipped = gap - 1 - undo  # (a stray undone: its jump was not cycles the controller skipped)
         self.restart.clear()
         self.last_seq = seq
         try:

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..compensation.krl import abc_from_matrix, matrix_from_abc
 from ..geometry import se3
-from .rsi_xml import RsiConfig, RsiMessageError, format_sen, parse_rob
+from .rsi_xml import RsiConfig, format_sen, ipoc_of, parse_rob
 from .udp_bridge import (MAX_MISMATCH_DEG, MAX_MISMATCH_MM, JumpWatch, Outcome, RestartWatch, check_actual_pose,
                          check_limits)
 
@@ -41,6 +41,8 @@ RESYNC_TOL = 2e-3  # mm / deg: RIst's sum and hykin's agree within this (both wr
 #: a RIst difference must last this many cycles to be taken as answers not applied: a RIst that shows the
 #: command with a dead time of up to 2 cycles (the robot standing still) is not a lost answer
 RESYNC_CONFIRM_CYCLES = 3
+#: RIst may show the command of the last cycle or of up to this many cycles before it (a dead time)
+MAX_DEAD_CYCLES = 2
 _MAX_PENDING = 4  # answers not yet seen applied that a re-synchronisation considers (2^4 subsets)
 _log = logging.getLogger("hykin.realtime")
 _CAUSES = ("RIst mismatch:", "unreachable setpoint:", "correction over the limit:")  # failure reasons' categories
@@ -116,7 +118,8 @@ class RsiHandler:
         self._retired: int | None = None  # the last IPOC answered before the latest restart
         self.strays = JumpWatch(RESTART_BEHIND_MS, int(10 * max(self.period_ms, 1.0)))  # a stray stamp ahead
         self._pending: list = []  # incremental mode: increments sent since RIst last showed the sum
-        self._suspect = None  # incremental mode: (kind, difference, cycles seen) not yet taken (_resync)
+        self._suspect = None  # incremental mode: (kind, difference, cycles seen, dead time) not yet taken (_resync)
+        self._hist: list = []  # incremental mode: (setpoint, hykin's sum after the answer) of the last answers
         self._confirm = RESYNC_CONFIRM_CYCLES
         self.stray_jumps = 0  # jumps ahead that were one stray datagram (undone)
         self.last_reason = ""
@@ -154,43 +157,57 @@ class RsiHandler:
         return k
 
     def _resync(self, msg, skipped: int) -> None:
-        """Incremental mode: the sum the controller applied in the last cycle, seen in this message's
-        ``RIst`` (the pose commanded last cycle: its setpoint plus the controller's sum), against hykin's.
-        A difference equal to answers not yet seen applied (any of the last :data:`_MAX_PENDING`, within
+        """Incremental mode: the sum the controller applied, seen in this message's ``RIst`` (the pose it
+        commanded in an earlier cycle: that cycle's setpoint plus the controller's sum), against hykin's.
+        ``RIst`` may show the command of the last cycle or, with a dead time, of up to
+        :data:`MAX_DEAD_CYCLES` cycles before it: it is compared with hykin's sum as of each of those
+        answers, and one that agrees (within ``RESYNC_TOL``) means every answer up to it was applied (probe
+        s42 AS: compared with the last answer only, a dead time of one cycle on a moving path hid a lost
+        first answer for good, the path 3.7 mm off). Otherwise a difference equal to answers not yet seen
+        applied (any of the last :data:`_MAX_PENDING` that the compared cycle can show, within
         ``RESYNC_TOL``) means the controller did not apply them (lost or late); after an IPOC jump of over
         1 s, a difference equal to hykin's sum before the jump means a new RSI context (its sum started at
         zero): hykin's sum drops that amount. Only once the same difference has lasted
-        :data:`RESYNC_CONFIRM_CYCLES` cycles: a controller whose RIst lags its command shows the same
-        difference for a cycle or two while the robot stands still (probe s41 AM: taken at once, the whole correction was sent
-        again, 1.2-2.3 mm off for the rest of the path). Any other difference (a lagging RIst while moving)
-        leaves the sum as it is."""
-        prev = self._prev
-        if prev is None or msg.actual is None or skipped:
+        :data:`RESYNC_CONFIRM_CYCLES` cycles: in the first cycles, before ``RIst`` can show the first answer,
+        a dead time looks like that answer lost (probe s41 AM: taken at once, the whole correction was sent
+        again, 1.2-2.3 mm off for the rest of the path). Any other difference (e.g. a measured ``RIst`` that
+        lags by less than a cycle's command) leaves the sum as it is."""
+        hist, prev = self._hist, self._prev
+        if not hist or msg.actual is None or skipped:
             return  # (after a gap RIst is of a setpoint not seen: the answers so far stay pending)
-        applied = korr_of(pose_of(msg.actual), prev[1])
-        d = applied - self.sent_sum
-        d[3:] = _wrap(d[3:])
-        close = lambda c: bool(np.all(np.abs(np.concatenate([(d + c)[:3], _wrap((d + c)[3:])])) <= RESYNC_TOL))
-        if np.all(np.abs(d) <= RESYNC_TOL):  # RIst shows hykin's sum: every answer so far applied
-            self._pending, self._suspect = [], None
-            return
-        if self._suspect is not None and close(self._suspect[1]):
-            kind, c, n = self._suspect
-            self._suspect = (kind, c, n + 1)
+        actual = pose_of(msg.actual)
+        ds = []  # RIst's sum minus hykin's as of the answer j cycles before the last
+        for j in range(min(len(hist), MAX_DEAD_CYCLES + 1)):
+            setpoint, total = hist[-1 - j]
+            d = korr_of(actual, setpoint) - total
+            d[3:] = _wrap(d[3:])
+            if np.all(np.abs(d) <= RESYNC_TOL):  # every answer up to that one applied; the last j not shown yet
+                self._pending, self._suspect = (self._pending[-j:] if j else []), None
+                return
+            ds.append(d)
+        close = lambda d, c: bool(np.all(np.abs(np.concatenate([(d + c)[:3], _wrap((d + c)[3:])])) <= RESYNC_TOL))
+        seen = None if self._suspect is None else next((j for j, d in enumerate(ds) if close(d, self._suspect[1])), None)
+        if seen is not None:
+            kind, c, n, _ = self._suspect
+            self._suspect = (kind, c, n + 1, seen)
         else:
-            pending = self._pending[-_MAX_PENDING:]
-            # the answers not yet seen applied: any of them may have been lost or late (probe s41 AH: a first
-            # answer 1 s late, then a gap, left the whole 4.3 mm correction counted but never applied)
-            cands = [("lost", sum(c)) for r in range(1, len(pending) + 1) for c in itertools.combinations(pending, r)]
+            cands = []
+            for j in range(len(ds)):
+                # the answers not yet seen applied that the command j cycles back can show: any of them may have
+                # been lost or late (probe s41 AH: a first answer 1 s late, then a gap, left the whole 4.3 mm
+                # correction counted but never applied)
+                shown = self._pending[:max(len(self._pending) - j, 0)][-_MAX_PENDING:]
+                cands += [("lost", sum(c), j) for r in range(1, len(shown) + 1) for c in itertools.combinations(shown, r)]
             if prev[3] is not None:
-                cands += [("context", prev[3]), ("context", prev[3] + prev[2])]
-            hit = next(((kind, c) for kind, c in cands if np.any(np.abs(c) > RESYNC_TOL) and close(c)), None)
-            self._suspect = None if hit is None else (*hit, 1)
+                cands += [("context", prev[3], 0), ("context", prev[3] + prev[2], 0)]
+            hit = next(((kind, c, j) for kind, c, j in cands if np.any(np.abs(c) > RESYNC_TOL) and close(ds[j], c)), None)
+            self._suspect = None if hit is None else (hit[0], hit[1], 1, hit[2])
         if self._suspect is None or self._suspect[2] < self._confirm:
             return
-        kind, c, _ = self._suspect
+        kind, c, _, j = self._suspect
         self.sent_sum = self.sent_sum - c
-        self._pending, self._suspect = [], None
+        self._hist = [(setpoint, total - c) for setpoint, total in self._hist]
+        self._pending, self._suspect = (self._pending[-j:] if j else []), None
         if kind == "context":
             self.new_sessions += 1
             _log.warning("hykin rsi: incremental mode: RIst shows a new RSI context (its sum restarted at zero) after an "
@@ -202,21 +219,36 @@ class RsiHandler:
                          "%d cycles (lost or late); hykin's sum re-synchronised (%d so far)", self._confirm,
                          self.lost_answers)
 
+    def cycle_key(self, data: bytes) -> float | None:
+        """How many ms the ``IPOC`` of ``data`` lies after the last answered one, for
+        :func:`hykin.realtime.udp_bridge.run_bridge` to try the newest of several waiting datagrams first:
+        None without an ``IPOC``; ``-inf`` over ``RESTART_BEHIND_MS`` ahead (maybe a stray: tried last)."""
+        ipoc = ipoc_of(data)
+        if ipoc is None:
+            return None
+        d = ipoc - (self.last_ipoc or 0)
+        return float("-inf") if self.last_ipoc is not None and d > RESTART_BEHIND_MS else float(d)
+
+    def _skipped(self, ipoc: int) -> int:
+        """Cycles between the last answered ``IPOC`` and ``ipoc`` (by ``period_ms``)."""
+        return max(int(round((ipoc - self.last_ipoc) / self.period_ms)) - 1, 0)
+
     def __call__(self, data: bytes) -> Outcome:
         try:
             msg = parse_rob(data, self.cfg, self.dof)
-        except RsiMessageError as e:
+        except ValueError as e:  # RsiMessageError, and any other conversion error: never a crash on bad input
             self.last_reason = str(e)
             return Outcome(None, "ignored:malformed")
-        new_session, jump_sum, jumped = False, None, False
+        new_session, jump_sum, jumped, back, undo = False, None, False, None, 0
         if self.last_ipoc is not None and msg.ipoc <= self.last_ipoc:
-            state = self.strays.returned(msg.ipoc)
-            if state is not None:
+            back = self.strays.returned(msg.ipoc)
+            if back is not None:
+                state, undo = back
                 # the session before a jump ahead goes on: the jump was one stray datagram (a corrupted stamp),
                 # whose answer the controller never took (its IPOC was not the cycle's): undo it, or an
                 # incremental sum would be started again and counted twice (probe s41 AH: 4.3 mm), and the
                 # session's cycles stay unanswered until their stamps pass the stray's (s41 AM: 100 cycles)
-                self.last_ipoc, self.sent_sum, self._prev, self._pending = state
+                self.last_ipoc, self.sent_sum, self._prev, self._pending, self._hist = state
                 self.stray_jumps += 1
                 _log.warning("hykin rsi: a datagram with IPOC ahead of the session was a stray (the session goes on "
                              "from IPOC %d): its answer is undone", state[0])
@@ -235,22 +267,23 @@ class RsiHandler:
             jump_sum, jumped = self.sent_sum.copy(), True
         elif self.last_ipoc is not None and msg.ipoc - self.last_ipoc <= 2 * self.period_ms:
             self.strays.clear()  # in order after a jump: the jump was real (skipped cycles, a new context)
-        if self.last_ipoc is not None and msg.ipoc - self.last_ipoc > 2 * self.period_ms:
-            self.strays.jumped(self.last_ipoc, (self.last_ipoc, self.sent_sum.copy(), self._prev, list(self._pending)))
+        if back is None and self.last_ipoc is not None and msg.ipoc - self.last_ipoc > 2 * self.period_ms:
             jumped = jumped or msg.ipoc - self.last_ipoc > RESTART_BEHIND_MS
+            self.strays.jumped(self.last_ipoc, (self.last_ipoc, self.sent_sum.copy(), self._prev, list(self._pending),
+                                                list(self._hist)),
+                               0 if jumped else self._skipped(msg.ipoc))
         if new_session:  # a new RSI context: its own count and sum
             self._retired = max(self.last_ipoc, self._retired or 0)
-            self.last_ipoc, self.sent_sum, self._prev, self._pending = None, np.zeros(6), None, []
+            self.last_ipoc, self.sent_sum, self._prev, self._pending, self._hist = None, np.zeros(6), None, [], []
             self.new_sessions += 1
         self.restart.clear()
-        skipped = 0
-        if self.last_ipoc is not None:
-            skipped = max(int(round((msg.ipoc - self.last_ipoc) / self.period_ms)) - 1, 0)
+        skipped = 0 if self.last_ipoc is None else self._skipped(msg.ipoc)
         self.last_ipoc = msg.ipoc
         if self.incremental:
             self._resync(msg, skipped)
         if jumped:  # a jump of the stamps (a new context or a stray), not cycles the controller skipped
             skipped = 0
+        skipped -= undo  # a stray undone: the cycles counted for its jump were not skipped (udp_bridge.JumpWatch)
         try:
             k = self.correction(msg.setpoint, msg.axes_deg, msg.actual)
             kind, why = "ok", ""
@@ -268,6 +301,7 @@ class RsiHandler:
             self.sent_sum = self.sent_sum + send
             self._prev = (msg.ipoc, msg.setpoint, send, jump_sum)
             self._pending = (self._pending + [send])[-4 * _MAX_PENDING:]
+            self._hist = (self._hist + [(msg.setpoint, self.sent_sum)])[-(MAX_DEAD_CYCLES + 1):]
         else:
             send = np.zeros(6) if k is None else k
         return Outcome(format_sen(msg.ipoc, send, self.cfg), kind, skipped, why)

@@ -22,6 +22,7 @@ import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
+from xml.sax.saxutils import escape
 
 import numpy as np
 
@@ -29,6 +30,12 @@ __all__ = ["RobMessage", "RsiConfig", "RsiConfigWarning", "RsiMessageError", "fo
 
 _CART = ("X", "Y", "Z", "A", "B", "C")
 _IPOC = re.compile(rb"<IPOC>\s*(\d{1,20})\s*</IPOC>")
+# ASCII digits only: str.isdigit() and float() also take '²', Arabic-Indic digits and '1_0' (probe s42 AS: an
+# IPOC of '1004²' passed isdigit(), int() raised outside the handler's catch and the bridge exited)
+_INT = re.compile(r"\s*([0-9]{1,20})\s*")
+_NUM = re.compile(r"\s*[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\s*")
+#: correction modes as written (RSI_ON(#RELATIVE) is KUKA's name of the incremental one) -> hykin's
+_MODES = {"absolute": "absolute", "incremental": "incremental", "relative": "incremental"}
 
 
 class RsiMessageError(ValueError):
@@ -44,9 +51,9 @@ class RsiConfig:
     """Names of an RSI Ethernet object. sen_type: ``<Sen Type=..>`` [ImFree]. korr_tag: the correction
     element [RKorr]. setpoint_tag / actual_tag / axes_tag: [RSol] / [RIst] / [AIPos]. mode:
     ``"absolute"`` (RKorr is the whole correction of this setpoint) or ``"incremental"`` (added to the
-    sum of the corrections sent so far) [absolute]. port / ip: from the file (informative)."""
+    sum of the corrections sent so far; ``"relative"``, KUKA's name, is taken as it) [absolute]. port / ip: from the file (informative)."""
 
-    sen_type: str = "ImFree"
+    sen_type: str = "ImFree"  # any text: the value of the answer's Type attribute (escaped)
     korr_tag: str = "RKorr"
     setpoint_tag: str = "RSol"
     actual_tag: str = "RIst"
@@ -56,9 +63,14 @@ class RsiConfig:
     ip: str | None = None
 
     def __post_init__(self):
-        if self.mode not in ("absolute", "incremental"):
-            raise ValueError(f"RSI correction mode must be 'absolute' or 'incremental', got {self.mode!r}")
-        for name in ("sen_type", "korr_tag", "setpoint_tag", "actual_tag", "axes_tag"):
+        mode = _MODES.get(str(self.mode).strip().lower())
+        if mode is None:
+            raise ValueError(f"RSI correction mode must be 'absolute' or 'incremental' (KUKA's #RELATIVE), got "
+                             f"{self.mode!r}")
+        object.__setattr__(self, "mode", mode)  # (frozen) 'relative' is stored as 'incremental'
+        if not self.sen_type.strip() or any(ord(c) < 32 for c in self.sen_type):
+            raise ValueError(f"RSI sen_type {self.sen_type!r} must be text without control characters")
+        for name in ("korr_tag", "setpoint_tag", "actual_tag", "axes_tag"):
             if not re.fullmatch(r"[A-Za-z_][\w.\-]*", getattr(self, name)):
                 raise ValueError(f"RSI {name} {getattr(self, name)!r} is not an XML name")
 
@@ -145,13 +157,15 @@ def ipoc_of(data: bytes) -> int | None:
 def _numbers(el, tag: str, names) -> np.ndarray:
     """The attributes ``names`` of element ``el`` as finite floats (RsiMessageError otherwise)."""
     try:
-        v = np.array([float(el.attrib[k]) for k in names])
+        texts = [el.attrib[k] for k in names]
     except KeyError as e:
         raise RsiMessageError(f"<{tag}> lacks attribute {e.args[0]}") from None
-    except ValueError as e:
-        raise RsiMessageError(f"<{tag}>: {e}") from None
+    for k, t in zip(names, texts):
+        if not _NUM.fullmatch(t):
+            raise RsiMessageError(f"<{tag}> {k}={t[:40]!r} is not a decimal number (NaN, inf or garbled)")
+    v = np.array([float(t) for t in texts])
     if not np.isfinite(v).all():
-        raise RsiMessageError(f"<{tag}> holds NaN or inf")
+        raise RsiMessageError(f"<{tag}> holds a number out of range")
     return v
 
 
@@ -169,9 +183,9 @@ def parse_rob(data: bytes, cfg: RsiConfig, dof: int) -> RobMessage:
         raise RsiMessageError(f"not XML ({e})") from None
     if root.tag != "Rob":
         raise RsiMessageError(f"root element <{root.tag}>, expected <Rob>")
-    ipoc_t = root.findtext("IPOC")
-    if ipoc_t is None or not ipoc_t.strip().isdigit():
-        raise RsiMessageError("no integer <IPOC>")
+    ipoc_m = _INT.fullmatch(root.findtext("IPOC") or "")
+    if ipoc_m is None:
+        raise RsiMessageError("no integer <IPOC> (ASCII digits)")
     sp = root.find(cfg.setpoint_tag)
     if sp is None:
         raise RsiMessageError(f"no <{cfg.setpoint_tag}> (setpoint) element")
@@ -180,13 +194,15 @@ def parse_rob(data: bytes, cfg: RsiConfig, dof: int) -> RobMessage:
         raise RsiMessageError(f"no <{cfg.axes_tag}> (axis positions) element")
     axes = _numbers(ax, cfg.axes_tag, [f"A{j + 1}" for j in range(dof)])
     act = root.find(cfg.actual_tag)
-    return RobMessage(int(ipoc_t), _cart(sp, cfg.setpoint_tag), None if act is None else _cart(act, cfg.actual_tag), axes)
+    return RobMessage(int(ipoc_m.group(1)), _cart(sp, cfg.setpoint_tag), None if act is None else _cart(act, cfg.actual_tag),
+                      axes)
 
 
 def format_sen(ipoc: int, korr: np.ndarray, cfg: RsiConfig) -> bytes:
     """The answer: correction ``korr`` ``(6,)`` (mm, deg) and the echoed ``ipoc``."""
     attrs = " ".join(f'{k}="{v:.5f}"' for k, v in zip(_CART, np.asarray(korr, dtype=np.float64).tolist()))
-    return f'<Sen Type="{cfg.sen_type}"><{cfg.korr_tag} {attrs} /><IPOC>{int(ipoc)}</IPOC></Sen>'.encode()
+    sen = escape(cfg.sen_type, {'"': "&quot;"})
+    return f'<Sen Type="{sen}"><{cfg.korr_tag} {attrs} /><IPOC>{int(ipoc)}</IPOC></Sen>'.encode()
 
 
 def format_rob(ipoc: int, setpoint: np.ndarray, actual: np.ndarray, axes_deg: np.ndarray, cfg: RsiConfig) -> bytes:
@@ -206,7 +222,7 @@ def parse_sen(data: bytes, cfg: RsiConfig) -> tuple[int, np.ndarray]:
     except ET.ParseError as e:
         raise RsiMessageError(f"not XML ({e})") from None
     k = root.find(cfg.korr_tag)
-    ipoc_t = root.findtext("IPOC")
-    if root.tag != "Sen" or k is None or ipoc_t is None or not ipoc_t.strip().isdigit():
+    ipoc_m = _INT.fullmatch(root.findtext("IPOC") or "")
+    if root.tag != "Sen" or k is None or ipoc_m is None:
         raise RsiMessageError("not a <Sen> answer with a correction and an IPOC")
-    return int(ipoc_t), _cart(k, cfg.korr_tag)
+    return int(ipoc_m.group(1)), _cart(k, cfg.korr_tag)

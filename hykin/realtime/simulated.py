@@ -31,7 +31,7 @@ from ..sim.simulate import true_poses
 from .egm import format_robot, parse_sensor
 from .rsi import pose_of
 from .rsi_xml import RsiConfig, RsiMessageError, format_rob, parse_sen
-from .udp_bridge import arrival_time
+from .udp_bridge import arrival_time, enable_timestamps
 
 __all__ = ["SimRun", "SimulatedEgm", "SimulatedRsi", "path_errors", "xyzabc_of"]
 
@@ -113,13 +113,12 @@ class _Simulated:
         last ``_SPIN_S``); a cycle started over half a period late re-anchors the clock (counted in
         ``slipped``), so that a late simulator never sends cycles faster than the period. An answer's
         delay is from the send to the kernel's receive stamp of the answer (where the platform has
-        ``SO_TIMESTAMPNS``): what a controller on a real-time OS sees, not when this process, sharing
+        ``SO_TIMESTAMPNS``: Linux): what a controller on a real-time OS sees, not when this process, sharing
         the cores, got to read it; an answer that arrived after the deadline is not used."""
         N, n = len(self.path), self.nom.dof
         own = sock is None
         sock = sock or socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        if hasattr(socket, "SO_TIMESTAMPNS"):
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_TIMESTAMPNS, 1)
+        enable_timestamps(sock)  # (Python 3.11 lacks the option's name: udp_bridge.SO_TIMESTAMPNS)
         q = self.q0.copy()
         Q = np.zeros((N, n))
         in_time = np.zeros(N, bool)

@@ -2,9 +2,9 @@
 
 One socket, one controller. Per datagram: drop it when it is over the size limit (truncated by the
 kernel), when it comes from another sender than the controller (the first sender whose message was
-valid, or the address given), when a newer one of the controller is already waiting (superseded:
-its cycle is over), or when the protocol handler calls it invalid or stale; else answer it at once
-with the handler's reply. Counted: answered, failures (the handler could not compute
+valid, or the address given), when the protocol handler calls it invalid or stale, or when a newer
+cycle of the controller, read with it, is answered instead (superseded: its cycle is over); else answer
+it at once with the handler's reply. Counted: answered, failures (the handler could not compute
 and answered a neutral message), late answers (sent more than one period after the datagram
 arrived, by the kernel's receive time stamp), cycles the controller skipped (by its stamps) and
 every kind of dropped datagram. After ``max_failures`` consecutive failures the loop stops
@@ -16,21 +16,39 @@ from __future__ import annotations
 import gc
 import logging
 import math
+import platform
 import select
 import socket
 import struct
+import sys
 import time
 from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["JumpWatch", "StampRun", "MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "BridgeStats", "Outcome", "RestartWatch", "arrival_time", "bind_udp",
-           "check_actual_pose", "check_limits", "parse_listen",
-           "raise_priority", "run_bridge"]
+__all__ = ["JumpWatch", "StampRun", "MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "BridgeStats", "Outcome", "RestartWatch",
+           "SO_TIMESTAMPNS", "arrival_time", "bind_udp", "check_actual_pose", "check_limits", "enable_timestamps",
+           "parse_listen", "raise_priority", "run_bridge"]
 
 _log = logging.getLogger("hykin.realtime")
 _DRAIN = 256  # datagrams read at most per turn when behind
+
+
+def _so_timestamps() -> int | None:
+    """The ``SO_TIMESTAMPNS`` socket option (= ``SCM_TIMESTAMPNS``), None where the platform has none."""
+    if hasattr(socket, "SO_TIMESTAMPNS"):
+        return socket.SO_TIMESTAMPNS
+    # CPython 3.11 does not export the name, although Linux has had the option since 2.6.22 (probe s42 AT:
+    # every answer was timed from when the bridge read its datagram, and late ones went uncounted). 35 is
+    # asm-generic's value (x86, arm, riscv, powerpc, s390, mips); alpha, parisc and sparc number it otherwise
+    if sys.platform.startswith("linux") and not platform.machine().lower().startswith(("alpha", "parisc", "sparc")):
+        return 35
+    return None
+
+
+#: the socket option that makes the kernel stamp each received datagram (None: not on this platform)
+SO_TIMESTAMPNS = _so_timestamps()
 
 
 @dataclass
@@ -41,7 +59,7 @@ class Outcome:
 
     reply: bytes | None
     kind: str
-    skipped: int = 0
+    skipped: int = 0  # negative: a correction of cycles counted before (a stray jump undone: JumpWatch)
     reason: str = ""  # a failure's one-line cause, its category first ("correction over the limit: ...")
 
 
@@ -58,6 +76,10 @@ class StampRun:
         """``a - b`` (wrapped into ``[-modulo/2, modulo/2)`` for wrapping stamps)."""
         d = int(a) - int(b)
         return d if self.modulo is None else (d + self.modulo // 2) % self.modulo - self.modulo // 2
+
+    def __len__(self) -> int:
+        """Stamps of the run so far (not yet confirmed)."""
+        return len(self._run)
 
     def add(self, stamp: int) -> bool:
         """Whether ``stamp`` completes a run of ``confirm`` (then the run starts again)."""
@@ -101,18 +123,19 @@ class JumpWatch:
     following each other by 1 to ``step`` counts, continue the session from before the jump (at most
     ``window`` counts after its last stamp), the jump was the stray: :meth:`returned` gives the state saved
     before it (probe s41 AM: one stamp 400 ms ahead left the next 100 cycles unanswered, an EGM path 47 mm
-    off). One message behind alone stays dropped (a late, reordered datagram must not undo an answer the
-    controller took). ``modulo``: stamps that wrap (EGM's 32-bit seqno)."""
+    off), and how many cycles counted as skipped to take back (probe s42 AT: one stray 100,000 ahead left
+    "cycles skipped by the controller 100030"). One message behind alone stays dropped (a late, reordered
+    datagram must not undo an answer the controller took). ``modulo``: stamps that wrap (EGM's 32-bit seqno)."""
 
     def __init__(self, window: int, step: int, confirm: int = 2, modulo: int | None = None):
         self.window = int(window)
         self._before = None
         self._run = StampRun(step, confirm, modulo)
 
-    def jumped(self, before: int, state) -> None:
+    def jumped(self, before: int, state, skipped: int = 0) -> None:
         """The message just answered jumped ahead of ``before`` (the last stamp of the session so far,
-        whose ``state`` a return restores)."""
-        self._before = (int(before), state)
+        whose ``state`` a return restores) and was counted with ``skipped`` cycles (what a return takes back)."""
+        self._before = (int(before), state, int(skipped))
         self._run.clear()
 
     def clear(self) -> None:
@@ -121,16 +144,20 @@ class JumpWatch:
         self._run.clear()
 
     def returned(self, stamp: int):
-        """For a message behind the last answered one: the state saved before the jump once ``confirm``
-        consecutive such messages continue the session from before it, else None."""
+        """For a message behind the last answered one: once ``confirm`` consecutive such messages continue
+        the session from before the jump, ``(state saved before it, undo)``, else None. ``undo``: cycles to
+        take back from the count of skipped ones: those counted for the stray, and the messages of the run
+        before this one (dropped as stale: the controller sent them). The caller counts this message's own
+        gap from the restored stamp as usual and subtracts ``undo``."""
         if self._before is None or not 0 < self._run.ahead(stamp, self._before[0]) <= self.window:
             self._run.clear()
             return None
+        seen = len(self._run)
         if not self._run.add(stamp):
             return None
-        state = self._before[1]
+        _, state, skipped = self._before
         self.clear()
-        return state
+        return state, skipped + seen
 
 
 @dataclass
@@ -140,6 +167,7 @@ class BridgeStats:
     answered: int = 0
     failures: int = 0
     late: int = 0
+    stamped: int = 0  # answers timed by the kernel's receive stamp (the others: by when the datagram was read)
     skipped_cycles: int = 0
     ignored: Counter = field(default_factory=Counter)
     max_consecutive_failures: int = 0
@@ -147,8 +175,10 @@ class BridgeStats:
     stopped: str = ""
 
     def summary(self) -> str:
-        ign = ", ".join(f"{k} {v}" for k, v in sorted(self.ignored.items())) or "none"
-        return (f"answered {self.answered} (failures answered neutrally {self.failures}), late {self.late}, "
+        ign = ", ".join(f"{k} {v}" for k, v in sorted(self.ignored.items()) if v) or "none"
+        # without kernel stamps an answer is timed from when the bridge read its datagram: a lower bound
+        how = " (timed from reading: no kernel receive stamps)" if self.answered and not self.stamped else ""
+        return (f"answered {self.answered} (failures answered neutrally {self.failures}), late {self.late}{how}, "
                 f"cycles skipped by the controller {self.skipped_cycles}, dropped: {ign}")
 
 
@@ -200,11 +230,22 @@ def parse_listen(text: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
+def enable_timestamps(sock: socket.socket) -> bool:
+    """Ask the kernel to stamp each datagram ``sock`` receives (:data:`SO_TIMESTAMPNS`; read with
+    :func:`arrival_time`). Whether it did: False where the platform has no such option."""
+    if SO_TIMESTAMPNS is None:
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+    except OSError:
+        return False
+    return True
+
+
 def bind_udp(host: str, port: int) -> socket.socket:
     """A UDP socket bound to ``(host, port)`` with kernel receive time stamps where available."""
     s = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_DGRAM)
-    if hasattr(socket, "SO_TIMESTAMPNS"):
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_TIMESTAMPNS, 1)
+    enable_timestamps(s)
     s.bind((host, port))
     return s
 
@@ -230,12 +271,26 @@ def raise_priority(rt_priority: int) -> str:
 
 def arrival_time(anc) -> float | None:
     """The kernel's receive time stamp (unix s) in the ancillary data ``anc`` of ``socket.recvmsg`` on a
-    socket from :func:`bind_udp` (or with ``SO_TIMESTAMPNS`` set); None without one."""
+    socket from :func:`bind_udp` (or :func:`enable_timestamps`); None without one."""
     for level, kind, data in anc:
-        if level == socket.SOL_SOCKET and kind == getattr(socket, "SO_TIMESTAMPNS", -1) and len(data) >= 16:
-            sec, ns = struct.unpack("qq", data[:16])
+        if SO_TIMESTAMPNS is not None and level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(data) >= 8:
+            # a struct timespec: two 64-bit fields (64-bit Linux), two 32-bit ones on a 32-bit one
+            sec, ns = struct.unpack("qq", data[:16]) if len(data) >= 16 else struct.unpack("ii", data[:8])
             return sec + ns * 1e-9
     return None
+
+
+def _in_order(handle, cands: list) -> list:
+    """The controller's datagrams of one drain (``(data, addr, t_in, stamped)``, in arrival order) in the
+    order to try them: by the handler's ``cycle_key(data)`` where it has one (None first: no stamp
+    readable, the handler refuses it at once and it is counted for what it is; then the largest key,
+    the newest cycle, first), else the last to arrive first."""
+    key = getattr(handle, "cycle_key", None)
+    if key is None or len(cands) < 2:
+        return cands[::-1]
+    ks = [key(c[0]) for c in cands]
+    order = sorted(range(len(cands)), key=lambda i: (ks[i] is None, 0 if ks[i] is None else ks[i], i), reverse=True)
+    return [cands[i] for i in order]
 
 
 def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: int = 10, max_packet: int = 8192,
@@ -244,9 +299,18 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
     """Serve datagrams on ``sock`` with ``handle(bytes) -> Outcome`` until ``stop`` (a threading.Event)
     is set, ``idle_exit_s`` passes without a valid datagram after the first one (0: never), or
     ``max_failures`` consecutive failures. ``controller``: ``(host, port)`` to accept datagrams from
-    (default: the first sender of a valid one). ``keep_latency``: keep each answer's delay (s) in
-    ``stats.latency_s``. ``spin``: poll the socket without sleeping (one core stays busy and warm: no
-    wake-up delay and no cold caches when a datagram comes; for a core set aside for the bridge)."""
+    (default: the first sender of a valid one, named in one log line). ``keep_latency``: keep each
+    answer's delay (s) in ``stats.latency_s``. ``spin``: poll the socket without sleeping (one core stays
+    busy and warm: no wake-up delay and no cold caches when a datagram comes; for a core set aside for
+    the bridge).
+
+    When several datagrams of the controller wait (the bridge fell behind, or a stray, truncated or
+    reordered one came with the cycle's), only one is answered: the newest cycle the handler accepts.
+    They are tried newest first (by the handler's optional ``cycle_key(data) -> float | None``, how far
+    the datagram's stamp lies after the last answered one; else by arrival); one the handler ignores
+    is counted under its reason and the one before it tried, and the ones left once one is accepted
+    are counted as superseded (probe s42 AT: a truncated copy behind the cycle's datagram took its
+    place, and the cycle went unanswered)."""
     st = BridgeStats()
     gc.collect()
     gc.freeze()  # the model and libraries loaded so far are never scanned again: no full-collection pause mid-run
@@ -259,39 +323,59 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
     last_log = time.monotonic()
     sock.setblocking(False)
     cmsg = socket.CMSG_SPACE(16)
+
+    def idle() -> bool:
+        """Whether no valid datagram came for ``idle_exit_s`` (checked only while none waits to be read or
+        none of those read was valid: a bridge held up for a while must not exit with valid ones queued)."""
+        if idle_exit_s and last_valid is not None and time.monotonic() - last_valid > idle_exit_s:
+            st.stopped = f"no valid datagram for {idle_exit_s:g} s"
+            return True
+        return False
+
     try:  # Ctrl-C ends the run with its counts (the exit line), as any other stop
         while stop is None or not stop.is_set():
-            if idle_exit_s and last_valid is not None and time.monotonic() - last_valid > idle_exit_s:
-                st.stopped = f"no valid datagram for {idle_exit_s:g} s"
-                break
             try:
                 if not spin:
                     select.select([sock], [], [], 0.1)
                 data, anc, flags, addr = sock.recvmsg(max_packet + 1, cmsg)
             except (BlockingIOError, InterruptedError, ConnectionRefusedError):  # nothing (or an ICMP error) to read
+                if idle():
+                    break
                 continue
-            # when behind, answer only the newest datagram of the controller: older cycles are over
-            best = None
+            cands = []  # the controller's datagrams waiting now, in arrival order
             for _ in range(_DRAIN):
-                t_in = arrival_time(anc) or time.time()
+                t_in = arrival_time(anc)
                 if len(data) > max_packet or flags & socket.MSG_TRUNC:
                     st.ignored["oversized"] += 1
                 elif peer is not None and addr[:2] != tuple(peer)[:2]:
                     st.ignored["other sender"] += 1
                 else:
-                    if best is not None:
-                        st.ignored["superseded"] += 1
-                    best = (data, addr, t_in)
+                    cands.append((data, addr, t_in or time.time(), t_in is not None))
                     if peer is None:
                         break  # no controller yet: one datagram at a time
                 try:
                     data, anc, flags, addr = sock.recvmsg(max_packet + 1, cmsg)
                 except (BlockingIOError, InterruptedError, ConnectionRefusedError):
                     break
-            if best is None:
+            out = None
+            for n, (data, addr, t_in, stamped) in enumerate(_in_order(handle, cands)):
+                try:
+                    out = handle(data)
+                except Exception as e:  # noqa: BLE001 - a handler's bug on some input must not stop the bridge
+                    out = Outcome(None, "ignored:handler error")
+                    if not st.ignored["handler error"]:
+                        _log.error("hykin bridge: a datagram raised %s: %s (dropped; the bridge goes on)",
+                                   type(e).__name__, e)
+                if not out.kind.startswith("ignored"):
+                    if n + 1 < len(cands):
+                        st.ignored["superseded"] += len(cands) - n - 1  # older cycles: over
+                    break
+                st.ignored[out.kind.partition(":")[2] or "invalid"] += 1
+                out = None
+            if out is None:
+                if idle():
+                    break
                 continue
-            data, addr, t_in = best
-            out = handle(data)
             if out.reply is not None:
                 try:
                     sock.sendto(out.reply, addr)
@@ -301,14 +385,12 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
                 if keep_latency:
                     st.latency_s.append(delay)
                 st.late += delay > period_s
+                st.stamped += stamped
                 if delay > period_s and getattr(handle, "incremental", False) and not warned_late_incremental:
                     warned_late_incremental = True  # RSI drops a late answer: its sum then lacks this increment
                     _log.warning("hykin bridge: incremental mode: an answer left %.1f ms after its datagram (over the "
                                  "period): a controller that dropped it has a different sum of corrections; hykin "
                                  "re-synchronises from RIst where the message shows it (docs/realtime.md)", delay * 1e3)
-            if out.kind.startswith("ignored"):
-                st.ignored[out.kind.partition(":")[2] or "invalid"] += 1
-                continue
             last_valid = time.monotonic()
             st.skipped_cycles += out.skipped
             st.answered += out.reply is not None
@@ -331,6 +413,11 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
                 causes.clear()
                 if peer is None:
                     peer = addr
+                    # without --controller the first sender of a valid message is the controller: say which
+                    # (probe s42 AT: a second sender that came first was answered 2,988 times, silently)
+                    _log.warning("hykin bridge: answering %s (the first sender of a valid message) and dropping every "
+                                 "other sender; to answer another, give --controller HOST:PORT",
+                                 _address(addr))
             if log_every_s and time.monotonic() - last_log > log_every_s:
                 last_log = time.monotonic()
                 if st.late or st.skipped_cycles or st.failures:
@@ -340,3 +427,9 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
     if not st.stopped:
         st.stopped = "stopped"
     return st
+
+
+def _address(addr) -> str:
+    """``HOST:PORT`` of a socket address (``[HOST]:PORT`` for IPv6)."""
+    host, port = addr[0], addr[1]
+    return f"[{host}]:{port}" if ":" in str(host) else f"{host}:{port}"
