@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import se3
 from .result import fail_row
 
 __all__ = ["check_local", "local_hints"]
@@ -45,16 +44,6 @@ def local_hints(comp, T: np.ndarray, first: np.ndarray, D, Dm, pos_only: bool, b
     return qb
 
 
-def _local_pick(nom, command: np.ndarray, D: np.ndarray, prev: np.ndarray) -> np.ndarray:
-    """The controller's joints for ``command`` ``(4, 4)`` (controller base frame, TCP ``D`` relative to the
-    robot file's): LM of the nominal robot from ``prev`` ``(n,)``, no restarts; NaN where it finds none."""
-    from ..kinematics.ik import ik
-
-    Tw = nom.base @ command @ se3.invert(D)
-    r = ik(nom, Tw[None], q_seed=prev[None], method="numeric", restarts=0, max_iter=200)
-    return np.asarray(r.q[0], dtype=np.float64) if r.success[0] else np.full(nom.dof, np.nan)
-
-
 #: a redundant arm's target farther than this from the joints before (a revolute joint, rad) is not sent
 #: without joints: a local solve's end on the self-motion after such a move depends on the solver
 FAR_STEP_RAD = np.radians(20.0)
@@ -68,21 +57,14 @@ def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> l
     them, up to ``rounds`` times (the controller's endpoint moves little with the command: a fixed point).
     ``D``/``Dm``: the targets' tools relative to the robot file's and the model's TCP (or None)."""
     from ..hybrid.ik_result import model_accuracy
-    from .walk_checks import joint_gap, landing
+    from .local_controller import follow
+    from .walk_checks import joint_gap
 
     nom = model.nominal
     Dc = np.broadcast_to(np.eye(4), (len(T), 4, 4)) if D is None else D
     Tm = comp.model_targets(T, Dm)
     acc = max(comp.tolerance_mm, model_accuracy(model)[0] or 0.0)
     tol = max(comp.tolerance_mm, 1e-3)
-
-    def miss_of(k, pick):
-        if not np.isfinite(pick).all():
-            return np.inf
-        if np.abs(pick - result.q[k]).max() <= 1e-6:
-            return 0.0
-        return float(landing(model, pick[None], Tm[k][None])[0][0])
-
     rev = np.array([t == "revolute" for t in nom.independent_joint_type])
     q_first = result.q.copy()  # the walk's joints before this check
     prev, noted = None, []
@@ -101,21 +83,7 @@ def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> l
                              f"least-norm solver landed 2-5 mm off, probe s41); give the joints (q1..qN) or send "
                              f"them (--joints)")
             continue
-        pick = _local_pick(nom, result.command[k], Dc[k], prev)
-        miss = miss_of(k, pick)
-        for _ in range(rounds if miss > tol else 0):
-            if not np.isfinite(pick).all():
-                break
-            sl = slice(k, k + 1)
-            q, cmd, ok, _, pe, ae = comp.solve(T[sl], pick[None], None if D is None else D[sl], False,
-                                               D_model=None if Dm is None else Dm[sl])
-            if not ok[0]:
-                break
-            result.q[k], result.command[k], result.pos_err_mm[k], result.ang_err_deg[k] = q[0], cmd[0], pe[0], ae[0]
-            pick = _local_pick(nom, cmd[0], Dc[k], prev)
-            miss = miss_of(k, pick)
-            if miss <= tol:
-                break
+        miss, pick = follow(model, comp, result, k, prev, T, D, Dm, Dc, Tm, tol, rounds)
         if miss > acc:
             where = ("finds no nominal solution of the command" if not np.isfinite(miss) else
                      f"reaches it on joints {joint_gap(nom, pick, result.q[k])} (largest joint difference) from "
