@@ -61,6 +61,7 @@ def compensate_cmd(
     payload_kg: float | None = typer.Option(None, "--payload-kg", help="Payload (kg, at the TCP) the robot carries while executing these targets: the model deflects under it (default: the robot file's payload)."),
     flange: str | None = typer.Option(None, "--flange", help="URDF robots: the link that is the controller's flange, from which program tools (TOOL_DATA, tooldata, set_tcp) and --tool are given (default: 'flange' for KRL and --tool, 'tool0' for RAPID and URScript, where the URDF has them; else the last moving link)."),
     tool_shift: str = typer.Option("mount", "--tool-shift", metavar="mount|flange", help="Where a program's own tool (--tool, set_tcp, tooldata, TOOL_DATA) sits: the calibrated TCP's shift from the robot file's [tool] is the measurement tool's mount ('mount': program tools on the calibrated chain's flange) or the flange's own error ('flange': they move with it; right where the file's [tool] is the measurement tool as measured). The data cannot tell them apart; a note says where it matters."),
+    quaternion_order: str | None = typer.Option(None, "--quaternion-order", metavar="wxyz|xyzw", help="CSV: the order of the qw,qx,qy,qz columns' values: wxyz (as the header says) or xyzw (scalar last); given, the order is not checked (default: refused where the targets clearly read better the other way)."),
     tool_angle_unit: str | None = typer.Option(None, "--tool-angle-unit", metavar="rad|deg", help="Unit of --tool's roll, pitch, yaw (default: --angle-unit)."),
     tolerance_mm: float | None = typer.Option(None, "--tolerance-mm", help="Success tolerance, mm: a target the model's robot reaches within it (and --tolerance-deg) is compensated (default: half the model's held-out mean position error, at least 1e-4 mm)."),
     tolerance_deg: float | None = typer.Option(None, "--tolerance-deg", help="Success tolerance, degrees (default: half the model's held-out mean orientation error, at least 1e-4 deg)."),
@@ -78,6 +79,8 @@ def compensate_cmd(
     if tool_shift not in ("mount", "flange"):
         raise CLIError(f"--tool-shift must be mount or flange, got {tool_shift!r}")
     tol["tool_shift"] = tool_shift
+    if quaternion_order not in (None, "wxyz", "xyzw"):
+        raise CLIError(f"--quaternion-order must be wxyz or xyzw, got {quaternion_order!r}")
     if tool_angle_unit not in (None, "rad", "deg"):
         raise CLIError(f"--tool-angle-unit must be rad or deg, got {tool_angle_unit!r}")
     context = list(context or [])
@@ -93,7 +96,7 @@ def compensate_cmd(
         parse_axis_signs(axis_signs, mdl.nominal.dof)
         D = _tool_delta(mdl, tool, length_unit, tool_angle_unit or angle_unit, flange)
         _compensate_csv(mdl, inp, out, joints, "measurement" if frame == "auto" else frame, length_unit, angle_unit, D,
-                        payload_kg, tol)
+                        payload_kg, tol, quaternion_order)
         return
     mdl = with_payload(load_model(model), payload_kg)
     signs = parse_axis_signs(axis_signs, mdl.nominal.dof)
@@ -153,7 +156,8 @@ def _tool_delta(mdl, text: str | None, length_unit: str, angle_unit: str, flange
 
 
 def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_unit: str, angle_unit: str,
-                    tool_delta=None, payload_kg: float | None = None, tol: dict | None = None) -> None:
+                    tool_delta=None, payload_kg: float | None = None, tol: dict | None = None,
+                    quaternion_order: str | None = None) -> None:
     """CSV targets; per-row ``payload_kg`` / ``payload_com_*`` columns: one compensation per distinct payload
     on the model carrying it; a ``temperature_c`` column: the targets mapped to the model's reference
     temperature (where its joints are solved; the controller's nominal model has no temperature)."""
@@ -164,6 +168,10 @@ def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_
     from ..io.payload import model_with_payload, payload_from_columns
 
     T, has_rot, extra = read_poses(inp, length_unit=length_unit, extras=True)
+    if has_rot and quaternion_order == "xyzw":  # the columns hold x,y,z,w: read them so
+        from ..geometry import se3
+
+        T[:, :3, :3] = se3.quat_to_matrix(se3.matrix_to_quat(T[:, :3, :3])[:, [3, 0, 1, 2]])
     if tool_delta is None:
         _warn_tool_mismatch(mdl)
     pl = payload_from_columns(extra, len(T), str(inp), payload_kg) if "payload_kg" in extra else None
@@ -189,9 +197,11 @@ def _compensate_csv(mdl, inp: Path, out: Path, joints: bool, frame: str, length_
 
         warn_orientation_unmeasured(mdl, "the targets' orientations are compensated with that")
         try:  # scalar-last quaternions under a scalar-first header (probe s42 AQ: exit 0, 27 targets 180° off)
-            check_quaternion_order(mdl, T, frame, qb, tool_delta, where=str(inp))
+            said = "" if quaternion_order else check_quaternion_order(mdl, T, frame, qb, tool_delta, where=str(inp))
         except ValueError as e:
             raise CLIError(str(e)) from None
+        if said:
+            console().print(f"[yellow]warning:[/] {said}", highlight=False)
     target = T if has_rot else T[:, :3, 3]
     tol = tol or {}
     if pl is None:

@@ -472,9 +472,9 @@ class Compensator:
         if not ok.all():
             at_lim = ((q <= lo_j + 1e-9) | (q >= hi_j - 1e-9)).any(1)
             what = np.where(at_lim, _BLOCKED, "unreachable for the model")
-            ang = "" if pos_only else " / {:.3g} deg"
+            ang, tol = ("", "") if pos_only else (" / {:.3g} deg", f" / {self.tolerance_deg:.3g} deg")
             reason = np.array(["" if o else (f"{w}: residual {p * 1e3:.3g} mm" + ang.format(np.degrees(a))
-                                             + f" (tolerance {self.tolerance_mm:.3g} mm)")
+                                             + f" (tolerance {self.tolerance_mm:.3g} mm{tol})")
                                for o, w, p, a in zip(ok, what, pe, ae)], dtype=object)
         return q, pe * 1e3, np.degrees(ae), reason
 
