@@ -369,3 +369,26 @@ def test_cli_quaternion_order_option(tmp_path, model):
     assert run(bad, "w.csv", "--quaternion-order", "wxyz").returncode == 0  # the user's word: not checked
     r = run(bad, "x.csv", "--quaternion-order", "zyxw")
     assert r.returncode == 2 and "--quaternion-order must be wxyz or xyzw" in r.stderr
+
+
+def test_ik_notes_solutions_far_from_their_seed(tmp_path):
+    """Probe s42 AR: ``ik`` with seed joints returned a wrist turned 180° from the seed without a word. A
+    solution more than 90° (a joint) from its seed is noted; one near it is not."""
+    q = np.array([[0.3, -1.4, 1.5, -1.7, -1.5, 0.4], [0.1, -1.2, 1.3, -1.6, -1.2, 0.2]])
+    T = fk(hykin.load_robot("ur10"), q)
+    poses = tmp_path / "p.csv"
+    poses.write_text("x,y,z,qw,qx,qy,qz\n" + "\n".join(
+        ",".join(f"{v:.12g}" for v in (*P[:3, 3], *se3.matrix_to_quat(P[:3, :3]))) for P in T) + "\n")
+    seeds = tmp_path / "s.csv"
+
+    def run(seed):
+        seeds.write_text("q1,q2,q3,q4,q5,q6\n" + "\n".join(",".join(f"{v:.9g}" for v in r) for r in seed) + "\n")
+        return subprocess.run([sys.executable, "-m", "hykin", "ik", "ur10", str(poses), "-o", str(tmp_path / "o.csv"),
+                               "--seed-joints", str(seeds), "--force"], capture_output=True, text=True)
+
+    near = run(q + 0.05)
+    assert near.returncode == 0 and "from their seed joints" not in near.stdout + near.stderr
+    far = q.copy()
+    far[1] += [2.6, 0, 0, 0, 0, 0]  # target 1's seed far from every solution of it
+    r = run(far)
+    assert r.returncode == 0 and "(target 1) are solved more than 90°" in r.stdout + r.stderr, r.stdout + r.stderr

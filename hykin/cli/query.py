@@ -205,6 +205,24 @@ def ik_cmd(
     n_targets = len(T)
     solved = len(set(np.asarray(rows["target"])[ok].tolist()))
     typer.echo(f"wrote {len(ok)} solution rows for {n_targets} targets to {out} ({solved} solved, {n_targets - solved} failed)")
+    if nearest and seed_joints is not None and ok.any():
+        _note_far_from_seed(rob, rows, q_cur, ok)
+
+
+def _note_far_from_seed(rob, rows: dict, q_cur: np.ndarray, ok: np.ndarray) -> None:
+    """A note where a solution nearest the seed joints lies more than 90° (a revolute joint) from them: on
+    another branch than the seed's (probe s42 AR: where the seed's branch missed the tolerance at a stretched
+    elbow, the wrist was turned 180°, without a word)."""
+    qs = np.stack([np.asarray(rows[f"q{j + 1}"], dtype=np.float64) for j in range(rob.dof)], 1)
+    tgt = np.asarray(rows["target"], dtype=np.int64)
+    rev = np.array([t == "revolute" for t in rob.independent_joint_type])
+    far = ok & (np.abs(np.where(rev, qs - q_cur[tgt], 0.0)).max(1) > np.pi / 2)
+    if far.any():
+        ids = ", ".join(map(str, tgt[far][:8])) + (" ..." if far.sum() > 8 else "")
+        console().print(f"note: {int(far.sum())} targets (target {ids}) are solved more than 90° (a joint) from their "
+                        "seed joints: the solution nearest the seed lies on another branch than the seed's (at a "
+                        "stretched elbow, the seed's own may miss the tolerance); check before sending them to the robot",
+                        highlight=False, markup=False)
 
 
 def _with_turn_copies(mdl, rob, rows: dict, max_copies: int, expand: bool = True) -> dict:
