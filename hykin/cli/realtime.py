@@ -187,16 +187,23 @@ def _bridge_command(name: str, period_help: str, extra: tuple = ()):
                                          "(SENTYPE, the correction element) and <CORRMODE>.")),
     ("mode", str | None, typer.Option(None, "--mode", metavar="absolute|incremental", help="absolute or incremental "
                                       "correction ('relative', KUKA's #RELATIVE, is incremental; default: the config's, else "
-                                      "absolute); must match RSI's POSCORR object."))))
-def rsi_cmd(model, listen, config, mode, controller, frame, axis_signs, period_ms, max_failures, max_correction_mm,
-            max_correction_deg, max_mismatch_mm, max_mismatch_deg, idle_exit_s, rt_priority, spin, payload_kg) -> None:
+                                      "absolute); must match RSI's POSCORR object.")),
+    ("rist_lag_cycles", int, typer.Option(4, "--rist-lag-cycles", metavar="N", help="Incremental mode: RIst may show "
+                                          "the command of up to N cycles before the last (a servo delay; 0..25). A "
+                                          "lost answer is taken only after N+1 cycles; a larger lag is taken for "
+                                          "lost answers and the correction is sent again."))))
+def rsi_cmd(model, listen, config, mode, rist_lag_cycles, controller, frame, axis_signs, period_ms, max_failures,
+            max_correction_mm, max_correction_deg, max_mismatch_mm, max_mismatch_deg, idle_exit_s, rt_priority, spin,
+            payload_kg) -> None:
     """KUKA RSI Ethernet peer: answers each <Rob> message with the RKorr that puts the real robot on the setpoint."""
-    from ..realtime.rsi import RsiHandler
+    from ..realtime.rsi import MAX_RIST_LAG_CYCLES, RsiHandler
     import numpy as np
 
     from ..compensation.krl import abc_from_matrix
     from ..realtime.rsi_xml import RsiConfig, format_rob, read_config
 
+    if not 0 <= rist_lag_cycles <= MAX_RIST_LAG_CYCLES:
+        raise CLIError(f"--rist-lag-cycles must be 0..{MAX_RIST_LAG_CYCLES}, got {rist_lag_cycles}")
     if mode is not None and mode.strip().lower() not in ("absolute", "incremental", "relative"):
         raise CLIError(f"--mode must be absolute or incremental (KUKA's #RELATIVE), got {mode!r}")
     try:
@@ -205,7 +212,8 @@ def rsi_cmd(model, listen, config, mode, controller, frame, axis_signs, period_m
         raise CLIError(str(e)) from None
     def handler(mdl, comp, signs, base):
         return RsiHandler(comp.step, base, mdl.nominal.dof, signs, cfg, period_ms, max_correction_mm,
-                          max_correction_deg, _nominal_fk(mdl.nominal), max_mismatch_mm, max_mismatch_deg)
+                          max_correction_deg, _nominal_fk(mdl.nominal), max_mismatch_mm, max_mismatch_deg,
+                          rist_lag_cycles)
 
     def message(k, T, axes_deg):
         pose = np.concatenate([T[:3, 3] * 1e3, abc_from_matrix(T[:3, :3], 0.0)])  # X Y Z mm, A B C deg
@@ -218,7 +226,9 @@ def rsi_cmd(model, listen, config, mode, controller, frame, axis_signs, period_m
     def extra() -> str:
         out = _checked(h, "RIst", "AIPos")
         if h.incremental:
-            out += f"; new RSI contexts {h.new_sessions}, answers the controller did not apply {h.lost_answers} (re-synchronised)"
+            # (counts what RIst showed: a lost increment under 0.002 mm, or one RIst never shows, is not seen; probe AW D2)
+            out += (f"; new RSI contexts {h.new_sessions}, re-synchronisations on answers RIst showed not applied "
+                    f"{h.lost_answers} (RIst lag up to {h.rist_lag} cycles handled)")
         return out
 
     typer.echo(f"hykin rsi: {mdl.nominal.name} on udp://{listen} ({cfg.mode}, <Sen Type=\"{cfg.sen_type}\"> "

@@ -20,8 +20,8 @@ import logging
 import numpy as np
 
 from ..geometry import se3
-from .udp_bridge import (MAX_MISMATCH_DEG, MAX_MISMATCH_MM, JumpWatch, Outcome, RestartWatch, check_actual_pose,
-                         check_limits)
+from .udp_bridge import (MAX_MISMATCH_DEG, MAX_MISMATCH_MM, REORDER_CYCLES, GapLedger, JumpWatch, Outcome,
+                         RestartWatch, check_actual_pose, check_limits)
 
 __all__ = ["EgmHandler", "format_robot", "format_sensor", "parse_robot", "parse_sensor"]
 
@@ -151,6 +151,7 @@ class EgmHandler:
         self.restart = RestartWatch(RESTART_BEHIND, 10)
         self.strays = JumpWatch(RESTART_BEHIND, 10, modulo=2**32)  # a stray seqno ahead of the session
         self.stray_jumps = 0
+        self.gaps = GapLedger(1, modulo=2**32)  # gaps counted as skipped that a late datagram may fill
         self.mismatch_checked = 0  # cycles whose feedBack.cartesian was checked against the FK of the joints
         self.last_reason = ""
 
@@ -188,6 +189,16 @@ class EgmHandler:
         d = (m.header.seqno - self.last_seq + 2**31) % 2**32 - 2**31
         return float("-inf") if d > RESTART_BEHIND else float(d)
 
+    def leftover(self, data: bytes) -> tuple[str, int]:
+        """For the counts of :func:`hykin.realtime.udp_bridge.run_bridge` (see
+        :meth:`hykin.realtime.rsi.RsiHandler.leftover`): ``("malformed", 0)`` when ``data`` is not a complete
+        ``EgmRobot``, else ``("superseded", 1 when its cycle was counted as skipped, else 0)``."""
+        try:
+            seq = _parse_robot(data, self.dof)[0]
+        except ValueError:
+            return "malformed", 0
+        return "superseded", self.gaps.fill(seq)
+
     def __call__(self, data: bytes) -> Outcome:
         try:
             seq, tm, planned, joints, actual = _parse_robot(data, self.dof)
@@ -197,6 +208,10 @@ class EgmHandler:
         skipped = undo = 0
         if self.last_seq is not None:
             gap = (seq - self.last_seq) % 2**32
+            if 2**32 - REORDER_CYCLES <= gap:
+                # a few seqnos behind: a late, reordered datagram (not a sign that the answered one was a stray;
+                # a cycle counted skipped is taken back out): as RSI (probe AW A3, D1)
+                return Outcome(None, "ignored:stale seqno", -self.gaps.fill(seq))
             back = self.strays.returned(seq) if gap == 0 or gap >= 2**31 else None
             if back is not None:  # the session before a stray seqno ahead goes on (udp_bridge.JumpWatch)
                 before, undo = back
@@ -208,6 +223,7 @@ class EgmHandler:
                 if not self.restart.restarted(seq, (self.last_seq - seq) % 2**32):
                     return Outcome(None, "ignored:stale seqno")
                 self.retired = self.last_seq
+                self.gaps.clear()
                 gap = 1  # a new session: its own count
             elif gap > RESTART_BEHIND and self.retired is not None and \
                     ((seq - self.retired) % 2**32 <= RESTART_BEHIND or (seq - self.retired) % 2**32 >= 2**31):
@@ -219,6 +235,10 @@ class EgmHandler:
                 self.strays.jumped(self.last_seq, self.last_seq, gap - 1)
             elif back is None:
                 self.strays.clear()
+            if back is None and 1 < gap <= RESTART_BEHIND:  # (a stray's return: its jump was no gap)
+                self.gaps.add(self.last_seq, gap - 1)
+            elif back is not None:
+                self.gaps.clear()
             skipped = gap - 1 - undo  # (a stray undone: its jump was not cycles the controller skipped)
         self.restart.clear()
         self.last_seq = seq

@@ -30,19 +30,23 @@ import numpy as np
 from ..compensation.krl import abc_from_matrix, matrix_from_abc
 from ..geometry import se3
 from .rsi_xml import RsiConfig, format_sen, ipoc_of, parse_rob
-from .udp_bridge import (MAX_MISMATCH_DEG, MAX_MISMATCH_MM, JumpWatch, Outcome, RestartWatch, check_actual_pose,
-                         check_limits)
+from .udp_bridge import (MAX_MISMATCH_DEG, MAX_MISMATCH_MM, REORDER_CYCLES, GapLedger, JumpWatch, Outcome,
+                         RestartWatch, check_actual_pose, check_limits)
 
-__all__ = ["DECIMALS", "MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "RsiHandler", "korr_of", "pose_of"]
+__all__ = ["DECIMALS", "DEFAULT_RIST_LAG_CYCLES", "MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "RsiHandler", "korr_of", "pose_of"]
 
 DECIMALS = 5  # of RKorr as written (mm, deg)
 RESTART_BEHIND_MS = 1000  # an IPOC this far behind (or ahead of) the last answered one may be a new RSI context
 RESYNC_TOL = 2e-3  # mm / deg: RIst's sum and hykin's agree within this (both written with 5-6 decimals)
-#: a RIst difference must last this many cycles to be taken as answers not applied: a RIst that shows the
-#: command with a dead time of up to 2 cycles (the robot standing still) is not a lost answer
-RESYNC_CONFIRM_CYCLES = 3
-#: RIst may show the command of the last cycle or of up to this many cycles before it (a dead time)
-MAX_DEAD_CYCLES = 2
+#: RIst may show the command of the last cycle or of up to this many cycles before it (a dead time, e.g. a
+#: servo delay of 16 ms at 4 ms): the default of ``--rist-lag-cycles``
+DEFAULT_RIST_LAG_CYCLES = 4
+MAX_RIST_LAG_CYCLES = 25  # the largest --rist-lag-cycles accepted (100 ms at 4 ms)
+MAX_DEAD_CYCLES = DEFAULT_RIST_LAG_CYCLES  # (the name before probe AW)
+#: a RIst difference must last this many cycles to be taken as answers not applied or a new context: one
+#: more than the RIst lag handled, which shows an applied answer missing for at most that many cycles (probe
+#: AW A2: with a confirmation of 3, a lag of 3 was taken for a lost first answer and the correction sent twice)
+RESYNC_CONFIRM_CYCLES = DEFAULT_RIST_LAG_CYCLES + 1
 _MAX_PENDING = 4  # answers not yet seen applied that a re-synchronisation considers (2^4 subsets)
 _log = logging.getLogger("hykin.realtime")
 _CAUSES = ("RIst mismatch:", "unreachable setpoint:", "correction over the limit:")  # failure reasons' categories
@@ -93,14 +97,21 @@ class RsiHandler:
     few mm) is a failure naming the likely cause (axis signs, robot file, tool or base frame).
     Incremental mode: a restarted RSI context (IPOC behind, confirmed by two messages) starts the sum
     again; a new context after an IPOC jump ahead, and an answer the controller did not apply, are seen
-    in the next ``RIst`` and hykin's sum follows (:meth:`_resync`).
+    in ``RIst`` and hykin's sum follows (:meth:`_resync`). rist_lag_cycles: how many cycles RIst may lag
+    (the command of the last cycle or of up to that many before it); a larger lag is taken for lost
+    answers (the correction sent again).
     """
 
     def __init__(self, step, base: np.ndarray, dof: int, axis_signs, cfg: RsiConfig, period_ms: float = 4.0,
                  max_correction_mm: float = 50.0, max_correction_deg: float = 5.0, nominal_fk=None,
-                 max_mismatch_mm: float = MAX_MISMATCH_MM, max_mismatch_deg: float = MAX_MISMATCH_DEG):
+                 max_mismatch_mm: float = MAX_MISMATCH_MM, max_mismatch_deg: float = MAX_MISMATCH_DEG,
+                 rist_lag_cycles: int = DEFAULT_RIST_LAG_CYCLES):
         check_limits(max_correction_mm=max_correction_mm, max_correction_deg=max_correction_deg,
                      max_mismatch_mm=max_mismatch_mm, max_mismatch_deg=max_mismatch_deg, period_ms=period_ms)
+        if isinstance(rist_lag_cycles, bool) or not isinstance(rist_lag_cycles, (int, np.integer)) or \
+                not 0 <= rist_lag_cycles <= MAX_RIST_LAG_CYCLES:
+            raise ValueError(f"--rist-lag-cycles must be a whole number 0..{MAX_RIST_LAG_CYCLES}, got {rist_lag_cycles!r}")
+        self.rist_lag = int(rist_lag_cycles)
         self.step, self.base, self.dof, self.cfg = step, np.asarray(base, dtype=np.float64), dof, cfg
         self.signs = np.asarray(axis_signs, dtype=np.float64)
         self.period_ms = float(period_ms)
@@ -112,15 +123,16 @@ class RsiHandler:
         self.last_ipoc: int | None = None
         self.restart = RestartWatch(RESTART_BEHIND_MS, int(10 * max(self.period_ms, 1.0)))
         self.sent_sum = np.zeros(6)  # incremental mode: what the controller has added up
-        self._prev = None  # incremental mode: (IPOC, setpoint, increment sent) of the last answer
-        self.lost_answers = 0  # incremental mode: answers the controller did not apply (seen in RIst)
+        self._context = None  # incremental mode: [hykin's sum before an IPOC jump ahead, the jump's increment, answers since]
+        self.lost_answers = 0  # incremental mode: re-synchronisations on answers RIst showed not applied
         self.new_sessions = 0
         self._retired: int | None = None  # the last IPOC answered before the latest restart
         self.strays = JumpWatch(RESTART_BEHIND_MS, int(10 * max(self.period_ms, 1.0)))  # a stray stamp ahead
         self._pending: list = []  # incremental mode: increments sent since RIst last showed the sum
         self._suspect = None  # incremental mode: (kind, difference, cycles seen, dead time) not yet taken (_resync)
         self._hist: list = []  # incremental mode: (setpoint, hykin's sum after the answer) of the last answers
-        self._confirm = RESYNC_CONFIRM_CYCLES
+        self._confirm = self.rist_lag + 1
+        self.gaps = GapLedger(self.period_ms)  # gaps counted as skipped that a late datagram may fill
         self.stray_jumps = 0  # jumps ahead that were one stray datagram (undone)
         self.last_reason = ""
 
@@ -159,25 +171,25 @@ class RsiHandler:
     def _resync(self, msg, skipped: int) -> None:
         """Incremental mode: the sum the controller applied, seen in this message's ``RIst`` (the pose it
         commanded in an earlier cycle: that cycle's setpoint plus the controller's sum), against hykin's.
-        ``RIst`` may show the command of the last cycle or, with a dead time, of up to
-        :data:`MAX_DEAD_CYCLES` cycles before it: it is compared with hykin's sum as of each of those
-        answers, and one that agrees (within ``RESYNC_TOL``) means every answer up to it was applied (probe
-        s42 AS: compared with the last answer only, a dead time of one cycle on a moving path hid a lost
-        first answer for good, the path 3.7 mm off). Otherwise a difference equal to answers not yet seen
-        applied (any of the last :data:`_MAX_PENDING` that the compared cycle can show, within
-        ``RESYNC_TOL``) means the controller did not apply them (lost or late); after an IPOC jump of over
-        1 s, a difference equal to hykin's sum before the jump means a new RSI context (its sum started at
-        zero): hykin's sum drops that amount. Only once the same difference has lasted
-        :data:`RESYNC_CONFIRM_CYCLES` cycles: in the first cycles, before ``RIst`` can show the first answer,
-        a dead time looks like that answer lost (probe s41 AM: taken at once, the whole correction was sent
-        again, 1.2-2.3 mm off for the rest of the path). Any other difference (e.g. a measured ``RIst`` that
-        lags by less than a cycle's command) leaves the sum as it is."""
-        hist, prev = self._hist, self._prev
+        ``RIst`` may show the command of the last cycle or, with a lag, of up to ``rist_lag_cycles`` cycles
+        before it: it is compared with hykin's sum as of each of those answers, and one that agrees (within
+        ``RESYNC_TOL``) means every answer up to it was applied (probe s42 AS: compared with the last answer
+        only, a lag of one cycle on a moving path hid a lost first answer for good). Otherwise a difference
+        equal to answers not yet seen applied (any of the last :data:`_MAX_PENDING` that the compared cycle
+        can show) means the controller did not apply them (lost or late); within a few cycles after an IPOC
+        jump of over 1 s, a difference equal to hykin's sum before the jump, seen in a cycle after it, means a
+        new RSI context (its sum started at zero; probe AW A1: looked for only in the message right after the
+        jump, a lagging RIst never showed it and the path ran uncorrected). hykin's sum drops that amount,
+        but only once the same difference has lasted ``rist_lag_cycles + 1`` cycles: a lag of L cycles shows
+        an applied answer missing for L cycles (probe AW A2: confirmed after 3, a lag of 3 took the first
+        answer for lost and sent the whole correction again, 5.95 mm off). Any other difference (e.g. a
+        measured ``RIst`` that lags by less than a cycle's command) leaves the sum as it is."""
+        hist, ctx = self._hist, self._context
         if not hist or msg.actual is None or skipped:
             return  # (after a gap RIst is of a setpoint not seen: the answers so far stay pending)
         actual = pose_of(msg.actual)
         ds = []  # RIst's sum minus hykin's as of the answer j cycles before the last
-        for j in range(min(len(hist), MAX_DEAD_CYCLES + 1)):
+        for j in range(min(len(hist), self.rist_lag + 1)):
             setpoint, total = hist[-1 - j]
             d = korr_of(actual, setpoint) - total
             d[3:] = _wrap(d[3:])
@@ -198,8 +210,8 @@ class RsiHandler:
                 # correction counted but never applied)
                 shown = self._pending[:max(len(self._pending) - j, 0)][-_MAX_PENDING:]
                 cands += [("lost", sum(c), j) for r in range(1, len(shown) + 1) for c in itertools.combinations(shown, r)]
-            if prev[3] is not None:
-                cands += [("context", prev[3], 0), ("context", prev[3] + prev[2], 0)]
+                if ctx is not None and j <= ctx[2]:  # the cycle compared is the jump's or later: in the new context
+                    cands += [("context", ctx[0], j), ("context", ctx[0] + ctx[1], j)]
             hit = next(((kind, c, j) for kind, c, j in cands if np.any(np.abs(c) > RESYNC_TOL) and close(ds[j], c)), None)
             self._suspect = None if hit is None else (hit[0], hit[1], 1, hit[2])
         if self._suspect is None or self._suspect[2] < self._confirm:
@@ -210,14 +222,26 @@ class RsiHandler:
         self._pending, self._suspect = (self._pending[-j:] if j else []), None
         if kind == "context":
             self.new_sessions += 1
+            self._context = None
             _log.warning("hykin rsi: incremental mode: RIst shows a new RSI context (its sum restarted at zero) after an "
                          "IPOC jump; hykin's sum re-synchronised")
             return
         self.lost_answers += 1
         if self.lost_answers == 1 or self.lost_answers % 100 == 0:
             _log.warning("hykin rsi: incremental mode: RIst has shown the controller's sum without answers hykin sent for "
-                         "%d cycles (lost or late); hykin's sum re-synchronised (%d so far)", self._confirm,
-                         self.lost_answers)
+                         "%d cycles (lost or late; or RIst lags more than --rist-lag-cycles %d); hykin's sum "
+                         "re-synchronised (%d so far)", self._confirm, self.rist_lag, self.lost_answers)
+
+    def leftover(self, data: bytes) -> tuple[str, int]:
+        """For the counts of :func:`hykin.realtime.udp_bridge.run_bridge`, a datagram read with the one just
+        answered and never tried: ``("malformed", 0)`` when it cannot be parsed, else ``("superseded", 1)``
+        when its cycle was counted as skipped (the bridge passed over it: taken back out), else
+        ``("superseded", 0)``. It is not answered and changes nothing else."""
+        try:
+            msg = parse_rob(data, self.cfg, self.dof)
+        except ValueError:
+            return "malformed", 0
+        return "superseded", self.gaps.fill(msg.ipoc)
 
     def cycle_key(self, data: bytes) -> float | None:
         """How many ms the ``IPOC`` of ``data`` lies after the last answered one, for
@@ -240,6 +264,11 @@ class RsiHandler:
             self.last_reason = str(e)
             return Outcome(None, "ignored:malformed")
         new_session, jump_sum, jumped, back, undo = False, None, False, None, 0
+        if self.last_ipoc is not None and 0 < self.last_ipoc - msg.ipoc <= REORDER_CYCLES * self.period_ms:
+            # a few cycles behind: a late, reordered datagram, whose cycle is over. Not a sign that the answered
+            # one was a stray (probe AW A3: cycles k+2, k, k+1 one by one undid k+2's applied answer and answered
+            # k+1 after it); a cycle counted as skipped when the newer one came is taken back out (AW D1)
+            return Outcome(None, "ignored:stale IPOC", -self.gaps.fill(msg.ipoc))
         if self.last_ipoc is not None and msg.ipoc <= self.last_ipoc:
             back = self.strays.returned(msg.ipoc)
             if back is not None:
@@ -248,7 +277,8 @@ class RsiHandler:
                 # whose answer the controller never took (its IPOC was not the cycle's): undo it, or an
                 # incremental sum would be started again and counted twice (probe s41 AH: 4.3 mm), and the
                 # session's cycles stay unanswered until their stamps pass the stray's (s41 AM: 100 cycles)
-                self.last_ipoc, self.sent_sum, self._prev, self._pending, self._hist = state
+                self.last_ipoc, self.sent_sum, self._context, self._pending, self._hist = state
+                self.gaps.clear()  # (the stray's jump was no gap)
                 self.stray_jumps += 1
                 _log.warning("hykin rsi: a datagram with IPOC ahead of the session was a stray (the session goes on "
                              "from IPOC %d): its answer is undone", state[0])
@@ -269,15 +299,19 @@ class RsiHandler:
             self.strays.clear()  # in order after a jump: the jump was real (skipped cycles, a new context)
         if back is None and self.last_ipoc is not None and msg.ipoc - self.last_ipoc > 2 * self.period_ms:
             jumped = jumped or msg.ipoc - self.last_ipoc > RESTART_BEHIND_MS
-            self.strays.jumped(self.last_ipoc, (self.last_ipoc, self.sent_sum.copy(), self._prev, list(self._pending),
+            ctx = None if self._context is None else list(self._context)
+            self.strays.jumped(self.last_ipoc, (self.last_ipoc, self.sent_sum.copy(), ctx, list(self._pending),
                                                 list(self._hist)),
                                0 if jumped else self._skipped(msg.ipoc))
         if new_session:  # a new RSI context: its own count and sum
             self._retired = max(self.last_ipoc, self._retired or 0)
-            self.last_ipoc, self.sent_sum, self._prev, self._pending, self._hist = None, np.zeros(6), None, [], []
+            self.last_ipoc, self.sent_sum, self._context, self._pending, self._hist = None, np.zeros(6), None, [], []
+            self.gaps.clear()
             self.new_sessions += 1
         self.restart.clear()
         skipped = 0 if self.last_ipoc is None else self._skipped(msg.ipoc)
+        if skipped and not jumped and back is None:
+            self.gaps.add(self.last_ipoc, skipped)
         self.last_ipoc = msg.ipoc
         if self.incremental:
             self._resync(msg, skipped)
@@ -299,9 +333,14 @@ class RsiHandler:
                 inc[3:] = np.where(np.abs(inc[3:]) > 180.0, _wrap(inc[3:]), inc[3:])
                 send = np.round(inc, DECIMALS)
             self.sent_sum = self.sent_sum + send
-            self._prev = (msg.ipoc, msg.setpoint, send, jump_sum)
+            if jump_sum is not None:  # a new context may have begun: RIst shows it within the lag (_resync)
+                self._context = [jump_sum, send, 0]
+            elif self._context is not None:  # looked for until a difference could have been confirmed, with margin
+                self._context[2] += 1
+                if self._context[2] > 2 * (self.rist_lag + 1) + 2:
+                    self._context = None
             self._pending = (self._pending + [send])[-4 * _MAX_PENDING:]
-            self._hist = (self._hist + [(msg.setpoint, self.sent_sum)])[-(MAX_DEAD_CYCLES + 1):]
+            self._hist = (self._hist + [(msg.setpoint, self.sent_sum)])[-(self.rist_lag + 1):]
         else:
             send = np.zeros(6) if k is None else k
         return Outcome(format_sen(msg.ipoc, send, self.cfg), kind, skipped, why)

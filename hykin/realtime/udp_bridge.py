@@ -7,8 +7,9 @@ cycle of the controller, read with it, is answered instead (superseded: its cycl
 it at once with the handler's reply. Counted: answered, failures (the handler could not compute
 and answered a neutral message), late answers (sent more than one period after the datagram
 arrived, by the kernel's receive time stamp), cycles the controller skipped (by its stamps) and
-every kind of dropped datagram. After ``max_failures`` consecutive failures the loop stops
-answering and returns, so that the controller's own timeout stops the robot.
+every kind of dropped datagram (one read with the answered cycle and never tried: by what the handler's
+``malformed`` says of it once the answer is sent, else "unread"). After ``max_failures`` consecutive
+failures the loop stops answering and returns, so that the controller's own timeout stops the robot.
 """
 
 from __future__ import annotations
@@ -27,12 +28,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["JumpWatch", "StampRun", "MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "BridgeStats", "Outcome", "RestartWatch",
-           "SO_TIMESTAMPNS", "arrival_time", "bind_udp", "check_actual_pose", "check_limits", "enable_timestamps",
-           "parse_listen", "raise_priority", "run_bridge"]
+__all__ = ["GapLedger", "JumpWatch", "REORDER_CYCLES", "StampRun", "MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "BridgeStats",
+           "Outcome", "RestartWatch", "SO_TIMESTAMPNS", "arrival_time", "bind_udp", "check_actual_pose", "check_limits",
+           "enable_timestamps", "parse_listen", "raise_priority", "run_bridge"]
 
 _log = logging.getLogger("hykin.realtime")
 _DRAIN = 256  # datagrams read at most per turn when behind
+_CLASSIFY = 16  # datagrams left over from a drain that are parsed (after the answer is sent) to count them right
+#: a stamp at most this many cycles behind the last answered one is a late (reordered) datagram: dropped,
+#: and never taken as a sign that the answered one was a stray (probe AW A3: cycles k+2, k, k+1 arriving one by
+#: one had k+2's applied answer undone and k+1 answered after it)
+REORDER_CYCLES = 4
 
 
 def _so_timestamps() -> int | None:
@@ -160,6 +166,39 @@ class JumpWatch:
         return state, skipped + seen
 
 
+class GapLedger:
+    """The last few gaps of the stamps that were counted as cycles skipped by the controller, so that a
+    datagram of such a cycle that comes late (reordered, :data:`REORDER_CYCLES`), or was read with the answer
+    that counted the gap, takes its cycle back out of the count, once (probe AW D1: reordering counted as
+    skipped cycles; D4: cycles the bridge passed over in a burst too). Stamps in counts (``per`` counts a
+    cycle: RSI's ``IPOC`` ms per period, EGM's ``seqno`` 1); ``modulo``: stamps that wrap."""
+
+    def __init__(self, per: float = 1.0, modulo: int | None = None, keep: int = 4):
+        self.per, self.modulo, self.keep = float(per), modulo, int(keep)
+        self._gaps: list = []  # [stamp before the gap, cycles in it, cycles filled since]
+
+    def _ahead(self, a: int, b: int) -> int:
+        d = int(a) - int(b)
+        return d if self.modulo is None else (d + self.modulo // 2) % self.modulo - self.modulo // 2
+
+    def add(self, before: int, cycles: int) -> None:
+        """``cycles`` (> 0) skipped after the stamp ``before``."""
+        if cycles > 0:
+            self._gaps = (self._gaps + [[int(before), int(cycles), set()]])[-self.keep:]
+
+    def fill(self, stamp: int) -> int:
+        """1 when ``stamp`` is a cycle of a gap counted before and not filled yet (it came late), else 0."""
+        for before, cycles, filled in self._gaps:
+            i = int(round(self._ahead(stamp, before) / self.per))
+            if 1 <= i <= cycles and i not in filled:
+                filled.add(i)
+                return 1
+        return 0
+
+    def clear(self) -> None:
+        self._gaps = []
+
+
 @dataclass
 class BridgeStats:
     """Counts of one bridge run (see the module docstring); ``stopped``: why the loop ended."""
@@ -168,7 +207,8 @@ class BridgeStats:
     failures: int = 0
     late: int = 0
     stamped: int = 0  # answers timed by the kernel's receive stamp (the others: by when the datagram was read)
-    skipped_cycles: int = 0
+    skipped_cycles: int = 0  # by the gaps of the stamps, less the cycles the bridge passed over itself
+    passed_over: int = 0  # cycles read in a burst and not answered because a newer one of the same drain was
     ignored: Counter = field(default_factory=Counter)
     max_consecutive_failures: int = 0
     latency_s: list = field(default_factory=list)
@@ -178,8 +218,10 @@ class BridgeStats:
         ign = ", ".join(f"{k} {v}" for k, v in sorted(self.ignored.items()) if v) or "none"
         # without kernel stamps an answer is timed from when the bridge read its datagram: a lower bound
         how = " (timed from reading: no kernel receive stamps)" if self.answered and not self.stamped else ""
+        # (the controller did send those: the bridge answered a newer cycle read with them, probe AW D4)
+        over = f", cycles passed over by the bridge (a newer one answered) {self.passed_over}" if self.passed_over else ""
         return (f"answered {self.answered} (failures answered neutrally {self.failures}), late {self.late}{how}, "
-                f"cycles skipped by the controller {self.skipped_cycles}, dropped: {ign}")
+                f"cycles skipped by the controller {self.skipped_cycles}{over}, dropped: {ign}")
 
 
 def check_limits(**limits) -> None:
@@ -282,15 +324,35 @@ def arrival_time(anc) -> float | None:
 
 def _in_order(handle, cands: list) -> list:
     """The controller's datagrams of one drain (``(data, addr, t_in, stamped)``, in arrival order) in the
-    order to try them: by the handler's ``cycle_key(data)`` where it has one (None first: no stamp
-    readable, the handler refuses it at once and it is counted for what it is; then the largest key,
-    the newest cycle, first), else the last to arrive first."""
+    order to try them: by the handler's ``cycle_key(data)`` where it has
+    one (None first: no stamp readable, the handler refuses it at once and it is counted for what it is;
+    then the largest key, the newest cycle, first), else the last to arrive first."""
     key = getattr(handle, "cycle_key", None)
     if key is None or len(cands) < 2:
         return cands[::-1]
     ks = [key(c[0]) for c in cands]
     order = sorted(range(len(cands)), key=lambda i: (ks[i] is None, 0 if ks[i] is None else ks[i], i), reverse=True)
     return [cands[i] for i in order]
+
+
+def _count_left(st: "BridgeStats", handle, left: list) -> None:
+    """Count the datagrams of a drain never tried (a newer cycle was answered), once the answer is sent (no
+    delay to it): by the handler's ``leftover(data) -> (kind, cycles)``, the dropped kind ("malformed",
+    "superseded") and whether its cycle was counted skipped by the answer's gap (then it is a cycle the
+    bridge passed over, not one the controller skipped: probe AW D4); "unread" beyond :data:`_CLASSIFY` of
+    them or without that method (probe AW D3: a malformed one read with a valid one was counted superseded)."""
+    check = getattr(handle, "leftover", None)
+    for i, data in enumerate(left):
+        if check is None or i >= _CLASSIFY:
+            st.ignored["unread"] += 1
+            continue
+        try:
+            kind, over = check(data)
+        except Exception:  # noqa: BLE001 - counting must never stop the bridge
+            kind, over = "malformed", 0
+        st.ignored[kind] += 1
+        st.passed_over += over
+        st.skipped_cycles -= over
 
 
 def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: int = 10, max_packet: int = 8192,
@@ -357,8 +419,9 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
                     data, anc, flags, addr = sock.recvmsg(max_packet + 1, cmsg)
                 except (BlockingIOError, InterruptedError, ConnectionRefusedError):
                     break
-            out = None
-            for n, (data, addr, t_in, stamped) in enumerate(_in_order(handle, cands)):
+            out, left = None, []
+            ordered = _in_order(handle, cands)
+            for n, (data, addr, t_in, stamped) in enumerate(ordered):
                 try:
                     out = handle(data)
                 except Exception as e:  # noqa: BLE001 - a handler's bug on some input must not stop the bridge
@@ -367,10 +430,10 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
                         _log.error("hykin bridge: a datagram raised %s: %s (dropped; the bridge goes on)",
                                    type(e).__name__, e)
                 if not out.kind.startswith("ignored"):
-                    if n + 1 < len(cands):
-                        st.ignored["superseded"] += len(cands) - n - 1  # older cycles: over
+                    left = [c[0] for c in ordered[n + 1:]]  # older cycles: over (counted once the answer is sent)
                     break
                 st.ignored[out.kind.partition(":")[2] or "invalid"] += 1
+                st.skipped_cycles += out.skipped  # (a late datagram of a cycle counted skipped takes it back)
                 out = None
             if out is None:
                 if idle():
@@ -391,8 +454,9 @@ def run_bridge(sock: socket.socket, handle, *, period_s: float, max_failures: in
                     _log.warning("hykin bridge: incremental mode: an answer left %.1f ms after its datagram (over the "
                                  "period): a controller that dropped it has a different sum of corrections; hykin "
                                  "re-synchronises from RIst where the message shows it (docs/realtime.md)", delay * 1e3)
-            last_valid = time.monotonic()
             st.skipped_cycles += out.skipped
+            _count_left(st, handle, left)
+            last_valid = time.monotonic()
             st.answered += out.reply is not None
             if out.kind == "failure":
                 st.failures += 1
