@@ -392,3 +392,22 @@ def test_ik_notes_solutions_far_from_their_seed(tmp_path):
     far[1] += [2.6, 0, 0, 0, 0, 0]  # target 1's seed far from every solution of it
     r = run(far)
     assert r.returncode == 0 and "(target 1) are solved more than 90°" in r.stdout + r.stderr, r.stdout + r.stderr
+
+
+def test_tool_shift_note_also_for_a_rotational_shift():
+    """Probe s42 AV: the note compared positions only, so a calibrated TCP turned (not moved) from the
+    file's tool was never said. A 0.05° turn at a 180 mm tool moves it 0.16 mm, below an accuracy of 1 mm
+    here, but turns it by more than the model's orientation accuracy: noted, with the angle."""
+    from comp_models import ExactModel
+
+    from hykin import load_robot
+    from hykin.compensation.tool_shift import ambiguity, tool_shift_note
+
+    nom = load_robot("ur10")
+    turn = se3.make_transform(se3.rotvec_to_matrix(np.radians([0.05, 0.0, 0.0])), np.zeros(3))
+    m = ExactModel(nom, nom.copy(tool=nom.tool @ turn))
+    D = se3.make_transform(np.eye(3), np.array([0.0, 0.0, 0.18]))[None]
+    pe, ae = ambiguity(m, D)
+    assert pe[0] < 1.0 and ae[0] == pytest.approx(0.05, rel=1e-6)
+    notes = tool_shift_note(m, D, None, "mount", accuracy_mm=1.0)
+    assert notes and f"{ae[0]:.3g}°" in notes[0], notes

@@ -70,14 +70,18 @@ def ambiguity(model, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def tool_shift_note(model, D: np.ndarray | None, given, reading: str, accuracy_mm: float) -> list:
     """``[note]`` where the targets with a program tool (``given`` ``(N,)`` bool, None: all rows of ``D``)
-    land farther apart under the two readings than ``accuracy_mm`` (the model's); else ``[]``."""
+    land farther apart under the two readings than ``accuracy_mm`` (the model's), or turned by more than the
+    model's orientation accuracy (probe s42 AV: a mostly rotational shift went unsaid); else ``[]``."""
+    from ..hybrid.ik_result import model_accuracy
+
     if D is None:
         return []
     rows = np.ones(len(D), dtype=bool) if given is None else np.asarray(given, dtype=bool)
     if not rows.any():
         return []
     pe, ae = ambiguity(model, np.asarray(D)[rows])
-    if not pe.max() > accuracy_mm:
+    acc_deg = model_accuracy(model)[1] or 1e-4
+    if not (pe.max() > accuracy_mm or ae.max() > acc_deg):
         return []
     from ..hybrid.ik_result import model_tcp_shift
 
@@ -90,6 +94,6 @@ def tool_shift_note(model, D: np.ndarray | None, given, reading: str, accuracy_m
             f"the flange's own error from the measurement tool's mount (both lie after the last joint). Taken as "
             f"{told[reading]} (--tool-shift {reading}); with --tool-shift {other} the {int(rows.sum())} targets with "
             f"a program tool would land up to {pe.max():.3g} mm / {ae.max():.3g}° elsewhere, more than the model's "
-            f"accuracy ({accuracy_mm:.3g} mm). 'flange' is right where the robot file's [tool] is the measurement "
+            f"accuracy ({accuracy_mm:.3g} mm / {acc_deg:.3g}°). 'flange' is right where the robot file's [tool] is the measurement "
             "tool as measured (a reflector nest's calibrated offset); to remove the doubt, measure with the "
             "program's tool"]
