@@ -109,3 +109,11 @@ def fake_sweep_ray(monkeypatch, data: list | None = None):
     monkeypatch.setattr(sweep_mod, "run_trials", fake_run_trials)
     monkeypatch.setattr(sweep_mod, "plot_results", lambda rows, path: None)  # matplotlib: not under test, slow
     return sweep_mod, calls
+
+
+def pose_rows(T) -> list:
+    """Poses ``(N, 4, 4)`` as the service's target rows ``[x, y, z, qw, qx, qy, qz]`` (m)."""
+    from hykin.geometry import se3
+
+    xyz, quat = se3.transform_to_pose(T)
+    return np.column_stack([xyz, quat]).tolist()

@@ -187,17 +187,26 @@ def _scalar_last(T):
     return out
 
 
-def test_scalar_last_quaternions_with_joints_are_refused(tmp_path, model):
-    """Probe s42 AQ: quaternions written x,y,z,w under a qw,qx,qy,qz header were compensated at other
-    orientations (27 of 40, up to 180° off), exit 0. With joints per target the relative rotations tell."""
-    m = model
-    qs = m.nominal.random_joints(30, 8, margin=0.2)
+def _good_and_scalar_last(tmp_path, m, n: int):
+    """Two CSVs of the model's own poses with their joints, one written right and one scalar-last, and a
+    runner of ``hykin compensate`` on the tiny model: ``run(file, out_name, *options)``."""
+    qs = m.nominal.random_joints(n, 8, margin=0.2)
     T = _quiet_predict(m, qs)
     good, bad = tmp_path / "good.csv", tmp_path / "bad.csv"
     _rows_csv(good, T, qs)
     _rows_csv(bad, _scalar_last(T), qs)
-    run = lambda f, o: subprocess.run([sys.executable, "-m", "hykin", "compensate", str(tiny_model_file()), str(f),
-                                       "-o", str(tmp_path / o)], capture_output=True, text=True)
+
+    def run(f, o, *a):
+        return subprocess.run([sys.executable, "-m", "hykin", "compensate", str(tiny_model_file()), str(f),
+                               "-o", str(tmp_path / o), *a], capture_output=True, text=True)
+
+    return good, bad, run
+
+
+def test_scalar_last_quaternions_with_joints_are_refused(tmp_path, model):
+    """Probe s42 AQ: quaternions written x,y,z,w under a qw,qx,qy,qz header were compensated at other
+    orientations (27 of 40, up to 180° off), exit 0. With joints per target the relative rotations tell."""
+    good, bad, run = _good_and_scalar_last(tmp_path, model, 30)
     r = run(bad, "b.csv")
     assert r.returncode == 2 and "scalar-last" in r.stderr and "bad.csv" in r.stderr, r.stderr
     assert not (tmp_path / "b.csv").exists()
@@ -345,14 +354,7 @@ def test_one_orientation_out_of_reach_is_a_warning_not_a_refusal():
 def test_cli_quaternion_order_option(tmp_path, model):
     """``--quaternion-order xyzw`` reads scalar-last columns as such (the same commands as the right file);
     ``wxyz`` says they are as written (no check); another value is one line, exit 2."""
-    m = model
-    qs = m.nominal.random_joints(20, 8, margin=0.2)
-    T = _quiet_predict(m, qs)
-    good, bad = tmp_path / "good.csv", tmp_path / "bad.csv"
-    _rows_csv(good, T, qs)
-    _rows_csv(bad, _scalar_last(T), qs)
-    run = lambda f, o, *a: subprocess.run([sys.executable, "-m", "hykin", "compensate", str(tiny_model_file()), str(f),
-                                           "-o", str(tmp_path / o), *a], capture_output=True, text=True)
+    good, bad, run = _good_and_scalar_last(tmp_path, model, 20)
     assert run(good, "g.csv").returncode == 0
     r = run(bad, "b.csv", "--quaternion-order", "xyzw")
     assert r.returncode == 0, r.stderr

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from shared_fixtures import free_port, start_server
+from shared_fixtures import free_port, start_server, pose_rows
 from comp_models import tiny_model_file
 
 from hykin import fk
@@ -62,11 +62,6 @@ def server():
         proc.wait(10)
 
 
-def _rows(T):
-    xyz, quat = se3.transform_to_pose(T)
-    return np.column_stack([xyz, quat]).tolist()
-
-
 def test_health_fk_ik_compensate(server):
     c, m, _ = server
     h = c.get("/health").json()
@@ -77,9 +72,9 @@ def test_health_fk_ik_compensate(server):
     P = np.array(r.json()["poses"])
     T = m.predict(q)
     assert np.abs(P[:, :3] - T[:, :3, 3]).max() < 1e-12
-    r = c.post("/ik", json={"targets": _rows(T), "q_current": q.tolist()}).json()
+    r = c.post("/ik", json={"targets": pose_rows(T), "q_current": q.tolist()}).json()
     assert all(r["success"]) and se3.pose_error(m.predict(np.array(r["q"])), T)[0].max() < 1e-6
-    far = _rows(T)
+    far = pose_rows(T)
     far[1][:3] = [5.0, 0.0, 0.0]
     r = c.post("/compensate", json={"targets": far, "q_current": q.tolist()})
     assert r.status_code == 200
@@ -90,7 +85,7 @@ def test_health_fk_ik_compensate(server):
     cmd = np.array([j["commands"][k] for k in (0, 2, 3, 4)])
     assert np.abs(cmd[:, :3] - fk(m.nominal, qa)[:, :3, 3]).max() < 1e-12
     assert se3.pose_error(m.predict(qa), T[[0, 2, 3, 4]])[0].max() < 1e-6
-    one = c.post("/compensate", json={"targets": _rows(T)[0][:3]})  # one flat position-only row
+    one = c.post("/compensate", json={"targets": pose_rows(T)[0][:3]})  # one flat position-only row
     assert one.status_code == 200 and one.json()["success"] == [True]
 
 
@@ -217,7 +212,7 @@ def test_stream_replies_in_order_and_survives_bad_messages(guarded):
     nom = m.nominal
     q = nom.random_joints(5, 11, margin=0.3)
     T = m.predict(q)
-    rows = _rows(T)
+    rows = pose_rows(T)
     msgs = [json.dumps({"target": rows[0], "id": "first"}),  # no q yet: refused
             json.dumps({"target": rows[0], "q": q[0].tolist(), "id": 0}),
             "{not json",

@@ -13,7 +13,7 @@ import socket
 import numpy as np
 import pytest
 from comp_models import tiny_model_file
-from shared_fixtures import free_port, start_server
+from shared_fixtures import free_port, start_server, pose_rows
 
 from hykin.geometry import se3
 
@@ -36,15 +36,10 @@ def srv():
     th.join(30)
 
 
-def _rows(T):
-    xyz, quat = se3.transform_to_pose(T)
-    return np.column_stack([xyz, quat]).tolist()
-
-
 def test_joints_in_degrees_or_outside_limits_are_refused_naming_field_row_column(srv):
     c, m, port = srv
     q = m.nominal.random_joints(4, 3, margin=0.3)
-    rows = _rows(m.predict(q))
+    rows = pose_rows(m.predict(q))
     qd = np.degrees(q)
     j = int(np.flatnonzero(np.abs(qd[0]) > 2 * np.pi + 0.5)[0])
     for path, body, key in (("/compensate", {"targets": rows, "q_current": qd.tolist()}, "q_current"),
@@ -79,7 +74,7 @@ def test_replies_say_where_the_correction_fades(srv):
     assert out.any() and (~out).any()
     pick = np.r_[np.flatnonzero(out)[:3], np.flatnonzero(~out)[:3]]
     qs = q[pick]
-    rows = _rows(m.predict(qs))
+    rows = pose_rows(m.predict(qs))
     r = c.post("/compensate", json={"targets": rows, "q_current": qs.tolist()}).json()
     assert all(r["success"])
     qa = np.array(r["q"])
@@ -103,7 +98,7 @@ def test_targets_in_mm_and_out_of_reach_reasons(srv):
     c, m, port = srv
     nom = m.nominal
     q = nom.random_joints(3, 5, margin=0.3)
-    rows = np.array(_rows(m.predict(q)))
+    rows = np.array(pose_rows(m.predict(q)))
     mm = rows.copy()
     mm[:, :3] *= 1000
     r = c.post("/compensate", json={"targets": mm.tolist()})

@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 from comp_models import tiny_model_file
-from shared_fixtures import free_port, start_server
+from shared_fixtures import free_port, start_server, pose_rows
 
 from hykin.geometry import se3
 
@@ -42,11 +42,6 @@ def srv():
     th.join(30)
 
 
-def _rows(T):
-    xyz, quat = se3.transform_to_pose(T)
-    return np.column_stack([xyz, quat]).tolist()
-
-
 def _read_until_closed(s: socket.socket, budget_s: float) -> bytes | None:
     """What the server sent before it closed ``s``; None when still open after ``budget_s``."""
     s.settimeout(budget_s)
@@ -65,7 +60,7 @@ def _read_until_closed(s: socket.socket, budget_s: float) -> bytes | None:
 
 def _compensate_body(m):
     q = m.nominal.random_joints(2, 4, margin=0.3)
-    return {"targets": _rows(m.predict(q)), "q_current": q.tolist()}
+    return {"targets": pose_rows(m.predict(q)), "q_current": q.tolist()}
 
 
 def test_silent_connections_neither_lock_out_requests_nor_stay_open(srv):
@@ -174,7 +169,7 @@ def test_stream_refuses_an_answer_that_moves_the_joints_too_far(srv):
     q0 = m.nominal.random_joints(1, 8, margin=0.4)[0]
     q1 = q0.copy()
     q1[0] += np.radians(45.0)  # the base turns 45 deg: over the limit of 20 deg
-    t0, t1 = _rows(m.predict(np.stack([q0, q1])))
+    t0, t1 = pose_rows(m.predict(np.stack([q0, q1])))
     with connect(f"ws://127.0.0.1:{port}/stream", additional_headers=AUTH, open_timeout=30) as ws:
         replies = []
         for msg in ({"target": t0, "q": q0.tolist(), "id": 1}, {"target": t1, "id": 2}, {"target": t0, "id": 3},

@@ -20,7 +20,7 @@ import numpy as np
 from ..geometry import se3
 from .result import fail_row
 
-__all__ = ["check_from_joints", "follow", "local_picks"]
+__all__ = ["check_from_joints", "follow", "local_picks", "where_it_lands"]
 
 _SAME_RAD = 1e-6  # the controller's joints this close to the compensated ones are them
 #: a local solve's end is the controller's only within a local move of where it stands: from farther (given
@@ -97,6 +97,17 @@ def follow(model, comp, result, k: int, prev: np.ndarray, T: np.ndarray, D, Dm, 
     return miss, pick
 
 
+def where_it_lands(nom, pick: np.ndarray, q_k: np.ndarray, miss: float) -> str:
+    """How a refusal says where the controller's local solve ``pick`` goes: no solution, or its joints' distance
+    from the compensated ``q_k`` and how far (mm) the model's robot lands there from the target."""
+    from .walk_checks import joint_gap
+
+    if not np.isfinite(miss):
+        return "finds no solution of the command near them"
+    return (f"reaches it on joints {joint_gap(nom, pick, q_k)} (largest joint difference) from the compensated ones, "
+            f"landing {miss:.3g} mm from the target")
+
+
 def check_from_joints(model, comp, result, T: np.ndarray, D, Dm, standing: np.ndarray) -> list:
     """Execute ``result``'s commands (in place) as a local-IK controller standing at ``standing`` ``(N, n)``
     (a step's previous joints, a batch's given joints; module docstring): every row at once, then the rows
@@ -130,14 +141,11 @@ def check_from_joints(model, comp, result, T: np.ndarray, D, Dm, standing: np.nd
     for k in rows[differ]:
         miss, pick = follow(model, comp, result, k, standing[k], T, D, Dm, Dc, Tm, tol)
         if miss > acc:
-            where = ("finds no solution of the command near them" if not np.isfinite(miss) else
-                     f"reaches it on joints {joint_gap(nom, pick, result.q[k])} (largest joint difference) from the "
-                     f"compensated ones, landing {miss:.3g} mm from the target")
             fail_row(result, k, f"the controller would execute it elsewhere: solving the command locally from the "
                                 f"joints the robot stands at (the given joints, {joint_gap(nom, standing[k], result.q[k])} "
-                                f"from the compensated ones) {where}; near a singular pose (A5 = 0, a stretched elbow) "
-                                f"the command does not fix the joints: give joints nearer the target or send the "
-                                f"compensated joints (--joints)")
+                                f"from the compensated ones) {where_it_lands(nom, pick, result.q[k], miss)}; near a "
+                                f"singular pose (A5 = 0, a stretched elbow) the command does not fix the joints: give "
+                                f"joints nearer the target or send the compensated joints (--joints)")
         elif np.isfinite(pick).all() and np.abs(pick - result.q[k]).max() > _SAME_RAD:
             # the robot will stand at the controller's joints: say so (a whole turn away: the same pose, as the
             # walk takes it), and where the model's robot lands there

@@ -57,8 +57,7 @@ def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> l
     them, up to ``rounds`` times (the controller's endpoint moves little with the command: a fixed point).
     ``D``/``Dm``: the targets' tools relative to the robot file's and the model's TCP (or None)."""
     from ..hybrid.ik_result import model_accuracy
-    from .local_controller import follow
-    from .walk_checks import joint_gap
+    from .local_controller import follow, where_it_lands
 
     nom = model.nominal
     Dc = np.broadcast_to(np.eye(4), (len(T), 4, 4)) if D is None else D
@@ -85,12 +84,9 @@ def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> l
             continue
         miss, pick = follow(model, comp, result, k, prev, T, D, Dm, Dc, Tm, tol, rounds)
         if miss > acc:
-            where = ("finds no nominal solution of the command" if not np.isfinite(miss) else
-                     f"reaches it on joints {joint_gap(nom, pick, result.q[k])} (largest joint difference) from "
-                     f"the compensated ones, landing {miss:.3g} mm from the target")
             fail_row(result, k, f"the controller would execute it elsewhere on this redundant arm: solving the command "
-                             f"locally from the joints before it {where}; give the joints (q1..qN) or send them "
-                             "(--joints)")
+                             f"locally from the joints before it {where_it_lands(nom, pick, result.q[k], miss)}; give "
+                             "the joints (q1..qN) or send them (--joints)")
             continue
         if miss > tol:
             noted.append(f"{k} ({miss:.3g} mm)")
