@@ -248,7 +248,7 @@ class Compensator:
         the controller still executes elsewhere fails with the reason, or is noted (``comp.notes``) where
         that lands within the model's accuracy. Arms of fewer than 6 joints reach a pose only in the
         least-squares sense: not checked (as programs). The shifts are recomputed for rows solved again."""
-        from .walk_checks import WalkRow, check_walk, other_branch_words
+        from .walk_checks import WalkRow, check_walk, take_other_branches
 
         N = len(T)
         Dc = np.broadcast_to(np.eye(4), (N, 4, 4)) if D is None else D
@@ -260,9 +260,9 @@ class Compensator:
                         tool_given=None if G is None else G[rows], branch_reason=branch_reason, controller_check=False)
 
         comp.reason = comp.reason.astype(object)
+        take_other_branches(self, comp, T, D, Dm, solve)  # a near tie: the check decides the controller's branch
         comp.notes = check_walk(self.model, self, solve, rows_t, comp, comp.q_branch.copy(), T, Dc, Dm, None,
                                 T_nominal=self.nominal_world(T, D))
-        other_branch_words(self, comp, T, D, Dm)
         comp.reason = comp.reason.astype(str)
 
     # ------------------------------------------------------------------ the one path

@@ -26,7 +26,7 @@ from ..geometry import se3
 from .program_checks import take
 from .result import fail_row
 
-__all__ = ["WalkRow", "check_walk", "joint_gap", "landing"]
+__all__ = ["WalkRow", "check_walk", "joint_gap", "landing", "take_other_branches"]
 
 
 @dataclass
@@ -315,23 +315,21 @@ def _walk_reason(model, compensator, targets, comp, k, cur, where, keep, Tm, D, 
             f"that the controller executes reaches it within the tolerance {compensator.tolerance_mm:.3g} mm: {fix}")
 
 
-def other_branch_words(compensator, comp, T: np.ndarray, D, Dm) -> None:
-    """In place: the reason of each walk target refused as unreachable for the model (not out of reach) gets
-    whether the model's robot reaches it on another branch (the calibrated robot's solutions as seeds): the
-    walk's branch is then the controller's choice from the target before, not a limit of the robot, and
-    giving the joints of that branch compensates it (probe s41 AL: such refusals read as if the robot could
-    not reach the target at all)."""
+def _other_branches(compensator, comp, T: np.ndarray, D, Dm) -> dict:
+    """``{row: joints}``: the walk's targets refused as unreachable for the model on the walk's branch (not out
+    of reach) that the model's robot reaches on another branch (the calibrated robot's solutions as seeds)."""
     from ..kinematics.ik import ik
 
     rows = np.array([k for k, r in enumerate(comp.reason) if str(r).startswith("unreachable for the model: residual")],
                     dtype=np.int64)
     if not rows.size:
-        return
+        return {}
     nom_dof = compensator.dof
     Tm = compensator.model_targets(T[rows], None if Dm is None else Dm[rows])
     br = ik(compensator.robot, compensator.robot_world(Tm), all_branches=True)
     Q = np.asarray(br.q, dtype=np.float64).reshape(len(rows), -1, nom_dof)
     OK = np.asarray(br.success, dtype=bool).reshape(len(rows), -1)
+    out = {}
     for j, k in enumerate(rows):
         for qs in Q[j][OK[j]]:
             if np.abs(qs - comp.q_branch[k]).max() < 1e-3:
@@ -340,8 +338,21 @@ def other_branch_words(compensator, comp, T: np.ndarray, D, Dm) -> None:
             q, _, ok, _, _, _ = compensator.solve(T[sl], qs[None], None if D is None else D[sl], False,
                                                   D_model=None if Dm is None else Dm[sl])
             if ok[0]:
-                comp.reason[k] = (f"{comp.reason[k]}; on the branch the controller takes from the target before. The "
-                                  f"model's robot reaches it on another branch (joints "
-                                  f"{', '.join(f'{v:.1f}' for v in np.degrees(q[0]))}°): give the joints (q1..qN) "
-                                  "to compensate it there")
+                out[int(k)] = q[0]
                 break
+    return out
+
+
+def take_other_branches(compensator, comp, T: np.ndarray, D, Dm, solve) -> None:
+    """In place, before the walk's check: a target the walk's branch does not reach but another branch does
+    (near a tie of two branches: at a stretched elbow the nominal solution nearest the target before can be
+    the other elbow, where the model misses by tenths of a millimetre) is taken on that branch; the check then
+    decides whether the controller executes it there (probe s42 AV: 19 of 60 stretched-elbow targets were
+    refused as unreachable, some of which a nearest-joints controller executes right). ``solve(rows, hints)``:
+    a :class:`.result.Compensation` of those rows."""
+    from .program_checks import take
+
+    for k, q in _other_branches(compensator, comp, T, D, Dm).items():
+        again = solve(np.array([k]), q[None])
+        if again.success[0]:
+            take(comp, np.array([k]), again, np.ones(1, dtype=bool))
