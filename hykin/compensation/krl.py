@@ -203,15 +203,15 @@ def find_targets(text: str, robot, context: str = "", axis_signs=None) -> tuple[
             parts={"keys": keys, "spans": spans_k, "literal": text[m.start():m.end()], "A": a_deg,
                    "tokens": {k: comps[k][2] for k in keys}, "axis_signs": sgn},
         ))
-    uses, first, verb = _uses(targets, points, text_is_src)
+    uses, first, verb, every = _uses(targets, points, text_is_src)
     jm = joint_moves(motions, axis_values(src_clean, others, robot.dof, sgn), robot.dof, sgn)
-    set_execution_order(targets, first, len(src_clean), jm)
+    set_execution_order(targets, first, len(src_clean), jm, every)
     for k, v in verb.items():  # a continuous-path motion keeps the arm's configuration (S): KSS ignores S there
         if v in _CP_VERBS and "S" not in targets[k].config:
             targets[k].config["keep_status"] = True
     fr = frames_of_targets(src_clean, others, motions, spans, uses, targets, robot, types,
                            where="" if text_is_src else "--context, ")
-    notes = notes + fr.apply(targets)
+    notes = notes + fr.apply(targets) + _from_unseen_points(targets, first, motions, uses, jm, src_clean)
     return _unused(targets, first, motions, src_clean, notes)
 
 
@@ -247,11 +247,41 @@ def _assigned(ks: list, targets: list, pos: int, text_is_src: bool) -> list:
     return [max(before, key=lambda k: targets[k].start)] if before else ks
 
 
-def _uses(targets: list, points: list, text_is_src: bool) -> tuple[list, dict, dict]:
-    """``(uses, first, verb)``: the motions using each target (``[(motion, target index, left operands,
+def _from_unseen_points(targets: list, first: dict, motions: list, uses: list, joint_moves: list,
+                        src_clean: str) -> list:
+    """Notes for targets without ``S`` whose motion comes right after a motion to a point that is not a
+    target of this file (a ``.dat`` point given as context) nor a joint move: the walk does not know the
+    arm's configuration there and takes the joints before that motion (probe s42 AX: a LIN after ``PTP P24``
+    was walked from XHOME's configuration and landed 1.76 mm off on P24's)."""
+    moved_to = {mo.pos for mo, *_ in uses} | {p for p, _ in joint_moves}
+    before = sorted((mo.pos, mo) for mo in motions if not mo.rel)
+    out = []
+    own = {}
+    for mo, k, *_ in uses:  # the motion that first moves to each target
+        own[k] = min(own.get(k, mo.pos), mo.pos)
+    for k, pos in first.items():
+        t = targets[k]
+        if "S" in t.config:
+            continue
+        prior = [mo for p, mo in before if p < own.get(k, pos)]
+        if not prior or prior[-1].pos in moved_to:
+            continue
+        mo = prior[-1]
+        line = src_clean.count("\n", 0, mo.pos) + 1
+        what = " : ".join(op.text for op in mo.points[0]) if mo.points and mo.points[0] else "a point"
+        out.append(f"line {t.line}: comes after {mo.verb} {what[:40]} (line {line} of the .src), a point not solved "
+                   f"here (declared in another file): its arm configuration is not known to this run, which walks "
+                   f"this target from the joints before that motion; if that point's S differs, the controller "
+                   f"executes it on another branch. Check it, or put a joint move (PTP to an axis aggregate) before it")
+    return out
+
+
+def _uses(targets: list, points: list, text_is_src: bool) -> tuple[list, dict, dict, dict]:
+    """``(uses, first, verb, every)``: the motions using each target (``[(motion, target index, left operands,
     right operands, why the point is unknown)]``), where each is first executed ``{target index:
     position in the .src}`` (an inline target at its literal, a variable at the first motion to it at or
-    after its literal (the .src's own variables) or anywhere (a .dat's)) and that motion's verb."""
+    after its literal (the .src's own variables) or anywhere (a .dat's)), that motion's verb, and the
+    positions of every motion to it ``{target index: [position]}``."""
     by_name: dict = {}
     for k, t in enumerate(targets):
         if t.name:
@@ -275,7 +305,7 @@ def _uses(targets: list, points: list, text_is_src: bool) -> tuple[list, dict, d
     for k, pos in seen.items():
         after = [p for p in pos if text_is_src and p[0] >= targets[k].start]
         first[k], verb[k] = min(after) if after else min(pos)
-    return uses, first, verb
+    return uses, first, verb, {k: sorted(p for p, _ in pos) for k, pos in seen.items()}
 
 
 def format_target(t: ProgramTarget, command: np.ndarray, q, robot, axis_signs=None) -> str:

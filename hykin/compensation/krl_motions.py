@@ -258,21 +258,29 @@ def point_of(ops: list, types: dict) -> tuple[int | None, str]:
                   "variable or aggregate of type POS/E6POS among FRAME operands")
 
 
-def set_execution_order(targets: list, first_use: dict, span: int, joints: list) -> None:
-    """Set ``order`` and ``reset`` of ``targets`` (:class:`.programs.ProgramTarget`): ``first_use``
+def set_execution_order(targets: list, first_use: dict, span: int, joints: list, every: dict | None = None) -> None:
+    """Set ``order``, ``reset`` and ``after`` of ``targets`` (:class:`.programs.ProgramTarget`): ``first_use``
     ``{target index: position}`` (of the motion that first moves to it, in the ``.src`` text of length
-    ``span``); unused targets come after every used one, in text order. ``reset``: the joints of the last
-    of ``joints`` ``[(position, q)]`` between the previous target executed and this one (None when there is
-    none or the target is unused)."""
+    ``span``); unused targets come after every used one, in text order. ``every`` ``{target index:
+    [position]}``: every motion to each target (default: the first). ``after``: the target of the last motion
+    before this one's, where that is a later use of a target than its first (a ``.dat`` point moved to
+    again: probe s42 AX, a LIN after ``PTP P24`` was walked from the target before P24's first use and
+    executed 1.76 mm off). ``reset``: the joints of the last of ``joints`` ``[(position, q)]`` between that
+    motion and this one (None when there is none or the target is unused)."""
     for k, t in enumerate(targets):
         t.order = first_use.get(k, span + t.start)
+    every = every or {k: [p] for k, p in first_use.items()}
+    events = sorted((p, k) for k, ps in every.items() for p in ps)  # every motion to a target, in the .src
+    epos = np.array([p for p, _ in events], dtype=np.int64)
     jpos = np.array([p for p, _ in joints], dtype=np.int64)
-    prev = -1
     for k in sorted(range(len(targets)), key=lambda k: (targets[k].order, k)):
         t = targets[k]
-        if k in first_use:
-            i = int(np.searchsorted(jpos, t.order))  # joint moves strictly before the target's motion
-            t.reset = joints[i - 1][1] if i and jpos[i - 1] > prev else None
-        else:
+        if k not in first_use:
             t.reset = None
-        prev = t.order
+            continue
+        e = int(np.searchsorted(epos, t.order))  # motions strictly before this target's
+        last_pos, last_k = events[e - 1] if e else (-1, None)
+        prev_in_order = max((targets[j].order for j in first_use if targets[j].order < t.order), default=-1)
+        t.after = last_k if last_k is not None and last_pos > prev_in_order else None
+        i = int(np.searchsorted(jpos, t.order))  # joint moves strictly before the target's motion
+        t.reset = joints[i - 1][1] if i and jpos[i - 1] > last_pos else None

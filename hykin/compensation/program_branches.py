@@ -98,10 +98,11 @@ def branch_hints(model, targets: list, Tm: np.ndarray, T_cal: np.ndarray, axis_s
         for k in execution_order(targets):
             j = slot.get(k)
             if j is not None:
+                p = prev if targets[k].after is None else targets[k].after  # (a target moved to again)
                 if targets[k].reset is not None:
                     cur = np.asarray(targets[k].reset, dtype=np.float64)
-                elif prev is not None and np.isfinite(qb[prev]).all():
-                    cur = qb[prev]
+                elif p is not None and np.isfinite(qb[p]).all():
+                    cur = qb[p]
                 pick = None
                 for (rob, q, ok), signs in zip(sols, (axis_signs, signs_cal)):
                     allowed = ok[j]

@@ -67,6 +67,8 @@ class ProgramTarget:
     order: where the target is executed, as a sort key (a declared variable: the position of the first
     motion that uses it, e.g. in the ``.src`` of a ``.dat`` point), or None (the literal's ``start``);
     the walk of targets without configuration data goes in this order.
+    after: the index of the target the robot moves to just before this one's motion, where a program moves
+    to some target more than once (a ``.dat`` point used again), else None (the one before in ``order``).
     caveat: an assumption made for the target that may explain a failure (an undeclared tool taken to be
     the robot file's), named in its failure reason; ``""`` for none.
     parts: format-specific parse (number spans and texts) used to write the literal back.
@@ -86,6 +88,7 @@ class ProgramTarget:
     error: str = ""
     order: int | None = None
     caveat: str = ""
+    after: int | None = None
 
 
 @dataclass

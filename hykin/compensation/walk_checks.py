@@ -170,8 +170,8 @@ def check_walk(model, compensator, solve, targets: list, comp, alt_hint: np.ndar
         t = targets[k]
         if t.reset is not None:
             cur, where = np.asarray(t.reset, dtype=np.float64), "the joint move before it"
-        elif prev >= 0 and comp.success[prev]:
-            cur, where = comp.q[prev].copy(), f"the previous target's ({_named(targets[prev])})"
+        elif (p := _before(t, prev)) >= 0 and comp.success[p]:
+            cur, where = comp.q[p].copy(), f"the previous target's ({_named(targets[p])})"
         else:
             cur, where = None, ""
         if free[k] and comp.success[k] and cur is not None and (not same[k] or not np.array_equal(cur, cur0[k])):
@@ -230,16 +230,24 @@ def _same_but_turned(nom, q: np.ndarray, pick: np.ndarray) -> np.ndarray:
     return np.isfinite(d).all(1) & (np.abs(wrapped).max(1) < 1e-6) & (np.abs(d).max(1) > 1e-6)
 
 
+def _before(t, prev: int) -> int:
+    """The target the robot moves to just before ``t``: its ``after`` (a program's target moved to again),
+    else ``prev``, the one before in execution order (-1: none)."""
+    after = getattr(t, "after", None)
+    return prev if after is None else int(after)
+
+
 def _standing(targets: list, comp, order: list, listed: bool = False) -> np.ndarray:
     """``(N, n)``: the joints the robot is at before each target as compensated so far (NaN where not known:
     after a target that failed; a list's failed target is not sent, so the robot stays at the one before)."""
     cur, prev = np.full(comp.q.shape, np.nan), None
     for k in order:
         t = targets[k]
+        p = _before(t, -1 if prev is None else prev)
         if t.reset is not None:
             cur[k] = np.asarray(t.reset, dtype=np.float64)
-        elif prev is not None and comp.success[prev]:
-            cur[k] = comp.q[prev]
+        elif p >= 0 and comp.success[p]:
+            cur[k] = comp.q[p]
         if not (listed and not comp.success[k]):
             prev = k
     return cur
