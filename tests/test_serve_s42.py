@@ -279,3 +279,68 @@ def test_cli_serve_loads_once_and_checks_the_new_options(tmp_path, monkeypatch):
     import hashlib
 
     assert ident["file_sha256"] == hashlib.sha256(tiny_model_file().read_bytes()).hexdigest()
+
+
+def test_requests_without_the_token_hold_no_connection_slot():
+    """Probe s42 AY: 100 clients with a wrong token held every ``--max-connections`` slot through their
+    refusal delay, and 70 of 76 correct requests got 503. A request without the token is passed to the app
+    (which refuses it) without taking a slot; a correct one still finds its slot."""
+    import asyncio
+    import collections
+
+    from hykin.compensation.service import ConnectionLimit
+
+    gate = asyncio.Event()
+    seen = []
+
+    async def app(scope, receive, send):
+        seen.append(dict(scope["headers"]).get(b"authorization"))
+        await gate.wait()  # every request stays "in progress"
+        await send({"type": "http.response.start", "status": 200, "headers": []})
+        await send({"type": "http.response.body", "body": b"{}"})
+
+    async def main():
+        mw = ConnectionLimit(app, limit=1, counts=collections.Counter(), token="secret", delay_s=0.0)
+        sent = []
+
+        async def send(msg):
+            sent.append(msg)
+
+        async def receive():
+            return {"type": "http.request", "body": b"", "more_body": False}
+
+        def scope(tok):
+            return {"type": "http", "path": "/compensate", "headers": [(b"authorization", f"Bearer {tok}".encode())]}
+
+        bad = [asyncio.create_task(mw(scope("wrong"), receive, send)) for _ in range(5)]
+        await asyncio.sleep(0.01)
+        good = asyncio.create_task(mw(scope("secret"), receive, send))
+        await asyncio.sleep(0.01)
+        assert mw.active == 1 and not any(m.get("status") == 503 for m in sent)
+        gate.set()
+        await asyncio.gather(*bad, good)
+
+    asyncio.run(main())
+    assert seen.count(b"Bearer secret") == 1 and seen.count(b"Bearer wrong") == 5
+
+
+def test_waiting_connections_close_silent_ones_before_kept_alive_ones():
+    """Probe s42 AY: with silent sockets coming, a keep-alive client idle between requests was the oldest
+    waiting connection and was closed as it sent its next request. Fresh silent ones go first."""
+    from hykin.compensation.service_protocol import WaitingConnections
+
+    class Conn:
+        dropped = False
+
+        def drop(self, response):
+            self.dropped = True
+
+    w = WaitingConnections(cap=3)
+    kept = Conn()
+    w.add(kept, kept=True)
+    silent = [Conn() for _ in range(6)]
+    for c in silent:
+        w.add(c)
+    assert not kept.dropped and sum(c.dropped for c in silent) == 4 and len(w) == 3
+    w.discard(kept)
+    assert len(w) == 2

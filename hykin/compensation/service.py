@@ -169,7 +169,8 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
     # CDN a cell network cannot reach, and the schema is empty (every endpoint reads a raw Request)
     app = FastAPI(title="hykin compensation service", version=__version__, lifespan=lifespan,
                   docs_url=None, redoc_url=None, openapi_url=None)
-    app.add_middleware(ConnectionLimit, limit=limits.max_connections, counts=counts)
+    app.add_middleware(ConnectionLimit, limit=limits.max_connections, counts=counts, token=limits.token,
+                       delay_s=limits.refusal_delay_s)
     app.state.hykin_counts = counts  # the connection layer counts its drops here too (uvicorn_config)
 
     async def _refuse(status: int, detail: str, kind: str, headers: dict | None = None):
@@ -300,17 +301,28 @@ logging.getLogger("uvicorn.error").addFilter(_DenialLogFilter())
 
 class ConnectionLimit:
     """ASGI middleware: at most ``limit`` requests and streams in progress at once (``GET /health`` is
-    not counted); one more is refused at once with 503, ``Retry-After: 1`` and a JSON reason (a
-    WebSocket handshake: the same as an HTTP denial response), counted as ``refused_connections``."""
+    not counted, nor a request without the bearer ``token``, which the app refuses: probe s42 AY, 100
+    clients with a wrong token held every slot through their refusal delay and 70 of 76 correct requests
+    got 503); one more is refused after ``delay_s`` (as every refusal) with 503, ``Retry-After: 1`` and a
+    JSON reason (a WebSocket handshake: the same as an HTTP denial response), counted as
+    ``refused_connections``."""
 
-    def __init__(self, app, limit: int, counts):
+    def __init__(self, app, limit: int, counts, token: str | None = None, delay_s: float = 0.0):
         self.app, self.limit, self.counts, self.active = app, int(limit), counts, 0
+        self.token, self.delay_s = token, float(delay_s)
 
     async def __call__(self, scope, receive, send):
         if scope["type"] not in ("http", "websocket") or scope.get("path") == "/health":
             return await self.app(scope, receive, send)
+        if self.token is not None:
+            from starlette.datastructures import Headers
+
+            if not token_ok(Headers(scope=scope), self.token):
+                return await self.app(scope, receive, send)  # refused there, after its delay, holding no slot
         if self.active >= self.limit:
             self.counts["refused_connections"] += 1
+            if self.delay_s:
+                await asyncio.sleep(self.delay_s)
             body = _dumps({"detail": f"busy: {self.active} requests and streams in progress (limit {self.limit}, "
                                      f"hykin serve --max-connections); retry later"})
             headers = [(b"content-type", b"application/json"), (b"retry-after", b"1"),

@@ -37,24 +37,31 @@ class WaitingConnections:
     def __init__(self, cap: int, counts: collections.Counter | None = None):
         self.cap = int(cap)
         self.counts = counts if counts is not None else collections.Counter()
-        self._conns: dict = {}  # insertion-ordered: the first key is the oldest
+        # insertion-ordered, the first key the oldest: connections that never sent a request, and kept-alive
+        # ones idle between requests (closed only when no fresh one is left: probe s42 AY, a keep-alive client
+        # idle between requests was the oldest and was reset as it sent its next one while silent sockets came)
+        self._fresh: dict = {}
+        self._kept: dict = {}
 
     def __len__(self) -> int:
-        return len(self._conns)
+        return len(self._fresh) + len(self._kept)
 
-    def add(self, conn) -> None:
-        """``conn`` waits for a request now; the oldest waiting ones are closed while over ``cap``."""
-        self._conns.pop(conn, None)
-        self._conns[conn] = None
-        while len(self._conns) > self.cap:
-            old = next(iter(self._conns))
-            del self._conns[old]
+    def add(self, conn, kept: bool = False) -> None:
+        """``conn`` waits for a request now (``kept``: after answering one); while over ``cap`` the oldest
+        waiting connection that never sent a request is closed, else the oldest kept-alive one."""
+        self.discard(conn)
+        (self._kept if kept else self._fresh)[conn] = None
+        while len(self) > self.cap:
+            pool = self._fresh if self._fresh else self._kept
+            old = next(iter(pool))
+            del pool[old]
             self.counts["dropped_waiting"] += 1
             old.drop(None)
 
     def discard(self, conn) -> None:
         """``conn`` holds a request now, or is gone."""
-        self._conns.pop(conn, None)
+        self._fresh.pop(conn, None)
+        self._kept.pop(conn, None)
 
 
 def _base_protocol():
@@ -104,7 +111,7 @@ def http_protocol(header_timeout_s: float, waiting: WaitingConnections, base=Non
             super().on_response_complete()
             # idle between requests: uvicorn's keep-alive timer covers silence, the first byte arms ours
             if not self.transport.is_closing() and not self._in_request():
-                self._await_request()
+                self._await_request(kept=True)
 
         def handle_websocket_upgrade(self, *args) -> None:
             self._settle()  # the WebSocket protocol takes the connection over: the app bounds streams
@@ -122,9 +129,9 @@ def http_protocol(header_timeout_s: float, waiting: WaitingConnections, base=Non
             c = self.cycle
             return c is not None and not c.response_complete
 
-        def _await_request(self) -> None:
+        def _await_request(self, kept: bool = False) -> None:
             self._waiting, self._partial = True, False
-            waiting.add(self)
+            waiting.add(self, kept)
 
         def _settle(self) -> None:
             if self._deadline is not None:
