@@ -344,3 +344,46 @@ def test_waiting_connections_close_silent_ones_before_kept_alive_ones():
     assert not kept.dropped and sum(c.dropped for c in silent) == 4 and len(w) == 3
     w.discard(kept)
     assert len(w) == 2
+
+
+def test_token_file_with_a_byte_order_mark_and_bracketed_ipv6_host(tmp_path):
+    """Probe s42 AY: a token file saved with a UTF-8 byte-order mark was refused with a raw
+    UnicodeDecodeError; ``--host [::1]`` passed the port check and then failed in uvicorn."""
+    import subprocess
+    import sys
+
+    from hykin.compensation.service_guard import read_token_file
+
+    f = tmp_path / "tok"
+    f.write_bytes(b"\xef\xbb\xbfs3cret-token\r\n")
+    assert read_token_file(f) == "s3cret-token"
+    f.write_bytes("tökén".encode())
+    with pytest.raises(ValueError, match="printable ASCII"):
+        read_token_file(f)
+    if not socket.has_ipv6:
+        return
+    try:
+        with socket.socket(socket.AF_INET6, socket.SOCK_STREAM) as s:
+            s.bind(("::1", 0))
+    except OSError:
+        return  # no IPv6 loopback here
+    port = free_port()
+    p = subprocess.Popen([sys.executable, "-m", "hykin", "serve", str(tiny_model_file()), "--host", "[::1]", "--port",
+                          str(port)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.time() + 60
+        import httpx
+
+        while time.time() < deadline:
+            try:
+                if httpx.get(f"http://[::1]:{port}/health", timeout=2).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                time.sleep(0.3)
+            assert p.poll() is None, p.stdout.read()
+        else:
+            raise AssertionError("no answer on [::1]")
+    finally:
+        p.terminate()
+        out = p.communicate(timeout=20)[0]
+    assert f"http://[::1]:{port}" in out

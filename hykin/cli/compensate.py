@@ -431,19 +431,21 @@ def serve_cmd(
         raise CLIError(str(e)) from None
     import socket as _socket
 
+    host = host.strip("[]")  # --host [::1]: the brackets of a URL, not of the address (probe s42 AY)
+    url_host = f"[{host}]" if ":" in host else host
     try:  # the port first: one line naming it, before the banner and the model (uvicorn sets SO_REUSEADDR too)
         with _socket.socket(_socket.AF_INET6 if ":" in host else _socket.AF_INET, _socket.SOCK_STREAM) as probe:
             probe.setsockopt(_socket.SOL_SOCKET, _socket.SO_REUSEADDR, 1)
-            probe.bind((host.strip("[]"), port))
+            probe.bind((host, port))
     except OSError as e:
-        raise CLIError(f"--port {port}: cannot listen on {host}:{port} ({e.strerror or e})") from None
+        raise CLIError(f"--port {port}: cannot listen on {url_host}:{port} ({e.strerror or e})") from None
     limits = ServiceLimits(max_targets=max_targets, max_body_bytes=max_body_kb * 1024, max_message_bytes=max_message_bytes,
                            queue=queue, max_connections=max_connections, refusal_delay_s=refusal_delay_ms / 1e3, token=token,
                            header_timeout_s=header_timeout_s, body_timeout_s=body_timeout_s, max_step_deg=max_step_deg)
     mdl, identity = load_served_model(model)  # one read: /health's hashes are of the bytes loaded
     mdl = with_payload(mdl, payload_kg)
     typer.echo(f"hykin serve: {mdl.nominal.name} (sha256 {identity['model_sha256'] or identity['file_sha256']}) on "
-               f"http://{host}:{port} (GET /health, POST /fk /ik /compensate, WebSocket /stream"
+               f"http://{url_host}:{port} (GET /health, POST /fk /ik /compensate, WebSocket /stream"
                f"{'; bearer token required' if token else ''})")
     if rt_priority:  # before the app and its model thread exist: threads inherit the policy
         from ..realtime.udp_bridge import raise_priority

@@ -223,9 +223,16 @@ def read_token_file(path: str | Path) -> str:
     empty, holds whitespace or non-ASCII text, or cannot be read)."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="ascii")
-    except (OSError, UnicodeDecodeError) as e:
-        raise ValueError(f"{p}: cannot read the token file ({type(e).__name__}: {e})") from None
+        raw = p.read_bytes()
+    except OSError as e:
+        raise ValueError(f"{p}: cannot read the token file ({e.strerror or e})") from None
+    if raw.startswith(b"\xef\xbb\xbf"):  # a UTF-8 byte-order mark (Windows editors): not part of the token
+        raw = raw[3:]
+    try:
+        text = raw.decode("ascii")
+    except UnicodeDecodeError:
+        raise ValueError(f"{p}: cannot read the token: it must be one line of printable ASCII without spaces (the "
+                         "file holds other bytes)") from None
     tok = text.strip()
     if not tok:
         raise ValueError(f"{p}: the token file is empty")

@@ -86,7 +86,8 @@ def _within_step(robot, q: np.ndarray, q_prev: np.ndarray, max_step_rad: float) 
     j = int(np.argmax(d))
     if d[j] <= max_step_rad:
         return True, ""
-    return False, (f"the answer moves q{j + 1} by {np.degrees(d[j]):.1f} deg from the given 'q', over the limit of "
+    return False, (f"the answer moves q{j + 1} by {np.degrees(d[j]):.1f} deg from the joints it starts from (the message's "
+                   f"'q', else the stream's last answer), over the limit of "
                    f"{np.degrees(max_step_rad):g} deg (hykin serve --max-step-deg): not sent; check the quaternion order "
                    "(x, y, z, qw, qx, qy, qz) and that 'q' is the robot's current joints")
 
