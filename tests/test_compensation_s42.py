@@ -413,3 +413,17 @@ def test_tool_shift_note_also_for_a_rotational_shift():
     assert pe[0] < 1.0 and ae[0] == pytest.approx(0.05, rel=1e-6)
     notes = tool_shift_note(m, D, None, "mount", accuracy_mm=1.0)
     assert notes and f"{ae[0]:.3g}°" in notes[0], notes
+
+
+def test_tool_shift_note_counts_the_targets_compensated(model):
+    """Probe s42 AX: the note said "30 targets" where 26 were compensated; it counts those written now."""
+    m = model
+    qs = m.nominal.random_joints(5, 21, margin=0.2)
+    D = se3.make_transform(np.eye(3), np.array([0.0, 0.0, 0.15]))
+    T = _quiet_predict(m, qs) @ D
+    T[3:, :3, 3] = [[5.0, 0.0, 0.5], [0.0, 6.0, 0.5]]  # out of reach: refused
+    c = hykin.Compensator(m)(T, q_branch=qs, tool_delta=D)
+    n_ok = int(c.success.sum())
+    assert n_ok < 5
+    said = [t for t in c.notes if "--tool-shift" in t]
+    assert not said or f"the {n_ok} targets with a program tool" in said[0], said

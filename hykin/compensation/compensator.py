@@ -228,7 +228,8 @@ class Compensator:
         if edge.any() and n >= 6 and controller_check:
             comp.notes = comp.notes + [edge_note(edge, comp.pos_err_mm, self.tolerance_mm, self.accuracy_mm)]
         if D is not None and controller_check:  # (not the internal calls of the walk or the programs)
-            comp.notes = comp.notes + tool_shift_note(self.model, D, G, self.tool_shift, self.accuracy_mm)
+            sent = comp.success if G is None else comp.success & G  # (the targets compensated: probe s42 AX)
+            comp.notes = comp.notes + tool_shift_note(self.model, D, sent, self.tool_shift, self.accuracy_mm)
         return comp
 
     def _shifts(self, comp: Compensation, T: np.ndarray, pos_only: bool) -> None:

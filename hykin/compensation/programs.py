@@ -284,7 +284,8 @@ def _solve(model, targets: list, frame: str, axis_signs, slack_deg: float, ik_kw
     if edge.any() and model.nominal.dof >= 6:  # accepted at the model's reach boundary: said, as for a list
         notes.append(edge_note(edge, comp.pos_err_mm, comp_of.tolerance_mm, comp_of.accuracy_mm,
                                [t.line for t in targets]))
-    return comp, notes + tool_shift_note(model, D, given, comp_of.tool_shift, comp_of.accuracy_mm)
+    # the targets written with a program tool (probe s42 AX: the note counted refused ones too)
+    return comp, notes + tool_shift_note(model, D, given & comp.success, comp_of.tool_shift, comp_of.accuracy_mm)
 
 
 def _scatter(comp: Compensation | None, rows: list, targets: list, n: int, frame: str) -> Compensation:
