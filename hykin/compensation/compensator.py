@@ -60,7 +60,7 @@ from ..kinematics.robot import robot_reach_m
 from .frames import fitted_base, other_frame, parse_targets, resolve_frame
 from .local_controller import local_picks
 from .tool_shift import check_tool_shift, model_delta, tcp_shift_inv, tool_shift_note
-from .result import Compensation, edge_note, first_row_per_target
+from .result import Compensation, edge_notes, first_row_per_target
 
 __all__ = ["Compensator", "StepResult", "compensate", "model_delta", "model_tolerance"]
 
@@ -133,7 +133,7 @@ class Compensator:
         # lies within its own accuracy of the real one (probe s42 AQ: 22 of 450 stretched-elbow targets the real
         # robot reaches were refused, missing by 0.010-0.027 mm where the model's max error was 0.062 mm)
         if underactuated(self.robot, False) or not is_redundant(self.dof, False):
-            self._lsq = (max(self.tolerance_mm, am or 0.0) * 1e-3, np.radians(max(self.tolerance_deg, ad or 0.0)))
+            self._lsq = (self.accuracy_mm * 1e-3, np.radians(max(self.tolerance_deg, ad or 0.0)))
         self.ik_kw = ik_kw
         self.lower = np.asarray(self.robot.lower, dtype=np.float64)
         self.upper = np.asarray(self.robot.upper, dtype=np.float64)
@@ -224,9 +224,8 @@ class Compensator:
         elif q_branch is None and not pos_only and N > 1 and n >= 6:
             self._check_walk(comp, T, D, G, Dm, branch_reason)
         comp.in_support = support_of(self.model, comp.q)[1] & comp.success
-        edge = comp.success & ((comp.pos_err_mm > self.tolerance_mm) | (comp.ang_err_deg > self.tolerance_deg))
-        if edge.any() and n >= 6 and controller_check:
-            comp.notes = comp.notes + [edge_note(edge, comp.pos_err_mm, self.tolerance_mm, self.accuracy_mm)]
+        if n >= 6 and controller_check:
+            comp.notes = comp.notes + edge_notes(comp, self.tolerance_mm, self.tolerance_deg, self.accuracy_mm)
         if D is not None and controller_check:  # (not the internal calls of the walk or the programs)
             sent = comp.success if G is None else comp.success & G  # (the targets compensated: probe s42 AX)
             comp.notes = comp.notes + tool_shift_note(self.model, D, sent, self.tool_shift, self.accuracy_mm)
@@ -261,7 +260,7 @@ class Compensator:
                         tool_given=None if G is None else G[rows], branch_reason=branch_reason, controller_check=False)
 
         comp.reason = comp.reason.astype(object)
-        take_other_branches(self, comp, T, D, Dm, solve)  # a near tie: the check decides the controller's branch
+        take_other_branches(self, comp, T, Dm, solve)  # a near tie: the check decides the controller's branch
         comp.notes = check_walk(self.model, self, solve, rows_t, comp, comp.q_branch.copy(), T, Dc, Dm, None,
                                 T_nominal=self.nominal_world(T, D))
         comp.reason = comp.reason.astype(str)
@@ -368,7 +367,8 @@ class Compensator:
         F = fitted_base(self.model)  # the same targets read in the other frame (probe s42 AR: a frame 5 mm off named)
         dist = lambda P: np.linalg.norm(self.robot_world(P)[:, :3, 3] - self.robot.base[:3, 3], axis=1)
         d, d_other = dist(Tm[i]), dist((se3.invert(F) if self.frame == "base" else F) @ Tm[i])
-        far, reach = d > 1.01 * self._reach_m + 0.005, 1.01 * self._reach_m + 0.005
+        reach = 1.01 * self._reach_m + 0.005
+        far = d > reach
         other, where = other_frame(self.frame)
         for k, dk, do in zip(i[far], d[far], d_other[far]):
             hint = f" (targets in {where}? frame '{other}')" if do <= reach else ""

@@ -254,7 +254,8 @@ def _from_unseen_points(targets: list, first: dict, motions: list, uses: list, j
     arm's configuration there and takes the joints before that motion (probe s42 AX: a LIN after ``PTP P24``
     was walked from XHOME's configuration and landed 1.76 mm off on P24's)."""
     moved_to = {mo.pos for mo, *_ in uses} | {p for p, _ in joint_moves}
-    before = sorted((mo.pos, mo) for mo in motions if not mo.rel)
+    before = sorted((mo for mo in motions if not mo.rel), key=lambda mo: mo.pos)
+    bpos = np.array([mo.pos for mo in before], dtype=np.int64)
     out = []
     own = {}
     for mo, k, *_ in uses:  # the motion that first moves to each target
@@ -263,10 +264,10 @@ def _from_unseen_points(targets: list, first: dict, motions: list, uses: list, j
         t = targets[k]
         if "S" in t.config:
             continue
-        prior = [mo for p, mo in before if p < own.get(k, pos)]
-        if not prior or prior[-1].pos in moved_to:
+        i = int(np.searchsorted(bpos, own.get(k, pos)))  # motions strictly before this target's
+        if not i or before[i - 1].pos in moved_to:
             continue
-        mo = prior[-1]
+        mo = before[i - 1]
         line = src_clean.count("\n", 0, mo.pos) + 1
         what = " : ".join(op.text for op in mo.points[0]) if mo.points and mo.points[0] else "a point"
         out.append(f"line {t.line}: comes after {mo.verb} {what[:40]} (line {line} of the .src), a point not solved "

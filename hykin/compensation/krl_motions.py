@@ -273,14 +273,16 @@ def set_execution_order(targets: list, first_use: dict, span: int, joints: list,
     events = sorted((p, k) for k, ps in every.items() for p in ps)  # every motion to a target, in the .src
     epos = np.array([p for p, _ in events], dtype=np.int64)
     jpos = np.array([p for p, _ in joints], dtype=np.int64)
+    below = cur = -1  # the largest order of a used target before this one's, and this one's group's
     for k in sorted(range(len(targets)), key=lambda k: (targets[k].order, k)):
         t = targets[k]
         if k not in first_use:
             t.reset = None
             continue
+        if t.order > cur:
+            below, cur = cur, t.order
         e = int(np.searchsorted(epos, t.order))  # motions strictly before this target's
         last_pos, last_k = events[e - 1] if e else (-1, None)
-        prev_in_order = max((targets[j].order for j in first_use if targets[j].order < t.order), default=-1)
-        t.after = last_k if last_k is not None and last_pos > prev_in_order else None
+        t.after = last_k if last_k is not None and last_pos > below else None
         i = int(np.searchsorted(jpos, t.order))  # joint moves strictly before the target's motion
         t.reset = joints[i - 1][1] if i and jpos[i - 1] > last_pos else None

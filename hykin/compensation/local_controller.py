@@ -47,20 +47,13 @@ def local_picks(nom, command: np.ndarray, D: np.ndarray | None, prev: np.ndarray
 def _miss(model, q_k: np.ndarray, pick: np.ndarray, Tm_k: np.ndarray) -> float:
     """How far (mm) the model's robot at the controller's joints ``pick`` lands from the target ``Tm_k``
     (measurement frame): 0 where they are the compensated ``q_k``; inf where there are none."""
-    from .walk_checks import landing
+    from .walk_checks import landing, same_but_turned
 
     if not np.isfinite(pick).all():
         return np.inf
-    if np.abs(pick - q_k).max() <= _SAME_RAD or _turned(model.nominal, q_k, pick):
+    if np.abs(pick - q_k).max() <= _SAME_RAD or same_but_turned(model.nominal, q_k[None], pick[None])[0]:
         return 0.0
     return float(landing(model, pick[None], Tm_k[None])[0][0])
-
-
-def _turned(nom, a: np.ndarray, b: np.ndarray) -> bool:
-    """``b`` is ``a`` with revolute joints whole turns away (the same pose of the arm)."""
-    rev = np.array([t == "revolute" for t in nom.independent_joint_type])
-    d = b - a
-    return bool(np.abs(np.where(rev, (d + np.pi) % (2 * np.pi) - np.pi, d)).max() <= _SAME_RAD)
 
 
 def _local(nom, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -115,9 +108,8 @@ def check_from_joints(model, comp, result, T: np.ndarray, D, Dm, standing: np.nd
     the model's accuracy fails with the reason; one within the tolerance takes the controller's joints; one
     between is noted (returns the notes). ``T``, ``D``, ``Dm``: as :meth:`.compensator.Compensator.solve`."""
     from ..hybrid.ik_result import model_accuracy
-    from .walk_checks import joint_gap, landing
-
     from ..kinematics.ik_solutions import nearest_representation
+    from .walk_checks import joint_gap, landing, same_but_turned
 
     N = len(T)
     rows = np.flatnonzero(result.success & np.isfinite(standing).all(1))
@@ -149,7 +141,7 @@ def check_from_joints(model, comp, result, T: np.ndarray, D, Dm, standing: np.nd
         elif np.isfinite(pick).all() and np.abs(pick - result.q[k]).max() > _SAME_RAD:
             # the robot will stand at the controller's joints: say so (a whole turn away: the same pose, as the
             # walk takes it), and where the model's robot lands there
-            if not _turned(nom, result.q[k], pick):
+            if not same_but_turned(nom, result.q[k][None], pick[None])[0]:
                 pe, ae = landing(model, pick[None], Tm[k][None])
                 result.pos_err_mm[k], result.ang_err_deg[k] = pe[0], ae[0]
             result.q[k] = pick

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..geometry import se3
 from .tool_shift import tool_shift_note
-from .result import Compensation, edge_note
+from .result import Compensation, edge_notes
 
 __all__ = ["NUMBER", "ProgramResult", "ProgramTarget", "TargetFrames", "comment_mask", "compensate_program", "line_of",
            "splice_numbers"]
@@ -280,10 +280,9 @@ def _solve(model, targets: list, frame: str, axis_signs, slack_deg: float, ik_kw
         # least-squares sense: the controller's exact nominal solution the check looks for does not exist
         notes += check_walk(model, comp_of, solve, targets, comp, qb, T, D, Dm, axis_signs, written, T_nominal=T_nom)
     comp.reason = comp.reason.astype(str)
-    edge = comp.success & ((comp.pos_err_mm > comp_of.tolerance_mm) | (comp.ang_err_deg > comp_of.tolerance_deg))
-    if edge.any() and model.nominal.dof >= 6:  # accepted at the model's reach boundary: said, as for a list
-        notes.append(edge_note(edge, comp.pos_err_mm, comp_of.tolerance_mm, comp_of.accuracy_mm,
-                               [t.line for t in targets]))
+    if model.nominal.dof >= 6:  # accepted at the model's reach boundary: said, as for a list
+        notes += edge_notes(comp, comp_of.tolerance_mm, comp_of.tolerance_deg, comp_of.accuracy_mm,
+                            [t.line for t in targets])
     # the targets written with a program tool (probe s42 AX: the note counted refused ones too)
     return comp, notes + tool_shift_note(model, D, given & comp.success, comp_of.tool_shift, comp_of.accuracy_mm)
 

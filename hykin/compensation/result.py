@@ -8,7 +8,7 @@ import numpy as np
 
 from ..geometry import se3
 
-__all__ = ["Compensation", "command_rows", "edge_note", "fail_row", "first_row_per_target", "merge_parts"]
+__all__ = ["Compensation", "command_rows", "edge_notes", "fail_row", "first_row_per_target", "merge_parts"]
 
 
 @dataclass
@@ -102,14 +102,17 @@ def command_rows(comp: Compensation, q_names: list[str] | None = None, joints_on
     return rows
 
 
-def edge_note(edge: np.ndarray, pos_err_mm: np.ndarray, tolerance_mm: float, accuracy_mm: float,
-              names: list | None = None) -> str:
-    """What is said of the targets ``edge`` ``(N,)`` accepted at the model's reach boundary (``names``: how
-    each row is named, e.g. a program's lines; default ``targets`` and the row indices)."""
-    rows = np.flatnonzero(edge)
+def edge_notes(comp: Compensation, tolerance_mm: float, tolerance_deg: float, accuracy_mm: float,
+               names: list | None = None) -> list:
+    """``[note]`` on the targets of ``comp`` compensated beyond the tolerances (mm, deg): accepted at the model's
+    reach boundary, within its accuracy ``accuracy_mm``; ``[]`` for none. ``names``: how each row is named
+    (e.g. a program's lines; default ``targets`` and the row indices)."""
+    rows = np.flatnonzero(comp.success & ((comp.pos_err_mm > tolerance_mm) | (comp.ang_err_deg > tolerance_deg)))
+    if not rows.size:
+        return []
     said = [str(k) for k in rows] if names is None else [str(names[k]) for k in rows]
     kind = "targets" if names is None else "lines"
-    return (f"{rows.size} targets ({kind} {', '.join(said[:8])}{' ...' if rows.size > 8 else ''}) lie at "
+    return [f"{rows.size} targets ({kind} {', '.join(said[:8])}{' ...' if rows.size > 8 else ''}) lie at "
             f"the model's reach boundary (a stretched elbow, the workspace edge): compensated to the nearest pose its "
-            f"robot reaches, {np.nanmax(pos_err_mm[rows]):.3g} mm at most from the target (pos_err_mm), beyond the "
-            f"tolerance {tolerance_mm:.3g} mm but within the model's own accuracy ({accuracy_mm:.3g} mm)")
+            f"robot reaches, {np.nanmax(comp.pos_err_mm[rows]):.3g} mm at most from the target (pos_err_mm), beyond "
+            f"the tolerance {tolerance_mm:.3g} mm but within the model's own accuracy ({accuracy_mm:.3g} mm)"]

@@ -58,13 +58,13 @@ def model_delta(model, D: np.ndarray | None, given=None, shift_inv=None, reading
     return Dm if given is None else np.where(np.asarray(given, dtype=bool)[:, None, None], Dm, D)
 
 
-def ambiguity(model, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def ambiguity(model, D: np.ndarray, E: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(mm (N,), deg (N,))``: how far the two readings put the TCPs ``D`` ``(N, 4, 4)`` (relative to the
-    robot file's TCP) apart."""
+    robot file's TCP) apart. ``E``: the model's TCP relative to the file's, where the caller has it."""
     from ..hybrid.ik_result import model_tcp_shift
 
     D = np.asarray(D, dtype=np.float64)
-    pe, ae = se3.pose_error(D, model_tcp_shift(model) @ D)
+    pe, ae = se3.pose_error(D, (model_tcp_shift(model) if E is None else E) @ D)
     return np.asarray(pe, dtype=np.float64), np.asarray(ae, dtype=np.float64)
 
 
@@ -72,20 +72,18 @@ def tool_shift_note(model, D: np.ndarray | None, given, reading: str, accuracy_m
     """``[note]`` where the targets with a program tool (``given`` ``(N,)`` bool, None: all rows of ``D``)
     land farther apart under the two readings than ``accuracy_mm`` (the model's), or turned by more than the
     model's orientation accuracy (probe s42 AV: a mostly rotational shift went unsaid); else ``[]``."""
-    from ..hybrid.ik_result import model_accuracy
+    from ..hybrid.ik_result import model_accuracy, model_tcp_shift
 
     if D is None:
         return []
     rows = np.ones(len(D), dtype=bool) if given is None else np.asarray(given, dtype=bool)
     if not rows.any():
         return []
-    pe, ae = ambiguity(model, np.asarray(D)[rows])
+    E = model_tcp_shift(model)
+    pe, ae = ambiguity(model, np.asarray(D)[rows], E)
     acc_deg = model_accuracy(model)[1] or 1e-4
     if not (pe.max() > accuracy_mm or ae.max() > acc_deg):
         return []
-    from ..hybrid.ik_result import model_tcp_shift
-
-    E = model_tcp_shift(model)
     e_mm, e_deg = float(np.linalg.norm(E[:3, 3]) * 1e3), float(np.degrees(np.linalg.norm(se3.matrix_to_rotvec(E[:3, :3]))))
     other = "flange" if reading == "mount" else "mount"
     told = {"mount": "the measurement tool's mount (its program tools are fixed to the calibrated chain's flange)",

@@ -26,7 +26,7 @@ from ..geometry import se3
 from .program_checks import take
 from .result import fail_row
 
-__all__ = ["WalkRow", "check_walk", "joint_gap", "landing", "take_other_branches"]
+__all__ = ["WalkRow", "check_walk", "joint_gap", "landing", "same_but_turned", "take_other_branches"]
 
 
 @dataclass
@@ -215,13 +215,13 @@ def check_walk(model, compensator, solve, targets: list, comp, alt_hint: np.ndar
 def _walk_miss(model, compensator, comp, k: int, pick: np.ndarray, Tm: np.ndarray) -> float:
     """How far the controller's choice ``pick`` ``(n,)`` for target ``k`` misses (:func:`_misses`); where it is
     the compensated joints a full turn away on some axis, those are taken (in place) and it does not miss."""
-    if _same_but_turned(model.nominal, comp.q[k][None], pick[None])[0]:
+    if same_but_turned(model.nominal, comp.q[k][None], pick[None])[0]:
         comp.q[k] = pick
         return 0.0
     return float(_misses(model, compensator, comp.q[k][None], pick[None], Tm[k][None])[0])
 
 
-def _same_but_turned(nom, q: np.ndarray, pick: np.ndarray) -> np.ndarray:
+def same_but_turned(nom, q: np.ndarray, pick: np.ndarray) -> np.ndarray:
     """``(M,)`` bool: ``pick`` is ``q`` with some revolute joint a multiple of 2π away (and not ``q`` itself)."""
     rev = np.array([t == "revolute" for t in nom.independent_joint_type])
     d = np.nan_to_num(pick - q, nan=np.inf)
@@ -323,44 +323,30 @@ def _walk_reason(model, compensator, targets, comp, k, cur, where, keep, Tm, D, 
             f"that the controller executes reaches it within the tolerance {compensator.tolerance_mm:.3g} mm: {fix}")
 
 
-def _other_branches(compensator, comp, T: np.ndarray, D, Dm) -> dict:
-    """``{row: joints}``: the walk's targets refused as unreachable for the model on the walk's branch (not out
-    of reach) that the model's robot reaches on another branch (the calibrated robot's solutions as seeds)."""
+def take_other_branches(compensator, comp, T: np.ndarray, Dm, solve) -> None:
+    """In place, before the walk's check: a target refused as unreachable for the model on the walk's branch
+    (not out of reach) that the model's robot reaches on another branch (the calibrated robot's solutions as
+    seeds) is taken on that branch (near a tie of two branches: at a stretched elbow the nominal solution
+    nearest the target before can be the other elbow, where the model misses by tenths of a millimetre); the
+    check then decides whether the controller executes it there (probe s42 AV: 19 of 60 stretched-elbow targets
+    were refused as unreachable, some of which a nearest-joints controller executes right). ``solve(rows,
+    hints)``: a :class:`.result.Compensation` of those rows."""
     from ..kinematics.ik import ik
+    from .program_checks import take
 
     rows = np.array([k for k, r in enumerate(comp.reason) if str(r).startswith("unreachable for the model: residual")],
                     dtype=np.int64)
     if not rows.size:
-        return {}
-    nom_dof = compensator.dof
+        return
     Tm = compensator.model_targets(T[rows], None if Dm is None else Dm[rows])
     br = ik(compensator.robot, compensator.robot_world(Tm), all_branches=True)
-    Q = np.asarray(br.q, dtype=np.float64).reshape(len(rows), -1, nom_dof)
+    Q = np.asarray(br.q, dtype=np.float64).reshape(len(rows), -1, compensator.dof)
     OK = np.asarray(br.success, dtype=bool).reshape(len(rows), -1)
-    out = {}
     for j, k in enumerate(rows):
         for qs in Q[j][OK[j]]:
             if np.abs(qs - comp.q_branch[k]).max() < 1e-3:
                 continue
-            sl = slice(k, k + 1)
-            q, _, ok, _, _, _ = compensator.solve(T[sl], qs[None], None if D is None else D[sl], False,
-                                                  D_model=None if Dm is None else Dm[sl])
-            if ok[0]:
-                out[int(k)] = q[0]
+            again = solve(np.array([k]), qs[None])
+            if again.success[0]:
+                take(comp, np.array([k]), again, np.ones(1, dtype=bool))
                 break
-    return out
-
-
-def take_other_branches(compensator, comp, T: np.ndarray, D, Dm, solve) -> None:
-    """In place, before the walk's check: a target the walk's branch does not reach but another branch does
-    (near a tie of two branches: at a stretched elbow the nominal solution nearest the target before can be
-    the other elbow, where the model misses by tenths of a millimetre) is taken on that branch; the check then
-    decides whether the controller executes it there (probe s42 AV: 19 of 60 stretched-elbow targets were
-    refused as unreachable, some of which a nearest-joints controller executes right). ``solve(rows, hints)``:
-    a :class:`.result.Compensation` of those rows."""
-    from .program_checks import take
-
-    for k, q in _other_branches(compensator, comp, T, D, Dm).items():
-        again = solve(np.array([k]), q[None])
-        if again.success[0]:
-            take(comp, np.array([k]), again, np.ones(1, dtype=bool))

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..geometry import se3
 from .udp_bridge import (MAX_MISMATCH_DEG, MAX_MISMATCH_MM, REORDER_CYCLES, GapLedger, JumpWatch, Outcome,
-                         RestartWatch, check_actual_pose, check_limits)
+                         RestartWatch, check_actual_pose, check_limits, stamp_ahead)
 
 __all__ = ["EgmHandler", "format_robot", "format_sensor", "parse_robot", "parse_sensor"]
 
@@ -186,7 +186,7 @@ class EgmHandler:
             return None
         if self.last_seq is None:
             return float(m.header.seqno)
-        d = (m.header.seqno - self.last_seq + 2**31) % 2**32 - 2**31
+        d = stamp_ahead(m.header.seqno, self.last_seq, 2**32)
         return float("-inf") if d > RESTART_BEHIND else float(d)
 
     def leftover(self, data: bytes) -> tuple[str, int]:

@@ -30,7 +30,7 @@ import numpy as np
 
 __all__ = ["GapLedger", "JumpWatch", "REORDER_CYCLES", "StampRun", "MAX_MISMATCH_DEG", "MAX_MISMATCH_MM", "BridgeStats",
            "Outcome", "RestartWatch", "SO_TIMESTAMPNS", "arrival_time", "bind_udp", "check_actual_pose", "check_limits",
-           "enable_timestamps", "parse_listen", "raise_priority", "run_bridge"]
+           "enable_timestamps", "parse_listen", "raise_priority", "run_bridge", "stamp_ahead"]
 
 _log = logging.getLogger("hykin.realtime")
 _DRAIN = 256  # datagrams read at most per turn when behind
@@ -69,6 +69,13 @@ class Outcome:
     reason: str = ""  # a failure's one-line cause, its category first ("correction over the limit: ...")
 
 
+def stamp_ahead(a: int, b: int, modulo: int | None = None) -> int:
+    """``a - b`` in counts of a stamp (``IPOC``, ``seqno``), wrapped into ``[-modulo/2, modulo/2)`` for
+    stamps that wrap (``modulo``: EGM's 2^32; None: they do not)."""
+    d = int(a) - int(b)
+    return d if modulo is None else (d + modulo // 2) % modulo - modulo // 2
+
+
 class StampRun:
     """Consecutive stamps (``IPOC``, ``seqno``) each following the previous by 1 to ``step`` counts: what
     confirms a restart (:class:`RestartWatch`) or a stray jump (:class:`JumpWatch`) where one message alone
@@ -79,9 +86,8 @@ class StampRun:
         self._run: list[int] = []
 
     def ahead(self, a: int, b: int) -> int:
-        """``a - b`` (wrapped into ``[-modulo/2, modulo/2)`` for wrapping stamps)."""
-        d = int(a) - int(b)
-        return d if self.modulo is None else (d + self.modulo // 2) % self.modulo - self.modulo // 2
+        """``a - b`` (:func:`stamp_ahead`)."""
+        return stamp_ahead(a, b, self.modulo)
 
     def __len__(self) -> int:
         """Stamps of the run so far (not yet confirmed)."""
@@ -177,10 +183,6 @@ class GapLedger:
         self.per, self.modulo, self.keep = float(per), modulo, int(keep)
         self._gaps: list = []  # [stamp before the gap, cycles in it, cycles filled since]
 
-    def _ahead(self, a: int, b: int) -> int:
-        d = int(a) - int(b)
-        return d if self.modulo is None else (d + self.modulo // 2) % self.modulo - self.modulo // 2
-
     def add(self, before: int, cycles: int) -> None:
         """``cycles`` (> 0) skipped after the stamp ``before``."""
         if cycles > 0:
@@ -189,7 +191,7 @@ class GapLedger:
     def fill(self, stamp: int) -> int:
         """1 when ``stamp`` is a cycle of a gap counted before and not filled yet (it came late), else 0."""
         for before, cycles, filled in self._gaps:
-            i = int(round(self._ahead(stamp, before) / self.per))
+            i = int(round(stamp_ahead(stamp, before, self.modulo) / self.per))
             if 1 <= i <= cycles and i not in filled:
                 filled.add(i)
                 return 1
