@@ -177,6 +177,16 @@ def test_messages_keep_bracketed_text():
     assert buf.getvalue().strip() == "note: the robot file's [tool] in [mm], BASE_DATA[1]"
 
 
+def test_messages_printed_without_markup_are_not_escaped(capsys):
+    """hykin's console escaped every message, also those printed with ``markup=False``: a note showed
+    "the robot file's \\[tool]" (stop 42's own run). Those are printed as they are."""
+    from hykin.cli.common import console
+
+    console().print("note: the robot file's [tool] in [mm]", markup=False, highlight=False)
+    console().print("note: the robot file's [tool] in [mm]", highlight=False)
+    assert capsys.readouterr().err.splitlines() == ["note: the robot file's [tool] in [mm]"] * 2
+
+
 def test_report_directories_are_not_overwritten_without_force(tmp_path, capsys):
     """``report -o DIR``, ``evaluate --report DIR`` and ``demo -o DIR`` overwrote DIR/report.html silently
     (probe report s40); the README promises a refusal without --force."""

@@ -177,6 +177,8 @@ def console():
 
     class _Console(Console):
         def print(self, *objects, **kw):  # noqa: A003 - rich's name
+            if kw.get("markup") is False:  # printed as it is: escaping would show its backslashes ("\[tool]")
+                return super().print(*objects, **kw)
             super().print(*(plain_markup(o) if isinstance(o, str) else o for o in objects), **kw)
 
     # soft wrap: a message stays one line in logs and pipes (rich otherwise breaks it at 80 columns
