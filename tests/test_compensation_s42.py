@@ -427,3 +427,22 @@ def test_tool_shift_note_counts_the_targets_compensated(model):
     assert n_ok < 5
     said = [t for t in c.notes if "--tool-shift" in t]
     assert not said or f"the {n_ok} targets with a program tool" in said[0], said
+
+
+def test_scalar_last_quaternions_of_a_path_of_little_rotation_are_refused(tmp_path, model):
+    """Stop 42's own run: a 60-target path with its joints, written scalar-last; its rotations vary too little
+    for the relative test, and the reach test only warned: 10 targets were compensated about 150° off. Read
+    scalar-last, the rotations lie on the model's at those joints: refused. The right file passes."""
+    m = model
+    s = np.linspace(0.0, 1.0, 40)[:, None]
+    qs = np.array([0.3, -1.3, 1.4, -1.6, -1.4, 0.5]) + s * np.array([0.2, 0.1, -0.1, 0.0, 0.0, 0.0])
+    T = _quiet_predict(m, qs)
+    standing = np.vstack([qs[:1], qs[:-1]])
+    good, bad = tmp_path / "good.csv", tmp_path / "bad.csv"
+    _rows_csv(good, T, standing)
+    _rows_csv(bad, _scalar_last(T), standing)
+    run = lambda f: subprocess.run([sys.executable, "-m", "hykin", "compensate", str(tiny_model_file()), str(f), "-o",
+                                    str(tmp_path / "o.csv"), "--force"], capture_output=True, text=True)
+    r = run(bad)
+    assert r.returncode == 2 and "from the model's at their joints" in r.stderr and "scalar-last" in r.stderr, r.stderr
+    assert run(good).returncode == 0
