@@ -23,10 +23,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..kinematics.chunks import one_blas_thread, worker_count
+from ..kinematics.chunks import one_blas_thread, thread_pool, worker_count
 from .fast_act import act_rows
 
-__all__ = ["FastNet", "Layer", "fast_net", "net_float64"]
+__all__ = ["FastNet", "Layer", "evaluate", "fast_net", "net_float64"]
 
 
 def _silu(x):
@@ -92,27 +92,13 @@ def _buf(scratch: dict, slot: int, rows: int, width: int) -> np.ndarray:
 #: rows per chunk of the batched evaluation (a 512 x 64 float64 activation is 256 KiB: stays in L2)
 CHUNK_ROWS = 512
 #: rows per worker below which a batch is not split over threads
-PARALLEL_ROWS = 4096
-_POOL = {}
+PARALLEL_ROWS = 512
 
 
 def threads() -> int:
     """Workers for large batches: :func:`hykin.kinematics.chunks.worker_count` (numba's current thread
     count, so that the classical and the network parts use the same cores and a 1-CPU sweep trial one)."""
     return worker_count()
-
-
-def _pool(n: int):
-    """The thread pool of ``n`` workers of this process (a forked child makes its own: the parent's
-    worker threads do not exist there)."""
-    import os
-    from concurrent.futures import ThreadPoolExecutor
-
-    key = (os.getpid(), n)
-    p = _POOL.get(key)
-    if p is None:
-        p = _POOL[key] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="hykin-nets")
-    return p
 
 
 #: activation name -> (f, f')
@@ -157,35 +143,8 @@ class FastNet:
         return np.concatenate([2.0 * x - 1.0, np.sin(q), np.cos(q)], axis=1)
 
     def __call__(self, q: np.ndarray) -> np.ndarray:
-        """Residuals ``(N, n_out)`` of joints ``q`` ``(N, n_in)`` float64. Rows are evaluated in chunks of
-        :data:`CHUNK_ROWS` (activations stay in cache; in-place ufuncs, no temporaries), spread over
-        :func:`threads` workers for large batches (numpy releases the GIL); each row's arithmetic is the
-        same whatever the chunking."""
-        q = np.asarray(q, dtype=np.float64)
-        N = len(q)
-        out = np.empty((N, len(self.out_bias)))
-        if N == 0:
-            return out
-        nt = min(threads(), -(-N // PARALLEL_ROWS))
-        if nt <= 1:
-            self._rows(q, out, 0, N)
-            return out
-        bounds = np.linspace(0, N, nt + 1).astype(int)
-        with one_blas_thread():  # the workers' matrix products: one BLAS thread each, not threads x BLAS's
-            list(_pool(nt).map(lambda k: self._rows(q, out, bounds[k], bounds[k + 1]), range(nt)))
-        return out
-
-    def _rows(self, q: np.ndarray, out: np.ndarray, a: int, b: int) -> None:
-        """``out[a:b]`` = residuals of ``q[a:b]``, chunk by chunk with scratch buffers reused."""
-        scratch = {}
-        with np.errstate(over="ignore"):  # exp overflow in sigmoid/SiLU saturates correctly
-            for s in range(a, b, CHUNK_ROWS):
-                e = min(b, s + CHUNK_ROWS)
-                x, xs = self.featurize(q[s:e]), -1
-                for L in self.layers:
-                    x, xs = self._layer(L, x, xs, scratch)
-                np.multiply(x, self.out_scale, out=out[s:e])
-                out[s:e] += self.out_bias
+        """Residuals ``(N, n_out)`` of joints ``q`` ``(N, n_in)`` float64 (:func:`evaluate` of this net)."""
+        return evaluate([self], q)[0]
 
     @staticmethod
     def _layer(L: Layer, x: np.ndarray, xs: int, scratch: dict) -> tuple[np.ndarray, int]:
@@ -245,6 +204,52 @@ class FastNet:
                 h = f(h)
             x, dx = h, dh
         return self.out_bias + self.out_scale * x, self.out_scale * dx
+
+
+def evaluate(nets: list[FastNet], q: np.ndarray) -> list[np.ndarray]:
+    """Residuals ``[(N, n_out)]`` of each of ``nets`` for joints ``q`` ``(N, n_in)`` float64, in one pass.
+
+    Rows are evaluated in chunks of :data:`CHUNK_ROWS` (activations stay in cache; in-place ufuncs, no
+    temporaries), every net on a chunk before the next, spread over :func:`threads` workers for large
+    batches (numpy releases the GIL). Nets with the same input features and normalisation (the hybrid
+    model's position and orientation nets) share one computation of them. Each row's arithmetic is
+    the same whatever the chunking and grouping."""
+    q = np.asarray(q, dtype=np.float64)
+    N = len(q)
+    outs = [np.empty((N, len(f.out_bias))) for f in nets]
+    if N == 0:
+        return outs
+    # net k takes the features of net share[k] (itself, or an earlier net featurising alike)
+    share = []
+    for k, f in enumerate(nets):
+        share.append(next(j for j, g in enumerate(nets[: k + 1]) if g.features == f.features
+                          and np.array_equal(g.lower, f.lower) and np.array_equal(g.upper, f.upper)))
+    nt = min(threads(), -(-N // PARALLEL_ROWS))
+    if nt <= 1:
+        _rows(nets, share, q, outs, 0, N)
+        return outs
+    bounds = np.linspace(0, N, nt + 1).astype(int)
+    with one_blas_thread():  # the workers' matrix products: one BLAS thread each, not threads x BLAS's
+        list(thread_pool(nt).map(lambda k: _rows(nets, share, q, outs, bounds[k], bounds[k + 1]), range(nt)))
+    return outs
+
+
+def _rows(nets: list[FastNet], share: list[int], q: np.ndarray, outs: list[np.ndarray], a: int, b: int) -> None:
+    """``outs[k][a:b]`` = residuals of net ``k`` for ``q[a:b]``, chunk by chunk with scratch buffers
+    reused; net ``k`` starts from the features of net ``share[k]``. The nets share the scratch
+    buffers (each finishes a chunk before the next starts): one set stays in cache."""
+    scratch = {}
+    with np.errstate(over="ignore"):  # exp overflow in sigmoid/SiLU saturates correctly
+        for s in range(a, b, CHUNK_ROWS):
+            e = min(b, s + CHUNK_ROWS)
+            feats = []
+            for k, f in enumerate(nets):
+                feats.append(f.featurize(q[s:e]) if share[k] == k else feats[share[k]])
+                x, xs = feats[k], -1
+                for L in f.layers:
+                    x, xs = f._layer(L, x, xs, scratch)
+                np.multiply(x, f.out_scale, out=outs[k][s:e])
+                outs[k][s:e] += f.out_bias
 
 
 def _f64(t) -> np.ndarray:

@@ -523,12 +523,14 @@ class HybridModel:
             if np.all(w == 1.0):
                 w = None
         qin = self._net_in(qn, payload_kg)
-        dp = inputs.from_net_frame(self.j1_axis_, q2, self._net_np(self.net_pos_, qin))
+        nets = [fast_nets.cached(self, n).fast for n in (self.net_pos_, self.net_rot_) if n is not None]
+        res = fast_nets.evaluate(nets, qin)  # both nets in one pass: shared features, one thread dispatch
+        dp = inputs.from_net_frame(self.j1_axis_, q2, res[0])
         if w is not None:
             dp *= w[:, None]
         T[:, :3, 3] += dp
         if self.net_rot_ is not None:
-            dr = inputs.from_net_frame(self.j1_axis_, q2, self._net_np(self.net_rot_, qin))
+            dr = inputs.from_net_frame(self.j1_axis_, q2, res[1])
             if w is not None:
                 dr *= w[:, None]
             rotate_poses(dr, T)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ..kinematics.chunks import run_chunked
 from ..kinematics.fk import HAVE_NUMBA
 
 __all__ = ["rodrigues", "rotate_about", "rotate_poses"]
@@ -55,18 +56,22 @@ if HAVE_NUMBA:
             T[1, c] = r10 * t0 + r11 * t1 + r12 * t2
             T[2, c] = r20 * t0 + r21 * t1 + r22 * t2
 
-    @numba.njit(cache=True, nogil=True, parallel=True)
-    def _rotate_poses_kernel(rv, T):  # pragma: no cover
-        """In place ``T[:, :3, :3] = exp(rv) @ T[:, :3, :3]``."""
-        for k in numba.prange(rv.shape[0]):
+    @numba.njit(cache=True, nogil=True)
+    def _rotate_range(rv, T, k0, k1):  # pragma: no cover
+        """In place ``T[k, :3, :3] = exp(rv[k]) @ T[k, :3, :3]`` for rows ``k0:k1``."""
+        for k in range(k0, k1):
             rotate_top(rv[k, 0], rv[k, 1], rv[k, 2], T[k])
+
+
+#: rows at least this many are spread over the worker threads (~25 ns a row)
+_PARALLEL_MIN = 40_000
 
 
 def rotate_poses(dr: np.ndarray, T: np.ndarray) -> None:
     """In place ``T[:, :3, :3] = exp(dr) @ T[:, :3, :3]`` for rotation vectors ``dr`` ``(N, 3)`` (rad)
     and poses ``T`` ``(N, 4, 4)`` (numba kernel when available and ``T`` is contiguous)."""
     if HAVE_NUMBA and T.flags.c_contiguous:
-        _rotate_poses_kernel(np.ascontiguousarray(dr), T)
+        run_chunked(_rotate_range, (np.ascontiguousarray(dr), T), len(T), min_chunk=_PARALLEL_MIN // 2)
     else:
         T[:, :3, :3] = rodrigues(dr) @ T[:, :3, :3]
 

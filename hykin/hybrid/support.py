@@ -49,7 +49,7 @@ import numpy as np
 import torch
 
 from ..io.payload import payload_outside
-from ..kinematics.chunks import worker_count
+from ..kinematics.chunks import run_chunked, worker_count
 from ..kinematics.fk import HAVE_NUMBA
 from .errors import OutOfRangeWarning
 
@@ -202,17 +202,10 @@ if HAVE_NUMBA:
             best = max(best, v)
         return best
 
-    @numba.njit(cache=True, nogil=True, parallel=True)
-    def _pair_gap_kernel(qn, lower, span, field, I, J, out):  # pragma: no cover
-        """Numpy-path :func:`pair_gap` (same operations, same numbers)."""
-        for k in numba.prange(qn.shape[0]):
-            out[k] = pair_gap_row(qn[k], lower, span, field, I, J)
-
     @numba.njit(cache=True, nogil=True)
-    def _pair_gap_serial(qn, lower, span, field, I, J, out):  # pragma: no cover
-        """:func:`_pair_gap_kernel` in this thread: for a few rows, waking the thread pool costs more than
-        the rows (21 ms a call on a loaded machine, measured)."""
-        for k in range(qn.shape[0]):
+    def _pair_gap_range(qn, lower, span, field, I, J, out, k0, k1):  # pragma: no cover
+        """Numpy-path :func:`pair_gap` of rows ``k0:k1`` (same operations, same numbers)."""
+        for k in range(k0, k1):
             out[k] = pair_gap_row(qn[k], lower, span, field, I, J)
 
 
@@ -231,9 +224,10 @@ def pair_gap(sup: Support, qn: np.ndarray) -> np.ndarray:
     span = sup.span
     if HAVE_NUMBA:
         out = np.empty(n_rows)
-        (_pair_gap_serial if n_rows < _PAIR_GAP_PARALLEL_MIN else _pair_gap_kernel)(np.ascontiguousarray(qn, dtype=np.float64), np.ascontiguousarray(sup.lower),
-                         np.ascontiguousarray(span), np.ascontiguousarray(sup.pair_gap, dtype=np.float64),
-                         np.ascontiguousarray(I), np.ascontiguousarray(J), out)
+        args = (np.ascontiguousarray(qn, dtype=np.float64), np.ascontiguousarray(sup.lower),
+                np.ascontiguousarray(span), np.ascontiguousarray(sup.pair_gap, dtype=np.float64),
+                np.ascontiguousarray(I), np.ascontiguousarray(J), out)
+        run_chunked(_pair_gap_range, args, n_rows, min_chunk=_PAIR_GAP_PARALLEL_MIN // 2)
         return out
     u = np.clip((qn - sup.lower) / span, 0.0, 1.0) * (G - 1)
     field = sup.pair_gap.reshape(-1)

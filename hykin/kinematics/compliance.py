@@ -37,6 +37,7 @@ import sys
 import numpy as np
 
 from .chain import Chain, chain_of
+from .chunks import run_chunked
 from .fk import HAVE_NUMBA, fk, fk_torch
 from .robot import Robot
 from .walk import chain_walk, expand_joints
@@ -125,20 +126,12 @@ if HAVE_NUMBA:
     # robot's scalar payload at the TCP is the broadcast of one value: same operations, same numbers).
 
     @numba.njit(cache=True, nogil=True)
-    def _tau_one(fixed, post, ppt, prism, com, mass, payload, g, q, out):  # pragma: no cover
-        n = q.shape[0]
-        _tau_ws(fixed, post, ppt, prism, com, mass, payload, g, q, out, np.empty((n, 3)), np.empty((n, 3)),
-                np.empty((n, 3)))
-
-    @numba.njit(cache=True, nogil=True)
-    def _tau_serial(fixed, post, ppt, prism, com, mass, payload, g, q, out):  # pragma: no cover
-        for k in range(q.shape[0]):
-            _tau_one(fixed, post, ppt[k], prism, com, mass, payload[k], g, q[k], out[k])
-
-    @numba.njit(cache=True, nogil=True, parallel=True)
-    def _tau_parallel(fixed, post, ppt, prism, com, mass, payload, g, q, out):  # pragma: no cover
-        for k in numba.prange(q.shape[0]):
-            _tau_one(fixed, post, ppt[k], prism, com, mass, payload[k], g, q[k], out[k])
+    def _tau_range(fixed, post, ppt, prism, com, mass, payload, g, q, out, k0, k1):  # pragma: no cover
+        """Gravity torques of rows ``k0:k1`` (:func:`_tau_ws`), sharing one set of scratch arrays."""
+        n = q.shape[1]
+        z, o, cm = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        for k in range(k0, k1):
+            _tau_ws(fixed, post, ppt[k], prism, com, mass, payload[k], g, q[k], out[k], z, o, cm)
 
     @numba.njit(cache=True, nogil=True)
     def _deflect_one(fixed, post, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out,
@@ -174,24 +167,10 @@ if HAVE_NUMBA:
             steps[k] = _deflect_one(fixed, post, ppt[k], prism, com, mass, payload[k], g, C, q[k], min_it, max_it,
                                     tol, out[k], tau, z, o, cm)
 
-    @numba.njit(cache=True, nogil=True)
-    def _deflect_serial(fixed, post, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps):  # pragma: no cover
-        _deflect_range(fixed, post, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
-                       0, q.shape[0])
-
-    @numba.njit(cache=True, nogil=True, parallel=True)
-    def _deflect_parallel(fixed, post, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps):  # pragma: no cover
-        N = q.shape[0]
-        chunk = 1024
-        for b in numba.prange((N + chunk - 1) // chunk):
-            _deflect_range(fixed, post, ppt, prism, com, mass, payload, g, C, q, min_it, max_it, tol, out, steps,
-                           b * chunk, min(N, (b + 1) * chunk))
-
-
     #: public name of the one-sample deflection kernel (the fast hybrid kernel of hykin.hybrid calls it)
     deflect_one = _deflect_one
 
-_PARALLEL_MIN = 5_000  # below this, starting threads costs more than it saves
+_PARALLEL_MIN = 512  # rows (~1 ms of deflection) below which waking a worker thread costs more than it saves
 
 
 def _kernel_args(robot: Robot, chain: Chain | None, N: int, payload=None):
@@ -316,8 +295,8 @@ def gravity_torques(robot: Robot, q, chain: Chain | None = None, xp=np, payload_
     payload = payload_rows(q.shape[0], payload_kg, payload_com_m, like=q)
     if xp is np and HAVE_NUMBA:
         out = np.empty(q.shape)
-        kernel = _tau_parallel if q.shape[0] >= _PARALLEL_MIN else _tau_serial
-        kernel(*_kernel_args(robot, chain, q.shape[0], payload), np.ascontiguousarray(q), out)
+        run_chunked(_tau_range, (*_kernel_args(robot, chain, q.shape[0], payload), np.ascontiguousarray(q), out),
+                    q.shape[0], min_chunk=_PARALLEL_MIN // 2)
         return out
     return _gravity_torques_xp(robot, q, chain, xp, payload)
 
@@ -430,11 +409,9 @@ def deflected_joints(robot: Robot, q, compliance=None, chain: Chain | None = Non
             return q.clone()
     if xp is np and HAVE_NUMBA:
         out, steps = np.empty(q.shape), np.empty(q.shape[0])
-        kernel = _deflect_parallel if q.shape[0] >= _PARALLEL_MIN else _deflect_serial
-        kernel(
-            *_kernel_args(robot, chain, q.shape[0], payload), np.ascontiguousarray(C), np.ascontiguousarray(q), int(iterations), MAX_ITER,
-            TOL_RAD, out, steps,
-        )
+        args = (*_kernel_args(robot, chain, q.shape[0], payload), np.ascontiguousarray(C), np.ascontiguousarray(q),
+                int(iterations), MAX_ITER, TOL_RAD, out, steps)
+        run_chunked(_deflect_range, args, q.shape[0], min_chunk=_PARALLEL_MIN // 2)
         if steps.size:
             excess = steps - CONVERGED_RTOL * np.abs(out - q).max(axis=1)
             k = int(np.argmax(excess))

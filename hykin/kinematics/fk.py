@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .chain import Chain, chain_of
+from .chunks import run_chunked
 from .robot import Robot
 from .walk import HAVE_NUMBA, chain_walk, expand_joints, reduce_columns
 
@@ -62,22 +63,14 @@ if HAVE_NUMBA:
             store_top(st, out[k0 + t])
 
     @numba.njit(cache=True, fastmath=False, nogil=True)
-    def _fk_batch_serial(fixed, prismatic, q, out):  # pragma: no cover - compiled
-        N, n = q.shape
+    def _fk_batch_range(fixed, prismatic, q, out, k0, k1):  # pragma: no cover - compiled
+        """Poses ``k0:k1`` of ``q``, block by block (:func:`hykin.kinematics.chunks.run_chunked` spreads
+        the ranges over threads)."""
+        n = q.shape[1]
         sbuf = np.empty(_BLOCK * n)
         cbuf = np.empty(_BLOCK * n)
-        for k0 in range(0, N, _BLOCK):
-            _fk_block(fixed, prismatic, q, k0, min(k0 + _BLOCK, N), sbuf, cbuf, out)
-
-    @numba.njit(cache=True, fastmath=False, nogil=True, parallel=True)
-    def _fk_batch_parallel(fixed, prismatic, q, out):  # pragma: no cover - compiled
-        N, n = q.shape
-        nb = (N + _BLOCK - 1) // _BLOCK
-        for b in numba.prange(nb):
-            sbuf = np.empty(_BLOCK * n)
-            cbuf = np.empty(_BLOCK * n)
-            k0 = b * _BLOCK
-            _fk_block(fixed, prismatic, q, k0, min(k0 + _BLOCK, N), sbuf, cbuf, out)
+        for b0 in range(k0, k1, _BLOCK):
+            _fk_block(fixed, prismatic, q, b0, min(b0 + _BLOCK, k1), sbuf, cbuf, out)
 
 
 _PARALLEL_MIN = 20_000  # below this, thread start-up costs more than it saves
@@ -91,10 +84,7 @@ def fk_chain(chain: Chain, q: np.ndarray) -> np.ndarray:
     if not HAVE_NUMBA:
         return chain_walk(np, chain, q)
     out = np.empty((q.shape[0], 4, 4))
-    if q.shape[0] >= _PARALLEL_MIN:
-        _fk_batch_parallel(fixed, prism, q, out)
-    else:
-        _fk_batch_serial(fixed, prism, q, out)
+    run_chunked(_fk_batch_range, (fixed, prism, q, out), q.shape[0], min_chunk=_PARALLEL_MIN // 2)
     return out
 
 
