@@ -397,7 +397,11 @@ def serve_cmd(
     header_timeout_s: float = typer.Option(5.0, "--header-timeout-s", help="A connection that has not sent a complete "
                                            "request header within this many seconds is closed."),
     body_timeout_s: float = typer.Option(10.0, "--body-timeout-s", help="A request body not received in full within "
-                                         "this many seconds of its header gets 408 and the connection is closed."),
+                                         "this many seconds of its header (plus the time --body-min-rate-kib-s "
+                                         "allows for what arrived) gets 408 and the connection is closed."),
+    body_min_rate_kib_s: float = typer.Option(64.0, "--body-min-rate-kib-s", help="Each KiB of a body that arrived "
+                                              "extends --body-timeout-s by 1/this seconds: a body arriving at this "
+                                              "rate or faster is never cut off, a slower one is. 0: a total deadline."),
     max_step_deg: float | None = typer.Option(None, "--max-step-deg", help="Refuse a streamed answer whose joints move "
                                               "more than this many degrees from the message's 'q' (default: no limit)."),
     refusal_delay_ms: float = typer.Option(100.0, "--refusal-delay-ms", help="Every refused request is answered after "
@@ -423,6 +427,8 @@ def serve_cmd(
     for name, v in (("--header-timeout-s", header_timeout_s), ("--body-timeout-s", body_timeout_s)):
         if not 0 < v <= 3600:
             raise CLIError(f"{name} must be in (0, 3600] s, got {v}")
+    if not 0 <= body_min_rate_kib_s <= 1e6:
+        raise CLIError(f"--body-min-rate-kib-s must be in 0..1e6 KiB/s (0: a total deadline), got {body_min_rate_kib_s}")
     if max_step_deg is not None and not 0 < max_step_deg <= 360:
         raise CLIError(f"--max-step-deg must be in (0, 360] deg, got {max_step_deg}")
     try:
@@ -441,7 +447,8 @@ def serve_cmd(
         raise CLIError(f"--port {port}: cannot listen on {url_host}:{port} ({e.strerror or e})") from None
     limits = ServiceLimits(max_targets=max_targets, max_body_bytes=max_body_kb * 1024, max_message_bytes=max_message_bytes,
                            queue=queue, max_connections=max_connections, refusal_delay_s=refusal_delay_ms / 1e3, token=token,
-                           header_timeout_s=header_timeout_s, body_timeout_s=body_timeout_s, max_step_deg=max_step_deg)
+                           header_timeout_s=header_timeout_s, body_timeout_s=body_timeout_s,
+                           body_min_rate_kib_s=body_min_rate_kib_s or None, max_step_deg=max_step_deg)
     mdl, identity = load_served_model(model)  # one read: /health's hashes are of the bytes loaded
     mdl = with_payload(mdl, payload_kg)
     typer.echo(f"hykin serve: {mdl.nominal.name} (sha256 {identity['model_sha256'] or identity['file_sha256']}) on "

@@ -190,7 +190,7 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
             return await _refuse(401, "missing or wrong bearer token (Authorization: Bearer <token>)", "auth",
                            {"WWW-Authenticate": "Bearer"})
         try:
-            raw = await read_body(request, limits.max_body_bytes, limits.body_timeout_s)
+            raw = await read_body(request, limits.max_body_bytes, limits.body_timeout_s, limits.body_min_rate_kib_s)
         except BodyTooLarge as e:
             return await _refuse(413, str(e), "size", {"Connection": "close"})
         except BodyTimeout as e:

@@ -53,8 +53,13 @@ class ServiceLimits:
     others (a waiting refusal costs a timer, not CPU); 0 answers at once. token: the bearer token,
     or None. header_timeout_s: a connection that has not sent a complete request header this long
     after it opened (or after the first byte of its next request) is closed [5 s]
-    (:mod:`.service_protocol`). body_timeout_s: a request body not received in full this long after
-    its header is refused with 408 and its connection closed [10 s: 4 MiB at 3.4 Mbit/s].
+    (:mod:`.service_protocol`). body_timeout_s, body_min_rate_kib_s: a request body not received in
+    full within ``body_timeout_s`` after its header, plus one second for every ``body_min_rate_kib_s``
+    KiB that did arrive, is refused with 408 and its connection closed [10 s, 64 KiB/s]: a body that
+    keeps coming at that rate or faster is never cut off (a 2.7 MB request over a 1.2 Mbit/s link
+    takes 18 s), one dribbled in is (a client sending at exactly the minimum rate holds its slot for
+    at most ``body_timeout_s + max_body_bytes / rate``, 74 s at the defaults); None: a total deadline
+    of ``body_timeout_s``.
     max_step_deg: a streamed answer whose joints move more than this (deg, any revolute joint) from
     the ``q`` the message gave is refused with a reason [None: no limit].
     """
@@ -68,6 +73,7 @@ class ServiceLimits:
     token: str | None = None
     header_timeout_s: float = 5.0
     body_timeout_s: float = 10.0
+    body_min_rate_kib_s: float | None = 64.0
     max_step_deg: float | None = None
 
     def __post_init__(self):
@@ -81,6 +87,8 @@ class ServiceLimits:
             v = getattr(self, name)
             if not 0 < v <= 3600:
                 raise ValueError(f"{name} must be in (0, 3600] s, got {v!r}")
+        if self.body_min_rate_kib_s is not None and not 0 < self.body_min_rate_kib_s <= 1e6:
+            raise ValueError(f"body_min_rate_kib_s must be in (0, 1e6] KiB/s or None, got {self.body_min_rate_kib_s!r}")
         if self.max_step_deg is not None and not 0 < self.max_step_deg <= 360:
             raise ValueError(f"max_step_deg must be in (0, 360] deg or None, got {self.max_step_deg!r}")
 
@@ -187,35 +195,62 @@ def _settle(fut: asyncio.Future, out, err) -> None:
         fut.set_result(out)
 
 
-async def read_body(request, limit: int, timeout_s: float | None = None) -> bytes:
+async def read_body(request, limit: int, timeout_s: float | None = None, min_rate_kib_s: float | None = None) -> bytes:
     """The body of a Starlette ``request``; :class:`BodyTooLarge` when over ``limit`` bytes (by its
     ``Content-Length`` before reading anything, else while it streams in); :class:`BodyTimeout` when
-    it has not arrived in full within ``timeout_s`` seconds (None: no limit)."""
+    it has not arrived in full within ``timeout_s`` seconds (None: no limit) plus one second per
+    ``min_rate_kib_s`` KiB received (None: a total deadline) (:class:`ServiceLimits`)."""
     cl = request.headers.get("content-length")
     if cl is not None:
         if not cl.strip().isdigit():
             raise ValueError(f"bad Content-Length header {cl!r}")
         if int(cl) > limit:
             raise BodyTooLarge(f"request body of {int(cl)} bytes, at most {limit} (hykin serve --max-body-kb)")
+    got = [0]
 
-    async def read() -> bytes:
-        chunks, n = [], 0
+    async def read(extend=None) -> bytes:
+        chunks = []
         async for chunk in request.stream():
-            n += len(chunk)
-            if n > limit:
+            got[0] += len(chunk)
+            if got[0] > limit:
                 raise BodyTooLarge(f"request body over {limit} bytes (hykin serve --max-body-kb)")
             chunks.append(chunk)
+            if extend is not None:
+                extend()
         return b"".join(chunks)
 
     if timeout_s is None:
         return await read()
+    loop = asyncio.get_running_loop()
+    start = loop.time()
+    per_byte = 0.0 if min_rate_kib_s is None else 1.0 / (1024.0 * min_rate_kib_s)
     try:  # a client dribbling its body would hold its --max-connections slot for ever (probe AR, C2)
         if hasattr(asyncio, "timeout"):  # Python >= 3.11: no extra task per request
-            async with asyncio.timeout(timeout_s):
-                return await read()
-        return await asyncio.wait_for(read(), timeout_s)
-    except asyncio.TimeoutError:
-        raise BodyTimeout(f"request body not received within {timeout_s:g} s (hykin serve --body-timeout-s)") from None
+            async with asyncio.timeout(timeout_s) as cm:
+                return await read(None if not per_byte else lambda: cm.reschedule(start + timeout_s + got[0] * per_byte))
+        return await _read_with_deadline(request, limit, got, lambda: start + timeout_s + got[0] * per_byte)
+    except (asyncio.TimeoutError, TimeoutError):
+        rate = "" if not per_byte else f" and 1 s more per {min_rate_kib_s:g} KiB received"
+        raise BodyTimeout(f"request body not received within {timeout_s:g} s{rate} ({got[0]} of "
+                          f"{cl if cl is not None else '?'} bytes arrived; hykin serve --body-timeout-s, "
+                          "--body-min-rate-kib-s)") from None
+
+
+async def _read_with_deadline(request, limit: int, got: list, deadline) -> bytes:
+    """:func:`read_body`'s loop for Python 3.10 (no ``asyncio.timeout``): each chunk awaited until
+    ``deadline()`` (loop time, recomputed after each chunk)."""
+    loop = asyncio.get_running_loop()
+    it = request.stream().__aiter__()
+    chunks = []
+    while True:
+        try:
+            chunk = await asyncio.wait_for(it.__anext__(), max(0.0, deadline() - loop.time()))
+        except StopAsyncIteration:
+            return b"".join(chunks)
+        got[0] += len(chunk)
+        if got[0] > limit:
+            raise BodyTooLarge(f"request body over {limit} bytes (hykin serve --max-body-kb)")
+        chunks.append(chunk)
 
 
 def read_token_file(path: str | Path) -> str:

@@ -1,0 +1,124 @@
+"""``hykin serve``: the body deadline is a minimum rate, not a total time (stop 43).
+
+Probe s42 AY: a legitimate 2.7 MB request over a 1.2 Mbit/s link got 408, since ``--body-timeout-s``
+(10 s) was a total time. Now each KiB that arrives extends the deadline by ``1 / --body-min-rate-kib-s``
+seconds: a body arriving at that rate or faster is never cut off; one dribbled in still is.
+Reference: bodies sent here at known rates, over a real socket and through a fake request."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import time
+
+import pytest
+from comp_models import tiny_model_file
+from shared_fixtures import free_port, pose_rows, start_server
+
+pytestmark = pytest.mark.filterwarnings("ignore::hykin.hybrid.errors.OutOfRangeWarning")
+httpx = pytest.importorskip("httpx")
+
+
+class _Req:
+    """A Starlette-like request whose body arrives as ``chunks``, one every ``every_s`` seconds."""
+
+    def __init__(self, chunks: list[bytes], every_s: float, announce: bool = True):
+        self.chunks, self.every_s = chunks, every_s
+        self.headers = {"content-length": str(sum(map(len, chunks)))} if announce else {}
+
+    async def stream(self):
+        for c in self.chunks:
+            await asyncio.sleep(self.every_s)
+            yield c
+
+
+def _read(req, timeout_s, rate):
+    from hykin.compensation.service_guard import read_body
+
+    return asyncio.run(read_body(req, 10 << 20, timeout_s, rate))
+
+
+@pytest.mark.parametrize("py310", [False, True])
+def test_a_steady_body_longer_than_the_deadline_is_read_and_a_dribbled_one_is_not(py310, monkeypatch):
+    from hykin.compensation.service_guard import BodyTimeout
+
+    if py310:  # the loop Python 3.10 runs (no asyncio.timeout)
+        monkeypatch.delattr(asyncio, "timeout", raising=False)
+    steady = [b"x" * 16384] * 16  # 256 KiB at 16 KiB per 40 ms = 400 KiB/s: 0.64 s against a 0.25 s deadline
+    t0 = time.perf_counter()
+    assert _read(_Req(steady, 0.04), 0.25, 64.0) == b"".join(steady)
+    assert time.perf_counter() - t0 > 0.5
+    with pytest.raises(BodyTimeout, match=r"within 0.25 s \(\d+ of 262144 bytes arrived; hykin serve --body-timeout-s"):
+        _read(_Req(steady, 0.04), 0.25, None)  # a total deadline, as before
+    dribble = [b"{"] * 400  # 1 byte per 10 ms: 0.1 KiB/s
+    t0 = time.perf_counter()
+    with pytest.raises(BodyTimeout, match=r"and 1 s more per 64 KiB received \(\d+ of 400 bytes arrived"):
+        _read(_Req(dribble, 0.01), 0.25, 64.0)
+    assert time.perf_counter() - t0 < 1.5
+    with pytest.raises(BodyTimeout, match=r"of \? bytes arrived"):  # chunked: no Content-Length
+        _read(_Req(dribble, 0.01, announce=False), 0.25, 64.0)
+
+
+def test_limits_and_cli_check_the_rate():
+    from typer.testing import CliRunner
+
+    from hykin.cli import app
+    from hykin.compensation.service_guard import ServiceLimits
+
+    assert ServiceLimits().body_min_rate_kib_s == 64.0
+    for bad in (0, -1.0, 2e6):
+        with pytest.raises(ValueError, match="body_min_rate_kib_s"):
+            ServiceLimits(body_min_rate_kib_s=bad)
+    r = CliRunner().invoke(app, ["serve", str(tiny_model_file()), "--body-min-rate-kib-s", "-3"])
+    assert r.exit_code != 0 and "--body-min-rate-kib-s must be in 0..1e6" in str(r.exception)
+
+
+def test_a_slow_link_gets_its_answer_over_a_socket():
+    """A valid /compensate request of ~300 KiB (padded with JSON whitespace) sent at ~250 KiB/s takes
+    ~1.2 s against --body-timeout-s 0.4: answered 200; the same body stalling half-way gets 408."""
+    from hykin.compensation.service_guard import ServiceLimits, model_identity
+    from hykin.hybrid.model import HybridModel
+
+    m = HybridModel.load(tiny_model_file())
+    port = free_port()
+    limits = ServiceLimits(refusal_delay_s=0, header_timeout_s=2.0, body_timeout_s=0.4)
+    server, th = start_server(m, port, limits, model_identity(None))
+    try:
+        q = m.nominal.random_joints(3, 4, margin=0.3)
+        body = json.dumps({"targets": pose_rows(m.predict(q)), "q_current": q.tolist()})
+        body = (body[:-1] + " " * (300 * 1024 - len(body)) + "}").encode()
+        head = (f"POST /compensate HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                f"Content-Length: {len(body)}\r\nConnection: close\r\n\r\n").encode()
+
+        def send(stall_after: int | None) -> bytes:
+            with socket.create_connection(("127.0.0.1", port)) as s:
+                try:
+                    s.sendall(head)
+                    for i in range(0, len(body), 8192):
+                        if stall_after is not None and i >= stall_after:
+                            time.sleep(1.5)
+                            break
+                        s.sendall(body[i:i + 8192])
+                        time.sleep(8192 / (250 * 1024))
+                except (ConnectionResetError, BrokenPipeError):  # answered and closed while sending
+                    pass
+                s.settimeout(30)
+                got = b""
+                try:
+                    while chunk := s.recv(65536):
+                        got += chunk
+                except (ConnectionResetError, BrokenPipeError):
+                    pass
+                return got
+
+        t0 = time.perf_counter()
+        ok = send(None)
+        assert time.perf_counter() - t0 > 1.0
+        assert ok.startswith(b"HTTP/1.1 200"), ok[:200]
+        assert all(json.loads(ok.split(b"\r\n\r\n", 1)[1])["success"])
+        cut = send(100 * 1024)
+        assert cut.startswith(b"HTTP/1.1 408") and b"--body-min-rate-kib-s" in cut
+    finally:
+        server.should_exit = True
+        th.join(30)
