@@ -12,6 +12,7 @@ import json
 import socket
 import time
 
+import numpy as np
 import pytest
 from comp_models import tiny_model_file
 from shared_fixtures import free_port, pose_rows, start_server
@@ -122,3 +123,29 @@ def test_a_slow_link_gets_its_answer_over_a_socket():
     finally:
         server.should_exit = True
         th.join(30)
+
+
+def test_ik_notes_solutions_far_from_q_current():
+    """``POST /ik`` with ``q_current``: a solution more than 90° (a joint) from it is flagged and noted, as
+    ``hykin ik --seed-joints`` notes it (probe s42: the service said nothing); without ``q_current``,
+    nothing is flagged."""
+    from comp_models import ExactModel
+
+    from hykin import load_robot
+    from hykin.compensation.service_requests import Handlers
+    from hykin.kinematics.fk import fk
+
+    nom = load_robot("ur10")
+    h = Handlers(ExactModel(nom, nom))
+    q = np.array([[0.3, -1.4, 1.5, -1.7, -1.5, 0.4], [0.1, -1.2, 1.3, -1.6, -1.2, 0.2]])
+    targets = pose_rows(fk(nom, q))
+    near = h.ik(*h.parse_ik({"targets": targets, "q_current": (q + 0.05).tolist()}))
+    assert all(near["success"]) and near["far_from_q_current"] == [False, False] and "note" not in near
+    seed = q.copy()
+    seed[1, 0] += 2.6  # target 1's q_current far from every solution of it
+    far = h.ik(*h.parse_ik({"targets": targets, "q_current": seed.tolist()}))
+    assert all(far["success"]) and far["far_from_q_current"] == [False, True]
+    assert "1 targets (target 1) are solved more than 90° (a joint) from q_current" in far["note"]
+    assert abs(far["q"][1][0] - seed[1, 0]) > np.pi / 2
+    plain = h.ik(*h.parse_ik({"targets": targets}))
+    assert "far_from_q_current" not in plain and "note" not in plain

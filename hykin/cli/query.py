@@ -213,10 +213,11 @@ def _note_far_from_seed(rob, rows: dict, q_cur: np.ndarray, ok: np.ndarray) -> N
     """A note where a solution nearest the seed joints lies more than 90° (a revolute joint) from them: on
     another branch than the seed's (probe s42 AR: where the seed's branch missed the tolerance at a stretched
     elbow, the wrist was turned 180°, without a word)."""
+    from ..kinematics.ik_rows import far_from_seed
+
     qs = np.stack([np.asarray(rows[f"q{j + 1}"], dtype=np.float64) for j in range(rob.dof)], 1)
     tgt = np.asarray(rows["target"], dtype=np.int64)
-    rev = np.array([t == "revolute" for t in rob.independent_joint_type])
-    far = ok & (np.abs(np.where(rev, qs - q_cur[tgt], 0.0)).max(1) > np.pi / 2)
+    far = ok & far_from_seed(rob, qs, q_cur[tgt])
     if far.any():
         ids = ", ".join(map(str, tgt[far][:8])) + (" ..." if far.sum() > 8 else "")
         console().print(f"note: {int(far.sum())} targets (target {ids}) are solved more than 90° (a joint) from their "

@@ -315,9 +315,9 @@ class Handlers:
         T, qc = self._targets_q(check_keys(body, {"targets", "q_current"}))
         nom = self.model.nominal
         zero = np.clip(np.zeros(self.dof), nom.lower, nom.upper)
-        return T, np.ascontiguousarray(np.broadcast_to(zero if qc is None else qc, (len(T), self.dof)))
+        return T, np.ascontiguousarray(np.broadcast_to(zero if qc is None else qc, (len(T), self.dof))), qc is not None
 
-    def ik(self, T, qc) -> dict:
+    def ik(self, T, qc, given: bool = False) -> dict:
         from ..hybrid.ik import hybrid_ik
         from .targets import first_row_per_target
 
@@ -337,9 +337,21 @@ class Handlers:
 
             bad = np.flatnonzero(~ok)
             reason[bad] = failure_reasons(self.model.nominal, T[bad], position_only=T.ndim == 2)
-        return {"q": [r if k else None for r, k in zip(q.tolist(), ok.tolist())], "success": ok.tolist(),
-                "pos_err_mm": _floats(pe), "ang_err_deg": _floats(ae), "reason": ["" if k else str(r) for r, k in zip(reason.tolist(), ok.tolist())],
-                **_support_fields(self.model, q, ok, "solved targets")}
+        out = {"q": [r if k else None for r, k in zip(q.tolist(), ok.tolist())], "success": ok.tolist(),
+               "pos_err_mm": _floats(pe), "ang_err_deg": _floats(ae), "reason": ["" if k else str(r) for r, k in zip(reason.tolist(), ok.tolist())],
+               **_support_fields(self.model, q, ok, "solved targets")}
+        if given:  # the CLI's note (hykin ik --seed-joints): a solution on another branch than q_current's
+            from ..kinematics.ik_rows import far_from_seed
+
+            far = ok & far_from_seed(self.model.nominal, q, qc)
+            out["far_from_q_current"] = far.tolist()
+            if far.any():
+                ids = ", ".join(map(str, np.flatnonzero(far)[:8])) + (" ..." if far.sum() > 8 else "")
+                out["note"] = (f"{int(far.sum())} targets (target {ids}) are solved more than 90° (a joint) from "
+                               "q_current: the solution nearest it lies on another branch than q_current's (at a "
+                               "stretched elbow, q_current's own may miss the tolerance); check before sending them "
+                               "to the robot")
+        return out
 
     # --- POST /compensate
     def parse_compensate(self, body) -> tuple:

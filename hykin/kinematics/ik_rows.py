@@ -17,9 +17,25 @@ from .ik import ik
 from .ik_reasons import categorise, failure_reasons
 from .robot import Robot
 
-__all__ = ["MAX_TURN_COPIES", "TURN_COPIES_CAP", "classical_ik_rows", "expand_turn_copies", "ik_rows",
+__all__ = ["FAR_FROM_SEED_RAD", "MAX_TURN_COPIES", "TURN_COPIES_CAP", "classical_ik_rows", "expand_turn_copies",
+           "far_from_seed", "ik_rows",
            "representations_per_solution", "turn_copies", "turn_copies_left_out", "turn_copies_note",
            "turn_copy_counts"]
+
+#: a solution "nearest the seed" farther than this from it (any revolute joint, rad) lies on another branch
+FAR_FROM_SEED_RAD = np.pi / 2
+
+
+def far_from_seed(robot: Robot, q: np.ndarray, q_seed: np.ndarray) -> np.ndarray:
+    """``(N,)`` bool: solutions ``q`` ``(N, dof)`` that lie more than :data:`FAR_FROM_SEED_RAD` from their
+    seed joints ``q_seed`` ``(N, dof)`` on some revolute joint (False for NaN rows): the solution nearest
+    the seed lies on another branch than the seed's (probe s42 AR: at a stretched elbow the seed's own
+    branch missed the tolerance and the wrist came back turned 180°, without a word)."""
+    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    with np.errstate(invalid="ignore"):
+        d = np.abs(np.where(rev, np.asarray(q, dtype=np.float64) - q_seed, 0.0))
+        return np.nan_to_num(d, nan=0.0).max(1) > FAR_FROM_SEED_RAD
+
 
 #: most 2π representations per solution that ``hykin ik --all-branches`` lists by default (:func:`expand_turn_copies`);
 #: a robot whose solutions may have more lists each once and says how many it left out (:func:`turn_copies_note`)
