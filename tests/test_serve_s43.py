@@ -149,3 +149,66 @@ def test_ik_notes_solutions_far_from_q_current():
     assert abs(far["q"][1][0] - seed[1, 0]) > np.pi / 2
     plain = h.ik(*h.parse_ik({"targets": targets}))
     assert "far_from_q_current" not in plain and "note" not in plain
+
+
+def test_clients_that_do_not_read_their_answers_lose_their_slots_and_slow_readers_do_not():
+    """Before, two clients pipelining requests for large answers and never reading them held both
+    --max-connections slots for ever: every other request got 503 (stop 43, 30 s and more). Now a
+    write buffer that does not drain for --send-timeout-s aborts the connection; a client reading
+    steadily but slowly gets its whole answer."""
+    from hykin.compensation.service_guard import ServiceLimits, model_identity
+    from hykin.hybrid.model import HybridModel
+
+    m = HybridModel.load(tiny_model_file())
+    port = free_port()
+    limits = ServiceLimits(max_connections=2, refusal_delay_s=0, header_timeout_s=2.0, send_timeout_s=1.0)
+    server, th = start_server(m, port, limits, model_identity(None))
+    c = httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30)
+    q = m.nominal.random_joints(4000, 1).tolist()
+    body = json.dumps({"q": q}).encode()
+    req = (f"POST /fk HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {len(body)}\r\n\r\n"
+           ).encode() + body
+    hostile = []
+    try:
+        for _ in range(2):
+            s = socket.socket()
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            s.connect(("127.0.0.1", port))
+            s.settimeout(0.5)
+            try:
+                for _ in range(8):
+                    s.sendall(req)
+            except (TimeoutError, socket.timeout, ConnectionResetError, BrokenPipeError):
+                pass
+            hostile.append(s)
+        t0, codes = time.perf_counter(), []
+        while time.perf_counter() - t0 < 10:
+            codes.append(c.post("/fk", json={"q": q[:2]}).status_code)
+            if codes[-1] == 200:
+                break
+            time.sleep(0.2)
+        assert codes[-1] == 200, codes
+        while c.get("/health").json()["counts"]["dropped_send_timeout"] < 2:  # the other one's deadline too
+            assert time.perf_counter() - t0 < 15
+            time.sleep(0.1)
+        assert [c.post("/fk", json={"q": q[:2]}).status_code for _ in range(2)] == [200, 200]
+
+        # a slow but steady reader: ~600 KB at ~300 KiB/s through a 4 KiB receive buffer, 1 s deadline
+        with socket.socket() as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            s.connect(("127.0.0.1", port))
+            s.sendall(req.replace(b"HTTP/1.1\r\n", b"HTTP/1.1\r\nConnection: close\r\n", 1))
+            s.settimeout(10)
+            got = b""
+            while chunk := s.recv(16384):
+                got += chunk
+                time.sleep(0.05)
+        head, _, payload = got.partition(b"\r\n\r\n")
+        assert head.startswith(b"HTTP/1.1 200") and len(payload) > 300_000
+        assert len(json.loads(payload)["poses"]) == len(q)
+    finally:
+        for s in hostile:
+            s.close()
+        c.close()
+        server.should_exit = True
+        th.join(30)

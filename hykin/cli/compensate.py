@@ -402,6 +402,8 @@ def serve_cmd(
     body_min_rate_kib_s: float = typer.Option(64.0, "--body-min-rate-kib-s", help="Each KiB of a body that arrived "
                                               "extends --body-timeout-s by 1/this seconds: a body arriving at this "
                                               "rate or faster is never cut off, a slower one is. 0: a total deadline."),
+    send_timeout_s: float = typer.Option(10.0, "--send-timeout-s", help="A connection whose answer the client has not "
+                                         "read for this many seconds (write buffer full) is aborted, freeing its slot."),
     max_step_deg: float | None = typer.Option(None, "--max-step-deg", help="Refuse a streamed answer whose joints move "
                                               "more than this many degrees from the message's 'q' (default: no limit)."),
     refusal_delay_ms: float = typer.Option(100.0, "--refusal-delay-ms", help="Every refused request is answered after "
@@ -424,7 +426,8 @@ def serve_cmd(
     check_rt_priority(rt_priority)
     if not 0 <= refusal_delay_ms <= 60_000:
         raise CLIError(f"--refusal-delay-ms must be in 0..60000, got {refusal_delay_ms}")
-    for name, v in (("--header-timeout-s", header_timeout_s), ("--body-timeout-s", body_timeout_s)):
+    for name, v in (("--header-timeout-s", header_timeout_s), ("--body-timeout-s", body_timeout_s),
+                    ("--send-timeout-s", send_timeout_s)):
         if not 0 < v <= 3600:
             raise CLIError(f"{name} must be in (0, 3600] s, got {v}")
     if not 0 <= body_min_rate_kib_s <= 1e6:
@@ -448,7 +451,8 @@ def serve_cmd(
     limits = ServiceLimits(max_targets=max_targets, max_body_bytes=max_body_kb * 1024, max_message_bytes=max_message_bytes,
                            queue=queue, max_connections=max_connections, refusal_delay_s=refusal_delay_ms / 1e3, token=token,
                            header_timeout_s=header_timeout_s, body_timeout_s=body_timeout_s,
-                           body_min_rate_kib_s=body_min_rate_kib_s or None, max_step_deg=max_step_deg)
+                           body_min_rate_kib_s=body_min_rate_kib_s or None, send_timeout_s=send_timeout_s,
+                           max_step_deg=max_step_deg)
     mdl, identity = load_served_model(model)  # one read: /health's hashes are of the bytes loaded
     mdl = with_payload(mdl, payload_kg)
     typer.echo(f"hykin serve: {mdl.nominal.name} (sha256 {identity['model_sha256'] or identity['file_sha256']}) on "

@@ -362,7 +362,7 @@ def uvicorn_config(model, host: str, port: int, limits: ServiceLimits | None = N
     # answer every request with a bare 503 (probe AR, C1). Requests and streams are the app's to bound
     # (ConnectionLimit), connections without a request the protocol's (WaitingConnections).
     return uvicorn.Config(app, host=host, port=port, log_level="warning", limit_concurrency=None,
-                          http=http_protocol(limits.header_timeout_s, waiting), ws_max_size=limits.max_message_bytes,
+                          http=http_protocol(limits.header_timeout_s, waiting, send_timeout_s=limits.send_timeout_s), ws_max_size=limits.max_message_bytes,
                           ws="websockets-sansio")
 
 

@@ -60,6 +60,8 @@ class ServiceLimits:
     takes 18 s), one dribbled in is (a client sending at exactly the minimum rate holds its slot for
     at most ``body_timeout_s + max_body_bytes / rate``, 74 s at the defaults); None: a total deadline
     of ``body_timeout_s``.
+    send_timeout_s: a connection whose response waits this long for the client to read it (its write
+    buffer full and not draining) is aborted [10 s] (:mod:`.service_protocol`).
     max_step_deg: a streamed answer whose joints move more than this (deg, any revolute joint) from
     the ``q`` the message gave is refused with a reason [None: no limit].
     """
@@ -74,6 +76,7 @@ class ServiceLimits:
     header_timeout_s: float = 5.0
     body_timeout_s: float = 10.0
     body_min_rate_kib_s: float | None = 64.0
+    send_timeout_s: float = 10.0
     max_step_deg: float | None = None
 
     def __post_init__(self):
@@ -83,7 +86,7 @@ class ServiceLimits:
                 raise ValueError(f"{name} must be a positive integer, got {v!r}")
         if not 0 <= self.refusal_delay_s <= 60:
             raise ValueError(f"refusal_delay_s must be in [0, 60] s, got {self.refusal_delay_s!r}")
-        for name in ("header_timeout_s", "body_timeout_s"):
+        for name in ("header_timeout_s", "body_timeout_s", "send_timeout_s"):
             v = getattr(self, name)
             if not 0 < v <= 3600:
                 raise ValueError(f"{name} must be in (0, 3600] s, got {v!r}")

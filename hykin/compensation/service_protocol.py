@@ -15,6 +15,13 @@ request, ``GET /health`` included, with a bare 503 for as long as they stayed op
   ``dropped_waiting``. A client that sends its request as soon as it connects (every real client) is
   never the oldest, so silent sockets can neither lock it out nor make ``/health`` look down.
 
+* a response the client does not read: where the connection's write buffer stays over its high-water
+  mark (64 KiB) for ``send_timeout_s`` without draining, the connection is aborted, counted as
+  ``dropped_send_timeout``. Before, a client that sent requests for large answers and never read them
+  held its ``--max-connections`` slot for ever: two such clients answered every other request 503 for
+  as long as they liked (stop 43). A client reading at any rate drains the buffer and is never cut off
+  unless it takes longer than that to take 48 KiB (the gap between the high- and low-water marks).
+
 Requests and streams in progress are the app's to bound
 (:class:`hykin.compensation.service.ConnectionLimit`, ``--max-connections``), and a body that is slow
 to arrive is the app's too (:func:`hykin.compensation.service_guard.read_body`); uvicorn's own
@@ -64,16 +71,41 @@ class WaitingConnections:
         self._kept.pop(conn, None)
 
 
+class _Transport:
+    """A connection's transport that drops writes once it is closing (:meth:`abort` after the send
+    deadline, or the client gone): a request handler may still answer then, since uvicorn marks its
+    requests disconnected only later, in ``connection_lost`` (and not a pipelined one's), and uvloop
+    raises on a write to a closed handle where asyncio's own transports drop it. Everything else is
+    the transport's own."""
+
+    __slots__ = ("_t", "aborted")
+
+    def __init__(self, transport):
+        self._t, self.aborted = transport, False
+
+    def __getattr__(self, name):
+        return getattr(self._t, name)
+
+    def write(self, data) -> None:
+        if not self.aborted and not self._t.is_closing():
+            self._t.write(data)
+
+    def abort(self) -> None:
+        self.aborted = True
+        self._t.abort()
+
+
 def _base_protocol():
     from uvicorn.protocols.http.auto import AutoHTTPProtocol
 
     return AutoHTTPProtocol
 
 
-def http_protocol(header_timeout_s: float, waiting: WaitingConnections, base=None):
+def http_protocol(header_timeout_s: float, waiting: WaitingConnections, base=None, send_timeout_s: float | None = None):
     """uvicorn's HTTP protocol class ``base`` (default: the one uvicorn picks, httptools or h11) with
-    a ``header_timeout_s`` (s) deadline for each request header and the connections that hold no
-    request kept in ``waiting``. Pass the class as ``uvicorn.Config(http=...)``."""
+    a ``header_timeout_s`` (s) deadline for each request header, the connections that hold no request
+    kept in ``waiting``, and a ``send_timeout_s`` (s; None: none) deadline for a paused write buffer to
+    drain. Pass the class as ``uvicorn.Config(http=...)``."""
     base = base or _base_protocol()
     detail = (b'{"detail":"request header not complete within %g s (hykin serve --header-timeout-s)"}'
               % header_timeout_s)
@@ -88,13 +120,38 @@ def http_protocol(header_timeout_s: float, waiting: WaitingConnections, base=Non
         _partial = False  # bytes of the awaited request arrived
 
         def connection_made(self, transport) -> None:
-            super().connection_made(transport)
+            super().connection_made(_Transport(transport) if send_timeout_s is not None else transport)
             self._await_request()
             self._deadline = self.loop.call_later(header_timeout_s, self._expire)
 
+        _send_timer = None  # the timer of a paused write buffer, or None
+
         def connection_lost(self, exc) -> None:
             self._settle()
+            self._stop_send_timer()
             super().connection_lost(exc)
+
+        def pause_writing(self) -> None:
+            super().pause_writing()
+            if send_timeout_s is not None and self._send_timer is None:
+                self._send_timer = self.loop.call_later(send_timeout_s, self._send_expired)
+
+        def resume_writing(self) -> None:
+            self._stop_send_timer()
+            super().resume_writing()
+
+        def _stop_send_timer(self) -> None:
+            if self._send_timer is not None:
+                self._send_timer.cancel()
+                self._send_timer = None
+
+        def _send_expired(self) -> None:
+            """The client has not read for ``send_timeout_s``: abort (a graceful close would wait for the
+            buffer to drain); uvicorn then marks the request disconnected and the app's handler ends."""
+            self._send_timer = None
+            if not self.transport.is_closing() or self.transport.get_write_buffer_size():
+                waiting.counts["dropped_send_timeout"] += 1
+                self.transport.abort()  # the _Transport: the handlers' writes are dropped from now on
 
         def data_received(self, data: bytes) -> None:
             super().data_received(data)
@@ -115,6 +172,9 @@ def http_protocol(header_timeout_s: float, waiting: WaitingConnections, base=Non
 
         def handle_websocket_upgrade(self, *args) -> None:
             self._settle()  # the WebSocket protocol takes the connection over: the app bounds streams
+            self._stop_send_timer()
+            if isinstance(self.transport, _Transport):  # the stream protocol gets the transport itself
+                self.transport = self.transport._t
             super().handle_websocket_upgrade(*args)
 
         def drop(self, response: bytes | None) -> None:
