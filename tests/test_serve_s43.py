@@ -145,7 +145,7 @@ def test_ik_notes_solutions_far_from_q_current():
     seed[1, 0] += 2.6  # target 1's q_current far from every solution of it
     far = h.ik(*h.parse_ik({"targets": targets, "q_current": seed.tolist()}))
     assert all(far["success"]) and far["far_from_q_current"] == [False, True]
-    assert "1 targets (target 1) are solved more than 90° (a joint) from q_current" in far["note"]
+    assert "1 target (target 1) is solved more than 90° (a joint) from q_current: no solution on the branch of q_current" in far["note"]
     assert abs(far["q"][1][0] - seed[1, 0]) > np.pi / 2
     plain = h.ik(*h.parse_ik({"targets": targets}))
     assert "far_from_q_current" not in plain and "note" not in plain
@@ -210,5 +210,121 @@ def test_clients_that_do_not_read_their_answers_lose_their_slots_and_slow_reader
         for s in hostile:
             s.close()
         c.close()
+        server.should_exit = True
+        th.join(30)
+
+
+
+def test_a_steady_reader_behind_a_small_send_buffer_gets_its_whole_answer():
+    """Probe s43 AZ: with the kernel's send buffer small (as on a real network for a slowly reading
+    client; loopback autotunes it to megabytes), the first send rule, drain below the low-water mark
+    within --send-timeout-s, cut off a steady reader of one large answer. The rule is now a minimum
+    drain rate (--send-min-rate-kib-s): a client reading ~290 KB at ~60 KiB/s over 4-5 s against a
+    0.5 s timeout gets all of it; one that stops reading is cut off."""
+    import threading
+
+    import uvicorn
+
+    from hykin.compensation.service import uvicorn_config
+    from hykin.compensation.service_guard import ServiceLimits, model_identity
+    from hykin.hybrid.model import HybridModel
+
+    m = HybridModel.load(tiny_model_file())
+    port = free_port()
+    # a header deadline far shorter than the reading: a connection busy with its answer is not "waiting"
+    limits = ServiceLimits(refusal_delay_s=0, header_timeout_s=0.5, send_timeout_s=0.5, send_min_rate_kib_s=16.0)
+    lsock = socket.socket()
+    lsock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    lsock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 32768)  # accepted connections inherit it
+    lsock.bind(("127.0.0.1", port))
+    lsock.listen(16)
+    server = uvicorn.Server(uvicorn_config(m, "127.0.0.1", port, limits, model_identity(None)))
+    th = threading.Thread(target=server.run, kwargs={"sockets": [lsock]}, daemon=True)
+    th.start()
+    t0 = time.time()
+    while not server.started:
+        assert th.is_alive() and time.time() - t0 < 60
+        time.sleep(0.05)
+    q = m.nominal.random_joints(2000, 2).tolist()
+    body = json.dumps({"q": q}).encode()
+    req = (f"POST /fk HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {len(body)}\r\n"
+           "Connection: close\r\n\r\n").encode() + body
+
+    def read(rate_kib_s: float, stop_after: int | None = None) -> bytes:
+        with socket.socket() as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            s.connect(("127.0.0.1", port))
+            s.sendall(req)
+            s.settimeout(10)
+            got = b""
+            try:
+                while chunk := s.recv(4096):
+                    got += chunk
+                    if stop_after is not None and len(got) >= stop_after:
+                        time.sleep(4.0)
+                        stop_after = None
+                    time.sleep(len(chunk) / (rate_kib_s * 1024))
+            except ConnectionResetError:
+                pass
+            return got
+
+    try:
+        t0 = time.perf_counter()
+        got = read(60.0)
+        head, _, payload = got.partition(b"\r\n\r\n")
+        assert time.perf_counter() - t0 > 2.5
+        assert head.startswith(b"HTTP/1.1 200") and len(json.loads(payload)["poses"]) == len(q)
+        # two requests pipelined, both answers read slowly: the second request waits unread meanwhile
+        small = json.dumps({"q": q[:800]}).encode()
+        small = small[:-1] + b" " * 600_000 + b"}"  # a large request (JSON whitespace), a small answer
+        one = (f"POST /fk HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {len(small)}"
+               "\r\n\r\n").encode() + small
+        with socket.socket() as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            s.connect(("127.0.0.1", port))
+            s.sendall(one + one)
+            s.settimeout(10)
+            both = b""
+            while both.count(b"HTTP/1.1 200") < 2 or not both.endswith(b"]}"):
+                chunk = s.recv(4096)
+                assert chunk, f"closed after {len(both)} bytes"
+                both += chunk
+                time.sleep(len(chunk) / (60 * 1024))
+        cut = read(60.0, stop_after=20_000)  # then stops for 4 s, beyond 0.5 s + 20 KB / 16 KiB/s: aborted
+        assert cut.startswith(b"HTTP/1.1 200") and len(cut) < len(got)
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}") as c:
+            counts = c.get("/health").json()["counts"]
+        # connections busy with their answers are never taken for ones that send no header
+        assert counts["dropped_send_timeout"] == 1 and "dropped_header_timeout" not in counts, counts
+    finally:
+        server.should_exit = True
+        th.join(30)
+
+
+def test_a_client_gone_mid_body_is_counted_not_a_traceback(caplog):
+    """Probe s43 AZ: a client closing its connection part-way through its body made the app raise
+    Starlette's ClientDisconnect out of the handler (a 60-line "Exception in ASGI application"). It is now
+    counted as ``dropped_client_disconnect``; the service goes on answering."""
+    import logging
+
+    from hykin.compensation.service_guard import ServiceLimits, model_identity
+    from hykin.hybrid.model import HybridModel
+
+    m = HybridModel.load(tiny_model_file())
+    port = free_port()
+    server, th = start_server(m, port, ServiceLimits(refusal_delay_s=0), model_identity(None))
+    try:
+        with caplog.at_level(logging.ERROR):
+            for _ in range(3):
+                with socket.create_connection(("127.0.0.1", port)) as s:
+                    s.sendall(b"POST /fk HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                              b"Content-Length: 10000\r\n\r\n{\"q\": [[0.1, 0.2")
+                    time.sleep(0.2)
+            time.sleep(0.5)
+            with httpx.Client(base_url=f"http://127.0.0.1:{port}") as c:
+                assert c.post("/fk", json={"q": [[0.0] * m.nominal.dof]}).status_code == 200
+                assert c.get("/health").json()["counts"]["dropped_client_disconnect"] == 3
+        assert not [r for r in caplog.records if "Exception in ASGI application" in r.getMessage()]
+    finally:
         server.should_exit = True
         th.join(30)

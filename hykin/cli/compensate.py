@@ -402,8 +402,12 @@ def serve_cmd(
     body_min_rate_kib_s: float = typer.Option(64.0, "--body-min-rate-kib-s", help="Each KiB of a body that arrived "
                                               "extends --body-timeout-s by 1/this seconds: a body arriving at this "
                                               "rate or faster is never cut off, a slower one is. 0: a total deadline."),
-    send_timeout_s: float = typer.Option(10.0, "--send-timeout-s", help="A connection whose answer the client has not "
-                                         "read for this many seconds (write buffer full) is aborted, freeing its slot."),
+    send_timeout_s: float = typer.Option(10.0, "--send-timeout-s", help="A connection whose answer waits for the client "
+                                         "to read it (write buffer full) is aborted after this many seconds, plus "
+                                         "the time --send-min-rate-kib-s allows for what the client took."),
+    send_min_rate_kib_s: float = typer.Option(16.0, "--send-min-rate-kib-s", help="Each KiB of a waiting answer that "
+                                              "the client reads extends --send-timeout-s by 1/this seconds: a client "
+                                              "reading at this rate or faster gets every answer."),
     max_step_deg: float | None = typer.Option(None, "--max-step-deg", help="Refuse a streamed answer whose joints move "
                                               "more than this many degrees from the message's 'q' (default: no limit)."),
     refusal_delay_ms: float = typer.Option(100.0, "--refusal-delay-ms", help="Every refused request is answered after "
@@ -430,6 +434,8 @@ def serve_cmd(
                     ("--send-timeout-s", send_timeout_s)):
         if not 0 < v <= 3600:
             raise CLIError(f"{name} must be in (0, 3600] s, got {v}")
+    if not 0 < send_min_rate_kib_s <= 1e6:
+        raise CLIError(f"--send-min-rate-kib-s must be in (0, 1e6] KiB/s, got {send_min_rate_kib_s}")
     if not 0 <= body_min_rate_kib_s <= 1e6:
         raise CLIError(f"--body-min-rate-kib-s must be in 0..1e6 KiB/s (0: a total deadline), got {body_min_rate_kib_s}")
     if max_step_deg is not None and not 0 < max_step_deg <= 360:
@@ -452,6 +458,7 @@ def serve_cmd(
                            queue=queue, max_connections=max_connections, refusal_delay_s=refusal_delay_ms / 1e3, token=token,
                            header_timeout_s=header_timeout_s, body_timeout_s=body_timeout_s,
                            body_min_rate_kib_s=body_min_rate_kib_s or None, send_timeout_s=send_timeout_s,
+                           send_min_rate_kib_s=send_min_rate_kib_s,
                            max_step_deg=max_step_deg)
     mdl, identity = load_served_model(model)  # one read: /health's hashes are of the bytes loaded
     mdl = with_payload(mdl, payload_kg)

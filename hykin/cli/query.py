@@ -213,17 +213,13 @@ def _note_far_from_seed(rob, rows: dict, q_cur: np.ndarray, ok: np.ndarray) -> N
     """A note where a solution nearest the seed joints lies more than 90° (a revolute joint) from them: on
     another branch than the seed's (probe s42 AR: where the seed's branch missed the tolerance at a stretched
     elbow, the wrist was turned 180°, without a word)."""
-    from ..kinematics.ik_rows import far_from_seed
+    from ..kinematics.ik_rows import far_from_seed, far_from_seed_note
 
     qs = np.stack([np.asarray(rows[f"q{j + 1}"], dtype=np.float64) for j in range(rob.dof)], 1)
     tgt = np.asarray(rows["target"], dtype=np.int64)
     far = ok & far_from_seed(rob, qs, q_cur[tgt])
     if far.any():
-        ids = ", ".join(map(str, tgt[far][:8])) + (" ..." if far.sum() > 8 else "")
-        console().print(f"note: {int(far.sum())} targets (target {ids}) are solved more than 90° (a joint) from their "
-                        "seed joints: the solution nearest the seed lies on another branch than the seed's (at a "
-                        "stretched elbow, the seed's own may miss the tolerance); check before sending them to the robot",
-                        highlight=False, markup=False)
+        console().print("note: " + far_from_seed_note(tgt[far], "their seed joints"), highlight=False, markup=False)
 
 
 def _with_turn_copies(mdl, rob, rows: dict, max_copies: int, expand: bool = True) -> dict:

@@ -148,6 +148,7 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
     from fastapi import FastAPI, Request, WebSocket
     from fastapi.responses import Response
     from starlette.concurrency import run_in_threadpool
+    from starlette.requests import ClientDisconnect
     from starlette.websockets import WebSocketDisconnect
 
     from .. import __version__
@@ -195,6 +196,9 @@ def create_app(model, limits: ServiceLimits | None = None, identity: dict | None
             return await _refuse(413, str(e), "size", {"Connection": "close"})
         except BodyTimeout as e:
             return await _refuse(408, str(e), "timeout", {"Connection": "close"})
+        except ClientDisconnect:  # gone before its body came in full: nobody to answer (probe s43 AZ: a traceback)
+            counts["dropped_client_disconnect"] += 1
+            return Response(status_code=400)
         except ValueError as e:
             return await _refuse(400, str(e), "malformed", {"Connection": "close"})
         try:
@@ -362,7 +366,8 @@ def uvicorn_config(model, host: str, port: int, limits: ServiceLimits | None = N
     # answer every request with a bare 503 (probe AR, C1). Requests and streams are the app's to bound
     # (ConnectionLimit), connections without a request the protocol's (WaitingConnections).
     return uvicorn.Config(app, host=host, port=port, log_level="warning", limit_concurrency=None,
-                          http=http_protocol(limits.header_timeout_s, waiting, send_timeout_s=limits.send_timeout_s), ws_max_size=limits.max_message_bytes,
+                          http=http_protocol(limits.header_timeout_s, waiting, send_timeout_s=limits.send_timeout_s,
+                                        send_min_rate_kib_s=limits.send_min_rate_kib_s), ws_max_size=limits.max_message_bytes,
                           ws="websockets-sansio")
 
 

@@ -60,8 +60,10 @@ class ServiceLimits:
     takes 18 s), one dribbled in is (a client sending at exactly the minimum rate holds its slot for
     at most ``body_timeout_s + max_body_bytes / rate``, 74 s at the defaults); None: a total deadline
     of ``body_timeout_s``.
-    send_timeout_s: a connection whose response waits this long for the client to read it (its write
-    buffer full and not draining) is aborted [10 s] (:mod:`.service_protocol`).
+    send_timeout_s, send_min_rate_kib_s: a connection whose answer waits for the client to read it (its
+    write buffer over 64 KiB) is aborted after ``send_timeout_s`` plus one second per
+    ``send_min_rate_kib_s`` KiB that the client took meanwhile [10 s, 16 KiB/s]: a client reading at
+    that rate or faster gets every answer (:mod:`.service_protocol`).
     max_step_deg: a streamed answer whose joints move more than this (deg, any revolute joint) from
     the ``q`` the message gave is refused with a reason [None: no limit].
     """
@@ -77,6 +79,7 @@ class ServiceLimits:
     body_timeout_s: float = 10.0
     body_min_rate_kib_s: float | None = 64.0
     send_timeout_s: float = 10.0
+    send_min_rate_kib_s: float = 16.0
     max_step_deg: float | None = None
 
     def __post_init__(self):
@@ -90,6 +93,8 @@ class ServiceLimits:
             v = getattr(self, name)
             if not 0 < v <= 3600:
                 raise ValueError(f"{name} must be in (0, 3600] s, got {v!r}")
+        if not 0 < self.send_min_rate_kib_s <= 1e6:
+            raise ValueError(f"send_min_rate_kib_s must be in (0, 1e6] KiB/s, got {self.send_min_rate_kib_s!r}")
         if self.body_min_rate_kib_s is not None and not 0 < self.body_min_rate_kib_s <= 1e6:
             raise ValueError(f"body_min_rate_kib_s must be in (0, 1e6] KiB/s or None, got {self.body_min_rate_kib_s!r}")
         if self.max_step_deg is not None and not 0 < self.max_step_deg <= 360:

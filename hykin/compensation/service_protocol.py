@@ -15,12 +15,15 @@ request, ``GET /health`` included, with a bare 503 for as long as they stayed op
   ``dropped_waiting``. A client that sends its request as soon as it connects (every real client) is
   never the oldest, so silent sockets can neither lock it out nor make ``/health`` look down.
 
-* a response the client does not read: where the connection's write buffer stays over its high-water
-  mark (64 KiB) for ``send_timeout_s`` without draining, the connection is aborted, counted as
-  ``dropped_send_timeout``. Before, a client that sent requests for large answers and never read them
-  held its ``--max-connections`` slot for ever: two such clients answered every other request 503 for
-  as long as they liked (stop 43). A client reading at any rate drains the buffer and is never cut off
-  unless it takes longer than that to take 48 KiB (the gap between the high- and low-water marks).
+* a response the client does not read: while the connection's write buffer is over its high-water mark
+  (64 KiB), it must drain at ``send_min_rate_kib_s`` at least after a grace of ``send_timeout_s``:
+  the connection is aborted once it has been over the mark for ``send_timeout_s`` plus one second per
+  ``send_min_rate_kib_s`` KiB that left the buffer meanwhile, counted as ``dropped_send_timeout``.
+  Before, a client that sent requests for large answers and never read them held its
+  ``--max-connections`` slot for ever: two such clients answered every other request 503 for as long
+  as they liked (stop 43). A client reading at that rate or faster gets every answer, however large
+  (probe s43 AZ: a first rule, a deadline to drain below the low-water mark, cut off a steady reader of
+  a 1.45 MB answer at 50-100 KiB/s whenever the kernel's send buffer was small, as on a real network).
 
 Requests and streams in progress are the app's to bound
 (:class:`hykin.compensation.service.ConnectionLimit`, ``--max-connections``), and a body that is slow
@@ -101,11 +104,14 @@ def _base_protocol():
     return AutoHTTPProtocol
 
 
-def http_protocol(header_timeout_s: float, waiting: WaitingConnections, base=None, send_timeout_s: float | None = None):
+def http_protocol(header_timeout_s: float, waiting: WaitingConnections, base=None, send_timeout_s: float | None = None,
+                  send_min_rate_kib_s: float = 16.0):
     """uvicorn's HTTP protocol class ``base`` (default: the one uvicorn picks, httptools or h11) with
     a ``header_timeout_s`` (s) deadline for each request header, the connections that hold no request
-    kept in ``waiting``, and a ``send_timeout_s`` (s; None: none) deadline for a paused write buffer to
-    drain. Pass the class as ``uvicorn.Config(http=...)``."""
+    kept in ``waiting``, and a paused write buffer aborted unless it drains at ``send_min_rate_kib_s``
+    (KiB/s) after a grace of ``send_timeout_s`` (s; None: never aborted). Pass the class as
+    ``uvicorn.Config(http=...)``."""
+    per_byte = 1.0 / (1024.0 * send_min_rate_kib_s)
     base = base or _base_protocol()
     detail = (b'{"detail":"request header not complete within %g s (hykin serve --header-timeout-s)"}'
               % header_timeout_s)
@@ -125,6 +131,7 @@ def http_protocol(header_timeout_s: float, waiting: WaitingConnections, base=Non
             self._deadline = self.loop.call_later(header_timeout_s, self._expire)
 
         _send_timer = None  # the timer of a paused write buffer, or None
+        _paused_at = (0.0, 0)  # loop time and buffer size when writing paused
 
         def connection_lost(self, exc) -> None:
             self._settle()
@@ -134,7 +141,8 @@ def http_protocol(header_timeout_s: float, waiting: WaitingConnections, base=Non
         def pause_writing(self) -> None:
             super().pause_writing()
             if send_timeout_s is not None and self._send_timer is None:
-                self._send_timer = self.loop.call_later(send_timeout_s, self._send_expired)
+                self._paused_at = (self.loop.time(), self.transport.get_write_buffer_size())
+                self._send_timer = self.loop.call_later(send_timeout_s, self._send_check)
 
         def resume_writing(self) -> None:
             self._stop_send_timer()
@@ -145,13 +153,22 @@ def http_protocol(header_timeout_s: float, waiting: WaitingConnections, base=Non
                 self._send_timer.cancel()
                 self._send_timer = None
 
-        def _send_expired(self) -> None:
-            """The client has not read for ``send_timeout_s``: abort (a graceful close would wait for the
-            buffer to drain); uvicorn then marks the request disconnected and the app's handler ends."""
+        def _send_check(self) -> None:
+            """Over the high-water mark since ``_paused_at``: abort the connection unless what left the
+            buffer meanwhile extends its deadline past now (the buffer only shrinks while paused: the app
+            waits for it before writing more); a graceful close would wait for the buffer to drain."""
             self._send_timer = None
-            if not self.transport.is_closing() or self.transport.get_write_buffer_size():
-                waiting.counts["dropped_send_timeout"] += 1
-                self.transport.abort()  # the _Transport: the handlers' writes are dropped from now on
+            t0, size0 = self._paused_at
+            left = self.transport.get_write_buffer_size()
+            deadline = t0 + send_timeout_s + max(0, size0 - left) * per_byte
+            now = self.loop.time()
+            if not left:  # drained (resume_writing comes with it)
+                return
+            if deadline > now + 1e-3:
+                self._send_timer = self.loop.call_later(deadline - now, self._send_check)
+                return
+            waiting.counts["dropped_send_timeout"] += 1
+            self.transport.abort()  # the _Transport: the handlers' writes are dropped from now on
 
         def data_received(self, data: bytes) -> None:
             super().data_received(data)

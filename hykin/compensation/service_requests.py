@@ -341,16 +341,12 @@ class Handlers:
                "pos_err_mm": _floats(pe), "ang_err_deg": _floats(ae), "reason": ["" if k else str(r) for r, k in zip(reason.tolist(), ok.tolist())],
                **_support_fields(self.model, q, ok, "solved targets")}
         if given:  # the CLI's note (hykin ik --seed-joints): a solution on another branch than q_current's
-            from ..kinematics.ik_rows import far_from_seed
+            from ..kinematics.ik_rows import far_from_seed, far_from_seed_note
 
             far = ok & far_from_seed(self.model.nominal, q, qc)
             out["far_from_q_current"] = far.tolist()
             if far.any():
-                ids = ", ".join(map(str, np.flatnonzero(far)[:8])) + (" ..." if far.sum() > 8 else "")
-                out["note"] = (f"{int(far.sum())} targets (target {ids}) are solved more than 90° (a joint) from "
-                               "q_current: the solution nearest it lies on another branch than q_current's (at a "
-                               "stretched elbow, q_current's own may miss the tolerance); check before sending them "
-                               "to the robot")
+                out["note"] = far_from_seed_note(np.flatnonzero(far), "q_current")
         return out
 
     # --- POST /compensate

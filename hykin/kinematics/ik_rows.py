@@ -18,7 +18,7 @@ from .ik_reasons import categorise, failure_reasons
 from .robot import Robot
 
 __all__ = ["FAR_FROM_SEED_RAD", "MAX_TURN_COPIES", "TURN_COPIES_CAP", "classical_ik_rows", "expand_turn_copies",
-           "far_from_seed", "ik_rows",
+           "far_from_seed", "far_from_seed_note", "ik_rows",
            "representations_per_solution", "turn_copies", "turn_copies_left_out", "turn_copies_note",
            "turn_copy_counts"]
 
@@ -35,6 +35,19 @@ def far_from_seed(robot: Robot, q: np.ndarray, q_seed: np.ndarray) -> np.ndarray
     with np.errstate(invalid="ignore"):
         d = np.abs(np.where(rev, np.asarray(q, dtype=np.float64) - q_seed, 0.0))
         return np.nan_to_num(d, nan=0.0).max(1) > FAR_FROM_SEED_RAD
+
+
+def far_from_seed_note(targets, seed: str) -> str:
+    """The note for solutions far from their seed joints (:func:`far_from_seed`): ``targets`` the 0-based
+    target numbers, ``seed`` what the seed joints are called ("their seed joints", "q_current")."""
+    n = len(targets)
+    ids = ", ".join(map(str, list(targets)[:8])) + (" ..." if n > 8 else "")
+    it = them = "it" if n == 1 else "them"
+    return (f"{n} target{'' if n == 1 else 's'} (target {ids}) {'is' if n == 1 else 'are'} solved more than 90° "
+            f"(a joint) from {seed}: no solution on the branch of {seed} reaches {it} within the tolerance ({seed} "
+            "far from every solution, or a stretched elbow where that branch just misses), so the nearest "
+            f"solution{'' if n == 1 else 's'} {'lies' if n == 1 else 'lie'} on another branch; check before "
+            f"sending {them} to the robot")
 
 
 #: most 2π representations per solution that ``hykin ik --all-branches`` lists by default (:func:`expand_turn_copies`);
