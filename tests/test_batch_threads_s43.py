@@ -141,3 +141,61 @@ def test_pool_serves_a_forked_child():
     ref = hykin.fk(rob, q)  # the parent's pool exists now (50,000 rows: two workers)
     with mp.get_context("fork").Pool(1) as p:
         assert p.map_async(_chunked_in_child, [(rob, q, ref)]).get(timeout=60) == [0.0]
+
+
+@pytest.mark.parametrize("fade", [True, "range", False])
+def test_large_batches_take_support_and_fade_from_the_compiled_pass(fade):
+    """Above COMPILED_MAX poses, the networks' input, range excess, pair gap and fade weight come from one
+    compiled pass over the rows (``fast_fk.prepare``, the per-pose kernel's code) instead of numpy's
+    passes: the same numbers as the numpy functions, for wrapped and masked joints and each fade mode,
+    and predict's rows equal the single-pose kernel's."""
+    import copy
+    import warnings
+
+    from comp_models import tiny_model_file
+
+    from hykin.hybrid import fast_fk
+    from hykin.hybrid import support as sup_
+    from hykin.hybrid.model import HybridModel
+
+    m = copy.deepcopy(HybridModel.load(tiny_model_file()))
+    m.fade = fade
+    m.wrap_centre_ = np.where(np.arange(m.robot.dof) == 5, 0.3, np.asarray(m.wrap_centre_, dtype=np.float64))
+    m.input_mask_ = np.arange(m.robot.dof) != 0  # joint 1 not an input (joint1="frame")
+    k = fast_fk.kernel_of(m)
+    assert k is not None
+    q = m.nominal.random_joints(3001, 9, margin=-0.4)  # partly outside the trained range: the fade acts
+    q[::5, 5] += 7.0  # a wrist more than a turn away: wrapped
+    X, ex, gap, w = fast_fk.prepare(k, q)
+    s, qn = m.support, m._netq(q)
+    assert np.array_equal(X, m._net_in(qn)) and np.array_equal(ex, sup_.range_excess(s, qn))
+    assert np.array_equal(gap, sup_.pair_gap(s, qn)) and (gap > 0).any() and (ex > 0).any()
+    w_np = np.ones(len(q)) if fade is False else sup_.fade_weight(sup_.fade_distance(s, qn, fade, ex, gap),
+                                                                  m.fade_offset_, m.fade_width_)
+    assert np.abs(w - w_np).max() < 1e-15 and (fade is False or (w < 1).any())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        big = m.predict(q)
+        small = np.concatenate([m.predict(q[i:i + 50]) for i in range(0, 200, 50)])  # compiled per pose
+    assert np.abs(big[:200] - small).max() < 1e-12
+
+
+def test_payload_and_temperature_messages_name_what_is_wrong():
+    """Probe s43 BA: a scalar NaN payload was refused as "row 1", a (3, 2) payload as "got shape (6,)",
+    and a temperature array of the wrong length with numpy's raw broadcast error."""
+    from hykin.calibration.thermal import ThermalFit
+    from hykin.hybrid.errors import HybridError
+    from hykin.hybrid.thermal_fit import thermal_factor
+    from hykin.kinematics.compliance import ComplianceError, payload_rows
+
+    with pytest.raises(ComplianceError, match=r"^payload_kg: nan is not a finite mass"):
+        payload_rows(3, float("nan"))
+    with pytest.raises(ComplianceError, match=r"got shape \(3, 2\)"):
+        payload_rows(3, np.ones((3, 2)))
+    with pytest.raises(ComplianceError, match=r"^payload_kg: row 2: -1.0 is not"):
+        payload_rows(3, [1.0, -1.0, 2.0])
+    assert np.array_equal(payload_rows(3, np.ones((3, 1)))[0], np.ones(3))  # a column of them: fine
+    th = ThermalFit(1.2e-5, 1e-7, 20.0, (18.0, 24.0), "")
+    with pytest.raises(HybridError, match=r"temperature_c must be a scalar or one value per query \(100\), got 99"):
+        thermal_factor(th, np.full(99, 21.0), 100)
+    assert np.allclose(thermal_factor(th, 21.0, 4), 1 + 1.2e-5)

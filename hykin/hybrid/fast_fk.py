@@ -31,7 +31,7 @@ from ..kinematics.fk import HAVE_NUMBA
 from . import fast_nets
 from .fast_act import ACT_CODES as _ACT
 
-__all__ = ["COMPILED_MAX", "HybridKernel", "P_KINDS", "kernel_of", "pack_args", "pack_net", "predict_fast"]
+__all__ = ["COMPILED_MAX", "HybridKernel", "P_KINDS", "kernel_of", "pack_args", "pack_net", "predict_fast", "prepare"]
 
 #: batches at least this large predict through the numpy path (the networks as BLAS matrix products
 #: of :mod:`hykin.hybrid.fast_nets` beat per-pose matrix-vector products there; same numbers to rounding)
@@ -292,31 +292,15 @@ if HAVE_NUMBA:
                     s += A[r, k] * B[k, cc]
                 out[r, cc] = s
 
-    @numba.njit(cache=True, nogil=True)
-    def hybrid_one(P, q, T, ex, framed_out):  # pragma: no cover - compiled
-        """Hybrid pose of joints ``q`` (n,) into ``T`` (4, 4) at the reference temperature, the range
-        excess into ``ex`` (n,); returns the pair gap. ``framed_out``: apply the registration frames."""
-        (fixed, prism, comp, kf, kpost, ppt, kpr, com, mass, kg, g, C, wrap, mask, pin_on, pin, mode, slo, shi, span,
-         f_off, f_w, I, J, field, has_j1, j1,
-         p_ops, p_W, p_lo, p_hi, p_b, p_meta, has_rot, r_ops, r_W, r_lo, r_hi, r_b, r_meta,
-         framed, pre, post) = P
+    @numba.njit(cache=True, nogil=True, inline="always")
+    def support_row(P, q, x, ex):  # pragma: no cover - compiled
+        """The networks' input of joints ``q`` (n,) into ``x`` (n + 1,) (wrapped revolute joints, masked
+        inputs, the payload column), the range excess into ``ex`` (n,); returns ``(pair gap, fade weight,
+        number of inputs)`` (the operations of :func:`hykin.hybrid.inputs.net_coordinates`,
+        :func:`hykin.hybrid.support.range_excess`, ``pair_gap`` and ``fade_weight``)."""
+        wrap, mask, pin_on, pin, mode, slo, shi, span, f_off, f_w, I, J, field = (
+            P[12], P[13], P[14], P[15], P[16], P[17], P[18], P[19], P[20], P[21], P[22], P[23], P[24])
         n = q.shape[0]
-        qe = np.empty(n)
-        if comp:
-            tau = np.empty(n)
-            z = np.empty((n, 3))
-            o = np.empty((n, 3))
-            cm = np.empty((n, 3))
-            # iteration counts as int64, not literals: deflect_one is then compiled once for this caller and
-            # for compliance's own kernels (each literal argument value is a separate ~1 s compilation)
-            zero = n - n
-            deflect_one(kf, kpost, ppt, kpr, com, mass, kg, g, C, q, zero + _DEFLECT_MIN_IT, zero + MAX_ITER, TOL_RAD, qe, tau,
-                        z, o, cm)
-            fk_one(fixed, prism, qe, T)
-        else:
-            fk_one(fixed, prism, q, T)
-        # network coordinates: wrapped revolute joints, masked inputs, payload column
-        x = np.empty(n + 1)
         for i in range(n):
             v = q[i]
             c = wrap[i]
@@ -340,6 +324,43 @@ if HAVE_NUMBA:
         if mode != 0:
             t = min(max((d - f_off) / f_w, 0.0), 1.0)
             w = 0.5 * (1.0 + math.cos(math.pi * t))
+        return gap, w, n_in
+
+    @numba.njit(cache=True, nogil=True)
+    def _prepare_packed(F, G, B, q, X, ex, gap, w, k0, k1):  # pragma: no cover - compiled
+        """Rows ``k0:k1`` of :func:`support_row` into ``X`` (N, n_in), ``ex``, ``gap``, ``w``."""
+        P = unpack(F, G, B)
+        x = np.empty(q.shape[1] + 1)
+        for k in range(k0, k1):
+            gap[k], w[k], n_in = support_row(P, q[k], x, ex[k])
+            for i in range(n_in):
+                X[k, i] = x[i]
+
+    @numba.njit(cache=True, nogil=True)
+    def hybrid_one(P, q, T, ex, framed_out):  # pragma: no cover - compiled
+        """Hybrid pose of joints ``q`` (n,) into ``T`` (4, 4) at the reference temperature, the range
+        excess into ``ex`` (n,); returns the pair gap. ``framed_out``: apply the registration frames."""
+        (fixed, prism, comp, kf, kpost, ppt, kpr, com, mass, kg, g, C, wrap, mask, pin_on, pin, mode, slo, shi, span,
+         f_off, f_w, I, J, field, has_j1, j1,
+         p_ops, p_W, p_lo, p_hi, p_b, p_meta, has_rot, r_ops, r_W, r_lo, r_hi, r_b, r_meta,
+         framed, pre, post) = P
+        n = q.shape[0]
+        qe = np.empty(n)
+        if comp:
+            tau = np.empty(n)
+            z = np.empty((n, 3))
+            o = np.empty((n, 3))
+            cm = np.empty((n, 3))
+            # iteration counts as int64, not literals: deflect_one is then compiled once for this caller and
+            # for compliance's own kernels (each literal argument value is a separate ~1 s compilation)
+            zero = n - n
+            deflect_one(kf, kpost, ppt, kpr, com, mass, kg, g, C, q, zero + _DEFLECT_MIN_IT, zero + MAX_ITER, TOL_RAD, qe, tau,
+                        z, o, cm)
+            fk_one(fixed, prism, qe, T)
+        else:
+            fk_one(fixed, prism, q, T)
+        x = np.empty(n + 1)
+        gap, w, n_in = support_row(P, q, x, ex)
         widest = int(max(p_meta[2], r_meta[2]))
         buf = np.empty((6, widest))
         dv = np.empty(3)
@@ -412,6 +433,19 @@ if HAVE_NUMBA:
 
 
 _PARALLEL_MIN = 512
+
+
+def prepare(kernel: HybridKernel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The networks' side of a large batch before the networks (``HybridModel.predict`` above
+    :data:`COMPILED_MAX` poses): of checked joints ``q`` ``(N, n)``, the networks' input ``(N, n_in)``,
+    the range excess ``(N, n)``, the pair gap ``(N,)`` and the fade weight ``(N,)``, in one compiled pass
+    over the rows (the per-pose kernel's own code) instead of numpy's ~20 passes."""
+    q = np.ascontiguousarray(q, dtype=np.float64)
+    N, n = q.shape
+    X = np.empty((N, n + int(bool(kernel.P[14]))))
+    ex, gap, w = np.empty((N, n)), np.empty(N), np.empty(N)
+    run_chunked(_prepare_packed, (*kernel.args, q, X, ex, gap, w), N, min_chunk=4096)
+    return X, ex, gap, w
 
 
 def predict_fast(kernel: HybridKernel, q: np.ndarray, framed: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray,

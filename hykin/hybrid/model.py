@@ -503,26 +503,26 @@ class HybridModel:
         """Hybrid poses ``(N, 4, 4)`` of checked joints ``q2`` ``(N, n)`` at the reference temperature, with
         the registration frames when ``framed``; ``warn``: :class:`OutOfRangeWarning` for queries outside.
         Small batches run compiled (:mod:`hykin.hybrid.fast_fk`) unless a payload is given; large ones BLAS."""
-        kern = fast_fk.kernel_of(self) if len(q2) < fast_fk.COMPILED_MAX and payload_kg is None is payload_com_m else None
-        if kern is not None:
+        kern = fast_fk.kernel_of(self) if payload_kg is None is payload_com_m else None
+        if kern is not None and len(q2) < fast_fk.COMPILED_MAX:
             T, ex, gap, outside = fast_fk.predict_fast(kern, q2, framed)
             if warn and outside:
                 sup_.warn_outside(ex, gap, bool(self.fade), self.payload_range_, payload_kg, stacklevel=3,
                                   circular=sup_.circular_joints(self.robot_, self.wrap_centre_), sup=self.support)
             return T
         T = classical_fk(self.robot_, q2, payload_kg, payload_com_m)
-        s, qn = self.support, self._netq(q2)
-        ex = sup_.range_excess(s, qn)
-        gap = sup_.pair_gap(s, qn)
+        if kern is not None:  # the networks' input, support and fade in one compiled pass
+            qin, ex, gap, w = fast_fk.prepare(kern, q2)
+        else:
+            s, qn = self.support, self._netq(q2)
+            ex, gap = sup_.range_excess(s, qn), sup_.pair_gap(s, qn)
+            w = None if self.fade is False else sup_.fade_weight(sup_.fade_distance(s, qn, self.fade, ex, gap),
+                                                                 self.fade_offset_, self.fade_width_)
+            qin = self._net_in(qn, payload_kg)
         if warn:
             sup_.warn_outside(ex, gap, bool(self.fade), self.payload_range_, payload_kg, stacklevel=3,
                               circular=sup_.circular_joints(self.robot_, self.wrap_centre_), sup=self.support)
-        w = None
-        if self.fade is not False:
-            w = sup_.fade_weight(sup_.fade_distance(s, qn, self.fade, ex, gap), self.fade_offset_, self.fade_width_)
-            if np.all(w == 1.0):
-                w = None
-        qin = self._net_in(qn, payload_kg)
+        w = None if w is None or np.all(w == 1.0) else w
         nets = [fast_nets.cached(self, n).fast for n in (self.net_pos_, self.net_rot_) if n is not None]
         res = fast_nets.evaluate(nets, qin)  # both nets in one pass: shared features, one thread dispatch
         dp = inputs.from_net_frame(self.j1_axis_, q2, res[0])

@@ -85,7 +85,10 @@ def thermal_factor(thermal: ThermalFit | None, temperature_c, n: int) -> np.ndar
     there is no thermal correction (no temperature, no or a zero coefficient)."""
     if temperature_c is None or thermal is None or thermal.coefficient_per_k == 0.0:
         return None
-    t = np.broadcast_to(np.asarray(temperature_c, dtype=np.float64).reshape(-1), (n,))
+    t = np.asarray(temperature_c, dtype=np.float64).reshape(-1)
+    if t.size not in (1, n):
+        raise HybridError(f"temperature_c must be a scalar or one value per query ({n}), got {t.size} values")
+    t = np.broadcast_to(t, (n,))
     if not np.isfinite(t).all():
         raise HybridError(f"temperature_c: non-finite value in row {int(np.argmax(~np.isfinite(t))) + 1}")
     return 1.0 + thermal.coefficient_per_k * (t - thermal.reference_c)

@@ -214,13 +214,16 @@ def payload_rows(N: int, payload_kg=None, payload_com_m=None, like=None):
             if com.shape != (N, 3) or not bool(torch.isfinite(com).all()):
                 raise ComplianceError(f"payload_com_m must be finite, (3,) or ({N}, 3)")
         return kg, com
-    kg = np.asarray(payload_kg, dtype=np.float64).reshape(-1)
-    kg = np.full(N, float(kg[0])) if kg.size == 1 else kg
+    given = np.asarray(payload_kg, dtype=np.float64)
+    kg = given.reshape(-1)
+    scalar = kg.size == 1
+    kg = np.full(N, float(kg[0])) if scalar else kg
     if kg.shape != (N,):
-        raise ComplianceError(f"payload_kg must be a scalar or ({N},), got shape {kg.shape}")
+        raise ComplianceError(f"payload_kg must be a scalar or ({N},), got shape {given.shape}")
     bad = ~(np.isfinite(kg) & (kg >= 0))
     if bad.any():
-        raise ComplianceError(f"payload_kg: row {int(np.argmax(bad)) + 1}: {kg[bad][0]} is not a finite mass >= 0 kg")
+        where = "" if scalar else f" row {int(np.argmax(bad)) + 1}:"
+        raise ComplianceError(f"payload_kg:{where} {kg[bad][0]} is not a finite mass >= 0 kg")
     com = None
     if payload_com_m is not None:
         com = np.asarray(payload_com_m, dtype=np.float64)
