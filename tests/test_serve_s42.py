@@ -187,7 +187,7 @@ def test_step_limit_leaves_prismatic_joints_and_small_moves_alone():
     from hykin.compensation.service_requests import _within_step
 
     class Rob:  # the one attribute of a Robot the check reads
-        independent_joint_type = ("prismatic", "revolute", "revolute")
+        revolute = np.array([False, True, True])  # a rail, then two revolute joints
 
     lim = np.radians(10)
     assert _within_step(Rob, np.array([5.0, 0.1, 0.15]), np.zeros(3), lim) == (True, "")  # 5 m on the rail: not limited

@@ -108,7 +108,7 @@ def _axes_parallel(robot: Robot, q: np.ndarray) -> bool:
     measure with the tool at several orientations, which it cannot take)."""
     from ..kinematics.fk import fk_frames
 
-    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    rev = robot.revolute
     if rev.sum() < 2:
         return True
     z = fk_frames(robot, np.asarray(q[:1], dtype=np.float64)).joint[0, :, :3, 2][: len(rev)][rev]

@@ -112,7 +112,7 @@ def plan_cmd(
             link_radii_m=None if link_radii is None else _floats(link_radii, "--link-radii") * f,
             max_tracker_distance_m=max_tracker_distance, length_unit=length_unit,
         ).check(rob)
-        speeds = np.where(np.array([t == "revolute" for t in rob.independent_joint_type]), np.radians(speed), speed * 1e-3)
+        speeds = np.where(rob.revolute, np.radians(speed), speed * 1e-3)
         if model is not None:
             p = active_poses(model, n, c, seed=seed, pool=pool, speeds=speeds, dwell_s=dwell)
         else:
@@ -176,7 +176,7 @@ def _declared_angle_unit(spec: str | None) -> str:
 
 
 def _joint_columns(rob, q: np.ndarray, unit: str) -> dict:
-    rev = np.array([t == "revolute" for t in rob.independent_joint_type])
+    rev = rob.revolute
     return {f"q{j + 1}{'_deg' if unit == 'deg' and rev[j] else ''}": q[:, j] * (np.degrees(1.0) if unit == "deg" and rev[j] else 1.0)
             for j in range(rob.dof)}
 
@@ -216,7 +216,7 @@ def _write_trajectory(out: Path, kind: str, rob, robot_spec, p, angle_unit, spee
                       krl_vel_percent) -> None:
     from ..planning.trajectory import min_jerk_trajectory
 
-    rev = np.array([t == "revolute" for t in rob.independent_joint_type])
+    rev = rob.revolute
     v = np.where(rev, np.radians(speed), speed * 1e-3)
     a = 2.0 * v if accel is None else np.where(rev, np.radians(accel), accel * 1e-3)
     tr = min_jerk_trajectory(p.moves.q, v, a)

@@ -178,7 +178,7 @@ def candidate_solutions(robot: Robot, T_world: np.ndarray) -> tuple[np.ndarray, 
 
     br = ik(robot, T_world, all_branches=True)
     q, ok = br.q, br.success.copy()
-    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    rev = robot.revolute
     wide = np.flatnonzero(rev & (robot.upper - robot.lower > TWO_PI - 1e-9))
     if wide.size:
         # shifts of -2π, 0, +2π on each joint with a range over 360°: at most 3^k representations
@@ -229,7 +229,7 @@ def candidates(robot: Robot, T_world, margin_rad: float = 0.0,
             ok = np.concatenate([ok, cf.valid & np.isfinite(cf.q).all(-1)], axis=1)
             seed = np.concatenate([seed, np.full(cf.valid.shape, 50.0)], axis=1)
     n = robot.dof
-    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    rev = robot.revolute
     lo, hi = robot.lower - margin_rad, robot.upper + margin_rad
     wide = np.flatnonzero(rev & (hi - lo >= TWO_PI - 1e-9))
     narrow = rev & (hi - lo < TWO_PI - 1e-9)
@@ -340,7 +340,7 @@ class Candidates:
         q = np.asarray(q, dtype=np.float64)
         self.qz = np.nan_to_num(q)
         self.k_lo, self.k_hi = representation_range(self.qz, robot.lower, robot.upper)
-        rev = np.array([t == "revolute" for t in robot.independent_joint_type])  # (n,) like q (mimic joints excluded)
+        rev = robot.revolute  # (n,) like q (mimic joints excluded)
         self.shift = TWO_PI * (rev & (self.k_lo <= self.k_hi))  # 2π where a revolute joint can move into the limits
         self.valid = np.asarray(ok, dtype=bool) & np.isfinite(q).all(-1)
         self.lower, self.upper = robot.lower, robot.upper
@@ -515,6 +515,6 @@ def wrist_split_seeds(nom: Robot, h: np.ndarray) -> tuple[np.ndarray, np.ndarray
     d = np.tile(deltas, len(rows))
     H[:, 3] += d
     H[:, 5] -= np.repeat(same, len(deltas)) * d
-    rev = np.array([t == "revolute" for t in nom.independent_joint_type])
+    rev = nom.revolute
     H = np.where(rev, (H + np.pi) % (2 * np.pi) - np.pi, H)
     return np.repeat(rows, len(deltas)), np.clip(H, nom.lower, nom.upper)

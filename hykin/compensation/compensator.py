@@ -137,7 +137,7 @@ class Compensator:
         self.ik_kw = ik_kw
         self.lower = np.asarray(self.robot.lower, dtype=np.float64)
         self.upper = np.asarray(self.robot.upper, dtype=np.float64)
-        self._rev = np.array([t == "revolute" for t in self.robot.independent_joint_type])  # (dof,) like the limits
+        self._rev = self.robot.revolute  # (dof,) like the limits
         self._base_fit = fitted_base(model) if self.frame == "base" else None
         self._nom_base_inv = se3.invert(self.nominal.base)
         # targets in the measurement frame, seen from the controller's base (the shift): through the fitted

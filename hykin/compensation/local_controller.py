@@ -59,7 +59,7 @@ def _miss(model, q_k: np.ndarray, pick: np.ndarray, Tm_k: np.ndarray) -> float:
 def _local(nom, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``(M,)`` bool: joints ``b`` within a local move of ``a`` ``(M, n)`` (:data:`LOCAL_RAD` a revolute joint,
     :data:`LOCAL_M` a prismatic one); False where ``b`` is NaN."""
-    rev = np.array([t == "revolute" for t in nom.independent_joint_type])
+    rev = nom.revolute
     d = np.nan_to_num(np.abs(b - a), nan=np.inf)
     return ((d <= np.where(rev, LOCAL_RAD, LOCAL_M)).all(1))
 
@@ -117,7 +117,7 @@ def check_from_joints(model, comp, result, T: np.ndarray, D, Dm, standing: np.nd
         return []
     nom = model.nominal
     # joints given a turn outside the limits stand at their representation within them (as the solve takes them)
-    rev = np.array([t == "revolute" for t in nom.independent_joint_type])
+    rev = nom.revolute
     standing = np.where(rev, nearest_representation(standing, standing, comp.lower, comp.upper), standing)
     Dc = np.broadcast_to(np.eye(4), (N, 4, 4)) if D is None else np.asarray(D, dtype=np.float64)
     picks = local_picks(nom, result.command[rows], None if D is None else Dc[rows], standing[rows])

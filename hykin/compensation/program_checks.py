@@ -97,7 +97,7 @@ def _turns(model, targets: list, rows: np.ndarray, q: np.ndarray, axis_signs) ->
 
     nom = model.nominal
     s = default_axis_signs(nom) if axis_signs is None else np.asarray(axis_signs, dtype=np.float64)
-    rev = np.array([t == "revolute" for t in nom.independent_joint_type])
+    rev = nom.revolute
     q = np.array(q, dtype=np.float64)
     for j, k in enumerate(rows):
         T0 = int(targets[k].config.get("T", -1))

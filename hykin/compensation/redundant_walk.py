@@ -64,7 +64,7 @@ def check_local(model, comp, result, T: np.ndarray, D, Dm, rounds: int = 6) -> l
     Tm = comp.model_targets(T, Dm)
     acc = max(comp.tolerance_mm, model_accuracy(model)[0] or 0.0)
     tol = max(comp.tolerance_mm, 1e-3)
-    rev = np.array([t == "revolute" for t in nom.independent_joint_type])
+    rev = nom.revolute
     q_first = result.q.copy()  # the walk's joints before this check
     prev, noted = None, []
     for k in range(len(T)):

@@ -216,9 +216,9 @@ async def read_body(request, limit: int, timeout_s: float | None = None, min_rat
             raise BodyTooLarge(f"request body of {int(cl)} bytes, at most {limit} (hykin serve --max-body-kb)")
     got = [0]
 
-    async def read(extend=None) -> bytes:
+    async def read(stream, extend=None) -> bytes:
         chunks = []
-        async for chunk in request.stream():
+        async for chunk in stream:
             got[0] += len(chunk)
             if got[0] > limit:
                 raise BodyTooLarge(f"request body over {limit} bytes (hykin serve --max-body-kb)")
@@ -228,15 +228,19 @@ async def read_body(request, limit: int, timeout_s: float | None = None, min_rat
         return b"".join(chunks)
 
     if timeout_s is None:
-        return await read()
+        return await read(request.stream())
     loop = asyncio.get_running_loop()
     start = loop.time()
     per_byte = 0.0 if min_rate_kib_s is None else 1.0 / (1024.0 * min_rate_kib_s)
+
+    def deadline() -> float:  # loop time
+        return start + timeout_s + got[0] * per_byte
+
     try:  # a client dribbling its body would hold its --max-connections slot for ever (probe AR, C2)
         if hasattr(asyncio, "timeout"):  # Python >= 3.11: no extra task per request
             async with asyncio.timeout(timeout_s) as cm:
-                return await read(None if not per_byte else lambda: cm.reschedule(start + timeout_s + got[0] * per_byte))
-        return await _read_with_deadline(request, limit, got, lambda: start + timeout_s + got[0] * per_byte)
+                return await read(request.stream(), None if not per_byte else lambda: cm.reschedule(deadline()))
+        return await read(_within(request.stream(), deadline))
     except (asyncio.TimeoutError, TimeoutError):
         rate = "" if not per_byte else f" and 1 s more per {min_rate_kib_s:g} KiB received"
         raise BodyTimeout(f"request body not received within {timeout_s:g} s{rate} ({got[0]} of "
@@ -244,21 +248,17 @@ async def read_body(request, limit: int, timeout_s: float | None = None, min_rat
                           "--body-min-rate-kib-s)") from None
 
 
-async def _read_with_deadline(request, limit: int, got: list, deadline) -> bytes:
-    """:func:`read_body`'s loop for Python 3.10 (no ``asyncio.timeout``): each chunk awaited until
-    ``deadline()`` (loop time, recomputed after each chunk)."""
+async def _within(stream, deadline):
+    """The chunks of ``stream``, each awaited until ``deadline()`` (loop time, asked again for each):
+    :func:`read_body`'s deadline on Python 3.10, which has no ``asyncio.timeout``."""
     loop = asyncio.get_running_loop()
-    it = request.stream().__aiter__()
-    chunks = []
+    it = stream.__aiter__()
     while True:
         try:
             chunk = await asyncio.wait_for(it.__anext__(), max(0.0, deadline() - loop.time()))
         except StopAsyncIteration:
-            return b"".join(chunks)
-        got[0] += len(chunk)
-        if got[0] > limit:
-            raise BodyTooLarge(f"request body over {limit} bytes (hykin serve --max-body-kb)")
-        chunks.append(chunk)
+            return
+        yield chunk
 
 
 def read_token_file(path: str | Path) -> str:

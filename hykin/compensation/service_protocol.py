@@ -75,27 +75,23 @@ class WaitingConnections:
 
 
 class _Transport:
-    """A connection's transport that drops writes once it is closing (:meth:`abort` after the send
-    deadline, or the client gone): a request handler may still answer then, since uvicorn marks its
+    """A connection's transport that drops writes once it is closing (aborted after the send deadline,
+    or the client gone): a request handler may still answer then, since uvicorn marks its
     requests disconnected only later, in ``connection_lost`` (and not a pipelined one's), and uvloop
     raises on a write to a closed handle where asyncio's own transports drop it. Everything else is
     the transport's own."""
 
-    __slots__ = ("_t", "aborted")
+    __slots__ = ("_t",)
 
     def __init__(self, transport):
-        self._t, self.aborted = transport, False
+        self._t = transport
 
     def __getattr__(self, name):
         return getattr(self._t, name)
 
     def write(self, data) -> None:
-        if not self.aborted and not self._t.is_closing():
+        if not self._t.is_closing():  # closing from abort() on, with uvloop and asyncio alike
             self._t.write(data)
-
-    def abort(self) -> None:
-        self.aborted = True
-        self._t.abort()
 
 
 def _base_protocol():

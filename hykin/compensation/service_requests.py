@@ -81,7 +81,7 @@ def _within_step(robot, q: np.ndarray, q_prev: np.ndarray, max_step_rad: float) 
     """``(True, "")`` when no revolute joint of ``q`` lies further than ``max_step_rad`` from ``q_prev``
     (both ``(n,)`` rad; no wrapping: the robot turns a joint by the difference as given); else
     ``(False, reason)`` naming the joint that moves most. Prismatic joints are not limited (m, not deg)."""
-    rev = np.array([t == "revolute" for t in robot.independent_joint_type], dtype=bool)
+    rev = robot.revolute
     d = np.where(rev, np.abs(q - q_prev), 0.0)
     j = int(np.argmax(d))
     if d[j] <= max_step_rad:

@@ -223,7 +223,7 @@ def _walk_miss(model, compensator, comp, k: int, pick: np.ndarray, Tm: np.ndarra
 
 def same_but_turned(nom, q: np.ndarray, pick: np.ndarray) -> np.ndarray:
     """``(M,)`` bool: ``pick`` is ``q`` with some revolute joint a multiple of 2π away (and not ``q`` itself)."""
-    rev = np.array([t == "revolute" for t in nom.independent_joint_type])
+    rev = nom.revolute
     d = np.nan_to_num(pick - q, nan=np.inf)
     with np.errstate(invalid="ignore"):  # inf (no pick) % 2π is NaN: such rows are not finite below
         wrapped = np.where(rev, (d + np.pi) % (2 * np.pi) - np.pi, d)
@@ -281,7 +281,7 @@ def joint_gap(nom, a: np.ndarray, b: np.ndarray) -> str:
     """How far joints ``a`` are from ``b`` ``(n,)``: the largest revolute difference in degrees, and the
     largest prismatic one in mm where the arm has such joints (a rail)."""
     d = np.abs(np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64))
-    rev = np.array([t == "revolute" for t in nom.independent_joint_type])
+    rev = nom.revolute
     parts = ([f"{np.degrees(d[rev].max()):.1f}°"] if rev.any() else []) + \
         ([f"{d[~rev].max() * 1e3:.1f} mm"] if (~rev).any() else [])
     return " / ".join(parts)

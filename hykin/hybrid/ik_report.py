@@ -100,7 +100,7 @@ def branch_count_report(model, T_target, result: HybridIKResult, robot: Robot | 
     if robot.dof != 6 or not has_closed_form(robot):
         raise HybridIKError(f"branch_count_report: robot {robot.name!r} has no closed-form IK")
     N = T.shape[0]
-    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    rev = robot.revolute
     lo, hi = robot.lower, robot.upper
     m = np.radians(margin_deg)
     cf = ik_closed_form(robot, T)

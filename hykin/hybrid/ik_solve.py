@@ -336,7 +336,7 @@ def hybrid_ik_from_seeds(
     if q0.ndim != 3 or q0.shape[0] != N or q0.shape[2] != n:
         raise HybridIKError(f"hybrid IK: seeds must have shape ({N}, B, {n}) or ({N}, {n}), got {q0.shape}")
     B = q0.shape[1]
-    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    rev = robot.revolute
     qc = None
     if nearest:
         if q_current is None:

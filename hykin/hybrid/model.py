@@ -70,7 +70,6 @@ from ..kinematics.classical import classical_fk, classical_fk_torch
 from ..kinematics.robot import Robot
 from . import bands, fast_fk, fast_nets, fitting, inputs, persistence, stations, support as sup_
 from .errors import HybridError, OutOfRangeWarning
-from .nets import ResidualNet
 from .optional import optional_step
 from .progress import Progress
 from .rotations import rotate_poses
@@ -277,7 +276,7 @@ class HybridModel:
         timings["calibrate_s"] = time.perf_counter() - t0
 
         dp, dr, _ = fitting.residual_targets(self.robot_, train)
-        revolute = np.array([t == "revolute" for t in self.robot.independent_joint_type], dtype=bool)
+        revolute = self.robot.revolute
         self.wrap_centre_ = inputs.seam_centres(q, revolute) if self.periodic == "wrap" else np.full(n, np.nan)
         if self.joint1 == "frame":
             if not revolute[0]:
@@ -474,10 +473,6 @@ class HybridModel:
         T = classical_fk(self.robot_, q2, payload_kg, payload_com_m)
         T = self._framed(apply_thermal(T, self.thermal_, self.robot_.base[:3, 3], temperature_c))
         return T[0] if single else T
-
-    def _net_np(self, net: ResidualNet, q2: np.ndarray) -> np.ndarray:
-        """Network residuals ``(N, 3)``: float32 weights in float64 arithmetic (:mod:`hykin.hybrid.fast_nets`)."""
-        return fast_nets.cached(self, net).fast(q2)
 
     def predict(self, q, temperature_c=None, payload_kg=None, payload_com_m=None) -> np.ndarray:
         """Hybrid poses ``(N, 4, 4)`` float64 (``(4, 4)`` for one ``(n,)`` query), world frame, m.

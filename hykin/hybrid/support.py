@@ -209,7 +209,7 @@ if HAVE_NUMBA:
             out[k] = pair_gap_row(qn[k], lower, span, field, I, J)
 
 
-#: batches at least this large spread the pair gap over numba's threads
+#: batches at least this large spread the pair gap over the worker threads (:func:`run_chunked`)
 _PAIR_GAP_PARALLEL_MIN = 2048
 
 

@@ -294,7 +294,7 @@ def revolute_mask(dof: int, robot) -> np.ndarray:
     """``(dof,)`` bool: which joints are revolute (all of them without a ``robot``)."""
     if robot is None:
         return np.ones(dof, dtype=bool)
-    return np.array([t == "revolute" for t in robot.independent_joint_type], dtype=bool)
+    return robot.revolute
 
 
 def check_finite(where: str, arr: np.ndarray, names: Sequence[str], line_offset: int | None) -> None:

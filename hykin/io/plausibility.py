@@ -91,7 +91,7 @@ def check_position_scale(robot: Robot, q, xyz_m, *, where: str = "<data>", lengt
     if spread_hat < 1e-9 or spread < 1e-12:
         return None  # no motion to compare
     s = float(spread / spread_hat)
-    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    rev = robot.revolute
     # radians declared degrees leave every revolute joint within ±6.3° and shrink the nominal motion:
     # with that joint pattern, positions spreading clearly more than the nominal motion are evidence
     # enough (a robot with short links, e.g. a UR5, gives s ~ 3-5 rather than tens)
@@ -220,7 +220,7 @@ def check_joint_unit(robot: Robot, q, *, where: str = "<joints>", angle_unit: st
     """Joints only: radians declared as degrees leave every revolute joint within ±6.3°; refuse that
     when the robot's ranges are wide and there are several rows (``q`` ``(N, dof)`` in rad as read)."""
     q = np.asarray(q, dtype=np.float64)
-    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    rev = robot.revolute
     if angle_unit != "deg" or len(q) < 5 or not rev.any():
         return
     wide = (robot.upper - robot.lower)[rev] > np.radians(60.0)

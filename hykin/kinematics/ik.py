@@ -316,7 +316,7 @@ def solve_lm(robot: Robot, T_world, q0, position_only: bool = False, tol_m: floa
     q = np.array(np.broadcast_to(np.asarray(q0, dtype=np.float64), (len(T), robot.dof)), order="C")  # one kernel signature
     lo, hi = robot.lower, robot.upper
     if not bounded:
-        rev = _revolute(robot)
+        rev = robot.revolute
         lo, hi = np.where(rev, -np.inf, lo), np.where(rev, np.inf, hi)
     ch = chain_of(robot)
     if not HAVE_NUMBA or ch.expand is not None:  # the kernel walks chain joints; mimic robots use numpy
@@ -337,7 +337,7 @@ def _attempt(robot: Robot, T, q0, position_only, tol_m, tol_rad, max_iter, lsq=N
     from the clipped joints. Returns ``(q, pe, ae, it, ok)``. ``lsq`` ``(m, rad)``: accept where LM
     stopped within these (least-squares solutions of an under-actuated arm, :func:`ik`)."""
     q, pe, ae, it = solve_lm(robot, T, q0, position_only, tol_m, tol_rad, max_iter, bounded=False)
-    rev = _revolute(robot)
+    rev = robot.revolute
     q = np.where(rev, nearest_representation(q, q0, robot.lower, robot.upper), q)
     acc_m, acc_rad = (tol_m, tol_rad) if lsq is None else (max(tol_m, lsq[0]), max(tol_rad, lsq[1]))
     conv = (pe <= acc_m) & (ae <= acc_rad)
@@ -396,10 +396,6 @@ def ik_numeric(robot: Robot, T_world, q_seed=None, position_only: bool = False, 
                     label=np.full(N, "", dtype=object), iterations=it)
 
 
-def _revolute(robot):
-    return np.array([t == "revolute" for t in robot.independent_joint_type])
-
-
 def ik_all_numeric(robot: Robot, T_world, n_seeds: int = 200, position_only: bool = False,
                    tol_m: float = 1e-10, tol_rad: float = 1e-10, max_iter: int = 50, dedup_tol: float = 1e-6,
                    rng: np.random.Generator | int | None = 0, max_solutions: int | None = None,
@@ -418,7 +414,7 @@ def ik_all_numeric(robot: Robot, T_world, n_seeds: int = 200, position_only: boo
         dedup_tol, tol_m, tol_rad = max(dedup_tol, 1e-5), max(tol_m, lsq[0]), max(tol_rad, lsq[1])
     ok = ok.reshape(N, n_seeds)
     q = q.reshape(N, n_seeds, n)
-    rev = _revolute(robot)
+    rev = robot.revolute
     # canonical representation (nearest zero within limits) so duplicates compare equal
     qc = np.where(rev, wrap_to_limits(q, robot.lower, robot.upper), q)
     qc = np.where(robot.within_limits(qc.reshape(-1, n), tol=0.0).reshape(N, n_seeds)[..., None], qc, q)
@@ -489,7 +485,7 @@ def _polish_branches(robot: Robot, T, sols: IKSolutions, position_only, tol_m, t
     q = q.reshape(N, K, n)
     ok = ok.reshape(N, K)
     if not same_robot:  # polishing on another geometry may merge branches
-        ok = mark_duplicates(q, ok, revolute=_revolute(robot))
+        ok = mark_duplicates(q, ok, revolute=robot.revolute)
     lab = np.array(sols.labels, dtype=object)
     return IKBranches(q=np.where(ok[..., None], q, np.nan), success=ok, pos_err_m=np.where(ok, pe.reshape(N, K), np.inf),
                       ang_err_rad=np.where(ok, ae.reshape(N, K), np.inf),

@@ -47,7 +47,7 @@ def is_singular(robot: Robot, q, position_only: bool = False, rel: float = SING_
 def open_revolute_limits(robot: Robot) -> Robot:
     """The robot with revolute limits opened to ±2π (prismatic strokes kept): every configuration
     a revolute joint can take has a representation there."""
-    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    rev = robot.revolute
     return robot.copy(lower=np.where(rev, -2 * np.pi, robot.lower), upper=np.where(rev, 2 * np.pi, robot.upper))
 
 

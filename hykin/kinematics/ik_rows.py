@@ -31,7 +31,7 @@ def far_from_seed(robot: Robot, q: np.ndarray, q_seed: np.ndarray) -> np.ndarray
     seed joints ``q_seed`` ``(N, dof)`` on some revolute joint (False for NaN rows): the solution nearest
     the seed lies on another branch than the seed's (probe s42 AR: at a stretched elbow the seed's own
     branch missed the tolerance and the wrist came back turned 180°, without a word)."""
-    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    rev = robot.revolute
     with np.errstate(invalid="ignore"):
         d = np.abs(np.where(rev, np.asarray(q, dtype=np.float64) - q_seed, 0.0))
         return np.nan_to_num(d, nan=0.0).max(1) > FAR_FROM_SEED_RAD
@@ -42,12 +42,12 @@ def far_from_seed_note(targets, seed: str) -> str:
     target numbers, ``seed`` what the seed joints are called ("their seed joints", "q_current")."""
     n = len(targets)
     ids = ", ".join(map(str, list(targets)[:8])) + (" ..." if n > 8 else "")
-    it = them = "it" if n == 1 else "them"
+    it = "it" if n == 1 else "them"
     return (f"{n} target{'' if n == 1 else 's'} (target {ids}) {'is' if n == 1 else 'are'} solved more than 90° "
             f"(a joint) from {seed}: no solution on the branch of {seed} reaches {it} within the tolerance ({seed} "
             "far from every solution, or a stretched elbow where that branch just misses), so the nearest "
             f"solution{'' if n == 1 else 's'} {'lies' if n == 1 else 'lie'} on another branch; check before "
-            f"sending {them} to the robot")
+            f"sending {it} to the robot")
 
 
 #: most 2π representations per solution that ``hykin ik --all-branches`` lists by default (:func:`expand_turn_copies`);
@@ -111,7 +111,7 @@ def _check_max_copies(max_copies: int) -> None:
 def _wide_joints(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     """``(wide, reps)``: the independent revolute joints whose range exceeds 2π, and for each the most
     representations ``q + 2πk`` one angle can have within its limits (``floor(span / 2π) + 1``)."""
-    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    rev = robot.revolute
     span = np.asarray(robot.upper, dtype=np.float64) - np.asarray(robot.lower, dtype=np.float64)
     wide = np.flatnonzero(rev & np.isfinite(span) & (span > 2 * np.pi + 1e-9))
     return wide, (np.floor(span[wide] / (2 * np.pi)) + 1).astype(int)

@@ -182,6 +182,11 @@ class Robot:
         return tuple(self.joint_type[i] for i in self.independent)
 
     @property
+    def revolute(self) -> np.ndarray:
+        """``(dof,)`` bool: independent joints that are revolute (rad; the others prismatic, m)."""
+        return np.array([t == "revolute" for t in self.independent_joint_type], dtype=bool)
+
+    @property
     def independent_joint_names(self) -> tuple[str, ...] | None:
         """Names of the independent joints (URDF joint names) or None."""
         if self.joint_names is None:

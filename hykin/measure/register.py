@@ -205,7 +205,7 @@ def coverage_note(q_used: np.ndarray, robot) -> str:
     q = np.asarray(q_used, dtype=np.float64)
     if len(q) < 2:
         return ""
-    rev = np.array([t == "revolute" for t in robot.independent_joint_type])
+    rev = robot.revolute
     span = np.where(rev, np.degrees(np.ptp(q, axis=0)), np.ptp(q, axis=0) * 1e3)
     still = np.flatnonzero(span < np.where(rev, STILL_JOINT_DEG, STILL_JOINT_MM))
     if not still.size:

@@ -360,7 +360,7 @@ def read_mapped(path: str | Path, m: TableMap, robot=None, *, need_joints: bool 
         who = f"robot {robot.name!r}" if robot is not None else f"dof = {want}"
         raise t.error(None, jn[-1], f"the mapping names {len(jn)} joint column(s) ({', '.join(jn)}) but {who} "
                       f"has {want} joints")
-    rev = np.array([jt == "revolute" for jt in robot.independent_joint_type], bool) if robot is not None else np.ones(len(jn), bool)
+    rev = robot.revolute if robot is not None else np.ones(len(jn), bool)
     q_raw = _stack(t, jn, d) if jn else None
     if jn:
         _check_further_joints(t, jn, set(used), m, q_raw)
